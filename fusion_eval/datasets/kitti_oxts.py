@@ -1,0 +1,178 @@
+"""Reader of KITTI raw OXTS packets (``oxts/timestamps.txt`` + ``oxts/data/NNNNNNNNNN.txt``).
+
+Each packet holds 30 values (see KITTI's ``dataformat.txt``): lat lon alt [deg deg m];
+roll pitch yaw [rad] (yaw 0 = east, counter-clockwise positive); vn ve [m/s]; vf vl vu [m/s];
+ax ay az [m/s^2] (body: x forward, y left, z up; specific force, az ~ +9.8 at rest); af al au;
+wx wy wz [rad/s] (body); wf wl wu; pos_accuracy [m]; vel_accuracy [m/s]; navstat; numsats;
+posmode; velmode; orimode.
+
+KITTI filled in some packets (a linear ramp over a gap). They are recognisable because their
+five status fields are written as floats (``4.00000000000000``) and their modes are -1; this
+reader flags them rather than dropping them, and the caller decides.
+"""
+
+from __future__ import annotations
+
+import re
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+
+from ..errors import DataFormatError
+from ..geo import geodetic_to_enu
+from ..so3 import euler_rpy_to_matrix, matrix_to_quat_xyzw
+from ..types import GnssSeries, ImuSeries, PoseSeries
+from ._text import read_text
+
+N_FIELDS = 30
+LAT, LON, ALT, ROLL, PITCH, YAW = 0, 1, 2, 3, 4, 5
+VF, VL, VU = 8, 9, 10
+AX, AY, AZ = 11, 12, 13
+WX, WY, WZ = 17, 18, 19
+POS_ACC = 23
+POSMODE, VELMODE, ORIMODE = 27, 28, 29
+
+_STAMP = re.compile(r"^(\d{4}-\d{2}-\d{2}) (\d{2}:\d{2}:\d{2})(?:\.(\d{1,9}))?$")
+
+
+@dataclass(frozen=True)
+class OxtsPackets:
+    """All packets of one drive: ``values`` ``(N, 30)``, stamps ``t_s`` (POSIX s), ``filled`` flags."""
+
+    t_s: np.ndarray
+    values: np.ndarray
+    filled: np.ndarray
+    stamps_path: Path
+    packet_paths: tuple[Path, ...]
+
+
+def parse_kitti_stamp(s: str) -> float | None:
+    """POSIX seconds of a KITTI ``YYYY-MM-DD HH:MM:SS.nnnnnnnnn`` stamp read as UTC, or None if malformed.
+
+    The KITTI clock is local time without a zone; reading it as UTC keeps the numbers unchanged and
+    only matters when comparing against another clock, which a stream time offset handles.
+    """
+    m = _STAMP.match(s.strip())
+    if not m:
+        return None
+    date, hms, frac = m.groups()
+    try:
+        whole = np.datetime64(f"{date}T{hms}", "s").astype(np.int64)
+    except ValueError:
+        return None
+    ns = int((frac or "0").ljust(9, "0"))
+    return float(whole) + ns * 1e-9
+
+
+def find_oxts_dir(path: Path) -> Path:
+    """Accept a drive folder (holding ``oxts/``) or the ``oxts`` folder itself."""
+    path = Path(path)
+    if (path / "oxts" / "timestamps.txt").exists():
+        return path / "oxts"
+    if (path / "timestamps.txt").exists():
+        return path
+    raise DataFormatError(path, None, "expected a KITTI raw drive folder with oxts/timestamps.txt and oxts/data/*.txt")
+
+
+def read_oxts(path: Path) -> OxtsPackets:
+    """Read and validate every packet of a KITTI raw OXTS folder."""
+    oxts = find_oxts_dir(path)
+    stamps_path = oxts / "timestamps.txt"
+    text = read_text(stamps_path, "KITTI timestamps 'YYYY-MM-DD HH:MM:SS.nnnnnnnnn', one per line")
+    lines = [ln for ln in text.splitlines()]
+    while lines and not lines[-1].strip():
+        lines.pop()
+    t = np.empty(len(lines))
+    for i, ln in enumerate(lines):
+        v = parse_kitti_stamp(ln)
+        if v is None:
+            raise DataFormatError(stamps_path, i + 1, f"expected a timestamp 'YYYY-MM-DD HH:MM:SS.nnnnnnnnn', got {ln.strip()!r}")
+        t[i] = v
+    if t.size == 0:
+        raise DataFormatError(stamps_path, None, "no timestamps")
+    d = np.diff(t)
+    bad = np.flatnonzero(d <= 0)
+    if bad.size:
+        i = int(bad[0]) + 1
+        kind = "duplicate" if d[bad[0]] == 0 else "decreasing"
+        raise DataFormatError(stamps_path, i + 1, f"timestamps must strictly increase ({kind} timestamp)")
+
+    data_dir = oxts / "data"
+    if not data_dir.is_dir():
+        raise DataFormatError(data_dir, None, "folder not found (expected one OXTS packet file per timestamp)")
+    packet_paths = tuple(sorted(data_dir.glob("*.txt")))
+    if len(packet_paths) != t.size:
+        raise DataFormatError(data_dir, None, f"expected {t.size} packet files (one per line of timestamps.txt), found {len(packet_paths)}")
+    values = np.empty((t.size, N_FIELDS))
+    filled = np.zeros(t.size, bool)
+    for i, p in enumerate(packet_paths):
+        if p.stem != f"{i:010d}":
+            raise DataFormatError(p, None, f"expected packet file {i:010d}.txt at position {i} (packets must be numbered consecutively from 0)")
+        parts = read_text(p, "one OXTS packet of 30 values").split()
+        if len(parts) != N_FIELDS:
+            raise DataFormatError(p, 1, f"expected {N_FIELDS} values per OXTS packet, got {len(parts)}")
+        try:
+            row = [float(x) for x in parts]
+        except ValueError:
+            bad_tok = next(x for x in parts if not _is_number(x))
+            raise DataFormatError(p, 1, f"expected a number, got {bad_tok!r}") from None
+        if not np.all(np.isfinite(row)):
+            raise DataFormatError(p, 1, "OXTS values must be finite numbers (found NaN or inf)")
+        values[i] = row
+        # KITTI's filled packets print the integer status fields as floats and set the modes to -1.
+        filled[i] = any("." in x for x in parts[25:]) or min(row[POSMODE:ORIMODE + 1]) < 0
+    return OxtsPackets(t_s=t, values=values, filled=filled, stamps_path=stamps_path, packet_paths=packet_paths)
+
+
+def _is_number(s: str) -> bool:
+    try:
+        float(s)
+        return True
+    except ValueError:
+        return False
+
+
+def imu_from_oxts(pk: OxtsPackets) -> ImuSeries:
+    """Specific force (ax ay az) and angular rate (wx wy wz) in the OXTS body frame (x fwd, y left, z up)."""
+    v = pk.values
+    return ImuSeries(t_s=pk.t_s, f_b_mps2=v[:, AX:AZ + 1], w_b_rps=v[:, WX:WZ + 1], filled=pk.filled,
+                     source=str(pk.stamps_path), lines=np.arange(1, pk.t_s.size + 1))
+
+
+def first_valid_fix(pk: OxtsPackets) -> tuple[float, float, float]:
+    """Latitude, longitude, altitude of the first packet that was not filled in (default ENU origin)."""
+    ok = np.flatnonzero(~pk.filled)
+    if ok.size == 0:
+        raise DataFormatError(pk.stamps_path, None, "every OXTS packet is a filled-in packet; no valid fix")
+    v = pk.values[ok[0]]
+    return float(v[LAT]), float(v[LON]), float(v[ALT])
+
+
+def positions_enu(pk: OxtsPackets, origin: tuple[float, float, float]) -> np.ndarray:
+    v = pk.values
+    return geodetic_to_enu(v[:, LAT], v[:, LON], v[:, ALT], *origin)
+
+
+def gnss_from_oxts(pk: OxtsPackets, origin: tuple[float, float, float]) -> GnssSeries:
+    """GNSS fixes in local ENU about ``origin``; 1-sigma from ``pos_accuracy`` on each axis.
+
+    OXTS gives no per-axis accuracy, so the same sigma is used for East, North and Up. A
+    non-positive accuracy (seen in filled packets) is replaced by the median of the valid ones.
+    """
+    v = pk.values
+    acc = v[:, POS_ACC].copy()
+    good = acc > 0
+    fallback = float(np.median(acc[good])) if good.any() else 1.0
+    acc[~good] = fallback
+    return GnssSeries(t_s=pk.t_s, p_w_m=positions_enu(pk, origin), std_w_m=np.repeat(acc[:, None], 3, axis=1),
+                      filled=pk.filled, source=str(pk.stamps_path), lines=np.arange(1, pk.t_s.size + 1))
+
+
+def poses_from_oxts(pk: OxtsPackets, origin: tuple[float, float, float]) -> PoseSeries:
+    """Ground-truth IMU poses: ENU position, attitude from roll/pitch/yaw, world velocity R_wb [vf vl vu]."""
+    v = pk.values
+    R = euler_rpy_to_matrix(v[:, ROLL], v[:, PITCH], v[:, YAW])
+    v_w = np.einsum("nij,nj->ni", R, v[:, VF:VU + 1])
+    return PoseSeries(t_s=pk.t_s, p_w_m=positions_enu(pk, origin), q_wb_xyzw=matrix_to_quat_xyzw(R), v_w_mps=v_w,
+                      filled=pk.filled, source=str(pk.stamps_path), lines=np.arange(1, pk.t_s.size + 1))

@@ -1,0 +1,218 @@
+"""Dataset manifest (``dataset.yaml``): which file holds each stream, in which format, frame and clock.
+
+A plain KITTI raw drive folder (one holding ``oxts/``) needs no manifest: its OXTS packets give the
+IMU, the GNSS and the ground truth. See the README's "Dataset manifest" section for every key.
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import yaml
+
+from ..errors import ConfigError, DataFormatError, DataRangeError
+from ..so3 import inv_T, matrix_to_quat_xyzw
+from ..types import Dataset, GnssSeries, PoseSeries
+from . import kitti_oxts, kitti_poses, tum
+
+STREAMS = ("imu", "gnss", "lidar", "groundtruth")
+FORMATS = {
+    "imu": ("kitti_oxts",),
+    "gnss": ("kitti_oxts", "tum"),
+    "groundtruth": ("kitti_oxts", "tum", "kitti_poses"),
+    "lidar": ("kitti_poses", "tum"),
+}
+STREAM_KEYS = {"format", "path", "time_offset_s", "gyro_lag_s", "frame", "T_cam0_imu", "T_cam0_velo", "T_velo_imu",
+               "times", "anchor", "std_m"}
+TOP_KEYS = {"name", "description", "attribution", "geodetic_origin", "streams"}
+
+
+def load_dataset(path: str | Path) -> Dataset:
+    """Load a dataset from a manifest file, a folder holding ``dataset.yaml``, or a KITTI raw drive folder."""
+    path = Path(path)
+    if not path.exists():
+        raise DataFormatError(path, None, "dataset not found (expected a folder with dataset.yaml, a dataset.yaml, or a KITTI raw drive folder)")
+    if path.is_file():
+        return _from_manifest(path)
+    if (path / "dataset.yaml").exists():
+        return _from_manifest(path / "dataset.yaml")
+    if (path / "oxts").is_dir():
+        return _from_manifest_dict({"name": path.name, "streams": {s: {"format": "kitti_oxts", "path": "oxts"}
+                                                                   for s in ("imu", "gnss", "groundtruth")}},
+                                   path, path / "(implicit manifest)")
+    raise DataFormatError(path, None, "expected dataset.yaml or an oxts/ folder (KITTI raw drive) in this folder")
+
+
+def _from_manifest(manifest: Path) -> Dataset:
+    try:
+        body = yaml.safe_load(manifest.read_text())
+    except yaml.YAMLError as exc:
+        mark = getattr(exc, "problem_mark", None)
+        raise DataFormatError(manifest, None if mark is None else mark.line + 1, f"not valid YAML ({getattr(exc, 'problem', exc)})") from None
+    if not isinstance(body, dict):
+        raise DataFormatError(manifest, None, "a manifest must be a mapping with 'streams'")
+    return _from_manifest_dict(body, manifest.parent, manifest)
+
+
+def _from_manifest_dict(body: dict, root: Path, manifest: Path) -> Dataset:
+    unknown = set(body) - TOP_KEYS
+    if unknown:
+        raise ConfigError(f"{manifest}: unknown manifest key {sorted(unknown)[0]!r} (known: {', '.join(sorted(TOP_KEYS))})")
+    streams = body.get("streams")
+    if not isinstance(streams, dict) or "imu" not in streams:
+        raise ConfigError(f"{manifest}: 'streams' must be a mapping that names at least 'imu'")
+    for name, spec in streams.items():
+        if name not in STREAMS:
+            raise ConfigError(f"{manifest}: unknown stream {name!r} (known: {', '.join(STREAMS)})")
+        if not isinstance(spec, dict):
+            raise ConfigError(f"{manifest}: stream {name!r} must be a mapping with 'format' and 'path'")
+        bad = set(spec) - STREAM_KEYS
+        if bad:
+            raise ConfigError(f"{manifest}: unknown key {sorted(bad)[0]!r} in stream {name!r} (known: {', '.join(sorted(STREAM_KEYS))})")
+        fmt = spec.get("format")
+        if fmt not in FORMATS[name]:
+            raise ConfigError(f"{manifest}: stream {name!r} has unknown format {fmt!r} (known for {name}: {', '.join(FORMATS[name])})")
+        if "path" not in spec:
+            raise ConfigError(f"{manifest}: stream {name!r} needs a 'path'")
+
+    oxts_cache: dict[Path, kitti_oxts.OxtsPackets] = {}
+
+    def oxts(spec) -> kitti_oxts.OxtsPackets:
+        p = (root / spec["path"]).resolve()
+        if p not in oxts_cache:
+            oxts_cache[p] = kitti_oxts.read_oxts(p)
+        return oxts_cache[p]
+
+    imu_spec = streams["imu"]
+    imu_pk = oxts(imu_spec)
+    imu = kitti_oxts.imu_from_oxts(imu_pk)
+
+    origin = body.get("geodetic_origin", "first_fix")
+    if origin == "first_fix":
+        geo_src = next((streams[s] for s in ("gnss", "groundtruth", "imu") if s in streams and streams[s]["format"] == "kitti_oxts"), None)
+        origin_t = kitti_oxts.first_valid_fix(oxts(geo_src)) if geo_src else None
+    elif isinstance(origin, (list, tuple)) and len(origin) == 3:
+        origin_t = tuple(float(v) for v in origin)
+    else:
+        raise ConfigError(f"{manifest}: geodetic_origin must be 'first_fix' or [lat_deg, lon_deg, alt_m], got {origin!r}")
+
+    gnss = gt = lidar = None
+    if "gnss" in streams:
+        gnss = _gnss(streams["gnss"], root, oxts, origin_t, manifest)
+    if "groundtruth" in streams:
+        gt = _poses(streams["groundtruth"], root, oxts, origin_t, manifest, "groundtruth", imu_pk)
+    if "lidar" in streams:
+        lidar = _poses(streams["lidar"], root, oxts, origin_t, manifest, "lidar", imu_pk)
+
+    description: dict[str, Any] = {
+        "manifest": str(manifest),
+        "attribution": body.get("attribution"),
+        "description": body.get("description"),
+        "time_offset_s": {s: float(streams[s].get("time_offset_s", 0.0)) for s in streams},
+        "gyro_lag_s": float(imu_spec.get("gyro_lag_s", 0.0)),
+        "lidar_anchor": streams.get("lidar", {}).get("anchor", "groundtruth"),
+        "streams": {s: {k: (str(v) if k == "path" else v) for k, v in streams[s].items()} for s in streams},
+    }
+    if description["lidar_anchor"] not in ("groundtruth", "none"):
+        raise ConfigError(f"{manifest}: lidar 'anchor' must be 'groundtruth' or 'none', got {description['lidar_anchor']!r}")
+    for s, v in description["time_offset_s"].items():
+        if not np.isfinite(v):
+            raise ConfigError(f"{manifest}: time_offset_s of {s!r} must be a number")
+    return Dataset(name=str(body.get("name", root.name)), imu=imu, groundtruth=gt, gnss=gnss, lidar=lidar,
+                   geodetic_origin=origin_t, description=description)
+
+
+def _gnss(spec, root, oxts, origin, manifest) -> GnssSeries:
+    if spec["format"] == "kitti_oxts":
+        if origin is None:
+            raise ConfigError(f"{manifest}: GNSS from OXTS needs a geodetic origin")
+        return kitti_oxts.gnss_from_oxts(oxts(spec), origin)
+    poses = tum.read_tum(root / spec["path"])
+    std = spec.get("std_m", 1.0)
+    std = np.broadcast_to(np.asarray(std, float), (3,))
+    return GnssSeries(t_s=poses.t_s, p_w_m=poses.p_w_m, std_w_m=np.tile(std, (len(poses), 1)),
+                      source=poses.source, lines=poses.lines)
+
+
+def _transform(spec_value, root: Path, manifest: Path, what: str) -> np.ndarray:
+    if isinstance(spec_value, dict) and "file" in spec_value:
+        return kitti_poses.calib_transform(root / spec_value["file"], spec_value.get("key"))
+    if isinstance(spec_value, (list, tuple)) and len(spec_value) in (12, 16):
+        T = np.eye(4)
+        T[: len(spec_value) // 4, :] = np.asarray(spec_value, float).reshape(-1, 4)
+        return T
+    raise ConfigError(f"{manifest}: {what} must be {{file: ..., key: ...}} or a list of 12 numbers (3x4 row-major)")
+
+
+def _extrinsic(spec, root, manifest) -> np.ndarray:
+    """``T_cam0_imu`` (maps IMU coordinates into the pose file's sensor frame)."""
+    frame = spec.get("frame", "imu")
+    if frame == "imu":
+        return np.eye(4)
+    if frame != "cam0":
+        raise ConfigError(f"{manifest}: pose 'frame' must be 'imu' or 'cam0', got {frame!r}")
+    if "T_cam0_imu" in spec:
+        return _transform(spec["T_cam0_imu"], root, manifest, "T_cam0_imu")
+    if "T_cam0_velo" in spec and "T_velo_imu" in spec:
+        return _transform(spec["T_cam0_velo"], root, manifest, "T_cam0_velo") @ _transform(spec["T_velo_imu"], root, manifest, "T_velo_imu")
+    raise ConfigError(f"{manifest}: frame 'cam0' needs T_cam0_imu, or T_cam0_velo and T_velo_imu")
+
+
+def _pose_times(spec, root, manifest, n_poses: int, pose_path: Path, raw: kitti_oxts.OxtsPackets) -> np.ndarray:
+    times = spec.get("times")
+    if not isinstance(times, dict):
+        raise ConfigError(f"{manifest}: KITTI poses need 'times': {{file: times.txt}} and/or {{align_to: imu, index_offset: 0}}")
+    offset = int(times.get("index_offset", 0))
+    if "file" in times:
+        tpath = root / times["file"]
+        t, _ = kitti_poses.read_times(tpath)
+        if t.size != n_poses:
+            raise DataFormatError(tpath, None, f"expected {n_poses} times (one per pose in {pose_path.name}), got {t.size}")
+        if times.get("align_to") == "imu":
+            # The times file counts from its own zero; put it on the raw clock with the median offset
+            # of the frames whose raw packet is a real (not filled-in) one.
+            j = np.arange(n_poses) + offset
+            ok = (j >= 0) & (j < raw.t_s.size)
+            ok[ok] &= ~raw.filled[j[ok]]
+            if not ok.any():
+                raise DataRangeError(f"{manifest}: no lidar frame maps onto a valid IMU packet (index_offset {offset})")
+            t = t + float(np.median(raw.t_s[j[ok]] - t[ok]))
+        elif "t0_s" in times:
+            t = t + float(times["t0_s"])
+        return t
+    if times.get("align_to") == "imu":
+        j = np.arange(n_poses) + offset
+        if j[0] < 0 or j[-1] >= raw.t_s.size:
+            raise DataRangeError(f"{manifest}: lidar frames 0..{n_poses - 1} with index_offset {offset} map outside the "
+                                 f"{raw.t_s.size} IMU packets; give a times file or another index_offset")
+        return raw.t_s[j].copy()
+    raise ConfigError(f"{manifest}: 'times' needs 'file' or 'align_to: imu'")
+
+
+def _poses(spec, root, oxts, origin, manifest, stream: str, imu_pk) -> PoseSeries:
+    fmt = spec["format"]
+    if fmt == "kitti_oxts":
+        return kitti_oxts.poses_from_oxts(oxts(spec), origin)
+    if fmt == "tum":
+        poses = tum.read_tum(root / spec["path"])
+        T = None
+    else:
+        ppath = root / spec["path"]
+        T_c0_ci, lines = kitti_poses.read_kitti_poses(ppath)
+        t = _pose_times(spec, root, manifest, T_c0_ci.shape[0], ppath, imu_pk)
+        T = T_c0_ci
+        poses = None
+    T_c_b = _extrinsic(spec, root, manifest)
+    if T is None:
+        if np.allclose(T_c_b, np.eye(4)):
+            return poses
+        from ..so3 import make_T
+        T = make_T(poses.R_wb(), poses.p_w_m)
+        t, lines = poses.t_s, poses.lines
+    # IMU poses relative to the first frame: T_b0_bi = T_b_c T_c0_ci T_c_b
+    T_b_c = inv_T(T_c_b)
+    T_b = T_b_c[None] @ T @ T_c_b[None]
+    return PoseSeries(t_s=t, p_w_m=T_b[:, :3, 3], q_wb_xyzw=matrix_to_quat_xyzw(T_b[:, :3, :3]),
+                      source=str(root / spec["path"]), lines=lines)

@@ -1,0 +1,50 @@
+"""The one exception hierarchy of fusion-eval.
+
+The CLI turns every :class:`FusionEvalError` into a one-line message and the exit code the
+class carries; anything else that escapes is a bug and keeps its traceback.
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+
+class FusionEvalError(Exception):
+    """Base class of every error the user can act on."""
+
+    exit_code = 2
+
+
+class DataFormatError(FusionEvalError):
+    """An input file does not have the expected content.
+
+    The message names the file, the 1-based line (when there is one) and what was expected,
+    like ``oxts/data/0000000012.txt:1: expected 30 values per packet, got 29``.
+    """
+
+    def __init__(self, path: str | Path | None, line: int | None, expected: str):
+        self.path = None if path is None else str(path)
+        self.line = line
+        self.expected = expected
+        where = self.path or "<input>"
+        if line is not None:
+            where = f"{where}:{line}"
+        super().__init__(f"{where}: {expected}")
+
+
+class ConfigError(FusionEvalError):
+    """A configuration or manifest key is unknown, missing or has a wrong value."""
+
+
+class DataRangeError(FusionEvalError):
+    """Streams that must overlap in time do not, or too little data is left to work with."""
+
+
+class FilterDivergedError(FusionEvalError):
+    """The filter produced a non-finite or non-positive-definite state."""
+
+    exit_code = 3
+
+
+class OutputError(FusionEvalError):
+    """The output directory cannot be written as asked (exists, not writable)."""

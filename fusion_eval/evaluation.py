@@ -1,0 +1,110 @@
+"""The one module that talks to evo: association, APE and RPE, and their statistics.
+
+Everything here calls evo's own functions (``evo.main_ape.ape``, ``evo.main_rpe.rpe``,
+``evo.core.sync.associate_trajectories``), the same code paths as the ``evo_ape``/``evo_rpe``
+commands, so the numbers are evo's. Nothing is aligned: all estimates already live in the
+ground truth's world frame.
+"""
+
+from __future__ import annotations
+
+import copy
+import logging
+from dataclasses import dataclass, field
+
+import numpy as np
+from evo.core import metrics, sync
+from evo.core.result import Result
+from evo.core.trajectory import PoseTrajectory3D
+from evo.main_ape import ape as evo_ape
+from evo.main_rpe import rpe as evo_rpe
+
+from .so3 import xyzw_to_wxyz
+from .types import PoseSeries
+
+log = logging.getLogger(__name__)
+
+STATS = ("rmse", "mean", "median", "std", "min", "max")
+
+
+def to_evo(poses: PoseSeries, name: str) -> PoseTrajectory3D:
+    """A (new, independent) evo trajectory of a pose series: the only place quaternions go to w-first order."""
+    traj = PoseTrajectory3D(positions_xyz=np.array(poses.p_w_m), orientations_quat_wxyz=xyzw_to_wxyz(poses.q_wb_xyzw),
+                            timestamps=np.array(poses.t_s))
+    traj.meta["name"] = name
+    return traj
+
+
+@dataclass
+class EstimateEvaluation:
+    """evo's figures for one estimate against the reference."""
+
+    name: str
+    poses: int
+    matched_poses: int
+    metrics: dict = field(default_factory=dict)       # e.g. metrics["ape"]["translation_m"]["rmse"]
+    results: dict = field(default_factory=dict)       # evo Result objects, for the result zips
+    ape_t_s: np.ndarray | None = None                 # stamps and APE translation errors, for plots
+    ape_err_m: np.ndarray | None = None
+    note: str | None = None
+
+
+def _stats(res: Result) -> dict:
+    return {k: float(res.stats[k]) for k in STATS}
+
+
+def evaluate(reference: PoseSeries, estimate: PoseSeries, name: str, t_max_diff_s: float,
+             rpe_delta_m: float) -> EstimateEvaluation:
+    """APE (translation, rotation) and RPE (per frame, per ``rpe_delta_m`` metres) of one estimate.
+
+    Poses are associated by nearest stamp within ``t_max_diff_s`` (evo's default method). For a
+    position-only estimate only the APE translation is computed: its rotations mean nothing.
+    """
+    ev = EstimateEvaluation(name=name, poses=len(estimate), matched_poses=0)
+    ref_traj = to_evo(reference, "groundtruth")
+    est_traj = to_evo(estimate, name)
+    try:
+        ref_a, est_a = sync.associate_trajectories(ref_traj, est_traj, max_diff=t_max_diff_s)
+    except sync.SyncException as exc:
+        ev.note = f"no poses associated within {t_max_diff_s} s ({exc})"
+        return ev
+    ev.matched_poses = int(ref_a.num_poses)
+    if ev.matched_poses < 2:
+        ev.note = "fewer than 2 associated poses"
+        return ev
+    rels = [("translation_m", metrics.PoseRelation.translation_part)]
+    if estimate.has_orientation:
+        rels.append(("rotation_deg", metrics.PoseRelation.rotation_angle_deg))
+
+    ev.metrics["ape"] = {}
+    for key, rel in rels:
+        res = evo_ape(copy.deepcopy(ref_a), copy.deepcopy(est_a), rel)
+        ev.metrics["ape"][key] = _stats(res)
+        ev.results[f"ape_{key.split('_')[0]}"] = res
+        if key == "translation_m":
+            ev.ape_t_s = np.array(est_a.timestamps)
+            ev.ape_err_m = np.array(res.np_arrays["error_array"])
+    if not estimate.has_orientation:
+        ev.note = "position only: no rotation or relative (RPE) metrics"
+        return ev
+    for label, delta, unit in (("rpe_1frame", 1.0, metrics.Unit.frames), (f"rpe_{rpe_delta_m:g}m", rpe_delta_m, metrics.Unit.meters)):
+        ev.metrics[label] = {}
+        for key, rel in rels:
+            try:
+                res = evo_rpe(copy.deepcopy(ref_a), copy.deepcopy(est_a), rel, delta=delta, delta_unit=unit,
+                              all_pairs=False)
+            except metrics.MetricsException as exc:
+                log.warning("%s: %s %s not computed: %s", name, label, key, exc)
+                ev.metrics[label][key] = None
+                continue
+            ev.metrics[label][key] = _stats(res)
+            ev.results[f"{label}_{key.split('_')[0]}"] = res
+    return ev
+
+
+def ratio(a: EstimateEvaluation | None, b: EstimateEvaluation | None) -> float | None:
+    """APE translation RMSE of ``a`` over that of ``b`` (None when either is missing)."""
+    try:
+        return float(a.metrics["ape"]["translation_m"]["rmse"] / b.metrics["ape"]["translation_m"]["rmse"])
+    except (AttributeError, KeyError, TypeError, ZeroDivisionError):
+        return None

@@ -1,0 +1,138 @@
+"""Error-state Kalman filter for IMU + GNSS + lidar pose fusion (15 states plus an optional pose clone).
+
+Nominal state: ``p_w`` (m), ``v_w`` (m/s), ``R_wb``, accelerometer bias ``ba_b`` (m/s^2), gyro bias
+``bg_b`` (rad/s). Error state and its indices: see :mod:`fusion_eval.filters.kernels`.
+After each update the error is injected into the nominal state and reset to zero; the reset
+Jacobian ``G = I - [dtheta/2]x`` on the attitude blocks (Sola, eq. 287) is applied to P.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from ..errors import FilterDivergedError
+from ..so3 import exp_so3, skew
+from . import kernels as kn
+from .kernels import BA_ID, BG_ID, CLONE_P_ID, CLONE_TH_ID, N_CORE, P_ID, TH_ID, V_ID
+
+
+@dataclass
+class NominalState:
+    p_w_m: np.ndarray
+    v_w_mps: np.ndarray
+    R_wb: np.ndarray
+    ba_b: np.ndarray
+    bg_b: np.ndarray
+
+    def copy(self) -> "NominalState":
+        return NominalState(self.p_w_m.copy(), self.v_w_mps.copy(), self.R_wb.copy(), self.ba_b.copy(), self.bg_b.copy())
+
+
+class ErrorStateKF:
+    """The ESKF. Holds the nominal state, the error covariance ``P`` and at most one cloned pose.
+
+    Prediction runs in compiled kernels over arrays of IMU samples (:meth:`predict_to`); updates
+    take the textbook ``H, r, R`` of an observation model (:mod:`fusion_eval.filters.observations`).
+    """
+
+    def __init__(self, x0: NominalState, P0: np.ndarray, prm: np.ndarray, imu_t: np.ndarray, imu_f: np.ndarray,
+                 imu_w: np.ndarray, k0: int):
+        self.x = x0.copy()
+        self.P = np.zeros((N_CORE + kn.CLONE_SIZE, N_CORE + kn.CLONE_SIZE))
+        self.P[:N_CORE, :N_CORE] = P0
+        self.n = N_CORE
+        self.prm = prm
+        self.imu_t, self.imu_f, self.imu_w = imu_t, imu_f, imu_w
+        N = imu_t.size
+        self.rec_p = np.full((N, 3), np.nan)
+        self.rec_v = np.full((N, 3), np.nan)
+        self.rec_R = np.full((N, 3, 3), np.nan)
+        self.rec_ba = np.full((N, 3), np.nan)
+        self.rec_bg = np.full((N, 3), np.nan)
+        self.rec_Pdiag = np.full((N, N_CORE), np.nan)
+        self.last = np.concatenate([[imu_t[k0]], imu_f[k0], imu_w[k0]])
+        self.k_next = k0 + 1
+        self.clone_p: np.ndarray | None = None
+        self.clone_R: np.ndarray | None = None
+        self._record(k0)
+
+    @property
+    def t(self) -> float:
+        return float(self.last[0])
+
+    def predict_to(self, t_target: float) -> None:
+        """Propagate nominal state and covariance to ``t_target`` (recording at each IMU sample passed)."""
+        x = self.x
+        self.k_next = kn.predict_to(x.p_w_m, x.v_w_mps, x.R_wb, x.ba_b, x.bg_b, self.P, self.n, self.last,
+                                    self.imu_t, self.imu_f, self.imu_w, self.k_next, float(t_target), self.prm, True,
+                                    self.rec_p, self.rec_v, self.rec_R, self.rec_ba, self.rec_bg, self.rec_Pdiag)
+
+    def update(self, H: np.ndarray, r: np.ndarray, Rm: np.ndarray) -> float:
+        """Joseph-form update with the observation model ``(H, r, R)``, injection and reset; returns the NIS."""
+        n = self.n
+        dx, nis = kn.joseph_update(self.P, n, np.ascontiguousarray(H[:, :n]), r, Rm)
+        if not (np.all(np.isfinite(dx)) and np.isfinite(nis)):
+            raise FilterDivergedError(f"filter diverged at t={self.t:.3f} s: non-finite correction")
+        self._inject(dx)
+        if self.k_next > 0 and abs(self.imu_t[self.k_next - 1] - self.t) < 1e-9:
+            self._record(self.k_next - 1)
+        return float(nis)
+
+    def _inject(self, dx: np.ndarray) -> None:
+        x = self.x
+        x.p_w_m += dx[P_ID:P_ID + 3]
+        x.v_w_mps += dx[V_ID:V_ID + 3]
+        x.R_wb[:] = x.R_wb @ exp_so3(dx[TH_ID:TH_ID + 3])
+        x.ba_b += dx[BA_ID:BA_ID + 3]
+        x.bg_b += dx[BG_ID:BG_ID + 3]
+        G = np.eye(self.n)
+        G[TH_ID:TH_ID + 3, TH_ID:TH_ID + 3] -= 0.5 * skew(dx[TH_ID:TH_ID + 3])
+        if self.n > N_CORE:
+            self.clone_p += dx[CLONE_P_ID:CLONE_P_ID + 3]
+            self.clone_R = self.clone_R @ exp_so3(dx[CLONE_TH_ID:CLONE_TH_ID + 3])
+            G[CLONE_TH_ID:CLONE_TH_ID + 3, CLONE_TH_ID:CLONE_TH_ID + 3] -= 0.5 * skew(dx[CLONE_TH_ID:CLONE_TH_ID + 3])
+        Pn = self.P[:self.n, :self.n]
+        self.P[:self.n, :self.n] = G @ Pn @ G.T
+        if not np.all(np.isfinite(x.p_w_m)) or np.any(np.diag(self.P[:self.n, :self.n]) < 0):
+            raise FilterDivergedError(f"filter diverged at t={self.t:.3f} s: non-finite state or negative variance")
+
+    def clone_pose(self) -> None:
+        """Stochastic cloning: append ``[dp, dtheta]`` of the current pose to the state (replacing any clone)."""
+        J = np.zeros((kn.CLONE_SIZE, N_CORE))
+        J[0:3, P_ID:P_ID + 3] = np.eye(3)
+        J[3:6, TH_ID:TH_ID + 3] = np.eye(3)
+        Pc = self.P[:N_CORE, :N_CORE]
+        self.P[N_CORE:, :N_CORE] = J @ Pc
+        self.P[:N_CORE, N_CORE:] = (J @ Pc).T
+        self.P[N_CORE:, N_CORE:] = J @ Pc @ J.T
+        self.n = N_CORE + kn.CLONE_SIZE
+        self.clone_p = self.x.p_w_m.copy()
+        self.clone_R = self.x.R_wb.copy()
+
+    def _record(self, k: int) -> None:
+        x = self.x
+        self.rec_p[k] = x.p_w_m
+        self.rec_v[k] = x.v_w_mps
+        self.rec_R[k] = x.R_wb
+        self.rec_ba[k] = x.ba_b
+        self.rec_bg[k] = x.bg_b
+        self.rec_Pdiag[k] = np.diag(self.P)[:N_CORE]
+
+
+def dead_reckon(x0: NominalState, prm: np.ndarray, imu_t, imu_f, imu_w, k0: int) -> tuple[np.ndarray, np.ndarray]:
+    """Pure IMU integration from ``x0`` at sample ``k0`` through every later sample; returns positions and attitudes."""
+    x = x0.copy()
+    N = imu_t.size
+    rec_p = np.full((N, 3), np.nan)
+    rec_R = np.full((N, 3, 3), np.nan)
+    dummy = np.full((N, 3), np.nan)
+    dummyR = np.full((N, 3, 3), np.nan)
+    last = np.concatenate([[imu_t[k0]], imu_f[k0], imu_w[k0]])
+    rec_p[k0] = x.p_w_m
+    rec_R[k0] = x.R_wb
+    P = np.zeros((N_CORE, N_CORE))
+    kn.predict_to(x.p_w_m, x.v_w_mps, x.R_wb, x.ba_b, x.bg_b, P, N_CORE, last, imu_t, imu_f, imu_w, k0 + 1,
+                  float(imu_t[-1]), prm, False, rec_p, dummy, rec_R, dummy, dummy, np.zeros((N, N_CORE)))
+    return rec_p, rec_R

@@ -1,0 +1,214 @@
+"""Compiled (numba) kernels for the per-IMU-sample work: mechanization and covariance propagation.
+
+Conventions (see :mod:`fusion_eval.so3`): world frame w is local ENU with gravity ``g_w = [0, 0, -g]``;
+``R`` is ``R_wb``; IMU samples are specific force ``f_b`` and angular rate ``w_b``; the attitude error
+is a right perturbation ``R = R_hat Exp(dtheta)``.
+
+Error state, named indices as in KF-GINS: ``[dp(P_ID), dv(V_ID), dtheta(TH_ID), dba(BA_ID), dbg(BG_ID)]``
+(15 states), optionally followed by cloned poses ``[dp_c, dtheta_c]`` (6 each) that the prediction
+leaves unchanged.
+
+Continuous error dynamics (the classic IMU + lidar ESKF derivation)::
+
+    dp'  = dv
+    dv'  = -R [f - ba]x dtheta - R dba + R n_a
+    dth' = -[w - bg]x dtheta   - dbg  + n_g
+    dba' = n_ba,   dbg' = n_bg          (random walk; zero for the constant-bias model)
+
+discretised as ``F = I + F_t T`` and ``Q_d = B Q B^T`` with B as in that derivation: ``R T`` and ``I T``
+on the white noises, ``I sqrt(T)`` on the bias random walks, Q the discrete variances. With noise
+densities ``sigma`` (per sqrt(Hz)) both give ``sigma^2 T`` per axis, and since ``R R^T = I`` the
+discrete process noise is diagonal; :func:`propagate_cov` uses that and the sparsity of F to do
+``F P F^T + Q`` in O(n) 3x3 products instead of a dense O(n^3) product.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+from numba import njit
+
+P_ID, V_ID, TH_ID, BA_ID, BG_ID = 0, 3, 6, 9, 12
+N_CORE = 15
+CLONE_P_ID, CLONE_TH_ID = 15, 18   # offsets of the first clone
+CLONE_SIZE = 6
+
+# Layout of the parameter vector passed to the kernels.
+PRM_G, PRM_QA, PRM_QG, PRM_QBA, PRM_QBG, PRM_GAP_DT, PRM_GAP_SCALE2 = range(7)
+N_PRM = 7
+
+
+@njit(cache=True, fastmath=False)
+def skew3(v):
+    S = np.zeros((3, 3))
+    S[0, 1] = -v[2]
+    S[0, 2] = v[1]
+    S[1, 0] = v[2]
+    S[1, 2] = -v[0]
+    S[2, 0] = -v[1]
+    S[2, 1] = v[0]
+    return S
+
+
+@njit(cache=True)
+def exp3(phi):
+    """Rodrigues' formula, with the second-order series near zero."""
+    th2 = phi[0] * phi[0] + phi[1] * phi[1] + phi[2] * phi[2]
+    K = skew3(phi)
+    if th2 < 1e-16:
+        return np.eye(3) + K + 0.5 * (K @ K)
+    th = np.sqrt(th2)
+    return np.eye(3) + (np.sin(th) / th) * K + ((1.0 - np.cos(th)) / th2) * (K @ K)
+
+
+@njit(cache=True)
+def mech_step(p, v, R, ba, bg, f0, w0, f1, w1, dt, g):
+    """One midpoint strapdown step from IMU sample 0 to sample 1 (in place on p, v, R).
+
+    Attitude: ``R1 = R0 Exp(((w0 + w1)/2 - bg) dt)``; acceleration: the mean of the world-frame
+    accelerations at both ends, each with its own attitude; position with the second-order term.
+    Exact for constant world acceleration and for constant body rate.
+    """
+    wm = 0.5 * (w0 + w1) - bg
+    R1 = R @ exp3(wm * dt)
+    a0 = R @ (f0 - ba)
+    a1 = R1 @ (f1 - ba)
+    am = 0.5 * (a0 + a1)
+    am[2] -= g
+    for i in range(3):
+        p[i] += v[i] * dt + 0.5 * am[i] * dt * dt
+        v[i] += am[i] * dt
+    R[:, :] = R1
+
+
+@njit(cache=True)
+def propagate_cov(P, n, R, f_b, w_b, dt, prm, gap):
+    """In place ``P <- F P F^T + Q`` for the error state, exploiting the sparsity of F.
+
+    ``R``, ``f_b`` and ``w_b`` are the attitude and the bias-corrected IMU values the step was
+    linearised at; ``n`` is the number of states (15 + 6 per clone).
+    """
+    A = -(R @ skew3(f_b)) * dt          # dv/dtheta
+    B = -R * dt                         # dv/dba
+    C = -skew3(w_b) * dt                # dtheta/dtheta (minus identity)
+    M = P[:n, :n].copy()
+    # rows: M = F P
+    for j in range(n):
+        for i in range(3):
+            M[P_ID + i, j] = P[P_ID + i, j] + dt * P[V_ID + i, j]
+            s = P[V_ID + i, j]
+            t = P[TH_ID + i, j] - dt * P[BG_ID + i, j]
+            for k in range(3):
+                s += A[i, k] * P[TH_ID + k, j] + B[i, k] * P[BA_ID + k, j]
+                t += C[i, k] * P[TH_ID + k, j]
+            M[V_ID + i, j] = s
+            M[TH_ID + i, j] = t
+    # columns: P = M F^T
+    for i in range(n):
+        for j in range(3):
+            P[i, P_ID + j] = M[i, P_ID + j] + dt * M[i, V_ID + j]
+            s = M[i, V_ID + j]
+            t = M[i, TH_ID + j] - dt * M[i, BG_ID + j]
+            for k in range(3):
+                s += M[i, TH_ID + k] * A[j, k] + M[i, BA_ID + k] * B[j, k]
+                t += M[i, TH_ID + k] * C[j, k]
+            P[i, V_ID + j] = s
+            P[i, TH_ID + j] = t
+        for j in range(9, n):
+            P[i, j] = M[i, j]
+    scale = prm[PRM_GAP_SCALE2] if gap else 1.0
+    qa = prm[PRM_QA] * prm[PRM_QA] * dt * scale
+    qg = prm[PRM_QG] * prm[PRM_QG] * dt * scale
+    qba = prm[PRM_QBA] * prm[PRM_QBA] * dt
+    qbg = prm[PRM_QBG] * prm[PRM_QBG] * dt
+    for i in range(3):
+        P[V_ID + i, V_ID + i] += qa
+        P[TH_ID + i, TH_ID + i] += qg
+        P[BA_ID + i, BA_ID + i] += qba
+        P[BG_ID + i, BG_ID + i] += qbg
+    # keep P symmetric against rounding
+    for i in range(n):
+        for j in range(i + 1, n):
+            s = 0.5 * (P[i, j] + P[j, i])
+            P[i, j] = s
+            P[j, i] = s
+
+
+@njit(cache=True)
+def _step(p, v, R, ba, bg, P, n, f0, w0, f1, w1, dt, prm, do_cov):
+    if do_cov:
+        # linearise at the start-of-interval attitude and the midpoint, bias-corrected IMU values
+        fm = 0.5 * (f0 + f1) - ba
+        wm = 0.5 * (w0 + w1) - bg
+        R0 = R.copy()
+        propagate_cov(P, n, R0, fm, wm, dt, prm, dt > prm[PRM_GAP_DT])
+    mech_step(p, v, R, ba, bg, f0, w0, f1, w1, dt, prm[PRM_G])
+
+
+@njit(cache=True)
+def predict_to(p, v, R, ba, bg, P, n, last, imu_t, imu_f, imu_w, k_next, t_target, prm, do_cov,
+               rec_p, rec_v, rec_R, rec_ba, rec_bg, rec_Pdiag):
+    """Propagate through every IMU sample up to ``t_target`` and then to ``t_target`` itself.
+
+    ``last`` (7,) holds the IMU sample the state currently sits at: ``[t, fx, fy, fz, wx, wy, wz]``.
+    Samples ``k_next, k_next+1, ...`` with stamps ``<= t_target`` are integrated one by one and the
+    state at each is recorded at index k. If ``t_target`` falls between two samples, the IMU is
+    linearly interpolated at ``t_target`` and ``last`` becomes that interpolated sample, so an
+    observation is applied at its own time. Returns the new ``k_next``.
+    """
+    N = imu_t.shape[0]
+    f0 = last[1:4].copy()
+    w0 = last[4:7].copy()
+    t0 = last[0]
+    k = k_next
+    while k < N and imu_t[k] <= t_target:
+        dt = imu_t[k] - t0
+        if dt > 0.0:
+            _step(p, v, R, ba, bg, P, n, f0, w0, imu_f[k], imu_w[k], dt, prm, do_cov)
+        t0 = imu_t[k]
+        f0 = imu_f[k].copy()
+        w0 = imu_w[k].copy()
+        rec_p[k] = p
+        rec_v[k] = v
+        rec_R[k] = R
+        rec_ba[k] = ba
+        rec_bg[k] = bg
+        if do_cov:
+            for i in range(N_CORE):
+                rec_Pdiag[k, i] = P[i, i]
+        k += 1
+    if t_target > t0 and k < N:
+        a = (t_target - t0) / (imu_t[k] - t0)
+        f1 = f0 + a * (imu_f[k] - f0)
+        w1 = w0 + a * (imu_w[k] - w0)
+        _step(p, v, R, ba, bg, P, n, f0, w0, f1, w1, t_target - t0, prm, do_cov)
+        t0 = t_target
+        f0 = f1
+        w0 = w1
+    last[0] = t0
+    last[1:4] = f0
+    last[4:7] = w0
+    return k
+
+
+@njit(cache=True)
+def joseph_update(P, n, H, r, Rm):
+    """Kalman update of the error state; returns ``(dx, nis)`` and updates ``P`` in place.
+
+    The Joseph form ``(I - K H) P (I - K H)^T + K R K^T`` keeps P symmetric positive
+    semi-definite under rounding, and stays correct for the suboptimal gains that gating or
+    clipping would give, where ``(I - K H) P`` does not.
+    """
+    Pn = P[:n, :n]
+    PHt = Pn @ H.T
+    S = H @ PHt + Rm
+    S = 0.5 * (S + S.T)
+    Sinv = np.linalg.inv(S)
+    K = PHt @ Sinv
+    dx = K @ r
+    nis = r @ (Sinv @ r)
+    IKH = np.eye(n) - K @ H
+    newP = IKH @ Pn @ IKH.T + K @ Rm @ K.T
+    for i in range(n):
+        for j in range(n):
+            P[i, j] = 0.5 * (newP[i, j] + newP[j, i])
+    return dx, nis

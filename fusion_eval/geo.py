@@ -1,0 +1,29 @@
+"""Geodetic <-> local ENU conversion (pymap3d, WGS84) and normal gravity.
+
+The world frame of fusion-eval is a local East-North-Up tangent frame about a geodetic origin
+(by default the first valid fix of the drive). Heights are ellipsoidal as given by the receiver.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+import pymap3d
+
+
+def geodetic_to_enu(lat_deg: np.ndarray, lon_deg: np.ndarray, alt_m: np.ndarray,
+                    origin_lat_deg: float, origin_lon_deg: float, origin_alt_m: float) -> np.ndarray:
+    """East/North/Up metres ``(N, 3)`` of WGS84 points about an origin (exact, not a flat-earth approximation)."""
+    e, n, u = pymap3d.geodetic2enu(np.asarray(lat_deg), np.asarray(lon_deg), np.asarray(alt_m),
+                                   origin_lat_deg, origin_lon_deg, origin_alt_m)
+    return np.column_stack([e, n, u])
+
+
+def normal_gravity_mps2(lat_deg: float, alt_m: float) -> float:
+    """WGS84 normal gravity (Somigliana's formula) with the free-air correction, in m/s^2.
+
+    Used as the default gravity magnitude so that the filter needs no tuned constant: at the
+    KITTI drives (49.0 deg N, 116 m) it gives 9.8092 m/s^2.
+    """
+    s2 = np.sin(np.radians(lat_deg)) ** 2
+    g0 = 9.7803253359 * (1.0 + 0.00193185265241 * s2) / np.sqrt(1.0 - 0.00669437999013 * s2)
+    return float(g0 - 3.086e-6 * alt_m)

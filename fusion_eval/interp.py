@@ -1,0 +1,31 @@
+"""Interpolation of pose series at query times: linear in position, SLERP in rotation."""
+
+from __future__ import annotations
+
+import numpy as np
+from scipy.spatial.transform import Rotation, Slerp
+
+from .types import PoseSeries
+
+
+def interpolate_poses(poses: PoseSeries, t_query_s: np.ndarray, source: str | None = None) -> PoseSeries:
+    """Poses at ``t_query_s``; query times outside the series' span are dropped (never extrapolated)."""
+    t = poses.t_s
+    tq = np.asarray(t_query_s, float)
+    tq = tq[(tq >= t[0]) & (tq <= t[-1])]
+    p = np.column_stack([np.interp(tq, t, poses.p_w_m[:, i]) for i in range(3)])
+    q = Slerp(t, Rotation.from_quat(poses.q_wb_xyzw))(tq).as_quat() if len(t) > 1 else np.tile(poses.q_wb_xyzw[0], (tq.size, 1))
+    v = None
+    if poses.v_w_mps is not None:
+        v = np.column_stack([np.interp(tq, t, poses.v_w_mps[:, i]) for i in range(3)])
+    return PoseSeries(t_s=tq, p_w_m=p, q_wb_xyzw=q, v_w_mps=v, has_orientation=poses.has_orientation,
+                      source=source or poses.source)
+
+
+def interpolate_pose_at(poses: PoseSeries, t_s: float) -> tuple[np.ndarray, np.ndarray, np.ndarray | None]:
+    """Position, rotation matrix and (if known) velocity at one time inside the series' span."""
+    one = interpolate_poses(poses, np.array([t_s]))
+    if len(one) == 0:
+        raise ValueError(f"t={t_s} outside [{poses.t_s[0]}, {poses.t_s[-1]}]")
+    v = None if one.v_w_mps is None else one.v_w_mps[0]
+    return one.p_w_m[0], one.R_wb()[0], v

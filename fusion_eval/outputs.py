@@ -1,0 +1,79 @@
+"""Atomic output directories: everything is written into a hidden staging folder beside the target
+and renamed into place only when the whole run succeeded, so an interrupted or failed run never
+leaves a half-written output directory and never destroys an earlier one."""
+
+from __future__ import annotations
+
+import io
+import os
+import shutil
+import zipfile
+from pathlib import Path
+
+from .errors import OutputError
+
+FIXED_ZIP_TIME = (1980, 1, 1, 0, 0, 0)
+
+
+class StagedDir:
+    def __init__(self, final: Path, overwrite: bool = False):
+        self.final = Path(final)
+        self.overwrite = overwrite
+        self.staging: Path | None = None
+
+    def check(self) -> None:
+        """Fail early (before any work) if the target cannot be used."""
+        if self.final.exists() and not self.final.is_dir():
+            raise OutputError(f"{self.final}: output path exists and is not a directory")
+        if self.final.is_dir() and any(self.final.iterdir()) and not self.overwrite:
+            raise OutputError(f"{self.final}: output directory exists and is not empty (use --overwrite to replace it)")
+
+    def __enter__(self) -> "StagedDir":
+        self.check()
+        try:
+            self.final.parent.mkdir(parents=True, exist_ok=True)
+            self.staging = self.final.parent / f".{self.final.name}.partial-{os.getpid()}"
+            if self.staging.exists():
+                shutil.rmtree(self.staging)
+            self.staging.mkdir()
+        except OSError as exc:
+            raise OutputError(f"{self.final}: cannot create output directory ({exc.strerror})") from None
+        return self
+
+    def path(self, name: str) -> Path:
+        """A path inside the staging folder (for writers that take a file name)."""
+        return self.staging / name
+
+    def write_text(self, name: str, text: str) -> Path:
+        return self.write_bytes(name, text.encode("utf-8"))
+
+    def write_bytes(self, name: str, data: bytes) -> Path:
+        tmp = self.staging / f".{name}.tmp"
+        tmp.write_bytes(data)
+        os.replace(tmp, self.staging / name)
+        return self.staging / name
+
+    def normalize_zip(self, name: str) -> None:
+        """Rewrite a zip with fixed entry times so that identical runs give identical bytes."""
+        src = self.staging / name
+        buf = io.BytesIO()
+        with zipfile.ZipFile(src) as zin, zipfile.ZipFile(buf, "w", zipfile.ZIP_DEFLATED) as zout:
+            for info in sorted(zin.infolist(), key=lambda i: i.filename):
+                zi = zipfile.ZipInfo(info.filename, date_time=FIXED_ZIP_TIME)
+                zi.compress_type = zipfile.ZIP_DEFLATED
+                zi.external_attr = 0o644 << 16
+                zout.writestr(zi, zin.read(info.filename))
+        self.write_bytes(name, buf.getvalue())
+
+    def __exit__(self, exc_type, exc, tb) -> bool:
+        if exc_type is not None:
+            shutil.rmtree(self.staging, ignore_errors=True)
+            return False
+        old = None
+        if self.final.exists():
+            old = self.final.parent / f".{self.final.name}.old-{os.getpid()}"
+            os.replace(self.final, old)
+        os.replace(self.staging, self.final)
+        if old is not None:
+            shutil.rmtree(old, ignore_errors=True)
+        return False

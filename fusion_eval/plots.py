@@ -1,0 +1,108 @@
+"""PNG plots of a run (matplotlib, Agg backend, no screen needed)."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import matplotlib
+
+matplotlib.use("Agg")
+import matplotlib.pyplot as plt  # noqa: E402
+import numpy as np  # noqa: E402
+
+from .filters.kernels import BA_ID, BG_ID, P_ID  # noqa: E402
+
+COLORS = {"groundtruth": "black", "fused": "tab:red", "lidar": "tab:blue", "gnss": "tab:green", "imu_only": "tab:orange"}
+LABELS = {"groundtruth": "ground truth", "fused": "fused", "lidar": "lidar odometry", "gnss": "GNSS (degraded)",
+          "imu_only": "IMU dead reckoning"}
+_META = {"Software": None}  # no version string in the PNG: same inputs, same bytes
+
+
+def _save(fig, path: Path) -> None:
+    fig.savefig(path, dpi=110, metadata=_META)
+    plt.close(fig)
+
+
+def plot_trajectories(path: Path, series: dict) -> None:
+    """Top view (East/North) of every estimate with the ground truth; axes fit the ground truth so a
+    diverging dead-reckoning track does not squash the rest."""
+    fig, ax = plt.subplots(figsize=(8, 7))
+    gt = series["groundtruth"].p_w_m
+    for name in ("groundtruth", "lidar", "imu_only", "gnss", "fused"):
+        s = series.get(name)
+        if s is None or len(s) == 0:
+            continue
+        if name == "gnss":
+            ax.plot(s.p_w_m[:, 0], s.p_w_m[:, 1], ".", ms=2.5, color=COLORS[name], label=LABELS[name])
+        else:
+            ax.plot(s.p_w_m[:, 0], s.p_w_m[:, 1], "-", lw=1.6 if name == "groundtruth" else 1.1,
+                    color=COLORS[name], label=LABELS[name], alpha=0.9)
+    ax.plot(gt[0, 0], gt[0, 1], "k^", ms=8, label="start")
+    lo, hi = gt[:, :2].min(axis=0), gt[:, :2].max(axis=0)
+    pad = 0.08 * (hi - lo).max() + 5.0
+    ax.set_xlim(lo[0] - pad, hi[0] + pad)
+    ax.set_ylim(lo[1] - pad, hi[1] + pad)
+    ax.set_aspect("equal", adjustable="box")
+    ax.set_xlabel("East [m]")
+    ax.set_ylabel("North [m]")
+    ax.set_title("Trajectories (top view, ENU)")
+    ax.grid(alpha=0.3)
+    ax.legend(loc="best", fontsize=8)
+    _save(fig, path)
+
+
+def plot_ape_over_time(path: Path, evals: dict, t0: float) -> None:
+    """APE translation of each estimate over time (log scale: dead reckoning grows by orders of magnitude)."""
+    fig, ax = plt.subplots(figsize=(10, 4.5))
+    for name in ("imu_only", "gnss", "lidar", "fused"):
+        ev = evals.get(name)
+        if ev is None or ev.ape_err_m is None:
+            continue
+        rmse = ev.metrics["ape"]["translation_m"]["rmse"]
+        style = "." if name == "gnss" else "-"
+        ax.plot(ev.ape_t_s - t0, np.maximum(ev.ape_err_m, 1e-3), style, ms=2.5, lw=1.0, color=COLORS[name],
+                label=f"{LABELS[name]} (RMSE {rmse:.2f} m)")
+    ax.set_yscale("log")
+    ax.set_xlabel("time since start [s]")
+    ax.set_ylabel("APE translation [m]")
+    ax.set_title("Absolute position error against ground truth")
+    ax.grid(alpha=0.3, which="both")
+    ax.legend(loc="best", fontsize=8)
+    _save(fig, path)
+
+
+def plot_biases(path: Path, t_s: np.ndarray, ba: np.ndarray, bg: np.ndarray, sigma: np.ndarray) -> None:
+    """Estimated IMU biases with their +/-3 sigma."""
+    t = t_s - t_s[0]
+    fig, axes = plt.subplots(2, 1, figsize=(10, 6), sharex=True)
+    for ax, b, sl, unit, scale, title in ((axes[0], ba, BA_ID, "m/s^2", 1.0, "accelerometer bias"),
+                                          (axes[1], bg, BG_ID, "deg/s", 180 / np.pi, "gyroscope bias")):
+        for i, (axis, c) in enumerate(zip("xyz", ("tab:red", "tab:green", "tab:blue"))):
+            ax.plot(t, b[:, i] * scale, color=c, lw=1.0, label=f"{axis}")
+            ax.fill_between(t, (b[:, i] - 3 * sigma[:, sl + i]) * scale, (b[:, i] + 3 * sigma[:, sl + i]) * scale,
+                            color=c, alpha=0.12, lw=0)
+        ax.set_ylabel(f"{title} [{unit}]")
+        ax.grid(alpha=0.3)
+        ax.legend(loc="upper right", fontsize=8, ncol=3)
+    axes[0].set_title("Estimated IMU biases (body frame), shaded: +/-3 sigma")
+    axes[1].set_xlabel("time since start [s]")
+    _save(fig, path)
+
+
+def plot_error_sigma(path: Path, t_s: np.ndarray, err_w: np.ndarray, sigma: np.ndarray) -> None:
+    """Fused position error per ENU axis with the filter's own +/-3 sigma: is the covariance honest?"""
+    t = t_s - t_s[0]
+    fig, axes = plt.subplots(3, 1, figsize=(10, 7), sharex=True)
+    for i, (ax, axis) in enumerate(zip(axes, ("East", "North", "Up"))):
+        s3 = 3 * sigma[:, P_ID + i]
+        ax.fill_between(t, -s3, s3, color="tab:gray", alpha=0.3, lw=0, label="+/-3 sigma")
+        ax.plot(t, err_w[:, i], color="tab:red", lw=0.9, label="fused - ground truth")
+        inside = np.mean(np.abs(err_w[:, i]) <= s3) * 100
+        ax.set_ylabel(f"{axis} [m]")
+        ax.set_title(f"{axis}: {inside:.1f} % of epochs inside 3 sigma", fontsize=9, loc="left")
+        ax.grid(alpha=0.3)
+    axes[0].legend(loc="upper right", fontsize=8)
+    axes[-1].set_xlabel("time since start [s]")
+    fig.suptitle("Fused position error with the filter's +/-3 sigma")
+    fig.tight_layout()
+    _save(fig, path)

@@ -1,0 +1,170 @@
+"""From a loaded dataset and a configuration to the streams the filter replays.
+
+Applies, in this order and nowhere else: stream time offsets, the gyro lag, dropping filled-in
+packets, GNSS degradation, anchoring the lidar odometry in the world frame, and resampling it on
+the IMU stamps. Checks that the streams overlap in time and picks the initial state.
+"""
+
+from __future__ import annotations
+
+import logging
+from dataclasses import dataclass, field, replace
+
+import numpy as np
+
+from .config import get
+from .degrade import degrade_gnss
+from .errors import ConfigError, DataRangeError
+from .filters.eskf import NominalState
+from .geo import normal_gravity_mps2
+from .interp import interpolate_pose_at, interpolate_poses
+from .so3 import inv_T, make_T, matrix_to_quat_xyzw
+from .types import Dataset, GnssSeries, ImuSeries, PoseSeries
+
+log = logging.getLogger(__name__)
+
+
+@dataclass(frozen=True)
+class Prepared:
+    """Everything the replay needs, on one clock and in the world frame."""
+
+    imu: ImuSeries
+    groundtruth: PoseSeries
+    gnss: GnssSeries | None           # degraded, inside the run
+    lidar: PoseSeries | None          # IMU poses in the world frame
+    k_start: int                      # IMU index where the filter starts
+    x0: NominalState
+    gravity_mps2: float
+    gnss_info: dict | None
+    applied: dict = field(default_factory=dict)   # effective offsets, lag, anchor (for the report)
+
+
+def _offset(cfg: dict, ds: Dataset, stream: str) -> float:
+    v = get(cfg, f"{stream}.time_offset_s") if stream in ("imu", "gnss", "lidar") else None
+    return float(ds.description.get("time_offset_s", {}).get(stream, 0.0) if v is None else v)
+
+
+def apply_gyro_lag(imu: ImuSeries, lag_s: float) -> ImuSeries:
+    """Advance the gyro by ``lag_s``: the rate used at t is the one recorded at ``t + lag_s`` (ends held)."""
+    if lag_s == 0.0:
+        return imu
+    w = np.column_stack([np.interp(imu.t_s + lag_s, imu.t_s, imu.w_b_rps[:, i]) for i in range(3)])
+    return replace(imu, w_b_rps=w)
+
+
+def anchor_lidar(lidar_odom: PoseSeries, gt: PoseSeries) -> tuple[PoseSeries, float]:
+    """Express odometry poses in the world frame by anchoring the first frame inside the ground truth's span."""
+    inside = np.flatnonzero((lidar_odom.t_s >= gt.t_s[0]) & (lidar_odom.t_s <= gt.t_s[-1]))
+    if inside.size == 0:
+        raise DataRangeError(f"lidar poses ({lidar_odom.source}) and ground truth do not overlap in time: "
+                             f"lidar {lidar_odom.t_s[0]:.3f}..{lidar_odom.t_s[-1]:.3f} s, "
+                             f"ground truth {gt.t_s[0]:.3f}..{gt.t_s[-1]:.3f} s")
+    a = int(inside[0])
+    p_a, R_a, _ = interpolate_pose_at(gt, float(lidar_odom.t_s[a]))
+    T_o = make_T(lidar_odom.R_wb(), lidar_odom.p_w_m)
+    T_w_o = make_T(R_a, p_a) @ inv_T(T_o[a])
+    T_w = T_w_o[None] @ T_o[a:]
+    sel = np.zeros(len(lidar_odom), bool)
+    sel[a:] = True
+    base = lidar_odom.select(sel)
+    return replace(base, p_w_m=T_w[:, :3, 3], q_wb_xyzw=matrix_to_quat_xyzw(T_w[:, :3, :3])), float(lidar_odom.t_s[a])
+
+
+def prepare(ds: Dataset, cfg: dict) -> Prepared:
+    use_lidar = cfg["filter"]["lidar_update"] != "none"
+    use_gnss = cfg["filter"]["use_gnss"]
+    if ds.groundtruth is None:
+        raise ConfigError(f"dataset {ds.name!r} has no groundtruth stream; fusion-eval run evaluates against ground truth")
+    if use_lidar and ds.lidar is None:
+        raise ConfigError(f"dataset {ds.name!r} has no lidar stream; set filter.lidar_update=none")
+    if use_gnss and ds.gnss is None:
+        raise ConfigError(f"dataset {ds.name!r} has no gnss stream; set filter.use_gnss=false")
+
+    applied: dict = {"time_offset_s": {}}
+    # --- IMU: offset, drop filled packets, gyro lag
+    imu = ds.imu
+    off = _offset(cfg, ds, "imu")
+    applied["time_offset_s"]["imu"] = off
+    imu = replace(imu, t_s=imu.t_s + off)
+    n_filled = int(imu.filled.sum())
+    if cfg["imu"]["filled_packets"] == "drop" and n_filled:
+        imu = imu.select(~imu.filled)
+    applied["imu_filled_samples"] = n_filled
+    applied["imu_filled_packets"] = cfg["imu"]["filled_packets"]
+    lag = cfg["imu"]["gyro_lag_s"]
+    lag = float(ds.description.get("gyro_lag_s", 0.0) if lag is None else lag)
+    imu = apply_gyro_lag(imu, lag)
+    applied["gyro_lag_s"] = lag
+    if len(imu) < 2:
+        raise DataRangeError(f"{ds.imu.source}: fewer than 2 usable IMU samples")
+
+    # --- ground truth: the same clock as its source; filled-in packets are not truth
+    gt = ds.groundtruth
+    gt = replace(gt, t_s=gt.t_s + float(ds.description.get("time_offset_s", {}).get("groundtruth", 0.0)))
+    gt = gt.select(~gt.filled)
+    if len(gt) < 2 or gt.t_s[-1] <= imu.t_s[0] or gt.t_s[0] >= imu.t_s[-1]:
+        raise DataRangeError(f"IMU ({imu.t_s[0]:.3f}..{imu.t_s[-1]:.3f} s) and ground truth "
+                             f"({gt.t_s[0] if len(gt) else float('nan'):.3f}..{gt.t_s[-1] if len(gt) else float('nan'):.3f} s) do not overlap in time")
+
+    # --- lidar: offset, anchor in the world frame, resample on the IMU stamps
+    lidar = None
+    if ds.lidar is not None:
+        off = _offset(cfg, ds, "lidar")
+        applied["time_offset_s"]["lidar"] = off
+        lid = replace(ds.lidar, t_s=ds.lidar.t_s + off)
+        if ds.description.get("lidar_anchor", "groundtruth") == "groundtruth":
+            lid, t_anchor = anchor_lidar(lid, gt)
+            applied["lidar_anchor_t_s"] = t_anchor
+        if cfg["lidar"]["interpolate_to_imu"]:
+            lid = interpolate_poses(lid, imu.t_s)
+        lidar = lid
+        if use_lidar and (len(lidar) < 2 or lidar.t_s[-1] <= imu.t_s[0] or lidar.t_s[0] >= imu.t_s[-1]):
+            raise DataRangeError(f"lidar ({ds.lidar.source}) and IMU ({ds.imu.source}) do not overlap in time")
+
+    # --- start: first IMU sample covered by the ground truth (and the lidar, when it is fused)
+    t_min = gt.t_s[0]
+    if use_lidar:
+        t_min = max(t_min, lidar.t_s[0])
+    ks = np.flatnonzero((imu.t_s >= t_min - 1e-9) & (imu.t_s <= gt.t_s[-1]))
+    if ks.size < 2:
+        raise DataRangeError("fewer than 2 IMU samples lie where ground truth (and lidar) are available")
+    k0 = int(ks[0])
+    t0 = float(imu.t_s[k0])
+
+    # --- GNSS: offset, drop filled, degrade
+    gnss = gnss_info = None
+    if ds.gnss is not None:
+        off = _offset(cfg, ds, "gnss")
+        applied["time_offset_s"]["gnss"] = off
+        g = replace(ds.gnss, t_s=ds.gnss.t_s + off)
+        g = g.select(~g.filled)
+        g = g.select(g.t_s >= t0)
+        c = cfg["gnss"]
+        gnss, gnss_info = degrade_gnss(g, t0, c["rate_hz"], c["noise_std_m"], c["outages_s"], c["seed"], c["std_m"])
+        if use_gnss and len(gnss) == 0:
+            raise DataRangeError(f"no GNSS fix of {ds.gnss.source} is left inside the IMU span after degradation")
+
+    # --- initial state
+    if cfg["filter"]["init_pose_from"] == "lidar":
+        if lidar is None:
+            raise ConfigError("filter.init_pose_from=lidar needs a lidar stream")
+        p0, R0, _ = interpolate_pose_at(lidar, t0)
+    else:
+        p0, R0, _ = interpolate_pose_at(gt, t0)
+    if cfg["filter"]["init_velocity_from"] == "gnss":
+        if gnss is None or len(gnss) < 2:
+            raise ConfigError("filter.init_velocity_from=gnss needs at least two GNSS fixes")
+        v0 = (gnss.p_w_m[1] - gnss.p_w_m[0]) / (gnss.t_s[1] - gnss.t_s[0])
+    else:
+        _, _, v0 = interpolate_pose_at(gt, t0)
+        if v0 is None:
+            raise ConfigError("filter.init_velocity_from=groundtruth needs a ground truth with velocity (KITTI OXTS); use gnss")
+    x0 = NominalState(p_w_m=np.array(p0), v_w_mps=np.array(v0), R_wb=np.array(R0), ba_b=np.zeros(3), bg_b=np.zeros(3))
+
+    g = cfg["filter"]["gravity_mps2"]
+    if g == "auto":
+        g = normal_gravity_mps2(ds.geodetic_origin[0], ds.geodetic_origin[2]) if ds.geodetic_origin else 9.80665
+    applied["gravity_mps2"] = float(g)
+    applied["t_start_s"] = t0
+    return Prepared(imu=imu, groundtruth=gt, gnss=gnss, lidar=lidar, k_start=k0, x0=x0, gravity_mps2=float(g),
+                    gnss_info=gnss_info, applied=applied)

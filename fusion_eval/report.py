@@ -1,0 +1,199 @@
+"""Run outputs: TUM trajectories, metrics (JSON, CSV), evo result zips, Markdown report, plots.
+
+Every file goes through :class:`fusion_eval.outputs.StagedDir`, so each is written atomically and
+the directory appears only when complete. Nothing time- or machine-dependent is written (no wall
+times, no absolute paths beyond the inputs), so the same inputs and seed give the same bytes.
+"""
+
+from __future__ import annotations
+
+import csv
+import io
+import json
+import platform
+from pathlib import Path
+
+import numpy as np
+import yaml
+from evo.tools import file_interface
+
+from . import __version__, plots
+from .datasets.tum import format_tum
+from .evaluation import STATS, EstimateEvaluation
+from .interp import interpolate_poses
+from .outputs import StagedDir
+from .types import PoseSeries
+
+ESTIMATES = ("fused", "lidar", "gnss", "imu_only")
+TUM_FILES = {"fused": "fused.tum", "lidar": "lidar.tum", "gnss": "gnss.tum", "imu_only": "imu_only.tum",
+             "groundtruth": "groundtruth.tum"}
+
+
+def versions() -> dict:
+    import evo
+    import matplotlib
+    import numba
+    import pandas
+    import pymap3d
+    import scipy
+
+    return {"fusion-eval": __version__, "python": platform.python_version(), "numpy": np.__version__,
+            "scipy": scipy.__version__, "evo": evo.__version__, "numba": numba.__version__,
+            "pandas": pandas.__version__, "matplotlib": matplotlib.__version__, "pymap3d": pymap3d.__version__}
+
+
+def _r(x, nd=6):
+    return None if x is None else float(round(float(x), nd))
+
+
+def build_metrics(dataset: str, evals: dict[str, EstimateEvaluation], ratios: dict, applied: dict,
+                  gnss_info: dict | None, nis: dict) -> dict:
+    est = {}
+    for name, ev in evals.items():
+        est[name] = {"poses": ev.poses, "matched_poses": ev.matched_poses, **ev.metrics}
+        if ev.note:
+            est[name]["note"] = ev.note
+    nis_summary = {}
+    for kind, d in nis.items():
+        from scipy.stats import chi2
+
+        lo, hi = chi2.ppf([0.025, 0.975], d["dof"])
+        nis_summary[kind] = {"updates": int(d["nis"].size), "dof": d["dof"], "mean": float(np.mean(d["nis"])),
+                             "fraction_in_95": float(np.mean((d["nis"] >= lo) & (d["nis"] <= hi)))}
+    return {"dataset": dataset, "estimates": est, "ratios": ratios, "nis": nis_summary,
+            "gnss_degradation": gnss_info, "preprocessing": applied}
+
+
+def metrics_csv(evals: dict[str, EstimateEvaluation], ratios: dict) -> str:
+    cols = ["estimate", "poses", "matched_poses"]
+    rows = []
+    groups = []
+    for ev in evals.values():
+        for g, d in ev.metrics.items():
+            for rel in d:
+                if (g, rel) not in groups:
+                    groups.append((g, rel))
+    for g, rel in groups:
+        cols += [f"{g}_{rel}_{s}" for s in STATS]
+    cols += ["fused_over_this_ape_rmse"]
+    for name, ev in evals.items():
+        row = {"estimate": name, "poses": ev.poses, "matched_poses": ev.matched_poses}
+        for g, rel in groups:
+            d = (ev.metrics.get(g) or {}).get(rel)
+            for s in STATS:
+                row[f"{g}_{rel}_{s}"] = "" if not d else f"{d[s]:.6f}"
+        r = ratios.get(f"fused_over_{name}")
+        row["fused_over_this_ape_rmse"] = "" if r is None else f"{r:.6f}"
+        rows.append(row)
+    buf = io.StringIO()
+    w = csv.DictWriter(buf, fieldnames=cols, lineterminator="\n")
+    w.writeheader()
+    w.writerows(rows)
+    return buf.getvalue()
+
+
+def _fmt(d, key="rmse", nd=3):
+    if not d:
+        return "n/a"
+    return f"{d[key]:.{nd}f}"
+
+
+def report_md(dataset: str, config_name: str, evals: dict, ratios: dict, cfg: dict, applied: dict,
+              gnss_info: dict | None, metrics: dict, plots_written: list[str]) -> str:
+    L = [f"# fusion-eval run: {dataset}", "", f"Configuration: `{config_name}`; lidar update: "
+         f"**{cfg['filter']['lidar_update']}**, GNSS fused: **{'yes' if cfg['filter']['use_gnss'] else 'no'}**, "
+         f"bias model: **{cfg['filter']['bias_model']}**.", "",
+         "## Summary against ground truth (evo, no alignment)", "",
+         "| estimate | matched poses | APE trans RMSE [m] | APE trans mean / max [m] | APE rot RMSE [deg] | "
+         f"RPE trans 1 frame RMSE [m] | RPE rot 1 frame RMSE [deg] | RPE trans {cfg['evaluation']['rpe_delta_m']:g} m RMSE [m] |",
+         "|---|---:|---:|---:|---:|---:|---:|---:|"]
+    dm = f"rpe_{cfg['evaluation']['rpe_delta_m']:g}m"
+    for name in ESTIMATES:
+        ev = evals.get(name)
+        if ev is None:
+            continue
+        m = ev.metrics
+        ape_t = (m.get("ape") or {}).get("translation_m")
+        L.append(f"| {name} | {ev.matched_poses}/{ev.poses} | {_fmt(ape_t)} | "
+                 f"{_fmt(ape_t, 'mean')} / {_fmt(ape_t, 'max')} | {_fmt((m.get('ape') or {}).get('rotation_deg'))} | "
+                 f"{_fmt((m.get('rpe_1frame') or {}).get('translation_m'), nd=4)} | "
+                 f"{_fmt((m.get('rpe_1frame') or {}).get('rotation_deg'), nd=4)} | "
+                 f"{_fmt((m.get(dm) or {}).get('translation_m'))} |")
+    L.append("")
+    for k, v in ratios.items():
+        if v is None:
+            continue
+        other = k.replace("fused_over_", "")
+        verdict = "better" if v < 1 else "worse"
+        L.append(f"- Fused APE RMSE / {other} APE RMSE = **{v:.3f}** (fusion is {verdict} than {other} alone, "
+                 f"{abs(1 - v) * 100:.1f} % {'lower' if v < 1 else 'higher'}).")
+    for name, ev in evals.items():
+        if ev.note:
+            L.append(f"- {name}: {ev.note}.")
+    L += ["", "## Filter consistency (normalised innovation squared)", "",
+          "| observation | updates | dof | mean NIS | fraction inside the 95 % chi-square interval |", "|---|---:|---:|---:|---:|"]
+    for kind, d in metrics["nis"].items():
+        L.append(f"| {kind} | {d['updates']} | {d['dof']} | {d['mean']:.2f} | {d['fraction_in_95'] * 100:.1f} % |")
+    L += ["", "A mean NIS near the dof means the configured noise matches the innovations; well below it, the noise is "
+          "too large (conservative); well above, too small.", ""]
+    L += ["## GNSS degradation", ""]
+    if gnss_info is None:
+        L.append("The dataset has no GNSS stream.")
+    else:
+        rate = "every fix kept" if gnss_info["rate_hz"] is None else f"decimated to {gnss_info['rate_hz']:g} Hz"
+        L.append(f"KITTI's OXTS position is the GPS/INS solution that is also the ground truth, so it was degraded: "
+                 f"{rate} ({gnss_info['fixes_in']} -> {gnss_info['fixes_after_decimation']} fixes), white noise with std "
+                 f"{gnss_info['noise_std_m']} m (E, N, U; seed {gnss_info['seed']}), outages {gnss_info['outages_s'] or 'none'} s "
+                 f"({gnss_info['fixes_in_outages']} fixes removed); {gnss_info['fixes_used']} fixes used. "
+                 f"Std given to the filter: {gnss_info['std_given_to_filter_m']}.")
+    L += ["", "## Pre-processing applied", "",
+          f"- Start: t = {applied['t_start_s']:.6f} s (first IMU sample covered by ground truth"
+          f"{' and lidar' if cfg['filter']['lidar_update'] != 'none' else ''}).",
+          f"- Filled-in IMU packets: {applied['imu_filled_samples']} ({applied['imu_filled_packets']}); filled-in "
+          "ground-truth and GNSS packets are never used.",
+          f"- Gyro lag correction: {applied['gyro_lag_s'] * 1000:.1f} ms.",
+          f"- Time offsets [s]: {applied['time_offset_s']}.",
+          f"- Gravity: {applied['gravity_mps2']:.5f} m/s^2."]
+    if "lidar_anchor_t_s" in applied:
+        L.append(f"- Lidar odometry anchored at the ground-truth pose at t = {applied['lidar_anchor_t_s']:.6f} s; "
+                 f"{'resampled on the IMU stamps' if cfg['lidar']['interpolate_to_imu'] else 'at its own stamps'}.")
+    if plots_written:
+        L += ["", "## Plots", ""] + [f"![{p}]({p})" for p in plots_written]
+    L += ["", "## Configuration", "", "```yaml", yaml.safe_dump(cfg, sort_keys=False).rstrip(), "```", ""]
+    return "\n".join(L)
+
+
+def write_outputs(out: StagedDir, *, dataset: str, config_name: str, cfg: dict, resolved_extra: dict,
+                  series: dict[str, PoseSeries], evals: dict[str, EstimateEvaluation], ratios: dict, applied: dict,
+                  gnss_info: dict | None, filt, make_plots: bool) -> dict:
+    for name, fname in TUM_FILES.items():
+        s = series.get(name)
+        if s is not None:
+            hdr = f"fusion-eval {__version__} {name}: timestamp tx ty tz qx qy qz qw (world = local ENU, body = IMU)"
+            if not s.has_orientation:
+                hdr += "\nposition only: quaternions are identity placeholders"
+            out.write_text(fname, format_tum(s, hdr))
+    for name, ev in evals.items():
+        for key, res in ev.results.items():
+            zname = f"{key}_{name}.zip"
+            file_interface.save_res_file(out.path(zname), res, confirm_overwrite=False)
+            out.normalize_zip(zname)
+    metrics = build_metrics(dataset, evals, ratios, applied, gnss_info, filt.nis)
+    out.write_text("metrics.json", json.dumps(metrics, indent=2, sort_keys=False) + "\n")
+    out.write_text("metrics.csv", metrics_csv(evals, ratios))
+    resolved = {**cfg, **resolved_extra, "versions": versions()}
+    out.write_text("config.resolved.yaml", yaml.safe_dump(resolved, sort_keys=False))
+    written = []
+    if make_plots:
+        gt = series["groundtruth"]
+        plots.plot_trajectories(out.path("trajectories.png"), series)
+        plots.plot_ape_over_time(out.path("ape_over_time.png"), evals, float(filt.fused.t_s[0]))
+        plots.plot_biases(out.path("biases.png"), filt.fused.t_s, filt.accel_bias_b, filt.gyro_bias_b, filt.sigma)
+        # ground truth interpolated at the fused stamps inside its span
+        gt_i = interpolate_poses(gt, filt.fused.t_s)
+        sel = np.isin(filt.fused.t_s, gt_i.t_s)
+        plots.plot_error_sigma(out.path("fused_error_3sigma.png"), gt_i.t_s,
+                               filt.fused.p_w_m[sel] - gt_i.p_w_m, filt.sigma[sel])
+        written = ["trajectories.png", "ape_over_time.png", "biases.png", "fused_error_3sigma.png"]
+    out.write_text("report.md", report_md(dataset, config_name, evals, ratios, cfg, applied, gnss_info, metrics, written))
+    return metrics

@@ -1,0 +1,194 @@
+"""Immutable, validated time series that flow from the readers to the filter and the evaluation.
+
+Units and frames are in the field names: ``t_s`` seconds (POSIX seconds of the recording clock),
+``f_b_mps2`` specific force in the body frame, ``w_b_rps`` angular rate in the body frame,
+``p_w_m`` position in the world (local ENU) frame, ``q_wb_xyzw`` body-to-world attitude in scipy's
+quaternion order. Each series remembers where it came from (``source``, and per row the 1-based
+``lines`` of that file) so that a validation failure names the file and the line.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field, replace
+from typing import Any
+
+import numpy as np
+
+from .errors import DataFormatError
+
+
+def _frozen(a: Any, dtype=float) -> np.ndarray:
+    arr = np.array(a, dtype=dtype, copy=True)
+    arr.setflags(write=False)
+    return arr
+
+
+def _line(lines: np.ndarray | None, i: int) -> int | None:
+    if lines is None or len(lines) == 0:
+        return None
+    return int(lines[min(i, len(lines) - 1)])
+
+
+def _check_times(t: np.ndarray, source: str, lines: np.ndarray | None, what: str) -> None:
+    if t.ndim != 1:
+        raise DataFormatError(source, None, f"{what} times must be a 1-D array, got shape {t.shape}")
+    bad = np.flatnonzero(~np.isfinite(t))
+    if bad.size:
+        raise DataFormatError(source, _line(lines, bad[0]), f"{what} timestamp must be a finite number")
+    if t.size > 1:
+        d = np.diff(t)
+        bad = np.flatnonzero(d <= 0.0)
+        if bad.size:
+            i = bad[0] + 1
+            kind = "duplicate" if d[bad[0]] == 0 else "decreasing"
+            raise DataFormatError(source, _line(lines, i),
+                                  f"{what} timestamps must strictly increase ({kind} timestamp {t[i]!r} after {t[i - 1]!r})")
+
+
+def _check_rows(name: str, a: np.ndarray, n: int, cols: int, source: str, lines: np.ndarray | None, what: str) -> None:
+    if a.shape != (n, cols):
+        raise DataFormatError(source, None, f"{what} {name} must have shape ({n}, {cols}), got {a.shape}")
+    bad = np.flatnonzero(~np.all(np.isfinite(a), axis=1))
+    if bad.size:
+        raise DataFormatError(source, _line(lines, bad[0]), f"{what} {name} must be finite numbers (found NaN or inf)")
+
+
+@dataclass(frozen=True)
+class ImuSeries:
+    """IMU samples: specific force and angular rate in the body frame.
+
+    ``filled`` marks samples that the data provider interpolated or extrapolated (KITTI's filled
+    OXTS packets); the configuration decides whether they are used.
+    """
+
+    t_s: np.ndarray
+    f_b_mps2: np.ndarray
+    w_b_rps: np.ndarray
+    filled: np.ndarray | None = None
+    source: str = "<imu>"
+    lines: np.ndarray | None = None
+
+    def __post_init__(self):
+        t = _frozen(self.t_s)
+        object.__setattr__(self, "t_s", t)
+        object.__setattr__(self, "f_b_mps2", _frozen(self.f_b_mps2))
+        object.__setattr__(self, "w_b_rps", _frozen(self.w_b_rps))
+        filled = np.zeros(t.shape, bool) if self.filled is None else self.filled
+        object.__setattr__(self, "filled", _frozen(filled, bool))
+        if self.lines is not None:
+            object.__setattr__(self, "lines", _frozen(self.lines, np.int64))
+        _check_times(t, self.source, self.lines, "IMU")
+        _check_rows("specific force", self.f_b_mps2, t.size, 3, self.source, self.lines, "IMU")
+        _check_rows("angular rate", self.w_b_rps, t.size, 3, self.source, self.lines, "IMU")
+
+    def __len__(self) -> int:
+        return int(self.t_s.size)
+
+    def select(self, mask: np.ndarray) -> "ImuSeries":
+        lines = None if self.lines is None else self.lines[mask]
+        return replace(self, t_s=self.t_s[mask], f_b_mps2=self.f_b_mps2[mask], w_b_rps=self.w_b_rps[mask],
+                       filled=self.filled[mask], lines=lines)
+
+
+@dataclass(frozen=True)
+class GnssSeries:
+    """GNSS position fixes in the world (local ENU) frame with their 1-sigma per axis."""
+
+    t_s: np.ndarray
+    p_w_m: np.ndarray
+    std_w_m: np.ndarray
+    filled: np.ndarray | None = None
+    source: str = "<gnss>"
+    lines: np.ndarray | None = None
+
+    def __post_init__(self):
+        t = _frozen(self.t_s)
+        object.__setattr__(self, "t_s", t)
+        object.__setattr__(self, "p_w_m", _frozen(self.p_w_m))
+        object.__setattr__(self, "std_w_m", _frozen(self.std_w_m))
+        filled = np.zeros(t.shape, bool) if self.filled is None else self.filled
+        object.__setattr__(self, "filled", _frozen(filled, bool))
+        if self.lines is not None:
+            object.__setattr__(self, "lines", _frozen(self.lines, np.int64))
+        _check_times(t, self.source, self.lines, "GNSS")
+        _check_rows("position", self.p_w_m, t.size, 3, self.source, self.lines, "GNSS")
+        _check_rows("std", self.std_w_m, t.size, 3, self.source, self.lines, "GNSS")
+        if np.any(self.std_w_m <= 0):
+            i = int(np.flatnonzero(np.any(self.std_w_m <= 0, axis=1))[0])
+            raise DataFormatError(self.source, _line(self.lines, i), "GNSS position std must be > 0")
+
+    def __len__(self) -> int:
+        return int(self.t_s.size)
+
+    def select(self, mask: np.ndarray) -> "GnssSeries":
+        lines = None if self.lines is None else self.lines[mask]
+        return replace(self, t_s=self.t_s[mask], p_w_m=self.p_w_m[mask], std_w_m=self.std_w_m[mask],
+                       filled=self.filled[mask], lines=lines)
+
+
+@dataclass(frozen=True)
+class PoseSeries:
+    """Poses of the body (IMU) frame in the world frame, optionally with world-frame velocity.
+
+    ``has_orientation`` is False for position-only estimates (GNSS alone); their quaternions are
+    identity placeholders and no rotation metric is computed for them.
+    """
+
+    t_s: np.ndarray
+    p_w_m: np.ndarray
+    q_wb_xyzw: np.ndarray
+    v_w_mps: np.ndarray | None = None
+    filled: np.ndarray | None = None
+    has_orientation: bool = True
+    source: str = "<poses>"
+    lines: np.ndarray | None = None
+
+    def __post_init__(self):
+        t = _frozen(self.t_s)
+        object.__setattr__(self, "t_s", t)
+        object.__setattr__(self, "p_w_m", _frozen(self.p_w_m))
+        q = np.array(self.q_wb_xyzw, dtype=float)
+        if self.lines is not None:
+            object.__setattr__(self, "lines", _frozen(self.lines, np.int64))
+        _check_times(t, self.source, self.lines, "pose")
+        _check_rows("position", np.asarray(self.p_w_m), t.size, 3, self.source, self.lines, "pose")
+        _check_rows("quaternion", q, t.size, 4, self.source, self.lines, "pose")
+        norms = np.linalg.norm(q, axis=1)
+        bad = np.flatnonzero(np.abs(norms - 1.0) > 1e-2)
+        if bad.size:
+            raise DataFormatError(self.source, _line(self.lines, bad[0]),
+                                  f"pose quaternion must have unit norm, got norm {norms[bad[0]]:.4f}")
+        object.__setattr__(self, "q_wb_xyzw", _frozen(q / norms[:, None]))
+        if self.v_w_mps is not None:
+            _check_rows("velocity", np.asarray(self.v_w_mps), t.size, 3, self.source, self.lines, "pose")
+            object.__setattr__(self, "v_w_mps", _frozen(self.v_w_mps))
+        filled = np.zeros(t.shape, bool) if self.filled is None else self.filled
+        object.__setattr__(self, "filled", _frozen(filled, bool))
+
+    def __len__(self) -> int:
+        return int(self.t_s.size)
+
+    def R_wb(self) -> np.ndarray:
+        """Rotation matrices ``(N, 3, 3)``."""
+        from .so3 import quat_xyzw_to_matrix
+
+        return quat_xyzw_to_matrix(self.q_wb_xyzw).reshape(-1, 3, 3)
+
+    def select(self, mask: np.ndarray) -> "PoseSeries":
+        lines = None if self.lines is None else self.lines[mask]
+        v = None if self.v_w_mps is None else self.v_w_mps[mask]
+        return replace(self, t_s=self.t_s[mask], p_w_m=self.p_w_m[mask], q_wb_xyzw=self.q_wb_xyzw[mask],
+                       v_w_mps=v, filled=self.filled[mask], lines=lines)
+
+
+@dataclass(frozen=True)
+class Dataset:
+    """Every stream of one drive, in one world frame and on one clock."""
+
+    name: str
+    imu: ImuSeries
+    groundtruth: PoseSeries | None = None
+    gnss: GnssSeries | None = None
+    lidar: PoseSeries | None = None
+    geodetic_origin: tuple[float, float, float] | None = None
+    description: dict = field(default_factory=dict)
