@@ -69,6 +69,9 @@ def evaluate(reference: PoseSeries, estimate: PoseSeries, name: str, t_max_diff_
         ev.note = f"no poses associated within {t_max_diff_s} s ({exc})"
         return ev
     ev.matched_poses = int(ref_a.num_poses)
+    # evo caches the SE(3) matrices on first use; filling the cache once here means every deep copy
+    # below carries it instead of rebuilding it (evo builds them in a Python loop).
+    _ = ref_a.poses_se3, est_a.poses_se3
     if ev.matched_poses < 2:
         ev.note = "fewer than 2 associated poses"
         return ev

@@ -57,10 +57,10 @@ class StagedDir:
         """Rewrite a zip with fixed entry times so that identical runs give identical bytes."""
         src = self.staging / name
         buf = io.BytesIO()
-        with zipfile.ZipFile(src) as zin, zipfile.ZipFile(buf, "w", zipfile.ZIP_DEFLATED) as zout:
+        with zipfile.ZipFile(src) as zin, zipfile.ZipFile(buf, "w") as zout:
             for info in sorted(zin.infolist(), key=lambda i: i.filename):
                 zi = zipfile.ZipInfo(info.filename, date_time=FIXED_ZIP_TIME)
-                zi.compress_type = zipfile.ZIP_DEFLATED
+                zi.compress_type = info.compress_type  # evo stores uncompressed; keep it so
                 zi.external_attr = 0o644 << 16
                 zout.writestr(zi, zin.read(info.filename))
         self.write_bytes(name, buf.getvalue())

@@ -3,7 +3,10 @@
 from __future__ import annotations
 
 import logging
+import multiprocessing as mp
+import os
 import time
+from concurrent.futures import Future, ProcessPoolExecutor
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Callable
@@ -16,7 +19,7 @@ from .evaluation import EstimateEvaluation, evaluate, ratio
 from .outputs import StagedDir
 from .prepare import prepare
 from .replay import replay
-from .report import write_outputs
+from .report import write_evo_results, write_results, write_series_and_plots
 from .types import PoseSeries
 
 log = logging.getLogger(__name__)
@@ -31,7 +34,7 @@ class RunSummary:
 
 
 def run(dataset_path: Path, cfg: dict, config_name: str, out_dir: Path, overwrite: bool = False,
-        progress: Callable[[float], None] | None = None) -> RunSummary:
+        progress: Callable[[float], None] | None = None, jobs: int | None = None) -> RunSummary:
     timings = {}
     StagedDir(out_dir, overwrite=overwrite).check()
     t = time.perf_counter()
@@ -43,36 +46,80 @@ def run(dataset_path: Path, cfg: dict, config_name: str, out_dir: Path, overwrit
     prep = prepare(ds, cfg)
     fp = to_filter_params(cfg, prep.gravity_mps2)
     timings["prepare"] = time.perf_counter() - t
-    t = time.perf_counter()
-    filt = replay(prep, fp, progress=progress)
-    timings["filter"] = time.perf_counter() - t
-
-    t = time.perf_counter()
-    series: dict[str, PoseSeries] = {"groundtruth": prep.groundtruth, "fused": filt.fused, "imu_only": filt.imu_only}
+    series: dict[str, PoseSeries] = {"groundtruth": prep.groundtruth}
     if prep.lidar is not None:
         series["lidar"] = prep.lidar
     if prep.gnss is not None:
         g = prep.gnss
         series["gnss"] = PoseSeries(t_s=g.t_s, p_w_m=g.p_w_m, q_wb_xyzw=np.tile([0.0, 0.0, 0.0, 1.0], (len(g), 1)),
                                     has_orientation=False, source=g.source)
-    ev_cfg = cfg["evaluation"]
-    evals: dict[str, EstimateEvaluation] = {}
-    for name in ("fused", "lidar", "gnss", "imu_only"):
-        if name in series:
-            evals[name] = evaluate(prep.groundtruth, series[name], name, ev_cfg["t_max_diff_s"], ev_cfg["rpe_delta_m"])
-    ratios = {"fused_over_lidar": ratio(evals.get("fused"), evals.get("lidar")),
-              "fused_over_gnss": ratio(evals.get("fused"), evals.get("gnss"))}
-    timings["evaluate"] = time.perf_counter() - t
-
-    t = time.perf_counter()
     resolved_extra = {"dataset": {"path": str(dataset_path), "name": ds.name,
                                   "manifest": ds.description.get("manifest"),
                                   "attribution": ds.description.get("attribution"),
                                   "streams": ds.description.get("streams")},
                       "applied": prep.applied, "config_source": config_name}
+    ev_cfg = cfg["evaluation"]
+
+    def submit_eval(pool, name):
+        return pool.submit(_evaluate_and_save, out, prep.groundtruth, series[name], name, ev_cfg["t_max_diff_s"],
+                           ev_cfg["rpe_delta_m"])
+
     with StagedDir(out_dir, overwrite=overwrite) as out:
-        metrics = write_outputs(out, dataset=ds.name, config_name=config_name, cfg=cfg, resolved_extra=resolved_extra,
-                                series=series, evals=evals, ratios=ratios, applied=prep.applied,
-                                gnss_info=prep.gnss_info, filt=filt, make_plots=cfg["output"]["plots"])
-    timings["write"] = time.perf_counter() - t
+        # evo's metrics loop over poses in Python. The unfiltered estimates are evaluated in worker
+        # processes while this one runs the filter; then the fused and dead-reckoning estimates and
+        # the plots that need no metrics, heaviest first, so both cores stay busy.
+        with _executor(jobs) as pool:
+            futures = {n: submit_eval(pool, n) for n in ("lidar", "gnss") if n in series}
+            t = time.perf_counter()
+            filt = replay(prep, fp, progress=progress)
+            timings["filter"] = time.perf_counter() - t
+            t = time.perf_counter()
+            series["fused"], series["imu_only"] = filt.fused, filt.imu_only
+            futures.update({n: submit_eval(pool, n) for n in ("fused", "imu_only")})
+            plots_future = pool.submit(write_series_and_plots, out, series, filt, cfg["output"]["plots"])
+            plots_written = plots_future.result()
+            evals: dict[str, EstimateEvaluation] = {n: futures[n].result() for n in ("fused", "lidar", "gnss", "imu_only")
+                                                    if n in futures}
+        ratios = {"fused_over_lidar": ratio(evals.get("fused"), evals.get("lidar")),
+                  "fused_over_gnss": ratio(evals.get("fused"), evals.get("gnss"))}
+        timings["evaluate"] = time.perf_counter() - t
+        metrics = write_results(out, dataset=ds.name, config_name=config_name, cfg=cfg, resolved_extra=resolved_extra,
+                                evals=evals, ratios=ratios, applied=prep.applied, gnss_info=prep.gnss_info, filt=filt,
+                                plots_written=plots_written)
+    timings["total_after_filter"] = time.perf_counter() - t
     return RunSummary(out_dir=Path(out_dir), metrics=metrics, evals=evals, timings_s=timings)
+
+
+def _evaluate_and_save(out: StagedDir, reference: PoseSeries, estimate: PoseSeries, name: str, t_max_diff_s: float,
+                       rpe_delta_m: float) -> EstimateEvaluation:
+    """Evaluate one estimate and write its evo result zips (in a worker: the zips are large to send back)."""
+    ev = evaluate(reference, estimate, name, t_max_diff_s, rpe_delta_m)
+    write_evo_results(out, ev)
+    ev.results = {}
+    return ev
+
+
+class _Inline:
+    """A stand-in executor that runs the work in this process (jobs=1, or inside a sweep worker)."""
+
+    def __enter__(self):
+        return self
+
+    def __exit__(self, *exc):
+        return False
+
+    def submit(self, fn, *args):
+        fut: Future = Future()
+        try:
+            fut.set_result(fn(*args))
+        except BaseException as exc:  # noqa: BLE001 - re-raised by .result()
+            fut.set_exception(exc)
+        return fut
+
+
+def _executor(jobs: int | None):
+    jobs = os.cpu_count() or 1 if jobs is None else jobs
+    if jobs <= 1:
+        return _Inline()
+    # fork: the workers inherit the imported modules and the data, so they start in milliseconds
+    return ProcessPoolExecutor(max_workers=min(jobs, 4), mp_context=mp.get_context("fork"))

@@ -30,20 +30,16 @@ TUM_FILES = {"fused": "fused.tum", "lidar": "lidar.tum", "gnss": "gnss.tum", "im
 
 
 def versions() -> dict:
-    import evo
-    import matplotlib
-    import numba
-    import pandas
-    import pymap3d
-    import scipy
+    """Versions of Python and of the packages that produced the numbers (read from metadata, no imports)."""
+    from importlib.metadata import PackageNotFoundError, version
 
-    return {"fusion-eval": __version__, "python": platform.python_version(), "numpy": np.__version__,
-            "scipy": scipy.__version__, "evo": evo.__version__, "numba": numba.__version__,
-            "pandas": pandas.__version__, "matplotlib": matplotlib.__version__, "pymap3d": pymap3d.__version__}
-
-
-def _r(x, nd=6):
-    return None if x is None else float(round(float(x), nd))
+    out = {"fusion-eval": __version__, "python": platform.python_version()}
+    for pkg in ("numpy", "scipy", "evo", "numba", "pymap3d", "matplotlib", "pandas", "pyyaml", "click"):
+        try:
+            out[pkg] = version(pkg)
+        except PackageNotFoundError:
+            out[pkg] = None
+    return out
 
 
 def build_metrics(dataset: str, evals: dict[str, EstimateEvaluation], ratios: dict, applied: dict,
@@ -163,9 +159,19 @@ def report_md(dataset: str, config_name: str, evals: dict, ratios: dict, cfg: di
     return "\n".join(L)
 
 
-def write_outputs(out: StagedDir, *, dataset: str, config_name: str, cfg: dict, resolved_extra: dict,
-                  series: dict[str, PoseSeries], evals: dict[str, EstimateEvaluation], ratios: dict, applied: dict,
-                  gnss_info: dict | None, filt, make_plots: bool) -> dict:
+def write_evo_results(out: StagedDir, ev: EstimateEvaluation) -> list[str]:
+    """evo result zips (``evo_res`` reads them), one per metric: ``<metric>_<estimate>.zip``."""
+    names = []
+    for key, res in ev.results.items():
+        zname = f"{key}_{ev.name}.zip"
+        file_interface.save_res_file(out.path(zname), res, confirm_overwrite=False)
+        out.normalize_zip(zname)
+        names.append(zname)
+    return names
+
+
+def write_series_and_plots(out: StagedDir, series: dict[str, PoseSeries], filt, make_plots: bool) -> list[str]:
+    """TUM files and the plots that need no evaluation (run while evo evaluates in other processes)."""
     for name, fname in TUM_FILES.items():
         s = series.get(name)
         if s is not None:
@@ -173,27 +179,30 @@ def write_outputs(out: StagedDir, *, dataset: str, config_name: str, cfg: dict, 
             if not s.has_orientation:
                 hdr += "\nposition only: quaternions are identity placeholders"
             out.write_text(fname, format_tum(s, hdr))
-    for name, ev in evals.items():
-        for key, res in ev.results.items():
-            zname = f"{key}_{name}.zip"
-            file_interface.save_res_file(out.path(zname), res, confirm_overwrite=False)
-            out.normalize_zip(zname)
+    if not make_plots:
+        return []
+    gt = series["groundtruth"]
+    plots.plot_trajectories(out.path("trajectories.png"), series)
+    plots.plot_biases(out.path("biases.png"), filt.fused.t_s, filt.accel_bias_b, filt.gyro_bias_b, filt.sigma)
+    # ground truth interpolated at the fused stamps inside its span
+    gt_i = interpolate_poses(gt, filt.fused.t_s)
+    sel = np.isin(filt.fused.t_s, gt_i.t_s)
+    plots.plot_error_sigma(out.path("fused_error_3sigma.png"), gt_i.t_s, filt.fused.p_w_m[sel] - gt_i.p_w_m,
+                           filt.sigma[sel])
+    return ["trajectories.png", "ape_over_time.png", "biases.png", "fused_error_3sigma.png"]
+
+
+def write_results(out: StagedDir, *, dataset: str, config_name: str, cfg: dict, resolved_extra: dict,
+                  evals: dict[str, EstimateEvaluation], ratios: dict, applied: dict, gnss_info: dict | None, filt,
+                  plots_written: list[str]) -> dict:
+    """Metrics, resolved configuration, the APE-over-time plot and the report."""
     metrics = build_metrics(dataset, evals, ratios, applied, gnss_info, filt.nis)
     out.write_text("metrics.json", json.dumps(metrics, indent=2, sort_keys=False) + "\n")
     out.write_text("metrics.csv", metrics_csv(evals, ratios))
     resolved = {**cfg, **resolved_extra, "versions": versions()}
     out.write_text("config.resolved.yaml", yaml.safe_dump(resolved, sort_keys=False))
-    written = []
-    if make_plots:
-        gt = series["groundtruth"]
-        plots.plot_trajectories(out.path("trajectories.png"), series)
+    if plots_written:
         plots.plot_ape_over_time(out.path("ape_over_time.png"), evals, float(filt.fused.t_s[0]))
-        plots.plot_biases(out.path("biases.png"), filt.fused.t_s, filt.accel_bias_b, filt.gyro_bias_b, filt.sigma)
-        # ground truth interpolated at the fused stamps inside its span
-        gt_i = interpolate_poses(gt, filt.fused.t_s)
-        sel = np.isin(filt.fused.t_s, gt_i.t_s)
-        plots.plot_error_sigma(out.path("fused_error_3sigma.png"), gt_i.t_s,
-                               filt.fused.p_w_m[sel] - gt_i.p_w_m, filt.sigma[sel])
-        written = ["trajectories.png", "ape_over_time.png", "biases.png", "fused_error_3sigma.png"]
-    out.write_text("report.md", report_md(dataset, config_name, evals, ratios, cfg, applied, gnss_info, metrics, written))
+    out.write_text("report.md", report_md(dataset, config_name, evals, ratios, cfg, applied, gnss_info, metrics,
+                                          plots_written))
     return metrics

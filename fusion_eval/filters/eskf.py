@@ -13,7 +13,6 @@ from dataclasses import dataclass
 import numpy as np
 
 from ..errors import FilterDivergedError
-from ..so3 import exp_so3, skew
 from . import kernels as kn
 from .kernels import BA_ID, BG_ID, CLONE_P_ID, CLONE_TH_ID, N_CORE, P_ID, TH_ID, V_ID
 
@@ -82,20 +81,10 @@ class ErrorStateKF:
 
     def _inject(self, dx: np.ndarray) -> None:
         x = self.x
-        x.p_w_m += dx[P_ID:P_ID + 3]
-        x.v_w_mps += dx[V_ID:V_ID + 3]
-        x.R_wb[:] = x.R_wb @ exp_so3(dx[TH_ID:TH_ID + 3])
-        x.ba_b += dx[BA_ID:BA_ID + 3]
-        x.bg_b += dx[BG_ID:BG_ID + 3]
-        G = np.eye(self.n)
-        G[TH_ID:TH_ID + 3, TH_ID:TH_ID + 3] -= 0.5 * skew(dx[TH_ID:TH_ID + 3])
-        if self.n > N_CORE:
-            self.clone_p += dx[CLONE_P_ID:CLONE_P_ID + 3]
-            self.clone_R = self.clone_R @ exp_so3(dx[CLONE_TH_ID:CLONE_TH_ID + 3])
-            G[CLONE_TH_ID:CLONE_TH_ID + 3, CLONE_TH_ID:CLONE_TH_ID + 3] -= 0.5 * skew(dx[CLONE_TH_ID:CLONE_TH_ID + 3])
-        Pn = self.P[:self.n, :self.n]
-        self.P[:self.n, :self.n] = G @ Pn @ G.T
-        if not np.all(np.isfinite(x.p_w_m)) or np.any(np.diag(self.P[:self.n, :self.n]) < 0):
+        if self.clone_p is None:
+            self.clone_p, self.clone_R = np.zeros(3), np.eye(3)
+        kn.inject_reset(x.p_w_m, x.v_w_mps, x.R_wb, x.ba_b, x.bg_b, self.clone_p, self.clone_R, self.P, self.n, dx)
+        if not np.all(np.isfinite(x.p_w_m)) or np.any(np.diag(self.P)[:self.n] < 0):
             raise FilterDivergedError(f"filter diverged at t={self.t:.3f} s: non-finite state or negative variance")
 
     def clone_pose(self) -> None:

@@ -198,8 +198,8 @@ def joseph_update(P, n, H, r, Rm):
     semi-definite under rounding, and stays correct for the suboptimal gains that gating or
     clipping would give, where ``(I - K H) P`` does not.
     """
-    Pn = P[:n, :n]
-    PHt = Pn @ H.T
+    Pn = np.ascontiguousarray(P[:n, :n])
+    PHt = Pn @ np.ascontiguousarray(H.T)
     S = H @ PHt + Rm
     S = 0.5 * (S + S.T)
     Sinv = np.linalg.inv(S)
@@ -207,8 +207,58 @@ def joseph_update(P, n, H, r, Rm):
     dx = K @ r
     nis = r @ (Sinv @ r)
     IKH = np.eye(n) - K @ H
-    newP = IKH @ Pn @ IKH.T + K @ Rm @ K.T
+    newP = IKH @ Pn @ np.ascontiguousarray(IKH.T) + K @ Rm @ np.ascontiguousarray(K.T)
     for i in range(n):
         for j in range(n):
             P[i, j] = 0.5 * (newP[i, j] + newP[j, i])
     return dx, nis
+
+
+@njit(cache=True)
+def log3(R):
+    """Rotation vector of a rotation matrix (the inverse of :func:`exp3`), stable near 0 and pi."""
+    c = 0.5 * (R[0, 0] + R[1, 1] + R[2, 2] - 1.0)
+    c = min(1.0, max(-1.0, c))
+    th = np.arccos(c)
+    w = np.array([R[2, 1] - R[1, 2], R[0, 2] - R[2, 0], R[1, 0] - R[0, 1]])
+    if th < 1e-6:
+        return 0.5 * w   # sin(th)/th -> 1
+    if np.pi - th < 1e-4:
+        # near pi the antisymmetric part vanishes: take the axis from the symmetric part
+        k = 0
+        for i in range(1, 3):
+            if R[i, i] > R[k, k]:
+                k = i
+        axis = np.empty(3)
+        for i in range(3):
+            axis[i] = 0.5 * (R[i, k] + R[k, i])
+        axis[k] = np.sqrt(max(0.0, (R[k, k] + 1.0) / 2.0))
+        for i in range(3):
+            if i != k:
+                axis[i] = (R[i, k] + R[k, i]) / (4.0 * axis[k])
+        if w @ axis < 0.0:
+            axis = -axis
+        return th * axis / np.sqrt(axis @ axis)
+    return (0.5 * th / np.sin(th)) * w
+
+
+@njit(cache=True)
+def inject_reset(p, v, R, ba, bg, clone_p, clone_R, P, n, dx):
+    """Inject the error ``dx`` into the nominal state (and clone), then reset: ``P <- G P G^T``
+    with ``G = I - [dtheta/2]x`` on each attitude block (Sola, eq. 287)."""
+    for i in range(3):
+        p[i] += dx[P_ID + i]
+        v[i] += dx[V_ID + i]
+        ba[i] += dx[BA_ID + i]
+        bg[i] += dx[BG_ID + i]
+    R[:, :] = R @ exp3(dx[TH_ID:TH_ID + 3])
+    G = np.eye(n)
+    G[TH_ID:TH_ID + 3, TH_ID:TH_ID + 3] -= 0.5 * skew3(dx[TH_ID:TH_ID + 3])
+    if n > N_CORE:
+        for i in range(3):
+            clone_p[i] += dx[CLONE_P_ID + i]
+        clone_R[:, :] = clone_R @ exp3(dx[CLONE_TH_ID:CLONE_TH_ID + 3])
+        G[CLONE_TH_ID:CLONE_TH_ID + 3, CLONE_TH_ID:CLONE_TH_ID + 3] -= 0.5 * skew3(dx[CLONE_TH_ID:CLONE_TH_ID + 3])
+    Pn = np.ascontiguousarray(P[:n, :n])
+    newP = G @ Pn @ G.T
+    P[:n, :n] = newP

@@ -9,7 +9,8 @@ from __future__ import annotations
 
 import numpy as np
 
-from ..so3 import log_so3, skew
+from ..so3 import skew
+from .kernels import log3
 from .eskf import NominalState
 from .kernels import CLONE_P_ID, CLONE_SIZE, CLONE_TH_ID, N_CORE, P_ID, TH_ID
 
@@ -30,7 +31,7 @@ def absolute_pose(x: NominalState, p_obs_w: np.ndarray, R_obs_wb: np.ndarray, po
     H = np.zeros((6, N_MAX))
     H[0:3, P_ID:P_ID + 3] = np.eye(3)
     H[3:6, TH_ID:TH_ID + 3] = np.eye(3)
-    r = np.concatenate([p_obs_w - x.p_w_m, log_so3(x.R_wb.T @ R_obs_wb)])
+    r = np.concatenate([p_obs_w - x.p_w_m, log3(x.R_wb.T @ R_obs_wb)])
     Rm = np.diag([pos_std_m ** 2] * 3 + [att_std_rad ** 2] * 3)
     return H, r, Rm
 
@@ -54,6 +55,6 @@ def relative_pose(x: NominalState, clone_p_w: np.ndarray, clone_R_wb: np.ndarray
     H[0:3, CLONE_TH_ID:CLONE_TH_ID + 3] = skew(dp_pred)
     H[3:6, TH_ID:TH_ID + 3] = np.eye(3)
     H[3:6, CLONE_TH_ID:CLONE_TH_ID + 3] = -dR_pred.T
-    r = np.concatenate([dp_obs_c - dp_pred, log_so3(dR_pred.T @ dR_obs)])
+    r = np.concatenate([dp_obs_c - dp_pred, log3(dR_pred.T @ dR_obs)])
     Rm = np.diag([pos_std_m ** 2] * 3 + [att_std_rad ** 2] * 3)
     return H, r, Rm
