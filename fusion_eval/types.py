@@ -42,7 +42,7 @@ def _check_times(t: np.ndarray, source: str, lines: np.ndarray | None, what: str
             i = bad[0] + 1
             kind = "duplicate" if d[bad[0]] == 0 else "decreasing"
             raise DataFormatError(source, _line(lines, i),
-                                  f"{what} timestamps must strictly increase ({kind} timestamp {t[i]!r} after {t[i - 1]!r})")
+                                  f"{what} timestamps must strictly increase ({kind} timestamp {t[i]:.9f} after {t[i - 1]:.9f})")
 
 
 def _check_rows(name: str, a: np.ndarray, n: int, cols: int, source: str, lines: np.ndarray | None, what: str) -> None:

@@ -216,30 +216,32 @@ def joseph_update(P, n, H, r, Rm):
 
 @njit(cache=True)
 def log3(R):
-    """Rotation vector of a rotation matrix (the inverse of :func:`exp3`), stable near 0 and pi."""
-    c = 0.5 * (R[0, 0] + R[1, 1] + R[2, 2] - 1.0)
-    c = min(1.0, max(-1.0, c))
-    th = np.arccos(c)
+    """Rotation vector of a rotation matrix (the inverse of :func:`exp3`), accurate near 0 and pi.
+
+    The angle comes from ``atan2(sin, cos)`` (``arccos`` alone loses half the digits near 0 and pi);
+    near pi the axis comes from the symmetric part, whose antisymmetric part vanishes there.
+    """
     w = np.array([R[2, 1] - R[1, 2], R[0, 2] - R[2, 0], R[1, 0] - R[0, 1]])
+    s = 0.5 * np.sqrt(w @ w)
+    c = 0.5 * (R[0, 0] + R[1, 1] + R[2, 2] - 1.0)
+    th = np.arctan2(s, c)
     if th < 1e-6:
-        return 0.5 * w   # sin(th)/th -> 1
-    if np.pi - th < 1e-4:
-        # near pi the antisymmetric part vanishes: take the axis from the symmetric part
-        k = 0
-        for i in range(1, 3):
-            if R[i, i] > R[k, k]:
-                k = i
-        axis = np.empty(3)
-        for i in range(3):
-            axis[i] = 0.5 * (R[i, k] + R[k, i])
-        axis[k] = np.sqrt(max(0.0, (R[k, k] + 1.0) / 2.0))
-        for i in range(3):
-            if i != k:
-                axis[i] = (R[i, k] + R[k, i]) / (4.0 * axis[k])
-        if w @ axis < 0.0:
-            axis = -axis
-        return th * axis / np.sqrt(axis @ axis)
-    return (0.5 * th / np.sin(th)) * w
+        return 0.5 * w * (1.0 + th * th / 6.0)   # th / sin(th) ~ 1 + th^2/6
+    if np.pi - th > 1e-3:
+        return (0.5 * th / s) * w
+    # (R + R^T)/2 - c I = (1 - c) a a^T
+    k = 0
+    for i in range(1, 3):
+        if R[i, i] > R[k, k]:
+            k = i
+    a = np.empty(3)
+    for i in range(3):
+        a[i] = 0.5 * (R[i, k] + R[k, i])
+    a[k] = R[k, k] - c
+    a = a / np.sqrt(a @ a)
+    if w @ a < 0.0:
+        a = -a
+    return th * a
 
 
 @njit(cache=True)

@@ -1,0 +1,47 @@
+"""Shared fixtures: paths to the embedded and shared real data, and a short slice of kitti-00."""
+
+from __future__ import annotations
+
+import shutil
+from pathlib import Path
+
+import pytest
+
+ROOT = Path(__file__).resolve().parent.parent
+KITTI00 = ROOT / "data" / "kitti-00"
+SHARED = ROOT.parent / "shared" / "data"
+
+
+def shared_path(*parts: str) -> Path:
+    """A file of ../shared/data, or skip the test with the reason when it is absent."""
+    p = SHARED.joinpath(*parts)
+    if not p.exists():
+        pytest.skip(f"needs the shared real data at {p} (absent on this machine)")
+    return p
+
+
+def make_slice(dst: Path, n_packets: int, first: int = 0) -> Path:
+    """A self-contained copy of data/kitti-00 holding packets [first, first + n_packets) and their lidar poses."""
+    dst.mkdir(parents=True, exist_ok=True)
+    src = KITTI00
+    (dst / "oxts" / "data").mkdir(parents=True)
+    stamps = (src / "oxts" / "timestamps.txt").read_text().splitlines()[first:first + n_packets]
+    (dst / "oxts" / "timestamps.txt").write_text("\n".join(stamps) + "\n")
+    for i in range(n_packets):
+        shutil.copy(src / "oxts" / "data" / f"{first + i:010d}.txt", dst / "oxts" / "data" / f"{i:010d}.txt")
+    shutil.copy(src / "calib_imu_to_velo.txt", dst)
+    (dst / "lidar").mkdir()
+    shutil.copy(src / "lidar" / "calib.txt", dst / "lidar")
+    poses = (src / "lidar" / "00_poses_kitti.txt").read_text().splitlines()[first:first + n_packets]
+    (dst / "lidar" / "poses.txt").write_text("\n".join(poses) + "\n")
+    times = (src / "lidar" / "times.txt").read_text().splitlines()[first:first + n_packets]
+    (dst / "lidar" / "times.txt").write_text("\n".join(times) + "\n")
+    manifest = (src / "dataset.yaml").read_text().replace("lidar/00_poses_kitti.txt", "lidar/poses.txt")
+    (dst / "dataset.yaml").write_text(manifest.replace("name: kitti-00", "name: kitti-00-slice"))
+    return dst
+
+
+@pytest.fixture(scope="session")
+def kitti_slice(tmp_path_factory) -> Path:
+    """The first 900 packets (about 90 s, 0.7 km) of kitti-00, including the filled packets 0-13 and 347-361."""
+    return make_slice(tmp_path_factory.mktemp("slice") / "kitti-00-slice", 900)
