@@ -34,7 +34,7 @@ SCHEMA: dict[str, tuple[Any, str]] = {
     "filter.init_pose_from": ("groundtruth", "initial position/attitude from 'groundtruth' or the first valid 'lidar' pose"),
     "filter.init_velocity_from": ("groundtruth", "initial velocity from 'groundtruth' or from differencing the first two 'gnss' fixes"),
     "imu.time_offset_s": (None, "added to IMU stamps; null = the manifest's value (default 0)"),
-    "imu.gyro_lag_s": (None, "the gyro reports the rate of gyro_lag_s earlier; it is advanced by this much; null = manifest"),
+    "imu.gyro_lag_s": (None, "the gyro reports the rate of gyro_lag_s earlier and is advanced by this much; 'auto' = estimated from the lidar rotation increments; null = the manifest's value"),
     "imu.filled_packets": ("drop", "provider-filled IMU samples: 'drop' (default) or 'keep'"),
     "imu.accel_noise_mps2_sqrthz": (0.3, "accelerometer white noise density (velocity random walk), m/s^2/sqrt(Hz)"),
     "imu.gyro_noise_dps_sqrthz": (0.1, "gyroscope white noise density (angle random walk), deg/s/sqrt(Hz)"),
@@ -87,6 +87,10 @@ def _check_value(key: str, value: Any, where: str) -> Any:
         if value == "auto":
             return value
         return _number(key, value, where, positive=True)
+    if key == "imu.gyro_lag_s":
+        if value is None or value == "auto":
+            return value
+        return _number(key, value, where)
     if key == "gnss.std_m":
         if value == "auto":
             return value

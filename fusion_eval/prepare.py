@@ -12,6 +12,7 @@ from dataclasses import dataclass, field, replace
 
 import numpy as np
 
+from .calibration import estimate_gyro_lag
 from .config import get
 from .degrade import degrade_gnss
 from .errors import ConfigError, DataRangeError
@@ -91,10 +92,6 @@ def prepare(ds: Dataset, cfg: dict) -> Prepared:
         imu = imu.select(~imu.filled)
     applied["imu_filled_samples"] = n_filled
     applied["imu_filled_packets"] = cfg["imu"]["filled_packets"]
-    lag = cfg["imu"]["gyro_lag_s"]
-    lag = float(ds.description.get("gyro_lag_s", 0.0) if lag is None else lag)
-    imu = apply_gyro_lag(imu, lag)
-    applied["gyro_lag_s"] = lag
     if len(imu) < 2:
         raise DataRangeError(f"{ds.imu.source}: fewer than 2 usable IMU samples")
 
@@ -120,6 +117,20 @@ def prepare(ds: Dataset, cfg: dict) -> Prepared:
         lidar = lid
         if use_lidar and (len(lidar) < 2 or lidar.t_s[-1] <= imu.t_s[0] or lidar.t_s[0] >= imu.t_s[-1]):
             raise DataRangeError(f"lidar ({ds.lidar.source}) and IMU ({ds.imu.source}) do not overlap in time")
+
+    # --- gyro lag: given, or estimated from the lidar rotation increments (no ground truth needed)
+    lag = cfg["imu"]["gyro_lag_s"]
+    lag = ds.description.get("gyro_lag_s", 0.0) if lag is None else lag
+    if lag == "auto":
+        if lidar is None:
+            raise ConfigError("imu.gyro_lag_s=auto needs a lidar stream to estimate the lag from")
+        lid_on_imu = lidar if cfg["lidar"]["interpolate_to_imu"] else interpolate_poses(lidar, imu.t_s)
+        lag = estimate_gyro_lag(imu, lid_on_imu)
+        applied["gyro_lag_estimated"] = True
+        log.info("gyro lag estimated from the lidar rotation increments: %.1f ms", lag * 1000)
+    lag = float(lag)
+    imu = apply_gyro_lag(imu, lag)
+    applied["gyro_lag_s"] = lag
 
     # --- start: first IMU sample covered by the ground truth (and the lidar, when it is fused)
     t_min = gt.t_s[0]

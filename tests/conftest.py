@@ -45,3 +45,16 @@ def make_slice(dst: Path, n_packets: int, first: int = 0) -> Path:
 def kitti_slice(tmp_path_factory) -> Path:
     """The first 900 packets (about 90 s, 0.7 km) of kitti-00, including the filled packets 0-13 and 347-361."""
     return make_slice(tmp_path_factory.mktemp("slice") / "kitti-00-slice", 900)
+
+
+@pytest.fixture(scope="session")
+def slice_run(kitti_slice, tmp_path_factory) -> Path:
+    """The output folder of `fusion-eval run` with the default configuration on the slice."""
+    from click.testing import CliRunner
+
+    from fusion_eval.cli import main
+
+    out = tmp_path_factory.mktemp("run") / "out"
+    res = CliRunner().invoke(main, ["-q", "run", str(kitti_slice), "--out", str(out)])
+    assert res.exit_code == 0, res.output
+    return out

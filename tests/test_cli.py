@@ -18,14 +18,6 @@ TUMS = ("fused.tum", "lidar.tum", "gnss.tum", "imu_only.tum", "groundtruth.tum")
 PLOTS = ("trajectories.png", "ape_over_time.png", "biases.png", "fused_error_3sigma.png")
 
 
-@pytest.fixture(scope="session")
-def slice_run(kitti_slice, tmp_path_factory):
-    out = tmp_path_factory.mktemp("run") / "out"
-    res = CliRunner().invoke(main, ["-q", "run", str(kitti_slice), "--out", str(out)])
-    assert res.exit_code == 0, res.output
-    return out
-
-
 def test_help_and_version():
     r = CliRunner().invoke(main, ["--help"])
     assert r.exit_code == 0 and "run" in r.output
@@ -93,10 +85,12 @@ def test_existing_output_directory_is_kept_unless_overwrite(kitti_slice, slice_r
 
 
 def test_set_overrides_and_lidar_forms(kitti_slice, tmp_path):
-    for form in ("absolute", "none"):
-        out = tmp_path / form
+    for form, extra in (("absolute", []), ("none", []), ("relative", ["--set", "lidar.interpolate_to_imu=false"]),
+                        ("relative", ["--set", "filter.init_pose_from=lidar", "--set", "filter.init_velocity_from=gnss",
+                                      "--set", "filter.bias_model=constant", "--set", "imu.gyro_lag_s=auto"])):
+        out = tmp_path / f"{form}-{len(extra)}"
         r = CliRunner().invoke(main, ["-q", "run", str(kitti_slice), "--out", str(out), "--no-plots",
-                                      "--set", f"filter.lidar_update={form}", "--set", "gnss.outages_s=[[20, 40]]"])
+                                      "--set", f"filter.lidar_update={form}", "--set", "gnss.outages_s=[[20, 40]]", *extra])
         assert r.exit_code == 0, r.output
         m = json.loads((out / "metrics.json").read_text())
         # 1 Hz for 20 s, less a fix that may fall in the filled-in packets 347-361 (about 33-35 s)

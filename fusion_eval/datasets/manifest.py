@@ -111,12 +111,15 @@ def _from_manifest_dict(body: dict, root: Path, manifest: Path) -> Dataset:
         "attribution": body.get("attribution"),
         "description": body.get("description"),
         "time_offset_s": {s: float(streams[s].get("time_offset_s", 0.0)) for s in streams},
-        "gyro_lag_s": float(imu_spec.get("gyro_lag_s", 0.0)),
+        "gyro_lag_s": imu_spec.get("gyro_lag_s", 0.0),
         "lidar_anchor": streams.get("lidar", {}).get("anchor", "groundtruth"),
         "streams": {s: {k: (str(v) if k == "path" else v) for k, v in streams[s].items()} for s in streams},
     }
     if description["lidar_anchor"] not in ("groundtruth", "none"):
         raise ConfigError(f"{manifest}: lidar 'anchor' must be 'groundtruth' or 'none', got {description['lidar_anchor']!r}")
+    g = description["gyro_lag_s"]
+    if g != "auto" and (isinstance(g, bool) or not isinstance(g, (int, float)) or not np.isfinite(g)):
+        raise ConfigError(f"{manifest}: gyro_lag_s of 'imu' must be a number of seconds or 'auto', got {g!r}")
     for s, v in description["time_offset_s"].items():
         if not np.isfinite(v):
             raise ConfigError(f"{manifest}: time_offset_s of {s!r} must be a number")

@@ -1,0 +1,98 @@
+#!/usr/bin/env python3
+"""Benchmarks of issue 2: the filter's IMU samples per second and the wall time of a whole default run.
+
+    python scripts/bench.py [--samples 1000000] [--runs 3]
+
+Prints, on this machine:
+  1. propagation throughput (mechanization + covariance, compiled kernels) for the 15-state filter and
+     with a cloned pose (21 states), over a synthetic IMU stream;
+  2. the replay of data/kitti-00 (IMU + lidar + GNSS updates), in IMU samples per second;
+  3. the wall time of `fusion-eval -q run` on the default dataset with plots, after a warm-up run that
+     fills numba's cache (median of --runs).
+"""
+
+from __future__ import annotations
+
+import argparse
+import statistics
+import subprocess
+import sys
+import tempfile
+import time
+from pathlib import Path
+
+import numpy as np
+
+ROOT = Path(__file__).resolve().parent.parent
+sys.path.insert(0, str(ROOT))
+
+from fusion_eval.config import load_config, to_filter_params  # noqa: E402
+from fusion_eval.datasets.manifest import load_dataset  # noqa: E402
+from fusion_eval.filters import kernels as kn  # noqa: E402
+from fusion_eval.filters.eskf import ErrorStateKF, NominalState  # noqa: E402
+from fusion_eval.prepare import prepare  # noqa: E402
+from fusion_eval.replay import process_params, replay  # noqa: E402
+
+
+def propagation_rate(n_samples: int, clone: bool) -> float:
+    rng = np.random.default_rng(0)
+    t = np.arange(n_samples) * 0.01
+    f = np.tile([0.0, 0.0, 9.81], (n_samples, 1)) + rng.normal(size=(n_samples, 3)) * 0.1
+    w = rng.normal(size=(n_samples, 3)) * 0.01
+    cfg = load_config(None)
+    fp = to_filter_params(cfg, 9.81)
+    prm = process_params(fp, t)
+    x0 = NominalState(np.zeros(3), np.zeros(3), np.eye(3), np.zeros(3), np.zeros(3))
+    kf = ErrorStateKF(x0, np.diag(fp.init_std ** 2), prm, t, f, w, 0)
+    if clone:
+        kf.clone_pose()
+    kf.predict_to(t[100])  # compile / load from cache
+    t0 = time.perf_counter()
+    kf.predict_to(t[-1])
+    return (n_samples - 101) / (time.perf_counter() - t0)
+
+
+def replay_rate() -> tuple[float, float, int]:
+    ds = load_dataset(ROOT / "data" / "kitti-00")
+    cfg = load_config(ROOT / "configs" / "default.yaml")
+    prep = prepare(ds, cfg)
+    fp = to_filter_params(cfg, prep.gravity_mps2)
+    replay(prep, fp)  # warm-up
+    t0 = time.perf_counter()
+    out = replay(prep, fp)
+    dt = time.perf_counter() - t0
+    return out.n_imu_samples / dt, dt, out.n_imu_samples
+
+
+def run_wall(runs: int) -> list[float]:
+    exe = Path(sys.executable).parent / "fusion-eval"
+    cmd = [str(exe)] if exe.exists() else [sys.executable, "-m", "fusion_eval"]
+    times = []
+    with tempfile.TemporaryDirectory() as tmp:
+        for i in range(runs + 1):
+            t0 = time.perf_counter()
+            subprocess.run(cmd + ["-q", "run", "--out", f"{tmp}/r{i}"], check=True, cwd=ROOT)
+            if i > 0:   # the first run compiles or loads the numba cache
+                times.append(time.perf_counter() - t0)
+    return times
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    ap.add_argument("--samples", type=int, default=1_000_000)
+    ap.add_argument("--runs", type=int, default=3)
+    a = ap.parse_args()
+    r15 = propagation_rate(a.samples, clone=False)
+    r21 = propagation_rate(a.samples, clone=True)
+    print(f"propagation, 15 states:            {r15:12,.0f} IMU samples/s  (target >= 250,000)")
+    print(f"propagation, 21 states (clone):    {r21:12,.0f} IMU samples/s")
+    rr, dt, n = replay_rate()
+    print(f"replay of kitti-00 with updates:   {rr:12,.0f} IMU samples/s  ({n} samples, "
+          f"4.4k lidar + 0.5k GNSS updates, {dt * 1000:.0f} ms incl. dead reckoning)")
+    times = run_wall(a.runs)
+    print(f"fusion-eval run (default, plots):  {statistics.median(times):12.2f} s wall, median of {len(times)} "
+          f"(all: {', '.join(f'{t:.2f}' for t in times)}; target < 5 s)")
+
+
+if __name__ == "__main__":
+    main()

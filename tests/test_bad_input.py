@@ -1,0 +1,145 @@
+"""Bad input: a one-line error naming the file, the line and what was expected; exit code 2; no output left."""
+
+from __future__ import annotations
+
+import subprocess
+import sys
+from pathlib import Path
+
+import pytest
+from click.testing import CliRunner
+
+from conftest import make_slice
+from fusion_eval.cli import main
+
+
+@pytest.fixture
+def ds(tmp_path) -> Path:
+    return make_slice(tmp_path / "ds", 120)
+
+
+def _run(ds: Path, tmp_path: Path, *extra: str):
+    out = tmp_path / "out"
+    r = CliRunner().invoke(main, ["-q", "run", str(ds), "--out", str(out), "--no-plots", *extra])
+    return r, out
+
+
+def _assert_clean_error(r, out: Path, *needles: str):
+    assert r.exit_code == 2, (r.exit_code, r.output)
+    err = r.stderr.strip()
+    assert err.startswith("error: ") and "\n" not in err, err
+    assert "Traceback" not in r.output
+    for n in needles:
+        assert n in err, (n, err)
+    assert not out.exists()
+    assert not list(out.parent.glob(".out.partial*"))
+
+
+def _edit_line(path: Path, lineno: int, new: str) -> None:
+    lines = path.read_text().splitlines()
+    lines[lineno - 1] = new
+    path.write_text("\n".join(lines) + "\n")
+
+
+def test_missing_dataset(tmp_path):
+    r, out = _run(tmp_path / "nope", tmp_path)
+    _assert_clean_error(r, out, "nope", "dataset not found")
+
+
+def test_missing_file(ds, tmp_path):
+    (ds / "lidar" / "poses.txt").unlink()
+    r, out = _run(ds, tmp_path)
+    _assert_clean_error(r, out, "poses.txt", "file not found")
+
+
+def test_wrong_column_count(ds, tmp_path):
+    p = ds / "lidar" / "poses.txt"
+    _edit_line(p, 5, " ".join(p.read_text().splitlines()[4].split()[:11]))
+    r, out = _run(ds, tmp_path)
+    _assert_clean_error(r, out, "poses.txt:5:", "12 values per row, got 11")
+
+
+def test_non_numeric_value_in_oxts_packet(ds, tmp_path):
+    p = ds / "oxts" / "data" / "0000000042.txt"
+    vals = p.read_text().split()
+    vals[12] = "abc"
+    p.write_text(" ".join(vals) + "\n")
+    r, out = _run(ds, tmp_path)
+    _assert_clean_error(r, out, "0000000042.txt:1:", "expected a number, got 'abc'")
+
+
+def test_wrong_value_count_in_oxts_packet(ds, tmp_path):
+    p = ds / "oxts" / "data" / "0000000007.txt"
+    p.write_text(" ".join(p.read_text().split()[:29]) + "\n")
+    r, out = _run(ds, tmp_path)
+    _assert_clean_error(r, out, "0000000007.txt:1:", "expected 30 values per OXTS packet, got 29")
+
+
+def test_nan_value(ds, tmp_path):
+    p = ds / "lidar" / "times.txt"
+    _edit_line(p, 9, "nan")
+    r, out = _run(ds, tmp_path)
+    _assert_clean_error(r, out, "times.txt:9:", "finite")
+
+
+def test_non_increasing_timestamps(ds, tmp_path):
+    p = ds / "oxts" / "timestamps.txt"
+    lines = p.read_text().splitlines()
+    _edit_line(p, 31, lines[28])
+    r, out = _run(ds, tmp_path)
+    _assert_clean_error(r, out, "timestamps.txt:31:", "strictly increase", "decreasing")
+
+
+def test_duplicate_timestamps(ds, tmp_path):
+    p = ds / "lidar" / "times.txt"
+    lines = p.read_text().splitlines()
+    _edit_line(p, 20, lines[18])
+    r, out = _run(ds, tmp_path)
+    _assert_clean_error(r, out, "times.txt:20:", "strictly increase")
+
+
+def test_malformed_timestamp(ds, tmp_path):
+    _edit_line(ds / "oxts" / "timestamps.txt", 3, "2011-10-03 12:55:35,19")
+    r, out = _run(ds, tmp_path)
+    _assert_clean_error(r, out, "timestamps.txt:3:", "YYYY-MM-DD HH:MM:SS")
+
+
+def test_manifest_unknown_format(ds, tmp_path):
+    m = ds / "dataset.yaml"
+    m.write_text(m.read_text().replace("format: kitti_poses", "format: kitti_posez"))
+    r, out = _run(ds, tmp_path)
+    _assert_clean_error(r, out, "dataset.yaml", "unknown format 'kitti_posez'", "kitti_poses")
+
+
+def test_manifest_unknown_key(ds, tmp_path):
+    m = ds / "dataset.yaml"
+    m.write_text(m.read_text().replace("    anchor: groundtruth", "    anchr: groundtruth"))
+    r, out = _run(ds, tmp_path)
+    _assert_clean_error(r, out, "dataset.yaml", "unknown key 'anchr'")
+
+
+def test_streams_that_do_not_overlap(ds, tmp_path):
+    r, out = _run(ds, tmp_path, "--set", "lidar.time_offset_s=100000")
+    _assert_clean_error(r, out, "do not overlap in time")
+
+
+def test_unknown_config_key_and_bad_value(ds, tmp_path):
+    r, out = _run(ds, tmp_path, "--set", "imu.gyro_noise=0.1")
+    _assert_clean_error(r, out, "unknown key 'imu.gyro_noise'", "gyro_noise_dps_sqrthz")
+    r, out = _run(ds, tmp_path, "--set", "filter.lidar_update=sideways")
+    _assert_clean_error(r, out, "filter.lidar_update must be one of relative, absolute, none")
+    cfg = tmp_path / "bad.yaml"
+    cfg.write_text("filter:\n  use_gnss: [unclosed\n")
+    r, out = _run(ds, tmp_path, "--config", str(cfg))
+    _assert_clean_error(r, out, "bad.yaml", "not valid YAML")
+
+
+def test_real_process_exit_code_and_single_line(ds, tmp_path):
+    p = ds / "lidar" / "poses.txt"
+    _edit_line(p, 3, "1 2 3")
+    r = subprocess.run([sys.executable, "-m", "fusion_eval", "run", str(ds), "--out", str(tmp_path / "o")],
+                       capture_output=True, text=True, timeout=120)
+    assert r.returncode == 2
+    assert r.stderr.strip().splitlines()[-1].startswith("error: ") and "Traceback" not in r.stderr
+    assert "poses.txt:3:" in r.stderr
+    assert not (tmp_path / "o").exists()

@@ -1,0 +1,57 @@
+"""Configuration: defaults, YAML, --set, validation, and the one conversion to SI."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from conftest import ROOT
+from fusion_eval.config import SCHEMA, default_config, load_config, to_filter_params
+from fusion_eval.errors import ConfigError
+
+
+def test_configs_default_yaml_spells_out_the_builtin_defaults():
+    assert load_config(ROOT / "configs" / "default.yaml") == default_config()
+
+
+def test_lidar_imu_config_turns_gnss_off():
+    cfg = load_config(ROOT / "configs" / "lidar-imu.yaml")
+    assert cfg["filter"]["use_gnss"] is False and cfg["filter"]["lidar_update"] == "relative"
+
+
+def test_set_overrides_yaml_and_parses_values(tmp_path):
+    p = tmp_path / "c.yaml"
+    p.write_text("imu:\n  gyro_noise_dps_sqrthz: 0.5\n")
+    cfg = load_config(p, ("imu.gyro_noise_dps_sqrthz=0.25", "gnss.noise_std_m=3", "gnss.rate_hz=null"))
+    assert cfg["imu"]["gyro_noise_dps_sqrthz"] == 0.25
+    assert cfg["gnss"]["noise_std_m"] == [3.0, 3.0, 3.0]
+    assert cfg["gnss"]["rate_hz"] is None
+
+
+@pytest.mark.parametrize("item,msg", [
+    ("imu.nope=1", "unknown key"),
+    ("nosection.x=1", "unknown section"),
+    ("imu.gyro_noise_dps_sqrthz=-1", ">= 0"),
+    ("gnss.noise_std_m=[1,2]", "3 numbers"),
+    ("gnss.outages_s=[[5, 1]]", "end > start"),
+    ("filter.use_gnss=maybe", "true or false"),
+    ("novalue", "section.key=value"),
+])
+def test_invalid_settings_are_rejected_with_the_key(item, msg):
+    with pytest.raises(ConfigError, match=msg):
+        load_config(None, (item,))
+
+
+def test_human_units_convert_to_si_once():
+    cfg = load_config(None, ("imu.gyro_noise_dps_sqrthz=1.0", "init.yaw_std_deg=2.0", "lidar.relative_att_std_deg=0.5"))
+    fp = to_filter_params(cfg, 9.8)
+    assert np.isclose(fp.gyro_noise, np.pi / 180)
+    assert np.isclose(fp.init_std[8], 2 * np.pi / 180) and np.isclose(fp.init_std[6], 0.1 * np.pi / 180)
+    assert np.isclose(fp.rel_att_std_rad, 0.5 * np.pi / 180)
+    assert fp.gravity_mps2 == 9.8
+
+
+def test_every_key_is_documented_in_the_readme():
+    readme = (ROOT / "README.md").read_text()
+    missing = [k for k in SCHEMA if f"`{k}`" not in readme]
+    assert not missing, missing
