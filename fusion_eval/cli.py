@@ -118,14 +118,15 @@ def run(ctx, dataset, config_path, sets, out_dir, overwrite, no_plots):
 
 
 def _summary_table(metrics: dict) -> str:
+    def cell(d, nd):
+        return f"{d['rmse']:.{nd}f}" if d else "n/a"
+
     lines = [f"{'estimate':<10} {'matched':>8} {'APE trans RMSE [m]':>19} {'APE rot RMSE [deg]':>19} {'RPE trans 1 frame [m]':>22}"]
     for name, m in metrics["estimates"].items():
         ape = m.get("ape", {})
-        t = ape.get("translation_m")
-        r = ape.get("rotation_deg")
         rpe = (m.get("rpe_1frame") or {}).get("translation_m")
-        lines.append(f"{name:<10} {m['matched_poses']:>8} {t['rmse'] if t else float('nan'):>19.3f} "
-                     f"{r['rmse'] if r else float('nan'):>19.3f} {rpe['rmse'] if rpe else float('nan'):>22.4f}")
+        lines.append(f"{name:<10} {m['matched_poses']:>8} {cell(ape.get('translation_m'), 3):>19} "
+                     f"{cell(ape.get('rotation_deg'), 3):>19} {cell(rpe, 4):>22}")
     for k, v in metrics["ratios"].items():
         if v is not None:
             lines.append(f"{k.replace('_', ' ')} (APE RMSE): {v:.3f}")
