@@ -10,92 +10,125 @@ from __future__ import annotations
 import copy
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any
+from typing import Any, NamedTuple
 
 import numpy as np
 import yaml
 
 from .errors import ConfigError
 
-CHOICES = {
-    "filter.lidar_update": ("relative", "absolute", "none"),
-    "filter.bias_model": ("random_walk", "constant"),
-    "filter.init_pose_from": ("groundtruth", "lidar"),
-    "filter.init_velocity_from": ("groundtruth", "gnss"),
-    "imu.filled_packets": ("drop", "keep"),
-}
+class Spec(NamedTuple):
+    """One configuration key: default, meaning, and what values it accepts.
+
+    ``kind``: ``choice`` (one of ``choices``), ``bool``, ``int``, ``float``, ``vec3`` (3 numbers, or one
+    number for all three), ``windows`` (list of ``[start, end]``). ``auto`` admits the string 'auto',
+    ``nullable`` admits null; ``positive``/``nonneg`` bound numbers.
+    """
+
+    default: Any
+    doc: str
+    kind: str = "float"
+    choices: tuple = ()
+    positive: bool = False
+    nonneg: bool = False
+    nullable: bool = False
+    auto: bool = False
+
+
+def S(default, doc, kind=None, **kw) -> Spec:
+    if kind is None:
+        kind = {bool: "bool", int: "int", float: "float", list: "vec3", str: "choice"}.get(type(default), "float")
+    return Spec(default, doc, kind, **kw)
+
 
 # Every key, its default and its meaning. README's configuration table is this table.
-SCHEMA: dict[str, tuple[Any, str]] = {
-    "filter.lidar_update": ("relative", "lidar odometry as 'relative' pose increments (stochastic cloning), 'absolute' poses, or 'none'"),
-    "filter.use_gnss": (True, "fuse GNSS position fixes"),
-    "filter.bias_model": ("random_walk", "IMU bias model: 'random_walk' or 'constant' (bias states kept, no process noise)"),
-    "filter.gravity_mps2": ("auto", "gravity magnitude; 'auto' = WGS84 normal gravity at the geodetic origin (9.80665 without one)"),
-    "filter.init_pose_from": ("groundtruth", "initial position/attitude from 'groundtruth' or the first valid 'lidar' pose"),
-    "filter.init_velocity_from": ("groundtruth", "initial velocity from 'groundtruth' or from differencing the first two 'gnss' fixes"),
-    "imu.time_offset_s": (None, "added to IMU stamps; null = the manifest's value (default 0)"),
-    "imu.gyro_lag_s": (None, "the gyro reports the rate of gyro_lag_s earlier and is advanced by this much; 'auto' = estimated from the lidar rotation increments; null = the manifest's value"),
-    "imu.filled_packets": ("drop", "provider-filled IMU samples: 'drop' (default) or 'keep'"),
-    "imu.accel_noise_mps2_sqrthz": (0.3, "accelerometer white noise density (velocity random walk), m/s^2/sqrt(Hz)"),
-    "imu.gyro_noise_dps_sqrthz": (0.1, "gyroscope white noise density (angle random walk), deg/s/sqrt(Hz)"),
-    "imu.accel_bias_rw_mps3_sqrthz": (1e-4, "accelerometer bias random walk, m/s^3/sqrt(Hz)"),
-    "imu.gyro_bias_rw_dps2_sqrthz": (1e-5, "gyroscope bias random walk, deg/s^2/sqrt(Hz)"),
-    "imu.gap_factor": (1.5, "an IMU interval longer than gap_factor x the median interval is a gap"),
-    "imu.gap_noise_scale": (10.0, "process noise std multiplier on intervals that are gaps"),
-    "lidar.time_offset_s": (None, "added to lidar stamps; null = the manifest's value (default 0)"),
-    "lidar.interpolate_to_imu": (True, "resample the lidar poses onto the IMU stamps (SLERP) before fusing"),
-    "lidar.relative_pos_std_m": (0.02, "relative update: position increment std, constant part, m"),
-    "lidar.relative_pos_std_frac": (0.01, "relative update: position increment std per metre travelled (0.01 = 1 %)"),
-    "lidar.relative_att_std_deg": (0.05, "relative update: rotation increment std, deg"),
-    "lidar.absolute_pos_std_m": (1.0, "absolute update: position std, m"),
-    "lidar.absolute_att_std_deg": (1.0, "absolute update: attitude std, deg"),
-    "gnss.time_offset_s": (None, "added to GNSS stamps; null = the manifest's value (default 0)"),
-    "gnss.rate_hz": (1.0, "decimate GNSS to this rate (null = keep every fix)"),
-    "gnss.noise_std_m": ([1.0, 1.0, 2.0], "white noise added per axis E/N/U, m ([0, 0, 0] = none)"),
-    "gnss.outages_s": ([], "outage windows [[start, end], ...] in seconds from the first IMU sample"),
-    "gnss.seed": (0, "seed of the GNSS noise"),
-    "gnss.std_m": ("auto", "GNSS std given to the filter per axis, m; 'auto' = sqrt(reported accuracy^2 + added noise^2)"),
-    "gnss.lever_arm_b_m": ([0.0, 0.0, 0.0], "antenna position in the body frame, m"),
-    "init.pos_std_m": (0.1, "initial position std, m"),
-    "init.vel_std_mps": (0.1, "initial velocity std, m/s"),
-    "init.roll_pitch_std_deg": (0.1, "initial roll and pitch std, deg"),
-    "init.yaw_std_deg": (0.01, "initial yaw std, deg (unobservable from relative lidar alone: keep it tight)"),
-    "init.accel_bias_std_mps2": (0.01, "initial accelerometer bias std, m/s^2"),
-    "init.gyro_bias_std_dps": (0.005, "initial gyroscope bias std, deg/s"),
-    "evaluation.t_max_diff_s": (0.01, "max stamp difference when evo associates estimate and reference poses, s"),
-    "evaluation.rpe_delta_m": (100.0, "RPE segment length for the per-distance RPE, m"),
-    "output.plots": (True, "write PNG plots"),
+SCHEMA: dict[str, Spec] = {
+    "filter.lidar_update": S("relative", "lidar odometry as 'relative' pose increments (stochastic cloning), 'absolute' poses, or 'none'",
+                             choices=("relative", "absolute", "none")),
+    "filter.use_gnss": S(True, "fuse GNSS position fixes"),
+    "filter.bias_model": S("random_walk", "IMU bias model: 'random_walk' or 'constant' (bias states kept, no process noise)",
+                           choices=("random_walk", "constant")),
+    "filter.gravity_mps2": S("auto", "gravity magnitude; 'auto' = WGS84 normal gravity at the geodetic origin (9.80665 without one)",
+                             "float", positive=True, auto=True),
+    "filter.init_pose_from": S("groundtruth", "initial position/attitude from 'groundtruth' or the first valid 'lidar' pose",
+                               choices=("groundtruth", "lidar")),
+    "filter.init_velocity_from": S("groundtruth", "initial velocity from 'groundtruth' or from differencing the first two 'gnss' fixes",
+                                   choices=("groundtruth", "gnss")),
+    "imu.time_offset_s": S(None, "added to IMU stamps; null = the manifest's value (default 0)", "float", nullable=True),
+    "imu.gyro_lag_s": S(None, "the gyro reports the rate of gyro_lag_s earlier and is advanced by this much; 'auto' = estimated "
+                              "from the lidar rotation increments; null = the manifest's value", "float", nullable=True, auto=True),
+    "imu.filled_packets": S("drop", "provider-filled IMU samples: 'drop' (default) or 'keep'", choices=("drop", "keep")),
+    "imu.accel_noise_mps2_sqrthz": S(0.3, "accelerometer white noise density (velocity random walk), m/s^2/sqrt(Hz)", nonneg=True),
+    "imu.gyro_noise_dps_sqrthz": S(0.1, "gyroscope white noise density (angle random walk), deg/s/sqrt(Hz)", nonneg=True),
+    "imu.accel_bias_rw_mps3_sqrthz": S(1e-4, "accelerometer bias random walk, m/s^3/sqrt(Hz)", nonneg=True),
+    "imu.gyro_bias_rw_dps2_sqrthz": S(1e-5, "gyroscope bias random walk, deg/s^2/sqrt(Hz)", nonneg=True),
+    "imu.gap_factor": S(1.5, "an IMU interval longer than gap_factor x the median interval is a gap", positive=True),
+    "imu.gap_noise_scale": S(10.0, "process noise std multiplier on intervals that are gaps", positive=True),
+    "lidar.time_offset_s": S(None, "added to lidar stamps; null = the manifest's value (default 0)", "float", nullable=True),
+    "lidar.interpolate_to_imu": S(True, "resample the lidar poses onto the IMU stamps (SLERP) before fusing"),
+    "lidar.relative_pos_std_m": S(0.02, "relative update: position increment std, constant part, m", nonneg=True),
+    "lidar.relative_pos_std_frac": S(0.01, "relative update: position increment std per metre travelled (0.01 = 1 %)", nonneg=True),
+    "lidar.relative_att_std_deg": S(0.05, "relative update: rotation increment std, deg", positive=True),
+    "lidar.absolute_pos_std_m": S(1.0, "absolute update: position std, m", positive=True),
+    "lidar.absolute_att_std_deg": S(1.0, "absolute update: attitude std, deg", positive=True),
+    "gnss.time_offset_s": S(None, "added to GNSS stamps; null = the manifest's value (default 0)", "float", nullable=True),
+    "gnss.rate_hz": S(1.0, "decimate GNSS to this rate (null = keep every fix); only for streams the manifest marks 'degrade'",
+                      "float", positive=True, nullable=True),
+    "gnss.noise_std_m": S([1.0, 1.0, 2.0], "white noise added per axis E/N/U, m ([0, 0, 0] = none)", nonneg=True),
+    "gnss.outages_s": S([], "outage windows [[start, end], ...] in seconds from the first IMU sample", "windows"),
+    "gnss.seed": S(0, "seed of the GNSS noise"),
+    "gnss.std_m": S("auto", "GNSS std given to the filter per axis, m; 'auto' = sqrt(reported accuracy^2 + added noise^2)",
+                    "vec3", positive=True, auto=True),
+    "gnss.lever_arm_b_m": S([0.0, 0.0, 0.0], "antenna position in the body frame, m"),
+    "init.pos_std_m": S(0.1, "initial position std, m", positive=True),
+    "init.vel_std_mps": S(0.1, "initial velocity std, m/s", positive=True),
+    "init.roll_pitch_std_deg": S(0.1, "initial roll and pitch std, deg", positive=True),
+    "init.yaw_std_deg": S(0.01, "initial yaw std, deg (unobservable from relative lidar alone: keep it tight)", positive=True),
+    "init.accel_bias_std_mps2": S(0.01, "initial accelerometer bias std, m/s^2", nonneg=True),
+    "init.gyro_bias_std_dps": S(0.005, "initial gyroscope bias std, deg/s", nonneg=True),
+    "evaluation.t_max_diff_s": S(0.01, "max stamp difference when evo associates estimate and reference poses, s", positive=True),
+    "evaluation.rpe_delta_m": S(100.0, "RPE segment length for the per-distance RPE, m", positive=True),
+    "output.plots": S(True, "write PNG plots"),
 }
+
+
+def defaults_of(schema: dict[str, Spec]) -> dict:
+    out: dict = {}
+    for key, spec in schema.items():
+        sect, name = key.split(".")
+        out.setdefault(sect, {})[name] = copy.deepcopy(spec.default)
+    return out
 
 
 def default_config() -> dict:
     """The built-in defaults as a nested dict (what ``configs/default.yaml`` spells out)."""
-    out: dict = {}
-    for key, (value, _) in SCHEMA.items():
-        sect, name = key.split(".")
-        out.setdefault(sect, {})[name] = copy.deepcopy(value)
-    return out
+    return defaults_of(SCHEMA)
 
 
-def _check_value(key: str, value: Any, where: str) -> Any:
-    default = SCHEMA[key][0]
-    if key in CHOICES:
-        if value not in CHOICES[key]:
-            raise ConfigError(f"{where}: {key} must be one of {', '.join(CHOICES[key])}, got {value!r}")
+def check_value(key: str, spec: Spec, value: Any, where: str) -> Any:
+    """Validate and normalise one value against its :class:`Spec`; raise :class:`ConfigError` naming the key."""
+    if spec.nullable and value is None:
+        return None
+    if spec.auto and value == "auto":
         return value
-    if key == "filter.gravity_mps2":
-        if value == "auto":
-            return value
-        return _number(key, value, where, positive=True)
-    if key == "imu.gyro_lag_s":
-        if value is None or value == "auto":
-            return value
-        return _number(key, value, where)
-    if key == "gnss.std_m":
-        if value == "auto":
-            return value
-        return _vec3(key, value, where, positive=True)
-    if key == "gnss.outages_s":
+    k = spec.kind
+    if k == "choice":
+        if value not in spec.choices:
+            raise ConfigError(f"{where}: {key} must be one of {', '.join(spec.choices)}, got {value!r}")
+        return value
+    if k == "bool":
+        if not isinstance(value, bool):
+            raise ConfigError(f"{where}: {key} must be true or false, got {value!r}")
+        return value
+    if k == "int":
+        if not isinstance(value, int) or isinstance(value, bool):
+            raise ConfigError(f"{where}: {key} must be an integer, got {value!r}")
+        if (spec.positive and value <= 0) or (spec.nonneg and value < 0):
+            raise ConfigError(f"{where}: {key} must be {'> 0' if spec.positive else '>= 0'}, got {value!r}")
+        return value
+    if k == "vec3":
+        return _vec3(key, value, where, positive=spec.positive, nonneg=spec.nonneg)
+    if k == "windows":
         if not isinstance(value, list) or not all(isinstance(w, (list, tuple)) and len(w) == 2 for w in value):
             raise ConfigError(f"{where}: {key} must be a list of [start, end] pairs in seconds, got {value!r}")
         out = []
@@ -105,22 +138,11 @@ def _check_value(key: str, value: Any, where: str) -> Any:
                 raise ConfigError(f"{where}: {key} window [{a}, {b}] must have end > start")
             out.append([a, b])
         return out
-    if isinstance(default, bool):
-        if not isinstance(value, bool):
-            raise ConfigError(f"{where}: {key} must be true or false, got {value!r}")
+    if k == "str":
+        if not isinstance(value, str):
+            raise ConfigError(f"{where}: {key} must be a string, got {value!r}")
         return value
-    if isinstance(default, list):
-        return _vec3(key, value, where, positive=False, nonneg=True)
-    if isinstance(default, int) and not isinstance(default, bool):
-        if not isinstance(value, int) or isinstance(value, bool):
-            raise ConfigError(f"{where}: {key} must be an integer, got {value!r}")
-        return value
-    if default is None or isinstance(default, float):
-        if value is None and (default is None or key == "gnss.rate_hz"):
-            return None
-        return _number(key, value, where, positive=key.endswith(("rate_hz", "_factor", "_scale", "t_max_diff_s", "rpe_delta_m")),
-                       nonneg=not key.endswith("offset_s") and not key.endswith("lag_s"))
-    return value
+    return _number(key, value, where, positive=spec.positive, nonneg=spec.nonneg)
 
 
 def _number(key, value, where, positive=False, nonneg=False) -> float:
@@ -141,8 +163,9 @@ def _vec3(key, value, where, positive=False, nonneg=False) -> list[float]:
     return [_number(key, v, where, positive=positive, nonneg=nonneg) for v in value]
 
 
-def merge(cfg: dict, overrides: dict, where: str) -> dict:
-    """Merge a nested ``{section: {key: value}}`` dict into ``cfg``, validating every key."""
+def merge(cfg: dict, overrides: dict, where: str, schema: dict[str, Spec] | None = None) -> dict:
+    """Merge a nested ``{section: {key: value}}`` dict into ``cfg``, validating every key against ``schema``."""
+    schema = SCHEMA if schema is None else schema
     out = copy.deepcopy(cfg)
     if not isinstance(overrides, dict):
         raise ConfigError(f"{where}: expected a mapping of sections (filter, imu, lidar, gnss, init, evaluation, output)")
@@ -156,16 +179,21 @@ def merge(cfg: dict, overrides: dict, where: str) -> dict:
             raise ConfigError(f"{where}: section {sect!r} must be a mapping of keys")
         for name, value in body.items():
             key = f"{sect}.{name}"
-            if key not in SCHEMA:
-                known = ", ".join(k.split(".")[1] for k in SCHEMA if k.startswith(sect + "."))
+            if key not in schema:
+                known = ", ".join(k.split(".")[1] for k in schema if k.startswith(sect + "."))
                 raise ConfigError(f"{where}: unknown key {key!r} (known in {sect}: {known})")
-            out[sect][name] = _check_value(key, value, where)
+            out[sect][name] = check_value(key, schema[key], value, where)
     return out
 
 
-def load_config(path: Path | None, sets: tuple[str, ...] = ()) -> dict:
-    """Defaults, then the YAML file (if any), then ``key=value`` overrides; validated."""
-    cfg = default_config()
+def load_config(path: Path | None, sets: tuple[str, ...] = (), schema: dict[str, Spec] | None = None,
+                layers: tuple[tuple[dict, str], ...] = ()) -> dict:
+    """Defaults, then ``layers`` (e.g. a dataset manifest's suggested settings), then the YAML file (if
+    any), then ``key=value`` overrides; every value validated against ``schema``."""
+    schema = SCHEMA if schema is None else schema
+    cfg = defaults_of(schema)
+    for body, where in layers:
+        cfg = merge(cfg, body, where, schema)
     if path is not None:
         path = Path(path)
         if not path.exists():
@@ -176,7 +204,7 @@ def load_config(path: Path | None, sets: tuple[str, ...] = ()) -> dict:
             mark = getattr(exc, "problem_mark", None)
             line = f":{mark.line + 1}" if mark is not None else ""
             raise ConfigError(f"{path}{line}: not valid YAML ({getattr(exc, 'problem', exc)})") from None
-        cfg = merge(cfg, body, str(path))
+        cfg = merge(cfg, body, str(path), schema)
     for item in sets:
         key, sep, raw = item.partition("=")
         key = key.strip()
@@ -187,7 +215,7 @@ def load_config(path: Path | None, sets: tuple[str, ...] = ()) -> dict:
         except yaml.YAMLError:
             raise ConfigError(f"--set {item!r}: value is not valid YAML") from None
         sect, _, name = key.partition(".")
-        cfg = merge(cfg, {sect: {name: value}}, f"--set {key}")
+        cfg = merge(cfg, {sect: {name: value}}, f"--set {key}", schema)
     return cfg
 
 
