@@ -16,7 +16,6 @@ from .errors import FusionEvalError
 log = logging.getLogger("fusion_eval")
 
 DEFAULT_DATASET = Path("data/kitti-00")
-DEFAULT_CONFIG = Path("configs/default.yaml")
 
 
 def _repo_relative(p: Path) -> Path:
@@ -71,7 +70,8 @@ def main(ctx, verbose, quiet):
 @main.command()
 @click.argument("dataset", required=False, type=click.Path(path_type=Path))
 @click.option("-c", "--config", "config_path", type=click.Path(path_type=Path),
-              help="YAML configuration (default: configs/default.yaml).")
+              help="YAML configuration (default: the built-in defaults, spelled out in configs/default.yaml, "
+                   "with the dataset manifest's suggested settings).")
 @click.option("-s", "--set", "sets", multiple=True, metavar="KEY=VALUE",
               help="Override a configuration key, e.g. --set imu.gyro_noise_dps_sqrthz=0.05 (repeatable).")
 @click.option("-o", "--out", "out_dir", type=click.Path(path_type=Path),
@@ -85,21 +85,18 @@ def run(ctx, dataset, config_path, sets, out_dir, overwrite, no_plots):
     DATASET is a folder with a dataset.yaml manifest, a manifest file, or a KITTI raw drive folder
     (default: data/kitti-00, the embedded KITTI drive 2011_10_03_drive_0027).
     """
-    from .config import load_config
     from .pipeline import run as run_pipeline
 
     dataset = dataset if dataset is not None else _repo_relative(DEFAULT_DATASET)
-    if config_path is None and _repo_relative(DEFAULT_CONFIG).exists():
-        config_path = _repo_relative(DEFAULT_CONFIG)
-    cfg = load_config(config_path, tuple(sets) + (("output.plots=false",) if no_plots else ()))
-    config_name = config_path.stem if config_path else "builtin-defaults"
+    sets = tuple(sets) + (("output.plots=false",) if no_plots else ())
+    config_name = config_path.stem if config_path else "default"
     if out_dir is None:
         out_dir = Path("results") / f"{dataset.resolve().name}-{config_name}-{time.strftime('%Y%m%d-%H%M%S')}"
 
     quiet = ctx.obj["quiet"]
     t0 = time.perf_counter()
     if quiet:
-        summary = run_pipeline(dataset, cfg, config_name, out_dir, overwrite=overwrite)
+        summary = run_pipeline(dataset, config_path, sets, out_dir, overwrite=overwrite)
     else:
         with click.progressbar(length=1000, label="filtering", file=sys.stderr, show_eta=True) as bar:
             state = {"done": 0}
@@ -109,7 +106,7 @@ def run(ctx, dataset, config_path, sets, out_dir, overwrite, no_plots):
                 bar.update(n - state["done"])
                 state["done"] = n
 
-            summary = run_pipeline(dataset, cfg, config_name, out_dir, overwrite=overwrite, progress=progress)
+            summary = run_pipeline(dataset, config_path, sets, out_dir, overwrite=overwrite, progress=progress)
     wall = time.perf_counter() - t0
     log.debug("timings: %s", {k: round(v, 3) for k, v in summary.timings_s.items()})
     if not quiet:

@@ -41,6 +41,7 @@ def degrade_gnss(gnss: GnssSeries, t_ref_s: float, rate_hz: float | None, noise_
         in_outage |= (g.t_s >= t_ref_s + a) & (g.t_s < t_ref_s + b)
     g = g.select(~in_outage)
     info = {
+        "degraded": True,
         "fixes_in": int(n_in),
         "rate_hz": rate_hz,
         "fixes_after_decimation": int(keep.sum()),

@@ -13,7 +13,7 @@ from typing import Callable
 
 import numpy as np
 
-from .config import to_filter_params
+from .config import load_config, to_filter_params
 from .datasets.manifest import load_dataset
 from .evaluation import EstimateEvaluation, evaluate, ratio
 from .outputs import StagedDir
@@ -33,12 +33,18 @@ class RunSummary:
     timings_s: dict
 
 
-def run(dataset_path: Path, cfg: dict, config_name: str, out_dir: Path, overwrite: bool = False,
+def run(dataset_path: Path, config_path: Path | None, sets: tuple[str, ...], out_dir: Path, overwrite: bool = False,
         progress: Callable[[float], None] | None = None, jobs: int | None = None) -> RunSummary:
+    """Load the dataset, resolve the configuration (defaults < the manifest's suggested settings <
+    the config file < ``--set``), run, evaluate and write every output atomically into ``out_dir``."""
     timings = {}
     StagedDir(out_dir, overwrite=overwrite).check()
+    load_config(config_path, sets)  # fail on a bad configuration before reading any data
     t = time.perf_counter()
     ds = load_dataset(dataset_path)
+    layers = ((ds.description["config"], f"{ds.description['manifest']} (config)"),) if ds.description.get("config") else ()
+    cfg = load_config(config_path, sets, layers=layers)
+    config_name = config_path.stem if config_path else "default"
     timings["load"] = time.perf_counter() - t
     log.info("loaded %s: %d IMU samples, %s GNSS fixes, %s lidar poses, %s ground-truth poses", ds.name, len(ds.imu),
              len(ds.gnss) if ds.gnss else 0, len(ds.lidar) if ds.lidar else 0, len(ds.groundtruth) if ds.groundtruth else 0)

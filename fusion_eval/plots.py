@@ -13,7 +13,7 @@ import numpy as np  # noqa: E402
 from .filters.kernels import BA_ID, BG_ID, P_ID  # noqa: E402
 
 COLORS = {"groundtruth": "black", "fused": "tab:red", "lidar": "tab:blue", "gnss": "tab:green", "imu_only": "tab:orange"}
-LABELS = {"groundtruth": "ground truth", "fused": "fused", "lidar": "lidar odometry", "gnss": "GNSS (degraded)",
+LABELS = {"groundtruth": "ground truth", "fused": "fused", "lidar": "lidar odometry", "gnss": "GNSS",
           "imu_only": "IMU dead reckoning"}
 _META = {"Software": None}  # no version string in the PNG: same inputs, same bytes
 

@@ -151,7 +151,12 @@ def prepare(ds: Dataset, cfg: dict) -> Prepared:
         g = g.select(~g.filled)
         g = g.select(g.t_s >= t0)
         c = cfg["gnss"]
-        gnss, gnss_info = degrade_gnss(g, t0, c["rate_hz"], c["noise_std_m"], c["outages_s"], c["seed"], c["std_m"])
+        if ds.description.get("gnss_degrade", True):
+            gnss, gnss_info = degrade_gnss(g, t0, c["rate_hz"], c["noise_std_m"], c["outages_s"], c["seed"], c["std_m"])
+        else:
+            gnss = g if c["std_m"] == "auto" else replace(g, std_w_m=np.tile(np.asarray(c["std_m"], float), (len(g), 1)))
+            gnss_info = {"degraded": False, "fixes_used": len(gnss),
+                         "std_given_to_filter_m": "as the stream reports" if c["std_m"] == "auto" else c["std_m"]}
         if use_gnss and len(gnss) == 0:
             raise DataRangeError(f"no GNSS fix of {ds.gnss.source} is left inside the IMU span after degradation")
 

@@ -135,6 +135,9 @@ def report_md(dataset: str, config_name: str, evals: dict, ratios: dict, cfg: di
     L += ["## GNSS degradation", ""]
     if gnss_info is None:
         L.append("The dataset has no GNSS stream.")
+    elif not gnss_info.get("degraded", True):
+        L.append(f"The GNSS stream is a receiver's output (the manifest does not mark it for degradation): used as it is, "
+                 f"{gnss_info['fixes_used']} fixes; std given to the filter: {gnss_info['std_given_to_filter_m']}.")
     else:
         rate = "every fix kept" if gnss_info["rate_hz"] is None else f"decimated to {gnss_info['rate_hz']:g} Hz"
         L.append(f"KITTI's OXTS position is the GPS/INS solution that is also the ground truth, so it was degraded: "

@@ -25,8 +25,8 @@ FORMATS = {
     "lidar": ("kitti_poses", "tum"),
 }
 STREAM_KEYS = {"format", "path", "time_offset_s", "gyro_lag_s", "frame", "T_cam0_imu", "T_cam0_velo", "T_velo_imu",
-               "times", "anchor", "std_m"}
-TOP_KEYS = {"name", "description", "attribution", "geodetic_origin", "streams"}
+               "times", "anchor", "std_m", "degrade"}
+TOP_KEYS = {"name", "description", "attribution", "geodetic_origin", "streams", "config", "truth"}
 
 
 def load_dataset(path: str | Path) -> Dataset:
@@ -113,8 +113,15 @@ def _from_manifest_dict(body: dict, root: Path, manifest: Path) -> Dataset:
         "time_offset_s": {s: float(streams[s].get("time_offset_s", 0.0)) for s in streams},
         "gyro_lag_s": imu_spec.get("gyro_lag_s", 0.0),
         "lidar_anchor": streams.get("lidar", {}).get("anchor", "groundtruth"),
+        # KITTI's OXTS position is the GPS/INS solution (= the ground truth): degrade it by default;
+        # a receiver's (or a simulator's) fixes are used as they are.
+        "gnss_degrade": bool(streams.get("gnss", {}).get("degrade", streams.get("gnss", {}).get("format") == "kitti_oxts")),
+        "config": body.get("config") or {},
+        "truth": body.get("truth"),
         "streams": {s: {k: (str(v) if k == "path" else v) for k, v in streams[s].items()} for s in streams},
     }
+    if not isinstance(description["config"], dict):
+        raise ConfigError(f"{manifest}: 'config' must be a mapping of configuration sections (suggested settings)")
     if description["lidar_anchor"] not in ("groundtruth", "none"):
         raise ConfigError(f"{manifest}: lidar 'anchor' must be 'groundtruth' or 'none', got {description['lidar_anchor']!r}")
     g = description["gyro_lag_s"]
