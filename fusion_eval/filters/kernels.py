@@ -64,12 +64,18 @@ def exp3(phi):
 def mech_step(p, v, R, ba, bg, f0, w0, f1, w1, dt, g):
     """One midpoint strapdown step from IMU sample 0 to sample 1 (in place on p, v, R).
 
-    Attitude: ``R1 = R0 Exp(((w0 + w1)/2 - bg) dt)``; acceleration: the mean of the world-frame
+    Attitude: ``R1 = R0 Exp(((w0 + w1)/2 - bg) dt + (w0 x w1) dt^2 / 12)`` (midpoint rate plus the
+    coning correction of a linearly varying rate); acceleration: the mean of the world-frame
     accelerations at both ends, each with its own attitude; position with the second-order term.
     Exact for constant world acceleration and for constant body rate.
     """
-    wm = 0.5 * (w0 + w1) - bg
-    R1 = R @ exp3(wm * dt)
+    wa = w0 - bg
+    wb = w1 - bg
+    # rotation vector of a rate varying linearly over the step: the mean rate plus the coning term
+    # (1/12) (wa dt) x (wb dt), which is zero for a fixed rotation axis and keeps slopes taken in
+    # turns from tilting the attitude (second order in dt otherwise)
+    phi = 0.5 * (wa + wb) * dt + (dt * dt / 12.0) * np.cross(wa, wb)
+    R1 = R @ exp3(phi)
     a0 = R @ (f0 - ba)
     a1 = R1 @ (f1 - ba)
     am = 0.5 * (a0 + a1)

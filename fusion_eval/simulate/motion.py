@@ -1,0 +1,202 @@
+"""Smooth, vehicle-like motion with analytic IMU signals.
+
+A profile is a list of :class:`Segment`: each sets targets for forward speed, yaw rate and road
+slope, reached through a quintic (C2) transition at the segment's start and then held. Speed, yaw
+rate and slope are therefore twice continuously differentiable, and so are the acceleration and the
+angular rate the IMU sees. The vehicle does not slip: its velocity in the body frame is ``[v, 0, 0]``.
+
+Attitude: ``R_wb = Rz(yaw) Ry(pitch)`` with pitch = -slope (KITTI's convention: positive pitch is
+nose down for z up), roll 0. With these, exactly::
+
+    w_b = Ry(pitch)^T [0, 0, yaw_rate] + [0, pitch_rate, 0]
+    f_b = [dv/dt, 0, 0] + w_b x [v, 0, 0] + R_wb^T [0, 0, g]
+
+The yaw angle and the position are integrated from these smooth functions with cumulative Simpson
+quadrature on a grid finer than the IMU's, so they agree with the analytic IMU signals to far below
+any sensor noise.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+import yaml
+from scipy.integrate import cumulative_simpson
+
+from ..errors import ConfigError
+
+PROFILES = ("urban", "figure8", "highway")
+
+
+@dataclass(frozen=True)
+class Segment:
+    duration_s: float
+    speed_mps: float
+    yaw_rate_rps: float = 0.0
+    slope_rad: float = 0.0
+    transition_s: float = 3.0
+
+
+def _q(u):
+    """Quintic smoothstep and its first derivative (u in [0, 1])."""
+    u = np.clip(u, 0.0, 1.0)
+    return u ** 3 * (10 - 15 * u + 6 * u * u), 30 * u ** 2 * (1 - u) ** 2
+
+
+def _turn(angle_deg: float, speed: float, radius: float, tau: float, slope_rad: float = 0.0) -> list[Segment]:
+    """A turn by ``angle_deg`` at constant speed and slope, and the straight run-out that ends it (the
+    yaw-rate ramps in and out, each over ``tau``, make the turn exactly ``angle_deg``)."""
+    w = np.sign(angle_deg) * speed / radius
+    return [Segment(abs(np.radians(angle_deg) / w), speed, w, slope_rad, tau),
+            Segment(tau, speed, 0.0, slope_rad, tau)]
+
+
+def urban() -> list[Segment]:
+    """A city block loop: a stationary start, 90-degree turns at lower speed, a stop, slopes."""
+    d = [Segment(10.0, 0.0, transition_s=0.0)]                 # stationary: lets a filter settle
+    for k, slope in enumerate(np.radians([0.0, 3.0, 0.0, -3.0])):
+        # the grade changes on the straights (6 s), never during a turn
+        d += [Segment(18.0, 12.0, 0.0, slope, 6.0), Segment(4.0, 6.0, 0.0, slope, 4.0)]
+        d += _turn(90.0, 6.0, 12.0, 3.0, slope)
+        if k == 1:
+            d += [Segment(8.0, 0.0, 0.0, slope, 5.0)]          # a stop on the slope
+    return d
+
+
+def figure8() -> list[Segment]:
+    """Two 20 m circles at 8 m/s, left then right, the yaw rate swinging through zero between them
+    (symmetric, so each repetition closes on itself)."""
+    w = 8.0 / 20.0
+    return [Segment(4.0, 0.0, transition_s=0.0), Segment(6.0, 8.0, 0.0, 0.0, 4.0), Segment(2.0, 8.0, 0.0, 0.0, 1.0),
+            Segment(2 * np.pi / w, 8.0, w, 0.0, 2.0), Segment(2 * np.pi / w, 8.0, -w, 0.0, 2.0)]
+
+
+def highway() -> list[Segment]:
+    return [Segment(5.0, 0.0, transition_s=0.0), Segment(30.0, 27.0, 0.0, 0.0, 20.0),
+            Segment(40.0, 27.0, 0.01, np.radians(1.0), 8.0), Segment(20.0, 30.0, 0.0, 0.0, 8.0),
+            Segment(2.5, 30.0, 0.04, 0.0, 1.5), Segment(2.5, 30.0, -0.04, 0.0, 1.5),   # lane change
+            Segment(40.0, 30.0, -0.012, np.radians(-1.0), 8.0), Segment(20.0, 25.0, 0.0, 0.0, 8.0)]
+
+
+def from_waypoints_yaml(path: Path) -> tuple[list[Segment], float]:
+    """Segments from ``waypoints: [[E, N], ...]`` (m), ``speeds_mps`` (one per leg, or one number),
+    ``turn_radius_m`` (default 15) and ``start_stationary_s`` (default 5). Straight legs are joined by
+    circular turns; the path passes the corners at the turn radius and the legs within the distance
+    that the speed changes take. Returns the segments and the initial heading (rad)."""
+    try:
+        body = yaml.safe_load(Path(path).read_text())
+    except (OSError, yaml.YAMLError) as exc:
+        raise ConfigError(f"{path}: cannot read the waypoint profile ({exc})") from None
+    if not isinstance(body, dict) or "waypoints" not in body:
+        raise ConfigError(f"{path}: a waypoint profile needs 'waypoints: [[east_m, north_m], ...]'")
+    W = np.asarray(body["waypoints"], float)
+    if W.ndim != 2 or W.shape[1] != 2 or len(W) < 2:
+        raise ConfigError(f"{path}: 'waypoints' must be a list of at least two [east_m, north_m] pairs")
+    legs = np.diff(W, axis=0)
+    L = np.linalg.norm(legs, axis=1)
+    if np.any(L <= 0):
+        raise ConfigError(f"{path}: consecutive waypoints must differ")
+    sp = np.broadcast_to(np.asarray(body.get("speeds_mps", 10.0), float), (len(legs),))
+    if np.any(sp <= 0):
+        raise ConfigError(f"{path}: speeds_mps must be > 0")
+    r = float(body.get("turn_radius_m", 15.0))
+    head = np.arctan2(legs[:, 1], legs[:, 0])
+    turn = np.angle(np.exp(1j * np.diff(head)))                 # wrapped to (-pi, pi]
+    tangent = r * np.tan(np.abs(turn) / 2)
+    segs = [Segment(float(body.get("start_stationary_s", 5.0)), 0.0, transition_s=0.0)]
+    for i in range(len(legs)):
+        straight = L[i] - (tangent[i - 1] if i > 0 else 0.0) - (tangent[i] if i < len(turn) else 0.0)
+        if straight < 0:
+            raise ConfigError(f"{path}: leg {i + 1} is too short for turns of radius {r} m")
+        segs.append(Segment(max(straight / sp[i], 0.5), float(sp[i]), 0.0, 0.0, 3.0))
+        if i < len(turn) and abs(turn[i]) > 1e-6:
+            v_turn = float(min(sp[i], sp[i + 1]))
+            segs += _turn(np.degrees(turn[i]), v_turn, r, 1.0)
+    segs.append(Segment(5.0, 0.0, 0.0, 0.0, 4.0))
+    return segs, float(head[0])
+
+
+def profile_segments(name: str) -> tuple[list[Segment], float]:
+    if name == "urban":
+        return urban(), 0.0
+    if name == "figure8":
+        return figure8(), 0.0
+    if name == "highway":
+        return highway(), 0.0
+    p = Path(name)
+    if p.suffix in (".yaml", ".yml"):
+        return from_waypoints_yaml(p)
+    raise ConfigError(f"unknown profile {name!r} (known: {', '.join(PROFILES)}, or a waypoint YAML file)")
+
+
+@dataclass(frozen=True)
+class Motion:
+    """True motion sampled at ``t_s``: pose, velocity and the noise-free IMU signals."""
+
+    t_s: np.ndarray
+    p_w_m: np.ndarray
+    v_w_mps: np.ndarray
+    R_wb: np.ndarray
+    yaw_rad: np.ndarray
+    pitch_rad: np.ndarray
+    speed_mps: np.ndarray
+    f_b_mps2: np.ndarray
+    w_b_rps: np.ndarray
+
+
+def _channels(segs: list[Segment], t: np.ndarray):
+    """Speed, yaw rate, slope and their time derivatives at ``t`` (segments laid end to end)."""
+    starts = np.concatenate([[0.0], np.cumsum([s.duration_s for s in segs])])
+    idx = np.clip(np.searchsorted(starts, t, side="right") - 1, 0, len(segs) - 1)
+    tgt = np.array([[s.speed_mps, s.yaw_rate_rps, s.slope_rad] for s in segs])
+    prev = np.concatenate([tgt[:1], tgt[:-1]])
+    tau = np.array([max(s.transition_s, 1e-9) for s in segs])
+    u = (t - starts[idx]) / tau[idx]
+    s, ds = _q(u)
+    ds = np.where(u < 1.0, ds / tau[idx], 0.0)
+    val = prev[idx] + (tgt[idx] - prev[idx]) * s[:, None]
+    der = (tgt[idx] - prev[idx]) * ds[:, None]
+    return val, der
+
+
+LOOPS = {"urban": 1, "figure8": 3, "highway": 1}   # segments before the part that repeats
+
+
+def repeat_to(segs: list[Segment], duration_s: float, n_prefix: int = 1) -> list[Segment]:
+    """The first ``n_prefix`` segments (the stationary start) once, then the rest repeated to cover ``duration_s``."""
+    out = list(segs)
+    body = segs[n_prefix:] if len(segs) > n_prefix else segs
+    while sum(s.duration_s for s in out) < duration_s:
+        out += body
+    return out
+
+
+def sample_motion(segs: list[Segment], yaw0_rad: float, t_s: np.ndarray, g_mps2: float, oversample: int = 4,
+                  n_prefix: int = 1) -> Motion:
+    """Evaluate the motion at the stamps ``t_s`` (uniform), integrating yaw and position on a finer grid."""
+    n = t_s.size
+    dt = (t_s[-1] - t_s[0]) / (n - 1)
+    tf = t_s[0] + np.arange((n - 1) * oversample + 1) * (dt / oversample)
+    val, der = _channels(repeat_to(segs, t_s[-1] - t_s[0], n_prefix), tf - t_s[0])
+    v, yaw_rate, slope = val.T
+    dv, _, dslope = der.T
+    pitch, dpitch = -slope, -dslope
+    yaw = yaw0_rad + cumulative_simpson(yaw_rate, x=tf, initial=0.0)
+    cp, sp_, cy, sy = np.cos(pitch), np.sin(pitch), np.cos(yaw), np.sin(yaw)
+    v_w = np.column_stack([v * cp * cy, v * cp * sy, -v * sp_])     # R_wb [v, 0, 0]
+    p = np.column_stack([cumulative_simpson(v_w[:, i], x=tf, initial=0.0) for i in range(3)])
+    k = slice(None, None, oversample)
+    cp, sp_, cy, sy = cp[k], sp_[k], cy[k], sy[k]
+    v, dv, yaw_rate, dpitch = v[k], dv[k], yaw_rate[k], dpitch[k]
+    R = np.zeros((n, 3, 3))
+    R[:, 0, 0], R[:, 0, 1], R[:, 0, 2] = cy * cp, -sy, cy * sp_
+    R[:, 1, 0], R[:, 1, 1], R[:, 1, 2] = sy * cp, cy, sy * sp_
+    R[:, 2, 0], R[:, 2, 1], R[:, 2, 2] = -sp_, 0.0, cp
+    # w_b = Ry(pitch)^T [0, 0, yaw_rate] + [0, pitch_rate, 0]
+    w_b = np.column_stack([-sp_ * yaw_rate, dpitch, cp * yaw_rate])
+    # f_b = [dv, 0, 0] + w_b x [v, 0, 0] + R^T [0, 0, g]  (w x [v,0,0] = [0, w_z v, -w_y v])
+    f_b = np.column_stack([dv, w_b[:, 2] * v, -w_b[:, 1] * v]) + g_mps2 * R[:, 2, :]
+    return Motion(t_s=t_s, p_w_m=p[k], v_w_mps=v_w[k], R_wb=R, yaw_rad=yaw[k], pitch_rad=pitch[k], speed_mps=v,
+                  f_b_mps2=f_b, w_b_rps=w_b)
