@@ -138,6 +138,16 @@ def check_value(key: str, spec: Spec, value: Any, where: str) -> Any:
                 raise ConfigError(f"{where}: {key} window [{a}, {b}] must have end > start")
             out.append([a, b])
         return out
+    if k == "jumps":
+        if not isinstance(value, list) or not all(isinstance(w, (list, tuple)) and len(w) == 5 for w in value):
+            raise ConfigError(f"{where}: {key} must be a list of [start_s, end_s, dE_m, dN_m, dU_m], got {value!r}")
+        out = []
+        for w in value:
+            w = [_number(key, x, where) for x in w]
+            if w[1] <= w[0]:
+                raise ConfigError(f"{where}: {key} window [{w[0]}, {w[1]}] must have end > start")
+            out.append(w)
+        return out
     if k == "str":
         if not isinstance(value, str):
             raise ConfigError(f"{where}: {key} must be a string, got {value!r}")

@@ -48,10 +48,12 @@ class StagedDir:
         return self.write_bytes(name, text.encode("utf-8"))
 
     def write_bytes(self, name: str, data: bytes) -> Path:
-        tmp = self.staging / f".{name}.tmp"
+        target = self.staging / name
+        target.parent.mkdir(parents=True, exist_ok=True)
+        tmp = target.with_name(f".{target.name}.tmp")
         tmp.write_bytes(data)
-        os.replace(tmp, self.staging / name)
-        return self.staging / name
+        os.replace(tmp, target)
+        return target
 
     def normalize_zip(self, name: str) -> None:
         """Rewrite a zip with fixed entry times so that identical runs give identical bytes."""

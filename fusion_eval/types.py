@@ -182,6 +182,28 @@ class PoseSeries:
 
 
 @dataclass(frozen=True)
+class SpeedSeries:
+    """Forward speed of the vehicle (a wheel odometer), m/s."""
+
+    t_s: np.ndarray
+    v_mps: np.ndarray
+    source: str = "<odometer>"
+    lines: np.ndarray | None = None
+
+    def __post_init__(self):
+        t = _frozen(self.t_s)
+        object.__setattr__(self, "t_s", t)
+        object.__setattr__(self, "v_mps", _frozen(self.v_mps))
+        if self.lines is not None:
+            object.__setattr__(self, "lines", _frozen(self.lines, np.int64))
+        _check_times(t, self.source, self.lines, "odometer")
+        _check_rows("speed", self.v_mps.reshape(-1, 1), t.size, 1, self.source, self.lines, "odometer")
+
+    def __len__(self) -> int:
+        return int(self.t_s.size)
+
+
+@dataclass(frozen=True)
 class Dataset:
     """Every stream of one drive, in one world frame and on one clock."""
 
@@ -190,5 +212,6 @@ class Dataset:
     groundtruth: PoseSeries | None = None
     gnss: GnssSeries | None = None
     lidar: PoseSeries | None = None
+    odometer: SpeedSeries | None = None
     geodetic_origin: tuple[float, float, float] | None = None
     description: dict = field(default_factory=dict)

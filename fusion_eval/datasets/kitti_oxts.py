@@ -65,19 +65,27 @@ def parse_kitti_stamp(s: str) -> float | None:
     return float(whole) + ns * 1e-9
 
 
+CSV_NAME = "packets.csv"
+CSV_HEADER = "t_s," + ",".join(["lat", "lon", "alt", "roll", "pitch", "yaw", "vn", "ve", "vf", "vl", "vu", "ax", "ay", "az",
+                                "af", "al", "au", "wx", "wy", "wz", "wf", "wl", "wu", "pos_accuracy", "vel_accuracy",
+                                "navstat", "numsats", "posmode", "velmode", "orimode"])
+
+
 def find_oxts_dir(path: Path) -> Path:
     """Accept a drive folder (holding ``oxts/``) or the ``oxts`` folder itself."""
     path = Path(path)
-    if (path / "oxts" / "timestamps.txt").exists():
-        return path / "oxts"
-    if (path / "timestamps.txt").exists():
-        return path
-    raise DataFormatError(path, None, "expected a KITTI raw drive folder with oxts/timestamps.txt and oxts/data/*.txt")
+    for d in (path / "oxts", path):
+        if (d / "timestamps.txt").exists() or (d / CSV_NAME).exists():
+            return d
+    raise DataFormatError(path, None, "expected a KITTI raw drive folder with oxts/timestamps.txt and oxts/data/*.txt "
+                                      f"(or oxts/{CSV_NAME})")
 
 
 def read_oxts(path: Path) -> OxtsPackets:
     """Read and validate every packet of a KITTI raw OXTS folder."""
     oxts = find_oxts_dir(path)
+    if (oxts / CSV_NAME).exists():
+        return _read_packets_csv(oxts / CSV_NAME)
     stamps_path = oxts / "timestamps.txt"
     text = read_text(stamps_path, "KITTI timestamps 'YYYY-MM-DD HH:MM:SS.nnnnnnnnn', one per line")
     lines = [ln for ln in text.splitlines()]
@@ -123,6 +131,31 @@ def read_oxts(path: Path) -> OxtsPackets:
         # KITTI's filled packets print the integer status fields as floats and set the modes to -1.
         filled[i] = any("." in x for x in parts[25:]) or min(row[POSMODE:ORIMODE + 1]) < 0
     return OxtsPackets(t_s=t, values=values, filled=filled, stamps_path=stamps_path, packet_paths=packet_paths)
+
+
+def _read_packets_csv(path: Path) -> OxtsPackets:
+    """All packets in one CSV (``t_s`` then the 30 OXTS fields): the compact layout for high-rate
+    simulated drives, read with pandas' C parser instead of one file per packet."""
+    import pandas as pd
+
+    try:
+        df = pd.read_csv(path, dtype=float, engine="c")
+    except (ValueError, pd.errors.ParserError) as exc:
+        raise DataFormatError(path, None, f"expected a CSV '{CSV_HEADER[:40]}...' of numbers ({exc})") from None
+    if list(df.columns) != CSV_HEADER.split(","):
+        raise DataFormatError(path, 1, f"expected the header '{CSV_HEADER}'")
+    a = df.to_numpy()
+    bad = np.flatnonzero(~np.all(np.isfinite(a), axis=1))
+    if bad.size:
+        raise DataFormatError(path, int(bad[0]) + 2, "OXTS values must be finite numbers (found NaN, inf or an empty field)")
+    t = a[:, 0]
+    d = np.diff(t)
+    if np.any(d <= 0):
+        i = int(np.flatnonzero(d <= 0)[0]) + 1
+        raise DataFormatError(path, i + 2, "timestamps must strictly increase")
+    vals = a[:, 1:]
+    filled = vals[:, POSMODE:ORIMODE + 1].min(axis=1) < 0
+    return OxtsPackets(t_s=t, values=vals, filled=filled, stamps_path=path, packet_paths=(path,))
 
 
 def _is_number(s: str) -> bool:

@@ -15,12 +15,13 @@ import yaml
 from ..errors import ConfigError, DataFormatError, DataRangeError
 from ..so3 import inv_T, matrix_to_quat_xyzw
 from ..types import Dataset, GnssSeries, PoseSeries
-from . import kitti_oxts, kitti_poses, tum
+from . import gnss_csv, kitti_oxts, kitti_poses, speed, tum
 
-STREAMS = ("imu", "gnss", "lidar", "groundtruth")
+STREAMS = ("imu", "gnss", "lidar", "groundtruth", "odometer")
 FORMATS = {
     "imu": ("kitti_oxts",),
-    "gnss": ("kitti_oxts", "tum"),
+    "gnss": ("kitti_oxts", "csv_lla", "tum"),
+    "odometer": ("speed_txt",),
     "groundtruth": ("kitti_oxts", "tum", "kitti_poses"),
     "lidar": ("kitti_poses", "tum"),
 }
@@ -98,7 +99,9 @@ def _from_manifest_dict(body: dict, root: Path, manifest: Path) -> Dataset:
     else:
         raise ConfigError(f"{manifest}: geodetic_origin must be 'first_fix' or [lat_deg, lon_deg, alt_m], got {origin!r}")
 
-    gnss = gt = lidar = None
+    gnss = gt = lidar = odo = None
+    if "odometer" in streams:
+        odo = speed.read_speed(root / streams["odometer"]["path"])
     if "gnss" in streams:
         gnss = _gnss(streams["gnss"], root, oxts, origin_t, manifest)
     if "groundtruth" in streams:
@@ -130,7 +133,7 @@ def _from_manifest_dict(body: dict, root: Path, manifest: Path) -> Dataset:
     for s, v in description["time_offset_s"].items():
         if not np.isfinite(v):
             raise ConfigError(f"{manifest}: time_offset_s of {s!r} must be a number")
-    return Dataset(name=str(body.get("name", root.name)), imu=imu, groundtruth=gt, gnss=gnss, lidar=lidar,
+    return Dataset(name=str(body.get("name", root.name)), imu=imu, groundtruth=gt, gnss=gnss, lidar=lidar, odometer=odo,
                    geodetic_origin=origin_t, description=description)
 
 
@@ -139,6 +142,10 @@ def _gnss(spec, root, oxts, origin, manifest) -> GnssSeries:
         if origin is None:
             raise ConfigError(f"{manifest}: GNSS from OXTS needs a geodetic origin")
         return kitti_oxts.gnss_from_oxts(oxts(spec), origin)
+    if spec["format"] == "csv_lla":
+        if origin is None:
+            raise ConfigError(f"{manifest}: GNSS in geodetic coordinates needs a geodetic_origin")
+        return gnss_csv.read_gnss_csv(root / spec["path"], origin)
     poses = tum.read_tum(root / spec["path"])
     std = spec.get("std_m", 1.0)
     std = np.broadcast_to(np.asarray(std, float), (3,))

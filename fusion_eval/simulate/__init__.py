@@ -1,0 +1,1 @@
+"""``fusion-eval simulate``: synthetic KITTI-style datasets with known truth."""
