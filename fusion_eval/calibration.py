@@ -17,20 +17,30 @@ from .types import ImuSeries, PoseSeries
 
 
 def gyro_lag_cost(imu: ImuSeries, lidar_on_imu: PoseSeries, lags_s: np.ndarray) -> np.ndarray:
-    """Mean squared rotation residual (rad^2) between gyro and lidar increments for each candidate lag."""
+    """Mean squared rotation residual (rad^2) between gyro and lidar increments for each candidate lag.
+
+    ``lidar_on_imu`` holds poses on IMU stamps; the gyro is integrated (midpoint steps) over the IMU
+    samples between each pair of consecutive lidar poses.
+    """
     k = np.flatnonzero(np.isin(imu.t_s, lidar_on_imu.t_s))
-    pair = k[:-1][np.diff(k) == 1]            # consecutive IMU samples that both have a lidar pose
-    if pair.size < 20:
+    if k.size < 20:
         raise DataRangeError("too few lidar poses on the IMU stamps to estimate the gyro lag")
-    j = np.searchsorted(lidar_on_imu.t_s, imu.t_s[pair])
-    Rl = Rotation.from_quat(lidar_on_imu.q_wb_xyzw)
-    dR_lidar = Rl[j].inv() * Rl[j + 1]
-    dt = (imu.t_s[pair + 1] - imu.t_s[pair])[:, None]
+    j = np.searchsorted(lidar_on_imu.t_s, imu.t_s[k])
+    Rl = Rotation.from_quat(lidar_on_imu.q_wb_xyzw[j])
+    dR_lidar = Rl[:-1].inv() * Rl[1:]
+    start, length = k[:-1], np.diff(k)
+    dt = np.diff(imu.t_s)[:, None]
     cost = np.empty(lags_s.size)
     for n, lag in enumerate(lags_s):
         w = np.column_stack([np.interp(imu.t_s + lag, imu.t_s, imu.w_b_rps[:, i]) for i in range(3)])
-        dR_gyro = Rotation.from_rotvec(0.5 * (w[pair] + w[pair + 1]) * dt)
-        cost[n] = np.mean(np.sum((dR_gyro.inv() * dR_lidar).as_rotvec() ** 2, axis=1))
+        steps = (0.5 * (w[:-1] + w[1:]) * dt)
+        acc = Rotation.identity(start.size)
+        for m in range(int(length.max())):
+            live = m < length
+            inc = np.zeros((start.size, 3))
+            inc[live] = steps[start[live] + m]
+            acc = acc * Rotation.from_rotvec(inc)
+        cost[n] = np.mean(np.sum((acc.inv() * dR_lidar).as_rotvec() ** 2, axis=1))
     return cost
 
 

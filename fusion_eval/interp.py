@@ -29,3 +29,15 @@ def interpolate_pose_at(poses: PoseSeries, t_s: float) -> tuple[np.ndarray, np.n
         raise ValueError(f"t={t_s} outside [{poses.t_s[0]}, {poses.t_s[-1]}]")
     v = None if one.v_w_mps is None else one.v_w_mps[0]
     return one.p_w_m[0], one.R_wb()[0], v
+
+
+def snap_to_stamps(poses: PoseSeries, stamps_s: np.ndarray) -> PoseSeries:
+    """One pose per frame, moved to the nearest of ``stamps_s`` (interpolated there).
+
+    Used to put lidar frames on IMU stamps: the number of observations stays that of the lidar,
+    whatever the IMU rate (interpolating at every IMU stamp would invent correlated observations).
+    """
+    stamps = np.asarray(stamps_s, float)
+    j = np.clip(np.searchsorted(stamps, poses.t_s), 1, stamps.size - 1)
+    j = np.where(np.abs(stamps[j - 1] - poses.t_s) <= np.abs(stamps[j] - poses.t_s), j - 1, j)
+    return interpolate_poses(poses, stamps[np.unique(j)])

@@ -18,7 +18,7 @@ from .degrade import degrade_gnss
 from .errors import ConfigError, DataRangeError
 from .filters.eskf import NominalState
 from .geo import normal_gravity_mps2
-from .interp import interpolate_pose_at, interpolate_poses
+from .interp import interpolate_pose_at, snap_to_stamps
 from .so3 import inv_T, make_T, matrix_to_quat_xyzw
 from .types import Dataset, GnssSeries, ImuSeries, PoseSeries
 
@@ -113,7 +113,7 @@ def prepare(ds: Dataset, cfg: dict) -> Prepared:
             lid, t_anchor = anchor_lidar(lid, gt)
             applied["lidar_anchor_t_s"] = t_anchor
         if cfg["lidar"]["interpolate_to_imu"]:
-            lid = interpolate_poses(lid, imu.t_s)
+            lid = snap_to_stamps(lid, imu.t_s)
         lidar = lid
         if use_lidar and (len(lidar) < 2 or lidar.t_s[-1] <= imu.t_s[0] or lidar.t_s[0] >= imu.t_s[-1]):
             raise DataRangeError(f"lidar ({ds.lidar.source}) and IMU ({ds.imu.source}) do not overlap in time")
@@ -124,7 +124,7 @@ def prepare(ds: Dataset, cfg: dict) -> Prepared:
     if lag == "auto":
         if lidar is None:
             raise ConfigError("imu.gyro_lag_s=auto needs a lidar stream to estimate the lag from")
-        lid_on_imu = lidar if cfg["lidar"]["interpolate_to_imu"] else interpolate_poses(lidar, imu.t_s)
+        lid_on_imu = lidar if cfg["lidar"]["interpolate_to_imu"] else snap_to_stamps(lidar, imu.t_s)
         lag = estimate_gyro_lag(imu, lid_on_imu)
         applied["gyro_lag_estimated"] = True
         log.info("gyro lag estimated from the lidar rotation increments: %.1f ms", lag * 1000)

@@ -34,6 +34,7 @@ class FilterOutput:
     accel_bias_b: np.ndarray        # (N, 3) m/s^2
     gyro_bias_b: np.ndarray         # (N, 3) rad/s
     sigma: np.ndarray               # (N, 15) 1-sigma of the error state
+    P_pos_att: np.ndarray           # (N, 6, 6) covariance of [dp, dtheta] (theta: right perturbation)
     nis: dict                       # kind -> {"t_s": (M,), "nis": (M,), "dof": int}
     imu_only: PoseSeries
     n_imu_samples: int
@@ -118,7 +119,7 @@ def replay(prep: Prepared, fp: FilterParams, progress: Callable[[float], None] |
     dof = {"lidar": 6, "gnss": 3}
     return FilterOutput(
         fused=fused, accel_bias_b=kf.rec_ba[sl].copy(), gyro_bias_b=kf.rec_bg[sl].copy(),
-        sigma=np.sqrt(np.maximum(kf.rec_Pdiag[sl], 0.0)),
+        sigma=np.sqrt(np.maximum(kf.rec_Pdiag[sl], 0.0)), P_pos_att=kf.rec_Ppt[sl],
         nis={k: {"t_s": np.array(v[0]), "nis": np.array(v[1]), "dof": dof[k]} for k, v in nis.items() if v[0]},
         imu_only=imu_only, n_imu_samples=int(t_imu.size - k0),
     )

@@ -29,3 +29,7 @@ def test_recovers_a_known_lag_on_synthetic_data():
     lidar = PoseSeries(t_s=t, p_w_m=np.zeros((t.size, 3)), q_wb_xyzw=q[: t.size])
     est = estimate_gyro_lag(imu, lidar)
     assert abs(est - lag) < 0.005
+    # lidar at a third of the IMU rate: the gyro is integrated between lidar frames
+    sub = np.zeros(t.size, bool)
+    sub[::3] = True
+    assert abs(estimate_gyro_lag(imu, lidar.select(sub)) - lag) < 0.005

@@ -77,7 +77,7 @@ def test_observation_between_samples_uses_interpolated_imu():
     w = np.zeros((t.size, 3))
     N = t.size
     rec = [np.full((N, 3), np.nan), np.full((N, 3), np.nan), np.full((N, 3, 3), np.nan), np.full((N, 3), np.nan),
-           np.full((N, 3), np.nan), np.full((N, 15), np.nan)]
+           np.full((N, 3), np.nan), np.full((N, 15), np.nan), np.full((N, 6, 6), np.nan)]
     x = _x0()
     P = np.zeros((15, 15))
     last = np.concatenate([[t[0]], f[0], w[0]])

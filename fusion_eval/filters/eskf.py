@@ -51,6 +51,7 @@ class ErrorStateKF:
         self.rec_ba = np.full((N, 3), np.nan)
         self.rec_bg = np.full((N, 3), np.nan)
         self.rec_Pdiag = np.full((N, N_CORE), np.nan)
+        self.rec_Ppt = np.full((N, 6, 6), np.nan)   # covariance of [dp, dtheta], for NEES
         self.last = np.concatenate([[imu_t[k0]], imu_f[k0], imu_w[k0]])
         self.k_next = k0 + 1
         self.clone_p: np.ndarray | None = None
@@ -66,7 +67,8 @@ class ErrorStateKF:
         x = self.x
         self.k_next = kn.predict_to(x.p_w_m, x.v_w_mps, x.R_wb, x.ba_b, x.bg_b, self.P, self.n, self.last,
                                     self.imu_t, self.imu_f, self.imu_w, self.k_next, float(t_target), self.prm, True,
-                                    self.rec_p, self.rec_v, self.rec_R, self.rec_ba, self.rec_bg, self.rec_Pdiag)
+                                    self.rec_p, self.rec_v, self.rec_R, self.rec_ba, self.rec_bg, self.rec_Pdiag,
+                                    self.rec_Ppt)
 
     def update(self, H: np.ndarray, r: np.ndarray, Rm: np.ndarray) -> float:
         """Joseph-form update with the observation model ``(H, r, R)``, injection and reset; returns the NIS."""
@@ -108,6 +110,8 @@ class ErrorStateKF:
         self.rec_ba[k] = x.ba_b
         self.rec_bg[k] = x.bg_b
         self.rec_Pdiag[k] = np.diag(self.P)[:N_CORE]
+        ix = np.r_[P_ID:P_ID + 3, TH_ID:TH_ID + 3]
+        self.rec_Ppt[k] = self.P[np.ix_(ix, ix)]
 
 
 def dead_reckon(x0: NominalState, prm: np.ndarray, imu_t, imu_f, imu_w, k0: int) -> tuple[np.ndarray, np.ndarray]:
@@ -123,5 +127,6 @@ def dead_reckon(x0: NominalState, prm: np.ndarray, imu_t, imu_f, imu_w, k0: int)
     rec_R[k0] = x.R_wb
     P = np.zeros((N_CORE, N_CORE))
     kn.predict_to(x.p_w_m, x.v_w_mps, x.R_wb, x.ba_b, x.bg_b, P, N_CORE, last, imu_t, imu_f, imu_w, k0 + 1,
-                  float(imu_t[-1]), prm, False, rec_p, dummy, rec_R, dummy, dummy, np.zeros((N, N_CORE)))
+                  float(imu_t[-1]), prm, False, rec_p, dummy, rec_R, dummy, dummy, np.zeros((1, N_CORE)),
+                  np.zeros((1, 6, 6)))
     return rec_p, rec_R

@@ -152,14 +152,15 @@ def _step(p, v, R, ba, bg, P, n, f0, w0, f1, w1, dt, prm, do_cov):
 
 @njit(cache=True)
 def predict_to(p, v, R, ba, bg, P, n, last, imu_t, imu_f, imu_w, k_next, t_target, prm, do_cov,
-               rec_p, rec_v, rec_R, rec_ba, rec_bg, rec_Pdiag):
+               rec_p, rec_v, rec_R, rec_ba, rec_bg, rec_Pdiag, rec_Ppt):
     """Propagate through every IMU sample up to ``t_target`` and then to ``t_target`` itself.
 
     ``last`` (7,) holds the IMU sample the state currently sits at: ``[t, fx, fy, fz, wx, wy, wz]``.
     Samples ``k_next, k_next+1, ...`` with stamps ``<= t_target`` are integrated one by one and the
     state at each is recorded at index k. If ``t_target`` falls between two samples, the IMU is
     linearly interpolated at ``t_target`` and ``last`` becomes that interpolated sample, so an
-    observation is applied at its own time. Returns the new ``k_next``.
+    observation is applied at its own time. ``rec_Pdiag`` gets the variances and ``rec_Ppt`` the
+    6x6 covariance of ``[dp, dtheta]`` (for NEES). Returns the new ``k_next``.
     """
     N = imu_t.shape[0]
     f0 = last[1:4].copy()
@@ -181,6 +182,12 @@ def predict_to(p, v, R, ba, bg, P, n, last, imu_t, imu_f, imu_w, k_next, t_targe
         if do_cov:
             for i in range(N_CORE):
                 rec_Pdiag[k, i] = P[i, i]
+            for i in range(3):
+                for j in range(3):
+                    rec_Ppt[k, i, j] = P[P_ID + i, P_ID + j]
+                    rec_Ppt[k, i, 3 + j] = P[P_ID + i, TH_ID + j]
+                    rec_Ppt[k, 3 + i, j] = P[TH_ID + i, P_ID + j]
+                    rec_Ppt[k, 3 + i, 3 + j] = P[TH_ID + i, TH_ID + j]
         k += 1
     if t_target > t0 and k < N:
         a = (t_target - t0) / (imu_t[k] - t0)
