@@ -34,7 +34,7 @@ from ..geo import normal_gravity_mps2
 from ..outputs import StagedDir
 from ..so3 import inv_T, make_T, matrix_to_quat_xyzw
 from . import sensors
-from .motion import LOOPS, PROFILES, profile_segments, sample_motion
+from .motion import PROFILES, profile_segments, sample_motion
 from .settings import GRADES, SIM_SCHEMA
 
 log = logging.getLogger(__name__)
@@ -83,8 +83,7 @@ def simulate(out_dir: Path, profile: str, duration_s: float, seed: int, grade: s
         raise ConfigError(f"imu.rate_hz must be between 10 and 400 Hz, got {rate:g}")
     if duration_s <= 0:
         raise ConfigError(f"--duration must be > 0 s, got {duration_s:g}")
-    segs, yaw0 = profile_segments(profile)
-    n_prefix = LOOPS.get(profile, 1)
+    segs, yaw0, n_prefix = profile_segments(profile)
     staged = StagedDir(out_dir, overwrite=overwrite)
     staged.check()
 

@@ -80,51 +80,68 @@ def highway() -> list[Segment]:
             Segment(40.0, 30.0, -0.012, np.radians(-1.0), 8.0), Segment(20.0, 25.0, 0.0, 0.0, 8.0)]
 
 
-def from_waypoints_yaml(path: Path) -> tuple[list[Segment], float]:
+def from_waypoints_yaml(path: Path) -> tuple[list[Segment], float, int]:
     """Segments from ``waypoints: [[E, N], ...]`` (m), ``speeds_mps`` (one per leg, or one number),
-    ``turn_radius_m`` (default 15) and ``start_stationary_s`` (default 5). Straight legs are joined by
-    circular turns; the path passes the corners at the turn radius and the legs within the distance
-    that the speed changes take. Returns the segments and the initial heading (rad)."""
+    ``turn_radius_m`` (default 15) and ``start_stationary_s`` (default 5).
+
+    Straight legs are joined by turns of the given radius taken at the leg's speed (yaw rate ramped in
+    and out over 1 s, then a 1 s run-out); each leg's straight is shortened by the turns' tangent
+    lengths and run-outs, and its speed change (3 s) is accounted for, so the path follows the polygon
+    to within a few metres at the corners. A closed polygon (last waypoint = first) turns back into
+    its first leg and repeats; an open one ends with a stop. Returns the segments and the initial
+    heading (rad) and the number of segments before the part that repeats."""
     try:
         body = yaml.safe_load(Path(path).read_text())
     except (OSError, yaml.YAMLError) as exc:
         raise ConfigError(f"{path}: cannot read the waypoint profile ({exc})") from None
     if not isinstance(body, dict) or "waypoints" not in body:
         raise ConfigError(f"{path}: a waypoint profile needs 'waypoints: [[east_m, north_m], ...]'")
-    W = np.asarray(body["waypoints"], float)
+    try:
+        W = np.asarray(body["waypoints"], float)
+        sp = np.broadcast_to(np.asarray(body.get("speeds_mps", 10.0), float), (max(len(W) - 1, 1),))
+        r = float(body.get("turn_radius_m", 15.0))
+        t_still = float(body.get("start_stationary_s", 5.0))
+    except (ValueError, TypeError):
+        raise ConfigError(f"{path}: waypoints must be [east_m, north_m] pairs; speeds_mps one number per leg") from None
     if W.ndim != 2 or W.shape[1] != 2 or len(W) < 2:
         raise ConfigError(f"{path}: 'waypoints' must be a list of at least two [east_m, north_m] pairs")
     legs = np.diff(W, axis=0)
     L = np.linalg.norm(legs, axis=1)
-    if np.any(L <= 0):
-        raise ConfigError(f"{path}: consecutive waypoints must differ")
-    sp = np.broadcast_to(np.asarray(body.get("speeds_mps", 10.0), float), (len(legs),))
-    if np.any(sp <= 0):
-        raise ConfigError(f"{path}: speeds_mps must be > 0")
-    r = float(body.get("turn_radius_m", 15.0))
+    if np.any(L <= 0) or np.any(sp <= 0) or r <= 0:
+        raise ConfigError(f"{path}: consecutive waypoints must differ; speeds and the turn radius must be > 0")
     head = np.arctan2(legs[:, 1], legs[:, 0])
-    turn = np.angle(np.exp(1j * np.diff(head)))                 # wrapped to (-pi, pi]
+    closed = bool(np.allclose(W[0], W[-1]))
+    n = len(legs)
+    # turn[i]: from leg i into leg i+1 (closed loops also from the last leg into the first)
+    turn = np.angle(np.exp(1j * np.diff(np.concatenate([head, head[:1]]) if closed else head)))
     tangent = r * np.tan(np.abs(turn) / 2)
-    segs = [Segment(float(body.get("start_stationary_s", 5.0)), 0.0, transition_s=0.0)]
-    for i in range(len(legs)):
-        straight = L[i] - (tangent[i - 1] if i > 0 else 0.0) - (tangent[i] if i < len(turn) else 0.0)
-        if straight < 0:
-            raise ConfigError(f"{path}: leg {i + 1} is too short for turns of radius {r} m")
-        segs.append(Segment(max(straight / sp[i], 0.5), float(sp[i]), 0.0, 0.0, 3.0))
-        if i < len(turn) and abs(turn[i]) > 1e-6:
-            v_turn = float(min(sp[i], sp[i + 1]))
-            segs += _turn(np.degrees(turn[i]), v_turn, r, 1.0)
-    segs.append(Segment(5.0, 0.0, 0.0, 0.0, 4.0))
-    return segs, float(head[0])
+    ramp, tau_v = 1.0, 3.0
+    segs = [Segment(t_still, 0.0, transition_s=0.0)]
+    if closed:   # accelerate once; the loop then starts at the last leg's speed, as every later lap does
+        segs.append(Segment(tau_v, float(sp[-1]), 0.0, 0.0, tau_v))
+    for i in range(n):
+        prev_turn = i - 1 if i > 0 else (n - 1 if closed else None)
+        before = 0.0 if prev_turn is None else tangent[prev_turn] + sp[prev_turn] * ramp   # tangent + run-out
+        after = tangent[i] if i < turn.size else 0.0
+        straight = L[i] - before - after
+        v_prev = sp[prev_turn] if prev_turn is not None else 0.0
+        hold = (straight - tau_v * (v_prev + sp[i]) / 2) / sp[i] + tau_v
+        if straight <= 0 or hold < tau_v:
+            raise ConfigError(f"{path}: leg {i + 1} is too short for its turns (radius {r:g} m) and speed change")
+        segs.append(Segment(hold, float(sp[i]), 0.0, 0.0, tau_v))
+        if i < turn.size and abs(turn[i]) > 1e-9:
+            segs += _turn(np.degrees(turn[i]), float(sp[i]), r, ramp)
+    if not closed:
+        segs.append(Segment(5.0, 0.0, 0.0, 0.0, 4.0))
+    return segs, float(head[0]), 2 if closed else 1
 
 
-def profile_segments(name: str) -> tuple[list[Segment], float]:
-    if name == "urban":
-        return urban(), 0.0
-    if name == "figure8":
-        return figure8(), 0.0
-    if name == "highway":
-        return highway(), 0.0
+def profile_segments(name: str) -> tuple[list[Segment], float, int]:
+    """Segments, initial heading (rad) and the number of segments before the repeating part."""
+    named = {"urban": (urban, 1), "figure8": (figure8, 3), "highway": (highway, 1)}
+    if name in named:
+        fn, n_prefix = named[name]
+        return fn(), 0.0, n_prefix
     p = Path(name)
     if p.suffix in (".yaml", ".yml"):
         return from_waypoints_yaml(p)
@@ -159,9 +176,6 @@ def _channels(segs: list[Segment], t: np.ndarray):
     val = prev[idx] + (tgt[idx] - prev[idx]) * s[:, None]
     der = (tgt[idx] - prev[idx]) * ds[:, None]
     return val, der
-
-
-LOOPS = {"urban": 1, "figure8": 3, "highway": 1}   # segments before the part that repeats
 
 
 def repeat_to(segs: list[Segment], duration_s: float, n_prefix: int = 1) -> list[Segment]:
