@@ -18,7 +18,6 @@ from __future__ import annotations
 import logging
 import multiprocessing as mp
 import os
-from datetime import datetime, timezone
 from pathlib import Path
 
 import numpy as np
@@ -30,6 +29,7 @@ from ..config import load_config
 from ..datasets.gnss_csv import format_gnss_csv
 from ..datasets.kitti_oxts import CSV_HEADER
 from ..errors import ConfigError
+from ..fastfmt import format_table, table_text
 from ..geo import normal_gravity_mps2
 from ..outputs import StagedDir
 from ..so3 import inv_T, make_T, matrix_to_quat_xyzw
@@ -55,23 +55,29 @@ def sim_config(grade: str, sets: tuple[str, ...]) -> dict:
     return load_config(None, sets, schema=SIM_SCHEMA, layers=((GRADES[grade], f"grade {grade}"),))
 
 
-def kitti_stamp(t_s: float) -> str:
-    ns = int(round(t_s * 1e9))
-    sec, frac = divmod(ns, 10 ** 9)
-    return datetime.fromtimestamp(sec, tz=timezone.utc).strftime("%Y-%m-%d %H:%M:%S") + f".{frac:09d}"
+# decimals of the 30 OXTS fields: lat lon (1e-12 deg = 0.1 um), alt, angles, velocities, IMU, accuracies, status
+PACKET_DECIMALS = [12, 12, 6] + [12] * 3 + [9] * 5 + [12] * 12 + [4, 4] + [0] * 5
+
+_SHARED: dict = {}
 
 
-_FMT = " ".join(["%.14f"] * 3 + ["%.12f"] * 22) + " %d %d %d %d %d\n"
-
-
-def _write_packets(args) -> None:
-    folder, start, rows = args
-    for i, r in enumerate(rows, start=start):
+def _write_packet_range(args) -> None:
+    """Write packets [lo, hi) as one file each, from the formatted buffer (inherited by fork)."""
+    folder, lo, hi = args
+    buf, offs = _SHARED["buf"], _SHARED["offs"]
+    mv = memoryview(buf)
+    for i in range(lo, hi):
         fd = os.open(os.path.join(folder, f"{i:010d}.txt"), os.O_WRONLY | os.O_CREAT | os.O_TRUNC, 0o644)
         try:
-            os.write(fd, (_FMT % tuple(r)).encode())
+            os.write(fd, mv[offs[i]:offs[i + 1]])
         finally:
             os.close(fd)
+
+
+def kitti_stamps(t_s: np.ndarray) -> str:
+    """KITTI ``YYYY-MM-DD HH:MM:SS.nnnnnnnnn`` lines for POSIX seconds (vectorised)."""
+    ns = np.round(np.asarray(t_s) * 1e9).astype("int64").astype("datetime64[ns]")
+    return "\n".join(np.datetime_as_string(ns, unit="ns")).replace("T", " ") + "\n"
 
 
 def simulate(out_dir: Path, profile: str, duration_s: float, seed: int, grade: str, sets: tuple[str, ...] = (),
@@ -117,27 +123,29 @@ def simulate(out_dir: Path, profile: str, duration_s: float, seed: int, grade: s
     with staged as out:
         (out.staging / "oxts").mkdir()
         if c["output"]["layout"] == "csv":
-            body = np.column_stack([t, packets])
-            lines = [CSV_HEADER] + [",".join(f"{x:.12f}" for x in row) for row in body]
-            out.write_text("oxts/packets.csv", "\n".join(lines) + "\n")
+            buf, _ = format_table(np.column_stack([t, packets]), [6] + PACKET_DECIMALS, sep=",")
+            out.write_bytes("oxts/packets.csv", (CSV_HEADER + "\n").encode() + buf.tobytes())
         else:
-            out.write_text("oxts/timestamps.txt", "\n".join(kitti_stamp(x) for x in t) + "\n")
+            out.write_text("oxts/timestamps.txt", kitti_stamps(t))
             folder = out.staging / "oxts" / "data"
-            folder.mkdir()
-            rows = packets.tolist()
+            folder.mkdir(parents=True)
+            _SHARED["buf"], _SHARED["offs"] = format_table(packets, PACKET_DECIMALS)
             jobs = max(1, min(jobs or os.cpu_count() or 1, 8))
-            chunk = (len(rows) + jobs - 1) // jobs
-            work = [(str(folder), k, rows[k:k + chunk]) for k in range(0, len(rows), chunk)]
-            if jobs > 1 and len(rows) > 20000:
-                with mp.get_context("fork").Pool(jobs) as pool:
-                    pool.map(_write_packets, work)
-            else:
-                for w in work:
-                    _write_packets(w)
+            bounds = np.linspace(0, n, jobs + 1).astype(int)
+            work = [(str(folder), int(a), int(b)) for a, b in zip(bounds[:-1], bounds[1:])]
+            try:
+                if jobs > 1 and n > 20000:   # file creation is the cost: spread it over the cores
+                    with mp.get_context("fork").Pool(jobs) as pool:
+                        pool.map(_write_packet_range, work)
+                else:
+                    for w in work:
+                        _write_packet_range(w)
+            finally:
+                _SHARED.clear()
         glat, glon, galt = pymap3d.enu2geodetic(gps_p[:, 0], gps_p[:, 1], gps_p[:, 2], *origin)
         out.write_text("gnss/gnss.csv", format_gnss_csv(gt_t, np.column_stack([glat, glon, galt]), gps_std))
         out.write_text("odometer/speed.txt", "# t_s v_mps (forward wheel speed)\n" +
-                       "\n".join(f"{a:.9f} {b:.6f}" for a, b in zip(odo_t, odo_v)) + "\n")
+                       table_text(np.column_stack([odo_t, odo_v]), [6, 6]))
         out.write_text("calib_imu_to_velo.txt", "calib_time: simulated\nR: " + " ".join(f"{x:.6e}" for x in R_IMU_TO_VELO)
                        + "\nT: " + " ".join(f"{x:.6e}" for x in T_IMU_TO_VELO) + "\n")
         T_velo_imu = np.eye(4)
@@ -159,15 +167,14 @@ def simulate(out_dir: Path, profile: str, duration_s: float, seed: int, grade: s
         else:
             q = matrix_to_quat_xyzw(l_R)
             out.write_text("lidar/map_matching.tum", "# t x y z qx qy qz qw (world IMU poses, map matching)\n" +
-                           "\n".join(" ".join(f"{x:.9f}" for x in row) for row in np.column_stack([t_l, l_p, q])) + "\n")
+                           table_text(np.column_stack([t_l, l_p, q]), [6] + [9] * 7))
             lidar_stream = {"format": "tum", "path": "lidar/map_matching.tum", "frame": "imu", "anchor": "none"}
 
         out.write_text("truth/imu_biases.csv", "t_s,ba_x_mps2,ba_y_mps2,ba_z_mps2,bg_x_rps,bg_y_rps,bg_z_rps\n" +
-                       "\n".join(",".join(f"{x:.12g}" for x in row)
-                                 for row in np.column_stack([t, im.accel_bias, im.gyro_bias])) + "\n")
+                       table_text(np.column_stack([t, im.accel_bias, im.gyro_bias]), [6] + [12] * 6, sep=","))
         qt = matrix_to_quat_xyzw(m.R_wb)
         out.write_text("truth/poses.tum", "# true IMU poses in the local ENU frame: t x y z qx qy qz qw\n" +
-                       "\n".join(" ".join(f"{x:.9f}" for x in row) for row in np.column_stack([t, m.p_w_m, qt])) + "\n")
+                       table_text(np.column_stack([t, m.p_w_m, qt]), [6] + [9] * 7))
         truth = {
             "generator": f"fusion-eval {__version__}", "profile": profile, "grade": grade, "seed": seed,
             "duration_s": duration_s, "gravity_mps2": g, "sensors": c,
