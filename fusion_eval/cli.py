@@ -52,8 +52,14 @@ class Group(click.Group):
             click.echo(f"error: {exc}", err=True)
             sys.exit(exc.exit_code)
         except KeyboardInterrupt:
-            click.echo("interrupted: no output directory was written", err=True)
+            click.echo("\ninterrupted: no output directory was written", err=True)
             sys.exit(130)
+        except SystemError as exc:
+            # Ctrl-C inside a compiled (numba) kernel surfaces as a SystemError around the KeyboardInterrupt
+            if isinstance(exc.__cause__ or exc.__context__, KeyboardInterrupt):
+                click.echo("\ninterrupted: no output directory was written", err=True)
+                sys.exit(130)
+            raise
 
 
 @click.group(cls=Group, context_settings={"help_option_names": ["-h", "--help"]})
@@ -91,22 +97,17 @@ def run(ctx, dataset, config_path, sets, out_dir, overwrite, no_plots):
     sets = tuple(sets) + (("output.plots=false",) if no_plots else ())
     config_name = config_path.stem if config_path else "default"
     if out_dir is None:
-        out_dir = Path("results") / f"{dataset.resolve().name}-{config_name}-{time.strftime('%Y%m%d-%H%M%S')}"
+        ds_name = dataset.resolve().parent.name if dataset.is_file() else dataset.resolve().name
+        out_dir = Path("results") / f"{ds_name}-{config_name}-{time.strftime('%Y%m%d-%H%M%S')}"
 
     quiet = ctx.obj["quiet"]
     t0 = time.perf_counter()
-    if quiet:
-        summary = run_pipeline(dataset, config_path, sets, out_dir, overwrite=overwrite)
-    else:
-        with click.progressbar(length=1000, label="filtering", file=sys.stderr, show_eta=True) as bar:
-            state = {"done": 0}
-
-            def progress(frac: float) -> None:
-                n = int(frac * 1000)
-                bar.update(n - state["done"])
-                state["done"] = n
-
-            summary = run_pipeline(dataset, config_path, sets, out_dir, overwrite=overwrite, progress=progress)
+    progress = None if quiet else _Progress("filtering")
+    try:
+        summary = run_pipeline(dataset, config_path, sets, out_dir, overwrite=overwrite, progress=progress)
+    finally:
+        if progress is not None:
+            progress.close()
     wall = time.perf_counter() - t0
     log.debug("timings: %s", {k: round(v, 3) for k, v in summary.timings_s.items()})
     if not quiet:
@@ -133,6 +134,26 @@ def simulate(out_dir, profile, duration_s, seed, grade, sets, overwrite):
     s = run_sim(out_dir, profile, duration_s, seed, grade, tuple(sets), overwrite=overwrite)
     log.info("wrote %s/ (%s: %d IMU samples, %.0f m, %d lidar frames, %d GNSS fixes) in %.1f s", out_dir, s["name"],
              s["samples"], s["distance_m"], s["lidar_frames"], s["gnss_fixes"], time.perf_counter() - t0)
+
+
+class _Progress:
+    """A progress bar on stderr that appears only once the work it measures has started."""
+
+    def __init__(self, label: str):
+        self.label, self.bar, self.done = label, None, 0
+
+    def __call__(self, frac: float) -> None:
+        if self.bar is None:
+            self.bar = click.progressbar(length=1000, label=self.label, file=sys.stderr, show_eta=True)
+            self.bar.__enter__()
+        n = int(frac * 1000)
+        self.bar.update(n - self.done)
+        self.done = n
+
+    def close(self) -> None:
+        if self.bar is not None:
+            self.bar.__exit__(None, None, None)
+            self.bar = None
 
 
 def _summary_table(metrics: dict) -> str:

@@ -76,7 +76,7 @@ SCHEMA: dict[str, Spec] = {
                       "float", positive=True, nullable=True),
     "gnss.noise_std_m": S([1.0, 1.0, 2.0], "white noise added per axis E/N/U, m ([0, 0, 0] = none)", nonneg=True),
     "gnss.outages_s": S([], "outage windows [[start, end], ...] in seconds from the first IMU sample", "windows"),
-    "gnss.seed": S(0, "seed of the GNSS noise"),
+    "gnss.seed": S(0, "seed of the GNSS noise", nonneg=True),
     "gnss.std_m": S("auto", "GNSS std given to the filter per axis, m; 'auto' = sqrt(reported accuracy^2 + added noise^2)",
                     "vec3", positive=True, auto=True),
     "gnss.lever_arm_b_m": S([0.0, 0.0, 0.0], "antenna position in the body frame, m"),
@@ -148,14 +148,16 @@ def check_value(key: str, spec: Spec, value: Any, where: str) -> Any:
                 raise ConfigError(f"{where}: {key} window [{w[0]}, {w[1]}] must have end > start")
             out.append(w)
         return out
-    if k == "str":
-        if not isinstance(value, str):
-            raise ConfigError(f"{where}: {key} must be a string, got {value!r}")
-        return value
     return _number(key, value, where, positive=spec.positive, nonneg=spec.nonneg)
 
 
 def _number(key, value, where, positive=False, nonneg=False) -> float:
+    if isinstance(value, str):
+        # YAML 1.1 reads '1e-05' (no point, or no sign in the exponent) as a string
+        try:
+            value = float(value)
+        except ValueError:
+            pass
     if isinstance(value, bool) or not isinstance(value, (int, float)) or not np.isfinite(value):
         raise ConfigError(f"{where}: {key} must be a number, got {value!r}")
     if positive and value <= 0:
@@ -178,13 +180,10 @@ def merge(cfg: dict, overrides: dict, where: str, schema: dict[str, Spec] | None
     schema = SCHEMA if schema is None else schema
     out = copy.deepcopy(cfg)
     if not isinstance(overrides, dict):
-        raise ConfigError(f"{where}: expected a mapping of sections (filter, imu, lidar, gnss, init, evaluation, output)")
+        raise ConfigError(f"{where}: expected a mapping of sections ({', '.join(sorted(cfg))})")
     for sect, body in overrides.items():
-        if sect == "dataset":
-            out["dataset"] = body
-            continue
         if sect not in out:
-            raise ConfigError(f"{where}: unknown section {sect!r} (known: {', '.join(sorted(k for k in out if k != 'dataset'))}, dataset)")
+            raise ConfigError(f"{where}: unknown section {sect!r} (known: {', '.join(sorted(out))})")
         if not isinstance(body, dict):
             raise ConfigError(f"{where}: section {sect!r} must be a mapping of keys")
         for name, value in body.items():

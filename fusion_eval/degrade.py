@@ -23,7 +23,7 @@ def degrade_gnss(gnss: GnssSeries, t_ref_s: float, rate_hz: float | None, noise_
     """
     n_in = len(gnss)
     keep = np.ones(n_in, bool)
-    if rate_hz is not None:
+    if rate_hz is not None and n_in > 0:
         # the first fix in each 1/rate bin, bins counted from t_ref (1e-6 s guards stamp rounding)
         bins = np.floor((gnss.t_s - t_ref_s) * rate_hz + 1e-6)
         keep = np.concatenate([[True], np.diff(bins) > 0])

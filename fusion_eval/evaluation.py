@@ -14,6 +14,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 from evo.core import metrics, sync
+from evo.core.filters import FilterException
 from evo.core.result import Result
 from evo.core.trajectory import PoseTrajectory3D
 from evo.main_ape import ape as evo_ape
@@ -96,7 +97,7 @@ def evaluate(reference: PoseSeries, estimate: PoseSeries, name: str, t_max_diff_
             try:
                 res = evo_rpe(copy.deepcopy(ref_a), copy.deepcopy(est_a), rel, delta=delta, delta_unit=unit,
                               all_pairs=False)
-            except metrics.MetricsException as exc:
+            except (metrics.MetricsException, FilterException) as exc:   # e.g. a drive shorter than delta
                 log.warning("%s: %s %s not computed: %s", name, label, key, exc)
                 ev.metrics[label][key] = None
                 continue

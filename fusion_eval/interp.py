@@ -8,7 +8,7 @@ from scipy.spatial.transform import Rotation, Slerp
 from .types import PoseSeries
 
 
-def interpolate_poses(poses: PoseSeries, t_query_s: np.ndarray, source: str | None = None) -> PoseSeries:
+def interpolate_poses(poses: PoseSeries, t_query_s: np.ndarray) -> PoseSeries:
     """Poses at ``t_query_s``; query times outside the series' span are dropped (never extrapolated)."""
     t = poses.t_s
     tq = np.asarray(t_query_s, float)
@@ -19,7 +19,7 @@ def interpolate_poses(poses: PoseSeries, t_query_s: np.ndarray, source: str | No
     if poses.v_w_mps is not None:
         v = np.column_stack([np.interp(tq, t, poses.v_w_mps[:, i]) for i in range(3)])
     return PoseSeries(t_s=tq, p_w_m=p, q_wb_xyzw=q, v_w_mps=v, has_orientation=poses.has_orientation,
-                      source=source or poses.source)
+                      source=poses.source)
 
 
 def interpolate_pose_at(poses: PoseSeries, t_s: float) -> tuple[np.ndarray, np.ndarray, np.ndarray | None]:

@@ -20,6 +20,7 @@ class StagedDir:
         self.final = Path(final)
         self.overwrite = overwrite
         self.staging: Path | None = None
+        self._made: list[Path] = []
 
     def check(self) -> None:
         """Fail early (before any work) if the target cannot be used."""
@@ -31,6 +32,8 @@ class StagedDir:
     def __enter__(self) -> "StagedDir":
         self.check()
         try:
+            # remember which parent folders this run creates, to remove them again if it fails
+            self._made = [p for p in [self.final.parent, *self.final.parent.parents] if not p.exists()]
             self.final.parent.mkdir(parents=True, exist_ok=True)
             self.staging = self.final.parent / f".{self.final.name}.partial-{os.getpid()}"
             if self.staging.exists():
@@ -70,6 +73,11 @@ class StagedDir:
     def __exit__(self, exc_type, exc, tb) -> bool:
         if exc_type is not None:
             shutil.rmtree(self.staging, ignore_errors=True)
+            for p in self._made:   # deepest first
+                try:
+                    p.rmdir()
+                except OSError:
+                    break
             return False
         old = None
         if self.final.exists():

@@ -41,7 +41,8 @@ class Prepared:
 
 
 def _offset(cfg: dict, ds: Dataset, stream: str) -> float:
-    v = get(cfg, f"{stream}.time_offset_s") if stream in ("imu", "gnss", "lidar") else None
+    """The stream's time offset: the configuration's, else the manifest's (default 0)."""
+    v = get(cfg, f"{stream}.time_offset_s")
     return float(ds.description.get("time_offset_s", {}).get(stream, 0.0) if v is None else v)
 
 
@@ -134,7 +135,9 @@ def prepare(ds: Dataset, cfg: dict) -> Prepared:
 
     # --- start: first IMU sample covered by the ground truth (and the lidar, when it is fused)
     t_min = gt.t_s[0]
-    if use_lidar:
+    if use_lidar or cfg["filter"]["init_pose_from"] == "lidar":
+        if lidar is None:
+            raise ConfigError("filter.init_pose_from=lidar needs a lidar stream")
         t_min = max(t_min, lidar.t_s[0])
     ks = np.flatnonzero((imu.t_s >= t_min - 1e-9) & (imu.t_s <= gt.t_s[-1]))
     if ks.size < 2:
@@ -149,7 +152,7 @@ def prepare(ds: Dataset, cfg: dict) -> Prepared:
         applied["time_offset_s"]["gnss"] = off
         g = replace(ds.gnss, t_s=ds.gnss.t_s + off)
         g = g.select(~g.filled)
-        g = g.select(g.t_s >= t0)
+        g = g.select((g.t_s >= t0) & (g.t_s <= imu.t_s[-1]))
         c = cfg["gnss"]
         if ds.description.get("gnss_degrade", True):
             gnss, gnss_info = degrade_gnss(g, t0, c["rate_hz"], c["noise_std_m"], c["outages_s"], c["seed"], c["std_m"])

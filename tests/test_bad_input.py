@@ -143,3 +143,41 @@ def test_real_process_exit_code_and_single_line(ds, tmp_path):
     assert r.stderr.strip().splitlines()[-1].startswith("error: ") and "Traceback" not in r.stderr
     assert "poses.txt:3:" in r.stderr
     assert not (tmp_path / "o").exists()
+
+
+@pytest.mark.parametrize("old,new,needle", [
+    ("    time_offset_s: 0.0\n    # The OXTS", "    time_offset_s: abc\n    # The OXTS", "time_offset_s of stream 'imu' must be a number"),
+    ("geodetic_origin: first_fix", "geodetic_origin: [a, b, c]", "geodetic_origin must be"),
+    ("index_offset: 0", "index_offset: two", "index_offset must be an integer"),
+    ("  gnss:\n    format: kitti_oxts\n    path: oxts\n", "  gnss:\n    format: kitti_oxts\n    path: oxts\n    degrade: 'no'\n",
+     "'degrade' of stream 'gnss' must be true or false"),
+    ("  gnss:\n    format: kitti_oxts\n    path: oxts\n", "  gnss:\n    format: kitti_oxts\n    path: oxts\n    gyro_lag_s: 0.1\n",
+     "unknown key 'gyro_lag_s' in stream 'gnss'"),
+    ("T_cam0_velo: {file: lidar/calib.txt, key: Tr}", "T_cam0_velo: [2, 0, 0, 0, 0, 2, 0, 0, 0, 0, 2, 0]", "must be a rotation"),
+])
+def test_bad_manifest_values(ds, tmp_path, old, new, needle):
+    m = ds / "dataset.yaml"
+    text = m.read_text()
+    assert old in text
+    m.write_text(text.replace(old, new))
+    r, out = _run(ds, tmp_path)
+    _assert_clean_error(r, out, "dataset.yaml", needle)
+
+
+def test_gnss_outside_the_run_is_an_error_not_silence(ds, tmp_path):
+    r, out = _run(ds, tmp_path, "--set", "gnss.time_offset_s=1.0e+6")
+    _assert_clean_error(r, out, "no GNSS fix")
+
+
+def test_diverging_filter_exits_3_without_output(ds, tmp_path):
+    r, out = _run(ds, tmp_path, "--set", "init.vel_std_mps=1.0e+200")
+    assert r.exit_code == 3, r.output
+    assert r.stderr.strip().startswith("error: filter diverged") and "\n" not in r.stderr.strip()
+    assert not out.exists()
+
+
+def test_failed_run_leaves_no_parent_folders(ds, tmp_path):
+    out = tmp_path / "deep" / "a" / "b"
+    r = CliRunner().invoke(main, ["-q", "run", str(ds), "--out", str(out), "--set", "gnss.time_offset_s=1.0e+6"])
+    assert r.exit_code == 2
+    assert not (tmp_path / "deep").exists()

@@ -55,3 +55,11 @@ def test_every_key_is_documented_in_the_readme():
     readme = (ROOT / "README.md").read_text()
     missing = [k for k in SCHEMA if f"`{k}`" not in readme]
     assert not missing, missing
+
+
+def test_exponent_numbers_without_a_point_are_numbers():
+    # YAML 1.1 reads 1e-05 as a string; the README's own spelling must work
+    cfg = load_config(None, ("imu.gyro_bias_rw_dps2_sqrthz=1e-05", "gnss.noise_std_m=[1e0, 2, 3]"))
+    assert cfg["imu"]["gyro_bias_rw_dps2_sqrthz"] == 1e-05 and cfg["gnss"]["noise_std_m"] == [1.0, 2.0, 3.0]
+    with pytest.raises(ConfigError, match=">= 0"):
+        load_config(None, ("gnss.seed=-1",))

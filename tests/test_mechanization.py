@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import numpy as np
+import pytest
 
 from fusion_eval.filters import kernels as kn
 from fusion_eval.filters.eskf import NominalState, dead_reckon
@@ -86,3 +87,28 @@ def test_observation_between_samples_uses_interpolated_imu():
     assert abs(x.p_w_m[0] - 0.5 * 0.437 ** 2) < 1e-12
     kn.predict_to(x.p_w_m, x.v_w_mps, x.R_wb, x.ba_b, x.bg_b, P, 15, last, t, f, w, k, 1.0, _prm(), True, *rec)
     assert abs(x.p_w_m[0] - 0.5) < 1e-12 and abs(x.v_w_mps[0] - 1.0) < 1e-12
+
+
+def test_gap_noise_does_not_depend_on_where_an_observation_splits_the_gap():
+    t = np.array([0.0, 0.1, 0.2, 1.9, 2.0])         # a 1.7 s gap between samples 2 and 3
+    f = np.tile([0.0, 0.0, G], (t.size, 1))
+    w = np.zeros((t.size, 3))
+    prm = _prm()
+    prm[kn.PRM_QA], prm[kn.PRM_GAP_DT], prm[kn.PRM_GAP_SCALE2] = 0.1, 0.15, 100.0
+    N = t.size
+
+    def run(stops):
+        rec = [np.full((N, 3), np.nan), np.full((N, 3), np.nan), np.full((N, 3, 3), np.nan), np.full((N, 3), np.nan),
+               np.full((N, 3), np.nan), np.full((N, 15), np.nan), np.full((N, 6, 6), np.nan)]
+        x = _x0()
+        P = np.zeros((15, 15))
+        last = np.concatenate([[t[0]], f[0], w[0]])
+        k = 1
+        for s in stops:
+            k = kn.predict_to(x.p_w_m, x.v_w_mps, x.R_wb, x.ba_b, x.bg_b, P, 15, last, t, f, w, k, s, prm, True, *rec)
+        return P
+
+    whole, split = run([2.0]), run([1.0, 2.0])
+    # the velocity noise injected over the gap is the same (position terms depend on the step sizes)
+    assert np.allclose(whole[3:6, 3:6], split[3:6, 3:6], rtol=1e-12)
+    assert whole[3, 3] == pytest.approx(0.1 ** 2 * (0.3 + 100 * 1.7))   # the gap's interval got 10x the std

@@ -47,7 +47,7 @@ def parse_numeric_rows(path: Path, text: str, ncols: int | tuple[int, ...], what
         try:
             vals = [float(p) for p in parts]
         except ValueError:
-            bad = next(p for p in parts if not _is_float(p))
+            bad = next(p for p in parts if not is_float(p))
             raise DataFormatError(path, lineno, f"{what}: expected a number, got {bad!r}") from None
         if not all(np.isfinite(vals)):
             raise DataFormatError(path, lineno, f"{what}: values must be finite numbers (found NaN or inf)")
@@ -58,7 +58,7 @@ def parse_numeric_rows(path: Path, text: str, ncols: int | tuple[int, ...], what
     return np.array(rows, dtype=float), np.array(lines, dtype=np.int64)
 
 
-def _is_float(s: str) -> bool:
+def is_float(s: str) -> bool:
     try:
         float(s)
         return True

@@ -23,7 +23,7 @@ from ..errors import DataFormatError
 from ..geo import geodetic_to_enu
 from ..so3 import euler_rpy_to_matrix, matrix_to_quat_xyzw
 from ..types import GnssSeries, ImuSeries, PoseSeries
-from ._text import read_text
+from ._text import is_float, read_text
 
 N_FIELDS = 30
 LAT, LON, ALT, ROLL, PITCH, YAW = 0, 1, 2, 3, 4, 5
@@ -123,7 +123,7 @@ def read_oxts(path: Path) -> OxtsPackets:
         try:
             row = [float(x) for x in parts]
         except ValueError:
-            bad_tok = next(x for x in parts if not _is_number(x))
+            bad_tok = next(x for x in parts if not is_float(x))
             raise DataFormatError(p, 1, f"expected a number, got {bad_tok!r}") from None
         if not np.all(np.isfinite(row)):
             raise DataFormatError(p, 1, "OXTS values must be finite numbers (found NaN or inf)")
@@ -156,14 +156,6 @@ def _read_packets_csv(path: Path) -> OxtsPackets:
     vals = a[:, 1:]
     filled = vals[:, POSMODE:ORIMODE + 1].min(axis=1) < 0
     return OxtsPackets(t_s=t, values=vals, filled=filled, stamps_path=path, packet_paths=(path,))
-
-
-def _is_number(s: str) -> bool:
-    try:
-        float(s)
-        return True
-    except ValueError:
-        return False
 
 
 def imu_from_oxts(pk: OxtsPackets) -> ImuSeries:

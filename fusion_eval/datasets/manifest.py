@@ -13,7 +13,7 @@ import numpy as np
 import yaml
 
 from ..errors import ConfigError, DataFormatError, DataRangeError
-from ..so3 import inv_T, matrix_to_quat_xyzw
+from ..so3 import make_T, matrix_to_quat_xyzw
 from ..types import Dataset, GnssSeries, PoseSeries
 from . import gnss_csv, kitti_oxts, kitti_poses, speed, tum
 
@@ -25,8 +25,14 @@ FORMATS = {
     "groundtruth": ("kitti_oxts", "tum", "kitti_poses"),
     "lidar": ("kitti_poses", "tum"),
 }
-STREAM_KEYS = {"format", "path", "time_offset_s", "gyro_lag_s", "frame", "T_cam0_imu", "T_cam0_velo", "T_velo_imu",
-               "times", "anchor", "std_m", "degrade"}
+_POSE_KEYS = {"frame", "T_cam0_imu", "T_cam0_velo", "T_velo_imu", "times"}
+STREAM_KEYS = {
+    "imu": {"format", "path", "time_offset_s", "gyro_lag_s"},
+    "gnss": {"format", "path", "time_offset_s", "std_m", "degrade"},
+    "groundtruth": {"format", "path", "time_offset_s"} | _POSE_KEYS,
+    "lidar": {"format", "path", "time_offset_s", "anchor"} | _POSE_KEYS,
+    "odometer": {"format", "path", "time_offset_s"},
+}
 TOP_KEYS = {"name", "description", "attribution", "geodetic_origin", "streams", "config", "truth"}
 
 
@@ -69,14 +75,24 @@ def _from_manifest_dict(body: dict, root: Path, manifest: Path) -> Dataset:
             raise ConfigError(f"{manifest}: unknown stream {name!r} (known: {', '.join(STREAMS)})")
         if not isinstance(spec, dict):
             raise ConfigError(f"{manifest}: stream {name!r} must be a mapping with 'format' and 'path'")
-        bad = set(spec) - STREAM_KEYS
+        bad = set(spec) - STREAM_KEYS[name]
         if bad:
-            raise ConfigError(f"{manifest}: unknown key {sorted(bad)[0]!r} in stream {name!r} (known: {', '.join(sorted(STREAM_KEYS))})")
+            raise ConfigError(f"{manifest}: unknown key {sorted(bad)[0]!r} in stream {name!r} "
+                              f"(known: {', '.join(sorted(STREAM_KEYS[name]))})")
         fmt = spec.get("format")
         if fmt not in FORMATS[name]:
             raise ConfigError(f"{manifest}: stream {name!r} has unknown format {fmt!r} (known for {name}: {', '.join(FORMATS[name])})")
-        if "path" not in spec:
-            raise ConfigError(f"{manifest}: stream {name!r} needs a 'path'")
+        if not isinstance(spec.get("path"), str) or not spec["path"]:
+            raise ConfigError(f"{manifest}: stream {name!r} needs a 'path' (a file or folder name)")
+        if fmt != "kitti_poses" and "times" in spec:
+            raise ConfigError(f"{manifest}: 'times' applies to kitti_poses streams only (stream {name!r} is {fmt}: "
+                              "its file has its own timestamps)")
+        for key in ("time_offset_s", "gyro_lag_s"):
+            v = spec.get(key, 0.0)
+            if not (v == "auto" and key == "gyro_lag_s") and not _is_num(v):
+                raise ConfigError(f"{manifest}: {key} of stream {name!r} must be a number of seconds, got {v!r}")
+        if "degrade" in spec and not isinstance(spec["degrade"], bool):
+            raise ConfigError(f"{manifest}: 'degrade' of stream {name!r} must be true or false, got {spec['degrade']!r}")
 
     oxts_cache: dict[Path, kitti_oxts.OxtsPackets] = {}
 
@@ -94,7 +110,7 @@ def _from_manifest_dict(body: dict, root: Path, manifest: Path) -> Dataset:
     if origin == "first_fix":
         geo_src = next((streams[s] for s in ("gnss", "groundtruth", "imu") if s in streams and streams[s]["format"] == "kitti_oxts"), None)
         origin_t = kitti_oxts.first_valid_fix(oxts(geo_src)) if geo_src else None
-    elif isinstance(origin, (list, tuple)) and len(origin) == 3:
+    elif isinstance(origin, (list, tuple)) and len(origin) == 3 and all(_is_num(v) for v in origin):
         origin_t = tuple(float(v) for v in origin)
     else:
         raise ConfigError(f"{manifest}: geodetic_origin must be 'first_fix' or [lat_deg, lon_deg, alt_m], got {origin!r}")
@@ -105,9 +121,9 @@ def _from_manifest_dict(body: dict, root: Path, manifest: Path) -> Dataset:
     if "gnss" in streams:
         gnss = _gnss(streams["gnss"], root, oxts, origin_t, manifest)
     if "groundtruth" in streams:
-        gt = _poses(streams["groundtruth"], root, oxts, origin_t, manifest, "groundtruth", imu_pk)
+        gt = _poses(streams["groundtruth"], root, oxts, origin_t, manifest, imu_pk)
     if "lidar" in streams:
-        lidar = _poses(streams["lidar"], root, oxts, origin_t, manifest, "lidar", imu_pk)
+        lidar = _poses(streams["lidar"], root, oxts, origin_t, manifest, imu_pk)
 
     description: dict[str, Any] = {
         "manifest": str(manifest),
@@ -127,12 +143,6 @@ def _from_manifest_dict(body: dict, root: Path, manifest: Path) -> Dataset:
         raise ConfigError(f"{manifest}: 'config' must be a mapping of configuration sections (suggested settings)")
     if description["lidar_anchor"] not in ("groundtruth", "none"):
         raise ConfigError(f"{manifest}: lidar 'anchor' must be 'groundtruth' or 'none', got {description['lidar_anchor']!r}")
-    g = description["gyro_lag_s"]
-    if g != "auto" and (isinstance(g, bool) or not isinstance(g, (int, float)) or not np.isfinite(g)):
-        raise ConfigError(f"{manifest}: gyro_lag_s of 'imu' must be a number of seconds or 'auto', got {g!r}")
-    for s, v in description["time_offset_s"].items():
-        if not np.isfinite(v):
-            raise ConfigError(f"{manifest}: time_offset_s of {s!r} must be a number")
     return Dataset(name=str(body.get("name", root.name)), imu=imu, groundtruth=gt, gnss=gnss, lidar=lidar, odometer=odo,
                    geodetic_origin=origin_t, description=description)
 
@@ -148,17 +158,28 @@ def _gnss(spec, root, oxts, origin, manifest) -> GnssSeries:
         return gnss_csv.read_gnss_csv(root / spec["path"], origin)
     poses = tum.read_tum(root / spec["path"])
     std = spec.get("std_m", 1.0)
-    std = np.broadcast_to(np.asarray(std, float), (3,))
+    if isinstance(std, (int, float)) and not isinstance(std, bool):
+        std = [std] * 3
+    if not (isinstance(std, list) and len(std) == 3 and all(_is_num(v) and v > 0 for v in std)):
+        raise ConfigError(f"{manifest}: gnss 'std_m' must be a positive number or 3 positive numbers (m), got {spec.get('std_m')!r}")
+    std = np.asarray(std, float)
     return GnssSeries(t_s=poses.t_s, p_w_m=poses.p_w_m, std_w_m=np.tile(std, (len(poses), 1)),
                       source=poses.source, lines=poses.lines)
 
 
+def _is_num(v) -> bool:
+    return isinstance(v, (int, float)) and not isinstance(v, bool) and bool(np.isfinite(v))
+
+
 def _transform(spec_value, root: Path, manifest: Path, what: str) -> np.ndarray:
-    if isinstance(spec_value, dict) and "file" in spec_value:
+    if isinstance(spec_value, dict) and isinstance(spec_value.get("file"), str):
         return kitti_poses.calib_transform(root / spec_value["file"], spec_value.get("key"))
-    if isinstance(spec_value, (list, tuple)) and len(spec_value) in (12, 16):
+    if isinstance(spec_value, (list, tuple)) and len(spec_value) in (12, 16) and all(_is_num(v) for v in spec_value):
         T = np.eye(4)
         T[: len(spec_value) // 4, :] = np.asarray(spec_value, float).reshape(-1, 4)
+        R = T[:3, :3]
+        if np.abs(R.T @ R - np.eye(3)).max() > 1e-3 or np.linalg.det(R) < 0:
+            raise ConfigError(f"{manifest}: {what}: the 3x3 block must be a rotation (R^T R = I, det +1)")
         return T
     raise ConfigError(f"{manifest}: {what} must be {{file: ..., key: ...}} or a list of 12 numbers (3x4 row-major)")
 
@@ -181,7 +202,13 @@ def _pose_times(spec, root, manifest, n_poses: int, pose_path: Path, raw: kitti_
     times = spec.get("times")
     if not isinstance(times, dict):
         raise ConfigError(f"{manifest}: KITTI poses need 'times': {{file: times.txt}} and/or {{align_to: imu, index_offset: 0}}")
-    offset = int(times.get("index_offset", 0))
+    offset = times.get("index_offset", 0)
+    if isinstance(offset, bool) or not isinstance(offset, int):
+        raise ConfigError(f"{manifest}: times.index_offset must be an integer, got {offset!r}")
+    if "t0_s" in times and not _is_num(times["t0_s"]):
+        raise ConfigError(f"{manifest}: times.t0_s must be a number of seconds, got {times['t0_s']!r}")
+    if "file" in times and not isinstance(times["file"], str):
+        raise ConfigError(f"{manifest}: times.file must be a file name, got {times['file']!r}")
     if "file" in times:
         tpath = root / times["file"]
         t, _ = kitti_poses.read_times(tpath)
@@ -208,7 +235,7 @@ def _pose_times(spec, root, manifest, n_poses: int, pose_path: Path, raw: kitti_
     raise ConfigError(f"{manifest}: 'times' needs 'file' or 'align_to: imu'")
 
 
-def _poses(spec, root, oxts, origin, manifest, stream: str, imu_pk) -> PoseSeries:
+def _poses(spec, root, oxts, origin, manifest, imu_pk) -> PoseSeries:
     fmt = spec["format"]
     if fmt == "kitti_oxts":
         return kitti_oxts.poses_from_oxts(oxts(spec), origin)
@@ -225,11 +252,10 @@ def _poses(spec, root, oxts, origin, manifest, stream: str, imu_pk) -> PoseSerie
     if T is None:
         if np.allclose(T_c_b, np.eye(4)):
             return poses
-        from ..so3 import make_T
         T = make_T(poses.R_wb(), poses.p_w_m)
         t, lines = poses.t_s, poses.lines
-    # IMU poses relative to the first frame: T_b0_bi = T_b_c T_c0_ci T_c_b
-    T_b_c = inv_T(T_c_b)
-    T_b = T_b_c[None] @ T @ T_c_b[None]
+    # IMU poses: T_x_bi = T_x_ci T_c_b, where x is the pose file's reference frame (the world when
+    # anchor is 'none'; the sensor's first frame otherwise, and anchoring removes that constant)
+    T_b = T @ T_c_b[None]
     return PoseSeries(t_s=t, p_w_m=T_b[:, :3, 3], q_wb_xyzw=matrix_to_quat_xyzw(T_b[:, :3, :3]),
                       source=str(root / spec["path"]), lines=lines)

@@ -73,7 +73,12 @@ class ErrorStateKF:
     def update(self, H: np.ndarray, r: np.ndarray, Rm: np.ndarray) -> float:
         """Joseph-form update with the observation model ``(H, r, R)``, injection and reset; returns the NIS."""
         n = self.n
-        dx, nis = kn.joseph_update(self.P, n, np.ascontiguousarray(H[:, :n]), r, Rm)
+        if not (np.all(np.isfinite(r)) and np.all(np.isfinite(Rm)) and np.all(np.isfinite(self.P[:n, :n]))):
+            raise FilterDivergedError(f"filter diverged at t={self.t:.3f} s: non-finite covariance or residual")
+        try:
+            dx, nis = kn.joseph_update(self.P, n, np.ascontiguousarray(H[:, :n]), r, Rm)
+        except np.linalg.LinAlgError as exc:
+            raise FilterDivergedError(f"filter diverged at t={self.t:.3f} s: innovation covariance not invertible ({exc})") from None
         if not (np.all(np.isfinite(dx)) and np.isfinite(nis)):
             raise FilterDivergedError(f"filter diverged at t={self.t:.3f} s: non-finite correction")
         self._inject(dx)
@@ -120,13 +125,12 @@ def dead_reckon(x0: NominalState, prm: np.ndarray, imu_t, imu_f, imu_w, k0: int)
     N = imu_t.size
     rec_p = np.full((N, 3), np.nan)
     rec_R = np.full((N, 3, 3), np.nan)
-    dummy = np.full((N, 3), np.nan)
-    dummyR = np.full((N, 3, 3), np.nan)
+    rec_v, rec_ba, rec_bg = (np.empty((N, 3)) for _ in range(3))   # written, not returned
     last = np.concatenate([[imu_t[k0]], imu_f[k0], imu_w[k0]])
     rec_p[k0] = x.p_w_m
     rec_R[k0] = x.R_wb
     P = np.zeros((N_CORE, N_CORE))
     kn.predict_to(x.p_w_m, x.v_w_mps, x.R_wb, x.ba_b, x.bg_b, P, N_CORE, last, imu_t, imu_f, imu_w, k0 + 1,
-                  float(imu_t[-1]), prm, False, rec_p, dummy, rec_R, dummy, dummy, np.zeros((1, N_CORE)),
+                  float(imu_t[-1]), prm, False, rec_p, rec_v, rec_R, rec_ba, rec_bg, np.zeros((1, N_CORE)),
                   np.zeros((1, 6, 6)))
     return rec_p, rec_R

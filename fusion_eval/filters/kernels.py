@@ -67,7 +67,7 @@ def mech_step(p, v, R, ba, bg, f0, w0, f1, w1, dt, g):
     Attitude: ``R1 = R0 Exp(((w0 + w1)/2 - bg) dt + (w0 x w1) dt^2 / 12)`` (midpoint rate plus the
     coning correction of a linearly varying rate); acceleration: the mean of the world-frame
     accelerations at both ends, each with its own attitude; position with the second-order term.
-    Exact for constant world acceleration and for constant body rate.
+    Exact for constant world acceleration; the attitude is exact for a constant body rate.
     """
     wa = w0 - bg
     wb = w1 - bg
@@ -140,13 +140,13 @@ def propagate_cov(P, n, R, f_b, w_b, dt, prm, gap):
 
 
 @njit(cache=True)
-def _step(p, v, R, ba, bg, P, n, f0, w0, f1, w1, dt, prm, do_cov):
+def _step(p, v, R, ba, bg, P, n, f0, w0, f1, w1, dt, prm, do_cov, gap):
     if do_cov:
         # linearise at the start-of-interval attitude and the midpoint, bias-corrected IMU values
         fm = 0.5 * (f0 + f1) - ba
         wm = 0.5 * (w0 + w1) - bg
         R0 = R.copy()
-        propagate_cov(P, n, R0, fm, wm, dt, prm, dt > prm[PRM_GAP_DT])
+        propagate_cov(P, n, R0, fm, wm, dt, prm, gap)
     mech_step(p, v, R, ba, bg, f0, w0, f1, w1, dt, prm[PRM_G])
 
 
@@ -169,8 +169,10 @@ def predict_to(p, v, R, ba, bg, P, n, last, imu_t, imu_f, imu_w, k_next, t_targe
     k = k_next
     while k < N and imu_t[k] <= t_target:
         dt = imu_t[k] - t0
+        # a gap is a long interval between two IMU samples, however an observation splits it
+        gap = k > 0 and imu_t[k] - imu_t[k - 1] > prm[PRM_GAP_DT]
         if dt > 0.0:
-            _step(p, v, R, ba, bg, P, n, f0, w0, imu_f[k], imu_w[k], dt, prm, do_cov)
+            _step(p, v, R, ba, bg, P, n, f0, w0, imu_f[k], imu_w[k], dt, prm, do_cov, gap)
         t0 = imu_t[k]
         f0 = imu_f[k].copy()
         w0 = imu_w[k].copy()
@@ -193,7 +195,8 @@ def predict_to(p, v, R, ba, bg, P, n, last, imu_t, imu_f, imu_w, k_next, t_targe
         a = (t_target - t0) / (imu_t[k] - t0)
         f1 = f0 + a * (imu_f[k] - f0)
         w1 = w0 + a * (imu_w[k] - w0)
-        _step(p, v, R, ba, bg, P, n, f0, w0, f1, w1, t_target - t0, prm, do_cov)
+        gap = k > 0 and imu_t[k] - imu_t[k - 1] > prm[PRM_GAP_DT]
+        _step(p, v, R, ba, bg, P, n, f0, w0, f1, w1, t_target - t0, prm, do_cov, gap)
         t0 = t_target
         f0 = f1
         w0 = w1
