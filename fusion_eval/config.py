@@ -75,7 +75,7 @@ SCHEMA: dict[str, Spec] = {
     "gnss.rate_hz": S(1.0, "decimate GNSS to this rate (null = keep every fix); only for streams the manifest marks 'degrade'",
                       "float", positive=True, nullable=True),
     "gnss.noise_std_m": S([1.0, 1.0, 2.0], "white noise added per axis E/N/U, m ([0, 0, 0] = none)", nonneg=True),
-    "gnss.outages_s": S([], "outage windows [[start, end], ...] in seconds from the first IMU sample", "windows"),
+    "gnss.outages_s": S([], "outage windows [[start, end], ...] in seconds from the filter's start (the first IMU sample it uses)", "windows"),
     "gnss.seed": S(0, "seed of the GNSS noise", nonneg=True),
     "gnss.std_m": S("auto", "GNSS std given to the filter per axis, m; 'auto' = sqrt(reported accuracy^2 + added noise^2)",
                     "vec3", positive=True, auto=True),
