@@ -116,6 +116,43 @@ def run(ctx, dataset, config_path, sets, out_dir, overwrite, no_plots):
 
 
 @main.command()
+@click.argument("dataset", required=False, type=click.Path(path_type=Path))
+@click.option("-V", "--variants", required=True, metavar="A,B,...",
+              help="Comma-separated variant names (configs/variants/<name>.yaml) or YAML paths.")
+@click.option("--variant-dir", type=click.Path(path_type=Path), default=None,
+              help="Folder of variant files (default: configs/variants).")
+@click.option("-c", "--config", "config_path", type=click.Path(path_type=Path), help="Base configuration for every variant.")
+@click.option("-s", "--set", "sets", multiple=True, metavar="KEY=VALUE", help="Override a key in every variant (repeatable).")
+@click.option("-o", "--out", "out_dir", type=click.Path(path_type=Path), help="Output directory (default: results/compare-<time>).")
+@click.option("--overwrite", is_flag=True, help="Replace an existing output directory once the comparison succeeded.")
+@click.option("--no-plots", is_flag=True, help="Skip the PNG plots.")
+@click.pass_context
+def compare(ctx, dataset, variants, variant_dir, config_path, sets, out_dir, overwrite, no_plots):
+    """Run several filter variants on DATASET and write one comparison table and overlaid plots."""
+    from .compare import VARIANT_DIR, compare as run_compare
+
+    dataset = dataset if dataset is not None else _repo_relative(DEFAULT_DATASET)
+    variant_dir = variant_dir if variant_dir is not None else _repo_relative(VARIANT_DIR)
+    names = [v.strip() for v in variants.split(",") if v.strip()]
+    out_dir = out_dir or Path("results") / f"compare-{time.strftime('%Y%m%d-%H%M%S')}"
+    progress = None if ctx.obj["quiet"] else _Progress("variants")
+    t0 = time.perf_counter()
+    try:
+        res = run_compare(dataset, names, variant_dir, config_path, tuple(sets), out_dir, overwrite=overwrite,
+                          make_plots=not no_plots, progress=progress)
+    finally:
+        if progress is not None:
+            progress.close()
+    if not ctx.obj["quiet"]:
+        click.echo(f"{'variant':<26} {'estimate':<9} {'APE trans RMSE [m]':>19} {'APE rot RMSE [deg]':>19}")
+        for r in res["rows"]:
+            rot = r.get("ape_rot_rmse_deg")
+            click.echo(f"{r['variant']:<26} {r['estimate']:<9} {r['ape_trans_rmse_m']:>19.3f} "
+                       f"{'n/a' if rot is None else f'{rot:.3f}':>19}")
+        click.echo(f"wrote {out_dir}/ ({time.perf_counter() - t0:.1f} s)")
+
+
+@main.command()
 @click.argument("out_dir", type=click.Path(path_type=Path))
 @click.option("-p", "--profile", default="urban", show_default=True,
               help="Motion profile: urban, figure8, highway, or a waypoint YAML file.")

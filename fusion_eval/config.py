@@ -48,6 +48,19 @@ SCHEMA: dict[str, Spec] = {
     "filter.use_gnss": S(True, "fuse GNSS position fixes"),
     "filter.bias_model": S("random_walk", "IMU bias model: 'random_walk' or 'constant' (bias states kept, no process noise)",
                            choices=("random_walk", "constant")),
+    "filter.formulation": S("error_state", "'error_state' (ESKF: 15-state error, injection and reset) or 'nominal_state' "
+                                           "(EKF on the full state [p, v, q, ba, bg] with quaternion normalisation)",
+                            choices=("error_state", "nominal_state")),
+    "filter.process_model": S("imu", "'imu' (strapdown mechanization) or 'odometer_gyro' (wheel speed and gyro drive the "
+                                     "prediction; error state [dp, dtheta, dk, dbg])", choices=("imu", "odometer_gyro")),
+    "filter.iterations": S(1, "iterated EKF: re-linearise each update up to this many times (1 = plain EKF)", positive=True),
+    "filter.iteration_tol": S(1e-8, "iterated EKF: stop when the correction changes by less than this (norm)", positive=True),
+    "filter.odometer_update": S(False, "fuse the odometer's forward speed as a body-frame velocity observation"),
+    "filter.nhc": S(False, "non-holonomic constraint: lateral and vertical body velocity = 0 as a pseudo-observation "
+                           "while not turning"),
+    "filter.nhc_max_turn_rate_rps": S(0.13, "apply the constraint only while |angular rate| is below this, rad/s", positive=True),
+    "filter.nhc_rate_hz": S(10.0, "rate of the constraint's pseudo-observations, Hz", positive=True),
+    "filter.nhc_std_mps": S(0.1, "std of the constraint (lateral and vertical slip), m/s", positive=True),
     "filter.gravity_mps2": S("auto", "gravity magnitude; 'auto' = WGS84 normal gravity at the geodetic origin (9.80665 without one)",
                              "float", positive=True, auto=True),
     "filter.init_pose_from": S("groundtruth", "initial position/attitude from 'groundtruth' or the first valid 'lidar' pose",
@@ -80,6 +93,15 @@ SCHEMA: dict[str, Spec] = {
     "gnss.std_m": S("auto", "GNSS std given to the filter per axis, m; 'auto' = sqrt(reported accuracy^2 + added noise^2)",
                     "vec3", positive=True, auto=True),
     "gnss.lever_arm_b_m": S([0.0, 0.0, 0.0], "antenna position in the body frame, m"),
+    "odometer.time_offset_s": S(None, "added to odometer stamps; null = the manifest's value (default 0)", "float", nullable=True),
+    "odometer.speed_std_mps": S(0.1, "odometer forward-speed std of one reading (the velocity observation), m/s", positive=True),
+    "odometer.added_noise_std_mps": S(0.05, "white noise added to an odometer stream the manifest marks 'degrade' "
+                                            "(KITTI's OXTS vf is the GPS/INS solution), m/s", nonneg=True),
+    "odometer.speed_noise_mps_sqrthz": S(0.05, "odometer + gyro model: speed noise density, m/s/sqrt(Hz)", positive=True),
+    "odometer.slip_noise_mps_sqrthz": S(0.05, "odometer + gyro model: lateral/vertical slip noise density, m/s/sqrt(Hz)",
+                                        positive=True),
+    "odometer.scale_rw_per_sqrts": S(1e-5, "odometer + gyro model: random walk of the scale error, 1/sqrt(s)", nonneg=True),
+    "init.odometer_scale_std": S(0.01, "initial std of the odometer scale error (odometer + gyro model)", nonneg=True),
     "init.pos_std_m": S(0.1, "initial position std, m", positive=True),
     "init.vel_std_mps": S(0.1, "initial velocity std, m/s", positive=True),
     "init.roll_pitch_std_deg": S(0.1, "initial roll and pitch std, deg", positive=True),
@@ -254,6 +276,20 @@ class FilterParams:
     abs_att_std_rad: float
     gnss_lever_arm_b_m: np.ndarray
     init_std: np.ndarray    # (15,) 1-sigma of [dp, dv, dtheta, dba, dbg]
+    formulation: str = "error_state"
+    process_model: str = "imu"
+    iterations: int = 1
+    iteration_tol: float = 1e-8
+    odometer_update: bool = False
+    nhc: bool = False
+    nhc_max_turn_rate_rps: float = 0.13
+    nhc_rate_hz: float = 10.0
+    nhc_std_mps: float = 0.1
+    odo_speed_std_mps: float = 0.1
+    odo_speed_noise: float = 0.05       # m/s/sqrt(Hz)
+    odo_slip_noise: float = 0.05        # m/s/sqrt(Hz)
+    odo_scale_rw: float = 1e-5          # 1/sqrt(s)
+    odo_scale_init_std: float = 0.01
 
 
 def to_filter_params(cfg: dict, gravity_mps2: float) -> FilterParams:
@@ -286,4 +322,29 @@ def to_filter_params(cfg: dict, gravity_mps2: float) -> FilterParams:
         abs_att_std_rad=c["lidar"]["absolute_att_std_deg"] * d2r,
         gnss_lever_arm_b_m=np.array(c["gnss"]["lever_arm_b_m"], float),
         init_std=init_std,
+        formulation=c["filter"]["formulation"],
+        process_model=c["filter"]["process_model"],
+        iterations=int(c["filter"]["iterations"]),
+        iteration_tol=c["filter"]["iteration_tol"],
+        odometer_update=c["filter"]["odometer_update"],
+        nhc=c["filter"]["nhc"],
+        nhc_max_turn_rate_rps=c["filter"]["nhc_max_turn_rate_rps"],
+        nhc_rate_hz=c["filter"]["nhc_rate_hz"],
+        nhc_std_mps=c["filter"]["nhc_std_mps"],
+        odo_speed_std_mps=c["odometer"]["speed_std_mps"],
+        odo_speed_noise=c["odometer"]["speed_noise_mps_sqrthz"],
+        odo_slip_noise=c["odometer"]["slip_noise_mps_sqrthz"],
+        odo_scale_rw=c["odometer"]["scale_rw_per_sqrts"],
+        odo_scale_init_std=init["odometer_scale_std"],
     )
+
+
+def check_combination(cfg: dict) -> None:
+    """Reject combinations of variant axes that do not make sense, naming the keys."""
+    f = cfg["filter"]
+    if f["process_model"] == "odometer_gyro":
+        if f["formulation"] != "error_state":
+            raise ConfigError("filter.process_model=odometer_gyro is an error-state filter: use filter.formulation=error_state")
+        if f["odometer_update"] or f["nhc"]:
+            raise ConfigError("filter.process_model=odometer_gyro already drives the prediction with the odometer and the "
+                              "no-slip assumption: set filter.odometer_update=false and filter.nhc=false")

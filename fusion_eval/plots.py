@@ -106,3 +106,68 @@ def plot_error_sigma(path: Path, t_s: np.ndarray, err_w: np.ndarray, sigma: np.n
     fig.suptitle("Fused position error with the filter's +/-3 sigma")
     fig.tight_layout()
     _save(fig, path)
+
+
+_VCOLORS = plt.rcParams["axes.prop_cycle"].by_key()["color"]
+
+
+def plot_compare_ape(path: Path, runs, evs_unfiltered: dict, t0: float) -> None:
+    """APE translation over time of every variant (solid) and of the unfiltered estimates (dotted)."""
+    fig, ax = plt.subplots(figsize=(10, 4.5))
+    for i, r in enumerate(runs):
+        rmse = r.ev.metrics["ape"]["translation_m"]["rmse"]
+        ax.plot(r.ev.ape_t_s - t0, np.maximum(r.ev.ape_err_m, 1e-3), "-", lw=1.0, color=_VCOLORS[i % len(_VCOLORS)],
+                label=f"{r.name} (RMSE {rmse:.2f} m)")
+    for name in ("lidar", "gnss"):
+        ev = evs_unfiltered.get(name)
+        if ev is not None and ev.ape_err_m is not None:
+            ax.plot(ev.ape_t_s - t0, np.maximum(ev.ape_err_m, 1e-3), ":" if name == "lidar" else ".", ms=2, lw=1.0,
+                    color=COLORS[name], label=f"{LABELS[name]} (RMSE {ev.metrics['ape']['translation_m']['rmse']:.2f} m)")
+    ax.set_yscale("log")
+    ax.set_xlabel("time since start [s]")
+    ax.set_ylabel("APE translation [m]")
+    ax.set_title("Absolute position error of each variant")
+    ax.grid(alpha=0.3, which="both")
+    ax.legend(loc="best", fontsize=7)
+    _save(fig, path)
+
+
+def plot_compare_biases(path: Path, runs) -> None:
+    """Estimated accelerometer and gyro biases of each variant (x, y, z as solid, dashed, dotted)."""
+    fig, axes = plt.subplots(2, 1, figsize=(10, 6), sharex=True)
+    styles = ("-", "--", ":")
+    for i, r in enumerate(runs):
+        t = r.filt.fused.t_s - r.filt.fused.t_s[0]
+        for k in range(3):
+            lab = r.name if k == 0 else None
+            axes[0].plot(t, r.filt.accel_bias_b[:, k], styles[k], lw=0.9, color=_VCOLORS[i % len(_VCOLORS)], label=lab)
+            axes[1].plot(t, np.degrees(r.filt.gyro_bias_b[:, k]) * 3600, styles[k], lw=0.9, color=_VCOLORS[i % len(_VCOLORS)])
+    axes[0].set_ylabel("accel bias [m/s^2]")
+    axes[1].set_ylabel("gyro bias [deg/h]")
+    axes[1].set_xlabel("time since start [s]")
+    axes[0].set_title("Estimated IMU biases per variant (x solid, y dashed, z dotted)")
+    for ax in axes:
+        ax.grid(alpha=0.3)
+    axes[0].legend(loc="upper right", fontsize=7)
+    _save(fig, path)
+
+
+def plot_compare_body_velocity(path: Path, runs, gt, gt_vb) -> None:
+    """Lateral and vertical body-frame velocity of each variant (what the motion constraint acts on)."""
+    fig, axes = plt.subplots(2, 1, figsize=(10, 6), sharex=True)
+    t0 = runs[0].filt.fused.t_s[0]
+    if gt_vb is not None:
+        for ax, k in zip(axes, (1, 2)):
+            ax.plot(gt.t_s - t0, gt_vb[:, k], color="black", lw=1.2, label="ground truth", zorder=10)
+    for i, r in enumerate(runs):
+        vb = np.einsum("nji,nj->ni", r.filt.fused.R_wb(), r.filt.fused.v_w_mps)
+        for ax, k in zip(axes, (1, 2)):
+            ax.plot(r.filt.fused.t_s - t0, vb[:, k], lw=0.7, alpha=0.7, color=_VCOLORS[i % len(_VCOLORS)], label=r.name)
+    axes[0].set_ylabel("lateral [m/s]")
+    axes[1].set_ylabel("vertical [m/s]")
+    axes[1].set_xlabel("time since start [s]")
+    axes[0].set_title("Body-frame velocity across the direction of travel")
+    for ax in axes:
+        ax.grid(alpha=0.3)
+    axes[0].legend(loc="upper right", fontsize=7)
+    _save(fig, path)

@@ -13,14 +13,14 @@ from dataclasses import dataclass, field, replace
 import numpy as np
 
 from .calibration import estimate_gyro_lag
-from .config import get
+from .config import check_combination, get
 from .degrade import degrade_gnss
 from .errors import ConfigError, DataRangeError
 from .filters.eskf import NominalState
 from .geo import normal_gravity_mps2
 from .interp import interpolate_pose_at, snap_to_stamps
 from .so3 import inv_T, make_T, matrix_to_quat_xyzw
-from .types import Dataset, GnssSeries, ImuSeries, PoseSeries
+from .types import Dataset, GnssSeries, ImuSeries, PoseSeries, SpeedSeries
 
 log = logging.getLogger(__name__)
 
@@ -38,6 +38,7 @@ class Prepared:
     gravity_mps2: float
     gnss_info: dict | None
     applied: dict = field(default_factory=dict)   # effective offsets, lag, anchor (for the report)
+    odometer: SpeedSeries | None = None          # forward speed, inside the run
 
 
 def _offset(cfg: dict, ds: Dataset, stream: str) -> float:
@@ -73,6 +74,7 @@ def anchor_lidar(lidar_odom: PoseSeries, gt: PoseSeries) -> tuple[PoseSeries, fl
 
 
 def prepare(ds: Dataset, cfg: dict) -> Prepared:
+    check_combination(cfg)
     use_lidar = cfg["filter"]["lidar_update"] != "none"
     use_gnss = cfg["filter"]["use_gnss"]
     if ds.groundtruth is None:
@@ -163,6 +165,23 @@ def prepare(ds: Dataset, cfg: dict) -> Prepared:
         if use_gnss and len(gnss) == 0:
             raise DataRangeError(f"no GNSS fix of {ds.gnss.source} is left inside the IMU span after degradation")
 
+    # --- odometer: offset, optional degradation (KITTI's vf is the GPS/INS solution)
+    odo = None
+    needs_odo = cfg["filter"]["odometer_update"] or cfg["filter"]["process_model"] == "odometer_gyro"
+    if needs_odo and ds.odometer is None:
+        raise ConfigError(f"dataset {ds.name!r} has no odometer stream; it is needed by filter.odometer_update or "
+                          "filter.process_model=odometer_gyro")
+    if ds.odometer is not None:
+        off = _offset(cfg, ds, "odometer")
+        applied["time_offset_s"]["odometer"] = off
+        odo = replace(ds.odometer, t_s=ds.odometer.t_s + off)
+        if ds.description.get("odometer_degrade", False) and cfg["odometer"]["added_noise_std_mps"] > 0:
+            rng = np.random.default_rng(cfg["gnss"]["seed"] + 1)
+            odo = replace(odo, v_mps=odo.v_mps + rng.standard_normal(len(odo)) * cfg["odometer"]["added_noise_std_mps"])
+            applied["odometer_added_noise_std_mps"] = cfg["odometer"]["added_noise_std_mps"]
+        if needs_odo and (odo.t_s[-1] <= imu.t_s[k0] or odo.t_s[0] >= imu.t_s[-1]):
+            raise DataRangeError(f"odometer ({ds.odometer.source}) and IMU do not overlap in time")
+
     # --- initial state
     if cfg["filter"]["init_pose_from"] == "lidar":
         if lidar is None:
@@ -186,4 +205,4 @@ def prepare(ds: Dataset, cfg: dict) -> Prepared:
     applied["gravity_mps2"] = float(g)
     applied["t_start_s"] = t0
     return Prepared(imu=imu, groundtruth=gt, gnss=gnss, lidar=lidar, k_start=k0, x0=x0, gravity_mps2=float(g),
-                    gnss_info=gnss_info, applied=applied)
+                    gnss_info=gnss_info, applied=applied, odometer=odo)

@@ -63,3 +63,11 @@ def test_exponent_numbers_without_a_point_are_numbers():
     assert cfg["imu"]["gyro_bias_rw_dps2_sqrthz"] == 1e-05 and cfg["gnss"]["noise_std_m"] == [1.0, 2.0, 3.0]
     with pytest.raises(ConfigError, match=">= 0"):
         load_config(None, ("gnss.seed=-1",))
+
+
+def test_configs_default_yaml_names_every_key():
+    import yaml
+
+    body = yaml.safe_load((ROOT / "configs" / "default.yaml").read_text())
+    missing = [k for k in SCHEMA if k.split(".")[1] not in (body.get(k.split(".")[0]) or {})]
+    assert not missing, missing

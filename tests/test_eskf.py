@@ -93,8 +93,7 @@ def test_vanishing_observation_noise_reproduces_the_observation():
     p_obs = kf.x.p_w_m + [0.3, -0.2, 0.5]
     R_obs = kf.x.R_wb @ exp_so3(np.array([0.01, -0.02, 0.015]))
     for _ in range(3):  # relinearise: the attitude residual is exact only at the linearisation point
-        H, r, Rm = obs.absolute_pose(kf.x, p_obs, R_obs, 1e-9, 1e-9)
-        kf.update(H, r, Rm)
+        kf.update(lambda x, cp, cR: obs.absolute_pose(x, p_obs_w=p_obs, R_obs_wb=R_obs, pos_std_m=1e-9, att_std_rad=1e-9))
     assert np.abs(kf.x.p_w_m - p_obs).max() < 1e-8
     assert np.abs(log_so3(kf.x.R_wb.T @ R_obs)).max() < 1e-8
     assert np.diag(kf.P)[P_ID:P_ID + 3].max() < 1e-12
@@ -119,14 +118,14 @@ def test_relative_pose_jacobian_matches_finite_differences():
     # (the exact one carries the inverse right Jacobian of the residual)
     dp_obs = clone[1].T @ (x.p_w_m - clone[0]) + rng.normal(size=3) * 1e-4
     dR_obs = clone[1].T @ x.R_wb @ exp_so3(rng.normal(size=3) * 1e-4)
-    H, r0, _ = obs.relative_pose(x, clone[0], clone[1], dp_obs, dR_obs, 0.1, 0.01)
+    H, r0, _ = obs.relative_pose(x, clone[0], clone[1], dp_obs_c=dp_obs, dR_obs=dR_obs, pos_std_m=0.1, att_std_rad=0.01)
     eps = 1e-6
     Hnum = np.zeros_like(H)
     for i in list(range(0, 9)) + list(range(15, 21)):
         d = np.zeros(21)
         d[i] = eps
         xp, cp, cR = _perturb(x, clone, d)
-        _, r1, _ = obs.relative_pose(xp, cp, cR, dp_obs, dR_obs, 0.1, 0.01)
+        _, r1, _ = obs.relative_pose(xp, cp, cR, dp_obs_c=dp_obs, dR_obs=dR_obs, pos_std_m=0.1, att_std_rad=0.01)
         Hnum[:, i] = -(r1 - r0) / eps   # r = z - h(x): dr = -H dx
     assert np.abs(H - Hnum).max() < 1e-4
 
@@ -138,8 +137,8 @@ def test_gnss_lever_arm_and_absolute_pose_jacobians_match_finite_differences():
     z = rng.normal(size=3)
     R_obs = x.R_wb @ exp_so3(rng.normal(size=3) * 1e-4)
     for model in ("gnss", "abs"):
-        f = (lambda xx: obs.gnss_position(xx, z, np.ones(3), lever)) if model == "gnss" else \
-            (lambda xx: obs.absolute_pose(xx, z, R_obs, 1.0, 1.0))
+        f = (lambda xx: obs.gnss_position(xx, p_obs_w=z, std_w=np.ones(3), lever_arm_b=lever)) if model == "gnss" else \
+            (lambda xx: obs.absolute_pose(xx, p_obs_w=z, R_obs_wb=R_obs, pos_std_m=1.0, att_std_rad=1.0))
         H, r0, _ = f(x)
         Hnum = np.zeros((H.shape[0], 9))
         for i in range(9):
@@ -170,7 +169,7 @@ def test_cloned_pose_is_fully_correlated_with_the_current_pose():
     assert np.allclose(P[15:18, 0:3], P[0:3, 0:3])
     # a relative update right after cloning (zero motion, observed zero increment) changes nothing
     x_before = kf.x.copy()
-    H, r, Rm = obs.relative_pose(kf.x, kf.clone_p, kf.clone_R, np.zeros(3), np.eye(3), 0.01, 0.001)
+    H, r, Rm = obs.relative_pose(kf.x, kf.clone_p, kf.clone_R, dp_obs_c=np.zeros(3), dR_obs=np.eye(3), pos_std_m=0.01, att_std_rad=0.001)
     assert np.abs(r).max() < 1e-12
-    kf.update(H, r, Rm)
+    kf.update(lambda *_: (H, r, Rm))
     assert np.allclose(kf.x.p_w_m, x_before.p_w_m)

@@ -22,7 +22,7 @@ import numpy as np
 from ..errors import DataFormatError
 from ..geo import geodetic_to_enu
 from ..so3 import euler_rpy_to_matrix, matrix_to_quat_xyzw
-from ..types import GnssSeries, ImuSeries, PoseSeries
+from ..types import GnssSeries, ImuSeries, PoseSeries, SpeedSeries
 from ._text import is_float, read_text
 
 N_FIELDS = 30
@@ -192,6 +192,13 @@ def gnss_from_oxts(pk: OxtsPackets, origin: tuple[float, float, float]) -> GnssS
     acc[~good] = fallback
     return GnssSeries(t_s=pk.t_s, p_w_m=positions_enu(pk, origin), std_w_m=np.repeat(acc[:, None], 3, axis=1),
                       filled=pk.filled, source=str(pk.stamps_path), lines=np.arange(1, pk.t_s.size + 1))
+
+
+def speed_from_oxts(pk: OxtsPackets) -> SpeedSeries:
+    """Forward speed ``vf`` as an odometer (filled-in packets dropped)."""
+    ok = ~pk.filled
+    return SpeedSeries(t_s=pk.t_s[ok], v_mps=pk.values[ok, VF], source=str(pk.stamps_path),
+                       lines=np.arange(1, pk.t_s.size + 1)[ok])
 
 
 def poses_from_oxts(pk: OxtsPackets, origin: tuple[float, float, float]) -> PoseSeries:

@@ -21,7 +21,7 @@ STREAMS = ("imu", "gnss", "lidar", "groundtruth", "odometer")
 FORMATS = {
     "imu": ("kitti_oxts",),
     "gnss": ("kitti_oxts", "csv_lla", "tum"),
-    "odometer": ("speed_txt",),
+    "odometer": ("speed_txt", "kitti_oxts"),
     "groundtruth": ("kitti_oxts", "tum", "kitti_poses"),
     "lidar": ("kitti_poses", "tum"),
 }
@@ -31,7 +31,7 @@ STREAM_KEYS = {
     "gnss": {"format", "path", "time_offset_s", "std_m", "degrade"},
     "groundtruth": {"format", "path", "time_offset_s"} | _POSE_KEYS,
     "lidar": {"format", "path", "time_offset_s", "anchor"} | _POSE_KEYS,
-    "odometer": {"format", "path", "time_offset_s"},
+    "odometer": {"format", "path", "time_offset_s", "degrade"},
 }
 TOP_KEYS = {"name", "description", "attribution", "geodetic_origin", "streams", "config", "truth"}
 
@@ -117,7 +117,10 @@ def _from_manifest_dict(body: dict, root: Path, manifest: Path) -> Dataset:
 
     gnss = gt = lidar = odo = None
     if "odometer" in streams:
-        odo = speed.read_speed(root / streams["odometer"]["path"])
+        if streams["odometer"]["format"] == "kitti_oxts":
+            odo = kitti_oxts.speed_from_oxts(oxts(streams["odometer"]))
+        else:
+            odo = speed.read_speed(root / streams["odometer"]["path"])
     if "gnss" in streams:
         gnss = _gnss(streams["gnss"], root, oxts, origin_t, manifest)
     if "groundtruth" in streams:
@@ -135,6 +138,8 @@ def _from_manifest_dict(body: dict, root: Path, manifest: Path) -> Dataset:
         # KITTI's OXTS position is the GPS/INS solution (= the ground truth): degrade it by default;
         # a receiver's (or a simulator's) fixes are used as they are.
         "gnss_degrade": bool(streams.get("gnss", {}).get("degrade", streams.get("gnss", {}).get("format") == "kitti_oxts")),
+        # KITTI's OXTS forward speed is the GPS/INS solution too: add noise unless told otherwise
+        "odometer_degrade": bool(streams.get("odometer", {}).get("degrade", streams.get("odometer", {}).get("format") == "kitti_oxts")),
         "config": body.get("config") or {},
         "truth": body.get("truth"),
         "streams": {s: {k: (str(v) if k == "path" else v) for k, v in streams[s].items()} for s in streams},

@@ -8,33 +8,26 @@ Jacobian ``G = I - [dtheta/2]x`` on the attitude blocks (Sola, eq. 287) is appli
 
 from __future__ import annotations
 
-from dataclasses import dataclass
-
 import numpy as np
 
 from ..errors import FilterDivergedError
+from ..so3 import exp_so3, log_so3, skew
 from . import kernels as kn
+from .base import FilterBase
+from .state import NominalState
 from .kernels import BA_ID, BG_ID, CLONE_P_ID, CLONE_TH_ID, N_CORE, P_ID, TH_ID, V_ID
 
 
-@dataclass
-class NominalState:
-    p_w_m: np.ndarray
-    v_w_mps: np.ndarray
-    R_wb: np.ndarray
-    ba_b: np.ndarray
-    bg_b: np.ndarray
-
-    def copy(self) -> "NominalState":
-        return NominalState(self.p_w_m.copy(), self.v_w_mps.copy(), self.R_wb.copy(), self.ba_b.copy(), self.bg_b.copy())
-
-
-class ErrorStateKF:
+class ErrorStateKF(FilterBase):
     """The ESKF. Holds the nominal state, the error covariance ``P`` and at most one cloned pose.
 
     Prediction runs in compiled kernels over arrays of IMU samples (:meth:`predict_to`); updates
-    take the textbook ``H, r, R`` of an observation model (:mod:`fusion_eval.filters.observations`).
+    take an observation model (:mod:`fusion_eval.filters.observations`) returning the textbook
+    ``H, r, R``. The canonical error state of the observation models is this filter's own, so ``D = I``.
     """
+
+    name = "error_state"
+    n_core = N_CORE
 
     def __init__(self, x0: NominalState, P0: np.ndarray, prm: np.ndarray, imu_t: np.ndarray, imu_f: np.ndarray,
                  imu_w: np.ndarray, k0: int):
@@ -56,11 +49,7 @@ class ErrorStateKF:
         self.k_next = k0 + 1
         self.clone_p: np.ndarray | None = None
         self.clone_R: np.ndarray | None = None
-        self._record(k0)
-
-    @property
-    def t(self) -> float:
-        return float(self.last[0])
+        self.record(k0)
 
     def predict_to(self, t_target: float) -> None:
         """Propagate nominal state and covariance to ``t_target`` (recording at each IMU sample passed)."""
@@ -70,8 +59,11 @@ class ErrorStateKF:
                                     self.rec_p, self.rec_v, self.rec_R, self.rec_ba, self.rec_bg, self.rec_Pdiag,
                                     self.rec_Ppt)
 
-    def update(self, H: np.ndarray, r: np.ndarray, Rm: np.ndarray) -> float:
-        """Joseph-form update with the observation model ``(H, r, R)``, injection and reset; returns the NIS."""
+    def update(self, model, iterations: int = 1, tol: float = 1e-8) -> float:
+        """Joseph-form update, injection and reset; the plain EKF update runs in compiled kernels."""
+        if iterations > 1:
+            return self.update_iterated(model, iterations, tol)
+        H, r, Rm = model(self.x, self.clone_p, self.clone_R)
         n = self.n
         if not (np.all(np.isfinite(r)) and np.all(np.isfinite(Rm)) and np.all(np.isfinite(self.P[:n, :n]))):
             raise FilterDivergedError(f"filter diverged at t={self.t:.3f} s: non-finite covariance or residual")
@@ -81,33 +73,54 @@ class ErrorStateKF:
             raise FilterDivergedError(f"filter diverged at t={self.t:.3f} s: innovation covariance not invertible ({exc})") from None
         if not (np.all(np.isfinite(dx)) and np.isfinite(nis)):
             raise FilterDivergedError(f"filter diverged at t={self.t:.3f} s: non-finite correction")
-        self._inject(dx)
-        if self.k_next > 0 and abs(self.imu_t[self.k_next - 1] - self.t) < 1e-9:
-            self._record(self.k_next - 1)
-        return float(nis)
-
-    def _inject(self, dx: np.ndarray) -> None:
         x = self.x
         if self.clone_p is None:
             self.clone_p, self.clone_R = np.zeros(3), np.eye(3)
         kn.inject_reset(x.p_w_m, x.v_w_mps, x.R_wb, x.ba_b, x.bg_b, self.clone_p, self.clone_R, self.P, self.n, dx)
-        if not np.all(np.isfinite(x.p_w_m)) or np.any(np.diag(self.P)[:self.n] < 0):
-            raise FilterDivergedError(f"filter diverged at t={self.t:.3f} s: non-finite state or negative variance")
+        self._check("non-finite state or negative variance after an update")
+        self._record_if_on_sample()
+        return float(nis)
 
-    def clone_pose(self) -> None:
-        """Stochastic cloning: append ``[dp, dtheta]`` of the current pose to the state (replacing any clone)."""
-        J = np.zeros((kn.CLONE_SIZE, N_CORE))
-        J[0:3, P_ID:P_ID + 3] = np.eye(3)
-        J[3:6, TH_ID:TH_ID + 3] = np.eye(3)
-        Pc = self.P[:N_CORE, :N_CORE]
-        self.P[N_CORE:, :N_CORE] = J @ Pc
-        self.P[:N_CORE, N_CORE:] = (J @ Pc).T
-        self.P[N_CORE:, N_CORE:] = J @ Pc @ J.T
-        self.n = N_CORE + kn.CLONE_SIZE
-        self.clone_p = self.x.p_w_m.copy()
-        self.clone_R = self.x.R_wb.copy()
+    # ---- hooks of the generic (iterated) update --------------------------------------------------
+    def D(self) -> np.ndarray:
+        return np.eye(N_CORE + kn.CLONE_SIZE)[:, :self.n]
 
-    def _record(self, k: int) -> None:
+    def snapshot(self):
+        return (self.x.copy(), None if self.clone_p is None else (self.clone_p.copy(), self.clone_R.copy()))
+
+    def boxminus(self, snap) -> np.ndarray:
+        x0, c0 = snap
+        x = self.x
+        d = np.concatenate([x.p_w_m - x0.p_w_m, x.v_w_mps - x0.v_w_mps, log_so3(x0.R_wb.T @ x.R_wb),
+                            x.ba_b - x0.ba_b, x.bg_b - x0.bg_b])
+        if self.n > N_CORE:
+            d = np.concatenate([d, self.clone_p - c0[0], log_so3(c0[1].T @ self.clone_R)])
+        return d
+
+    def boxplus_from(self, snap, dx: np.ndarray) -> None:
+        x0, c0 = snap
+        x = self.x
+        x.p_w_m[:] = x0.p_w_m + dx[P_ID:P_ID + 3]
+        x.v_w_mps[:] = x0.v_w_mps + dx[V_ID:V_ID + 3]
+        x.R_wb[:] = x0.R_wb @ exp_so3(dx[TH_ID:TH_ID + 3])
+        x.ba_b[:] = x0.ba_b + dx[BA_ID:BA_ID + 3]
+        x.bg_b[:] = x0.bg_b + dx[BG_ID:BG_ID + 3]
+        if self.n > N_CORE:
+            self.clone_p = c0[0] + dx[CLONE_P_ID:CLONE_P_ID + 3]
+            self.clone_R = c0[1] @ exp_so3(dx[CLONE_TH_ID:CLONE_TH_ID + 3])
+
+    def after_correction(self, dx: np.ndarray) -> None:
+        # ESKF reset: G = I - [dtheta/2]x on each attitude block (Sola, eq. 287)
+        G = np.eye(self.n)
+        G[TH_ID:TH_ID + 3, TH_ID:TH_ID + 3] -= 0.5 * skew(dx[TH_ID:TH_ID + 3])
+        if self.n > N_CORE:
+            G[CLONE_TH_ID:CLONE_TH_ID + 3, CLONE_TH_ID:CLONE_TH_ID + 3] -= 0.5 * skew(dx[CLONE_TH_ID:CLONE_TH_ID + 3])
+        self.P[:self.n, :self.n] = G @ self.P[:self.n, :self.n] @ G.T
+
+    def clone_rows(self) -> np.ndarray:
+        return np.r_[P_ID:P_ID + 3, TH_ID:TH_ID + 3]
+
+    def record(self, k: int) -> None:
         x = self.x
         self.rec_p[k] = x.p_w_m
         self.rec_v[k] = x.v_w_mps

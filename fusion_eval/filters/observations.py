@@ -11,13 +11,16 @@ import numpy as np
 
 from ..so3 import skew
 from .kernels import log3
-from .eskf import NominalState
-from .kernels import CLONE_P_ID, CLONE_SIZE, CLONE_TH_ID, N_CORE, P_ID, TH_ID
+from .state import NominalState
+from .kernels import CLONE_P_ID, CLONE_SIZE, CLONE_TH_ID, N_CORE, P_ID, TH_ID, V_ID
 
 N_MAX = N_CORE + CLONE_SIZE
+# Every model is called as model(x, clone_p, clone_R) once its keyword arguments are bound
+# (functools.partial), so an iterated update can re-evaluate it at each iterate.
 
 
-def gnss_position(x: NominalState, p_obs_w: np.ndarray, std_w: np.ndarray, lever_arm_b: np.ndarray):
+def gnss_position(x: NominalState, clone_p=None, clone_R=None, *, p_obs_w: np.ndarray, std_w: np.ndarray,
+                  lever_arm_b: np.ndarray):
     """GNSS antenna position ``p + R l``; with a lever arm the attitude enters as ``-R [l]x``."""
     H = np.zeros((3, N_MAX))
     H[:, P_ID:P_ID + 3] = np.eye(3)
@@ -26,7 +29,8 @@ def gnss_position(x: NominalState, p_obs_w: np.ndarray, std_w: np.ndarray, lever
     return H, r, np.diag(np.asarray(std_w, float) ** 2)
 
 
-def absolute_pose(x: NominalState, p_obs_w: np.ndarray, R_obs_wb: np.ndarray, pos_std_m: float, att_std_rad: float):
+def absolute_pose(x: NominalState, clone_p=None, clone_R=None, *, p_obs_w: np.ndarray, R_obs_wb: np.ndarray,
+                  pos_std_m: float, att_std_rad: float):
     """Absolute pose (position and attitude), as from lidar matching against a prior map."""
     H = np.zeros((6, N_MAX))
     H[0:3, P_ID:P_ID + 3] = np.eye(3)
@@ -36,7 +40,7 @@ def absolute_pose(x: NominalState, p_obs_w: np.ndarray, R_obs_wb: np.ndarray, po
     return H, r, Rm
 
 
-def relative_pose(x: NominalState, clone_p_w: np.ndarray, clone_R_wb: np.ndarray, dp_obs_c: np.ndarray,
+def relative_pose(x: NominalState, clone_p_w: np.ndarray, clone_R_wb: np.ndarray, *, dp_obs_c: np.ndarray,
                   dR_obs: np.ndarray, pos_std_m: float, att_std_rad: float):
     """Odometry increment between the cloned pose (previous lidar frame) and the current pose.
 
@@ -58,3 +62,19 @@ def relative_pose(x: NominalState, clone_p_w: np.ndarray, clone_R_wb: np.ndarray
     r = np.concatenate([dp_obs_c - dp_pred, log3(dR_pred.T @ dR_obs)])
     Rm = np.diag([pos_std_m ** 2] * 3 + [att_std_rad ** 2] * 3)
     return H, r, Rm
+
+
+def body_velocity(x: NominalState, clone_p=None, clone_R=None, *, v_obs_b: np.ndarray, std_b: np.ndarray,
+                  rows: tuple[int, ...] = (0, 1, 2)):
+    """Body-frame velocity ``v_b = R^T v`` (rows: 0 forward, 1 lateral, 2 vertical).
+
+    ``d v_b / d dv = R^T`` (R_bw) and ``d v_b / d dtheta = [v_b]x`` (``R = R_hat Exp(dtheta)``). An
+    odometer observes the forward row; the non-holonomic constraint observes lateral and vertical = 0.
+    """
+    v_b = x.R_wb.T @ x.v_w_mps
+    rows = list(rows)
+    H = np.zeros((3, N_MAX))
+    H[:, V_ID:V_ID + 3] = x.R_wb.T
+    H[:, TH_ID:TH_ID + 3] = skew(v_b)
+    r = np.asarray(v_obs_b, float) - v_b
+    return H[rows], r[rows], np.diag(np.asarray(std_b, float)[rows] ** 2)
