@@ -61,8 +61,9 @@ class FilterBase:
         return float(self.last[0])
 
     def _check(self, what: str) -> None:
-        n = self.n
-        if not np.all(np.isfinite(self.P[:n, :n])) or np.any(np.diag(self.P)[:n] < 0):
+        # a non-finite or negative variance shows on the diagonal (NaN spreads through every product)
+        d = self.P.diagonal()[:self.n]
+        if not (np.isfinite(d).all() and (d >= 0).all() and np.isfinite(self.x.p_w_m).all()):
             raise FilterDivergedError(f"filter diverged at t={self.t:.3f} s: {what}")
 
     def update(self, model: ObservationModel, iterations: int = 1, tol: float = 1e-8) -> float:
@@ -117,12 +118,10 @@ class FilterBase:
         rows = self.clone_rows()
         core = self.n_core
         m = rows.size
-        J = np.zeros((m, core))
-        J[np.arange(m), rows] = 1.0
         Pc = self.P[:core, :core]
-        self.P[core:core + m, :core] = J @ Pc
-        self.P[:core, core:core + m] = (J @ Pc).T
-        self.P[core:core + m, core:core + m] = J @ Pc @ J.T
+        self.P[core:core + m, :core] = Pc[rows]                  # J P with J selecting the pose rows
+        self.P[:core, core:core + m] = Pc[:, rows]
+        self.P[core:core + m, core:core + m] = Pc[np.ix_(rows, rows)]
         self.n = core + m
         self.clone_p = self.x.p_w_m.copy()
         self.clone_R = self.x.R_wb.copy()

@@ -18,6 +18,10 @@ from .state import NominalState
 from .kernels import BA_ID, BG_ID, CLONE_P_ID, CLONE_TH_ID, N_CORE, P_ID, TH_ID, V_ID
 
 
+_PT = np.r_[P_ID:P_ID + 3, TH_ID:TH_ID + 3]
+_PT_ROWS, _PT_COLS = np.ix_(_PT, _PT)
+
+
 class ErrorStateKF(FilterBase):
     """The ESKF. Holds the nominal state, the error covariance ``P`` and at most one cloned pose.
 
@@ -65,8 +69,8 @@ class ErrorStateKF(FilterBase):
             return self.update_iterated(model, iterations, tol)
         H, r, Rm = model(self.x, self.clone_p, self.clone_R)
         n = self.n
-        if not (np.all(np.isfinite(r)) and np.all(np.isfinite(Rm)) and np.all(np.isfinite(self.P[:n, :n]))):
-            raise FilterDivergedError(f"filter diverged at t={self.t:.3f} s: non-finite covariance or residual")
+        if not (np.isfinite(r).all() and np.isfinite(Rm).all()):
+            raise FilterDivergedError(f"filter diverged at t={self.t:.3f} s: non-finite residual")
         try:
             dx, nis = kn.joseph_update(self.P, n, np.ascontiguousarray(H[:, :n]), r, Rm)
         except np.linalg.LinAlgError as exc:
@@ -118,7 +122,7 @@ class ErrorStateKF(FilterBase):
         self.P[:self.n, :self.n] = G @ self.P[:self.n, :self.n] @ G.T
 
     def clone_rows(self) -> np.ndarray:
-        return np.r_[P_ID:P_ID + 3, TH_ID:TH_ID + 3]
+        return _PT
 
     def record(self, k: int) -> None:
         x = self.x
@@ -127,9 +131,8 @@ class ErrorStateKF(FilterBase):
         self.rec_R[k] = x.R_wb
         self.rec_ba[k] = x.ba_b
         self.rec_bg[k] = x.bg_b
-        self.rec_Pdiag[k] = np.diag(self.P)[:N_CORE]
-        ix = np.r_[P_ID:P_ID + 3, TH_ID:TH_ID + 3]
-        self.rec_Ppt[k] = self.P[np.ix_(ix, ix)]
+        self.rec_Pdiag[k] = self.P.diagonal()[:N_CORE]
+        self.rec_Ppt[k] = self.P[_PT_ROWS, _PT_COLS]
 
 
 def dead_reckon(x0: NominalState, prm: np.ndarray, imu_t, imu_f, imu_w, k0: int) -> tuple[np.ndarray, np.ndarray]:
