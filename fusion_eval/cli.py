@@ -153,6 +153,122 @@ def compare(ctx, dataset, variants, variant_dir, config_path, sets, out_dir, ove
 
 
 @main.command()
+@click.argument("datasets", nargs=-1, type=click.Path(path_type=Path))
+@click.option("-g", "--grid", "sweep_file", required=True, type=click.Path(path_type=Path),
+              help="Sweep file: datasets, variants and the settings to sweep (grid, settings, random).")
+@click.option("-o", "--out", "out_dir", required=True, type=click.Path(path_type=Path),
+              help="Sweep directory; running again into it skips the runs already recorded there.")
+@click.option("-j", "--jobs", type=int, default=None, help="Parallel runs (default: all cores).")
+@click.option("--scheduler", default=None, metavar="ADDRESS", help="Run on an existing Dask cluster, e.g. tcp://host:8786.")
+@click.option("--dask", "dask_mode", type=click.Choice(["local"]), default=None, help="Start a Dask LocalCluster with --jobs workers.")
+@click.option("--retry-failed", is_flag=True, help="Run again the runs recorded as failed.")
+@click.option("--summarize-only", is_flag=True, help="Only rebuild sweep.csv, sweep.md, plots and best.yaml from the records.")
+@click.option("--no-plots", is_flag=True, help="Skip the summary plots.")
+@click.pass_context
+def sweep(ctx, datasets, sweep_file, out_dir, jobs, scheduler, dask_mode, retry_failed, summarize_only, no_plots):
+    """Run DATASET(s) over the settings of a sweep file, in parallel or on Dask, and rank the results."""
+    from .compare import VARIANT_DIR
+    from .sweep import execute, load_sweep, plan, swept_keys
+    from .sweep_summary import write_summary
+
+    if scheduler and dask_mode:
+        raise click.UsageError("give either --scheduler or --dask local, not both")
+    if jobs is not None and jobs < 1:
+        raise click.UsageError("--jobs must be >= 1")
+    t0 = time.perf_counter()
+    tasks, body = plan(sweep_file, [str(d) for d in datasets], out_dir, _repo_relative(VARIANT_DIR))
+    counts = {"run": 0, "failed": 0, "skipped": 0}
+    if not summarize_only:
+        bar = None if ctx.obj["quiet"] else _SweepProgress(len({t.id for t in tasks}))
+        try:
+            counts = execute(tasks, out_dir, jobs, scheduler, dask_mode == "local", retry_failed,
+                             progress=None if bar is None else bar.update)
+        finally:
+            if bar is not None:
+                bar.close()
+    summary = write_summary(tasks, out_dir, swept_keys(load_sweep(sweep_file)), plots=not no_plots)
+    if not ctx.obj["quiet"]:
+        best = summary["best"]
+        click.echo(f"{counts['run']} runs done, {counts['failed']} failed, {counts['skipped']} already recorded "
+                   f"({time.perf_counter() - t0:.1f} s)")
+        if best:
+            click.echo(f"best: variant {best['variant']}, setting {best['setting']}: mean fused APE RMSE "
+                       f"{best['mean_fused_ape_trans_rmse_m']:.3f} m")
+        click.echo(f"wrote {out_dir}/sweep.csv, sweep.md, best.yaml")
+
+
+@main.command()
+@click.argument("metrics_path", metavar="METRICS", type=click.Path(path_type=Path))
+@click.option("-b", "--baseline", required=True, type=click.Path(path_type=Path), help="Baseline metrics.json or sweep.csv.")
+@click.option("--rtol", type=float, default=0.05, show_default=True, help="Relative tolerance of a metric's increase.")
+@click.option("--atol", type=float, default=0.0, show_default=True, help="Absolute tolerance of a metric's increase.")
+@click.option("-m", "--metric", "patterns", multiple=True, metavar="PATTERN",
+              help="Metric paths to compare (glob, repeatable; default: RMSE of APE/RPE and the ratios).")
+@click.option("-r", "--require", "rules", multiple=True, metavar="EXPR",
+              help="A rule that must hold, e.g. 'fused.ape.rmse < lidar.ape.rmse' (repeatable).")
+@click.option("--junit", "junit_path", type=click.Path(path_type=Path), help="Also write JUnit XML here.")
+@click.option("--summary", "summary_path", type=click.Path(path_type=Path),
+              help="Markdown summary (default: check.md next to METRICS).")
+@click.option("--update-baseline", is_flag=True, help="Replace the baseline with METRICS and exit 0.")
+@click.pass_context
+def check(ctx, metrics_path, baseline, rtol, atol, patterns, rules, junit_path, summary_path, update_baseline):
+    """Compare METRICS with a baseline; exit 0 if within tolerance and every rule holds, 1 on a regression,
+    2 on a usage or data error."""
+    from .check import (DEFAULT_CSV_PATTERNS, DEFAULT_JSON_PATTERNS, atomic_write, compare_metrics, evaluate_rule, junit,
+                        load_metrics, markdown)
+
+    if rtol < 0 or atol < 0:
+        raise click.UsageError("--rtol and --atol must be >= 0")
+    current, kind = load_metrics(metrics_path)
+    if update_baseline:
+        atomic_write(baseline, Path(metrics_path).read_text())
+        click.echo(f"baseline {baseline} updated from {metrics_path}")
+        return
+    base, base_kind = load_metrics(baseline)
+    if kind != base_kind:
+        raise click.UsageError(f"{metrics_path} is a {kind} file but the baseline {baseline} is a {base_kind} file")
+    pats = tuple(patterns) or (DEFAULT_JSON_PATTERNS if kind == "json" else DEFAULT_CSV_PATTERNS)
+    rows = compare_metrics(current, base, pats, rtol, atol)
+    evaluated = [(r, *evaluate_rule(r, current)) for r in rules]
+    ok = all(r.verdict not in ("REGRESSION", "MISSING") for r in rows) and all(h for _, h, _ in evaluated)
+    atomic_write(summary_path or Path(metrics_path).with_name("check.md"), markdown(rows, evaluated, rtol, atol, ok))
+    if junit_path:
+        atomic_write(junit_path, junit(rows, evaluated))
+    w = max(len(r.metric) for r in rows)
+    click.echo(f"{'metric':<{w}}  {'baseline':>12}  {'current':>12}  {'change':>10}  verdict")
+    for r in rows:
+        b = "" if r.baseline is None else f"{r.baseline:.6g}"
+        c = "" if r.current is None else f"{r.current:.6g}"
+        click.echo(f"{r.metric:<{w}}  {b:>12}  {c:>12}  {r.change:>10}  {r.verdict}")
+    for rule, holds, txt in evaluated:
+        click.echo(f"rule {txt}: {'holds' if holds else 'FAILS'}")
+    click.echo("check: PASS" if ok else "check: FAIL (regression or failed rule)")
+    if not ok:
+        sys.exit(1)
+
+
+class _SweepProgress:
+    """Runs done, failed, remaining and the ETA, on stderr."""
+
+    def __init__(self, total: int):
+        self.total, self.bar, self.shown, self.t0 = total, None, 0, time.perf_counter()
+
+    def update(self, ok: int, failed: int, remaining: int, skipped: int) -> None:
+        if self.bar is None:
+            self.bar = click.progressbar(length=max(1, ok + failed + remaining), file=sys.stderr, show_eta=True,
+                                         label=f"sweep ({skipped} already recorded)",
+                                         item_show_func=lambda s: s)
+            self.bar.__enter__()
+        done = ok + failed
+        self.bar.update(done - self.shown, f"done {ok}, failed {failed}, remaining {remaining}")
+        self.shown = done
+
+    def close(self) -> None:
+        if self.bar is not None:
+            self.bar.__exit__(None, None, None)
+
+
+@main.command()
 @click.argument("out_dir", type=click.Path(path_type=Path))
 @click.option("-p", "--profile", default="urban", show_default=True,
               help="Motion profile: urban, figure8, highway, or a waypoint YAML file.")

@@ -33,18 +33,24 @@ class RunSummary:
     timings_s: dict
 
 
+def resolve_config(ds, config_path: Path | None, sets: tuple[str, ...], extra_layers: tuple = ()) -> dict:
+    """Defaults < the manifest's suggested settings < ``extra_layers`` < the config file < ``sets``."""
+    layers = ((ds.description["config"], f"{ds.description['manifest']} (config)"),) if ds.description.get("config") else ()
+    return load_config(config_path, sets, layers=layers + tuple(extra_layers))
+
+
 def run(dataset_path: Path, config_path: Path | None, sets: tuple[str, ...], out_dir: Path, overwrite: bool = False,
-        progress: Callable[[float], None] | None = None, jobs: int | None = None) -> RunSummary:
+        progress: Callable[[float], None] | None = None, jobs: int | None = None, extra_layers: tuple = ()) -> RunSummary:
     """Load the dataset, resolve the configuration (defaults < the manifest's suggested settings <
-    the config file < ``--set``), run, evaluate and write every output atomically into ``out_dir``."""
+    ``extra_layers`` < the config file < ``--set``), run, evaluate and write every output atomically
+    into ``out_dir``. ``jobs=1`` evaluates in this process (inside a sweep's worker)."""
     timings = {}
     StagedDir(out_dir, overwrite=overwrite).check()
-    load_config(config_path, sets)  # fail on a bad configuration before reading any data
+    load_config(config_path, sets, layers=tuple(extra_layers))  # fail on a bad configuration before reading data
     t = time.perf_counter()
     ds = load_dataset(dataset_path)
-    layers = ((ds.description["config"], f"{ds.description['manifest']} (config)"),) if ds.description.get("config") else ()
-    cfg = load_config(config_path, sets, layers=layers)
-    config_name = config_path.stem if config_path else "default"
+    cfg = resolve_config(ds, config_path, sets, extra_layers)
+    config_name = Path(config_path).stem if config_path else "default"
     timings["load"] = time.perf_counter() - t
     log.info("loaded %s: %d IMU samples, %s GNSS fixes, %s lidar poses, %s ground-truth poses", ds.name, len(ds.imu),
              len(ds.gnss) if ds.gnss else 0, len(ds.lidar) if ds.lidar else 0, len(ds.groundtruth) if ds.groundtruth else 0)

@@ -171,3 +171,81 @@ def plot_compare_body_velocity(path: Path, runs, gt, gt_vb) -> None:
         ax.grid(alpha=0.3)
     axes[0].legend(loc="upper right", fontsize=7)
     _save(fig, path)
+
+
+def plot_sweep(out_dir: Path, rows: list[dict], keys: list[str], metric: str, tasks, best) -> list[str]:
+    """Metric against each swept parameter, a heatmap for a 2-D grid, and the best run's APE over time
+    against the default's. Returns the file names written."""
+    import os
+
+    from evo.tools import file_interface
+
+    def save(fig, name):
+        tmp = out_dir / f".{name}.tmp.png"  # a .png suffix: matplotlib picks the format from it
+        fig.savefig(tmp, dpi=110, metadata=_META)
+        plt.close(fig)
+        os.replace(tmp, out_dir / name)
+        written.append(name)
+
+    written: list[str] = []
+    ok = [r for r in rows if r["status"] == "ok"]
+    datasets = sorted({r["dataset"] for r in ok})
+    numeric = [k for k in keys if any(isinstance(r.get(k), (int, float)) and not isinstance(r.get(k), bool) for r in ok)]
+    if numeric:
+        fig, axes = plt.subplots(1, len(numeric), figsize=(5 * len(numeric), 4), squeeze=False)
+        for ax, k in zip(axes[0], numeric):
+            for i, ds in enumerate(datasets):
+                pts = sorted((r[k], r[metric]) for r in ok if r["dataset"] == ds and isinstance(r.get(k), (int, float)))
+                if pts:
+                    x, y = zip(*pts)
+                    ax.plot(x, y, "o", ms=4, color=_VCOLORS[i % len(_VCOLORS)], label=Path(ds).name)
+            ax.set_xscale("log")
+            ax.set_xlabel(k)
+            ax.set_ylabel("fused APE translation RMSE [m]")
+            ax.grid(alpha=0.3, which="both")
+        axes[0][0].legend(fontsize=8)
+        fig.suptitle("Fused APE against each swept setting")
+        fig.tight_layout()
+        save(fig, "sweep_params.png")
+    if len(numeric) == 2:
+        kx, ky = numeric
+        xs = sorted({r[kx] for r in ok if isinstance(r.get(kx), (int, float))})
+        ys = sorted({r[ky] for r in ok if isinstance(r.get(ky), (int, float))})
+        if len(xs) > 1 and len(ys) > 1 and len(xs) * len(ys) <= 400:
+            Z = np.full((len(ys), len(xs)), np.nan)
+            for r in ok:
+                if r.get(kx) in xs and r.get(ky) in ys:
+                    i, j = ys.index(r[ky]), xs.index(r[kx])
+                    Z[i, j] = np.nanmean([Z[i, j], r[metric]]) if np.isfinite(Z[i, j]) else r[metric]
+            fig, ax = plt.subplots(figsize=(6, 5))
+            im = ax.imshow(Z, origin="lower", cmap="viridis_r", aspect="auto")
+            ax.set_xticks(range(len(xs)), [f"{x:g}" for x in xs])
+            ax.set_yticks(range(len(ys)), [f"{y:g}" for y in ys])
+            for i in range(len(ys)):
+                for j in range(len(xs)):
+                    if np.isfinite(Z[i, j]):
+                        ax.text(j, i, f"{Z[i, j]:.2f}", ha="center", va="center", fontsize=8, color="white")
+            ax.set_xlabel(kx)
+            ax.set_ylabel(ky)
+            fig.colorbar(im, label="fused APE RMSE [m] (mean over datasets)")
+            ax.set_title("2-D grid")
+            fig.tight_layout()
+            save(fig, "sweep_heatmap.png")
+    if best is not None:
+        fig, ax = plt.subplots(figsize=(10, 4))
+        for name, style in ((best["setting"], "-"), ("default", ":")):
+            t = next((t for t in tasks if t.variant == best["variant"] and t.setting == name), None)
+            z = None if t is None else out_dir / "runs" / t.id / "ape_translation_fused.zip"
+            if z is None or not z.exists():
+                continue
+            res = file_interface.load_res_file(z)
+            ts = res.np_arrays["timestamps"]
+            ax.plot(ts - ts[0], res.np_arrays["error_array"], style, lw=1.0,
+                    label=f"{name} ({Path(t.dataset).name}, RMSE {res.stats['rmse']:.3f} m)")
+        ax.set_xlabel("time since start [s]")
+        ax.set_ylabel("APE translation [m]")
+        ax.set_title("Best setting against the default")
+        ax.grid(alpha=0.3)
+        ax.legend(fontsize=8)
+        save(fig, "sweep_best_vs_default.png")
+    return written

@@ -152,7 +152,7 @@ def canonical_cov(P, q):
         D[9 + i, NBA_ID + i] = 1.0
         D[12 + i, NBG_ID + i] = 1.0
     D[6:9, NQ_ID:NQ_ID + 4] = 2.0 * xi(q).T
-    C = D @ P[:N_NOM, :N_NOM] @ D.T
+    C = D @ np.ascontiguousarray(P[:N_NOM, :N_NOM]) @ D.T
     diag = np.empty(15)
     for i in range(15):
         diag[i] = C[i, i]

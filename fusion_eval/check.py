@@ -1,0 +1,201 @@
+"""``fusion-eval check``: compare error metrics against a baseline and gate on regressions.
+
+Metrics are addressed by dotted paths. From a run's ``metrics.json``: ``<estimate>.<group>.<relation>.<stat>``
+(``fused.ape.translation_m.rmse``, ``lidar.rpe_100m.rotation_deg.max``), with the translation part also as
+``<estimate>.<group>.<stat>`` (``fused.ape.rmse``), plus ``ratios.fused_over_lidar`` and ``nis.lidar.mean``.
+From a ``sweep.csv``: ``<dataset>/<variant>/<setting>.<column>``. Every compared metric is an error
+(lower is better): a regression is ``current > baseline + atol + rtol * |baseline|``.
+
+``--require`` rules are parsed by a small grammar, ``operand OP operand`` with OP one of
+``< <= > >= == !=`` and each operand a number or a metric path; nothing is passed to ``eval``.
+"""
+
+from __future__ import annotations
+
+import csv
+import fnmatch
+import json
+import math
+import os
+import re
+from dataclasses import dataclass
+from pathlib import Path
+from xml.sax.saxutils import quoteattr
+
+from .errors import DataFormatError, FusionEvalError
+
+DEFAULT_JSON_PATTERNS = ("*.ape.translation_m.rmse", "*.ape.rotation_deg.rmse", "*.rpe_1frame.translation_m.rmse",
+                         "*.rpe_100m.translation_m.rmse", "ratios.*")
+DEFAULT_CSV_PATTERNS = ("*.fused_ape_trans_rmse_m", "*.fused_ape_rot_rmse_deg", "*.fused_rpe_1frame_trans_rmse_m")
+
+
+class CheckUsageError(FusionEvalError):
+    """A rule or pattern that cannot be evaluated."""
+
+
+def load_metrics(path: Path) -> tuple[dict[str, float], str]:
+    """Flatten a metrics.json or sweep.csv into ``{path: value}``; returns it and the kind ('json' or 'csv')."""
+    path = Path(path)
+    if not path.exists():
+        raise DataFormatError(path, None, "file not found (expected a metrics.json of fusion-eval run or a sweep.csv)")
+    if path.suffix == ".csv":
+        return _flat_csv(path), "csv"
+    try:
+        body = json.loads(path.read_text())
+    except json.JSONDecodeError as exc:
+        raise DataFormatError(path, exc.lineno, f"not valid JSON ({exc.msg})") from None
+    if not isinstance(body, dict) or not isinstance(body.get("estimates"), dict):
+        raise DataFormatError(path, None, "expected a metrics.json of fusion-eval run (a mapping with 'estimates')")
+    out: dict[str, float] = {}
+    for est, d in body["estimates"].items():
+        for group, rels in d.items():
+            if not isinstance(rels, dict):
+                continue
+            for rel, stats in rels.items():
+                if not isinstance(stats, dict):
+                    continue
+                for stat, v in stats.items():
+                    if _is_num(v):
+                        out[f"{est}.{group}.{rel}.{stat}"] = float(v)
+                        if rel == "translation_m":
+                            out[f"{est}.{group}.{stat}"] = float(v)
+    for k, v in (body.get("ratios") or {}).items():
+        if _is_num(v):
+            out[f"ratios.{k}"] = float(v)
+    for kind, d in (body.get("nis") or {}).items():
+        for k in ("mean", "fraction_in_95"):
+            if _is_num(d.get(k)):
+                out[f"nis.{kind}.{k}"] = float(d[k])
+    if not out:
+        raise DataFormatError(path, None, "no numeric metrics found")
+    return out, "json"
+
+
+def _flat_csv(path: Path) -> dict[str, float]:
+    out = {}
+    try:
+        rows = list(csv.DictReader(path.read_text().splitlines()))
+    except csv.Error as exc:
+        raise DataFormatError(path, None, f"not a valid CSV ({exc})") from None
+    if not rows or "dataset" not in rows[0] or "setting" not in rows[0]:
+        raise DataFormatError(path, 1, "expected a sweep.csv (columns dataset, variant, setting, metrics...)")
+    for i, r in enumerate(rows, start=2):
+        if r.get("status") != "ok":
+            continue
+        key = f"{r['dataset']}/{r.get('variant', '')}/{r['setting']}"
+        for c, v in r.items():
+            if c in ("id", "dataset", "variant", "setting", "status", "error") or v in ("", None):
+                continue
+            try:
+                out[f"{key}.{c}"] = float(v)
+            except ValueError:
+                continue
+    if not out:
+        raise DataFormatError(path, None, "no finished runs with numeric metrics")
+    return out
+
+
+def _is_num(v) -> bool:
+    return isinstance(v, (int, float)) and not isinstance(v, bool) and math.isfinite(v)
+
+
+@dataclass
+class Row:
+    metric: str
+    baseline: float | None
+    current: float | None
+    verdict: str
+
+    @property
+    def change(self) -> str:
+        if self.baseline is None or self.current is None:
+            return ""
+        if self.baseline == 0:
+            return f"{self.current - self.baseline:+.3g}"
+        return f"{(self.current - self.baseline) / abs(self.baseline) * 100:+.2f} %"
+
+
+def compare_metrics(current: dict, baseline: dict, patterns: tuple[str, ...], rtol: float, atol: float) -> list[Row]:
+    names = sorted(k for k in set(current) | set(baseline) if any(fnmatch.fnmatchcase(k, p) for p in patterns))
+    if not names:
+        raise CheckUsageError(f"no metric matches {', '.join(patterns)}")
+    rows = []
+    for k in names:
+        b, c = baseline.get(k), current.get(k)
+        if c is None:
+            rows.append(Row(k, b, None, "MISSING"))
+        elif b is None:
+            rows.append(Row(k, None, c, "new"))
+        elif c > b + atol + rtol * abs(b):
+            rows.append(Row(k, b, c, "REGRESSION"))
+        elif c < b - atol - rtol * abs(b):
+            rows.append(Row(k, b, c, "better"))
+        else:
+            rows.append(Row(k, b, c, "ok"))
+    return rows
+
+
+_RULE = re.compile(r"^\s*([A-Za-z0-9_.+\-/]+)\s*(<=|>=|==|!=|<|>)\s*([A-Za-z0-9_.+\-/]+)\s*$")
+_OPS = {"<": lambda a, b: a < b, "<=": lambda a, b: a <= b, ">": lambda a, b: a > b, ">=": lambda a, b: a >= b,
+        "==": lambda a, b: a == b, "!=": lambda a, b: a != b}
+
+
+def evaluate_rule(rule: str, metrics: dict) -> tuple[bool, str]:
+    """Evaluate ``operand OP operand``; returns (holds, the rule with the values filled in)."""
+    m = _RULE.match(rule)
+    if not m:
+        raise CheckUsageError(f"--require {rule!r}: expected 'METRIC OP METRIC-or-NUMBER' with OP one of < <= > >= == !=")
+    a, op, b = m.groups()
+
+    def value(tok: str) -> float:
+        try:
+            return float(tok)
+        except ValueError:
+            pass
+        if tok not in metrics:
+            close = [k for k in metrics if k.endswith(tok.split(".")[-1])][:3]
+            raise CheckUsageError(f"--require {rule!r}: unknown metric {tok!r}" + (f" (e.g. {', '.join(close)})" if close else ""))
+        return metrics[tok]
+
+    va, vb = value(a), value(b)
+    return _OPS[op](va, vb), f"{a} ({va:.6g}) {op} {b} ({vb:.6g})"
+
+
+def markdown(rows: list[Row], rules: list[tuple[str, bool, str]], rtol: float, atol: float, ok: bool) -> str:
+    L = [f"# fusion-eval check: {'PASS' if ok else 'FAIL'}", "", f"Tolerance: rtol {rtol:g}, atol {atol:g} (lower is better).", "",
+         "| metric | baseline | current | change | verdict |", "|---|---:|---:|---:|---|"]
+    for r in rows:
+        L.append(f"| `{r.metric}` | {_v(r.baseline)} | {_v(r.current)} | {r.change} | {r.verdict} |")
+    if rules:
+        L += ["", "| rule | values | verdict |", "|---|---|---|"]
+        L += [f"| `{rule}` | {txt} | {'holds' if holds else 'FAILS'} |" for rule, holds, txt in rules]
+    return "\n".join(L) + "\n"
+
+
+def _v(x):
+    return "" if x is None else f"{x:.6g}"
+
+
+def junit(rows: list[Row], rules: list[tuple[str, bool, str]]) -> str:
+    cases = []
+    fails = 0
+    for r in rows:
+        bad = r.verdict in ("REGRESSION", "MISSING")
+        fails += bad
+        body = f"<failure message={quoteattr(f'{r.verdict}: baseline {_v(r.baseline)}, current {_v(r.current)} ({r.change})')}/>" if bad else ""
+        cases.append(f'  <testcase classname="fusion-eval.metrics" name={quoteattr(r.metric)}>{body}</testcase>')
+    for rule, holds, txt in rules:
+        fails += not holds
+        body = "" if holds else f"<failure message={quoteattr('rule fails: ' + txt)}/>"
+        cases.append(f'  <testcase classname="fusion-eval.rules" name={quoteattr(rule)}>{body}</testcase>')
+    return (f'<?xml version="1.0" encoding="utf-8"?>\n<testsuite name="fusion-eval check" tests="{len(cases)}" '
+            f'failures="{fails}" errors="0">\n' + "\n".join(cases) + "\n</testsuite>\n")
+
+
+def atomic_write(path: Path, text: str) -> None:
+    path = Path(path)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    tmp = path.with_name(f".{path.name}.tmp")
+    tmp.write_text(text)
+    os.replace(tmp, path)
+

@@ -1,0 +1,295 @@
+"""``fusion-eval sweep``: many runs over noise settings, variants and datasets, locally or on Dask.
+
+A sweep file (YAML) names what to run::
+
+    datasets: [data/kitti-00]            # or given on the command line
+    variants: [eskf]                     # configs/variants names or YAML paths (default: the plain defaults)
+    config: base.yaml                    # optional base configuration for every run
+    plots: false                         # per-run plots
+    grid:                                # a product grid over configuration keys ...
+      imu.gyro_noise_dps_sqrthz: [0.05, 0.1, 0.2]
+    settings:                            # ... and/or named settings ...
+      tight: {lidar.relative_att_std_deg: 0.02}
+    random:                              # ... and/or N log-uniform samples, seeded
+      n: 8
+      seed: 0
+      ranges: {imu.gyro_noise_dps_sqrthz: [0.01, 1.0]}
+
+Every run is keyed on a hash of its dataset and resolved configuration; its outputs go to
+``runs/<id>/`` (as for ``fusion-eval run``) and its record (metrics or error) to ``records/<id>.json``,
+written atomically as it completes. Running the sweep again skips runs that have a record, so an
+interrupted sweep loses nothing; the summary (``sweep.csv``, ``sweep.md``, plots, ``best.yaml``) is
+rebuilt from the records.
+"""
+
+from __future__ import annotations
+
+import hashlib
+import itertools
+import json
+import logging
+import math
+import os
+import shutil
+import time
+import traceback
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Callable
+
+import numpy as np
+import yaml
+
+from .config import SCHEMA, check_value, load_config
+from .errors import ConfigError, FusionEvalError
+from .outputs import StagedDir
+
+log = logging.getLogger(__name__)
+
+SWEEP_KEYS = {"datasets", "variants", "config", "plots", "grid", "settings", "random", "metric"}
+METRIC_COLUMNS = [
+    ("fused_ape_trans_rmse_m", ("fused", "ape", "translation_m", "rmse")),
+    ("fused_ape_trans_mean_m", ("fused", "ape", "translation_m", "mean")),
+    ("fused_ape_trans_max_m", ("fused", "ape", "translation_m", "max")),
+    ("fused_ape_rot_rmse_deg", ("fused", "ape", "rotation_deg", "rmse")),
+    ("fused_rpe_1frame_trans_rmse_m", ("fused", "rpe_1frame", "translation_m", "rmse")),
+    ("fused_rpe_100m_trans_rmse_m", ("fused", "rpe_100m", "translation_m", "rmse")),
+    ("lidar_ape_trans_rmse_m", ("lidar", "ape", "translation_m", "rmse")),
+    ("gnss_ape_trans_rmse_m", ("gnss", "ape", "translation_m", "rmse")),
+]
+
+
+@dataclass(frozen=True)
+class Task:
+    id: str
+    dataset: str
+    variant: str
+    variant_path: str | None
+    setting: str
+    overrides: dict
+    base_config: dict | None
+    plots: bool
+    out_root: str
+
+
+def _num(v):
+    return float(v) if isinstance(v, str) else v
+
+
+def load_sweep(path: Path) -> dict:
+    try:
+        body = yaml.safe_load(Path(path).read_text())
+    except OSError:
+        raise ConfigError(f"{path}: sweep file not found") from None
+    except yaml.YAMLError as exc:
+        raise ConfigError(f"{path}: not valid YAML ({getattr(exc, 'problem', exc)})") from None
+    if not isinstance(body, dict):
+        raise ConfigError(f"{path}: a sweep file is a mapping with grid, settings or random")
+    bad = set(body) - SWEEP_KEYS
+    if bad:
+        raise ConfigError(f"{path}: unknown sweep key {sorted(bad)[0]!r} (known: {', '.join(sorted(SWEEP_KEYS))})")
+    return body
+
+
+def settings_of(body: dict, where: str) -> list[tuple[str, dict]]:
+    """(name, {key: value}) for every setting: 'default' first, then named, grid and random ones."""
+    out: list[tuple[str, dict]] = [("default", {})]
+
+    def check(key, value):
+        if key not in SCHEMA:
+            raise ConfigError(f"{where}: unknown configuration key {key!r} in the sweep")
+        return check_value(key, SCHEMA[key], value, where)
+
+    for name, ov in (body.get("settings") or {}).items():
+        if not isinstance(ov, dict):
+            raise ConfigError(f"{where}: setting {name!r} must map configuration keys to values")
+        out.append((str(name), {k: check(k, v) for k, v in ov.items()}))
+    grid = body.get("grid") or {}
+    if grid:
+        keys = list(grid)
+        for k in keys:
+            if not isinstance(grid[k], list) or not grid[k]:
+                raise ConfigError(f"{where}: grid key {k!r} needs a non-empty list of values")
+        for combo in itertools.product(*(grid[k] for k in keys)):
+            ov = {k: check(k, v) for k, v in zip(keys, combo)}
+            out.append((",".join(f"{k}={v}" for k, v in ov.items()), ov))
+    rnd = body.get("random")
+    if rnd:
+        n, seed, ranges = int(rnd.get("n", 0)), int(rnd.get("seed", 0)), rnd.get("ranges") or {}
+        if n <= 0 or not ranges:
+            raise ConfigError(f"{where}: random needs n > 0 and ranges {{key: [low, high]}}")
+        rng = np.random.default_rng(seed)
+        for i in range(n):
+            ov = {}
+            for k, (lo, hi) in ranges.items():
+                lo, hi = _num(lo), _num(hi)
+                if not (0 < lo < hi):
+                    raise ConfigError(f"{where}: random range of {k!r} must be 0 < low < high (log-uniform)")
+                ov[k] = check(k, float(math.exp(rng.uniform(math.log(lo), math.log(hi)))))
+            out.append((f"random-{i:03d}", ov))
+    names = [n for n, _ in out]
+    if len(set(names)) != len(names):
+        raise ConfigError(f"{where}: setting names must be unique")
+    if len(out) == 1:
+        raise ConfigError(f"{where}: nothing to sweep (give grid, settings or random)")
+    return out
+
+
+def swept_keys(body: dict) -> list[str]:
+    keys: list[str] = []
+    for src in ((body.get("settings") or {}).values(), [body.get("grid") or {}], [(body.get("random") or {}).get("ranges") or {}]):
+        for d in src:
+            for k in d:
+                if k not in keys:
+                    keys.append(k)
+    return keys
+
+
+def plan(sweep_path: Path, datasets: list[str], out_dir: Path, variant_dir: Path) -> tuple[list[Task], dict]:
+    from .compare import resolve_variant
+    from .datasets.manifest import load_dataset
+
+    body = load_sweep(sweep_path)
+    datasets = list(datasets) or [str(d) for d in (body.get("datasets") or [])]
+    if not datasets:
+        raise ConfigError(f"{sweep_path}: no datasets (give them in the sweep file or on the command line)")
+    base_rel = Path(sweep_path).parent
+    base = None
+    if body.get("config"):
+        bp = Path(body["config"])
+        bp = bp if bp.exists() else base_rel / bp
+        base = load_sweep_config(bp)
+    variants = body.get("variants") or ["default"]
+    vpaths = {v: (None if v == "default" else str(resolve_variant(v, variant_dir))) for v in variants}
+    settings = settings_of(body, str(sweep_path))
+    tasks = []
+    for ds_path in datasets:
+        ds = load_dataset(ds_path)
+        manifest_layer = ((ds.description["config"], "manifest"),) if ds.description.get("config") else ()
+        for v in variants:
+            for name, ov in settings:
+                sets = tuple(f"{k}={json.dumps(val)}" for k, val in ov.items())
+                layers = manifest_layer + (((base, "sweep config"),) if base else ())
+                cfg = load_config(vpaths[v], sets, layers=layers)
+                key = json.dumps({"dataset": str(Path(ds_path).resolve()), "config": cfg}, sort_keys=True)
+                rid = hashlib.sha256(key.encode()).hexdigest()[:12]
+                tasks.append(Task(rid, str(ds_path), v, vpaths[v], name, ov, base, bool(body.get("plots", False)),
+                                  str(out_dir)))
+    ids = [t.id for t in tasks]
+    if len(set(ids)) != len(ids):
+        log.warning("some settings resolve to the same configuration; they share one run")
+    return tasks, body
+
+
+def load_sweep_config(path: Path) -> dict:
+    try:
+        return yaml.safe_load(Path(path).read_text()) or {}
+    except (OSError, yaml.YAMLError) as exc:
+        raise ConfigError(f"{path}: cannot read the sweep's base config ({exc})") from None
+
+
+def run_task(task: Task) -> dict:
+    """Run one sweep entry; never raises for a failed run (the failure is the record)."""
+    from .pipeline import run as run_pipeline
+
+    t0 = time.perf_counter()
+    rec = {"id": task.id, "dataset": task.dataset, "variant": task.variant, "setting": task.setting,
+           "overrides": task.overrides}
+    sets = tuple(f"{k}={json.dumps(v)}" for k, v in task.overrides.items()) + (("output.plots=false",) if not task.plots else ())
+    layers = ((task.base_config, "sweep config"),) if task.base_config else ()
+    out = Path(task.out_root) / "runs" / task.id
+    try:
+        with np.errstate(all="ignore"):
+            summary = run_pipeline(Path(task.dataset), Path(task.variant_path) if task.variant_path else None, sets, out,
+                                   overwrite=True, jobs=1, extra_layers=layers)
+        rec.update(status="ok", error=None, metrics=summary.metrics)
+    except FusionEvalError as exc:
+        rec.update(status="failed", error=str(exc), metrics=None)
+    except Exception as exc:  # noqa: BLE001 - a bug in one run must not stop the sweep; its traceback is kept
+        rec.update(status="failed", error=f"{type(exc).__name__}: {exc}", traceback=traceback.format_exc(), metrics=None)
+    rec["runtime_s"] = round(time.perf_counter() - t0, 3)
+    return rec
+
+
+def write_record(out_dir: Path, rec: dict) -> None:
+    d = Path(out_dir) / "records"
+    d.mkdir(parents=True, exist_ok=True)
+    tmp = d / f".{rec['id']}.json.tmp"
+    tmp.write_text(json.dumps(rec, indent=1, default=float))
+    os.replace(tmp, d / f"{rec['id']}.json")
+
+
+def read_records(out_dir: Path) -> dict[str, dict]:
+    d = Path(out_dir) / "records"
+    out = {}
+    for f in sorted(d.glob("*.json")) if d.is_dir() else []:
+        try:
+            out[f.stem] = json.loads(f.read_text())
+        except json.JSONDecodeError:
+            log.warning("%s: unreadable record, the run will be done again", f)
+    return out
+
+
+def _cleanup_partials(out_dir: Path) -> None:
+    runs = Path(out_dir) / "runs"
+    for p in runs.glob(".*.partial-*") if runs.is_dir() else []:
+        shutil.rmtree(p, ignore_errors=True)   # left by a killed run: that run has no record and is redone
+
+
+def execute(tasks: list[Task], out_dir: Path, jobs: int | None, scheduler: str | None, dask_local: bool,
+            retry_failed: bool = False, progress: Callable[[int, int, int, int], None] | None = None) -> dict:
+    """Run every task without a record; records are written as runs complete. Returns counts."""
+    out_dir = Path(out_dir)
+    out_dir.mkdir(parents=True, exist_ok=True)
+    _cleanup_partials(out_dir)
+    done = read_records(out_dir)
+    unique: dict[str, Task] = {}
+    for t in tasks:
+        unique.setdefault(t.id, t)
+    todo = [t for t in unique.values() if t.id not in done or (retry_failed and done[t.id]["status"] != "ok")]
+    skipped = len(unique) - len(todo)
+    n_ok = n_fail = 0
+    total = len(todo)
+    if progress:
+        progress(0, 0, total, skipped)
+    if not todo:
+        return {"run": 0, "failed": 0, "skipped": skipped}
+    jobs = jobs or os.cpu_count() or 1
+
+    def finished(rec):
+        nonlocal n_ok, n_fail
+        write_record(out_dir, rec)
+        if rec["status"] == "ok":
+            n_ok += 1
+        else:
+            n_fail += 1
+            log.warning("run %s (%s, %s) failed: %s", rec["id"], rec["dataset"], rec["setting"], rec["error"])
+        if progress:
+            progress(n_ok, n_fail, total - n_ok - n_fail, skipped)
+
+    if scheduler or dask_local:
+        from dask.distributed import Client, LocalCluster, as_completed
+
+        cluster = LocalCluster(n_workers=jobs, threads_per_worker=1, processes=True, dashboard_address=None) \
+            if dask_local else None
+        client = Client(cluster if cluster is not None else scheduler)
+        try:
+            futures = [client.submit(run_task, t, key=f"fusion-eval-{t.id}", pure=False) for t in todo]
+            for fut in as_completed(futures):
+                finished(fut.result())
+        finally:
+            client.close()
+            if cluster is not None:
+                cluster.close()
+    elif jobs == 1:
+        for t in todo:
+            finished(run_task(t))
+    else:
+        import multiprocessing as mp
+        from concurrent.futures import ProcessPoolExecutor, as_completed as cf_completed
+
+        with ProcessPoolExecutor(max_workers=jobs, mp_context=mp.get_context("spawn")) as pool:
+            futs = [pool.submit(run_task, t) for t in todo]
+            for f in cf_completed(futs):
+                finished(f.result())
+    return {"run": n_ok, "failed": n_fail, "skipped": skipped}
