@@ -1,0 +1,140 @@
+"""fusion-eval sweep (process pool and Dask, resume, failures) and fusion-eval check (exit codes, rules)."""
+
+from __future__ import annotations
+
+import csv
+import json
+import os
+import signal
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+import pytest
+from click.testing import CliRunner
+
+from fusion_eval.cli import main
+
+SETTINGS = """
+variants: [eskf]
+settings:
+  a: {imu.gyro_noise_dps_sqrthz: 0.05}
+  b: {imu.gyro_noise_dps_sqrthz: 0.2}
+  c: {lidar.relative_pos_std_frac: 0.005}
+  d: {lidar.relative_pos_std_frac: 0.02}
+  e: {gnss.std_m: [0.5, 0.5, 1.0]}
+"""
+
+
+@pytest.fixture(scope="module")
+def small(tmp_path_factory):
+    from conftest import make_slice
+
+    return make_slice(tmp_path_factory.mktemp("sw") / "short", 300)
+
+
+def _sweep_file(tmp_path: Path, extra: str = "") -> Path:
+    p = tmp_path / "sweep.yaml"
+    p.write_text(SETTINGS + extra)
+    return p
+
+
+def _rows(out: Path) -> dict:
+    return {r["setting"]: r for r in csv.DictReader((out / "sweep.csv").read_text().splitlines())}
+
+
+def test_sweep_process_pool_and_dask_give_identical_metrics(small, tmp_path):
+    sw = _sweep_file(tmp_path)
+    a, b = tmp_path / "pool", tmp_path / "dask"
+    r = CliRunner().invoke(main, ["-q", "sweep", str(small), "--grid", str(sw), "--out", str(a), "--jobs", "2"])
+    assert r.exit_code == 0, r.output
+    r = CliRunner().invoke(main, ["-q", "sweep", str(small), "--grid", str(sw), "--out", str(b), "--dask", "local", "--jobs", "2"])
+    assert r.exit_code == 0, r.output
+    ra, rb = _rows(a), _rows(b)
+    assert set(ra) == {"default", "a", "b", "c", "d", "e"} and all(v["status"] == "ok" for v in ra.values())
+    for k in ra:
+        assert ra[k]["fused_ape_trans_rmse_m"] == rb[k]["fused_ape_trans_rmse_m"] != ""
+        assert ra[k]["id"] == rb[k]["id"]
+    md = (a / "sweep.md").read_text()
+    assert "| 1 |" in md and "Best:" in md and (a / "best.yaml").exists() and (a / "sweep_params.png").exists()
+    # the runs' outputs are those of `fusion-eval run`
+    rid = ra["a"]["id"]
+    assert (a / "runs" / rid / "metrics.json").exists() and (a / "runs" / rid / "fused.tum").exists()
+
+
+def test_diverging_setting_is_recorded_as_failed_and_the_rest_finish(small, tmp_path):
+    sw = _sweep_file(tmp_path, "  boom: {init.vel_std_mps: 1.0e+200}\n")
+    out = tmp_path / "s"
+    r = CliRunner().invoke(main, ["-q", "sweep", str(small), "--grid", str(sw), "--out", str(out), "--jobs", "1"])
+    assert r.exit_code == 0, r.output
+    rows = _rows(out)
+    assert rows["boom"]["status"] == "failed" and "diverged" in rows["boom"]["error"]
+    assert sum(v["status"] == "ok" for v in rows.values()) == 6
+    assert "## Failed runs" in (out / "sweep.md").read_text()
+
+
+def test_interrupted_sweep_resumes_without_losing_runs(small, tmp_path):
+    sw = _sweep_file(tmp_path)
+    out = tmp_path / "s"
+    cmd = [sys.executable, "-m", "fusion_eval", "-q", "sweep", str(small), "--grid", str(sw), "--out", str(out), "--jobs", "1"]
+    proc = subprocess.Popen(cmd, start_new_session=True)
+    deadline = time.time() + 240
+    while time.time() < deadline and len(list((out / "records").glob("*.json"))) < 2:
+        time.sleep(0.2)
+    os.killpg(proc.pid, signal.SIGKILL)          # a hard kill, mid-run
+    proc.wait()
+    before = {p.name: p.read_bytes() for p in (out / "records").glob("*.json")}
+    assert 2 <= len(before) < 6
+    r = CliRunner().invoke(main, ["sweep", str(small), "--grid", str(sw), "--out", str(out), "--jobs", "1"])
+    assert r.exit_code == 0, r.output
+    assert f"{len(before)} already recorded" in r.output
+    after = {p.name: p.read_bytes() for p in (out / "records").glob("*.json")}
+    assert len(after) == 6 and all(after[k] == v for k, v in before.items())
+    assert all(v["status"] == "ok" for v in _rows(out).values())
+    assert not list((out / "runs").glob(".*partial*"))
+
+
+def _metrics(tmp_path: Path, name: str, scale: float) -> Path:
+    m = {"estimates": {"fused": {"ape": {"translation_m": {"rmse": 1.0 * scale, "max": 3.0}}},
+                       "lidar": {"ape": {"translation_m": {"rmse": 7.0}}}},
+         "ratios": {"fused_over_lidar": scale / 7.0}}
+    p = tmp_path / name
+    p.write_text(json.dumps(m))
+    return p
+
+
+def test_check_exit_codes_and_rules(tmp_path):
+    base = _metrics(tmp_path, "base.json", 1.0)
+    same = _metrics(tmp_path, "same.json", 1.01)
+    worse = _metrics(tmp_path, "worse.json", 1.2)
+    run = CliRunner().invoke
+    r = run(main, ["check", str(same), "--baseline", str(base), "--rtol", "0.05", "--junit", str(tmp_path / "j.xml")])
+    assert r.exit_code == 0, r.output
+    assert 'failures="0"' in (tmp_path / "j.xml").read_text() and (tmp_path / "check.md").exists()
+    r = run(main, ["check", str(worse), "--baseline", str(base), "--rtol", "0.05", "--junit", str(tmp_path / "j.xml")])
+    assert r.exit_code == 1 and "REGRESSION" in r.output
+    assert 'failures="2"' in (tmp_path / "j.xml").read_text()
+    r = run(main, ["check", str(worse), "--baseline", str(base), "--rtol", "0.5"])
+    assert r.exit_code == 0
+    r = run(main, ["check", str(same), "--baseline", str(base), "--require", "fused.ape.rmse < lidar.ape.rmse",
+                   "--require", "fused.ape.translation_m.max <= 3"])
+    assert r.exit_code == 0 and "holds" in r.output
+    r = run(main, ["check", str(same), "--baseline", str(base), "--require", "fused.ape.rmse > 2"])
+    assert r.exit_code == 1 and "FAILS" in r.output
+    (tmp_path / "bad.json").write_text("{not json")
+    r = run(main, ["check", str(tmp_path / "bad.json"), "--baseline", str(base)])
+    assert r.exit_code == 2 and "bad.json:1: not valid JSON" in r.stderr
+    for rule in ("fused.ape.rmse <", "__import__('os') < 1", "nope.x < 1"):
+        r = run(main, ["check", str(same), "--baseline", str(base), "--require", rule])
+        assert r.exit_code == 2, (rule, r.output)
+    r = run(main, ["check", str(worse), "--baseline", str(tmp_path / "nb.json"), "--update-baseline"])
+    assert r.exit_code == 0 and (tmp_path / "nb.json").read_text() == worse.read_text()
+
+
+def test_check_accepts_a_sweep_csv(tmp_path):
+    cols = "id,dataset,variant,setting,fused_ape_trans_rmse_m,fused_ape_rot_rmse_deg,fused_rpe_1frame_trans_rmse_m,status,error\n"
+    (tmp_path / "b.csv").write_text(cols + "x,d,eskf,default,1.0,0.5,0.1,ok,\n")
+    (tmp_path / "c.csv").write_text(cols + "x,d,eskf,default,1.5,0.5,0.1,ok,\n")
+    r = CliRunner().invoke(main, ["check", str(tmp_path / "c.csv"), "--baseline", str(tmp_path / "b.csv")])
+    assert r.exit_code == 1 and "d/eskf/default.fused_ape_trans_rmse_m" in r.output
