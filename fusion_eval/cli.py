@@ -198,6 +198,39 @@ def sweep(ctx, datasets, sweep_file, out_dir, jobs, scheduler, dask_mode, retry_
 
 
 @main.command()
+@click.argument("reference", type=click.Path(path_type=Path))
+@click.argument("estimates", nargs=-1, required=True, type=click.Path(path_type=Path))
+@click.option("-o", "--out", "out_dir", required=True, type=click.Path(path_type=Path), help="Output directory.")
+@click.option("--ref-times", type=click.Path(path_type=Path), help="Times file of a KITTI reference (one per pose).")
+@click.option("--times", type=click.Path(path_type=Path), help="Times file of KITTI estimates (one per pose).")
+@click.option("--association", type=click.Choice(["nearest", "interpolate"]), default="nearest", show_default=True)
+@click.option("--alignment", type=click.Choice(["none", "origin", "se3", "sim3", "4dof"]), default="none", show_default=True)
+@click.option("--t-max-diff", type=float, default=0.01, show_default=True, help="Max stamp difference (nearest), s.")
+@click.option("--rpe-delta-m", type=float, default=100.0, show_default=True, help="RPE segment length, m.")
+@click.option("--segment-m", type=float, default=100.0, show_default=True, help="Per-segment window along the route, m.")
+@click.option("--segment-s", type=float, default=None, help="Per-segment window in time instead, s.")
+@click.option("--overwrite", is_flag=True, help="Replace an existing output directory.")
+@click.option("--no-plots", is_flag=True, help="Skip the PNG plots.")
+@click.pass_context
+def evaluate(ctx, reference, estimates, out_dir, ref_times, times, association, alignment, t_max_diff, rpe_delta_m,
+             segment_m, segment_s, overwrite, no_plots):
+    """Evaluate existing trajectory files (TUM, or KITTI poses with or without times) against REFERENCE:
+    evo's APE/RPE, the KITTI drift metric and the per-segment breakdown."""
+    from .evaluate_cmd import run_evaluate
+
+    m = run_evaluate(reference, list(estimates), out_dir, ref_times, times, association, alignment, t_max_diff,
+                     rpe_delta_m, segment_m, segment_s, overwrite, not no_plots)
+    if not ctx.obj["quiet"]:
+        click.echo(f"{'estimate':<28} {'matched':>8} {'APE trans RMSE [m]':>19} {'KITTI t_err [%]':>16} {'r_err [deg/100m]':>17}")
+        for k, d in m["estimates"].items():
+            ape = (d.get("ape") or {}).get("translation_m")
+            dr = d.get("kitti_drift")
+            click.echo(f"{k:<28} {d['matched_poses']:>8} {ape['rmse'] if ape else float('nan'):>19.3f} "
+                       f"{dr['t_err_pct'] if dr else float('nan'):>16.3f} {dr['r_err_deg_per_100m'] if dr else float('nan'):>17.4f}")
+        click.echo(f"wrote {out_dir}/")
+
+
+@main.command()
 @click.argument("metrics_path", metavar="METRICS", type=click.Path(path_type=Path))
 @click.option("-b", "--baseline", required=True, type=click.Path(path_type=Path), help="Baseline metrics.json or sweep.csv.")
 @click.option("--rtol", type=float, default=0.05, show_default=True, help="Relative tolerance of a metric's increase.")

@@ -109,6 +109,15 @@ SCHEMA: dict[str, Spec] = {
     "init.accel_bias_std_mps2": S(0.01, "initial accelerometer bias std, m/s^2", nonneg=True),
     "init.gyro_bias_std_dps": S(0.005, "initial gyroscope bias std, deg/s", nonneg=True),
     "evaluation.t_max_diff_s": S(0.01, "max stamp difference when evo associates estimate and reference poses, s", positive=True),
+    "evaluation.association": S("nearest", "pose association: 'nearest' stamp within t_max_diff_s (evo's) or 'interpolate' "
+                                           "the reference at the estimate's stamps (linear position, SLERP rotation)",
+                                choices=("nearest", "interpolate")),
+    "evaluation.alignment": S("none", "alignment before APE: 'none' (all estimates share the ground truth's frame), "
+                                      "'origin', 'se3', 'sim3' (evo's) or '4dof' (yaw + translation)",
+                              choices=("none", "origin", "se3", "sim3", "4dof")),
+    "evaluation.segment_m": S(100.0, "per-segment breakdown: window length along the route, m", positive=True),
+    "evaluation.segment_s": S(None, "per-segment breakdown by time instead: window length, s (null = by distance)",
+                              "float", positive=True, nullable=True),
     "evaluation.rpe_delta_m": S(100.0, "RPE segment length for the per-distance RPE, m", positive=True),
     "output.plots": S(True, "write PNG plots"),
 }

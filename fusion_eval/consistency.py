@@ -29,3 +29,9 @@ def fraction_inside(values: np.ndarray, dof: int, prob: float = 0.95) -> tuple[f
     """The two-sided ``prob`` chi-square interval for ``dof`` and the fraction of ``values`` inside it."""
     lo, hi = chi2.ppf([(1 - prob) / 2, (1 + prob) / 2], dof)
     return float(np.mean((values >= lo) & (values <= hi))), float(lo), float(hi)
+
+
+def summary(values: np.ndarray, dof: int, prob: float = 0.95) -> dict:
+    frac, lo, hi = fraction_inside(values, dof, prob)
+    return {"epochs": int(values.size), "dof": dof, "mean": float(np.mean(values)), "bounds_95": [lo, hi],
+            "fraction_in_95": frac}

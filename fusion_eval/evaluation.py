@@ -20,7 +20,10 @@ from evo.core.trajectory import PoseTrajectory3D
 from evo.main_ape import ape as evo_ape
 from evo.main_rpe import rpe as evo_rpe
 
-from .so3 import xyzw_to_wxyz
+from .alignment import apply_4dof, yaw_translation_fit
+from .interp import interpolate_poses
+from .kitti_drift import kitti_drift
+from .so3 import wxyz_to_xyzw, xyzw_to_wxyz
 from .types import PoseSeries
 
 log = logging.getLogger(__name__)
@@ -48,34 +51,69 @@ class EstimateEvaluation:
     ape_t_s: np.ndarray | None = None                 # stamps and APE translation errors, for plots
     ape_err_m: np.ndarray | None = None
     note: str | None = None
+    association: str = "nearest"
+    alignment: str = "none"
+    alignment_params: dict | None = None
+    drift: dict | None = None                         # KITTI drift metric (kitti_drift.DriftResult.as_dict)
+    ref_p_m: np.ndarray | None = None                 # associated reference positions, for segment maps
 
 
 def _stats(res: Result) -> dict:
     return {k: float(res.stats[k]) for k in STATS}
 
 
-def evaluate(reference: PoseSeries, estimate: PoseSeries, name: str, t_max_diff_s: float,
-             rpe_delta_m: float) -> EstimateEvaluation:
-    """APE (translation, rotation) and RPE (per frame, per ``rpe_delta_m`` metres) of one estimate.
+def associate(reference: PoseSeries, estimate: PoseSeries, method: str, t_max_diff_s: float):
+    """Pairs of evo trajectories: ``nearest`` stamp within ``t_max_diff_s`` (evo's), or ``interpolate``:
+    the reference interpolated at the estimate's stamps inside its span (linear position, SLERP)."""
+    if method == "interpolate":
+        ref_i = interpolate_poses(reference, estimate.t_s)
+        keep = np.isin(estimate.t_s, ref_i.t_s)
+        est = estimate.select(keep)
+        if len(est) == 0:
+            raise sync.SyncException("no estimate stamp inside the reference's span")
+        return to_evo(ref_i, "groundtruth"), to_evo(est, estimate.source)
+    return sync.associate_trajectories(to_evo(reference, "groundtruth"), to_evo(estimate, estimate.source),
+                                       max_diff=t_max_diff_s)
 
-    Poses are associated by nearest stamp within ``t_max_diff_s`` (evo's default method). For a
+
+def evaluate(reference: PoseSeries, estimate: PoseSeries, name: str, t_max_diff_s: float,
+             rpe_delta_m: float, association: str = "nearest", alignment: str = "none") -> EstimateEvaluation:
+    """APE (translation, rotation), RPE (per frame, per ``rpe_delta_m`` metres) and the KITTI drift metric
+    of one estimate.
+
+    Poses are associated by ``association`` (see :func:`associate`), then aligned by ``alignment``:
+    ``none``, ``origin``, ``se3`` or ``sim3`` (evo's), or ``4dof`` (yaw + translation, ours). For a
     position-only estimate only the APE translation is computed: its rotations mean nothing.
     """
     ev = EstimateEvaluation(name=name, poses=len(estimate), matched_poses=0)
-    ref_traj = to_evo(reference, "groundtruth")
-    est_traj = to_evo(estimate, name)
+    ev.association, ev.alignment = association, alignment
     try:
-        ref_a, est_a = sync.associate_trajectories(ref_traj, est_traj, max_diff=t_max_diff_s)
+        ref_a, est_a = associate(reference, estimate, association, t_max_diff_s)
     except sync.SyncException as exc:
-        ev.note = f"no poses associated within {t_max_diff_s} s ({exc})"
+        ev.note = f"no poses associated ({association}, max {t_max_diff_s} s: {exc})"
         return ev
     ev.matched_poses = int(ref_a.num_poses)
-    # evo caches the SE(3) matrices on first use; filling the cache once here means every deep copy
-    # below carries it instead of rebuilding it (evo builds them in a Python loop).
-    _ = ref_a.poses_se3, est_a.poses_se3
     if ev.matched_poses < 2:
         ev.note = "fewer than 2 associated poses"
         return ev
+    if alignment == "4dof":
+        yaw, t = yaw_translation_fit(est_a.positions_xyz, ref_a.positions_xyz)
+        moved = apply_4dof(PoseSeries(t_s=est_a.timestamps, p_w_m=est_a.positions_xyz,
+                                      q_wb_xyzw=wxyz_to_xyzw(est_a.orientations_quat_wxyz),
+                                      has_orientation=estimate.has_orientation), yaw, t)
+        est_a = to_evo(moved, name)
+        ev.alignment_params = {"yaw_deg": float(np.degrees(yaw)), "translation_m": t.tolist()}
+    elif alignment in ("se3", "sim3", "origin"):
+        est_a = copy.deepcopy(est_a)
+        if alignment == "origin":
+            ev.alignment_params = {"T": np.asarray(est_a.align_origin(ref_a)).tolist()}
+        else:
+            r, t, s = est_a.align(ref_a, correct_scale=alignment == "sim3")
+            ev.alignment_params = {"rotation": np.asarray(r).tolist(), "translation_m": np.asarray(t).tolist(),
+                                   "scale": float(s)}
+    # evo caches the SE(3) matrices on first use; filling the cache once here means every deep copy
+    # below carries it instead of rebuilding it (evo builds them in a Python loop).
+    _ = ref_a.poses_se3, est_a.poses_se3
     rels = [("translation_m", metrics.PoseRelation.translation_part)]
     if estimate.has_orientation:
         rels.append(("rotation_deg", metrics.PoseRelation.rotation_angle_deg))
@@ -88,6 +126,10 @@ def evaluate(reference: PoseSeries, estimate: PoseSeries, name: str, t_max_diff_
         if key == "translation_m":
             ev.ape_t_s = np.array(est_a.timestamps)
             ev.ape_err_m = np.array(res.np_arrays["error_array"])
+            ev.ref_p_m = np.array(ref_a.positions_xyz)
+    if estimate.has_orientation:
+        d = kitti_drift(np.array(ref_a.poses_se3), np.array(est_a.poses_se3))
+        ev.drift = None if d is None else d.as_dict()
     if not estimate.has_orientation:
         ev.note = "position only: no rotation or relative (RPE) metrics"
         return ev

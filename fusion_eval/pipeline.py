@@ -74,7 +74,7 @@ def run(dataset_path: Path, config_path: Path | None, sets: tuple[str, ...], out
 
     def submit_eval(pool, name):
         return pool.submit(_evaluate_and_save, out, prep.groundtruth, series[name], name, ev_cfg["t_max_diff_s"],
-                           ev_cfg["rpe_delta_m"])
+                           ev_cfg["rpe_delta_m"], ev_cfg["association"], ev_cfg["alignment"])
 
     with StagedDir(out_dir, overwrite=overwrite) as out:
         # evo's metrics loop over poses in Python. The unfiltered estimates are evaluated in worker
@@ -97,20 +97,42 @@ def run(dataset_path: Path, config_path: Path | None, sets: tuple[str, ...], out
         ratios = {"fused_over_lidar": ratio(evals.get("fused"), evals.get("lidar")),
                   "fused_over_gnss": ratio(evals.get("fused"), evals.get("gnss"))}
         timings["evaluate"] = time.perf_counter() - t
+        extra = beyond_evo(prep.groundtruth, evals, filt, ev_cfg)
         metrics = write_results(out, dataset=ds.name, config_name=config_name, cfg=cfg, resolved_extra=resolved_extra,
                                 evals=evals, ratios=ratios, applied=prep.applied, gnss_info=prep.gnss_info, filt=filt,
+                                extra=extra,
                                 plots_written=plots_written)
     timings["evaluate_and_write"] = time.perf_counter() - t
     return RunSummary(out_dir=Path(out_dir), metrics=metrics, evals=evals, timings_s=timings)
 
 
 def _evaluate_and_save(out: StagedDir, reference: PoseSeries, estimate: PoseSeries, name: str, t_max_diff_s: float,
-                       rpe_delta_m: float) -> EstimateEvaluation:
+                       rpe_delta_m: float, association: str = "nearest", alignment: str = "none") -> EstimateEvaluation:
     """Evaluate one estimate and write its evo result zips (in a worker: the zips are large to send back)."""
-    ev = evaluate(reference, estimate, name, t_max_diff_s, rpe_delta_m)
+    ev = evaluate(reference, estimate, name, t_max_diff_s, rpe_delta_m, association, alignment)
     write_evo_results(out, ev)
     ev.results = {}
     return ev
+
+
+def beyond_evo(gt: PoseSeries, evals: dict, filt, ev_cfg: dict) -> dict:
+    """What evo lacks: filter consistency (NEES against the ground truth, NIS) and the per-segment breakdown
+    (the KITTI drift metric is computed with each estimate's evaluation)."""
+    from .consistency import pose_nees, summary
+    from .interp import interpolate_poses
+    from .segments import breakdown
+
+    out: dict = {"consistency": {"nis": {k: {**summary(d["nis"], d["dof"]), "t_s": d["t_s"], "values": d["nis"]}
+                                         for k, d in filt.nis.items()}}}
+    gi = interpolate_poses(gt, filt.fused.t_s)
+    sel = np.isin(filt.fused.t_s, gi.t_s)
+    n_pos, n_att = pose_nees(filt.fused.p_w_m[sel], filt.fused.R_wb()[sel], gi.p_w_m, gi.R_wb(), filt.P_pos_att[sel])
+    ok = np.isfinite(n_pos) & np.isfinite(n_att)
+    out["consistency"]["nees"] = {"position": {**summary(n_pos[ok], 3), "t_s": gi.t_s[ok], "values": n_pos[ok]},
+                                  "attitude": {**summary(n_att[ok], 3), "t_s": gi.t_s[ok], "values": n_att[ok]}}
+    errs = {k: (ev.ape_t_s, ev.ape_err_m) for k, ev in evals.items() if ev.ape_err_m is not None}
+    out["segments"] = breakdown(gt, errs, ev_cfg["segment_m"], ev_cfg["segment_s"])
+    return out
 
 
 class _Inline:

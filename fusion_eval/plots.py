@@ -15,7 +15,8 @@ from .filters.kernels import BA_ID, BG_ID, P_ID  # noqa: E402
 COLORS = {"groundtruth": "black", "fused": "tab:red", "lidar": "tab:blue", "gnss": "tab:green", "imu_only": "tab:orange"}
 LABELS = {"groundtruth": "ground truth", "fused": "fused", "lidar": "lidar odometry", "gnss": "GNSS",
           "imu_only": "IMU dead reckoning"}
-_META = {"Software": None}  # no version string in the PNG: same inputs, same bytes
+_META = {"Software": None}
+_VCOLORS = plt.rcParams["axes.prop_cycle"].by_key()["color"]  # no version string in the PNG: same inputs, same bytes
 
 
 def _save(fig, path: Path) -> None:
@@ -54,14 +55,15 @@ def plot_trajectories(path: Path, series: dict) -> None:
 def plot_ape_over_time(path: Path, evals: dict, t0: float) -> None:
     """APE translation of each estimate over time (log scale: dead reckoning grows by orders of magnitude)."""
     fig, ax = plt.subplots(figsize=(10, 4.5))
-    for name in ("imu_only", "gnss", "lidar", "fused"):
-        ev = evals.get(name)
-        if ev is None or ev.ape_err_m is None:
+    known = [n for n in ("imu_only", "gnss", "lidar", "fused") if n in evals]
+    for i, name in enumerate(known + [n for n in evals if n not in known]):
+        ev = evals[name]
+        if ev.ape_err_m is None:
             continue
         rmse = ev.metrics["ape"]["translation_m"]["rmse"]
         style = "." if name == "gnss" else "-"
-        ax.plot(ev.ape_t_s - t0, np.maximum(ev.ape_err_m, 1e-3), style, ms=2.5, lw=1.0, color=COLORS[name],
-                label=f"{LABELS[name]} (RMSE {rmse:.2f} m)")
+        ax.plot(ev.ape_t_s - t0, np.maximum(ev.ape_err_m, 1e-3), style, ms=2.5, lw=1.0,
+                color=COLORS.get(name, _VCOLORS[i % len(_VCOLORS)]), label=f"{LABELS.get(name, name)} (RMSE {rmse:.2f} m)")
     ax.set_yscale("log")
     ax.set_xlabel("time since start [s]")
     ax.set_ylabel("APE translation [m]")
@@ -107,8 +109,6 @@ def plot_error_sigma(path: Path, t_s: np.ndarray, err_w: np.ndarray, sigma: np.n
     fig.tight_layout()
     _save(fig, path)
 
-
-_VCOLORS = plt.rcParams["axes.prop_cycle"].by_key()["color"]
 
 
 def plot_compare_ape(path: Path, runs, evs_unfiltered: dict, t0: float) -> None:
@@ -249,3 +249,98 @@ def plot_sweep(out_dir: Path, rows: list[dict], keys: list[str], metric: str, ta
         ax.legend(fontsize=8)
         save(fig, "sweep_best_vs_default.png")
     return written
+
+
+def plot_drift(path: Path, evals: dict) -> None:
+    """KITTI drift metric against segment length: translational (%) and rotational (deg/100 m) error."""
+    fig, axes = plt.subplots(1, 2, figsize=(11, 4))
+    for name, ev in evals.items():
+        if not ev.drift:
+            continue
+        Ls = sorted(int(k) for k in ev.drift["per_length"])
+        t = [ev.drift["per_length"][str(L)]["t_err_pct"] for L in Ls]
+        r = [ev.drift["per_length"][str(L)]["r_err_deg_per_m"] * 100 for L in Ls]
+        c = COLORS.get(name)
+        lab = LABELS.get(name, name)
+        axes[0].plot(Ls, t, "o-", color=c, label=f"{lab} ({ev.drift['t_err_pct']:.2f} %)")
+        axes[1].plot(Ls, r, "o-", color=c, label=f"{lab} ({ev.drift['r_err_deg_per_100m']:.3f} deg/100 m)")
+    axes[0].set_ylabel("translational error [%]")
+    axes[1].set_ylabel("rotational error [deg/100 m]")
+    for ax in axes:
+        ax.set_xlabel("segment length [m]")
+        ax.set_yscale("log")
+        ax.grid(alpha=0.3, which="both")
+        ax.legend(fontsize=7)
+    fig.suptitle("KITTI drift metric against segment length")
+    fig.tight_layout()
+    _save(fig, path)
+
+
+def plot_consistency(path: Path, cons: dict, t0: float) -> None:
+    """NEES (position, attitude) and NIS per observation type over time, with the 95 % chi-square bounds."""
+    items = [("NEES " + k, d) for k, d in cons.get("nees", {}).items()] + [("NIS " + k, d) for k, d in cons.get("nis", {}).items()]
+    fig, axes = plt.subplots(len(items), 1, figsize=(10, 2.2 * len(items)), sharex=True, squeeze=False)
+    for ax, (label, d) in zip(axes[:, 0], items):
+        lo, hi = d["bounds_95"]
+        ax.plot(np.asarray(d["t_s"]) - t0, np.maximum(d["values"], 1e-4), ".", ms=1.5, color="tab:blue")
+        ax.axhline(lo, color="tab:red", lw=0.8, ls="--")
+        ax.axhline(hi, color="tab:red", lw=0.8, ls="--")
+        ax.axhline(d["dof"], color="black", lw=0.6)
+        ax.set_yscale("log")
+        ax.set_ylabel(label, fontsize=8)
+        ax.set_title(f"{label}: mean {d['mean']:.2f} (dof {d['dof']}), {d['fraction_in_95'] * 100:.1f} % inside the 95 % bounds",
+                     fontsize=8, loc="left")
+        ax.grid(alpha=0.3)
+    axes[-1, 0].set_xlabel("time since start [s]")
+    fig.tight_layout()
+    _save(fig, path)
+
+
+def plot_segment_map(path: Path, evals: dict, seg: dict) -> None:
+    """Top view colored by the primary estimate's error, and by its error minus the secondary's (for a
+    run: fused minus lidar, where fusion helps or hurts)."""
+    a, b = seg.get("primary", "fused"), seg.get("secondary")
+    f = evals[a]
+    lid = evals.get(b) if b else None
+    panels = 2 if lid is not None and lid.ape_err_m is not None else 1
+    fig, axes = plt.subplots(1, panels, figsize=(7 * panels, 6), squeeze=False)
+    p = f.ref_p_m
+    sc = axes[0, 0].scatter(p[:, 0], p[:, 1], c=f.ape_err_m, s=3, cmap="viridis")
+    fig.colorbar(sc, ax=axes[0, 0], label=f"{a} APE [m]")
+    axes[0, 0].set_title(f"{a} error along the route")
+    if panels == 2:
+        diff = f.ape_err_m - np.interp(f.ape_t_s, lid.ape_t_s, lid.ape_err_m)
+        lim = float(np.percentile(np.abs(diff), 98)) or 1.0
+        sc = axes[0, 1].scatter(p[:, 0], p[:, 1], c=diff, s=3, cmap="coolwarm", vmin=-lim, vmax=lim)
+        fig.colorbar(sc, ax=axes[0, 1], label=f"{a} APE - {b} APE [m] (blue: {a} better)")
+        axes[0, 1].set_title(f"Where {a} is better (blue) or worse (red) than {b}")
+    d = np.concatenate([[0.0], np.cumsum(np.linalg.norm(np.diff(p, axis=0), axis=1))])
+    for i in seg.get("worst", [])[:5]:
+        s = next(x for x in seg["segments"] if x["index"] == i)
+        if seg["by"] == "distance":
+            k = int(np.searchsorted(d, 0.5 * (s["start_m"] + s["end_m"])))
+        else:
+            k = int(np.searchsorted(f.ape_t_s - f.ape_t_s[0], 0.5 * (s["start_s"] + s["end_s"])))
+        k = min(k, len(p) - 1)
+        axes[0, 0].annotate(f"#{i}", p[k, :2], fontsize=8, color="red")
+    for ax in axes[0]:
+        ax.set_aspect("equal", adjustable="box")
+        ax.set_xlabel("East [m]")
+        ax.set_ylabel("North [m]")
+        ax.grid(alpha=0.3)
+    fig.tight_layout()
+    _save(fig, path)
+
+
+def plot_generic_trajectories(path: Path, ref, estimates: dict) -> None:
+    fig, ax = plt.subplots(figsize=(8, 7))
+    ax.plot(ref.p_w_m[:, 0], ref.p_w_m[:, 1], "-", color="black", lw=1.6, label="reference")
+    for i, (name, s) in enumerate(estimates.items()):
+        ax.plot(s.p_w_m[:, 0], s.p_w_m[:, 1], "-", lw=1.0, color=_VCOLORS[i % len(_VCOLORS)], label=name)
+    ax.set_aspect("equal", adjustable="box")
+    ax.set_xlabel("x [m]")
+    ax.set_ylabel("y [m]")
+    ax.set_title("Trajectories (x-y plane of the files' frame)")
+    ax.grid(alpha=0.3)
+    ax.legend(fontsize=8)
+    _save(fig, path)

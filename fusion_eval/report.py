@@ -42,21 +42,31 @@ def versions() -> dict:
     return out
 
 
+def _strip_arrays(d: dict) -> dict:
+    return {k: v for k, v in d.items() if k not in ("t_s", "values")}
+
+
 def build_metrics(dataset: str, evals: dict[str, EstimateEvaluation], ratios: dict, applied: dict,
-                  gnss_info: dict | None, nis: dict) -> dict:
+                  gnss_info: dict | None, extra: dict | None = None) -> dict:
     est = {}
     for name, ev in evals.items():
         est[name] = {"poses": ev.poses, "matched_poses": ev.matched_poses, **ev.metrics}
+        if ev.drift is not None:
+            est[name]["kitti_drift"] = ev.drift
+        if ev.alignment_params is not None:
+            est[name]["alignment"] = ev.alignment_params
         if ev.note:
             est[name]["note"] = ev.note
-    nis_summary = {}
-    for kind, d in nis.items():
-        from scipy.stats import chi2
-
-        lo, hi = chi2.ppf([0.025, 0.975], d["dof"])
-        nis_summary[kind] = {"updates": int(d["nis"].size), "dof": d["dof"], "mean": float(np.mean(d["nis"])),
-                             "fraction_in_95": float(np.mean((d["nis"] >= lo) & (d["nis"] <= hi)))}
-    return {"dataset": dataset, "estimates": est, "ratios": ratios, "nis": nis_summary,
+    extra = extra or {}
+    cons = extra.get("consistency", {})
+    first = next(iter(evals.values()), None)
+    return {"dataset": dataset,
+            "evaluation": {"association": getattr(first, "association", "nearest"),
+                           "alignment": getattr(first, "alignment", "none")},
+            "estimates": est, "ratios": ratios,
+            "nis": {k: _strip_arrays(v) for k, v in cons.get("nis", {}).items()},
+            "nees": {k: _strip_arrays(v) for k, v in cons.get("nees", {}).items()},
+            "segments": extra.get("segments"),
             "gnss_degradation": gnss_info, "preprocessing": applied}
 
 
@@ -86,6 +96,55 @@ def metrics_csv(evals: dict[str, EstimateEvaluation], ratios: dict) -> str:
     w.writeheader()
     w.writerows(rows)
     return buf.getvalue()
+
+
+def _drift_section(m: dict) -> list[str]:
+    rows = [(k, v["kitti_drift"]) for k, v in m["estimates"].items() if v.get("kitti_drift")]
+    if not rows:
+        return []
+    L = ["", "## KITTI drift metric", "",
+         "Averaged over all segments of 100, 200, ..., 800 m starting every 10 frames (the KITTI odometry devkit's definition).", "",
+         "| estimate | translational error [%] | rotational error [deg/100 m] | segments |", "|---|---:|---:|---:|"]
+    L += [f"| {k} | {d['t_err_pct']:.3f} | {d['r_err_deg_per_100m']:.4f} | {d['segments']} |" for k, d in rows]
+    return L
+
+
+def _consistency_section(m: dict) -> list[str]:
+    L = ["", "## Filter consistency", "",
+         "| quantity | epochs | dof | mean | 95 % interval | fraction inside |", "|---|---:|---:|---:|---|---:|"]
+    for label, group in (("NEES", m.get("nees") or {}), ("NIS", m.get("nis") or {})):
+        for k, d in group.items():
+            lo, hi = d["bounds_95"]
+            L.append(f"| {label} {k} | {d['epochs']} | {d['dof']} | {d['mean']:.2f} | [{lo:.2f}, {hi:.2f}] | "
+                     f"{d['fraction_in_95'] * 100:.1f} % |")
+    L += ["", "NEES uses the filter's covariance and its error against the ground truth; NIS the innovations alone. A "
+          "consistent filter has a mean near the dof and about 95 % inside; a mean well below means the filter is "
+          "conservative (noise too large), well above overconfident."]
+    return L
+
+
+def _segments_section(m: dict) -> list[str]:
+    seg = m.get("segments")
+    if not seg or not seg["segments"]:
+        return []
+    skip = ("imu_only",)   # dead reckoning's kilometres would drown the table
+    names = [k for k in seg["segments"][0]["rmse_m"] if k not in skip and any(s["rmse_m"].get(k) is not None for s in seg["segments"])]
+    a, b = seg.get("primary", "fused"), seg.get("secondary")
+    unit = "m" if seg["by"] == "distance" else "s"
+    L = ["", f"## Per-segment breakdown (every {seg['length']:g} {unit} along the route)", "",
+         "| segment | route [m] | time [s] | " + " | ".join(f"{n} APE RMSE [m]" for n in names)
+         + (f" | {a} - {b} [m] |" if b else " |"), "|---|---|---|" + "---:|" * (len(names) + bool(b))]
+    for s in seg["segments"]:
+        r = s["rmse_m"]
+        cells = " | ".join("n/a" if r.get(n) is None else f"{r[n]:.3f}" for n in names)
+        diff = ""
+        if b:
+            diff = " | " + ("n/a" if r.get(a) is None or r.get(b) is None else f"{r[a] - r[b]:+.3f}")
+        L.append(f"| {s['index']} | {s['start_m']:.0f}-{s['end_m']:.0f} | {s['start_s']:.0f}-{s['end_s']:.0f} | {cells}{diff} |")
+    by_i = {s["index"]: s for s in seg["segments"]}
+    L += ["", f"Worst segments for {a}: " + ", ".join(
+        f"{i} ({by_i[i]['start_m']:.0f}-{by_i[i]['end_m']:.0f} m, {by_i[i]['rmse_m'][a]:.3f} m)" for i in seg["worst"]) + ".", ""]
+    return L
 
 
 def _fmt(d, key="rmse", nd=3):
@@ -126,12 +185,12 @@ def report_md(dataset: str, config_name: str, evals: dict, ratios: dict, cfg: di
     for name, ev in evals.items():
         if ev.note:
             L.append(f"- {name}: {ev.note}.")
-    L += ["", "## Filter consistency (normalised innovation squared)", "",
-          "| observation | updates | dof | mean NIS | fraction inside the 95 % chi-square interval |", "|---|---:|---:|---:|---:|"]
-    for kind, d in metrics["nis"].items():
-        L.append(f"| {kind} | {d['updates']} | {d['dof']} | {d['mean']:.2f} | {d['fraction_in_95'] * 100:.1f} % |")
-    L += ["", "A mean NIS near the dof means the configured noise matches the innovations; well below it, the noise is "
-          "too large (conservative); well above, too small.", ""]
+    ev0 = metrics.get("evaluation", {})
+    L += ["", f"Association: **{ev0.get('association', 'nearest')}**"
+          + (f" (nearest stamp within {cfg['evaluation']['t_max_diff_s']} s)" if ev0.get("association") == "nearest" else
+             " (reference interpolated at the estimate's stamps: linear position, SLERP rotation)")
+          + f"; alignment: **{ev0.get('alignment', 'none')}**. Matched poses are in the table above."]
+    L += _drift_section(metrics) + _consistency_section(metrics) + _segments_section(metrics)
     L += ["## GNSS degradation", ""]
     if gnss_info is None:
         L.append("The dataset has no GNSS stream.")
@@ -197,15 +256,26 @@ def write_series_and_plots(out: StagedDir, series: dict[str, PoseSeries], filt, 
 
 def write_results(out: StagedDir, *, dataset: str, config_name: str, cfg: dict, resolved_extra: dict,
                   evals: dict[str, EstimateEvaluation], ratios: dict, applied: dict, gnss_info: dict | None, filt,
-                  plots_written: list[str]) -> dict:
-    """Metrics, resolved configuration, the APE-over-time plot and the report."""
-    metrics = build_metrics(dataset, evals, ratios, applied, gnss_info, filt.nis)
+                  plots_written: list[str], extra: dict | None = None) -> dict:
+    """Metrics, resolved configuration, the plots that need the metrics, and the report."""
+    metrics = build_metrics(dataset, evals, ratios, applied, gnss_info, extra)
     out.write_text("metrics.json", json.dumps(metrics, indent=2, sort_keys=False) + "\n")
     out.write_text("metrics.csv", metrics_csv(evals, ratios))
     resolved = {**cfg, **resolved_extra, "versions": versions()}
     out.write_text("config.resolved.yaml", yaml.safe_dump(resolved, sort_keys=False))
     if plots_written:
-        plots.plot_ape_over_time(out.path("ape_over_time.png"), evals, float(filt.fused.t_s[0]))
+        t0 = float(filt.fused.t_s[0])
+        plots.plot_ape_over_time(out.path("ape_over_time.png"), evals, t0)
+        plots_written = list(plots_written)
+        if any(ev.drift for ev in evals.values()):
+            plots.plot_drift(out.path("kitti_drift.png"), evals)
+            plots_written.append("kitti_drift.png")
+        if extra and extra.get("consistency", {}).get("nees"):
+            plots.plot_consistency(out.path("consistency.png"), extra["consistency"], t0)
+            plots_written.append("consistency.png")
+        if extra and extra.get("segments") and "fused" in evals:
+            plots.plot_segment_map(out.path("segments_map.png"), evals, extra["segments"])
+            plots_written.append("segments_map.png")
     out.write_text("report.md", report_md(dataset, config_name, evals, ratios, cfg, applied, gnss_info, metrics,
                                           plots_written))
     return metrics

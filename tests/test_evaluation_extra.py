@@ -1,0 +1,154 @@
+"""Evaluation beyond evo: KITTI drift metric, consistency, alignment, association, segments, `evaluate`."""
+
+from __future__ import annotations
+
+import json
+
+import numpy as np
+import pytest
+from click.testing import CliRunner
+
+from conftest import shared_path
+from fusion_eval.alignment import apply_4dof, yaw_translation_fit
+from fusion_eval.cli import main
+from fusion_eval.consistency import fraction_inside, nees
+from fusion_eval.datasets.kitti_poses import read_kitti_poses
+from fusion_eval.evaluation import evaluate
+from fusion_eval.filters import kernels as kn
+from fusion_eval.kitti_drift import kitti_drift
+from fusion_eval.so3 import exp_so3, make_T, matrix_to_quat_xyzw
+from fusion_eval.types import PoseSeries
+
+
+def _straight(n: int, step: float, yaw_per_step: float = 0.0) -> np.ndarray:
+    T = np.tile(np.eye(4), (n, 1, 1))
+    R, p = np.eye(3), np.zeros(3)
+    for i in range(1, n):
+        p = p + R @ [step, 0.0, 0.0]
+        R = R @ exp_so3(np.array([0.0, 0.0, yaw_per_step]))
+        T[i] = make_T(R, p)
+    return T
+
+
+def test_drift_metric_on_hand_built_cases():
+    step = 0.9                                          # no segment length is a multiple of it: no ties
+    n = 1200
+    gt = _straight(n, step)
+    est = gt.copy()
+    est[:, :3, 3] *= 1.01                                # 1 % too long
+    d = kitti_drift(gt, est)
+    # the devkit ends a segment at the first frame beyond L, k = ceil(L / step) frames on, and divides by L
+    k = {L: int(np.ceil(L / step)) for L in range(100, 900, 100)}
+    counts = {L: len([f for f in range(0, n, 10) if f + k[L] < n]) for L in k}
+    assert d.segments == sum(counts.values())
+    ratio = sum(c * k[L] * step / L for L, c in counts.items()) / sum(counts.values())
+    assert d.t_err_pct == pytest.approx(1.0 * ratio, rel=1e-9) and d.r_err_deg_per_m == pytest.approx(0.0, abs=1e-9)
+    # a heading error of 0.001 rad per step: a straight estimate against a gently turning truth
+    turning = _straight(n, step, yaw_per_step=0.001)
+    d2 = kitti_drift(turning, gt)
+    r_expected = sum(c * 0.001 * k[L] / L for L, c in counts.items()) / sum(counts.values())
+    assert d2.r_err_deg_per_m == pytest.approx(np.degrees(r_expected), rel=1e-6)
+
+
+def test_drift_metric_reproduces_kiss_icp_figures():
+    gt, _ = read_kitti_poses(shared_path("kitti-odometry", "00", "00_gt_kitti.txt"))
+    est, _ = read_kitti_poses(shared_path("kitti-odometry", "00", "00_poses_kitti.txt"))
+    d = kitti_drift(gt, est)
+    # result_metrics.log of the producer: 0.527 % and 0.002 deg/m
+    assert round(d.t_err_pct, 3) == 0.527 and round(d.r_err_deg_per_m, 3) == 0.002
+
+
+def test_nees_near_95_percent_on_a_linear_system_with_known_noise():
+    rng = np.random.default_rng(0)
+    dt, q, r = 0.1, 0.5, 0.3
+    F = np.array([[1, dt], [0, 1]])
+    Q = q ** 2 * np.array([[dt ** 3 / 3, dt ** 2 / 2], [dt ** 2 / 2, dt]])
+    H = np.array([[1.0, 0.0]])
+    x_true, x, P = np.zeros(2), np.zeros(2), np.eye(2)
+    errs, covs = [], []
+    L = np.linalg.cholesky(Q)
+    for _ in range(20000):
+        x_true = F @ x_true + L @ rng.standard_normal(2)
+        z = H @ x_true + r * rng.standard_normal(1)
+        x, P = F @ x, F @ P @ F.T + Q
+        dx, _ = kn.joseph_update(P, 2, H, z - H @ x, np.array([[r * r]]))
+        x = x + dx
+        errs.append(x_true - x)
+        covs.append(P.copy())
+    n = nees(np.array(errs)[100:], np.array(covs)[100:])
+    frac, lo, hi = fraction_inside(n, 2)
+    assert 0.93 < frac < 0.97 and 1.9 < n.mean() < 2.1
+
+
+def test_4dof_alignment_recovers_a_known_yaw_and_translation():
+    rng = np.random.default_rng(1)
+    p = rng.normal(size=(200, 3)) * [50, 50, 3]
+    q = matrix_to_quat_xyzw(exp_so3(rng.normal(size=(200, 3)) * 0.2))
+    est = PoseSeries(t_s=np.arange(200.0), p_w_m=p, q_wb_xyzw=q)
+    yaw, t = 0.7, np.array([12.0, -5.0, 1.5])
+    ref = apply_4dof(est, yaw, t)
+    yaw_fit, t_fit = yaw_translation_fit(est.p_w_m, ref.p_w_m)
+    assert yaw_fit == pytest.approx(yaw, abs=1e-12) and np.allclose(t_fit, t, atol=1e-10)
+    ev = evaluate(ref, est, "x", 0.01, 100.0, alignment="4dof")
+    assert ev.metrics["ape"]["translation_m"]["rmse"] < 1e-9 and ev.metrics["ape"]["rotation_deg"]["rmse"] < 1e-6
+
+
+def test_interpolated_association_equals_nearest_when_stamps_coincide():
+    rng = np.random.default_rng(2)
+    t = np.arange(0, 60, 0.1)
+    ref = PoseSeries(t_s=t, p_w_m=np.cumsum(rng.normal(size=(t.size, 3)), axis=0),
+                     q_wb_xyzw=matrix_to_quat_xyzw(exp_so3(rng.normal(size=(t.size, 3)) * 0.3)))
+    est = PoseSeries(t_s=t, p_w_m=ref.p_w_m + rng.normal(size=(t.size, 3)) * 0.1, q_wb_xyzw=ref.q_wb_xyzw)
+    a = evaluate(ref, est, "e", 0.01, 10.0, association="nearest")
+    b = evaluate(ref, est, "e", 0.01, 10.0, association="interpolate")
+    assert a.matched_poses == b.matched_poses == t.size
+    for g in ("ape", "rpe_1frame"):
+        for rel in ("translation_m", "rotation_deg"):
+            for s in ("rmse", "max"):
+                assert a.metrics[g][rel][s] == pytest.approx(b.metrics[g][rel][s], abs=1e-9)
+    # off-grid estimate stamps: nearest finds none within 10 ms, interpolation matches them all
+    est2 = PoseSeries(t_s=t[:-1] + 0.05, p_w_m=est.p_w_m[:-1], q_wb_xyzw=est.q_wb_xyzw[:-1])
+    assert evaluate(ref, est2, "e", 0.01, 10.0, association="nearest").matched_poses == 0
+    assert evaluate(ref, est2, "e", 0.01, 10.0, association="interpolate").matched_poses == t.size - 1
+
+
+def test_default_report_carries_every_section(slice_run):
+    report = (slice_run / "report.md").read_text()
+    for section in ("## KITTI drift metric", "## Filter consistency", "NEES position", "NIS lidar",
+                    "## Per-segment breakdown", "Worst segments", "Association: **nearest**", "alignment: **none**"):
+        assert section in report, section
+    m = json.loads((slice_run / "metrics.json").read_text())
+    assert m["estimates"]["fused"]["kitti_drift"]["t_err_pct"] > 0
+    assert 0 <= m["nees"]["position"]["fraction_in_95"] <= 1 and m["segments"]["segments"]
+    for p in ("kitti_drift.png", "consistency.png", "segments_map.png"):
+        assert (slice_run / p).exists()
+
+
+def test_evaluate_command_on_kitti_and_tum_files(tmp_path):
+    gt = shared_path("kitti-odometry", "00", "00_gt_kitti.txt")
+    est = shared_path("kitti-odometry", "00", "00_poses_kitti.txt")
+    times = shared_path("evo-test-data", "KITTI_00_gt_times.txt")
+    out = tmp_path / "ev"
+    r = CliRunner().invoke(main, ["-q", "evaluate", str(gt), str(est), "--out", str(out), "--alignment", "se3"])
+    assert r.exit_code == 0, r.output
+    m = json.loads((out / "metrics.json").read_text())
+    e = m["estimates"]["00_poses_kitti"]
+    # evo 1.38.1: evo_ape kitti 00_gt_kitti.txt 00_poses_kitti.txt -a gives 3.515636 m
+    assert e["ape"]["translation_m"]["rmse"] == pytest.approx(3.515636, abs=1e-5)
+    assert round(e["kitti_drift"]["t_err_pct"], 3) == 0.527
+    assert "frame index" in e["stamps"] and (out / "report.md").exists() and (out / "segments_map.png").exists()
+    out2 = tmp_path / "ev2"
+    r = CliRunner().invoke(main, ["-q", "evaluate", str(gt), str(est), "--ref-times", str(times), "--times", str(times),
+                                  "--association", "interpolate", "--alignment", "4dof", "--no-plots", "--out", str(out2)])
+    assert r.exit_code == 0, r.output
+    e2 = json.loads((out2 / "metrics.json").read_text())["estimates"]["00_poses_kitti"]
+    assert e2["matched_poses"] == 4541 and "yaw_deg" in e2["alignment"]
+    # TUM files
+    tum_gt = shared_path("evo-test-data", "freiburg1_xyz-groundtruth.txt")
+    tum_est = shared_path("evo-test-data", "freiburg1_xyz-rgbdslam.txt")
+    r = CliRunner().invoke(main, ["-q", "evaluate", str(tum_gt), str(tum_est), "--no-plots", "--out", str(tmp_path / "t")])
+    assert r.exit_code == 0, r.output
+    # a bad file is a clean error
+    (tmp_path / "bad.txt").write_text("1 2 3\n")
+    r = CliRunner().invoke(main, ["-q", "evaluate", str(gt), str(tmp_path / "bad.txt"), "--out", str(tmp_path / "b")])
+    assert r.exit_code == 2 and "expected a TUM (8 values per line) or KITTI (12 values)" in r.stderr
