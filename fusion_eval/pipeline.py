@@ -18,7 +18,7 @@ from .datasets.manifest import load_dataset
 from .evaluation import EstimateEvaluation, evaluate, ratio
 from .outputs import StagedDir
 from .prepare import prepare
-from .replay import replay
+from .replay import dead_reckoning, replay
 from .report import write_evo_results, write_results, write_series_and_plots
 from .types import PoseSeries
 
@@ -81,27 +81,27 @@ def run(dataset_path: Path, config_path: Path | None, sets: tuple[str, ...], out
         # processes while this one runs the filter; then the fused and dead-reckoning estimates and
         # the plots that need no metrics, heaviest first, so both cores stay busy.
         with _executor(jobs) as pool:
+            series["imu_only"] = dead_reckoning(prep, fp)
             futures = {n: submit_eval(pool, n) for n in ("lidar", "gnss") if n in series}
             t = time.perf_counter()
             # overflow in absurd settings is reported as divergence (exit 3), not as numpy warnings
             with np.errstate(over="ignore", invalid="ignore"):
-                filt = replay(prep, fp, progress=progress)
+                filt = replay(prep, fp, progress=progress, imu_only=series["imu_only"])
             timings["filter"] = time.perf_counter() - t
             t = time.perf_counter()
-            series["fused"], series["imu_only"] = filt.fused, filt.imu_only
+            series["fused"] = filt.fused
             futures.update({n: submit_eval(pool, n) for n in ("fused", "imu_only")})
             plots_future = pool.submit(write_series_and_plots, out, series, filt, cfg["output"]["plots"])
             plots_written = plots_future.result()
             evals: dict[str, EstimateEvaluation] = {n: futures[n].result() for n in ("fused", "lidar", "gnss", "imu_only")
                                                     if n in futures}
-        ratios = {"fused_over_lidar": ratio(evals.get("fused"), evals.get("lidar")),
-                  "fused_over_gnss": ratio(evals.get("fused"), evals.get("gnss"))}
-        timings["evaluate"] = time.perf_counter() - t
-        extra = beyond_evo(prep.groundtruth, evals, filt, ev_cfg)
-        metrics = write_results(out, dataset=ds.name, config_name=config_name, cfg=cfg, resolved_extra=resolved_extra,
-                                evals=evals, ratios=ratios, applied=prep.applied, gnss_info=prep.gnss_info, filt=filt,
-                                extra=extra,
-                                plots_written=plots_written)
+            ratios = {"fused_over_lidar": ratio(evals.get("fused"), evals.get("lidar")),
+                      "fused_over_gnss": ratio(evals.get("fused"), evals.get("gnss"))}
+            timings["evaluate"] = time.perf_counter() - t
+            extra = beyond_evo(prep.groundtruth, evals, filt, ev_cfg)
+            metrics = write_results(out, dataset=ds.name, config_name=config_name, cfg=cfg, resolved_extra=resolved_extra,
+                                    evals=evals, ratios=ratios, applied=prep.applied, gnss_info=prep.gnss_info, filt=filt,
+                                    extra=extra, pool=pool, plots_written=plots_written)
     timings["evaluate_and_write"] = time.perf_counter() - t
     return RunSummary(out_dir=Path(out_dir), metrics=metrics, evals=evals, timings_s=timings)
 

@@ -56,7 +56,21 @@ def process_params(fp: FilterParams, imu_t: np.ndarray) -> np.ndarray:
     return prm
 
 
-def replay(prep: Prepared, fp: FilterParams, progress: Callable[[float], None] | None = None) -> FilterOutput:
+def dead_reckoning(prep: Prepared, fp: FilterParams) -> PoseSeries:
+    """Pure IMU integration (accelerometer and gyro) from the filter's initial state: the unfiltered IMU."""
+    t = np.ascontiguousarray(prep.imu.t_s)
+    k0 = prep.k_start
+    p, R = dead_reckon(prep.x0, process_params(fp, t), t, np.ascontiguousarray(prep.imu.f_b_mps2),
+                       np.ascontiguousarray(prep.imu.w_b_rps), k0)
+    p, R, t = p[k0:], R[k0:], t[k0:]
+    finite = np.all(np.isfinite(p), axis=1) & np.all(np.abs(p) < 1e9, axis=1)
+    return PoseSeries(t_s=t[finite], p_w_m=p[finite], q_wb_xyzw=matrix_to_quat_xyzw(R[finite]), source="imu_only")
+
+
+def replay(prep: Prepared, fp: FilterParams, progress: Callable[[float], None] | None = None,
+           imu_only: PoseSeries | None = None) -> FilterOutput:
+    """Replay every observation through the configured filter; ``imu_only`` (dead reckoning) is computed
+    here unless given (the pipeline computes it first, to evaluate it while the filter runs)."""
     imu = prep.imu
     t_imu = np.ascontiguousarray(imu.t_s)
     f_imu = np.ascontiguousarray(imu.f_b_mps2)
@@ -134,11 +148,8 @@ def replay(prep: Prepared, fp: FilterParams, progress: Callable[[float], None] |
     sl = slice(k0, None)
     fused = PoseSeries(t_s=t_imu[sl], p_w_m=kf.rec_p[sl], q_wb_xyzw=matrix_to_quat_xyzw(kf.rec_R[sl]),
                        v_w_mps=kf.rec_v[sl], source="fused")
-    dr_p, dr_R = dead_reckon(prep.x0, prm, t_imu, f_imu, w_imu, k0)   # accelerometer and gyro only
-    dr_p, dr_R = dr_p[sl], dr_R[sl]
-    finite = np.all(np.isfinite(dr_p), axis=1) & np.all(np.abs(dr_p) < 1e9, axis=1)
-    imu_only = PoseSeries(t_s=t_imu[sl][finite], p_w_m=dr_p[finite], q_wb_xyzw=matrix_to_quat_xyzw(dr_R[finite]),
-                          source="imu_only")
+    if imu_only is None:
+        imu_only = dead_reckoning(prep, fp)
     dof = {"lidar": 6, "gnss": 3, "odometer": 1, "nhc": 2}
     return FilterOutput(
         fused=fused, accel_bias_b=kf.rec_ba[sl].copy(), gyro_bias_b=kf.rec_bg[sl].copy(),

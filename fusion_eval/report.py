@@ -7,6 +7,7 @@ times, no absolute paths beyond the inputs), so the same inputs and seed give th
 
 from __future__ import annotations
 
+import copy
 import csv
 import io
 import json
@@ -226,6 +227,11 @@ def write_evo_results(out: StagedDir, ev: EstimateEvaluation) -> list[str]:
     names = []
     for key, res in ev.results.items():
         zname = f"{key}_{ev.name}.zip"
+        if key.startswith("rpe"):
+            # the RPE zips keep evo's statistics and error arrays (what evo_res reads); the reduced copies of the
+            # trajectories that evo_rpe adds cost most of the writing time and are in the APE zips in full
+            res = copy.copy(res)
+            res.trajectories = {}
         file_interface.save_res_file(out.path(zname), res, confirm_overwrite=False)
         out.normalize_zip(zname)
         names.append(zname)
@@ -256,26 +262,32 @@ def write_series_and_plots(out: StagedDir, series: dict[str, PoseSeries], filt, 
 
 def write_results(out: StagedDir, *, dataset: str, config_name: str, cfg: dict, resolved_extra: dict,
                   evals: dict[str, EstimateEvaluation], ratios: dict, applied: dict, gnss_info: dict | None, filt,
-                  plots_written: list[str], extra: dict | None = None) -> dict:
-    """Metrics, resolved configuration, the plots that need the metrics, and the report."""
+                  plots_written: list[str], extra: dict | None = None, pool=None) -> dict:
+    """Metrics, resolved configuration, the plots that need the metrics (on ``pool`` when given, while
+    this process writes the rest), and the report."""
     metrics = build_metrics(dataset, evals, ratios, applied, gnss_info, extra)
     out.write_text("metrics.json", json.dumps(metrics, indent=2, sort_keys=False) + "\n")
     out.write_text("metrics.csv", metrics_csv(evals, ratios))
     resolved = {**cfg, **resolved_extra, "versions": versions()}
     out.write_text("config.resolved.yaml", yaml.safe_dump(resolved, sort_keys=False))
+    jobs = []
     if plots_written:
         t0 = float(filt.fused.t_s[0])
-        plots.plot_ape_over_time(out.path("ape_over_time.png"), evals, t0)
+        jobs.append((plots.plot_ape_over_time, out.path("ape_over_time.png"), evals, t0))
         plots_written = list(plots_written)
         if any(ev.drift for ev in evals.values()):
-            plots.plot_drift(out.path("kitti_drift.png"), evals)
+            jobs.append((plots.plot_drift, out.path("kitti_drift.png"), evals))
             plots_written.append("kitti_drift.png")
         if extra and extra.get("consistency", {}).get("nees"):
-            plots.plot_consistency(out.path("consistency.png"), extra["consistency"], t0)
+            jobs.append((plots.plot_consistency, out.path("consistency.png"), extra["consistency"], t0))
             plots_written.append("consistency.png")
         if extra and extra.get("segments") and "fused" in evals:
-            plots.plot_segment_map(out.path("segments_map.png"), evals, extra["segments"])
+            jobs.append((plots.plot_segment_map, out.path("segments_map.png"), evals, extra["segments"]))
             plots_written.append("segments_map.png")
+    futures = [pool.submit(*j) for j in jobs] if pool is not None else [j[0](*j[1:]) for j in jobs]
     out.write_text("report.md", report_md(dataset, config_name, evals, ratios, cfg, applied, gnss_info, metrics,
                                           plots_written))
+    for f in futures:
+        if pool is not None:
+            f.result()
     return metrics
