@@ -231,6 +231,72 @@ def evaluate(ctx, reference, estimates, out_dir, ref_times, times, association, 
 
 
 @main.command()
+@click.argument("input_path", metavar="INPUT", type=click.Path(path_type=Path))
+@click.option("-o", "--out", "out_dir", required=True, type=click.Path(path_type=Path), help="Output directory.")
+@click.option("--sensors", type=click.Choice(["both", "lidar", "radar"]), default="both", show_default=True)
+@click.option("--noise-ax", type=float, default=9.0, show_default=True, help="Acceleration noise variance sigma_ax^2, m^2/s^4.")
+@click.option("--noise-ay", type=float, default=9.0, show_default=True, help="Acceleration noise variance sigma_ay^2, m^2/s^4.")
+@click.option("--lidar-var", nargs=2, type=float, default=(0.0225, 0.0225), show_default=True, help="Lidar R diagonal, m^2.")
+@click.option("--radar-var", nargs=3, type=float, default=(0.09, 0.0009, 0.09), show_default=True,
+              help="Radar R diagonal: rho [m^2], phi [rad^2], rho_dot [m^2/s^2].")
+@click.option("--overwrite", is_flag=True, help="Replace an existing output directory.")
+@click.option("--no-plots", is_flag=True, help="Skip the plots.")
+@click.pass_context
+def track(ctx, input_path, out_dir, sensors, noise_ax, noise_ay, lidar_var, radar_var, overwrite, no_plots):
+    """Track a 2-D target from lidar (KF) and radar (EKF) measurements; RMSE against the file's ground truth."""
+    from .outputs import StagedDir
+    from .tracking.ekf import TrackParams, run_track
+    from .tracking.measurements import read_measurements
+    from .tracking.report import write_track_outputs
+
+    for name, v in (("--noise-ax", noise_ax), ("--noise-ay", noise_ay), *(("--lidar-var", x) for x in lidar_var),
+                    *(("--radar-var", x) for x in radar_var)):
+        if not v > 0:
+            raise click.UsageError(f"{name} must be > 0")
+    params = TrackParams(noise_ax=noise_ax, noise_ay=noise_ay, lidar_var=tuple(lidar_var), radar_var=tuple(radar_var),
+                         sensors=sensors)
+    staged = StagedDir(out_dir, overwrite=overwrite)
+    staged.check()
+    m = read_measurements(input_path)
+    res = run_track(m, params)
+    with staged as out:
+        metrics = write_track_outputs(out, res, params, str(input_path), not no_plots)
+    if not ctx.obj["quiet"]:
+        r = metrics["rmse"]
+        click.echo(f"RMSE [px, py, vx, vy] = [{r['px']:.4f}, {r['py']:.4f}, {r['vx']:.4f}, {r['vy']:.4f}] "
+                   f"({metrics['estimates']} estimates, sensors: {sensors})")
+        for k, d in metrics["nis"].items():
+            click.echo(f"NIS {k}: mean {d['mean']:.2f} (dof {d['dof']}), {d['fraction_above_95'] * 100:.1f} % above the 95 % line")
+        click.echo(f"wrote {out_dir}/")
+
+
+@main.command("simulate-track")
+@click.argument("out_file", type=click.Path(path_type=Path))
+@click.option("--duration", "duration_s", type=float, default=25.0, show_default=True, help="Seconds.")
+@click.option("--interval", "interval_s", type=float, default=0.05, show_default=True, help="Seconds between measurements (lidar and radar alternate).")
+@click.option("--seed", type=int, default=0, show_default=True)
+@click.option("--start", nargs=2, type=float, default=(0.6, 0.6), show_default=True, help="Start position x y, m.")
+@click.option("--heading", "heading_deg", type=float, default=0.0, show_default=True, help="Initial heading, deg.")
+@click.option("--speed", "speed_mps", type=float, default=5.0, show_default=True, help="Mean speed, m/s.")
+def simulate_track_cmd(out_file, duration_s, interval_s, seed, start, heading_deg, speed_mps):
+    """Write a lidar/radar measurement file with known truth (the format `fusion-eval track` reads)."""
+    import math
+
+    from .tracking.simulate import simulate_track
+
+    if duration_s <= 0 or interval_s <= 0:
+        raise click.UsageError("--duration and --interval must be > 0")
+    text = simulate_track(duration_s, interval_s, seed, start=tuple(start), speed_mps=speed_mps,
+                          heading0_rad=math.radians(heading_deg))
+    out_file = Path(out_file)
+    out_file.parent.mkdir(parents=True, exist_ok=True)
+    tmp = out_file.with_name(f".{out_file.name}.tmp")
+    tmp.write_text(text)
+    tmp.replace(out_file)
+    log.info("wrote %s (%d measurements)", out_file, text.count("\n"))
+
+
+@main.command()
 @click.argument("metrics_path", metavar="METRICS", type=click.Path(path_type=Path))
 @click.option("-b", "--baseline", required=True, type=click.Path(path_type=Path), help="Baseline metrics.json or sweep.csv.")
 @click.option("--rtol", type=float, default=0.05, show_default=True, help="Relative tolerance of a metric's increase.")

@@ -1,0 +1,82 @@
+"""Outputs of ``fusion-eval track``: estimates CSV, RMSE and NIS in JSON, and a plot."""
+
+from __future__ import annotations
+
+import json
+
+import numpy as np
+from scipy.stats import chi2
+
+from ..outputs import StagedDir
+from .ekf import TrackResult, rmse
+
+DOF = {"L": 2, "R": 3}
+
+
+def nis_summary(res: TrackResult) -> dict:
+    out = {}
+    for k, name in (("L", "lidar"), ("R", "radar")):
+        v = res.nis[(res.kind == k) & np.isfinite(res.nis)]
+        if v.size == 0:
+            continue
+        line = float(chi2.ppf(0.95, DOF[k]))
+        out[name] = {"updates": int(v.size), "dof": DOF[k], "mean": float(v.mean()), "chi2_95": line,
+                     "fraction_above_95": float(np.mean(v > line))}
+    return out
+
+
+def write_track_outputs(out: StagedDir, res: TrackResult, params, source: str, make_plots: bool) -> dict:
+    e = rmse(res)
+    metrics = {"input": source, "sensors": params.sensors, "estimates": int(len(res.t_us)),
+               "rmse": {"px": float(e[0]), "py": float(e[1]), "vx": float(e[2]), "vy": float(e[3])},
+               "nis": nis_summary(res),
+               "params": {"noise_ax": params.noise_ax, "noise_ay": params.noise_ay, "lidar_var": list(params.lidar_var),
+                          "radar_var": list(params.radar_var)}}
+    rows = ["timestamp_us,sensor,px,py,vx,vy,px_gt,py_gt,vx_gt,vy_gt,nis"]
+    for i in range(len(res.t_us)):
+        rows.append(",".join([str(int(res.t_us[i])), str(res.kind[i])] + [f"{v:.6f}" for v in res.x[i]] +
+                             [f"{v:.6f}" for v in res.gt[i]] + ["" if not np.isfinite(res.nis[i]) else f"{res.nis[i]:.6f}"]))
+    out.write_text("estimates.csv", "\n".join(rows) + "\n")
+    out.write_text("metrics.json", json.dumps(metrics, indent=2) + "\n")
+    if make_plots:
+        _plot(out, res, metrics)
+    return metrics
+
+
+def _plot(out: StagedDir, res: TrackResult, metrics: dict) -> None:
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    fig, ax = plt.subplots(figsize=(8, 7))
+    ax.plot(res.gt[:, 0], res.gt[:, 1], "-", color="black", lw=1.5, label="ground truth")
+    lid = res.kind == "L"
+    rad = res.kind == "R"
+    ax.plot(res.z[lid, 0], res.z[lid, 1], "o", ms=3, mfc="none", color="tab:blue", label="lidar")
+    rz = res.z[rad]
+    ax.plot(rz[:, 0] * np.cos(rz[:, 1]), rz[:, 0] * np.sin(rz[:, 1]), "x", ms=3, color="tab:orange", label="radar (to x, y)")
+    ax.plot(res.x[:, 0], res.x[:, 1], "-", color="tab:red", lw=1.2, label="estimate")
+    r = metrics["rmse"]
+    ax.set_title(f"RMSE px {r['px']:.3f}, py {r['py']:.3f}, vx {r['vx']:.3f}, vy {r['vy']:.3f}")
+    ax.set_xlabel("x [m]")
+    ax.set_ylabel("y [m]")
+    ax.set_aspect("equal", adjustable="box")
+    ax.grid(alpha=0.3)
+    ax.legend(fontsize=8)
+    fig.savefig(out.path("track.png"), dpi=110, metadata={"Software": None})
+    plt.close(fig)
+    fig, axes = plt.subplots(2, 1, figsize=(9, 5), sharex=True)
+    t = (res.t_us - res.t_us[0]) / 1e6
+    for ax, k, name in ((axes[0], "L", "lidar"), (axes[1], "R", "radar")):
+        m = (res.kind == k) & np.isfinite(res.nis)
+        ax.plot(t[m], res.nis[m], ".-", ms=3, lw=0.6, label=f"NIS {name}")
+        if name in metrics["nis"]:
+            ax.axhline(metrics["nis"][name]["chi2_95"], color="tab:red", ls="--", label="95 % chi-square")
+        ax.set_ylabel(f"NIS {name}")
+        ax.grid(alpha=0.3)
+        ax.legend(fontsize=8)
+    axes[1].set_xlabel("time [s]")
+    fig.subplots_adjust(left=0.09, right=0.98, top=0.96, bottom=0.1, hspace=0.2)
+    fig.savefig(out.path("nis.png"), dpi=110, metadata={"Software": None})
+    plt.close(fig)

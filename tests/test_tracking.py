@@ -1,0 +1,86 @@
+"""2-D target tracking: lidar KF + radar EKF on generated data with known truth."""
+
+from __future__ import annotations
+
+import json
+
+import numpy as np
+import pytest
+from click.testing import CliRunner
+
+from fusion_eval.cli import main
+from fusion_eval.tracking.ekf import TrackParams, h_radar, radar_jacobian, rmse, run_track, wrap_angle
+from fusion_eval.tracking.measurements import read_measurements
+from fusion_eval.tracking.simulate import simulate_track
+
+
+def _file(tmp_path, seed=0, **kw):
+    p = tmp_path / f"m{seed}.txt"
+    p.write_text(simulate_track(seed=seed, **kw))
+    return p
+
+
+def test_rmse_within_what_the_noise_allows(tmp_path):
+    res = run_track(read_measurements(_file(tmp_path)), TrackParams())
+    e = rmse(res)
+    # lidar sigma is 0.15 m: the fused position error must be below it; velocity is not measured by lidar and only
+    # radially by radar, and the first estimate starts at rest (5 m/s off): 0.6 m/s is the allowance
+    assert np.all(e[:2] < 0.15) and np.all(e[2:] < 0.6), e
+
+
+def test_fusing_both_sensors_beats_each_alone(tmp_path):
+    # averaged over seeds, on the error vector's norm over the whole run
+    tot = {"both": 0.0, "lidar": 0.0, "radar": 0.0}
+    for seed in range(4):
+        m = read_measurements(_file(tmp_path, seed))
+        for s in tot:
+            tot[s] += float(np.linalg.norm(rmse(run_track(m, TrackParams(sensors=s)))))
+    assert tot["both"] < tot["lidar"] and tot["both"] < tot["radar"], tot
+
+
+def test_radar_jacobian_matches_finite_differences():
+    rng = np.random.default_rng(0)
+    for _ in range(20):
+        x = rng.normal(size=4) * [10, 10, 3, 3]
+        J = radar_jacobian(x)
+        Jn = np.zeros((3, 4))
+        for i in range(4):
+            d = np.zeros(4)
+            d[i] = 1e-6
+            Jn[:, i] = (h_radar(x + d) - h_radar(x - d)) / 2e-6
+        assert np.allclose(J, Jn, atol=1e-6)
+
+
+def test_bearing_wrap_around_near_pi_does_not_blow_up(tmp_path):
+    # a target passing behind the sensor along the negative x axis: phi jumps between +pi and -pi
+    p = _file(tmp_path, 0, start=(-15.0, 3.0), heading0_rad=-np.pi / 2, speed_mps=3.0)
+    m = read_measurements(p)
+    phis = m.z[m.kind == "R", 1]
+    assert phis.max() > 3.0 and phis.min() < -3.0            # the bearing does cross +/-pi
+    res = run_track(m, TrackParams())
+    assert np.all(rmse(res)[:2] < 0.3) and np.nanmax(res.nis[res.kind == "R"]) < 50
+    assert wrap_angle(3 * np.pi / 2) == pytest.approx(-np.pi / 2) and wrap_angle(-3.5) == pytest.approx(-3.5 + 2 * np.pi)
+
+
+def test_track_command_outputs_and_bad_lines(tmp_path):
+    p = _file(tmp_path)
+    out = tmp_path / "out"
+    r = CliRunner().invoke(main, ["track", str(p), "--out", str(out)])
+    assert r.exit_code == 0, r.output
+    assert "RMSE [px, py, vx, vy]" in r.output and "NIS radar" in r.output
+    m = json.loads((out / "metrics.json").read_text())
+    assert set(m["rmse"]) == {"px", "py", "vx", "vy"} and m["nis"]["lidar"]["chi2_95"] == pytest.approx(5.991, abs=1e-3)
+    assert len((out / "estimates.csv").read_text().splitlines()) == 501
+    assert (out / "track.png").exists() and (out / "nis.png").exists()
+    lines = p.read_text().splitlines()
+    lines[6] = "X\t1\t2\t3"
+    bad = tmp_path / "bad.txt"
+    bad.write_text("\n".join(lines) + "\n")
+    r = CliRunner().invoke(main, ["-q", "track", str(bad), "--out", str(tmp_path / "o")])
+    assert r.exit_code == 2 and "bad.txt:7:" in r.stderr and "'L' (lidar) or 'R' (radar)" in r.stderr
+    lines[6] = lines[4].replace("\t", "\tnope\t", 1)
+    bad.write_text("\n".join(lines) + "\n")
+    r = CliRunner().invoke(main, ["-q", "track", str(bad), "--out", str(tmp_path / "o")])
+    assert r.exit_code == 2 and "bad.txt:7:" in r.stderr
+    r = CliRunner().invoke(main, ["-q", "simulate-track", str(tmp_path / "s.txt"), "--seed", "3"])
+    assert r.exit_code == 0 and len((tmp_path / "s.txt").read_text().splitlines()) == 500
