@@ -31,7 +31,9 @@ class NominalStateEKF(FilterBase):
         n_max = nk.N_NOM + nk.N_NOM_CLONE
         self.P = np.zeros((n_max, n_max))
         # the error-state prior mapped into the full state: P_q = Xi P_theta Xi^T / 4
-        E = self._E(nk.rot_to_quat(self.x.R_wb))
+        self.qref = nk.rot_to_quat(self.x.R_wb)     # sign reference of the state's quaternion (see aligned_quat)
+        self.qcref = self.qref.copy()
+        E = self._E(self.qref)
         self.P[:nk.N_NOM, :nk.N_NOM] = E @ P0_err @ E.T
         self.n = nk.N_NOM
         self.prm = prm
@@ -61,10 +63,13 @@ class NominalStateEKF(FilterBase):
         self.k_next = nk.nominal_predict_to(x.p_w_m, x.v_w_mps, x.R_wb, x.ba_b, x.bg_b, self.P, self.n, self.last,
                                             self.imu_t, self.imu_f, self.imu_w, self.k_next, float(t_target), self.prm,
                                             self.rec_p, self.rec_v, self.rec_R, self.rec_ba, self.rec_bg,
-                                            self.rec_Pdiag, self.rec_Ppt)
+                                            self.rec_Pdiag, self.rec_Ppt, self.qref)
 
     def _q(self) -> np.ndarray:
-        return nk.rot_to_quat(self.x.R_wb)
+        return nk.aligned_quat(self.x.R_wb, self.qref)
+
+    def _qc(self) -> np.ndarray:
+        return nk.aligned_quat(self.clone_R, self.qcref)
 
     def D(self) -> np.ndarray:
         D = np.zeros((21, self.n))
@@ -73,14 +78,14 @@ class NominalStateEKF(FilterBase):
         D[6:9, NQ:NQ + 4] = 2.0 * nk.xi(self._q()).T
         if self.n > nk.N_NOM:
             D[15:18, nk.NC_P_ID:nk.NC_P_ID + 3] = np.eye(3)
-            D[18:21, nk.NC_Q_ID:nk.NC_Q_ID + 4] = 2.0 * nk.xi(nk.rot_to_quat(self.clone_R)).T
+            D[18:21, nk.NC_Q_ID:nk.NC_Q_ID + 4] = 2.0 * nk.xi(self._qc()).T
         return D
 
     def _vec(self) -> np.ndarray:
         x = self.x
         v = np.concatenate([x.p_w_m, x.v_w_mps, self._q(), x.ba_b, x.bg_b])
         if self.n > nk.N_NOM:
-            v = np.concatenate([v, self.clone_p, nk.rot_to_quat(self.clone_R)])
+            v = np.concatenate([v, self.clone_p, self._qc()])
         return v
 
     def snapshot(self):
@@ -98,11 +103,15 @@ class NominalStateEKF(FilterBase):
         v = snap + dx
         x = self.x
         x.p_w_m[:], x.v_w_mps[:] = v[0:3], v[3:6]
-        x.R_wb[:] = nk.quat_to_rot(v[NQ:NQ + 4] / np.linalg.norm(v[NQ:NQ + 4]))
+        q = v[NQ:NQ + 4] / np.linalg.norm(v[NQ:NQ + 4])
+        x.R_wb[:] = nk.quat_to_rot(q)
+        self.qref = q.copy()                        # the corrected quaternion keeps the snapshot's sign
         x.ba_b[:], x.bg_b[:] = v[10:13], v[13:16]
         if self.n > nk.N_NOM:
             self.clone_p = v[16:19].copy()
-            self.clone_R = nk.quat_to_rot(v[19:23] / np.linalg.norm(v[19:23]))
+            qc = v[19:23] / np.linalg.norm(v[19:23])
+            self.clone_R = nk.quat_to_rot(qc)
+            self.qcref = qc.copy()
 
     def after_correction(self, dx: np.ndarray) -> None:
         # normalisation q <- q/|q|: P <- J P J^T with J = I - q q^T on each quaternion block
@@ -110,12 +119,16 @@ class NominalStateEKF(FilterBase):
         q = self._q()
         J[NQ:NQ + 4, NQ:NQ + 4] -= np.outer(q, q)
         if self.n > nk.N_NOM:
-            qc = nk.rot_to_quat(self.clone_R)
+            qc = self._qc()
             J[nk.NC_Q_ID:nk.NC_Q_ID + 4, nk.NC_Q_ID:nk.NC_Q_ID + 4] -= np.outer(qc, qc)
         self.P[:self.n, :self.n] = J @ self.P[:self.n, :self.n] @ J.T
 
     def clone_rows(self) -> np.ndarray:
         return np.r_[0:3, NQ:NQ + 4]
+
+    def clone_pose(self) -> None:
+        super().clone_pose()
+        self.qcref = self._q().copy()               # the clone's quaternion block is a copy of the state's
 
     def record(self, k: int) -> None:
         x = self.x

@@ -165,8 +165,18 @@ def canonical_cov(P, q):
 
 
 @njit(cache=True)
-def _nstep(p, v, R, ba, bg, P, n, f0, w0, f1, w1, dt, prm, gap):
+def aligned_quat(R, qref):
+    """The quaternion of R in the hemisphere of ``qref``: P's quaternion block belongs to one sign, so
+    the sign must stay continuous (rot_to_quat alone flips it when the heading passes 180 degrees)."""
     q = rot_to_quat(R)
+    if q @ qref < 0.0:
+        q = -q
+    return q
+
+
+@njit(cache=True)
+def _nstep(p, v, R, ba, bg, P, n, f0, w0, f1, w1, dt, prm, gap, qref):
+    q = aligned_quat(R, qref)
     a = 0.5 * (f0 + f1) - ba
     w = 0.5 * (w0 + w1) - bg
     F, Q = nominal_F_Q(q, a, w, dt, prm, gap)
@@ -179,11 +189,12 @@ def _nstep(p, v, R, ba, bg, P, n, f0, w0, f1, w1, dt, prm, gap):
         for j in range(n):
             P[i, j] = 0.5 * (newP[i, j] + newP[j, i])
     mech_step(p, v, R, ba, bg, f0, w0, f1, w1, dt, prm[PRM_G])
+    qref[:] = aligned_quat(R, q)
 
 
 @njit(cache=True)
 def nominal_predict_to(p, v, R, ba, bg, P, n, last, imu_t, imu_f, imu_w, k_next, t_target, prm,
-                       rec_p, rec_v, rec_R, rec_ba, rec_bg, rec_Pdiag, rec_Ppt):
+                       rec_p, rec_v, rec_R, rec_ba, rec_bg, rec_Pdiag, rec_Ppt, qref):
     """As :func:`fusion_eval.filters.kernels.predict_to`, with the nominal-state covariance."""
     N = imu_t.shape[0]
     f0 = last[1:4].copy()
@@ -194,7 +205,7 @@ def nominal_predict_to(p, v, R, ba, bg, P, n, last, imu_t, imu_f, imu_w, k_next,
         dt = imu_t[k] - t0
         gap = k > 0 and imu_t[k] - imu_t[k - 1] > prm[PRM_GAP_DT]
         if dt > 0.0:
-            _nstep(p, v, R, ba, bg, P, n, f0, w0, imu_f[k], imu_w[k], dt, prm, gap)
+            _nstep(p, v, R, ba, bg, P, n, f0, w0, imu_f[k], imu_w[k], dt, prm, gap, qref)
         t0 = imu_t[k]
         f0 = imu_f[k].copy()
         w0 = imu_w[k].copy()
@@ -203,7 +214,7 @@ def nominal_predict_to(p, v, R, ba, bg, P, n, last, imu_t, imu_f, imu_w, k_next,
         rec_R[k] = R
         rec_ba[k] = ba
         rec_bg[k] = bg
-        d, ppt = canonical_cov(P, rot_to_quat(R))
+        d, ppt = canonical_cov(P, qref)
         rec_Pdiag[k] = d
         rec_Ppt[k] = ppt
         k += 1
@@ -212,7 +223,7 @@ def nominal_predict_to(p, v, R, ba, bg, P, n, last, imu_t, imu_f, imu_w, k_next,
         f1 = f0 + a * (imu_f[k] - f0)
         w1 = w0 + a * (imu_w[k] - w0)
         gap = k > 0 and imu_t[k] - imu_t[k - 1] > prm[PRM_GAP_DT]
-        _nstep(p, v, R, ba, bg, P, n, f0, w0, f1, w1, t_target - t0, prm, gap)
+        _nstep(p, v, R, ba, bg, P, n, f0, w0, f1, w1, t_target - t0, prm, gap, qref)
         t0 = t_target
         f0 = f1
         w0 = w1
