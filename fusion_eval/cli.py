@@ -4,6 +4,7 @@
 from __future__ import annotations
 
 import logging
+import math
 import sys
 import time
 from pathlib import Path
@@ -11,7 +12,7 @@ from pathlib import Path
 import click
 
 from . import __version__
-from .errors import FusionEvalError
+from .errors import ConfigError, FusionEvalError
 
 log = logging.getLogger("fusion_eval")
 
@@ -172,9 +173,9 @@ def sweep(ctx, datasets, sweep_file, out_dir, jobs, scheduler, dask_mode, retry_
     from .sweep_summary import write_summary
 
     if scheduler and dask_mode:
-        raise click.UsageError("give either --scheduler or --dask local, not both")
+        raise ConfigError("give either --scheduler or --dask local, not both")
     if jobs is not None and jobs < 1:
-        raise click.UsageError("--jobs must be >= 1")
+        raise ConfigError("--jobs must be >= 1")
     t0 = time.perf_counter()
     tasks, body = plan(sweep_file, [str(d) for d in datasets], out_dir, _repo_relative(VARIANT_DIR))
     counts = {"run": 0, "failed": 0, "skipped": 0}
@@ -186,11 +187,19 @@ def sweep(ctx, datasets, sweep_file, out_dir, jobs, scheduler, dask_mode, retry_
         finally:
             if bar is not None:
                 bar.close()
-    summary = write_summary(tasks, out_dir, swept_keys(load_sweep(sweep_file)), plots=not no_plots)
+    if summarize_only and not (Path(out_dir) / "records").is_dir():
+        raise ConfigError(f"{out_dir}: no sweep records here (nothing to summarize)")
+    body = load_sweep(sweep_file)
+    summary = write_summary(tasks, out_dir, swept_keys(body), plots=not no_plots, grid_keys=list((body.get("grid") or {})))
     if not ctx.obj["quiet"]:
         best = summary["best"]
-        click.echo(f"{counts['run']} runs done, {counts['failed']} failed, {counts['skipped']} already recorded "
-                   f"({time.perf_counter() - t0:.1f} s)")
+        if summarize_only:
+            st = [r["status"] for r in summary["rows"]]
+            click.echo(f"summary of {st.count('ok')} finished, {st.count('failed')} failed and {st.count('pending')} "
+                       f"pending runs ({time.perf_counter() - t0:.1f} s)")
+        else:
+            click.echo(f"{counts['run']} runs done, {counts['failed']} failed, {counts['skipped']} already recorded "
+                       f"({time.perf_counter() - t0:.1f} s)")
         if best:
             click.echo(f"best: variant {best['variant']}, setting {best['setting']}: mean fused APE RMSE "
                        f"{best['mean_fused_ape_trans_rmse_m']:.3f} m")
@@ -217,6 +226,11 @@ def evaluate(ctx, reference, estimates, out_dir, ref_times, times, association, 
     """Evaluate existing trajectory files (TUM, or KITTI poses with or without times) against REFERENCE:
     evo's APE/RPE, the KITTI drift metric and the per-segment breakdown."""
     from .evaluate_cmd import run_evaluate
+
+    for name, v in (("--t-max-diff", t_max_diff), ("--rpe-delta-m", rpe_delta_m), ("--segment-m", segment_m),
+                    ("--segment-s", segment_s)):
+        if v is not None and not (math.isfinite(v) and v > 0):
+            raise ConfigError(f"{name} must be a finite number > 0, got {v}")
 
     m = run_evaluate(reference, list(estimates), out_dir, ref_times, times, association, alignment, t_max_diff,
                      rpe_delta_m, segment_m, segment_s, overwrite, not no_plots)
@@ -251,8 +265,8 @@ def track(ctx, input_path, out_dir, sensors, noise_ax, noise_ay, lidar_var, rada
 
     for name, v in (("--noise-ax", noise_ax), ("--noise-ay", noise_ay), *(("--lidar-var", x) for x in lidar_var),
                     *(("--radar-var", x) for x in radar_var)):
-        if not v > 0:
-            raise click.UsageError(f"{name} must be > 0")
+        if not (math.isfinite(v) and v > 0):
+            raise ConfigError(f"{name} must be a finite number > 0, got {v}")
     params = TrackParams(noise_ax=noise_ax, noise_ay=noise_ay, lidar_var=tuple(lidar_var), radar_var=tuple(radar_var),
                          sensors=sensors)
     staged = StagedDir(out_dir, overwrite=overwrite)
@@ -278,18 +292,20 @@ def track(ctx, input_path, out_dir, sensors, noise_ax, noise_ay, lidar_var, rada
 @click.option("--start", nargs=2, type=float, default=(0.6, 0.6), show_default=True, help="Start position x y, m.")
 @click.option("--heading", "heading_deg", type=float, default=0.0, show_default=True, help="Initial heading, deg.")
 @click.option("--speed", "speed_mps", type=float, default=5.0, show_default=True, help="Mean speed, m/s.")
-def simulate_track_cmd(out_file, duration_s, interval_s, seed, start, heading_deg, speed_mps):
+@click.option("--overwrite", is_flag=True, help="Replace an existing OUT_FILE.")
+def simulate_track_cmd(out_file, duration_s, interval_s, seed, start, heading_deg, speed_mps, overwrite):
     """Write a lidar/radar measurement file with known truth (the format `fusion-eval track` reads)."""
-    import math
-
     from .tracking.simulate import simulate_track
 
-    if duration_s <= 0 or interval_s <= 0:
-        raise click.UsageError("--duration and --interval must be > 0")
+    if not (duration_s > 0 and interval_s > 0 and math.isfinite(duration_s) and math.isfinite(interval_s)):
+        raise ConfigError("--duration and --interval must be finite numbers > 0")
+    if Path(out_file).exists() and not overwrite:
+        raise ConfigError(f"{out_file}: exists (use --overwrite to replace it)")
     text = simulate_track(duration_s, interval_s, seed, start=tuple(start), speed_mps=speed_mps,
                           heading0_rad=math.radians(heading_deg))
     out_file = Path(out_file)
-    out_file.parent.mkdir(parents=True, exist_ok=True)
+    if not out_file.parent.is_dir():
+        raise ConfigError(f"{out_file.parent}: folder not found")
     tmp = out_file.with_name(f".{out_file.name}.tmp")
     tmp.write_text(text)
     tmp.replace(out_file)
@@ -316,8 +332,8 @@ def check(ctx, metrics_path, baseline, rtol, atol, patterns, rules, junit_path, 
     from .check import (DEFAULT_CSV_PATTERNS, DEFAULT_JSON_PATTERNS, atomic_write, compare_metrics, evaluate_rule, junit,
                         load_metrics, markdown)
 
-    if rtol < 0 or atol < 0:
-        raise click.UsageError("--rtol and --atol must be >= 0")
+    if not (math.isfinite(rtol) and math.isfinite(atol)) or rtol < 0 or atol < 0:
+        raise ConfigError(f"--rtol and --atol must be finite numbers >= 0, got {rtol} and {atol}")
     current, kind = load_metrics(metrics_path)
     if update_baseline:
         atomic_write(baseline, Path(metrics_path).read_text())
@@ -325,7 +341,7 @@ def check(ctx, metrics_path, baseline, rtol, atol, patterns, rules, junit_path, 
         return
     base, base_kind = load_metrics(baseline)
     if kind != base_kind:
-        raise click.UsageError(f"{metrics_path} is a {kind} file but the baseline {baseline} is a {base_kind} file")
+        raise ConfigError(f"{metrics_path} is a {kind} file but the baseline {baseline} is a {base_kind} file")
     pats = tuple(patterns) or (DEFAULT_JSON_PATTERNS if kind == "json" else DEFAULT_CSV_PATTERNS)
     rows = compare_metrics(current, base, pats, rtol, atol)
     evaluated = [(r, *evaluate_rule(r, current)) for r in rules]

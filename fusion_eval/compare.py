@@ -10,6 +10,7 @@ from __future__ import annotations
 
 import csv
 import io
+import re
 import json
 import logging
 import time
@@ -55,6 +56,29 @@ class VariantRun:
     filt: object
     ev: object
     runtime_s: float
+
+
+def _nees_fraction(gt: PoseSeries, filt) -> float | None:
+    """Fraction of epochs whose position NEES (against the ground truth) is inside the 95 % interval."""
+    from .consistency import fraction_inside, pose_nees
+    from .interp import interpolate_poses
+
+    gi = interpolate_poses(gt, filt.fused.t_s)
+    sel = np.isin(filt.fused.t_s, gi.t_s)
+    n_pos, _ = pose_nees(filt.fused.p_w_m[sel], filt.fused.R_wb()[sel], gi.p_w_m, gi.R_wb(), filt.P_pos_att[sel])
+    n_pos = n_pos[np.isfinite(n_pos)]
+    return float(fraction_inside(n_pos, 3)[0]) if n_pos.size else None
+
+
+def folder_name(name: str, taken: set) -> str:
+    """A safe, unique folder name for a variant (a path given as a variant must not leave the output)."""
+    base = re.sub(r"[^A-Za-z0-9_.-]", "_", Path(name).stem) or "variant"
+    out, i = base, 1
+    while out in taken:
+        i += 1
+        out = f"{base}-{i}"
+    taken.add(out)
+    return out
 
 
 def body_velocity(poses: PoseSeries) -> np.ndarray:
@@ -103,8 +127,9 @@ def compare(dataset_path: Path, variants: list[str], variant_dir: Path, base_con
         unfiltered["gnss"] = PoseSeries(t_s=g.t_s, p_w_m=g.p_w_m, q_wb_xyzw=np.tile([0.0, 0.0, 0.0, 1.0], (len(g), 1)),
                                         has_orientation=False, source=g.source)
     with _executor(None) as pool:
-        fut_v = [pool.submit(evaluate, gt, r.filt.fused, r.name, ev_cfg["t_max_diff_s"], ev_cfg["rpe_delta_m"]) for r in runs]
-        fut_u = {k: pool.submit(evaluate, gt, s, k, ev_cfg["t_max_diff_s"], ev_cfg["rpe_delta_m"]) for k, s in unfiltered.items()}
+        args = (ev_cfg["t_max_diff_s"], ev_cfg["rpe_delta_m"], ev_cfg["association"], ev_cfg["alignment"])
+        fut_v = [pool.submit(evaluate, gt, r.filt.fused, r.name, *args) for r in runs]
+        fut_u = {k: pool.submit(evaluate, gt, s, k, *args) for k, s in unfiltered.items()}
         for r, f in zip(runs, fut_v):
             r.ev = f.result()
             r.ev.results = {}
@@ -123,6 +148,9 @@ def compare(dataset_path: Path, variants: list[str], variant_dir: Path, base_con
                "final_accel_bias_mps2": r.filt.accel_bias_b[-1].tolist(),
                "final_gyro_bias_dph": (np.degrees(r.filt.gyro_bias_b[-1]) * 3600).tolist(),
                "nis_mean": {k: float(np.mean(v["nis"])) for k, v in r.filt.nis.items()},
+               "kitti_drift_t_err_pct": (r.ev.drift or {}).get("t_err_pct"),
+               "kitti_drift_r_err_deg_per_100m": (r.ev.drift or {}).get("r_err_deg_per_100m"),
+               "nees_position_in_95": _nees_fraction(gt, r.filt),
                "runtime_s": round(r.runtime_s, 3)}
         vb = body_velocity(r.filt.fused)
         row["body_velocity_rms_mps"] = {"lateral": float(np.sqrt(np.mean(vb[:, 1] ** 2))),
@@ -133,7 +161,9 @@ def compare(dataset_path: Path, variants: list[str], variant_dir: Path, base_con
         table.append({"variant": "(unfiltered)", "estimate": k, "matched_poses": ev.matched_poses,
                       "ape_trans_rmse_m": m["ape"]["translation_m"]["rmse"],
                       "ape_rot_rmse_deg": (m["ape"].get("rotation_deg") or {}).get("rmse"),
-                      "rpe_1frame_trans_rmse_m": ((m.get("rpe_1frame") or {}).get("translation_m") or {}).get("rmse")})
+                      "rpe_1frame_trans_rmse_m": ((m.get("rpe_1frame") or {}).get("translation_m") or {}).get("rmse"),
+                      "kitti_drift_t_err_pct": (ev.drift or {}).get("t_err_pct"),
+                      "kitti_drift_r_err_deg_per_100m": (ev.drift or {}).get("r_err_deg_per_100m")})
     gt_vb = body_velocity(gt) if gt.v_w_mps is not None else None
     truth_body = None if gt_vb is None else {"lateral": float(np.sqrt(np.mean(gt_vb[:, 1] ** 2))),
                                              "vertical": float(np.sqrt(np.mean(gt_vb[:, 2] ** 2)))}
@@ -143,9 +173,11 @@ def compare(dataset_path: Path, variants: list[str], variant_dir: Path, base_con
         out.write_text("compare.json", json.dumps(result, indent=2) + "\n")
         out.write_text("compare.csv", _csv(table))
         out.write_text("compare.md", _markdown(ds.name, table, truth_body, make_plots))
+        taken: set = set()
         for r in runs:
-            out.write_text(f"variants/{r.name}/fused.tum", format_tum(r.filt.fused, f"fusion-eval compare: variant {r.name}"))
-            out.write_text(f"variants/{r.name}/config.resolved.yaml",
+            folder = folder_name(r.name, taken)
+            out.write_text(f"variants/{folder}/fused.tum", format_tum(r.filt.fused, f"fusion-eval compare: variant {r.name}"))
+            out.write_text(f"variants/{folder}/config.resolved.yaml",
                            yaml.safe_dump({**r.cfg, "versions": versions()}, sort_keys=False))
         if make_plots:
             from . import plots
@@ -158,7 +190,8 @@ def compare(dataset_path: Path, variants: list[str], variant_dir: Path, base_con
 
 def _csv(rows: list[dict]) -> str:
     cols = ["variant", "estimate", "matched_poses", "ape_trans_rmse_m", "ape_rot_rmse_deg", "rpe_1frame_trans_rmse_m",
-            "fused_over_lidar", "fused_over_gnss", "runtime_s"]
+            "fused_over_lidar", "fused_over_gnss", "kitti_drift_t_err_pct", "kitti_drift_r_err_deg_per_100m",
+            "nees_position_in_95", "runtime_s"]
     buf = io.StringIO()
     w = csv.DictWriter(buf, fieldnames=cols, extrasaction="ignore", lineterminator="\n")
     w.writeheader()
@@ -171,6 +204,10 @@ def _f(x, nd=3):
     return "n/a" if x is None else f"{x:.{nd}f}"
 
 
+def _pct(x) -> str:
+    return "" if x is None else f"{x * 100:.1f} %"
+
+
 def _bv(bv) -> str:
     return "" if not bv else f"{bv['lateral']:.3f} / {bv['vertical']:.3f}"
 
@@ -178,12 +215,15 @@ def _bv(bv) -> str:
 def _markdown(name: str, rows: list[dict], truth_body, plots: bool) -> str:
     L = [f"# fusion-eval compare: {name}", "",
          "| variant | estimate | APE trans RMSE [m] | APE rot RMSE [deg] | RPE trans 1 frame [m] | fused/lidar | fused/GNSS | "
+         "KITTI drift [%] / [deg/100 m] | NEES pos in 95 % | "
          "lateral / vertical body velocity RMS [m/s] | final gyro bias [deg/h] | mean NIS | filter time [s] |",
-         "|---|---|---:|---:|---:|---:|---:|---|---|---|---:|"]
+         "|---|---|---:|---:|---:|---:|---:|---|---:|---|---|---|---:|"]
     for r in rows:
         bv = r.get("body_velocity_rms_mps")
         L.append(f"| {r['variant']} | {r['estimate']} | {_f(r['ape_trans_rmse_m'])} | {_f(r.get('ape_rot_rmse_deg'))} | "
                  f"{_f(r.get('rpe_1frame_trans_rmse_m'), 4)} | {_f(r.get('fused_over_lidar'))} | {_f(r.get('fused_over_gnss'))} | "
+                 f"{_f(r.get('kitti_drift_t_err_pct'))} / {_f(r.get('kitti_drift_r_err_deg_per_100m'))} | "
+                 f"{_pct(r.get('nees_position_in_95'))} | "
                  f"{_bv(bv)} | "
                  f"{'' if 'final_gyro_bias_dph' not in r else ', '.join(f'{b:.1f}' for b in r['final_gyro_bias_dph'])} | "
                  f"{'' if 'nis_mean' not in r else ', '.join(f'{k} {v:.2f}' for k, v in r['nis_mean'].items())} | "

@@ -52,7 +52,7 @@ def run(dataset_path: Path, config_path: Path | None, sets: tuple[str, ...], out
     cfg = resolve_config(ds, config_path, sets, extra_layers)
     config_name = Path(config_path).stem if config_path else "default"
     timings["load"] = time.perf_counter() - t
-    log.info("loaded %s: %d IMU samples, %s GNSS fixes, %s lidar poses, %s ground-truth poses", ds.name, len(ds.imu),
+    log.debug("loaded %s: %d IMU samples, %s GNSS fixes, %s lidar poses, %s ground-truth poses", ds.name, len(ds.imu),
              len(ds.gnss) if ds.gnss else 0, len(ds.lidar) if ds.lidar else 0, len(ds.groundtruth) if ds.groundtruth else 0)
     t = time.perf_counter()
     prep = prepare(ds, cfg)

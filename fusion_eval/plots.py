@@ -181,7 +181,7 @@ def plot_compare_body_velocity(path: Path, runs, gt, gt_vb) -> None:
     _save(fig, path)
 
 
-def plot_sweep(out_dir: Path, rows: list[dict], keys: list[str], metric: str, tasks, best) -> list[str]:
+def plot_sweep(out_dir: Path, rows: list[dict], keys: list[str], metric: str, tasks, best, grid_keys=()) -> list[str]:
     """Metric against each swept parameter, a heatmap for a 2-D grid, and the best run's APE over time
     against the default's. Returns the file names written."""
     import os
@@ -215,16 +215,18 @@ def plot_sweep(out_dir: Path, rows: list[dict], keys: list[str], metric: str, ta
         fig.suptitle("Fused APE against each swept setting")
         fig.tight_layout()
         save(fig, "sweep_params.png")
-    if len(numeric) == 2:
-        kx, ky = numeric
+    if len(grid_keys) == 2 and all(k in numeric for k in grid_keys):
+        kx, ky = grid_keys
         xs = sorted({r[kx] for r in ok if isinstance(r.get(kx), (int, float))})
         ys = sorted({r[ky] for r in ok if isinstance(r.get(ky), (int, float))})
         if len(xs) > 1 and len(ys) > 1 and len(xs) * len(ys) <= 400:
-            Z = np.full((len(ys), len(xs)), np.nan)
+            cells: dict = {}
             for r in ok:
-                if r.get(kx) in xs and r.get(ky) in ys:
-                    i, j = ys.index(r[ky]), xs.index(r[kx])
-                    Z[i, j] = np.nanmean([Z[i, j], r[metric]]) if np.isfinite(Z[i, j]) else r[metric]
+                if r.get(kx) in xs and r.get(ky) in ys and r["setting"] != "default":
+                    cells.setdefault((ys.index(r[ky]), xs.index(r[kx])), []).append(r[metric])
+            Z = np.full((len(ys), len(xs)), np.nan)
+            for (i, j), vals in cells.items():
+                Z[i, j] = float(np.mean(vals))
             fig, ax = plt.subplots(figsize=(6, 5))
             im = ax.imshow(Z, origin="lower", cmap="viridis_r", aspect="auto")
             ax.set_xticks(range(len(xs)), [f"{x:g}" for x in xs])
@@ -235,7 +237,7 @@ def plot_sweep(out_dir: Path, rows: list[dict], keys: list[str], metric: str, ta
                         ax.text(j, i, f"{Z[i, j]:.2f}", ha="center", va="center", fontsize=8, color="white")
             ax.set_xlabel(kx)
             ax.set_ylabel(ky)
-            fig.colorbar(im, label="fused APE RMSE [m] (mean over datasets)")
+            fig.colorbar(im, label="fused APE RMSE [m] (mean over datasets and variants)")
             ax.set_title("2-D grid")
             fig.tight_layout()
             save(fig, "sweep_heatmap.png")

@@ -46,7 +46,7 @@ from .outputs import StagedDir
 
 log = logging.getLogger(__name__)
 
-SWEEP_KEYS = {"datasets", "variants", "config", "plots", "grid", "settings", "random", "metric"}
+SWEEP_KEYS = {"datasets", "variants", "config", "plots", "grid", "settings", "random"}
 METRIC_COLUMNS = [
     ("fused_ape_trans_rmse_m", ("fused", "ape", "translation_m", "rmse")),
     ("fused_ape_trans_mean_m", ("fused", "ape", "translation_m", "mean")),
@@ -54,6 +54,8 @@ METRIC_COLUMNS = [
     ("fused_ape_rot_rmse_deg", ("fused", "ape", "rotation_deg", "rmse")),
     ("fused_rpe_1frame_trans_rmse_m", ("fused", "rpe_1frame", "translation_m", "rmse")),
     ("fused_rpe_100m_trans_rmse_m", ("fused", "rpe_100m", "translation_m", "rmse")),
+    ("fused_kitti_t_err_pct", ("fused", "kitti_drift", "t_err_pct")),
+    ("fused_kitti_r_err_deg_per_100m", ("fused", "kitti_drift", "r_err_deg_per_100m")),
     ("lidar_ape_trans_rmse_m", ("lidar", "ape", "translation_m", "rmse")),
     ("gnss_ape_trans_rmse_m", ("gnss", "ape", "translation_m", "rmse")),
 ]
@@ -88,7 +90,29 @@ def load_sweep(path: Path) -> dict:
     bad = set(body) - SWEEP_KEYS
     if bad:
         raise ConfigError(f"{path}: unknown sweep key {sorted(bad)[0]!r} (known: {', '.join(sorted(SWEEP_KEYS))})")
+    for key, kind, what in (("grid", dict, "a mapping of configuration keys to lists of values"),
+                            ("settings", dict, "a mapping of setting names to {key: value}"),
+                            ("random", dict, "a mapping with n, seed and ranges"),
+                            ("datasets", list, "a list of dataset paths"), ("variants", list, "a list of variant names"),
+                            ("plots", bool, "true or false"), ("config", str, "a configuration file path")):
+        if key in body and body[key] is not None and not isinstance(body[key], kind):
+            raise ConfigError(f"{path}: '{key}' must be {what}, got {body[key]!r}")
+    rnd = body.get("random")
+    if rnd:
+        n, seed, ranges = rnd.get("n"), rnd.get("seed", 0), rnd.get("ranges")
+        if isinstance(n, bool) or not isinstance(n, int) or n <= 0 or isinstance(seed, bool) or not isinstance(seed, int):
+            raise ConfigError(f"{path}: random needs an integer n > 0 and an integer seed, got n={n!r}, seed={seed!r}")
+        if not isinstance(ranges, dict) or not ranges or not all(
+                isinstance(v, list) and len(v) == 2 and all(_isnum(x) for x in v) for v in ranges.values()):
+            raise ConfigError(f"{path}: random ranges must map keys to [low, high] numbers, got {ranges!r}")
     return body
+
+
+def _isnum(v) -> bool:
+    try:
+        return math.isfinite(float(v)) and not isinstance(v, bool)
+    except (TypeError, ValueError):
+        return False
 
 
 def settings_of(body: dict, where: str) -> list[tuple[str, dict]]:
@@ -115,9 +139,7 @@ def settings_of(body: dict, where: str) -> list[tuple[str, dict]]:
             out.append((",".join(f"{k}={v}" for k, v in ov.items()), ov))
     rnd = body.get("random")
     if rnd:
-        n, seed, ranges = int(rnd.get("n", 0)), int(rnd.get("seed", 0)), rnd.get("ranges") or {}
-        if n <= 0 or not ranges:
-            raise ConfigError(f"{where}: random needs n > 0 and ranges {{key: [low, high]}}")
+        n, seed, ranges = int(rnd["n"]), int(rnd.get("seed", 0)), rnd["ranges"]
         rng = np.random.default_rng(seed)
         for i in range(n):
             ov = {}

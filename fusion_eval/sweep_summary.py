@@ -55,8 +55,10 @@ def _atomic(path: Path, text: str) -> None:
     os.replace(tmp, path)
 
 
-def write_summary(tasks: list[Task], out_dir: Path, keys: list[str], plots: bool = True) -> dict:
+def write_summary(tasks: list[Task], out_dir: Path, keys: list[str], plots: bool = True,
+                  grid_keys: list[str] | None = None) -> dict:
     out_dir = Path(out_dir)
+    out_dir.mkdir(parents=True, exist_ok=True)
     rows = rows_of(tasks, out_dir, keys)
     cols = ["id", "dataset", "variant", "setting", *keys, *(c for c, _ in METRIC_COLUMNS), "fused_over_lidar",
             "fused_over_gnss", "runtime_s", "status", "error"]
@@ -101,15 +103,21 @@ def write_summary(tasks: list[Task], out_dir: Path, keys: list[str], plots: bool
     if ranked:
         (bv, bs), bm = ranked[0]
         bt = next(t for t in tasks if t.variant == bv and t.setting == bs)
-        best = {"variant": bv, "setting": bs, "mean_fused_ape_trans_rmse_m": bm, "config": _nest(bt.overrides)}
-        _atomic(out_dir / "best.yaml", "# best setting of the sweep (lowest mean fused APE RMSE across datasets)\n" +
-                yaml.safe_dump(best, sort_keys=False))
+        best = {"variant": bv, "setting": bs, "mean_fused_ape_trans_rmse_m": bm}
+        # a configuration file `fusion-eval run -c best.yaml` takes: the variant's file, then the setting
+        cfg = yaml.safe_load(Path(bt.variant_path).read_text()) if bt.variant_path else {}
+        cfg = cfg or {}
+        for sect, body in _nest(bt.overrides).items():
+            cfg.setdefault(sect, {}).update(body)
+        _atomic(out_dir / "best.yaml", f"# best of the sweep: variant {bv}, setting {bs}\n"
+                f"# mean fused APE translation RMSE across datasets: {bm:.6f} m\n"
+                "# use it as: fusion-eval run -c best.yaml\n" + yaml.safe_dump(cfg, sort_keys=False))
         L += [f"Best: variant `{bv}`, setting `{bs}` (mean fused APE RMSE {bm:.3f} m); see `best.yaml`.", ""]
     written = []
     if plots and ok:
         from . import plots as P
 
-        written = P.plot_sweep(out_dir, rows, keys, metric, tasks, best)
+        written = P.plot_sweep(out_dir, rows, keys, metric, tasks, best, grid_keys or [])
         L += [f"![{p}]({p})" for p in written]
     _atomic(out_dir / "sweep.md", "\n".join(L) + "\n")
     return {"rows": rows, "best": best, "plots": written}

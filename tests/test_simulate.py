@@ -127,3 +127,17 @@ def test_fusion_beats_lidar_and_gnss_on_the_urban_profile(tmp_path):
     assert r.exit_code == 0, r.output
     ape = {k: v["ape"]["translation_m"]["rmse"] for k, v in json.loads((out / "metrics.json").read_text())["estimates"].items()}
     assert ape["fused"] < ape["lidar"] and ape["fused"] < ape["gnss"], ape
+
+
+@pytest.mark.parametrize("sets,needle", [
+    (("lidar.rate_hz=7",), "must divide imu.rate_hz"),
+    (("lidar.outlier_prob=2",), "between 0 and 1"),
+    (("origin.lat_deg=95",), "[-90, 90]"),
+])
+def test_simulator_rejects_settings_it_cannot_honour(tmp_path, sets, needle):
+    args = ["-q", "simulate", str(tmp_path / "x"), "--duration", "10"]
+    for s in sets:
+        args += ["--set", s]
+    r = CliRunner().invoke(main, args)
+    assert r.exit_code == 2 and needle in r.stderr, r.output
+    assert not (tmp_path / "x").exists()

@@ -138,3 +138,35 @@ def test_check_accepts_a_sweep_csv(tmp_path):
     (tmp_path / "c.csv").write_text(cols + "x,d,eskf,default,1.5,0.5,0.1,ok,\n")
     r = CliRunner().invoke(main, ["check", str(tmp_path / "c.csv"), "--baseline", str(tmp_path / "b.csv")])
     assert r.exit_code == 1 and "d/eskf/default.fused_ape_trans_rmse_m" in r.output
+
+
+@pytest.mark.parametrize("body,needle", [
+    ("random: 5\n", "'random' must be"),
+    ("settings: [a, b]\n", "'settings' must be"),
+    ("random: {n: abc, ranges: {imu.gyro_noise_dps_sqrthz: [0.01, 1]}}\n", "integer n > 0"),
+    ("random: {n: 3, ranges: {imu.gyro_noise_dps_sqrthz: [0.01]}}\n", "[low, high]"),
+    ("variants: eskf\nsettings: {a: {imu.gyro_noise_dps_sqrthz: 0.1}}\n", "'variants' must be a list"),
+    ("plots: 'no'\nsettings: {a: {imu.gyro_noise_dps_sqrthz: 0.1}}\n", "'plots' must be true or false"),
+    ("settings: {a: {imu.nope: 1}}\n", "unknown configuration key"),
+])
+def test_malformed_sweep_files_are_one_line_errors(small, tmp_path, body, needle):
+    sw = tmp_path / "bad.yaml"
+    sw.write_text(body)
+    r = CliRunner().invoke(main, ["-q", "sweep", str(small), "--grid", str(sw), "--out", str(tmp_path / "o")])
+    assert r.exit_code == 2 and needle in r.stderr and "\n" not in r.stderr.strip(), r.output
+
+
+def test_best_yaml_is_a_configuration_run_accepts(small, tmp_path):
+    sw = tmp_path / "s.yaml"
+    sw.write_text("variants: [nominal]\nsettings:\n  a: {imu.gyro_noise_dps_sqrthz: 0.05}\n")
+    out = tmp_path / "s"
+    r = CliRunner().invoke(main, ["-q", "sweep", str(small), "--grid", str(sw), "--out", str(out), "--jobs", "1"])
+    assert r.exit_code == 0, r.output
+    r = CliRunner().invoke(main, ["-q", "run", str(small), "-c", str(out / "best.yaml"), "--no-plots", "--out",
+                                  str(tmp_path / "r")])
+    assert r.exit_code == 0, r.output
+    cfg = (tmp_path / "r" / "config.resolved.yaml").read_text()
+    assert "formulation: nominal_state" in cfg        # the variant's own settings are in best.yaml
+    r = CliRunner().invoke(main, ["-q", "sweep", str(small), "--grid", str(sw), "--out", str(tmp_path / "none"),
+                                  "--summarize-only"])
+    assert r.exit_code == 2 and "no sweep records" in r.stderr

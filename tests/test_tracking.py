@@ -84,3 +84,14 @@ def test_track_command_outputs_and_bad_lines(tmp_path):
     assert r.exit_code == 2 and "bad.txt:7:" in r.stderr
     r = CliRunner().invoke(main, ["-q", "simulate-track", str(tmp_path / "s.txt"), "--seed", "3"])
     assert r.exit_code == 0 and len((tmp_path / "s.txt").read_text().splitlines()) == 500
+
+
+def test_absurd_values_are_reported_with_their_line(tmp_path):
+    p = _file(tmp_path)
+    lines = p.read_text().splitlines()
+    parts = lines[10].split("\t")
+    parts[1] = "1e300"
+    lines[10] = "\t".join(parts)
+    p.write_text("\n".join(lines) + "\n")
+    r = CliRunner().invoke(main, ["-q", "track", str(p), "--out", str(tmp_path / "o")])
+    assert r.exit_code == 2 and f"{p.name}:11:" in r.stderr and "not plausible" in r.stderr, r.output

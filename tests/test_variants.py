@@ -188,3 +188,17 @@ def test_nominal_state_follows_the_error_state_through_a_heading_of_180_degrees(
     yaw = np.degrees(np.arctan2(a.fused.R_wb()[:, 1, 0], a.fused.R_wb()[:, 0, 0]))
     assert np.abs(yaw).max() > 179                           # the drive does head west
     assert np.abs(a.fused.p_w_m - b.fused.p_w_m).max() < 2e-3
+
+
+def test_compare_keeps_path_variants_inside_the_output(kitti_slice, tmp_path):
+    from conftest import ROOT
+
+    variant = tmp_path / "mine.yaml"
+    variant.write_text("filter:\n  bias_model: constant\n")
+    out = tmp_path / "deep" / "out"
+    r = CliRunner().invoke(main, ["-q", "compare", str(kitti_slice), "--variants", f"eskf,{variant}",
+                                  "--variant-dir", str(ROOT / "configs" / "variants"), "--out", str(out), "--no-plots",
+                                  "--set", "evaluation.alignment=se3"])
+    assert r.exit_code == 0, r.output
+    assert sorted(p.name for p in (out / "variants").iterdir()) == ["eskf", "mine"]
+    assert sorted(p.name for p in (tmp_path / "deep").iterdir()) == ["out"]

@@ -49,6 +49,13 @@ R_IMU_TO_VELO = [9.999976e-01, 7.553071e-04, -2.035826e-03, -7.854027e-04, 9.998
 T_IMU_TO_VELO = [-8.086759e-01, 3.195559e-01, -7.997231e-01]
 
 
+class _NoAliases(yaml.SafeDumper):
+    """Write repeated values in full (no &id001 anchors) so the truth file reads plainly."""
+
+    def ignore_aliases(self, data):
+        return True
+
+
 def sim_config(grade: str, sets: tuple[str, ...]) -> dict:
     if grade not in GRADES:
         raise ConfigError(f"unknown grade {grade!r} (known: {', '.join(GRADES)})")
@@ -87,8 +94,20 @@ def simulate(out_dir: Path, profile: str, duration_s: float, seed: int, grade: s
     rate = c["imu"]["rate_hz"]
     if not 10.0 <= rate <= 400.0:
         raise ConfigError(f"imu.rate_hz must be between 10 and 400 Hz, got {rate:g}")
-    if duration_s <= 0:
-        raise ConfigError(f"--duration must be > 0 s, got {duration_s:g}")
+    if not (duration_s > 0 and np.isfinite(duration_s)):
+        raise ConfigError(f"--duration must be a finite number > 0 s, got {duration_s:g}")
+    if not 0.0 <= c["lidar"]["outlier_prob"] <= 1.0:
+        raise ConfigError(f"lidar.outlier_prob must be between 0 and 1, got {c['lidar']['outlier_prob']:g}")
+    if not -90.0 <= c["origin"]["lat_deg"] <= 90.0 or not -180.0 <= c["origin"]["lon_deg"] <= 360.0:
+        raise ConfigError("origin.lat_deg must be in [-90, 90] and origin.lon_deg in [-180, 360]")
+    if c["start"]["posix_s"] > 4e9:
+        raise ConfigError(f"start.posix_s must be between 0 and 4e9, got {c['start']['posix_s']:g}")
+    for sensor in ("gnss", "odometer", "lidar"):
+        # every sensor samples the true motion at IMU stamps: its rate must divide the IMU rate
+        r = c[sensor]["rate_hz"]
+        step = round(rate / r)
+        if step < 1 or abs(rate / step - r) > 1e-9 * r:
+            raise ConfigError(f"{sensor}.rate_hz={r:g} must divide imu.rate_hz={rate:g} (e.g. {rate / max(step, 1):g} Hz)")
     segs, yaw0, n_prefix = profile_segments(profile)
     staged = StagedDir(out_dir, overwrite=overwrite)
     staged.check()
@@ -185,7 +204,7 @@ def simulate(out_dir: Path, profile: str, duration_s: float, seed: int, grade: s
             "lidar_outliers": None if l_out is None else int(l_out.sum()),
             "distance_m": float(np.sum(np.linalg.norm(np.diff(m.p_w_m, axis=0), axis=1))),
         }
-        out.write_text("truth/sensors.yaml", yaml.safe_dump(truth, sort_keys=False))
+        out.write_text("truth/sensors.yaml", yaml.dump(truth, Dumper=_NoAliases, sort_keys=False))
         manifest = {
             "name": name,
             "description": f"simulated by fusion-eval {__version__}: profile {profile}, grade {grade}, seed {seed}, "

@@ -103,8 +103,10 @@ def from_waypoints_yaml(path: Path) -> tuple[list[Segment], float, int]:
         t_still = float(body.get("start_stationary_s", 5.0))
     except (ValueError, TypeError):
         raise ConfigError(f"{path}: waypoints must be [east_m, north_m] pairs; speeds_mps one number per leg") from None
-    if W.ndim != 2 or W.shape[1] != 2 or len(W) < 2:
-        raise ConfigError(f"{path}: 'waypoints' must be a list of at least two [east_m, north_m] pairs")
+    if W.ndim != 2 or W.shape[1] != 2 or len(W) < 2 or not np.all(np.isfinite(W)):
+        raise ConfigError(f"{path}: 'waypoints' must be a list of at least two [east_m, north_m] pairs of numbers")
+    if not (np.all(np.isfinite(sp)) and np.isfinite(r) and np.isfinite(t_still) and t_still >= 0):
+        raise ConfigError(f"{path}: speeds_mps, turn_radius_m and start_stationary_s must be numbers")
     legs = np.diff(W, axis=0)
     L = np.linalg.norm(legs, axis=1)
     if np.any(L <= 0) or np.any(sp <= 0) or r <= 0:
@@ -132,8 +134,10 @@ def from_waypoints_yaml(path: Path) -> tuple[list[Segment], float, int]:
         if i < turn.size and abs(turn[i]) > 1e-9:
             segs += _turn(np.degrees(turn[i]), float(sp[i]), r, ramp)
     if not closed:
+        # an open route ends with a stop and stays stopped (only the stop "repeats")
         segs.append(Segment(5.0, 0.0, 0.0, 0.0, 4.0))
-    return segs, float(head[0]), 2 if closed else 1
+        return segs, float(head[0]), len(segs) - 1
+    return segs, float(head[0]), 2
 
 
 def profile_segments(name: str) -> tuple[list[Segment], float, int]:

@@ -19,6 +19,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from ..errors import FilterDivergedError
 from ..filters.kernels import joseph_update
 
 
@@ -80,6 +81,11 @@ class TrackResult:
 
 
 def run_track(m, p: TrackParams) -> TrackResult:
+    with np.errstate(over="ignore", invalid="ignore"):
+        return _run_track(m, p)
+
+
+def _run_track(m, p: TrackParams) -> TrackResult:
     use = {"both": ("L", "R"), "lidar": ("L",), "radar": ("R",)}[p.sensors]
     idx = [i for i in range(len(m.kind)) if m.kind[i] in use]
     R_l, R_r = np.diag(p.lidar_var), np.diag(p.radar_var)
@@ -106,17 +112,23 @@ def run_track(m, p: TrackParams) -> TrackResult:
             F, Q = F_Q(dt, p)
             x = F @ x
             P = F @ P @ F.T + Q
-        if k == "L":
-            dx, s = joseph_update(P, 4, H_l, z[:2] - H_l @ x, R_l)
-        elif np.hypot(x[0], x[1]) < p.min_range:
-            xs.append(x.copy())          # too close to the sensor to linearise the radar model
-            nis.append(np.nan)
-            continue
-        else:
-            r = z - h_radar(x)
-            r[1] = wrap_angle(r[1])
-            dx, s = joseph_update(P, 4, radar_jacobian(x), r, R_r)
+        try:
+            if k == "L":
+                dx, s = joseph_update(P, 4, H_l, z[:2] - H_l @ x, R_l)
+            elif np.hypot(x[0], x[1]) < p.min_range:
+                xs.append(x.copy())          # too close to the sensor to linearise the radar model
+                nis.append(np.nan)
+                continue
+            else:
+                r = z - h_radar(x)
+                r[1] = wrap_angle(r[1])
+                dx, s = joseph_update(P, 4, radar_jacobian(x), r, R_r)
+        except np.linalg.LinAlgError:
+            dx = np.full(4, np.nan)
         x = x + dx
+        if not (np.all(np.isfinite(x)) and np.all(np.isfinite(P))):
+            raise FilterDivergedError(f"{m.source}:{m.lines[i]}: the tracker diverged at this measurement "
+                                      "(non-finite state; check its values)")
         xs.append(x.copy())
         nis.append(float(s))
     used = np.array(idx)

@@ -59,6 +59,9 @@ def read_measurements(path: Path) -> Measurements:
             raise DataFormatError(path, lineno, f"expected a number, got {bad!r}") from None
         if not np.all(np.isfinite(vals)):
             raise DataFormatError(path, lineno, "values must be finite numbers (found NaN or inf)")
+        meas = vals[:n_meas] + vals[n_meas + 1:]
+        if max(abs(v) for v in meas) > 1e7:
+            raise DataFormatError(path, lineno, "a measurement or ground-truth value above 1e7 (m, rad, m/s) is not plausible")
         z = vals[:n_meas]
         t = vals[n_meas]
         if t != int(t) or t < 0:
