@@ -168,11 +168,23 @@ def compare(dataset_path: Path, variants: list[str], variant_dir: Path, base_con
     truth_body = None if gt_vb is None else {"lateral": float(np.sqrt(np.mean(gt_vb[:, 1] ** 2))),
                                              "vertical": float(np.sqrt(np.mean(gt_vb[:, 2] ** 2)))}
 
+    # per-segment breakdown: every variant and the unfiltered lidar and GNSS, windows along the route
+    from .segments import breakdown
+
+    errs = {r.name: (r.ev.ape_t_s, r.ev.ape_err_m) for r in runs if r.ev.ape_err_m is not None}
+    errs.update({k: (ev.ape_t_s, ev.ape_err_m) for k, ev in evs_u.items() if k != "imu_only" and ev.ape_err_m is not None})
+    seg = breakdown(gt, errs, ev_cfg["segment_m"], ev_cfg["segment_s"], primary=runs[0].name,
+                    secondary="lidar" if "lidar" in errs else None)
+
     with staged as out:
-        result = {"dataset": ds.name, "variants": variants, "rows": table, "groundtruth_body_velocity_rms_mps": truth_body}
+        result = {"dataset": ds.name, "variants": variants, "rows": table, "groundtruth_body_velocity_rms_mps": truth_body,
+                  "segments": seg}
         out.write_text("compare.json", json.dumps(result, indent=2) + "\n")
         out.write_text("compare.csv", _csv(table))
-        out.write_text("compare.md", _markdown(ds.name, table, truth_body, make_plots))
+        from .report import _segments_section
+
+        out.write_text("compare.md", _markdown(ds.name, table, truth_body, make_plots)
+                       + "\n".join(_segments_section({"segments": seg})) + "\n")
         taken: set = set()
         for r in runs:
             folder = folder_name(r.name, taken)

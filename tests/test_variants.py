@@ -168,6 +168,7 @@ def test_compare_command_writes_table_and_plots(kitti_slice, tmp_path):
     for v in ("eskf", "nominal", "odometer-nhc", "lidar", "gnss"):
         assert f"| {v} |" in md or f"| {v}" in md
     assert len((out / "compare.csv").read_text().splitlines()) == 1 + 3 + 3
+    assert "## Per-segment breakdown" in md and "KITTI drift" in md
     for p in ("ape_over_time.png", "biases.png", "body_velocity.png"):
         assert (out / p).read_bytes()[:4] == b"\x89PNG"
     assert (out / "variants" / "nominal" / "fused.tum").exists()
