@@ -239,8 +239,9 @@ def evaluate(ctx, reference, estimates, out_dir, ref_times, times, association, 
         for k, d in m["estimates"].items():
             ape = (d.get("ape") or {}).get("translation_m")
             dr = d.get("kitti_drift")
-            click.echo(f"{k:<28} {d['matched_poses']:>8} {ape['rmse'] if ape else float('nan'):>19.3f} "
-                       f"{dr['t_err_pct'] if dr else float('nan'):>16.3f} {dr['r_err_deg_per_100m'] if dr else float('nan'):>17.4f}")
+            cells = [_num_or_na(ape and ape["rmse"], 3), _num_or_na(dr and dr["t_err_pct"], 3),
+                     _num_or_na(dr and dr["r_err_deg_per_100m"], 4)]
+            click.echo(f"{k:<28} {d['matched_poses']:>8} {cells[0]:>19} {cells[1]:>16} {cells[2]:>17}")
         click.echo(f"wrote {out_dir}/")
 
 
@@ -402,6 +403,10 @@ def simulate(out_dir, profile, duration_s, seed, grade, sets, overwrite):
     s = run_sim(out_dir, profile, duration_s, seed, grade, tuple(sets), overwrite=overwrite)
     log.info("wrote %s/ (%s: %d IMU samples, %.0f m, %d lidar frames, %d GNSS fixes) in %.1f s", out_dir, s["name"],
              s["samples"], s["distance_m"], s["lidar_frames"], s["gnss_fixes"], time.perf_counter() - t0)
+
+
+def _num_or_na(x, nd: int) -> str:
+    return "n/a" if x is None or x is False else f"{x:.{nd}f}"
 
 
 class _Progress:
