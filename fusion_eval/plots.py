@@ -19,6 +19,11 @@ _META = {"Software": None}
 _VCOLORS = plt.rcParams["axes.prop_cycle"].by_key()["color"]  # no version string in the PNG: same inputs, same bytes
 
 
+def _every(n: int, at_most: int = 2500) -> slice:
+    """A stride that keeps at most ``at_most`` of ``n`` points: a plot 1000 pixels wide shows no more."""
+    return slice(None, None, max(1, -(-n // at_most)))
+
+
 def _no_minor_labels(ax) -> None:
     """Log axes label their minor ticks; measuring those labels dominated the drawing time."""
     from matplotlib.ticker import NullFormatter
@@ -83,6 +88,8 @@ def plot_ape_over_time(path: Path, evals: dict, t0: float) -> None:
 
 def plot_biases(path: Path, t_s: np.ndarray, ba: np.ndarray, bg: np.ndarray, sigma: np.ndarray) -> None:
     """Estimated IMU biases with their +/-3 sigma."""
+    k = _every(t_s.size)
+    t_s, ba, bg, sigma = t_s[k], ba[k], bg[k], sigma[k]
     t = t_s - t_s[0]
     fig, axes = plt.subplots(2, 1, figsize=(10, 6), sharex=True)
     for ax, b, sl, unit, scale, title in ((axes[0], ba, BA_ID, "m/s^2", 1.0, "accelerometer bias"),
@@ -101,13 +108,16 @@ def plot_biases(path: Path, t_s: np.ndarray, ba: np.ndarray, bg: np.ndarray, sig
 
 def plot_error_sigma(path: Path, t_s: np.ndarray, err_w: np.ndarray, sigma: np.ndarray) -> None:
     """Fused position error per ENU axis with the filter's own +/-3 sigma: is the covariance honest?"""
+    inside_all = [np.mean(np.abs(err_w[:, i]) <= 3 * sigma[:, P_ID + i]) * 100 for i in range(3)]
+    k = _every(t_s.size)
+    t_s, err_w, sigma = t_s[k], err_w[k], sigma[k]
     t = t_s - t_s[0]
     fig, axes = plt.subplots(3, 1, figsize=(10, 7), sharex=True)
     for i, (ax, axis) in enumerate(zip(axes, ("East", "North", "Up"))):
         s3 = 3 * sigma[:, P_ID + i]
         ax.fill_between(t, -s3, s3, color="tab:gray", alpha=0.3, lw=0, label="+/-3 sigma")
         ax.plot(t, err_w[:, i], color="tab:red", lw=0.9, label="fused - ground truth")
-        inside = np.mean(np.abs(err_w[:, i]) <= s3) * 100
+        inside = inside_all[i]
         ax.set_ylabel(f"{axis} [m]")
         ax.set_title(f"{axis}: {inside:.1f} % of epochs inside 3 sigma", fontsize=9, loc="left")
         ax.grid(alpha=0.3)
@@ -319,13 +329,14 @@ def plot_segment_map(path: Path, evals: dict, seg: dict) -> None:
     panels = 2 if lid is not None and lid.ape_err_m is not None else 1
     fig, axes = plt.subplots(1, panels, figsize=(7 * panels, 6), squeeze=False)
     p = f.ref_p_m
-    sc = axes[0, 0].scatter(p[:, 0], p[:, 1], c=f.ape_err_m, s=3, cmap="viridis")
+    k = _every(len(p))
+    sc = axes[0, 0].scatter(p[k, 0], p[k, 1], c=f.ape_err_m[k], s=3, cmap="viridis")
     fig.colorbar(sc, ax=axes[0, 0], label=f"{a} APE [m]")
     axes[0, 0].set_title(f"{a} error along the route")
     if panels == 2:
         diff = f.ape_err_m - np.interp(f.ape_t_s, lid.ape_t_s, lid.ape_err_m)
         lim = float(np.percentile(np.abs(diff), 98)) or 1.0
-        sc = axes[0, 1].scatter(p[:, 0], p[:, 1], c=diff, s=3, cmap="coolwarm", vmin=-lim, vmax=lim)
+        sc = axes[0, 1].scatter(p[k, 0], p[k, 1], c=diff[k], s=3, cmap="coolwarm", vmin=-lim, vmax=lim)
         fig.colorbar(sc, ax=axes[0, 1], label=f"{a} APE - {b} APE [m] (blue: {a} better)")
         axes[0, 1].set_title(f"Where {a} is better (blue) or worse (red) than {b}")
     d = np.concatenate([[0.0], np.cumsum(np.linalg.norm(np.diff(p, axis=0), axis=1))])
