@@ -123,9 +123,7 @@ def compare(dataset_path: Path, variants: list[str], variant_dir: Path, base_con
     if base_prep.lidar is not None:
         unfiltered["lidar"] = base_prep.lidar
     if base_prep.gnss is not None:
-        g = base_prep.gnss
-        unfiltered["gnss"] = PoseSeries(t_s=g.t_s, p_w_m=g.p_w_m, q_wb_xyzw=np.tile([0.0, 0.0, 0.0, 1.0], (len(g), 1)),
-                                        has_orientation=False, source=g.source)
+        unfiltered["gnss"] = base_prep.gnss.as_poses()
     with _executor(None) as pool:
         args = (ev_cfg["t_max_diff_s"], ev_cfg["rpe_delta_m"], ev_cfg["association"], ev_cfg["alignment"])
         fut_v = [pool.submit(evaluate, gt, r.filt.fused, r.name, *args) for r in runs]

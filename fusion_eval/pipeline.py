@@ -62,9 +62,7 @@ def run(dataset_path: Path, config_path: Path | None, sets: tuple[str, ...], out
     if prep.lidar is not None:
         series["lidar"] = prep.lidar
     if prep.gnss is not None:
-        g = prep.gnss
-        series["gnss"] = PoseSeries(t_s=g.t_s, p_w_m=g.p_w_m, q_wb_xyzw=np.tile([0.0, 0.0, 0.0, 1.0], (len(g), 1)),
-                                    has_orientation=False, source=g.source)
+        series["gnss"] = prep.gnss.as_poses()
     resolved_extra = {"dataset": {"path": str(dataset_path), "name": ds.name,
                                   "manifest": ds.description.get("manifest"),
                                   "attribution": ds.description.get("attribution"),

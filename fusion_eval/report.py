@@ -12,7 +12,6 @@ import csv
 import io
 import json
 import platform
-from pathlib import Path
 
 import numpy as np
 import yaml

@@ -42,7 +42,6 @@ import yaml
 
 from .config import SCHEMA, check_value, load_config
 from .errors import ConfigError, FusionEvalError
-from .outputs import StagedDir
 
 log = logging.getLogger(__name__)
 

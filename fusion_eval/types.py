@@ -120,6 +120,11 @@ class GnssSeries:
     def __len__(self) -> int:
         return int(self.t_s.size)
 
+    def as_poses(self) -> "PoseSeries":
+        """The fixes as a position-only pose series (identity placeholder attitudes), for evaluation."""
+        return PoseSeries(t_s=self.t_s, p_w_m=self.p_w_m, q_wb_xyzw=np.tile([0.0, 0.0, 0.0, 1.0], (len(self), 1)),
+                          has_orientation=False, source=self.source)
+
     def select(self, mask: np.ndarray) -> "GnssSeries":
         lines = None if self.lines is None else self.lines[mask]
         return replace(self, t_s=self.t_s[mask], p_w_m=self.p_w_m[mask], std_w_m=self.std_w_m[mask],

@@ -28,7 +28,6 @@ sys.path.insert(0, str(ROOT))
 
 from fusion_eval.config import load_config, to_filter_params  # noqa: E402
 from fusion_eval.datasets.manifest import load_dataset  # noqa: E402
-from fusion_eval.filters import kernels as kn  # noqa: E402
 from fusion_eval.filters.eskf import ErrorStateKF, NominalState  # noqa: E402
 from fusion_eval.prepare import prepare  # noqa: E402
 from fusion_eval.replay import process_params, replay  # noqa: E402

@@ -71,7 +71,7 @@ def test_constant_turn_rate_attitude_exact_and_circle_followed():
 
 def test_observation_between_samples_uses_interpolated_imu():
     # constant acceleration: stopping at an intermediate time and going on gives the same end state
-    R0 = np.eye(3)
+
     a_w = np.array([1.0, 0.0, 0.0])
     t = np.arange(0, 1.0 + 1e-9, 0.1)
     f = np.tile(a_w + [0, 0, G], (t.size, 1))
