@@ -1,7 +1,7 @@
 """Time-ordered replay of IMU samples and observations through the error-state filter.
 
 Observations are sorted by time (lidar before GNSS at equal stamps); the filter is propagated to
-each observation's own stamp (interpolating the IMU between samples, see ``kernels.predict_to``),
+each observation's own stamp (interpolating the IMU between samples, see ``propagate.predict_to``),
 updated, and the state is recorded at every IMU sample.
 """
 
@@ -80,7 +80,7 @@ def replay(prep: Prepared, fp: FilterParams, progress: Callable[[float], None] |
     t0, t_end = float(t_imu[k0]), float(t_imu[-1])
     odo = prep.odometer
     v_odo = None
-    if odo is not None:
+    if fp.process_model == "odometer_gyro":   # the speed that drives the prediction, on the gyro's stamps
         v_odo = np.ascontiguousarray(np.interp(t_imu, odo.t_s, odo.v_mps))
     kf = make_filter(fp, prep.x0, prm, t_imu, f_imu, w_imu, k0, v_odo)
 

@@ -6,6 +6,7 @@ import numpy as np
 import pytest
 
 from fusion_eval.filters import kernels as kn
+from fusion_eval.filters import propagate as pr
 from fusion_eval.filters.eskf import NominalState, dead_reckon
 from fusion_eval.so3 import exp_so3
 
@@ -82,10 +83,10 @@ def test_observation_between_samples_uses_interpolated_imu():
     x = _x0()
     P = np.zeros((15, 15))
     last = np.concatenate([[t[0]], f[0], w[0]])
-    k = kn.predict_to(x.p_w_m, x.v_w_mps, x.R_wb, x.ba_b, x.bg_b, P, 15, last, t, f, w, 1, 0.437, _prm(), True, *rec)
+    k = pr.predict_to(x.p_w_m, x.v_w_mps, x.R_wb, x.ba_b, x.bg_b, P, 15, last, t, f, w, 1, 0.437, _prm(), pr.COV_ERROR_STATE, *rec, pr.NO_QREF.copy())
     assert abs(last[0] - 0.437) < 1e-15
     assert abs(x.p_w_m[0] - 0.5 * 0.437 ** 2) < 1e-12
-    kn.predict_to(x.p_w_m, x.v_w_mps, x.R_wb, x.ba_b, x.bg_b, P, 15, last, t, f, w, k, 1.0, _prm(), True, *rec)
+    pr.predict_to(x.p_w_m, x.v_w_mps, x.R_wb, x.ba_b, x.bg_b, P, 15, last, t, f, w, k, 1.0, _prm(), pr.COV_ERROR_STATE, *rec, pr.NO_QREF.copy())
     assert abs(x.p_w_m[0] - 0.5) < 1e-12 and abs(x.v_w_mps[0] - 1.0) < 1e-12
 
 
@@ -105,7 +106,7 @@ def test_gap_noise_does_not_depend_on_where_an_observation_splits_the_gap():
         last = np.concatenate([[t[0]], f[0], w[0]])
         k = 1
         for s in stops:
-            k = kn.predict_to(x.p_w_m, x.v_w_mps, x.R_wb, x.ba_b, x.bg_b, P, 15, last, t, f, w, k, s, prm, True, *rec)
+            k = pr.predict_to(x.p_w_m, x.v_w_mps, x.R_wb, x.ba_b, x.bg_b, P, 15, last, t, f, w, k, s, prm, pr.COV_ERROR_STATE, *rec, pr.NO_QREF.copy())
         return P
 
     whole, split = run([2.0]), run([1.0, 2.0])

@@ -13,6 +13,7 @@ import numpy as np
 from ..errors import FilterDivergedError
 from ..so3 import exp_so3, log_so3, skew
 from . import kernels as kn
+from . import propagate as pr
 from .base import FilterBase
 from .state import NominalState
 from .kernels import BA_ID, BG_ID, CLONE_P_ID, CLONE_TH_ID, N_CORE, P_ID, TH_ID, V_ID
@@ -58,10 +59,10 @@ class ErrorStateKF(FilterBase):
     def predict_to(self, t_target: float) -> None:
         """Propagate nominal state and covariance to ``t_target`` (recording at each IMU sample passed)."""
         x = self.x
-        self.k_next = kn.predict_to(x.p_w_m, x.v_w_mps, x.R_wb, x.ba_b, x.bg_b, self.P, self.n, self.last,
-                                    self.imu_t, self.imu_f, self.imu_w, self.k_next, float(t_target), self.prm, True,
-                                    self.rec_p, self.rec_v, self.rec_R, self.rec_ba, self.rec_bg, self.rec_Pdiag,
-                                    self.rec_Ppt)
+        self.k_next = pr.predict_to(x.p_w_m, x.v_w_mps, x.R_wb, x.ba_b, x.bg_b, self.P, self.n, self.last,
+                                    self.imu_t, self.imu_f, self.imu_w, self.k_next, float(t_target), self.prm,
+                                    pr.COV_ERROR_STATE, self.rec_p, self.rec_v, self.rec_R, self.rec_ba, self.rec_bg,
+                                    self.rec_Pdiag, self.rec_Ppt, pr.NO_QREF.copy())
 
     def update(self, model, iterations: int = 1, tol: float = 1e-8) -> float:
         """Joseph-form update, injection and reset; the plain EKF update runs in compiled kernels."""
@@ -146,7 +147,7 @@ def dead_reckon(x0: NominalState, prm: np.ndarray, imu_t, imu_f, imu_w, k0: int)
     rec_p[k0] = x.p_w_m
     rec_R[k0] = x.R_wb
     P = np.zeros((N_CORE, N_CORE))
-    kn.predict_to(x.p_w_m, x.v_w_mps, x.R_wb, x.ba_b, x.bg_b, P, N_CORE, last, imu_t, imu_f, imu_w, k0 + 1,
-                  float(imu_t[-1]), prm, False, rec_p, rec_v, rec_R, rec_ba, rec_bg, np.zeros((1, N_CORE)),
-                  np.zeros((1, 6, 6)))
+    pr.predict_to(x.p_w_m, x.v_w_mps, x.R_wb, x.ba_b, x.bg_b, P, N_CORE, last, imu_t, imu_f, imu_w, k0 + 1,
+                  float(imu_t[-1]), prm, pr.COV_NONE, rec_p, rec_v, rec_R, rec_ba, rec_bg, np.zeros((1, N_CORE)),
+                  np.zeros((1, 6, 6)), pr.NO_QREF.copy())
     return rec_p, rec_R

@@ -15,6 +15,7 @@ from __future__ import annotations
 import numpy as np
 
 from . import nominal_kernels as nk
+from . import propagate as pr
 from .base import FilterBase
 from .kernels import N_CORE
 from .state import NominalState
@@ -60,10 +61,10 @@ class NominalStateEKF(FilterBase):
 
     def predict_to(self, t_target: float) -> None:
         x = self.x
-        self.k_next = nk.nominal_predict_to(x.p_w_m, x.v_w_mps, x.R_wb, x.ba_b, x.bg_b, self.P, self.n, self.last,
-                                            self.imu_t, self.imu_f, self.imu_w, self.k_next, float(t_target), self.prm,
-                                            self.rec_p, self.rec_v, self.rec_R, self.rec_ba, self.rec_bg,
-                                            self.rec_Pdiag, self.rec_Ppt, self.qref)
+        self.k_next = pr.predict_to(x.p_w_m, x.v_w_mps, x.R_wb, x.ba_b, x.bg_b, self.P, self.n, self.last,
+                                    self.imu_t, self.imu_f, self.imu_w, self.k_next, float(t_target), self.prm,
+                                    pr.COV_NOMINAL, self.rec_p, self.rec_v, self.rec_R, self.rec_ba, self.rec_bg,
+                                    self.rec_Pdiag, self.rec_Ppt, self.qref)
 
     def _q(self) -> np.ndarray:
         return nk.aligned_quat(self.x.R_wb, self.qref)

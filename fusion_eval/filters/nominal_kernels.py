@@ -3,9 +3,9 @@ cloned pose ``[p_c, q_c]`` 23). Quaternions here are Hamilton, ``(w, x, y, z)``,
 Sola's "Quaternion kinematics for the error-state Kalman filter"; the rest of the package sees only
 rotation matrices and scipy's ``(x, y, z, w)``.
 
-Per IMU step the state is propagated by the same midpoint mechanization as the ESKF
-(:func:`fusion_eval.filters.kernels.mech_step`); the covariance by the Jacobian of that map with
-respect to the full state (see ``docs/nominal_state.md``)::
+Per IMU step the state is propagated by the same midpoint mechanization as the ESKF (the shared
+loop is :func:`fusion_eval.filters.propagate.predict_to`); the covariance by the Jacobian of that map
+with respect to the full state (see ``docs/nominal_state.md``)::
 
     dp'/dq = T^2/2 d(R(q) a)/dq,   dv'/dq = T d(R(q) a)/dq,   d(R(q)a)/dq = 2 [w a + v x a | v.a I + v a^T - a v^T - w [a]x]
     dp'/dba = -T^2/2 R,  dv'/dba = -T R,  dq'/dq = [q{wT}]_R,  dq'/dbg = -T/2 [q]_L [0; I]
@@ -16,7 +16,7 @@ from __future__ import annotations
 import numpy as np
 from numba import njit
 
-from .kernels import PRM_G, PRM_GAP_DT, PRM_GAP_SCALE2, PRM_QA, PRM_QBA, PRM_QBG, PRM_QG, mech_step, skew3
+from .kernels import PRM_GAP_SCALE2, PRM_QA, PRM_QBA, PRM_QBG, PRM_QG, skew3
 
 NP_ID, NV_ID, NQ_ID, NBA_ID, NBG_ID = 0, 3, 6, 10, 13
 N_NOM = 16
@@ -175,11 +175,10 @@ def aligned_quat(R, qref):
 
 
 @njit(cache=True)
-def _nstep(p, v, R, ba, bg, P, n, f0, w0, f1, w1, dt, prm, gap, qref):
-    q = aligned_quat(R, qref)
-    a = 0.5 * (f0 + f1) - ba
-    w = 0.5 * (w0 + w1) - bg
-    F, Q = nominal_F_Q(q, a, w, dt, prm, gap)
+def nominal_propagate_cov(P, n, q, f_b, w_b, dt, prm, gap):
+    """In place ``P <- F P F^T + Q`` for the full state (clone blocks unchanged); ``q`` the quaternion
+    at the start of the step in the sign of P, ``f_b``/``w_b`` the bias-corrected midpoint IMU values."""
+    F, Q = nominal_F_Q(q, f_b, w_b, dt, prm, gap)
     Pn = np.ascontiguousarray(P[:n, :n])
     Fa = np.eye(n)
     Fa[:N_NOM, :N_NOM] = F
@@ -188,47 +187,3 @@ def _nstep(p, v, R, ba, bg, P, n, f0, w0, f1, w1, dt, prm, gap, qref):
     for i in range(n):
         for j in range(n):
             P[i, j] = 0.5 * (newP[i, j] + newP[j, i])
-    mech_step(p, v, R, ba, bg, f0, w0, f1, w1, dt, prm[PRM_G])
-    qref[:] = aligned_quat(R, q)
-
-
-@njit(cache=True)
-def nominal_predict_to(p, v, R, ba, bg, P, n, last, imu_t, imu_f, imu_w, k_next, t_target, prm,
-                       rec_p, rec_v, rec_R, rec_ba, rec_bg, rec_Pdiag, rec_Ppt, qref):
-    """As :func:`fusion_eval.filters.kernels.predict_to`, with the nominal-state covariance."""
-    N = imu_t.shape[0]
-    f0 = last[1:4].copy()
-    w0 = last[4:7].copy()
-    t0 = last[0]
-    k = k_next
-    while k < N and imu_t[k] <= t_target:
-        dt = imu_t[k] - t0
-        gap = k > 0 and imu_t[k] - imu_t[k - 1] > prm[PRM_GAP_DT]
-        if dt > 0.0:
-            _nstep(p, v, R, ba, bg, P, n, f0, w0, imu_f[k], imu_w[k], dt, prm, gap, qref)
-        t0 = imu_t[k]
-        f0 = imu_f[k].copy()
-        w0 = imu_w[k].copy()
-        rec_p[k] = p
-        rec_v[k] = v
-        rec_R[k] = R
-        rec_ba[k] = ba
-        rec_bg[k] = bg
-        d, ppt = canonical_cov(P, qref)
-        rec_Pdiag[k] = d
-        rec_Ppt[k] = ppt
-        k += 1
-    if t_target > t0 and k < N:
-        a = (t_target - t0) / (imu_t[k] - t0)
-        f1 = f0 + a * (imu_f[k] - f0)
-        w1 = w0 + a * (imu_w[k] - w0)
-        gap = k > 0 and imu_t[k] - imu_t[k - 1] > prm[PRM_GAP_DT]
-        _nstep(p, v, R, ba, bg, P, n, f0, w0, f1, w1, t_target - t0, prm, gap, qref)
-        t0 = t_target
-        f0 = f1
-        w0 = w1
-    last[0] = t0
-    last[1:4] = f0
-    last[4:7] = w0
-    return k
-

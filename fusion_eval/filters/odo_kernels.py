@@ -66,7 +66,10 @@ def _ostep(p, R, k, bg, P, n, v0, w0, v1, w1, dt, prm, oprm, gap):
 @njit(cache=True)
 def odo_predict_to(p, R, k, bg, P, n, last, t, v_odo, w_imu, k_next, t_target, prm, oprm,
                    rec_p, rec_v, rec_R, rec_bg, rec_k, rec_Pdiag, rec_Ppt):
-    """Propagate through the samples up to ``t_target`` (``last`` = ``[t, v, wx, wy, wz]``); see kernels.predict_to."""
+    """Propagate through the samples up to ``t_target`` (``last`` = ``[t, v, wx, wy, wz]``).
+
+    The same stepping as :func:`fusion_eval.filters.propagate.predict_to`, kept separate because this
+    model's input (a speed and a rate) and state (no velocity, no accelerometer bias) differ."""
     N = t.shape[0]
     v0 = last[1]
     w0 = last[2:5].copy()

@@ -13,7 +13,7 @@ from pathlib import Path
 
 import numpy as np
 
-from ..datasets._text import read_text
+from ..datasets._text import is_float, read_text
 from ..errors import DataFormatError
 
 LIDAR, RADAR = "L", "R"
@@ -55,7 +55,7 @@ def read_measurements(path: Path) -> Measurements:
         try:
             vals = [float(x) for x in parts[1:]]
         except ValueError:
-            bad = next(x for x in parts[1:] if not _num(x))
+            bad = next(x for x in parts[1:] if not is_float(x))
             raise DataFormatError(path, lineno, f"expected a number, got {bad!r}") from None
         if not np.all(np.isfinite(vals)):
             raise DataFormatError(path, lineno, "values must be finite numbers (found NaN or inf)")
@@ -81,14 +81,6 @@ def read_measurements(path: Path) -> Measurements:
         raise DataFormatError(path, None, "no measurement lines")
     return Measurements(kind=np.array(kinds), z=np.array(zs), t_us=np.array(ts, dtype=np.int64), gt=np.array(gts),
                         lines=np.array(lines), source=str(path))
-
-
-def _num(s: str) -> bool:
-    try:
-        float(s)
-        return True
-    except ValueError:
-        return False
 
 
 def format_line(kind: str, z, t_us: int, gt, yaw: float, yawrate: float) -> str:
