@@ -21,14 +21,14 @@ COV_NONE, COV_ERROR_STATE, COV_NOMINAL = 0, 1, 2
 
 @njit(cache=True)
 def _step(p, v, R, ba, bg, P, n, f0, w0, f1, w1, dt, prm, mode, gap, qref):
-    # linearise at the start-of-interval attitude and the midpoint, bias-corrected IMU values
-    fm = 0.5 * (f0 + f1) - ba
-    wm = 0.5 * (w0 + w1) - bg
-    if mode == COV_ERROR_STATE:
-        propagate_cov(P, n, R.copy(), fm, wm, dt, prm, gap)
-    elif mode == COV_NOMINAL:
-        q = aligned_quat(R, qref)
-        nominal_propagate_cov(P, n, q, fm, wm, dt, prm, gap)
+    if mode != COV_NONE:
+        # linearise at the start-of-interval attitude and the midpoint, bias-corrected IMU values
+        fm = 0.5 * (f0 + f1) - ba
+        wm = 0.5 * (w0 + w1) - bg
+        if mode == COV_ERROR_STATE:
+            propagate_cov(P, n, R, fm, wm, dt, prm, gap)
+        else:
+            nominal_propagate_cov(P, n, aligned_quat(R, qref), fm, wm, dt, prm, gap)
     mech_step(p, v, R, ba, bg, f0, w0, f1, w1, dt, prm[PRM_G])
     if mode == COV_NOMINAL:
         qref[:] = aligned_quat(R, qref)
