@@ -21,7 +21,7 @@ from typing import Callable
 import numpy as np
 import yaml
 
-from .config import load_config, to_filter_params
+from .config import Settings, load_config
 from .datasets.manifest import load_dataset
 from .datasets.tum import format_tum
 from .errors import ConfigError
@@ -111,7 +111,7 @@ def compare(dataset_path: Path, variants: list[str], variant_dir: Path, base_con
         prep = prepare(ds, cfg)
         base_prep = base_prep or prep
         with np.errstate(over="ignore", invalid="ignore"):
-            filt = replay(prep, to_filter_params(cfg, prep.gravity_mps2))
+            filt = replay(prep, Settings(cfg))
         runs.append(VariantRun(name, cfg, filt, None, time.perf_counter() - t0))
         log.info("variant %s: filtered in %.2f s", name, runs[-1].runtime_s)
         if progress:

@@ -1,14 +1,19 @@
-"""Typed, validated run configuration: built-in defaults < YAML file < ``--set key=value``.
+"""Typed, validated configuration: the schema, its layers, and the one conversion to SI.
 
-Values are given in human units (deg, deg/s/sqrt(Hz), m, ...) whose unit is in the key's name.
-:func:`to_filter_params` converts them to SI exactly once; everything downstream is SI. The
-resolved (merged) configuration is written next to every run's outputs.
+Values are given in human units (deg, deg/s/sqrt(Hz), m, ...) whose unit is in the key's name. The
+schema is one :class:`Spec` per key: the core keys below, plus the keys each registered formulation and
+observation declares in its own module (:func:`schema` assembles them). A configuration is built from
+layers (built-in defaults, a dataset manifest's suggestions, files, ``--set`` items, Python overrides),
+each validated key by key as it is read (:func:`parse_file`, :func:`parse_sets`, :func:`parse_overrides`)
+and merged in order (:func:`merge_layers`); :mod:`fusion_eval.session` decides the order for a run.
+:class:`Settings` is the resolved configuration in SI units, converted once by a rule on the key names
+(``_deg`` -> ``_rad``, ``_dps`` -> ``_rps``, ...); everything downstream reads it.
 """
 
 from __future__ import annotations
 
 import copy
-from dataclasses import dataclass
+import functools
 from pathlib import Path
 from typing import Any, NamedTuple
 
@@ -17,12 +22,13 @@ import yaml
 
 from .errors import ConfigError
 
+
 class Spec(NamedTuple):
     """One configuration key: default, meaning, and what values it accepts.
 
     ``kind``: ``choice`` (one of ``choices``), ``bool``, ``int``, ``float``, ``vec3`` (3 numbers, or one
-    number for all three), ``windows`` (list of ``[start, end]``). ``auto`` admits the string 'auto',
-    ``nullable`` admits null; ``positive``/``nonneg`` bound numbers.
+    number for all three), ``windows`` (list of ``[start, end]``), ``jumps``. ``auto`` admits the string
+    'auto', ``nullable`` admits null; ``positive``/``nonneg``/``below`` bound numbers (``below``: strictly less).
     """
 
     default: Any
@@ -33,34 +39,33 @@ class Spec(NamedTuple):
     nonneg: bool = False
     nullable: bool = False
     auto: bool = False
+    below: float | None = None
 
 
-def S(default, doc, kind=None, **kw) -> Spec:
+def S(default, doc, kind=None, *, below_one: bool = False, **kw) -> Spec:
     if kind is None:
         kind = {bool: "bool", int: "int", float: "float", list: "vec3", str: "choice"}.get(type(default), "float")
+    if below_one:
+        kw["below"] = 1.0
     return Spec(default, doc, kind, **kw)
 
 
-# Every key, its default and its meaning. README's configuration table is this table.
-SCHEMA: dict[str, Spec] = {
-    "filter.lidar_update": S("relative", "lidar odometry as 'relative' pose increments (stochastic cloning), 'absolute' poses, or 'none'",
-                             choices=("relative", "absolute", "none")),
-    "filter.use_gnss": S(True, "fuse GNSS position fixes"),
+# Sections written in config.resolved.yaml for information; a config file may hold them (ignored).
+INFORMATIONAL_SECTIONS = ("dataset", "applied", "config_source", "versions")
+SECTION_ORDER = ("filter", "imu", "lidar", "gnss", "odometer", "init", "evaluation", "output")
+
+# The core keys: what no single formulation or observation owns. Keys of the formulations and observations
+# are declared in their modules (fusion_eval/filters/formulations/, fusion_eval/filters/observations/).
+CORE: dict[str, Spec] = {
     "filter.bias_model": S("random_walk", "IMU bias model: 'random_walk' or 'constant' (bias states kept, no process noise)",
-                           choices=("random_walk", "constant")),
+                           choices=("<bias models>",)),
     "filter.formulation": S("error_state", "'error_state' (ESKF: 15-state error, injection and reset) or 'nominal_state' "
                                            "(EKF on the full state [p, v, q, ba, bg] with quaternion normalisation)",
-                            choices=("error_state", "nominal_state")),
+                            choices=("<formulations>",)),
     "filter.process_model": S("imu", "'imu' (strapdown mechanization) or 'odometer_gyro' (wheel speed and gyro drive the "
-                                     "prediction; error state [dp, dtheta, dk, dbg])", choices=("imu", "odometer_gyro")),
+                                     "prediction; error state [dp, dtheta, dk, dbg])", choices=("<process models>",)),
     "filter.iterations": S(1, "iterated EKF: re-linearise each update up to this many times (1 = plain EKF)", positive=True),
     "filter.iteration_tol": S(1e-8, "iterated EKF: stop when the correction changes by less than this (norm)", positive=True),
-    "filter.odometer_update": S(False, "fuse the odometer's forward speed as a body-frame velocity observation"),
-    "filter.nhc": S(False, "non-holonomic constraint: lateral and vertical body velocity = 0 as a pseudo-observation "
-                           "while not turning"),
-    "filter.nhc_max_turn_rate_rps": S(0.13, "apply the constraint only while |angular rate| is below this, rad/s", positive=True),
-    "filter.nhc_rate_hz": S(10.0, "rate of the constraint's pseudo-observations, Hz", positive=True),
-    "filter.nhc_std_mps": S(0.1, "std of the constraint (lateral and vertical slip), m/s", positive=True),
     "filter.gravity_mps2": S("auto", "gravity magnitude; 'auto' = WGS84 normal gravity at the geodetic origin (9.80665 without one)",
                              "float", positive=True, auto=True),
     "filter.init_pose_from": S("groundtruth", "initial position/attitude from 'groundtruth' or the first valid 'lidar' pose",
@@ -79,29 +84,15 @@ SCHEMA: dict[str, Spec] = {
     "imu.gap_noise_scale": S(10.0, "process noise std multiplier on intervals that are gaps", positive=True),
     "lidar.time_offset_s": S(None, "added to lidar stamps; null = the manifest's value (default 0)", "float", nullable=True),
     "lidar.interpolate_to_imu": S(True, "resample the lidar poses onto the IMU stamps (SLERP) before fusing"),
-    "lidar.relative_pos_std_m": S(0.02, "relative update: position increment std, constant part, m", nonneg=True),
-    "lidar.relative_pos_std_frac": S(0.01, "relative update: position increment std per metre travelled (0.01 = 1 %)", nonneg=True),
-    "lidar.relative_att_std_deg": S(0.05, "relative update: rotation increment std, deg", positive=True),
-    "lidar.absolute_pos_std_m": S(1.0, "absolute update: position std, m", positive=True),
-    "lidar.absolute_att_std_deg": S(1.0, "absolute update: attitude std, deg", positive=True),
     "gnss.time_offset_s": S(None, "added to GNSS stamps; null = the manifest's value (default 0)", "float", nullable=True),
     "gnss.rate_hz": S(1.0, "decimate GNSS to this rate (null = keep every fix); only for streams the manifest marks 'degrade'",
                       "float", positive=True, nullable=True),
     "gnss.noise_std_m": S([1.0, 1.0, 2.0], "white noise added per axis E/N/U, m ([0, 0, 0] = none)", nonneg=True),
     "gnss.outages_s": S([], "outage windows [[start, end], ...] in seconds from the filter's start (the first IMU sample it uses)", "windows"),
     "gnss.seed": S(0, "seed of the GNSS noise", nonneg=True),
-    "gnss.std_m": S("auto", "GNSS std given to the filter per axis, m; 'auto' = sqrt(reported accuracy^2 + added noise^2)",
-                    "vec3", positive=True, auto=True),
-    "gnss.lever_arm_b_m": S([0.0, 0.0, 0.0], "antenna position in the body frame, m"),
     "odometer.time_offset_s": S(None, "added to odometer stamps; null = the manifest's value (default 0)", "float", nullable=True),
-    "odometer.speed_std_mps": S(0.1, "odometer forward-speed std of one reading (the velocity observation), m/s", positive=True),
     "odometer.added_noise_std_mps": S(0.05, "white noise added to an odometer stream the manifest marks 'degrade' "
                                             "(KITTI's OXTS vf is the GPS/INS solution), m/s", nonneg=True),
-    "odometer.speed_noise_mps_sqrthz": S(0.05, "odometer + gyro model: speed noise density, m/s/sqrt(Hz)", positive=True),
-    "odometer.slip_noise_mps_sqrthz": S(0.05, "odometer + gyro model: lateral/vertical slip noise density, m/s/sqrt(Hz)",
-                                        positive=True),
-    "odometer.scale_rw_per_sqrts": S(1e-5, "odometer + gyro model: random walk of the scale error, 1/sqrt(s)", nonneg=True),
-    "init.odometer_scale_std": S(0.01, "initial std of the odometer scale error (odometer + gyro model)", nonneg=True),
     "init.pos_std_m": S(0.1, "initial position std, m", positive=True),
     "init.vel_std_mps": S(0.1, "initial velocity std, m/s", positive=True),
     "init.roll_pitch_std_deg": S(0.1, "initial roll and pitch std, deg", positive=True),
@@ -123,9 +114,36 @@ SCHEMA: dict[str, Spec] = {
 }
 
 
-def defaults_of(schema: dict[str, Spec]) -> dict:
+@functools.lru_cache(maxsize=1)
+def schema() -> dict[str, Spec]:
+    """Every key of a run's configuration: the core keys and those of the registered formulations and
+    observations, with the registries' choices filled in, in section order."""
+    from .filters import formulations as fm
+    from .filters import observations as ob
+
+    keys: dict[str, Spec] = {}
+    for src, where in ((CORE, "config.CORE"), (fm.keys(), "a formulation"), (ob.keys(), "an observation")):
+        for k, spec in src.items():
+            if k in keys:
+                raise RuntimeError(f"configuration key {k!r} declared twice ({where})")
+            keys[k] = spec
+    choices = {"filter.bias_model": tuple(fm.BIAS_MODELS), "filter.formulation": fm.formulations(),
+               "filter.process_model": fm.process_models()}
+    for k, c in choices.items():
+        keys[k] = keys[k]._replace(choices=c)
+    order = {s: i for i, s in enumerate(SECTION_ORDER)}
+    return dict(sorted(keys.items(), key=lambda kv: order.get(kv[0].split(".")[0], len(order))))
+
+
+def __getattr__(name: str):
+    if name == "SCHEMA":   # the assembled schema, as a module attribute for readers of the old name
+        return schema()
+    raise AttributeError(name)
+
+
+def defaults_of(schema_: dict[str, Spec]) -> dict:
     out: dict = {}
-    for key, spec in schema.items():
+    for key, spec in schema_.items():
         sect, name = key.split(".")
         out.setdefault(sect, {})[name] = copy.deepcopy(spec.default)
     return out
@@ -133,7 +151,7 @@ def defaults_of(schema: dict[str, Spec]) -> dict:
 
 def default_config() -> dict:
     """The built-in defaults as a nested dict (what ``configs/default.yaml`` spells out)."""
-    return defaults_of(SCHEMA)
+    return defaults_of(schema())
 
 
 def check_value(key: str, spec: Spec, value: Any, where: str) -> Any:
@@ -179,7 +197,10 @@ def check_value(key: str, spec: Spec, value: Any, where: str) -> Any:
                 raise ConfigError(f"{where}: {key} window [{w[0]}, {w[1]}] must have end > start")
             out.append(w)
         return out
-    return _number(key, value, where, positive=spec.positive, nonneg=spec.nonneg)
+    v = _number(key, value, where, positive=spec.positive, nonneg=spec.nonneg)
+    if spec.below is not None and not v < spec.below:
+        raise ConfigError(f"{where}: {key} must be < {spec.below:g}, got {value!r}")
+    return v
 
 
 def _number(key, value, where, positive=False, nonneg=False) -> float:
@@ -206,45 +227,64 @@ def _vec3(key, value, where, positive=False, nonneg=False) -> list[float]:
     return [_number(key, v, where, positive=positive, nonneg=nonneg) for v in value]
 
 
-def merge(cfg: dict, overrides: dict, where: str, schema: dict[str, Spec] | None = None) -> dict:
-    """Merge a nested ``{section: {key: value}}`` dict into ``cfg``, validating every key against ``schema``."""
-    schema = SCHEMA if schema is None else schema
-    out = copy.deepcopy(cfg)
-    if not isinstance(overrides, dict):
-        raise ConfigError(f"{where}: expected a mapping of sections ({', '.join(sorted(cfg))})")
-    for sect, body in overrides.items():
-        if sect not in out:
-            raise ConfigError(f"{where}: unknown section {sect!r} (known: {', '.join(sorted(out))})")
-        if not isinstance(body, dict):
+# ---- layers ------------------------------------------------------------------------------------
+class Layer(NamedTuple):
+    """One validated source of settings: ``{section: {key: value}}`` and where it came from."""
+
+    body: dict
+    where: str
+
+
+def validate(body: Any, where: str, schema_: dict[str, Spec] | None = None, informational: tuple = ()) -> Layer:
+    """Check a nested ``{section: {key: value}}`` mapping against the schema, key by key; sections named
+    in ``informational`` are dropped."""
+    schema_ = schema() if schema_ is None else schema_
+    sections = sorted({k.split(".")[0] for k in schema_})
+    if not isinstance(body, dict):
+        raise ConfigError(f"{where}: expected a mapping of sections ({', '.join(sections)})")
+    out: dict = {}
+    for sect, keys in body.items():
+        if sect in informational:
+            continue
+        if sect not in sections:
+            raise ConfigError(f"{where}: unknown section {sect!r} (known: {', '.join(sections)})")
+        if not isinstance(keys, dict):
             raise ConfigError(f"{where}: section {sect!r} must be a mapping of keys")
-        for name, value in body.items():
+        for name, value in keys.items():
             key = f"{sect}.{name}"
-            if key not in schema:
-                known = ", ".join(k.split(".")[1] for k in schema if k.startswith(sect + "."))
+            if key not in schema_:
+                known = ", ".join(k.split(".")[1] for k in schema_ if k.startswith(sect + "."))
                 raise ConfigError(f"{where}: unknown key {key!r} (known in {sect}: {known})")
-            out[sect][name] = check_value(key, schema[key], value, where)
-    return out
+            out.setdefault(sect, {})[name] = check_value(key, schema_[key], value, where)
+    return Layer(out, where)
 
 
-def load_config(path: Path | None, sets: tuple[str, ...] = (), schema: dict[str, Spec] | None = None,
-                layers: tuple[tuple[dict, str], ...] = ()) -> dict:
-    """Defaults, then ``layers`` (e.g. a dataset manifest's suggested settings), then the YAML file (if
-    any), then ``key=value`` overrides; every value validated against ``schema``."""
-    schema = SCHEMA if schema is None else schema
-    cfg = defaults_of(schema)
-    for body, where in layers:
-        cfg = merge(cfg, body, where, schema)
-    if path is not None:
-        path = Path(path)
-        if not path.exists():
-            raise ConfigError(f"{path}: config file not found")
-        try:
-            body = yaml.safe_load(path.read_text()) or {}
-        except yaml.YAMLError as exc:
-            mark = getattr(exc, "problem_mark", None)
-            line = f":{mark.line + 1}" if mark is not None else ""
-            raise ConfigError(f"{path}{line}: not valid YAML ({getattr(exc, 'problem', exc)})") from None
-        cfg = merge(cfg, body, str(path), schema)
+def read_yaml(path: Path, what: str = "config file") -> Any:
+    """A YAML file's content; a missing file or bad YAML is a one-line error naming the file (and line)."""
+    path = Path(path)
+    if not path.is_file():
+        raise ConfigError(f"{path}: {what} not found")
+    try:
+        return yaml.safe_load(path.read_text(encoding="utf-8"))
+    except UnicodeDecodeError:
+        raise ConfigError(f"{path}: not a text (UTF-8) YAML {what}") from None
+    except yaml.YAMLError as exc:
+        mark = getattr(exc, "problem_mark", None)
+        line = f":{mark.line + 1}" if mark is not None else ""
+        raise ConfigError(f"{path}{line}: not valid YAML ({getattr(exc, 'problem', exc)})") from None
+
+
+def parse_file(path: Path, schema_: dict[str, Spec] | None = None) -> Layer:
+    """A configuration file as a layer. A ``config.resolved.yaml`` is accepted: its informational sections
+    (dataset, applied, config_source, versions) are ignored."""
+    body = read_yaml(path) or {}
+    return validate(body, str(path), schema_, informational=INFORMATIONAL_SECTIONS)
+
+
+def parse_sets(sets: tuple[str, ...], schema_: dict[str, Spec] | None = None) -> Layer:
+    """``--set section.key=value`` items (the value is YAML) as one layer, later items winning."""
+    schema_ = schema() if schema_ is None else schema_
+    body: dict = {}
     for item in sets:
         key, sep, raw = item.partition("=")
         key = key.strip()
@@ -255,8 +295,45 @@ def load_config(path: Path | None, sets: tuple[str, ...] = (), schema: dict[str,
         except yaml.YAMLError:
             raise ConfigError(f"--set {item!r}: value is not valid YAML") from None
         sect, _, name = key.partition(".")
-        cfg = merge(cfg, {sect: {name: value}}, f"--set {key}", schema)
+        one = validate({sect: {name: value}}, f"--set {key}", schema_)
+        body.setdefault(sect, {}).update(one.body[sect])
+    return Layer(body, "--set")
+
+
+def parse_overrides(overrides: dict | None, where: str = "overrides", schema_: dict[str, Spec] | None = None) -> Layer:
+    """Python overrides as a layer: ``{"gnss.rate_hz": 2.0}`` (dotted keys, plain values) or nested
+    ``{"gnss": {"rate_hz": 2.0}}``."""
+    nested: dict = {}
+    for k, v in (overrides or {}).items():
+        if isinstance(v, dict) and "." not in k:
+            nested.setdefault(k, {}).update(v)
+            continue
+        sect, dot, name = str(k).partition(".")
+        if not dot:
+            raise ConfigError(f"{where}: {k!r} is not a 'section.key' name")
+        nested.setdefault(sect, {})[name] = v
+    return validate(nested, where, schema_)
+
+
+def merge_layers(layers: tuple[Layer, ...] | list[Layer], schema_: dict[str, Spec] | None = None) -> dict:
+    """The built-in defaults with each (validated) layer applied in order."""
+    cfg = defaults_of(schema() if schema_ is None else schema_)
+    for layer in layers:
+        for sect, body in layer.body.items():
+            cfg[sect].update(copy.deepcopy(body))
     return cfg
+
+
+def load_config(path: Path | None, sets: tuple[str, ...] = (), schema_: dict[str, Spec] | None = None,
+                layers: tuple[tuple[dict, str], ...] = ()) -> dict:
+    """Defaults, then ``layers`` (``(body, where)`` pairs), then the YAML file (if any), then ``key=value``
+    overrides; every value validated against ``schema_`` (default: the run schema)."""
+    sch = schema() if schema_ is None else schema_
+    ls = [validate(body, where, sch) for body, where in layers]
+    if path is not None:
+        ls.append(parse_file(path, sch))
+    ls.append(parse_sets(tuple(sets), sch))
+    return merge_layers(ls, sch)
 
 
 def get(cfg: dict, key: str) -> Any:
@@ -264,96 +341,66 @@ def get(cfg: dict, key: str) -> Any:
     return cfg[sect][name]
 
 
-@dataclass(frozen=True)
-class FilterParams:
-    """Filter settings in SI units (rad, m, s), converted once from the human-unit config."""
-
-    lidar_update: str
-    use_gnss: bool
-    bias_model: str
-    gravity_mps2: float
-    accel_noise: float      # m/s^2/sqrt(Hz)
-    gyro_noise: float       # rad/s/sqrt(Hz)
-    accel_bias_rw: float    # m/s^3/sqrt(Hz)
-    gyro_bias_rw: float     # rad/s^2/sqrt(Hz)
-    gap_factor: float
-    gap_noise_scale: float
-    rel_pos_std_m: float
-    rel_pos_std_frac: float
-    rel_att_std_rad: float
-    abs_pos_std_m: float
-    abs_att_std_rad: float
-    gnss_lever_arm_b_m: np.ndarray
-    init_std: np.ndarray    # (15,) 1-sigma of [dp, dv, dtheta, dba, dbg]
-    formulation: str = "error_state"
-    process_model: str = "imu"
-    iterations: int = 1
-    iteration_tol: float = 1e-8
-    odometer_update: bool = False
-    nhc: bool = False
-    nhc_max_turn_rate_rps: float = 0.13
-    nhc_rate_hz: float = 10.0
-    nhc_std_mps: float = 0.1
-    odo_speed_std_mps: float = 0.1
-    odo_speed_noise: float = 0.05       # m/s/sqrt(Hz)
-    odo_slip_noise: float = 0.05        # m/s/sqrt(Hz)
-    odo_scale_rw: float = 1e-5          # 1/sqrt(s)
-    odo_scale_init_std: float = 0.01
+# ---- SI ------------------------------------------------------------------------------------------
+D2R = np.pi / 180.0
+_SI_UNITS = {"deg": ("rad", D2R), "dps": ("rps", D2R), "dps2": ("rps2", D2R)}
 
 
-def to_filter_params(cfg: dict, gravity_mps2: float) -> FilterParams:
-    """Convert the human-unit config to SI :class:`FilterParams` (the one place units change)."""
-    d2r = np.pi / 180.0
-    c = cfg
-    init = c["init"]
-    init_std = np.concatenate([
-        np.full(3, init["pos_std_m"]),
-        np.full(3, init["vel_std_mps"]),
-        [init["roll_pitch_std_deg"] * d2r, init["roll_pitch_std_deg"] * d2r, init["yaw_std_deg"] * d2r],
-        np.full(3, init["accel_bias_std_mps2"]),
-        np.full(3, init["gyro_bias_std_dps"] * d2r),
-    ])
-    return FilterParams(
-        lidar_update=c["filter"]["lidar_update"],
-        use_gnss=c["filter"]["use_gnss"],
-        bias_model=c["filter"]["bias_model"],
-        gravity_mps2=gravity_mps2,
-        accel_noise=c["imu"]["accel_noise_mps2_sqrthz"],
-        gyro_noise=c["imu"]["gyro_noise_dps_sqrthz"] * d2r,
-        accel_bias_rw=c["imu"]["accel_bias_rw_mps3_sqrthz"],
-        gyro_bias_rw=c["imu"]["gyro_bias_rw_dps2_sqrthz"] * d2r,
-        gap_factor=c["imu"]["gap_factor"],
-        gap_noise_scale=c["imu"]["gap_noise_scale"],
-        rel_pos_std_m=c["lidar"]["relative_pos_std_m"],
-        rel_pos_std_frac=c["lidar"]["relative_pos_std_frac"],
-        rel_att_std_rad=c["lidar"]["relative_att_std_deg"] * d2r,
-        abs_pos_std_m=c["lidar"]["absolute_pos_std_m"],
-        abs_att_std_rad=c["lidar"]["absolute_att_std_deg"] * d2r,
-        gnss_lever_arm_b_m=np.array(c["gnss"]["lever_arm_b_m"], float),
-        init_std=init_std,
-        formulation=c["filter"]["formulation"],
-        process_model=c["filter"]["process_model"],
-        iterations=int(c["filter"]["iterations"]),
-        iteration_tol=c["filter"]["iteration_tol"],
-        odometer_update=c["filter"]["odometer_update"],
-        nhc=c["filter"]["nhc"],
-        nhc_max_turn_rate_rps=c["filter"]["nhc_max_turn_rate_rps"],
-        nhc_rate_hz=c["filter"]["nhc_rate_hz"],
-        nhc_std_mps=c["filter"]["nhc_std_mps"],
-        odo_speed_std_mps=c["odometer"]["speed_std_mps"],
-        odo_speed_noise=c["odometer"]["speed_noise_mps_sqrthz"],
-        odo_slip_noise=c["odometer"]["slip_noise_mps_sqrthz"],
-        odo_scale_rw=c["odometer"]["scale_rw_per_sqrts"],
-        odo_scale_init_std=init["odometer_scale_std"],
-    )
+def si_name(name: str) -> tuple[str, float]:
+    """The SI name of a key and the factor its value is multiplied by (``gyro_noise_dps_sqrthz`` ->
+    ``gyro_noise_rps_sqrthz``, pi/180); names already in SI map to themselves with factor 1."""
+    parts = name.split("_")
+    factor = 1.0
+    for i, p in enumerate(parts):
+        if p in _SI_UNITS:
+            parts[i], factor = _SI_UNITS[p]
+    return "_".join(parts), factor
 
 
-def check_combination(cfg: dict) -> None:
-    """Reject combinations of variant axes that do not make sense, naming the keys."""
-    f = cfg["filter"]
-    if f["process_model"] == "odometer_gyro":
-        if f["formulation"] != "error_state":
-            raise ConfigError("filter.process_model=odometer_gyro is an error-state filter: use filter.formulation=error_state")
-        if f["odometer_update"] or f["nhc"]:
-            raise ConfigError("filter.process_model=odometer_gyro already drives the prediction with the odometer and the "
-                              "no-slip assumption: set filter.odometer_update=false and filter.nhc=false")
+def _scaled(value, factor: float):
+    if factor == 1.0 or value is None or isinstance(value, (str, bool)):
+        return value
+    if isinstance(value, list):
+        return [v * factor for v in value]
+    return value * factor
+
+
+class _Section:
+    __slots__ = ("_name", "_values")
+
+    def __init__(self, name: str, values: dict):
+        self._name, self._values = name, values
+
+    def __getattr__(self, key: str):
+        try:
+            return self._values[key]
+        except KeyError:
+            raise AttributeError(f"settings {self._name}.{key}: no such (SI) key; "
+                                 f"known: {', '.join(self._values)}") from None
+
+    def __repr__(self) -> str:
+        return f"{self._name}({self._values})"
+
+
+class Settings:
+    """A resolved configuration in SI units (rad, m, s), converted once: ``s.imu.gyro_noise_rps_sqrthz``.
+
+    Keys whose name carries a non-SI unit token (deg, dps, dps2) are renamed and scaled; the others keep
+    their name and value. ``cfg`` holds the human-unit configuration it was built from.
+    """
+
+    def __init__(self, cfg: dict):
+        self.cfg = copy.deepcopy(cfg)
+        self._sections = {}
+        for sect, body in self.cfg.items():
+            vals = {}
+            for k, v in body.items():
+                name, f = si_name(k)
+                vals[name] = _scaled(v, f)
+            self._sections[sect] = _Section(sect, vals)
+
+    def __getattr__(self, sect: str) -> _Section:
+        try:
+            return self._sections[sect]
+        except KeyError:
+            raise AttributeError(f"settings: no section {sect!r}") from None

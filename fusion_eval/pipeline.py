@@ -13,7 +13,7 @@ from typing import Callable
 
 import numpy as np
 
-from .config import load_config, to_filter_params
+from .config import Settings, load_config
 from .datasets.manifest import load_dataset
 from .evaluation import EstimateEvaluation, evaluate, ratio
 from .outputs import StagedDir
@@ -56,7 +56,7 @@ def run(dataset_path: Path, config_path: Path | None, sets: tuple[str, ...], out
              len(ds.gnss) if ds.gnss else 0, len(ds.lidar) if ds.lidar else 0, len(ds.groundtruth) if ds.groundtruth else 0)
     t = time.perf_counter()
     prep = prepare(ds, cfg)
-    fp = to_filter_params(cfg, prep.gravity_mps2)
+    fp = Settings(cfg)
     timings["prepare"] = time.perf_counter() - t
     series: dict[str, PoseSeries] = {"groundtruth": prep.groundtruth}
     if prep.lidar is not None:

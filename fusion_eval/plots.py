@@ -10,7 +10,9 @@ matplotlib.use("Agg")
 import matplotlib.pyplot as plt  # noqa: E402
 import numpy as np  # noqa: E402
 
-from .filters.kernels import BA_ID, BG_ID, P_ID  # noqa: E402
+from .filters.layout import CANONICAL  # noqa: E402
+
+BA_ID, BG_ID, P_ID = (CANONICAL.start(b) for b in ("BA", "BG", "P"))
 
 COLORS = {"groundtruth": "black", "fused": "tab:red", "lidar": "tab:blue", "gnss": "tab:green", "imu_only": "tab:orange"}
 LABELS = {"groundtruth": "ground truth", "fused": "fused", "lidar": "lidar odometry", "gnss": "GNSS",

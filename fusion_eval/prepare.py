@@ -13,10 +13,11 @@ from dataclasses import dataclass, field, replace
 import numpy as np
 
 from .calibration import estimate_gyro_lag
-from .config import check_combination, get
+from .config import get
 from .degrade import degrade_gnss
 from .errors import ConfigError, DataRangeError
-from .filters.eskf import NominalState
+from .filters import check_combination, formulation_of, observations
+from .filters.state import NominalState
 from .geo import normal_gravity_mps2
 from .interp import interpolate_pose_at, snap_to_stamps
 from .so3 import inv_T, make_T, matrix_to_quat_xyzw
@@ -73,16 +74,32 @@ def anchor_lidar(lidar_odom: PoseSeries, gt: PoseSeries) -> tuple[PoseSeries, fl
     return replace(base, p_w_m=T_w[:, :3, 3], q_wb_xyzw=matrix_to_quat_xyzw(T_w[:, :3, :3])), float(lidar_odom.t_s[a])
 
 
+def needed_streams(cfg: dict) -> dict[str, str]:
+    """The streams the configured filter needs, each with the key that asks for it."""
+    need: dict[str, str] = {}
+    for o in observations.enabled(cfg):
+        for st in o.streams:
+            need.setdefault(st, o.enabled_by)
+    for st in formulation_of(cfg).streams:
+        need.setdefault(st, "filter.process_model")
+    return need
+
+
+def _off(key: str) -> str:
+    return f"{key}={'none' if key == 'filter.lidar_update' else 'false'}" if key != "filter.process_model" else \
+        "filter.process_model=imu"
+
+
 def prepare(ds: Dataset, cfg: dict) -> Prepared:
     check_combination(cfg)
-    use_lidar = cfg["filter"]["lidar_update"] != "none"
-    use_gnss = cfg["filter"]["use_gnss"]
+    need = needed_streams(cfg)
+    use_lidar = "lidar" in need
+    use_gnss = "gnss" in need
     if ds.groundtruth is None:
         raise ConfigError(f"dataset {ds.name!r} has no groundtruth stream; fusion-eval run evaluates against ground truth")
-    if use_lidar and ds.lidar is None:
-        raise ConfigError(f"dataset {ds.name!r} has no lidar stream; set filter.lidar_update=none")
-    if use_gnss and ds.gnss is None:
-        raise ConfigError(f"dataset {ds.name!r} has no gnss stream; set filter.use_gnss=false")
+    for st, key in need.items():
+        if ds.stream(st) is None:
+            raise ConfigError(f"dataset {ds.name!r} has no {st} stream, which {key} needs; set {_off(key)}")
 
     applied: dict = {"time_offset_s": {}}
     # --- IMU: offset, drop filled packets, gyro lag
@@ -167,10 +184,7 @@ def prepare(ds: Dataset, cfg: dict) -> Prepared:
 
     # --- odometer: offset, optional degradation (KITTI's vf is the GPS/INS solution)
     odo = None
-    needs_odo = cfg["filter"]["odometer_update"] or cfg["filter"]["process_model"] == "odometer_gyro"
-    if needs_odo and ds.odometer is None:
-        raise ConfigError(f"dataset {ds.name!r} has no odometer stream; it is needed by filter.odometer_update or "
-                          "filter.process_model=odometer_gyro")
+    needs_odo = "odometer" in need
     if ds.odometer is not None:
         off = _offset(cfg, ds, "odometer")
         applied["time_offset_s"]["odometer"] = off

@@ -9,7 +9,7 @@ Conventions, written once here:
 * Attitude errors are right (body-frame, local) perturbations: ``R = R_hat @ Exp(dtheta)``.
 * Euler angles of KITTI OXTS are ``R_wb = Rz(yaw) @ Ry(pitch) @ Rx(roll)`` (the devkit's convention).
 
-The numba kernels in :mod:`fusion_eval.filters` carry their own scalar versions of ``skew``/``Exp``;
+The numba kernels in :mod:`fusion_eval.filters.mech` carry their own scalar versions of ``skew``/``Exp``;
 the vectorised numpy versions here are what the rest of the package and the tests use.
 """
 

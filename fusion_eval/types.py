@@ -220,3 +220,10 @@ class Dataset:
     odometer: SpeedSeries | None = None
     geodetic_origin: tuple[float, float, float] | None = None
     description: dict = field(default_factory=dict)
+    extra: dict = field(default_factory=dict)     # streams of registered observations beyond the built-in ones
+
+    BUILTIN = ("imu", "groundtruth", "gnss", "lidar", "odometer")
+
+    def stream(self, name: str):
+        """A stream by its manifest name (None when the dataset has none)."""
+        return getattr(self, name) if name in self.BUILTIN else self.extra.get(name)

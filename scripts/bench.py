@@ -26,11 +26,14 @@ import numpy as np
 ROOT = Path(__file__).resolve().parent.parent
 sys.path.insert(0, str(ROOT))
 
-from fusion_eval.config import load_config, to_filter_params  # noqa: E402
+from fusion_eval.config import Settings, load_config  # noqa: E402
 from fusion_eval.datasets.manifest import load_dataset  # noqa: E402
-from fusion_eval.filters.eskf import ErrorStateKF, NominalState  # noqa: E402
+from fusion_eval.filters.formulations.base import canonical_prior_std, gap_of  # noqa: E402
+from fusion_eval.filters.formulations.eskf import ErrorStateKF  # noqa: E402
+from fusion_eval.filters.formulations.imu_model import imu_inputs  # noqa: E402
+from fusion_eval.filters.state import NominalState  # noqa: E402
 from fusion_eval.prepare import prepare  # noqa: E402
-from fusion_eval.replay import process_params, replay  # noqa: E402
+from fusion_eval.replay import replay  # noqa: E402
 
 
 def propagation_rate(n_samples: int, clone: bool) -> float:
@@ -38,11 +41,10 @@ def propagation_rate(n_samples: int, clone: bool) -> float:
     t = np.arange(n_samples) * 0.01
     f = np.tile([0.0, 0.0, 9.81], (n_samples, 1)) + rng.normal(size=(n_samples, 3)) * 0.1
     w = rng.normal(size=(n_samples, 3)) * 0.01
-    cfg = load_config(None)
-    fp = to_filter_params(cfg, 9.81)
-    prm = process_params(fp, t)
+    s = Settings(load_config(None))
+    prm = ErrorStateKF.run_params(s, 9.81)
     x0 = NominalState(np.zeros(3), np.zeros(3), np.eye(3), np.zeros(3), np.zeros(3))
-    kf = ErrorStateKF(x0, np.diag(fp.init_std ** 2), prm, t, f, w, 0)
+    kf = ErrorStateKF(x0, np.diag(canonical_prior_std(s) ** 2), prm, t, imu_inputs(f, w), 0, gap_of(s, t))
     if clone:
         kf.clone_pose()
     kf.predict_to(t[100])  # compile / load from cache
@@ -55,7 +57,7 @@ def replay_rate() -> tuple[float, float, int]:
     ds = load_dataset(ROOT / "data" / "kitti-00")
     cfg = load_config(ROOT / "configs" / "default.yaml")
     prep = prepare(ds, cfg)
-    fp = to_filter_params(cfg, prep.gravity_mps2)
+    fp = Settings(cfg)
     replay(prep, fp)  # warm-up
     t0 = time.perf_counter()
     out = replay(prep, fp)

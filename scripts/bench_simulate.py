@@ -26,7 +26,7 @@ import numpy as np
 ROOT = Path(__file__).resolve().parent.parent
 sys.path.insert(0, str(ROOT))
 
-from fusion_eval.config import load_config, to_filter_params  # noqa: E402
+from fusion_eval.config import Settings, load_config  # noqa: E402
 from fusion_eval.consistency import fraction_inside, pose_nees  # noqa: E402
 from fusion_eval.datasets.manifest import load_dataset  # noqa: E402
 from fusion_eval.prepare import prepare  # noqa: E402
@@ -53,7 +53,7 @@ def consistency(tmp: str, mode: str, extra: tuple[str, ...]) -> None:
     ds = load_dataset(d)
     cfg = load_config(None, extra, layers=((ds.description["config"], "manifest"),))
     prep = prepare(ds, cfg)
-    out = replay(prep, to_filter_params(cfg, prep.gravity_mps2))
+    out = replay(prep, Settings(cfg))
     gt = prep.groundtruth
     i = np.searchsorted(gt.t_s, out.fused.t_s)
     n_pos, n_att = pose_nees(out.fused.p_w_m, out.fused.R_wb(), gt.p_w_m[i], gt.R_wb()[i], out.P_pos_att)

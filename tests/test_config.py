@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 
 from conftest import ROOT
-from fusion_eval.config import SCHEMA, default_config, load_config, to_filter_params
+from fusion_eval.config import Settings, default_config, load_config, schema
 from fusion_eval.errors import ConfigError
 
 
@@ -44,16 +44,18 @@ def test_invalid_settings_are_rejected_with_the_key(item, msg):
 
 def test_human_units_convert_to_si_once():
     cfg = load_config(None, ("imu.gyro_noise_dps_sqrthz=1.0", "init.yaw_std_deg=2.0", "lidar.relative_att_std_deg=0.5"))
-    fp = to_filter_params(cfg, 9.8)
-    assert np.isclose(fp.gyro_noise, np.pi / 180)
-    assert np.isclose(fp.init_std[8], 2 * np.pi / 180) and np.isclose(fp.init_std[6], 0.1 * np.pi / 180)
-    assert np.isclose(fp.rel_att_std_rad, 0.5 * np.pi / 180)
-    assert fp.gravity_mps2 == 9.8
+    s = Settings(cfg)
+    assert np.isclose(s.imu.gyro_noise_rps_sqrthz, np.pi / 180)
+    assert np.isclose(s.init.yaw_std_rad, 2 * np.pi / 180) and np.isclose(s.init.roll_pitch_std_rad, 0.1 * np.pi / 180)
+    assert np.isclose(s.lidar.relative_att_std_rad, 0.5 * np.pi / 180)
+    assert s.imu.accel_noise_mps2_sqrthz == cfg["imu"]["accel_noise_mps2_sqrthz"]      # SI already: unchanged
+    with pytest.raises(AttributeError, match="no such"):
+        s.imu.gyro_noise_dps_sqrthz                                                    # no human units in the SI view
 
 
 def test_every_key_is_documented_in_the_readme():
     readme = (ROOT / "README.md").read_text()
-    missing = [k for k in SCHEMA if f"`{k}`" not in readme]
+    missing = [k for k in schema() if f"`{k}`" not in readme]
     assert not missing, missing
 
 
@@ -69,5 +71,5 @@ def test_configs_default_yaml_names_every_key():
     import yaml
 
     body = yaml.safe_load((ROOT / "configs" / "default.yaml").read_text())
-    missing = [k for k in SCHEMA if k.split(".")[1] not in (body.get(k.split(".")[0]) or {})]
+    missing = [k for k in schema() if k.split(".")[1] not in (body.get(k.split(".")[0]) or {})]
     assert not missing, missing

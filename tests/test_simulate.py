@@ -13,11 +13,13 @@ from click.testing import CliRunner
 
 from conftest import ROOT
 from fusion_eval.cli import main
-from fusion_eval.config import load_config, to_filter_params
+from fusion_eval.config import Settings, load_config
 from fusion_eval.consistency import fraction_inside, pose_nees
 from fusion_eval.datasets.manifest import load_dataset
-from fusion_eval.filters import kernels as kn
-from fusion_eval.filters.eskf import NominalState, dead_reckon
+from fusion_eval.filters.formulations.eskf import dead_reckon, positions_attitudes
+from fusion_eval.filters.formulations.imu_model import imu_inputs, imu_params
+from fusion_eval.filters.layout import CANONICAL
+from fusion_eval.filters.state import NominalState
 from fusion_eval.prepare import prepare
 from fusion_eval.replay import replay
 from fusion_eval.simulate.settings import GRADES
@@ -33,7 +35,7 @@ def _filter(ds_path: Path, *sets: str):
     ds = load_dataset(ds_path)
     cfg = load_config(None, sets, layers=((ds.description["config"], "manifest"),))
     prep = prepare(ds, cfg)
-    return ds, prep, replay(prep, to_filter_params(cfg, prep.gravity_mps2))
+    return ds, prep, replay(prep, Settings(cfg))
 
 
 def test_noise_free_imu_follows_the_true_trajectory(tmp_path):
@@ -42,11 +44,10 @@ def test_noise_free_imu_follows_the_true_trajectory(tmp_path):
              "--set", "output.layout=csv")
     ds = load_dataset(d)
     gt = ds.groundtruth
-    prm = np.zeros(kn.N_PRM)
-    prm[kn.PRM_G] = json.loads(json.dumps(__import__("yaml").safe_load((d / "truth" / "sensors.yaml").read_text())))["gravity_mps2"]
-    prm[kn.PRM_GAP_DT], prm[kn.PRM_GAP_SCALE2] = np.inf, 1.0
+    g = json.loads(json.dumps(__import__("yaml").safe_load((d / "truth" / "sensors.yaml").read_text())))["gravity_mps2"]
     x0 = NominalState(gt.p_w_m[0].copy(), gt.v_w_mps[0].copy(), gt.R_wb()[0].copy(), np.zeros(3), np.zeros(3))
-    p, _ = dead_reckon(x0, prm, ds.imu.t_s, ds.imu.f_b_mps2, ds.imu.w_b_rps, 0)
+    p, _ = positions_attitudes(dead_reckon(x0, imu_params(g, 0, 0, 0, 0), ds.imu.t_s,
+                                           imu_inputs(ds.imu.f_b_mps2, ds.imu.w_b_rps), 0))
     err = np.linalg.norm(p - gt.p_w_m, axis=1)
     assert gt.t_s[-1] - gt.t_s[0] == pytest.approx(600.0)
     assert err[-1] < 0.1 and err.max() < 0.1, err.max()
@@ -114,7 +115,7 @@ def test_estimated_biases_converge_to_the_true_ones(urban_gnss_mm):
     truth = np.loadtxt(d / "truth" / "imu_biases.csv", delimiter=",", skiprows=1)
     k = np.searchsorted(truth[:, 0], out.fused.t_s[-1] - 1e-6)
     err = np.concatenate([out.accel_bias_b[-1] - truth[k, 1:4], out.gyro_bias_b[-1] - truth[k, 4:7]])
-    sigma = out.sigma[-1, kn.BA_ID:kn.BG_ID + 3]
+    sigma = out.sigma[-1, CANONICAL.index("BA", "BG")]
     assert np.all(np.abs(err) <= 3 * sigma), err / sigma
     # and the filter learnt them: the final sigma is well below the initial bias spread
     assert np.all(sigma[3:] < 0.2 * np.radians(GRADES["automotive"]["imu"]["gyro_bias_init_std_dps"]))

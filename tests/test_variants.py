@@ -9,12 +9,13 @@ import pytest
 from click.testing import CliRunner
 
 from fusion_eval.cli import main
-from fusion_eval.config import load_config, to_filter_params
+from fusion_eval.config import Settings, load_config
 from fusion_eval.datasets.manifest import load_dataset
 from fusion_eval.errors import ConfigError
-from fusion_eval.filters import observations as obs
-from fusion_eval.filters.eskf import ErrorStateKF
-from fusion_eval.filters.registry import combinations
+from fusion_eval.filters import check_combination, combinations
+from fusion_eval.filters.formulations.eskf import ErrorStateKF
+from fusion_eval.filters.observations.gnss_position import gnss_position
+from fusion_eval.filters.observations.relative_pose import relative_pose
 from fusion_eval.filters.state import NominalState
 from fusion_eval.prepare import prepare
 from fusion_eval.replay import replay
@@ -52,7 +53,7 @@ def _run(ds_path: Path, sets: dict | tuple = ()):
         if isinstance(sets, dict) else tuple(sets)
     cfg = load_config(None, items, layers=((ds.description["config"], "manifest"),) if ds.description.get("config") else ())
     prep = prepare(ds, cfg)
-    return prep, replay(prep, to_filter_params(cfg, prep.gravity_mps2))
+    return prep, replay(prep, Settings(cfg))
 
 
 def _ape(prep, out) -> float:
@@ -79,8 +80,6 @@ def test_every_combination_runs_on_kitti(kitti_slice, combo):
 def test_invalid_combinations_are_rejected():
     for sets in (("filter.process_model=odometer_gyro", "filter.formulation=nominal_state"),
                  ("filter.process_model=odometer_gyro", "filter.nhc=true")):
-        from fusion_eval.config import check_combination
-
         with pytest.raises(ConfigError, match="odometer_gyro"):
             check_combination(load_config(None, sets))
 
@@ -98,15 +97,15 @@ def test_iterated_update_with_one_iteration_is_the_plain_ekf():
     x0 = NominalState(rng.normal(size=3), rng.normal(size=3), exp_so3(rng.normal(size=3)), np.zeros(3), np.zeros(3))
     t = np.array([0.0, 0.1])
     z = np.zeros((2, 3))
-    prm = np.zeros(7)
-    filters = [ErrorStateKF(x0, np.diag(np.linspace(0.01, 0.2, 15)), prm, t, z, z, 0) for _ in range(2)]
+    prm = np.zeros(5)
+    filters = [ErrorStateKF(x0, np.diag(np.linspace(0.01, 0.2, 15)), prm, t, np.zeros((2, 6)), 0) for _ in range(2)]
     for kf in filters:
         kf.clone_pose()
-    model = lambda x, cp, cR: obs.relative_pose(x, cp, cR, dp_obs_c=np.array([0.3, -0.1, 0.05]),  # noqa: E731
+    model = lambda x, cp, cR: relative_pose(x, cp, cR, dp_obs_c=np.array([0.3, -0.1, 0.05]),  # noqa: E731
                                                 dR_obs=exp_so3(np.array([0.01, 0.02, -0.03])), pos_std_m=0.05,
                                                 att_std_rad=0.01)
-    nis_a = filters[0].update(model)                       # compiled plain EKF update
-    nis_b = filters[1].update_iterated(model, 1)           # generic, one iteration
+    nis_a, _ = filters[0].update(model)                    # compiled plain EKF update
+    nis_b, _ = filters[1].update_iterated(model, 1)        # generic, one iteration
     a, b = filters
     assert abs(nis_a - nis_b) < 1e-10
     assert np.allclose(a.x.p_w_m, b.x.p_w_m, atol=1e-12) and np.allclose(a.x.R_wb, b.x.R_wb, atol=1e-12)
@@ -122,8 +121,8 @@ def test_iterations_pull_a_nonlinear_update_closer_to_the_observation():
     res = []
     for n in (1, 8):
         P0 = np.diag([1e-6] * 3 + [1.0] * 3 + [1.0] * 3 + [1e-8] * 6)
-        kf = ErrorStateKF(x0, P0, np.zeros(7), np.array([0.0, 0.1]), np.zeros((2, 3)), np.zeros((2, 3)), 0)
-        kf.update(lambda x, cp, cR: obs.gnss_position(x, p_obs_w=z, std_w=np.full(3, 1e-3), lever_arm_b=lever),
+        kf = ErrorStateKF(x0, P0, np.zeros(5), np.array([0.0, 0.1]), np.zeros((2, 6)), 0)
+        kf.update(lambda x, cp, cR: gnss_position(x, p_obs_w=z, std_w=np.full(3, 1e-3), lever_arm_b=lever),
                   iterations=n)
         res.append(np.linalg.norm(z - (kf.x.p_w_m + kf.x.R_wb @ lever)))
     assert res[1] < 0.1 * res[0], res

@@ -1,102 +1,121 @@
-"""The one loop over IMU samples that every IMU-driven filter uses (compiled).
+"""The one loop over IMU samples that every filter uses (compiled), with a per-formulation step.
 
-It steps the strapdown mechanization from the sample the state sits at through every IMU sample up to
-a target time, then to the target itself with the IMU interpolated there (so an observation is
-applied at its own time), and records the state at each sample passed. ``mode`` selects what
-happens to the covariance: nothing (dead reckoning), the error state's ``F P F^T + Q``
-(:func:`fusion_eval.filters.kernels.propagate_cov`) or the full state's
-(:func:`fusion_eval.filters.nominal_kernels.nominal_propagate_cov`).
+The loop steps the state from the sample it sits at through every sample up to a target time, then to the
+target itself with the inputs interpolated there (so an observation is applied at its own time), marks
+the intervals that are gaps (longer than the gap threshold, however an observation splits them) by
+scaling the white process noise, and records the nominal state and the canonical covariance at each
+sample passed. What a formulation supplies is its step and how to record its covariance:
+
+``step(x, P, n, u0, u1, dt, qscale, prm, aux, cov)``
+    propagates the nominal vector ``x`` (layout ``NOMINAL``) and, when ``cov``, ``P[:n, :n]`` over one
+    interval with the input rows ``u0 -> u1`` (``qscale`` multiplies the white-noise variances);
+``record_cov(P, n, x, aux, cidx, diag_out, ppt_out)``
+    writes the canonical error variances (15) and the 6x6 covariance of ``[dp, dtheta]`` (for NEES).
+
+Everything the loop reads and writes travels in one :class:`FilterArrays` record. Numba compiles a
+function that receives another compiled function as an argument once per argument and cannot cache
+it (and converting it costs ~45 us per call), so the loop is written here once, as source, and each
+formulation instantiates it with its own step and recording (:func:`compiled_loop`); each copy is
+cached in its formulation's module.
 """
 
 from __future__ import annotations
 
+import hashlib
+import sys
+from collections import namedtuple
+
 import numpy as np
 from numba import njit
 
-from .kernels import N_CORE, P_ID, PRM_G, PRM_GAP_DT, TH_ID, mech_step, propagate_cov
-from .nominal_kernels import aligned_quat, canonical_cov, nominal_propagate_cov
+from .layout import CANONICAL, POSE_BLOCKS
 
-COV_NONE, COV_ERROR_STATE, COV_NOMINAL = 0, 1, 2
+FilterArrays = namedtuple("FilterArrays", [
+    "x",          # (NOMINAL.n,) nominal state, in place
+    "P",          # (n_max, n_max) covariance of the formulation's own state, in place
+    "last",       # (1 + m,) the time and the input row the state currently sits at
+    "t",          # (N,) sample stamps, s
+    "u",          # (N, m) input rows (IMU: f_b, w_b; odometer + gyro: v, w_b)
+    "prm",        # the formulation's parameter record (named indices in its module)
+    "gap",        # (2,) gap threshold (s) and the white-noise variance scale of a gap
+    "aux",        # formulation scratch (e.g. the nominal filter's quaternion sign reference)
+    "cidx",       # (15,) own index of each canonical core state, -1 where the map is not the identity
+    "rec_x",      # (N, NOMINAL.n) recorded nominal states
+    "rec_Pdiag",  # (N, 15) recorded canonical variances
+    "rec_Ppt",    # (N, 6, 6) recorded covariance of [dp, dtheta]
+])
 
-
-@njit(cache=True)
-def _step(p, v, R, ba, bg, P, n, f0, w0, f1, w1, dt, prm, mode, gap, qref):
-    if mode != COV_NONE:
-        # linearise at the start-of-interval attitude and the midpoint, bias-corrected IMU values
-        fm = 0.5 * (f0 + f1) - ba
-        wm = 0.5 * (w0 + w1) - bg
-        if mode == COV_ERROR_STATE:
-            propagate_cov(P, n, R, fm, wm, dt, prm, gap)
-        else:
-            nominal_propagate_cov(P, n, aligned_quat(R, qref), fm, wm, dt, prm, gap)
-    mech_step(p, v, R, ba, bg, f0, w0, f1, w1, dt, prm[PRM_G])
-    if mode == COV_NOMINAL:
-        qref[:] = aligned_quat(R, qref)
-
-
-@njit(cache=True)
-def _record(k, p, v, R, ba, bg, P, mode, qref, rec_p, rec_v, rec_R, rec_ba, rec_bg, rec_Pdiag, rec_Ppt):
-    rec_p[k] = p
-    rec_v[k] = v
-    rec_R[k] = R
-    rec_ba[k] = ba
-    rec_bg[k] = bg
-    if mode == COV_ERROR_STATE:
-        for i in range(N_CORE):
-            rec_Pdiag[k, i] = P[i, i]
-        for i in range(3):
-            for j in range(3):
-                rec_Ppt[k, i, j] = P[P_ID + i, P_ID + j]
-                rec_Ppt[k, i, 3 + j] = P[P_ID + i, TH_ID + j]
-                rec_Ppt[k, 3 + i, j] = P[TH_ID + i, P_ID + j]
-                rec_Ppt[k, 3 + i, 3 + j] = P[TH_ID + i, TH_ID + j]
-    elif mode == COV_NOMINAL:
-        d, ppt = canonical_cov(P, qref)
-        rec_Pdiag[k] = d
-        rec_Ppt[k] = ppt
-
-
-@njit(cache=True)
-def predict_to(p, v, R, ba, bg, P, n, last, imu_t, imu_f, imu_w, k_next, t_target, prm, mode,
-               rec_p, rec_v, rec_R, rec_ba, rec_bg, rec_Pdiag, rec_Ppt, qref):
-    """Propagate through every IMU sample up to ``t_target`` and then to ``t_target`` itself.
-
-    ``last`` (7,) holds the IMU sample the state currently sits at: ``[t, fx, fy, fz, wx, wy, wz]``.
-    Samples ``k_next, k_next+1, ...`` with stamps ``<= t_target`` are integrated one by one and the
-    state at each is recorded at index k (``rec_Pdiag`` the error-state variances, ``rec_Ppt`` the
-    6x6 covariance of ``[dp, dtheta]``, for NEES). If ``t_target`` falls between two samples, the
-    IMU is linearly interpolated there and ``last`` becomes that interpolated sample. ``qref`` is the
-    sign reference of the nominal filter's quaternion (unused otherwise). Returns the new ``k_next``.
-    """
-    N = imu_t.shape[0]
-    f0 = last[1:4].copy()
-    w0 = last[4:7].copy()
-    t0 = last[0]
-    k = k_next
-    while k < N and imu_t[k] <= t_target:
-        dt = imu_t[k] - t0
-        # a gap is a long interval between two IMU samples, however an observation splits it
-        gap = k > 0 and imu_t[k] - imu_t[k - 1] > prm[PRM_GAP_DT]
+_LOOP = '''
+def {name}(a, n, k, t_target, cov):
+    N = a.t.shape[0]
+    u0 = a.last[1:].copy()
+    t0 = a.last[0]
+    while k < N and a.t[k] <= t_target:
+        dt = a.t[k] - t0
+        # a gap is a long interval between two samples, however an observation splits it
+        qscale = a.gap[1] if (k > 0 and a.t[k] - a.t[k - 1] > a.gap[0]) else 1.0
         if dt > 0.0:
-            _step(p, v, R, ba, bg, P, n, f0, w0, imu_f[k], imu_w[k], dt, prm, mode, gap, qref)
-        t0 = imu_t[k]
-        f0 = imu_f[k].copy()
-        w0 = imu_w[k].copy()
-        _record(k, p, v, R, ba, bg, P, mode, qref, rec_p, rec_v, rec_R, rec_ba, rec_bg, rec_Pdiag, rec_Ppt)
+            _step(a.x, a.P, n, u0, a.u[k], dt, qscale, a.prm, a.aux, cov)
+        t0 = a.t[k]
+        u0 = a.u[k].copy()
+        a.rec_x[k, :] = a.x
+        if cov:
+            _record_cov(a.P, n, a.x, a.aux, a.cidx, a.rec_Pdiag[k], a.rec_Ppt[k])
         k += 1
     if t_target > t0 and k < N:
-        a = (t_target - t0) / (imu_t[k] - t0)
-        f1 = f0 + a * (imu_f[k] - f0)
-        w1 = w0 + a * (imu_w[k] - w0)
-        gap = k > 0 and imu_t[k] - imu_t[k - 1] > prm[PRM_GAP_DT]
-        _step(p, v, R, ba, bg, P, n, f0, w0, f1, w1, t_target - t0, prm, mode, gap, qref)
+        frac = (t_target - t0) / (a.t[k] - t0)
+        u1 = u0 + frac * (a.u[k] - u0)
+        qscale = a.gap[1] if (k > 0 and a.t[k] - a.t[k - 1] > a.gap[0]) else 1.0
+        _step(a.x, a.P, n, u0, u1, t_target - t0, qscale, a.prm, a.aux, cov)
         t0 = t_target
-        f0 = f1
-        w0 = w1
-    last[0] = t0
-    last[1:4] = f0
-    last[4:7] = w0
+        u0 = u1
+    a.last[0] = t0
+    a.last[1:] = u0
     return k
+'''
+_DIGEST = hashlib.sha1(_LOOP.encode()).hexdigest()[:10]
 
 
-NO_QREF = np.array([1.0, 0.0, 0.0, 0.0])
+def compiled_loop(module_name: str, step, record_cov):
+    """``predict_to(arrays, n, k_next, t_target, cov) -> k_next`` for one formulation.
+
+    Propagates through every sample ``k_next, k_next + 1, ...`` with a stamp ``<= t_target``, recording
+    the state at each, then to ``t_target`` itself (the input interpolated linearly there, and ``last``
+    set to that interpolated input). ``cov`` False propagates the state alone (dead reckoning).
+    The copy is compiled into (and cached beside) the module ``module_name``; the template's digest is
+    in its name, so a change of the loop invalidates every cached copy.
+    """
+    mod = sys.modules[module_name]
+    name = f"_predict_to_{_DIGEST}"
+    ns = {"_step": step, "_record_cov": record_cov, "np": np, "__name__": module_name}
+    exec(compile(_LOOP.format(name=name), mod.__file__, "exec"), ns)  # noqa: S102 - our own template
+    fn = ns[name]
+    fn.__qualname__ = name
+    return njit(cache=True)(fn)
+
+
+_PT = CANONICAL.index(*POSE_BLOCKS)
+
+
+@njit(cache=True)
+def record_cov_by_index(P, n, x, aux, cidx, diag_out, ppt_out):
+    """The canonical covariance of a formulation whose blocks equal canonical ones (``cidx``); states
+    it does not have are NaN."""
+    for i in range(cidx.shape[0]):
+        j = cidx[i]
+        diag_out[i] = P[j, j] if j >= 0 else np.nan
+    for a in range(_PT.shape[0]):
+        ia = cidx[_PT[a]]
+        for b in range(_PT.shape[0]):
+            ib = cidx[_PT[b]]
+            ppt_out[a, b] = P[ia, ib] if (ia >= 0 and ib >= 0) else np.nan
+
+
+def new_arrays(x: np.ndarray, P: np.ndarray, t: np.ndarray, u: np.ndarray, k0: int, prm: np.ndarray, gap: np.ndarray,
+               aux: np.ndarray, cidx: np.ndarray, record: bool = True) -> FilterArrays:
+    """The record of one filter run, sitting at sample ``k0`` (the recording arrays NaN until written)."""
+    N = t.size
+    rows = N if record else 1
+    return FilterArrays(x=x, P=P, last=np.concatenate([[t[k0]], u[k0]]), t=t, u=u, prm=prm, gap=gap, aux=aux, cidx=cidx,
+                        rec_x=np.full((N, x.size), np.nan), rec_Pdiag=np.full((rows, CANONICAL.n_core), np.nan),
+                        rec_Ppt=np.full((rows, _PT.size, _PT.size), np.nan))

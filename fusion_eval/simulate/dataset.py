@@ -59,7 +59,7 @@ class _NoAliases(yaml.SafeDumper):
 def sim_config(grade: str, sets: tuple[str, ...]) -> dict:
     if grade not in GRADES:
         raise ConfigError(f"unknown grade {grade!r} (known: {', '.join(GRADES)})")
-    return load_config(None, sets, schema=SIM_SCHEMA, layers=((GRADES[grade], f"grade {grade}"),))
+    return load_config(None, sets, schema_=SIM_SCHEMA, layers=((GRADES[grade], f"grade {grade}"),))
 
 
 # decimals of the 30 OXTS fields: lat lon (1e-12 deg = 0.1 um), alt, angles, velocities, IMU, accuracies, status

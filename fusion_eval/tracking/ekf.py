@@ -20,7 +20,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from ..errors import FilterDivergedError
-from ..filters.kernels import joseph_update
+from ..filters.linalg import joseph_update
 
 
 @dataclass(frozen=True)
@@ -114,7 +114,7 @@ def _run_track(m, p: TrackParams) -> TrackResult:
             P = F @ P @ F.T + Q
         try:
             if k == "L":
-                dx, s = joseph_update(P, 4, H_l, z[:2] - H_l @ x, R_l)
+                dx, s, _ = joseph_update(P, 4, H_l, z[:2] - H_l @ x, R_l, np.inf)
             elif np.hypot(x[0], x[1]) < p.min_range:
                 xs.append(x.copy())          # too close to the sensor to linearise the radar model
                 nis.append(np.nan)
@@ -122,7 +122,7 @@ def _run_track(m, p: TrackParams) -> TrackResult:
             else:
                 r = z - h_radar(x)
                 r[1] = wrap_angle(r[1])
-                dx, s = joseph_update(P, 4, radar_jacobian(x), r, R_r)
+                dx, s, _ = joseph_update(P, 4, radar_jacobian(x), r, R_r, np.inf)
         except np.linalg.LinAlgError:
             dx = np.full(4, np.nan)
         x = x + dx

@@ -1,0 +1,45 @@
+"""The observation registry: one module per observation, one line each below.
+
+The order is the order of updates at equal stamps (lidar first). ``replay`` iterates over the enabled
+entries; the configuration schema takes their keys; reports, ``compare`` and the simulator find them by name.
+"""
+
+from __future__ import annotations
+
+from . import gnss_position, nhc, odometer, pose, relative_pose
+from .base import Bound, Observation
+
+REGISTRY: tuple[Observation, ...] = (
+    relative_pose.OBSERVATION,
+    pose.OBSERVATION,
+    gnss_position.OBSERVATION,
+    odometer.OBSERVATION,
+    nhc.OBSERVATION,
+)
+
+
+def enabled(cfg: dict) -> list[Observation]:
+    """The observations the configuration turns on, in update order."""
+    return [o for o in REGISTRY if o.enabled(cfg)]
+
+
+def by_name(name: str) -> list[Observation]:
+    return [o for o in REGISTRY if o.name == name]
+
+
+def dof_of(name: str) -> int:
+    return by_name(name)[0].dof
+
+
+def keys() -> dict:
+    """Every observation's configuration keys (each declared by exactly one module)."""
+    out: dict = {}
+    for o in REGISTRY:
+        for k, spec in o.keys.items():
+            if k in out:
+                raise RuntimeError(f"configuration key {k!r} declared by two observations")
+            out[k] = spec
+    return out
+
+
+__all__ = ["REGISTRY", "Bound", "Observation", "enabled", "by_name", "dof_of", "keys"]

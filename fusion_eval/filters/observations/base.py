@@ -1,0 +1,119 @@
+"""What an observation module declares, and the pieces observation models share.
+
+An observation is one module holding one :class:`Observation` (registered in
+:mod:`fusion_eval.filters.observations`). It declares in one place:
+
+* ``name`` (the key of its NIS in reports, its column in ``compare``), ``label`` and ``dof``;
+* ``streams``: the dataset streams it needs (a missing one is a one-line error naming the key that
+  enabled the observation);
+* ``keys``: its configuration keys with units and bounds (the configuration schema takes them from here);
+* ``blocks``: the canonical error-state blocks its Jacobian uses (a formulation without them refuses it);
+* ``enabled(cfg)``: whether the configuration turns it on;
+* ``bind(run, s)``: when it fires, at its stream's stamps or at a rate (``Bound.t_s``), and its model at each
+  event: the textbook ``(H, r, R)`` with ``H`` over the canonical columns, ``r = z - h(x_hat)``;
+* optionally a chi-square gate (``gate_key``: the probability of the innovation's chi-square interval
+  beyond which an update is rejected), extra streams it brings (``extra_streams``) and a simulated sensor
+  for ``fusion-eval simulate`` (``simulate``).
+
+Attitude residuals are ``Log(R_hat^T R_obs)``, so that a right perturbation ``R_obs = R_hat Exp(dtheta)``
+gives ``r = dtheta``.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from typing import Callable
+
+import numpy as np
+
+from ...so3 import skew
+from ..layout import CANONICAL
+from ..state import NominalState
+
+N_MAX = CANONICAL.n
+P, V, TH = CANONICAL.sl("P"), CANONICAL.sl("V"), CANONICAL.sl("TH")
+CP, CTH = CANONICAL.sl("CP"), CANONICAL.sl("CTH")
+
+ObservationModel = Callable[..., tuple[np.ndarray, np.ndarray, np.ndarray]]
+
+
+@dataclass
+class Bound:
+    """An observation bound to one run's data: its event stamps and its model at each event.
+
+    ``model(j)`` returns the model of event j, called as ``model(x, clone_p, clone_R)`` (an iterated update
+    re-evaluates it at each iterate), or None when event j updates nothing (the first lidar frame of the
+    relative form, which only clones); ``after(kf, j)`` runs after the update (cloning).
+    """
+
+    name: str
+    dof: int
+    t_s: np.ndarray
+    model: Callable[[int], ObservationModel | None]
+    after: Callable | None = None
+    gate: float = np.inf
+    info: dict = field(default_factory=dict)
+
+    def apply(self, kf, j: int, iterations: int = 1, tol: float = 1e-8) -> tuple[float, bool] | None:
+        m = self.model(j)
+        res = None if m is None else kf.update(m, iterations, tol, self.gate)
+        if self.after is not None:
+            self.after(kf, j)
+        return res
+
+
+class Observation:
+    """One observation model: the declarations above as class attributes, ``enabled`` and ``bind``."""
+
+    name: str = ""
+    label: str = ""
+    dof: int = 0
+    streams: tuple[str, ...] = ()
+    keys: dict = {}
+    blocks: frozenset = frozenset()
+    enabled_by: str = ""                # the key that turns it on (named in errors)
+    gate_key: str | None = None
+    extra_streams: tuple = ()           # datasets.streams.StreamSpec of streams only this observation reads
+    sim_keys: dict = {}                 # simulator settings of its simulated sensor (``simulate``)
+
+    def enabled(self, cfg: dict) -> bool:
+        sect, key = self.enabled_by.split(".")
+        return bool(cfg[sect][key])
+
+    def bind(self, run, s) -> Bound:
+        raise NotImplementedError
+
+    def gate(self, s) -> float:
+        """The NIS above which an update is rejected (inf when the gate is off)."""
+        if self.gate_key is None:
+            return np.inf
+        sect, key = self.gate_key.split(".")
+        prob = getattr(getattr(s, sect), key)
+        if prob is None:
+            return np.inf
+        from scipy.stats import chi2
+
+        return float(chi2.ppf(prob, self.dof))
+
+    simulate = None                     # optional: (motion, sim_settings, rng, out) -> manifest stream entries
+
+
+def rows_inside(t_s: np.ndarray, t0: float, t_end: float) -> np.ndarray:
+    """Rows of a stream whose stamps fall inside the run ``[t0, t_end]`` (1 ns slack at the start)."""
+    return np.flatnonzero((t_s >= t0 - 1e-9) & (t_s <= t_end))
+
+
+def body_velocity(x: NominalState, clone_p=None, clone_R=None, *, v_obs_b: np.ndarray, std_b: np.ndarray,
+                  rows: tuple[int, ...] = (0, 1, 2)):
+    """Body-frame velocity ``v_b = R^T v`` (rows: 0 forward, 1 lateral, 2 vertical).
+
+    ``d v_b / d dv = R^T`` (R_bw) and ``d v_b / d dtheta = [v_b]x`` (``R = R_hat Exp(dtheta)``). An
+    odometer observes the forward row; the non-holonomic constraint observes lateral and vertical = 0.
+    """
+    v_b = x.R_wb.T @ x.v_w_mps
+    rows = list(rows)
+    H = np.zeros((3, N_MAX))
+    H[:, V] = x.R_wb.T
+    H[:, TH] = skew(v_b)
+    r = np.asarray(v_obs_b, float) - v_b
+    return H[rows], r[rows], np.diag(np.asarray(std_b, float)[rows] ** 2)

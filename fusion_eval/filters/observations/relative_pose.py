@@ -1,0 +1,80 @@
+"""Relative pose by stochastic cloning: the odometry increment between the previous lidar frame (a clone
+of the pose taken there) and the current one.
+
+Predicted increment ``dp = R_c^T (p - p_c)`` (in the clone's body frame), ``dR = R_c^T R``; linearised in
+the right-perturbation errors of both poses::
+
+    r_p  =  R_c^T dp_err - R_c^T dp_c_err + [dp]x dtheta_c
+    r_th =  dtheta - dR^T dtheta_c
+
+Std ``hypot(relative_pos_std_m, relative_pos_std_frac |dp|)`` and ``relative_att_std_deg``. As increments,
+drifting odometry constrains the motion between frames and lets GNSS remove the drift.
+"""
+
+from __future__ import annotations
+
+from functools import partial
+
+import numpy as np
+
+from ...config import S
+from ...so3 import skew
+from ..mech import log3
+from .base import CP, CTH, N_MAX, P, TH, Bound, Observation
+from .pose import lidar_rows
+
+
+def relative_pose(x, clone_p_w: np.ndarray, clone_R_wb: np.ndarray, *, dp_obs_c: np.ndarray, dR_obs: np.ndarray,
+                  pos_std_m: float, att_std_rad: float):
+    """Odometry increment between the cloned pose (previous lidar frame) and the current pose."""
+    Rc_T = clone_R_wb.T
+    dp_pred = Rc_T @ (x.p_w_m - clone_p_w)
+    dR_pred = Rc_T @ x.R_wb
+    H = np.zeros((6, N_MAX))
+    H[0:3, P] = Rc_T
+    H[0:3, CP] = -Rc_T
+    H[0:3, CTH] = skew(dp_pred)
+    H[3:6, TH] = np.eye(3)
+    H[3:6, CTH] = -dR_pred.T
+    r = np.concatenate([dp_obs_c - dp_pred, log3(dR_pred.T @ dR_obs)])
+    Rm = np.diag([pos_std_m ** 2] * 3 + [att_std_rad ** 2] * 3)
+    return H, r, Rm
+
+
+class RelativePose(Observation):
+    name = "lidar"
+    label = "lidar relative pose (cloning)"
+    dof = 6
+    streams = ("lidar",)
+    blocks = frozenset({"P", "TH", "CP", "CTH"})
+    enabled_by = "filter.lidar_update"
+    keys = {
+        "lidar.relative_pos_std_m": S(0.02, "relative update: position increment std, constant part, m", nonneg=True),
+        "lidar.relative_pos_std_frac": S(0.01, "relative update: position increment std per metre travelled (0.01 = 1 %)",
+                                         nonneg=True),
+        "lidar.relative_att_std_deg": S(0.05, "relative update: rotation increment std, deg", positive=True),
+    }
+
+    def enabled(self, cfg: dict) -> bool:
+        return cfg["filter"]["lidar_update"] == "relative"
+
+    def bind(self, run, s) -> Bound:
+        lid = run.lidar
+        rows = lidar_rows(run)
+        R = lid.R_wb()
+        c = s.lidar
+        std_m, frac, std_a = c.relative_pos_std_m, c.relative_pos_std_frac, c.relative_att_std_rad
+
+        def model(j):
+            if j == 0:
+                return None                         # the first frame only starts the chain of clones
+            i, h = rows[j], rows[j - 1]
+            dp_c = R[h].T @ (lid.p_w_m[i] - lid.p_w_m[h])
+            dR = R[h].T @ R[i]
+            pos_std = float(np.hypot(std_m, frac * np.linalg.norm(dp_c)))
+            return partial(relative_pose, dp_obs_c=dp_c, dR_obs=dR, pos_std_m=pos_std, att_std_rad=std_a)
+
+        return Bound(self.name, self.dof, lid.t_s[rows], model, after=lambda kf, j: kf.clone_pose())
+
+
+OBSERVATION = RelativePose()
