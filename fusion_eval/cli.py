@@ -4,7 +4,6 @@
 from __future__ import annotations
 
 import logging
-import math
 import sys
 import time
 from pathlib import Path
@@ -15,17 +14,6 @@ from . import __version__
 from .errors import ConfigError, FusionEvalError
 
 log = logging.getLogger("fusion_eval")
-
-DEFAULT_DATASET = Path("data/kitti-00")
-
-
-def _repo_relative(p: Path) -> Path:
-    """A default path relative to the working directory, else to the source checkout (editable installs)."""
-    if p.exists():
-        return p
-    alt = Path(__file__).resolve().parent.parent / p
-    return alt if alt.exists() else p
-
 
 class _Handler(logging.Handler):
     def emit(self, record):
@@ -90,30 +78,25 @@ def run(ctx, dataset, config_path, sets, out_dir, overwrite, no_plots):
     """Replay DATASET through the filter and write trajectories, metrics and a report.
 
     DATASET is a folder with a dataset.yaml manifest, a manifest file, or a KITTI raw drive folder
-    (default: data/kitti-00, the embedded KITTI drive 2011_10_03_drive_0027).
+    (default: data/kitti-00, the embedded KITTI drive 2011_10_03_drive_0027; the shipped copy when the
+    working directory has none).
     """
-    from .pipeline import run as run_pipeline
+    from .commands.run import run as run_command, summary_table
 
-    dataset = dataset if dataset is not None else _repo_relative(DEFAULT_DATASET)
     sets = tuple(sets) + (("output.plots=false",) if no_plots else ())
-    config_name = config_path.stem if config_path else "default"
-    if out_dir is None:
-        ds_name = dataset.resolve().parent.name if dataset.is_file() else dataset.resolve().name
-        out_dir = Path("results") / f"{ds_name}-{config_name}-{time.strftime('%Y%m%d-%H%M%S')}"
-
     quiet = ctx.obj["quiet"]
     t0 = time.perf_counter()
     progress = None if quiet else _Progress("filtering")
     try:
-        summary = run_pipeline(dataset, config_path, sets, out_dir, overwrite=overwrite, progress=progress)
+        res = run_command(dataset, config_path, sets, out_dir, overwrite=overwrite, progress=progress)
     finally:
         if progress is not None:
             progress.close()
     wall = time.perf_counter() - t0
-    log.debug("timings: %s", {k: round(v, 3) for k, v in summary.timings_s.items()})
+    log.debug("timings: %s", {k: round(v, 3) for k, v in res.timings_s.items()})
     if not quiet:
-        click.echo(_summary_table(summary.metrics))
-        click.echo(f"wrote {summary.out_dir}/ ({wall:.1f} s)")
+        click.echo(summary_table(res.metrics))
+        click.echo(f"wrote {res.out_dir}/ ({wall:.1f} s)")
 
 
 @main.command()
@@ -121,7 +104,7 @@ def run(ctx, dataset, config_path, sets, out_dir, overwrite, no_plots):
 @click.option("-V", "--variants", required=True, metavar="A,B,...",
               help="Comma-separated variant names (configs/variants/<name>.yaml) or YAML paths.")
 @click.option("--variant-dir", type=click.Path(path_type=Path), default=None,
-              help="Folder of variant files (default: configs/variants).")
+              help="Folder of variant files (default: configs/variants, else the shipped variants).")
 @click.option("-c", "--config", "config_path", type=click.Path(path_type=Path), help="Base configuration for every variant.")
 @click.option("-s", "--set", "sets", multiple=True, metavar="KEY=VALUE", help="Override a key in every variant (repeatable).")
 @click.option("-o", "--out", "out_dir", type=click.Path(path_type=Path), help="Output directory (default: results/compare-<time>).")
@@ -130,10 +113,8 @@ def run(ctx, dataset, config_path, sets, out_dir, overwrite, no_plots):
 @click.pass_context
 def compare(ctx, dataset, variants, variant_dir, config_path, sets, out_dir, overwrite, no_plots):
     """Run several filter variants on DATASET and write one comparison table and overlaid plots."""
-    from .compare import VARIANT_DIR, compare as run_compare
+    from .commands.compare import compare as run_compare
 
-    dataset = dataset if dataset is not None else _repo_relative(DEFAULT_DATASET)
-    variant_dir = variant_dir if variant_dir is not None else _repo_relative(VARIANT_DIR)
     names = [v.strip() for v in variants.split(",") if v.strip()]
     out_dir = out_dir or Path("results") / f"compare-{time.strftime('%Y%m%d-%H%M%S')}"
     progress = None if ctx.obj["quiet"] else _Progress("variants")
@@ -155,29 +136,34 @@ def compare(ctx, dataset, variants, variant_dir, config_path, sets, out_dir, ove
 
 @main.command()
 @click.argument("datasets", nargs=-1, type=click.Path(path_type=Path))
-@click.option("-g", "--grid", "sweep_file", required=True, type=click.Path(path_type=Path),
-              help="Sweep file: datasets, variants and the settings to sweep (grid, settings, random).")
+@click.option("-g", "--grid", "sweep_file", required=True, metavar="SWEEP",
+              help="Sweep file (datasets, variants and the settings to sweep: grid, settings, random), or the name of "
+                   "a shipped sweep (noise5, grid2d).")
 @click.option("-o", "--out", "out_dir", required=True, type=click.Path(path_type=Path),
               help="Sweep directory; running again into it skips the runs already recorded there.")
 @click.option("-j", "--jobs", type=int, default=None, help="Parallel runs (default: all cores).")
+@click.option("--variant-dir", type=click.Path(path_type=Path), default=None,
+              help="Folder of variant files (default: configs/variants, else the sweep's project's, else the shipped ones).")
 @click.option("--scheduler", default=None, metavar="ADDRESS", help="Run on an existing Dask cluster, e.g. tcp://host:8786.")
 @click.option("--dask", "dask_mode", type=click.Choice(["local"]), default=None, help="Start a Dask LocalCluster with --jobs workers.")
 @click.option("--retry-failed", is_flag=True, help="Run again the runs recorded as failed.")
 @click.option("--summarize-only", is_flag=True, help="Only rebuild sweep.csv, sweep.md, plots and best.yaml from the records.")
 @click.option("--no-plots", is_flag=True, help="Skip the summary plots.")
 @click.pass_context
-def sweep(ctx, datasets, sweep_file, out_dir, jobs, scheduler, dask_mode, retry_failed, summarize_only, no_plots):
+def sweep(ctx, datasets, sweep_file, out_dir, jobs, variant_dir, scheduler, dask_mode, retry_failed, summarize_only,
+          no_plots):
     """Run DATASET(s) over the settings of a sweep file, in parallel or on Dask, and rank the results."""
-    from .compare import VARIANT_DIR
-    from .sweep import execute, load_sweep, plan, swept_keys
-    from .sweep_summary import write_summary
+    from .commands.sweep import execute, load_sweep, plan, swept_keys
+    from .commands.sweep_summary import write_summary
+    from .resources import sweep_file as find_sweep
 
     if scheduler and dask_mode:
         raise ConfigError("give either --scheduler or --dask local, not both")
     if jobs is not None and jobs < 1:
         raise ConfigError("--jobs must be >= 1")
     t0 = time.perf_counter()
-    tasks, body = plan(sweep_file, [str(d) for d in datasets], out_dir, _repo_relative(VARIANT_DIR))
+    sweep_file = find_sweep(sweep_file)
+    tasks, body = plan(sweep_file, [str(d) for d in datasets], out_dir, variant_dir)
     counts = {"run": 0, "failed": 0, "skipped": 0}
     if not summarize_only:
         bar = None if ctx.obj["quiet"] else _SweepProgress(len({t.id for t in tasks}))
@@ -225,12 +211,7 @@ def evaluate(ctx, reference, estimates, out_dir, ref_times, times, association, 
              segment_m, segment_s, overwrite, no_plots):
     """Evaluate existing trajectory files (TUM, or KITTI poses with or without times) against REFERENCE:
     evo's APE/RPE, the KITTI drift metric and the per-segment breakdown."""
-    from .evaluate_cmd import run_evaluate
-
-    for name, v in (("--t-max-diff", t_max_diff), ("--rpe-delta-m", rpe_delta_m), ("--segment-m", segment_m),
-                    ("--segment-s", segment_s)):
-        if v is not None and not (math.isfinite(v) and v > 0):
-            raise ConfigError(f"{name} must be a finite number > 0, got {v}")
+    from .commands.evaluate import run_evaluate
 
     m = run_evaluate(reference, list(estimates), out_dir, ref_times, times, association, alignment, t_max_diff,
                      rpe_delta_m, segment_m, segment_s, overwrite, not no_plots)
@@ -259,23 +240,9 @@ def evaluate(ctx, reference, estimates, out_dir, ref_times, times, association, 
 @click.pass_context
 def track(ctx, input_path, out_dir, sensors, noise_ax, noise_ay, lidar_var, radar_var, overwrite, no_plots):
     """Track a 2-D target from lidar (KF) and radar (EKF) measurements; RMSE against the file's ground truth."""
-    from .outputs import StagedDir
-    from .tracking.ekf import TrackParams, run_track
-    from .tracking.measurements import read_measurements
-    from .tracking.report import write_track_outputs
+    from .commands.track import track as run_track
 
-    for name, v in (("--noise-ax", noise_ax), ("--noise-ay", noise_ay), *(("--lidar-var", x) for x in lidar_var),
-                    *(("--radar-var", x) for x in radar_var)):
-        if not (math.isfinite(v) and v > 0):
-            raise ConfigError(f"{name} must be a finite number > 0, got {v}")
-    params = TrackParams(noise_ax=noise_ax, noise_ay=noise_ay, lidar_var=tuple(lidar_var), radar_var=tuple(radar_var),
-                         sensors=sensors)
-    staged = StagedDir(out_dir, overwrite=overwrite)
-    staged.check()
-    m = read_measurements(input_path)
-    res = run_track(m, params)
-    with staged as out:
-        metrics = write_track_outputs(out, res, params, str(input_path), not no_plots)
+    metrics = run_track(input_path, out_dir, sensors, noise_ax, noise_ay, lidar_var, radar_var, overwrite, not no_plots)
     if not ctx.obj["quiet"]:
         r = metrics["rmse"]
         click.echo(f"RMSE [px, py, vx, vy] = [{r['px']:.4f}, {r['py']:.4f}, {r['vx']:.4f}, {r['vy']:.4f}] "
@@ -296,21 +263,10 @@ def track(ctx, input_path, out_dir, sensors, noise_ax, noise_ay, lidar_var, rada
 @click.option("--overwrite", is_flag=True, help="Replace an existing OUT_FILE.")
 def simulate_track_cmd(out_file, duration_s, interval_s, seed, start, heading_deg, speed_mps, overwrite):
     """Write a lidar/radar measurement file with known truth (the format `fusion-eval track` reads)."""
-    from .tracking.simulate import simulate_track
+    from .commands.track import simulate_track
 
-    if not (duration_s > 0 and interval_s > 0 and math.isfinite(duration_s) and math.isfinite(interval_s)):
-        raise ConfigError("--duration and --interval must be finite numbers > 0")
-    if Path(out_file).exists() and not overwrite:
-        raise ConfigError(f"{out_file}: exists (use --overwrite to replace it)")
-    text = simulate_track(duration_s, interval_s, seed, start=tuple(start), speed_mps=speed_mps,
-                          heading0_rad=math.radians(heading_deg))
-    out_file = Path(out_file)
-    if not out_file.parent.is_dir():
-        raise ConfigError(f"{out_file.parent}: folder not found")
-    tmp = out_file.with_name(f".{out_file.name}.tmp")
-    tmp.write_text(text)
-    tmp.replace(out_file)
-    log.info("wrote %s (%d measurements)", out_file, text.count("\n"))
+    n = simulate_track(out_file, duration_s, interval_s, seed, start, heading_deg, speed_mps, overwrite)
+    log.info("wrote %s (%d measurements)", out_file, n)
 
 
 @main.command()
@@ -330,36 +286,23 @@ def simulate_track_cmd(out_file, duration_s, interval_s, seed, start, heading_de
 def check(ctx, metrics_path, baseline, rtol, atol, patterns, rules, junit_path, summary_path, update_baseline):
     """Compare METRICS with a baseline; exit 0 if within tolerance and every rule holds, 1 on a regression,
     2 on a usage or data error."""
-    from .check import (DEFAULT_CSV_PATTERNS, DEFAULT_JSON_PATTERNS, atomic_write, compare_metrics, evaluate_rule, junit,
-                        load_metrics, markdown)
+    from .commands.check import check as run_check, update_baseline as write_baseline
 
-    if not (math.isfinite(rtol) and math.isfinite(atol)) or rtol < 0 or atol < 0:
-        raise ConfigError(f"--rtol and --atol must be finite numbers >= 0, got {rtol} and {atol}")
-    current, kind = load_metrics(metrics_path)
     if update_baseline:
-        atomic_write(baseline, Path(metrics_path).read_text())
+        write_baseline(metrics_path, baseline)
         click.echo(f"baseline {baseline} updated from {metrics_path}")
         return
-    base, base_kind = load_metrics(baseline)
-    if kind != base_kind:
-        raise ConfigError(f"{metrics_path} is a {kind} file but the baseline {baseline} is a {base_kind} file")
-    pats = tuple(patterns) or (DEFAULT_JSON_PATTERNS if kind == "json" else DEFAULT_CSV_PATTERNS)
-    rows = compare_metrics(current, base, pats, rtol, atol)
-    evaluated = [(r, *evaluate_rule(r, current)) for r in rules]
-    ok = all(r.verdict not in ("REGRESSION", "MISSING") for r in rows) and all(h for _, h, _ in evaluated)
-    atomic_write(summary_path or Path(metrics_path).with_name("check.md"), markdown(rows, evaluated, rtol, atol, ok))
-    if junit_path:
-        atomic_write(junit_path, junit(rows, evaluated))
-    w = max(len(r.metric) for r in rows)
+    res = run_check(metrics_path, baseline, rtol, atol, tuple(patterns), tuple(rules), junit_path, summary_path)
+    w = max(len(r.metric) for r in res.rows)
     click.echo(f"{'metric':<{w}}  {'baseline':>12}  {'current':>12}  {'change':>10}  verdict")
-    for r in rows:
+    for r in res.rows:
         b = "" if r.baseline is None else f"{r.baseline:.6g}"
         c = "" if r.current is None else f"{r.current:.6g}"
         click.echo(f"{r.metric:<{w}}  {b:>12}  {c:>12}  {r.change:>10}  {r.verdict}")
-    for rule, holds, txt in evaluated:
+    for rule, holds, txt in res.rules:
         click.echo(f"rule {txt}: {'holds' if holds else 'FAILS'}")
-    click.echo("check: PASS" if ok else "check: FAIL (regression or failed rule)")
-    if not ok:
+    click.echo("check: PASS" if res.ok else "check: FAIL (regression or failed rule)")
+    if not res.ok:
         sys.exit(1)
 
 
@@ -397,7 +340,7 @@ class _SweepProgress:
 @click.option("--overwrite", is_flag=True, help="Replace an existing OUT_DIR once the new dataset is complete.")
 def simulate(out_dir, profile, duration_s, seed, grade, sets, overwrite):
     """Write a synthetic KITTI-style drive with known truth to OUT_DIR."""
-    from .simulate.dataset import simulate as run_sim
+    from .commands.simulate import simulate as run_sim
 
     t0 = time.perf_counter()
     s = run_sim(out_dir, profile, duration_s, seed, grade, tuple(sets), overwrite=overwrite)
@@ -427,22 +370,6 @@ class _Progress:
         if self.bar is not None:
             self.bar.__exit__(None, None, None)
             self.bar = None
-
-
-def _summary_table(metrics: dict) -> str:
-    def cell(d, nd):
-        return f"{d['rmse']:.{nd}f}" if d else "n/a"
-
-    lines = [f"{'estimate':<10} {'matched':>8} {'APE trans RMSE [m]':>19} {'APE rot RMSE [deg]':>19} {'RPE trans 1 frame [m]':>22}"]
-    for name, m in metrics["estimates"].items():
-        ape = m.get("ape", {})
-        rpe = (m.get("rpe_1frame") or {}).get("translation_m")
-        lines.append(f"{name:<10} {m['matched_poses']:>8} {cell(ape.get('translation_m'), 3):>19} "
-                     f"{cell(ape.get('rotation_deg'), 3):>19} {cell(rpe, 4):>22}")
-    for k, v in metrics["ratios"].items():
-        if v is not None:
-            lines.append(f"{k.replace('_', ' ')} (APE RMSE): {v:.3f}")
-    return "\n".join(lines)
 
 
 if __name__ == "__main__":  # pragma: no cover

@@ -27,7 +27,7 @@ ROOT = Path(__file__).resolve().parent.parent
 sys.path.insert(0, str(ROOT))
 
 from fusion_eval.config import Settings, load_config  # noqa: E402
-from fusion_eval.consistency import fraction_inside, pose_nees  # noqa: E402
+from fusion_eval.evaluation.consistency import fraction_inside, pose_nees  # noqa: E402
 from fusion_eval.datasets.manifest import load_dataset  # noqa: E402
 from fusion_eval.prepare import prepare  # noqa: E402
 from fusion_eval.replay import replay  # noqa: E402

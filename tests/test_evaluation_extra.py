@@ -9,13 +9,13 @@ import pytest
 from click.testing import CliRunner
 
 from conftest import shared_path
-from fusion_eval.alignment import apply_4dof, yaw_translation_fit
+from fusion_eval.evaluation.alignment import apply_4dof, yaw_translation_fit
 from fusion_eval.cli import main
-from fusion_eval.consistency import fraction_inside, nees
+from fusion_eval.evaluation.consistency import fraction_inside, nees
 from fusion_eval.datasets.kitti_poses import read_kitti_poses
 from fusion_eval.evaluation import evaluate
 from fusion_eval.filters import linalg
-from fusion_eval.kitti_drift import kitti_drift
+from fusion_eval.evaluation.drift import kitti_drift
 from fusion_eval.so3 import exp_so3, make_T, matrix_to_quat_xyzw
 from fusion_eval.types import PoseSeries
 

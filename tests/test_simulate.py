@@ -14,7 +14,7 @@ from click.testing import CliRunner
 from conftest import ROOT
 from fusion_eval.cli import main
 from fusion_eval.config import Settings, load_config
-from fusion_eval.consistency import fraction_inside, pose_nees
+from fusion_eval.evaluation.consistency import fraction_inside, pose_nees
 from fusion_eval.datasets.manifest import load_dataset
 from fusion_eval.filters.formulations.eskf import dead_reckon, positions_attitudes
 from fusion_eval.filters.formulations.imu_model import imu_inputs, imu_params

@@ -10,9 +10,9 @@ matplotlib.use("Agg")
 import matplotlib.pyplot as plt  # noqa: E402
 import numpy as np  # noqa: E402
 
-from .filters.layout import CANONICAL  # noqa: E402
+from ..filters.layout import CANONICAL  # noqa: E402
 
-BA_ID, BG_ID, P_ID = (CANONICAL.start(b) for b in ("BA", "BG", "P"))
+BA_ID, BG_ID = (CANONICAL.start(b) for b in ("BA", "BG"))
 
 COLORS = {"groundtruth": "black", "fused": "tab:red", "lidar": "tab:blue", "gnss": "tab:green", "imu_only": "tab:orange"}
 LABELS = {"groundtruth": "ground truth", "fused": "fused", "lidar": "lidar odometry", "gnss": "GNSS",
@@ -109,14 +109,15 @@ def plot_biases(path: Path, t_s: np.ndarray, ba: np.ndarray, bg: np.ndarray, sig
 
 
 def plot_error_sigma(path: Path, t_s: np.ndarray, err_w: np.ndarray, sigma: np.ndarray) -> None:
-    """Fused position error per ENU axis with the filter's own +/-3 sigma: is the covariance honest?"""
-    inside_all = [np.mean(np.abs(err_w[:, i]) <= 3 * sigma[:, P_ID + i]) * 100 for i in range(3)]
+    """Fused position error per ENU axis with the filter's own +/-3 sigma (``sigma``: (N, 3) per axis): is
+    the covariance honest?"""
+    inside_all = [np.mean(np.abs(err_w[:, i]) <= 3 * sigma[:, i]) * 100 for i in range(3)]
     k = _every(t_s.size)
     t_s, err_w, sigma = t_s[k], err_w[k], sigma[k]
     t = t_s - t_s[0]
     fig, axes = plt.subplots(3, 1, figsize=(10, 7), sharex=True)
     for i, (ax, axis) in enumerate(zip(axes, ("East", "North", "Up"))):
-        s3 = 3 * sigma[:, P_ID + i]
+        s3 = 3 * sigma[:, i]
         ax.fill_between(t, -s3, s3, color="tab:gray", alpha=0.3, lw=0, label="+/-3 sigma")
         ax.plot(t, err_w[:, i], color="tab:red", lw=0.9, label="fused - ground truth")
         inside = inside_all[i]

@@ -5,7 +5,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from .types import PoseSeries
+from ..types import PoseSeries
 
 
 def route_distance(gt: PoseSeries) -> np.ndarray:

@@ -18,8 +18,13 @@ A sweep file (YAML) names what to run::
 Every run is keyed on a hash of its dataset and resolved configuration; its outputs go to
 ``runs/<id>/`` (as for ``fusion-eval run``) and its record (metrics or error) to ``records/<id>.json``,
 written atomically as it completes. Running the sweep again skips runs that have a record, so an
-interrupted sweep loses nothing; the summary (``sweep.csv``, ``sweep.md``, plots, ``best.yaml``) is
-rebuilt from the records.
+interrupted sweep loses nothing; the summary (``sweep.csv``, ``sweep.md``, plots, ``best.yaml``,
+:mod:`.sweep_summary`) is rebuilt from the records.
+
+Relative paths in a sweep file (datasets, ``config``) are taken from the working directory, else from the
+sweep file's folder, else from the project the sweep file belongs to (the checkout, or the shipped tree
+for a shipped sweep such as ``noise5``). Every path a task carries is absolute, so a worker started in
+any directory (a Dask worker on another host with the same paths) runs it.
 """
 
 from __future__ import annotations
@@ -38,26 +43,15 @@ from pathlib import Path
 from typing import Callable
 
 import numpy as np
-import yaml
 
-from .config import SCHEMA, check_value, load_config
-from .errors import ConfigError, FusionEvalError
+from .. import resources, session
+from ..config import check_value, read_yaml, schema
+from ..errors import ConfigError, FusionEvalError
+from ..variants import resolve_variant
 
 log = logging.getLogger(__name__)
 
 SWEEP_KEYS = {"datasets", "variants", "config", "plots", "grid", "settings", "random"}
-METRIC_COLUMNS = [
-    ("fused_ape_trans_rmse_m", ("fused", "ape", "translation_m", "rmse")),
-    ("fused_ape_trans_mean_m", ("fused", "ape", "translation_m", "mean")),
-    ("fused_ape_trans_max_m", ("fused", "ape", "translation_m", "max")),
-    ("fused_ape_rot_rmse_deg", ("fused", "ape", "rotation_deg", "rmse")),
-    ("fused_rpe_1frame_trans_rmse_m", ("fused", "rpe_1frame", "translation_m", "rmse")),
-    ("fused_rpe_100m_trans_rmse_m", ("fused", "rpe_100m", "translation_m", "rmse")),
-    ("fused_kitti_t_err_pct", ("fused", "kitti_drift", "t_err_pct")),
-    ("fused_kitti_r_err_deg_per_100m", ("fused", "kitti_drift", "r_err_deg_per_100m")),
-    ("lidar_ape_trans_rmse_m", ("lidar", "ape", "translation_m", "rmse")),
-    ("gnss_ape_trans_rmse_m", ("gnss", "ape", "translation_m", "rmse")),
-]
 
 
 @dataclass(frozen=True)
@@ -65,12 +59,12 @@ class Task:
     id: str
     dataset: str
     variant: str
-    variant_path: str | None
+    variant_path: str | None      # absolute
     setting: str
     overrides: dict
     base_config: dict | None
     plots: bool
-    out_root: str
+    out_root: str                 # absolute
 
 
 def _num(v):
@@ -78,12 +72,7 @@ def _num(v):
 
 
 def load_sweep(path: Path) -> dict:
-    try:
-        body = yaml.safe_load(Path(path).read_text())
-    except OSError:
-        raise ConfigError(f"{path}: sweep file not found") from None
-    except yaml.YAMLError as exc:
-        raise ConfigError(f"{path}: not valid YAML ({getattr(exc, 'problem', exc)})") from None
+    body = read_yaml(path, "sweep file")
     if not isinstance(body, dict):
         raise ConfigError(f"{path}: a sweep file is a mapping with grid, settings or random")
     bad = set(body) - SWEEP_KEYS
@@ -118,10 +107,12 @@ def settings_of(body: dict, where: str) -> list[tuple[str, dict]]:
     """(name, {key: value}) for every setting: 'default' first, then named, grid and random ones."""
     out: list[tuple[str, dict]] = [("default", {})]
 
+    keys = schema()
+
     def check(key, value):
-        if key not in SCHEMA:
+        if key not in keys:
             raise ConfigError(f"{where}: unknown configuration key {key!r} in the sweep")
-        return check_value(key, SCHEMA[key], value, where)
+        return check_value(key, keys[key], value, where)
 
     for name, ov in (body.get("settings") or {}).items():
         if not isinstance(ov, dict):
@@ -166,36 +157,36 @@ def swept_keys(body: dict) -> list[str]:
     return keys
 
 
-def plan(sweep_path: Path, datasets: list[str], out_dir: Path, variant_dir: Path) -> tuple[list[Task], dict]:
-    from .compare import resolve_variant
-    from .datasets.manifest import load_dataset
-
+def plan(sweep_path: Path, datasets: list[str], out_dir: Path, variant_dir: Path | None = None) -> tuple[list[Task], dict]:
+    """Every (dataset, variant, setting) run of a sweep, each with absolute paths."""
     body = load_sweep(sweep_path)
-    datasets = list(datasets) or [str(d) for d in (body.get("datasets") or [])]
+    here = Path(sweep_path).resolve().parent
+    project = resources.project_root_of(sweep_path)
+    given = list(datasets)
+    datasets = given or [str(d) for d in (body.get("datasets") or [])]
     if not datasets:
         raise ConfigError(f"{sweep_path}: no datasets (give them in the sweep file or on the command line)")
-    base_rel = Path(sweep_path).parent
+    # datasets on the command line are the user's (working directory); those in the file are the file's
+    paths = [resources.find(d) if given else resources.find(d, here, project) for d in datasets]
     base = None
     if body.get("config"):
-        bp = Path(body["config"])
-        bp = bp if bp.exists() else base_rel / bp
-        base = load_sweep_config(bp)
+        base = load_sweep_config(resources.find(body["config"], here, project))
+    if variant_dir is None:
+        variant_dir = resources.find(resources.VARIANTS, project)
     variants = body.get("variants") or ["default"]
-    vpaths = {v: (None if v == "default" else str(resolve_variant(v, variant_dir))) for v in variants}
+    vpaths = {v: (None if v == "default" else str(resolve_variant(v, variant_dir).resolve())) for v in variants}
     settings = settings_of(body, str(sweep_path))
+    out_root = str(Path(out_dir).resolve())
     tasks = []
-    for ds_path in datasets:
-        ds = load_dataset(ds_path)
-        manifest_layer = ((ds.description["config"], "manifest"),) if ds.description.get("config") else ()
+    for ds_path in paths:
+        ds = session.dataset(ds_path)
+        ds_abs = str(Path(ds_path).resolve())
         for v in variants:
             for name, ov in settings:
-                sets = tuple(f"{k}={json.dumps(val)}" for k, val in ov.items())
-                layers = manifest_layer + (((base, "sweep config"),) if base else ())
-                cfg = load_config(vpaths[v], sets, layers=layers)
-                key = json.dumps({"dataset": str(Path(ds_path).resolve()), "config": cfg}, sort_keys=True)
+                cfg = session.resolve(session.request(config=base, variant=vpaths[v], overrides=ov), ds)
+                key = json.dumps({"dataset": ds_abs, "config": cfg}, sort_keys=True)
                 rid = hashlib.sha256(key.encode()).hexdigest()[:12]
-                tasks.append(Task(rid, str(ds_path), v, vpaths[v], name, ov, base, bool(body.get("plots", False)),
-                                  str(out_dir)))
+                tasks.append(Task(rid, ds_abs, v, vpaths[v], name, ov, base, bool(body.get("plots", False)), out_root))
     ids = [t.id for t in tasks]
     if len(set(ids)) != len(ids):
         log.warning("some settings resolve to the same configuration; they share one run")
@@ -203,27 +194,26 @@ def plan(sweep_path: Path, datasets: list[str], out_dir: Path, variant_dir: Path
 
 
 def load_sweep_config(path: Path) -> dict:
-    try:
-        return yaml.safe_load(Path(path).read_text()) or {}
-    except (OSError, yaml.YAMLError) as exc:
-        raise ConfigError(f"{path}: cannot read the sweep's base config ({exc})") from None
+    body = read_yaml(path, "sweep base config") or {}
+    if not isinstance(body, dict):
+        raise ConfigError(f"{path}: the sweep's base config must be a mapping of sections")
+    return body
 
 
 def run_task(task: Task) -> dict:
     """Run one sweep entry; never raises for a failed run (the failure is the record)."""
-    from .pipeline import run as run_pipeline
+    from ..pipeline import run_to_dir
 
     t0 = time.perf_counter()
     rec = {"id": task.id, "dataset": task.dataset, "variant": task.variant, "setting": task.setting,
            "overrides": task.overrides}
-    sets = tuple(f"{k}={json.dumps(v)}" for k, v in task.overrides.items()) + (("output.plots=false",) if not task.plots else ())
-    layers = ((task.base_config, "sweep config"),) if task.base_config else ()
     out = Path(task.out_root) / "runs" / task.id
     try:
+        overrides = {**task.overrides, **({} if task.plots else {"output.plots": False})}
+        req = session.request(config=task.base_config, variant=task.variant_path, overrides=overrides)
         with np.errstate(all="ignore"):
-            summary = run_pipeline(Path(task.dataset), Path(task.variant_path) if task.variant_path else None, sets, out,
-                                   overwrite=True, jobs=1, extra_layers=layers)
-        rec.update(status="ok", error=None, metrics=summary.metrics)
+            res = run_to_dir(task.dataset, req, out, overwrite=True, jobs=1)
+        rec.update(status="ok", error=None, metrics=res.metrics)
     except FusionEvalError as exc:
         rec.update(status="failed", error=str(exc), metrics=None)
     except Exception as exc:  # noqa: BLE001 - a bug in one run must not stop the sweep; its traceback is kept

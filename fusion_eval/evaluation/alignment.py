@@ -10,8 +10,8 @@ from __future__ import annotations
 
 import numpy as np
 
-from .so3 import matrix_to_quat_xyzw
-from .types import PoseSeries
+from ..so3 import matrix_to_quat_xyzw
+from ..types import PoseSeries
 
 ALIGNMENTS = ("none", "origin", "se3", "sim3", "4dof")
 

@@ -22,24 +22,31 @@ from dataclasses import dataclass
 from pathlib import Path
 from xml.sax.saxutils import quoteattr
 
-from .errors import DataFormatError, FusionEvalError
+from ..errors import DataFormatError, FusionEvalError
+from ..evaluation import keys
+from ..tables import markdown as md_table
 
-DEFAULT_JSON_PATTERNS = ("*.ape.translation_m.rmse", "*.ape.rotation_deg.rmse", "*.rpe_1frame.translation_m.rmse",
-                         "*.rpe_100m.translation_m.rmse", "ratios.*")
-DEFAULT_CSV_PATTERNS = ("*.fused_ape_trans_rmse_m", "*.fused_ape_rot_rmse_deg", "*.fused_rpe_1frame_trans_rmse_m")
+
+def default_patterns(kind: str, rpe_delta_m: float) -> tuple[str, ...]:
+    """What ``check`` compares when no ``--metric`` is given: the RMSE of APE and RPE (per frame and per
+    ``evaluation.rpe_delta_m``, as the metrics file records it) of every estimate and the ratios; for a
+    sweep's CSV the fused RMSE columns."""
+    return keys.check_patterns(rpe_delta_m) if kind == "json" else keys.csv_check_patterns(rpe_delta_m)
 
 
 class CheckUsageError(FusionEvalError):
     """A rule or pattern that cannot be evaluated."""
 
 
-def load_metrics(path: Path) -> tuple[dict[str, float], str]:
-    """Flatten a metrics.json or sweep.csv into ``{path: value}``; returns it and the kind ('json' or 'csv')."""
+def load_metrics(path: Path) -> tuple[dict[str, float], str, float]:
+    """Flatten a metrics.json or sweep.csv into ``{path: value}``; returns it, the kind ('json' or 'csv') and
+    the per-distance RPE length the metrics were computed with."""
     path = Path(path)
     if not path.exists():
         raise DataFormatError(path, None, "file not found (expected a metrics.json of fusion-eval run or a sweep.csv)")
     if path.suffix == ".csv":
-        return _flat_csv(path), "csv"
+        flat, delta = _flat_csv(path)
+        return flat, "csv", delta
     try:
         body = json.loads(path.read_text())
     except json.JSONDecodeError as exc:
@@ -68,10 +75,10 @@ def load_metrics(path: Path) -> tuple[dict[str, float], str]:
                 out[f"nis.{kind}.{k}"] = float(d[k])
     if not out:
         raise DataFormatError(path, None, "no numeric metrics found")
-    return out, "json"
+    return out, "json", keys.rpe_delta_of(body)
 
 
-def _flat_csv(path: Path) -> dict[str, float]:
+def _flat_csv(path: Path) -> tuple[dict[str, float], float]:
     out = {}
     try:
         rows = list(csv.DictReader(path.read_text().splitlines()))
@@ -92,7 +99,19 @@ def _flat_csv(path: Path) -> dict[str, float]:
                 continue
     if not out:
         raise DataFormatError(path, None, "no finished runs with numeric metrics")
-    return out
+    return out, _csv_rpe_delta(list(rows[0]))
+
+
+_RPE_COL = re.compile(r"^fused_rpe_([0-9.e+-]+)m_trans_rmse_m$")
+
+
+def _csv_rpe_delta(columns: list[str]) -> float:
+    """The per-distance RPE length of a sweep's CSV, from its column name (``fused_rpe_50m_trans_rmse_m``)."""
+    for c in columns:
+        m = _RPE_COL.match(c)
+        if m:
+            return float(m.group(1))
+    return keys.DEFAULT_RPE_DELTA_M
 
 
 def _is_num(v) -> bool:
@@ -162,13 +181,12 @@ def evaluate_rule(rule: str, metrics: dict) -> tuple[bool, str]:
 
 
 def markdown(rows: list[Row], rules: list[tuple[str, bool, str]], rtol: float, atol: float, ok: bool) -> str:
-    L = [f"# fusion-eval check: {'PASS' if ok else 'FAIL'}", "", f"Tolerance: rtol {rtol:g}, atol {atol:g} (lower is better).", "",
-         "| metric | baseline | current | change | verdict |", "|---|---:|---:|---:|---|"]
-    for r in rows:
-        L.append(f"| `{r.metric}` | {_v(r.baseline)} | {_v(r.current)} | {r.change} | {r.verdict} |")
+    L = [f"# fusion-eval check: {'PASS' if ok else 'FAIL'}", "", f"Tolerance: rtol {rtol:g}, atol {atol:g} (lower is better).", ""]
+    L += md_table(["metric", "baseline", "current", "change", "verdict"],
+                  [[f"`{r.metric}`", _v(r.baseline), _v(r.current), r.change, r.verdict] for r in rows], align="lrrrl")
     if rules:
-        L += ["", "| rule | values | verdict |", "|---|---|---|"]
-        L += [f"| `{rule}` | {txt} | {'holds' if holds else 'FAILS'} |" for rule, holds, txt in rules]
+        L += [""] + md_table(["rule", "values", "verdict"],
+                             [[f"`{rule}`", txt, "holds" if holds else "FAILS"] for rule, holds, txt in rules], align="lll")
     return "\n".join(L) + "\n"
 
 
@@ -199,3 +217,36 @@ def atomic_write(path: Path, text: str) -> None:
     tmp.write_text(text)
     os.replace(tmp, path)
 
+
+
+@dataclass
+class CheckResult:
+    rows: list[Row]
+    rules: list[tuple[str, bool, str]]
+    ok: bool
+
+
+def check(metrics_path: Path, baseline: Path, rtol: float, atol: float, patterns: tuple[str, ...] = (),
+          rules: tuple[str, ...] = (), junit_path: Path | None = None, summary_path: Path | None = None) -> CheckResult:
+    """Compare a metrics file with its baseline, evaluate the rules, write the summary (and JUnit)."""
+    from ..errors import ConfigError
+
+    if not (math.isfinite(rtol) and math.isfinite(atol)) or rtol < 0 or atol < 0:
+        raise ConfigError(f"--rtol and --atol must be finite numbers >= 0, got {rtol} and {atol}")
+    current, kind, delta = load_metrics(metrics_path)
+    base, base_kind, _ = load_metrics(baseline)
+    if kind != base_kind:
+        raise ConfigError(f"{metrics_path} is a {kind} file but the baseline {baseline} is a {base_kind} file")
+    pats = tuple(patterns) or default_patterns(kind, delta)
+    rows = compare_metrics(current, base, pats, rtol, atol)
+    evaluated = [(r, *evaluate_rule(r, current)) for r in rules]
+    ok = all(r.verdict not in ("REGRESSION", "MISSING") for r in rows) and all(h for _, h, _ in evaluated)
+    atomic_write(summary_path or Path(metrics_path).with_name("check.md"), markdown(rows, evaluated, rtol, atol, ok))
+    if junit_path:
+        atomic_write(junit_path, junit(rows, evaluated))
+    return CheckResult(rows, evaluated, ok)
+
+
+def update_baseline(metrics_path: Path, baseline: Path) -> None:
+    load_metrics(metrics_path)          # refuse to make a baseline of something that is not a metrics file
+    atomic_write(baseline, Path(metrics_path).read_text())

@@ -9,7 +9,7 @@ from __future__ import annotations
 import numpy as np
 from scipy.stats import chi2
 
-from .so3 import log_so3
+from ..so3 import log_so3
 
 
 def nees(err: np.ndarray, cov: np.ndarray) -> np.ndarray:

@@ -20,15 +20,16 @@ from evo.core.trajectory import PoseTrajectory3D
 from evo.main_ape import ape as evo_ape
 from evo.main_rpe import rpe as evo_rpe
 
+from ..interp import interpolate_poses
+from ..so3 import wxyz_to_xyzw, xyzw_to_wxyz
+from ..types import PoseSeries
+from . import keys
 from .alignment import apply_4dof, yaw_translation_fit
-from .interp import interpolate_poses
-from .kitti_drift import kitti_drift
-from .so3 import wxyz_to_xyzw, xyzw_to_wxyz
-from .types import PoseSeries
+from .drift import kitti_drift
 
 log = logging.getLogger(__name__)
 
-STATS = ("rmse", "mean", "median", "std", "min", "max")
+STATS = keys.STATS
 
 
 def to_evo(poses: PoseSeries, name: str) -> PoseTrajectory3D:
@@ -39,6 +40,12 @@ def to_evo(poses: PoseSeries, name: str) -> PoseTrajectory3D:
     return traj
 
 
+def from_evo(traj: PoseTrajectory3D) -> PoseSeries:
+    """A pose series of an evo trajectory (quaternions back to the package's (x, y, z, w) order)."""
+    return PoseSeries(t_s=np.array(traj.timestamps), p_w_m=np.array(traj.positions_xyz),
+                      q_wb_xyzw=wxyz_to_xyzw(np.array(traj.orientations_quat_wxyz)), source=traj.meta.get("name", "<evo>"))
+
+
 @dataclass
 class EstimateEvaluation:
     """evo's figures for one estimate against the reference."""
@@ -47,7 +54,8 @@ class EstimateEvaluation:
     poses: int
     matched_poses: int
     metrics: dict = field(default_factory=dict)       # e.g. metrics["ape"]["translation_m"]["rmse"]
-    results: dict = field(default_factory=dict)       # evo Result objects, for the result zips
+    results: dict = field(default_factory=dict)       # evo Result objects (dropped once serialised into zips)
+    zips: dict = field(default_factory=dict)          # evo result files: name -> bytes (see report.files.evo_zips)
     ape_t_s: np.ndarray | None = None                 # stamps and APE translation errors, for plots
     ape_err_m: np.ndarray | None = None
     note: str | None = None
@@ -118,7 +126,7 @@ def evaluate(reference: PoseSeries, estimate: PoseSeries, name: str, t_max_diff_
     if estimate.has_orientation:
         rels.append(("rotation_deg", metrics.PoseRelation.rotation_angle_deg))
 
-    ev.metrics["ape"] = {}
+    ev.metrics[keys.APE] = {}
     for key, rel in rels:
         res = evo_ape(copy.deepcopy(ref_a), copy.deepcopy(est_a), rel)
         ev.metrics["ape"][key] = _stats(res)
@@ -133,7 +141,8 @@ def evaluate(reference: PoseSeries, estimate: PoseSeries, name: str, t_max_diff_
     if not estimate.has_orientation:
         ev.note = "position only: no rotation or relative (RPE) metrics"
         return ev
-    for label, delta, unit in (("rpe_1frame", 1.0, metrics.Unit.frames), (f"rpe_{rpe_delta_m:g}m", rpe_delta_m, metrics.Unit.meters)):
+    for label, delta, unit in ((keys.RPE_FRAME, 1.0, metrics.Unit.frames),
+                               (keys.rpe_distance_group(rpe_delta_m), rpe_delta_m, metrics.Unit.meters)):
         ev.metrics[label] = {}
         for key, rel in rels:
             try:

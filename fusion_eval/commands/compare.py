@@ -1,0 +1,192 @@
+"""``fusion-eval compare``: several filter variants on one dataset, in one table and a few plots.
+
+Each variant is a configuration overlay (a name in ``configs/variants`` or a path) applied on top of the
+defaults, the manifest's suggested settings and the optional base ``--config``; ``--set`` applies to every
+variant (:mod:`fusion_eval.session`). The unfiltered estimates (lidar odometry, GNSS, IMU dead reckoning)
+come from the first variant's streams and are evaluated once.
+"""
+
+from __future__ import annotations
+
+import json
+import logging
+import time
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Callable
+
+import numpy as np
+import yaml
+
+from .. import session
+from ..config import Settings
+from ..datasets.tum import format_tum
+from ..errors import ConfigError
+from ..evaluation import keys
+from ..evaluation.run_metrics import consistency, segments
+from ..evaluation.trajectory import evaluate, ratio
+from ..filters import observations
+from ..outputs import StagedDir
+from ..pool import executor
+from ..prepare import prepare
+from ..replay import replay
+from ..report.files import versions
+from ..report.markdown import segments_section
+from ..tables import cell, csv_text, markdown
+from ..types import PoseSeries
+from ..variants import folder_name, resolve_variant
+
+log = logging.getLogger(__name__)
+
+
+@dataclass
+class VariantRun:
+    name: str
+    cfg: dict
+    filt: object
+    ev: object
+    runtime_s: float
+
+
+def body_velocity(poses: PoseSeries) -> np.ndarray:
+    """Body-frame velocity ``R^T v`` (forward, lateral, vertical) of poses that carry a velocity."""
+    return np.einsum("nji,nj->ni", poses.R_wb(), poses.v_w_mps)
+
+
+def _rms_lateral_vertical(vb: np.ndarray) -> dict:
+    return {"lateral": float(np.sqrt(np.mean(vb[:, 1] ** 2))), "vertical": float(np.sqrt(np.mean(vb[:, 2] ** 2)))}
+
+
+def compare(dataset_path: Path | None, variants: list[str], variant_dir: Path | None, base_config: Path | None,
+            sets: tuple[str, ...], out_dir: Path, overwrite: bool = False, make_plots: bool = True,
+            progress: Callable[[float], None] | None = None) -> dict:
+    staged = StagedDir(out_dir, overwrite=overwrite)
+    staged.check()
+    if len(set(variants)) != len(variants) or not variants:
+        raise ConfigError("--variants needs one or more distinct names")
+    paths = [resolve_variant(v, variant_dir) for v in variants]
+    reqs = [session.request(config=base_config, variant=p, sets=sets) for p in paths]   # all validated before any work
+    ds = session.dataset(dataset_path)
+    cfgs = [session.resolve(r, ds) for r in reqs]
+
+    runs: list[VariantRun] = []
+    base_prep = None
+    for i, (name, cfg) in enumerate(zip(variants, cfgs)):
+        t0 = time.perf_counter()
+        prep = prepare(ds, cfg)
+        base_prep = base_prep or prep
+        with np.errstate(over="ignore", invalid="ignore"):
+            filt = replay(prep, Settings(cfg))
+        runs.append(VariantRun(name, cfg, filt, None, time.perf_counter() - t0))
+        log.info("variant %s: filtered in %.2f s", name, runs[-1].runtime_s)
+        if progress:
+            progress((i + 1) / (len(variants) + 1))
+
+    gt = base_prep.groundtruth
+    ev_cfg = cfgs[0]["evaluation"]
+    unfiltered: dict[str, PoseSeries] = {"imu_only": runs[0].filt.imu_only}
+    if base_prep.lidar is not None:
+        unfiltered["lidar"] = base_prep.lidar
+    if base_prep.gnss is not None:
+        unfiltered["gnss"] = base_prep.gnss.as_poses()
+    with executor(None) as pool:
+        args = (ev_cfg["t_max_diff_s"], ev_cfg["rpe_delta_m"], ev_cfg["association"], ev_cfg["alignment"])
+        fut_v = [pool.submit(evaluate, gt, r.filt.fused, r.name, *args) for r in runs]
+        fut_u = {k: pool.submit(evaluate, gt, s, k, *args) for k, s in unfiltered.items()}
+        for r, f in zip(runs, fut_v):
+            r.ev = f.result()
+            r.ev.results = {}
+        evs_u = {k: f.result() for k, f in fut_u.items()}
+    if progress:
+        progress(1.0)
+
+    table = [_variant_row(r, gt, evs_u, ev_cfg) for r in runs]
+    for k, ev in evs_u.items():
+        m = ev.metrics
+        table.append({"variant": "(unfiltered)", "estimate": k, "matched_poses": ev.matched_poses,
+                      "ape_trans_rmse_m": m["ape"]["translation_m"]["rmse"],
+                      "ape_rot_rmse_deg": (m["ape"].get("rotation_deg") or {}).get("rmse"),
+                      "rpe_1frame_trans_rmse_m": ((m.get("rpe_1frame") or {}).get("translation_m") or {}).get("rmse"),
+                      "kitti_drift_t_err_pct": (ev.drift or {}).get("t_err_pct"),
+                      "kitti_drift_r_err_deg_per_100m": (ev.drift or {}).get("r_err_deg_per_100m")})
+    gt_vb = body_velocity(gt) if gt.v_w_mps is not None else None
+    truth_body = None if gt_vb is None else _rms_lateral_vertical(gt_vb)
+
+    # per-segment breakdown: every variant and the unfiltered lidar and GNSS, windows along the route
+    seg_evals = {r.name: r.ev for r in runs}
+    seg_evals.update({k: ev for k, ev in evs_u.items() if k != "imu_only"})
+    seg = segments(gt, seg_evals, ev_cfg, primary=runs[0].name, secondary="lidar" if "lidar" in seg_evals else None)
+
+    with staged as out:
+        result = {"dataset": ds.name, "variants": variants, "rows": table, "groundtruth_body_velocity_rms_mps": truth_body,
+                  "segments": seg}
+        out.write_text("compare.json", json.dumps(result, indent=2) + "\n")
+        out.write_text("compare.csv", csv_text(CSV_COLUMNS, table))
+        out.write_text("compare.md", _markdown(ds.name, table, truth_body, make_plots) + "\n".join(segments_section({"segments": seg})) + "\n")
+        taken: set = set()
+        for r in runs:
+            folder = folder_name(r.name, taken)
+            out.write_text(f"variants/{folder}/fused.tum", format_tum(r.filt.fused, f"fusion-eval compare: variant {r.name}"))
+            out.write_text(f"variants/{folder}/config.resolved.yaml",
+                           yaml.safe_dump({**r.cfg, "versions": versions()}, sort_keys=False))
+        if make_plots:
+            from ..report import plots
+
+            plots.plot_compare_ape(out.path("ape_over_time.png"), runs, evs_u, float(runs[0].filt.fused.t_s[0]))
+            plots.plot_compare_biases(out.path("biases.png"), runs)
+            plots.plot_compare_body_velocity(out.path("body_velocity.png"), runs, gt, gt_vb)
+    return result
+
+
+def _variant_row(r: VariantRun, gt: PoseSeries, evs_u: dict, ev_cfg: dict) -> dict:
+    m = r.ev.metrics
+    d = keys.rpe_distance_group(ev_cfg["rpe_delta_m"])
+    nees = consistency(gt, r.filt).get("nees", {}).get("position")
+    row = {"variant": r.name, "estimate": "fused", "matched_poses": r.ev.matched_poses,
+           "ape_trans_rmse_m": m["ape"]["translation_m"]["rmse"], "ape_rot_rmse_deg": m["ape"]["rotation_deg"]["rmse"],
+           "rpe_1frame_trans_rmse_m": (m.get("rpe_1frame") or {}).get("translation_m", {}).get("rmse"),
+           f"{d}_trans_rmse_m": ((m.get(d) or {}).get("translation_m") or {}).get("rmse"),
+           "fused_over_lidar": ratio(r.ev, evs_u.get("lidar")), "fused_over_gnss": ratio(r.ev, evs_u.get("gnss")),
+           "final_accel_bias_mps2": r.filt.accel_bias_b[-1].tolist(),
+           "final_gyro_bias_dph": (np.degrees(r.filt.gyro_bias_b[-1]) * 3600).tolist(),
+           # one column per registered observation, found by name
+           "nis_mean": {k: float(np.mean(v["nis"])) for k, v in r.filt.nis.items()},
+           "kitti_drift_t_err_pct": (r.ev.drift or {}).get("t_err_pct"),
+           "kitti_drift_r_err_deg_per_100m": (r.ev.drift or {}).get("r_err_deg_per_100m"),
+           "nees_position_in_95": None if not nees else nees["fraction_in_95"],
+           "runtime_s": round(r.runtime_s, 3)}
+    row["body_velocity_rms_mps"] = _rms_lateral_vertical(body_velocity(r.filt.fused))
+    return row
+
+
+CSV_COLUMNS = ["variant", "estimate", "matched_poses", "ape_trans_rmse_m", "ape_rot_rmse_deg", "rpe_1frame_trans_rmse_m",
+               "fused_over_lidar", "fused_over_gnss", "kitti_drift_t_err_pct", "kitti_drift_r_err_deg_per_100m",
+               "nees_position_in_95", "runtime_s"]
+
+
+def _pct(x) -> str:
+    return "" if x is None else f"{x * 100:.1f} %"
+
+
+def _markdown(name: str, rows: list[dict], truth_body, plots: bool) -> str:
+    order = [o.name for o in observations.REGISTRY]
+    header = ["variant", "estimate", "APE trans RMSE [m]", "APE rot RMSE [deg]", "RPE trans 1 frame [m]", "fused/lidar",
+              "fused/GNSS", "KITTI drift [%] / [deg/100 m]", "NEES pos in 95 %", "lateral / vertical body velocity RMS [m/s]",
+              "final gyro bias [deg/h]", "mean NIS", "filter time [s]"]
+    body = []
+    for r in rows:
+        bv = r.get("body_velocity_rms_mps")
+        nis = r.get("nis_mean") or {}
+        body.append([r["variant"], r["estimate"], cell(r["ape_trans_rmse_m"]), cell(r.get("ape_rot_rmse_deg")),
+                     cell(r.get("rpe_1frame_trans_rmse_m"), 4), cell(r.get("fused_over_lidar")), cell(r.get("fused_over_gnss")),
+                     f"{cell(r.get('kitti_drift_t_err_pct'))} / {cell(r.get('kitti_drift_r_err_deg_per_100m'))}",
+                     _pct(r.get("nees_position_in_95")), "" if not bv else f"{bv['lateral']:.3f} / {bv['vertical']:.3f}",
+                     ", ".join(f"{b:.1f}" for b in r.get("final_gyro_bias_dph", [])),
+                     ", ".join(f"{k} {nis[k]:.2f}" for k in sorted(nis, key=lambda k: order.index(k) if k in order else 99)),
+                     str(r.get("runtime_s", ""))])
+    L = [f"# fusion-eval compare: {name}", ""] + markdown(header, body, align="llrrrrrlllllr")
+    if truth_body:
+        L += ["", f"Ground truth body velocity RMS: lateral {truth_body['lateral']:.3f} m/s, vertical {truth_body['vertical']:.3f} m/s."]
+    if plots:
+        L += ["", "![APE over time](ape_over_time.png)", "![biases](biases.png)", "![body velocity](body_velocity.png)"]
+    return "\n".join(L) + "\n"

@@ -1,0 +1,41 @@
+"""``fusion-eval run``: one dataset through the configured filter, evaluated and written."""
+
+from __future__ import annotations
+
+import time
+from pathlib import Path
+from typing import Callable
+
+from .. import resources, session
+from ..pipeline import RunResult, run_to_dir
+from ..tables import cell
+
+
+def default_out_dir(dataset: Path, config_name: str) -> Path:
+    ds_name = dataset.resolve().parent.name if dataset.is_file() else dataset.resolve().name
+    return Path("results") / f"{ds_name}-{config_name}-{time.strftime('%Y%m%d-%H%M%S')}"
+
+
+def run(dataset: Path | None, config: Path | None, sets: tuple[str, ...], out_dir: Path | None, overwrite: bool = False,
+        progress: Callable[[float], None] | None = None) -> RunResult:
+    req = session.request(config=config, sets=sets)           # a bad configuration fails before any data is read
+    dataset = resources.default_dataset() if dataset is None else resources.find(dataset)
+    out_dir = out_dir if out_dir is not None else default_out_dir(dataset, req.source)
+    return run_to_dir(dataset, req, out_dir, overwrite=overwrite, progress=progress)
+
+
+def summary_table(metrics: dict) -> str:
+    """The table ``run`` prints: per estimate the matched poses, APE translation and rotation, RPE per frame."""
+    def stat(d, nd):
+        return cell(d["rmse"] if d else None, nd)
+
+    lines = [f"{'estimate':<10} {'matched':>8} {'APE trans RMSE [m]':>19} {'APE rot RMSE [deg]':>19} {'RPE trans 1 frame [m]':>22}"]
+    for name, m in metrics["estimates"].items():
+        ape = m.get("ape", {})
+        rpe = (m.get("rpe_1frame") or {}).get("translation_m")
+        lines.append(f"{name:<10} {m['matched_poses']:>8} {stat(ape.get('translation_m'), 3):>19} "
+                     f"{stat(ape.get('rotation_deg'), 3):>19} {stat(rpe, 4):>22}")
+    for k, v in metrics["ratios"].items():
+        if v is not None:
+            lines.append(f"{k.replace('_', ' ')} (APE RMSE): {v:.3f}")
+    return "\n".join(lines)

@@ -1,0 +1,139 @@
+"""The summary of a sweep, rebuilt from its records: ``sweep.csv``, ``sweep.md``, plots, ``best.yaml``.
+
+The metric columns come from :func:`fusion_eval.evaluation.keys.summary_columns` for the per-distance
+RPE length each run was evaluated with, so a sweep over ``evaluation.rpe_delta_m`` keeps its columns.
+"""
+
+from __future__ import annotations
+
+import os
+from pathlib import Path
+
+import numpy as np
+import yaml
+
+from ..evaluation import keys as mk
+from ..tables import cell, csv_text, markdown
+from .sweep import Task, read_records
+
+METRIC = mk.RANK_COLUMN
+
+
+def _get(m: dict, path: tuple):
+    d = m.get("estimates", {})
+    for p in path:
+        if not isinstance(d, dict) or p not in d or d[p] is None:
+            return None
+        d = d[p]
+    return d
+
+
+def rows_of(tasks: list[Task], out_dir: Path, keys: list[str]) -> tuple[list[dict], list[str]]:
+    """One row per run (and the metric columns found, in order)."""
+    recs = read_records(out_dir)
+    rows, metric_cols = [], []
+    seen = set()
+    for t in tasks:
+        key = (t.id, t.dataset, t.variant, t.setting)
+        if key in seen:
+            continue
+        seen.add(key)
+        r = recs.get(t.id)
+        row = {"id": t.id, "dataset": t.dataset, "variant": t.variant, "setting": t.setting}
+        for k in keys:
+            row[k] = t.overrides.get(k, "")
+        if r is None:
+            row.update(status="pending", error="")
+        else:
+            m = r.get("metrics") or {}
+            for col, path in mk.summary_columns(mk.rpe_delta_of(m)):
+                row[col] = _get(m, path)
+                if col not in metric_cols:
+                    metric_cols.append(col)
+            ratios = m.get("ratios") or {}
+            row["fused_over_lidar"] = ratios.get("fused_over_lidar")
+            row["fused_over_gnss"] = ratios.get("fused_over_gnss")
+            row.update(runtime_s=r.get("runtime_s"), status=r["status"], error=r.get("error") or "")
+        rows.append(row)
+    if not metric_cols:
+        metric_cols = [c for c, _ in mk.summary_columns(mk.DEFAULT_RPE_DELTA_M)]
+    return rows, metric_cols
+
+
+def _atomic(path: Path, text: str) -> None:
+    tmp = path.with_name(f".{path.name}.tmp")
+    tmp.write_text(text)
+    os.replace(tmp, path)
+
+
+def write_summary(tasks: list[Task], out_dir: Path, keys: list[str], plots: bool = True,
+                  grid_keys: list[str] | None = None) -> dict:
+    out_dir = Path(out_dir)
+    out_dir.mkdir(parents=True, exist_ok=True)
+    rows, metric_cols = rows_of(tasks, out_dir, keys)
+    cols = ["id", "dataset", "variant", "setting", *keys, *metric_cols, "fused_over_lidar", "fused_over_gnss", "runtime_s",
+            "status", "error"]
+    _atomic(out_dir / "sweep.csv", csv_text(cols, rows, float_format="{:.6g}"))
+
+    ok = [r for r in rows if r["status"] == "ok" and r.get(METRIC) is not None]
+    L = ["# fusion-eval sweep", "",
+         f"{len(rows)} runs: {sum(r['status'] == 'ok' for r in rows)} finished, {sum(r['status'] == 'failed' for r in rows)} "
+         f"failed, {sum(r['status'] == 'pending' for r in rows)} pending. Ranked by fused APE translation RMSE (lower is better).", ""]
+    datasets = sorted({r["dataset"] for r in rows})
+    rot, rpe = mk.column("fused", mk.APE, "rotation_deg", "rmse"), mk.column("fused", mk.RPE_FRAME, "translation_m", "rmse")
+    for ds in datasets:
+        sub = sorted((r for r in ok if r["dataset"] == ds), key=lambda r: r[METRIC])
+        L += [f"## {ds}", ""] + markdown(
+            ["rank", "variant", "setting", "APE trans RMSE [m]", "APE rot RMSE [deg]", "RPE 1 frame [m]", "fused/lidar",
+             "fused/GNSS", "time [s]"],
+            [[i, r["variant"], r["setting"], r[METRIC], r.get(rot), r.get(rpe), r["fused_over_lidar"], r["fused_over_gnss"],
+              r["runtime_s"]] for i, r in enumerate(sub, 1)], align="rllrrrrrr", decimals=[0, 0, 0, 3, 3, 4, 3, 3, 1])
+        L.append("")
+    # averaged across datasets: only settings that finished on every dataset
+    avg: dict = {}
+    for r in ok:
+        avg.setdefault((r["variant"], r["setting"]), []).append(r[METRIC])
+    full = {k: float(np.mean(v)) for k, v in avg.items() if len(v) == len(datasets)}
+    ranked = sorted(full.items(), key=lambda kv: kv[1])
+    if len(datasets) > 1:
+        L += ["## Averaged across datasets", ""] + markdown(
+            ["rank", "variant", "setting", "mean APE trans RMSE [m]"],
+            [[i, v, s, m] for i, ((v, s), m) in enumerate(ranked, 1)], align="rllr")
+        L.append("")
+    failed = [r for r in rows if r["status"] == "failed"]
+    if failed:
+        L += ["## Failed runs", ""] + markdown(["dataset", "variant", "setting", "error"],
+                                              [[r["dataset"], r["variant"], r["setting"], r["error"]] for r in failed],
+                                              align="llll")
+        L.append("")
+    best = None
+    if ranked:
+        (bv, bs), bm = ranked[0]
+        bt = next(t for t in tasks if t.variant == bv and t.setting == bs)
+        best = {"variant": bv, "setting": bs, "mean_fused_ape_trans_rmse_m": bm}
+        # a configuration file `fusion-eval run -c best.yaml` takes: the base config, the variant's file, the setting
+        cfg: dict = {}
+        for layer in (bt.base_config or {}, (yaml.safe_load(Path(bt.variant_path).read_text()) if bt.variant_path else {}) or {},
+                      _nest(bt.overrides)):
+            for sect, body in layer.items():
+                cfg.setdefault(sect, {}).update(body)
+        _atomic(out_dir / "best.yaml", f"# best of the sweep: variant {bv}, setting {bs}\n"
+                f"# mean fused APE translation RMSE across datasets: {bm:.6f} m\n"
+                "# use it as: fusion-eval run -c best.yaml\n" + yaml.safe_dump(cfg, sort_keys=False))
+        L += [f"Best: variant `{bv}`, setting `{bs}` (mean fused APE RMSE {cell(bm)} m); see `best.yaml`.", ""]
+    written = []
+    if plots and ok:
+        from ..report import plots as P
+
+        written = P.plot_sweep(out_dir, rows, keys, METRIC, tasks, best, grid_keys or [])
+        L += [f"![{p}]({p})" for p in written]
+    _atomic(out_dir / "sweep.md", "\n".join(L) + "\n")
+    return {"rows": rows, "best": best, "plots": written}
+
+
+def _nest(ov: dict) -> dict:
+    out: dict = {}
+    for k, v in ov.items():
+        s, n = k.split(".")
+        out.setdefault(s, {})[n] = v
+    return out

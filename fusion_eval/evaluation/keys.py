@@ -1,0 +1,73 @@
+"""The names of every metric, in one place.
+
+A run's ``metrics.json`` holds, per estimate, groups (``ape``, ``rpe_1frame``, ``rpe_<delta>m``) of
+relations (``translation_m``, ``rotation_deg``) of statistics (``rmse`` ... ``max``), plus ``kitti_drift``.
+``check`` addresses them by dotted paths (``fused.ape.translation_m.rmse``), a sweep's CSV by column names
+(``fused_ape_trans_rmse_m``). The distance of the per-distance RPE is a setting
+(``evaluation.rpe_delta_m``), so every name that contains it comes from :func:`rpe_distance_group`;
+``metrics.json`` records the setting (``evaluation.rpe_delta_m``) for readers of the file.
+"""
+
+from __future__ import annotations
+
+STATS = ("rmse", "mean", "median", "std", "min", "max")
+APE = "ape"
+RPE_FRAME = "rpe_1frame"
+RELATIONS = {"translation_m": ("trans", "m"), "rotation_deg": ("rot", "deg")}
+DEFAULT_RPE_DELTA_M = 100.0
+
+
+def rpe_distance_group(delta_m: float) -> str:
+    """``rpe_100m`` for 100 m: the group of the per-distance RPE."""
+    return f"rpe_{float(delta_m):g}m"
+
+
+def groups(delta_m: float) -> tuple[str, str, str]:
+    return APE, RPE_FRAME, rpe_distance_group(delta_m)
+
+
+def rpe_delta_of(metrics: dict) -> float:
+    """The per-distance RPE length a metrics dict was computed with (older files: 100 m)."""
+    return float((metrics.get("evaluation") or {}).get("rpe_delta_m", DEFAULT_RPE_DELTA_M))
+
+
+def column(estimate: str, group: str, relation: str, stat: str) -> str:
+    """A sweep CSV column: ``fused_ape_trans_rmse_m``."""
+    short, unit = RELATIONS[relation]
+    return f"{estimate}_{group}_{short}_{stat}_{unit}"
+
+
+def path(estimate: str, group: str, relation: str, stat: str) -> str:
+    """A ``check`` path: ``fused.ape.translation_m.rmse``."""
+    return f"{estimate}.{group}.{relation}.{stat}"
+
+
+def summary_columns(delta_m: float) -> list[tuple[str, tuple]]:
+    """The metric columns of a sweep's CSV and where each is in a ``metrics.json`` (``estimates`` -> path)."""
+    d = rpe_distance_group(delta_m)
+    cols = [(column("fused", APE, "translation_m", s), ("fused", APE, "translation_m", s)) for s in ("rmse", "mean", "max")]
+    cols += [(column("fused", APE, "rotation_deg", "rmse"), ("fused", APE, "rotation_deg", "rmse")),
+             (column("fused", RPE_FRAME, "translation_m", "rmse"), ("fused", RPE_FRAME, "translation_m", "rmse")),
+             (column("fused", d, "translation_m", "rmse"), ("fused", d, "translation_m", "rmse")),
+             ("fused_kitti_t_err_pct", ("fused", "kitti_drift", "t_err_pct")),
+             ("fused_kitti_r_err_deg_per_100m", ("fused", "kitti_drift", "r_err_deg_per_100m")),
+             (column("lidar", APE, "translation_m", "rmse"), ("lidar", APE, "translation_m", "rmse")),
+             (column("gnss", APE, "translation_m", "rmse"), ("gnss", APE, "translation_m", "rmse"))]
+    return cols
+
+
+RANK_COLUMN = column("fused", APE, "translation_m", "rmse")   # what sweeps rank by
+
+
+def check_patterns(delta_m: float) -> tuple[str, ...]:
+    """The metrics ``check`` compares by default in a ``metrics.json``: the RMSE of APE and RPE of every
+    estimate, and the ratios."""
+    return (f"*.{APE}.translation_m.rmse", f"*.{APE}.rotation_deg.rmse", f"*.{RPE_FRAME}.translation_m.rmse",
+            f"*.{rpe_distance_group(delta_m)}.translation_m.rmse", "ratios.*")
+
+
+def csv_check_patterns(delta_m: float) -> tuple[str, ...]:
+    """The columns ``check`` compares by default in a sweep's CSV."""
+    return (f"*.{column('fused', APE, 'translation_m', 'rmse')}", f"*.{column('fused', APE, 'rotation_deg', 'rmse')}",
+            f"*.{column('fused', RPE_FRAME, 'translation_m', 'rmse')}",
+            f"*.{column('fused', rpe_distance_group(delta_m), 'translation_m', 'rmse')}")

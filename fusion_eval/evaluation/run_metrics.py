@@ -1,0 +1,90 @@
+"""A run's evaluation beyond evo's metrics: filter consistency against the ground truth, the fused error
+against the filter's own sigma, the per-segment breakdown, and the whole ``metrics.json`` dictionary.
+
+Everything a report writes or plots about a run is computed here; the report only formats it.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from ..filters.layout import CANONICAL
+from ..interp import interpolate_poses
+from ..types import PoseSeries
+from . import keys
+from .consistency import pose_nees, summary
+from .segments import breakdown
+from .trajectory import EstimateEvaluation
+
+ESTIMATES = ("fused", "lidar", "gnss", "imu_only")
+
+
+def ratio_metrics(evals: dict[str, EstimateEvaluation]) -> dict:
+    """Fused APE translation RMSE over that of each unfiltered sensor."""
+    from .trajectory import ratio
+
+    return {"fused_over_lidar": ratio(evals.get("fused"), evals.get("lidar")),
+            "fused_over_gnss": ratio(evals.get("fused"), evals.get("gnss"))}
+
+
+def _truth_at_fused(gt: PoseSeries, filt):
+    gi = interpolate_poses(gt, filt.fused.t_s)
+    return gi, np.isin(filt.fused.t_s, gi.t_s)
+
+
+def consistency(gt: PoseSeries, filt) -> dict:
+    """NIS per observation (from the filter's innovations) and NEES of position and attitude (the filter's
+    covariance against its error from the ground truth), each with its 95 % chi-square summary and the
+    series (``t_s``, ``values``) for plots."""
+    out: dict = {"nis": {k: {**summary(d["nis"], d["dof"]), "rejected": d.get("rejected", 0), "t_s": d["t_s"],
+                             "values": d["nis"]} for k, d in filt.nis.items()}}
+    gi, sel = _truth_at_fused(gt, filt)
+    n_pos, n_att = pose_nees(filt.fused.p_w_m[sel], filt.fused.R_wb()[sel], gi.p_w_m, gi.R_wb(), filt.P_pos_att[sel])
+    ok = np.isfinite(n_pos) & np.isfinite(n_att)
+    out["nees"] = {"position": {**summary(n_pos[ok], 3), "t_s": gi.t_s[ok], "values": n_pos[ok]},
+                   "attitude": {**summary(n_att[ok], 3), "t_s": gi.t_s[ok], "values": n_att[ok]}} if ok.any() else {}
+    return out
+
+
+def fused_error(gt: PoseSeries, filt) -> dict:
+    """The fused position error per ENU axis at the fused stamps inside the ground truth, with the filter's
+    1-sigma of each axis (for the error-against-3-sigma plot)."""
+    gi, sel = _truth_at_fused(gt, filt)
+    return {"t_s": gi.t_s, "err_w_m": filt.fused.p_w_m[sel] - gi.p_w_m,
+            "sigma_w_m": filt.sigma[sel][:, CANONICAL.sl("P")]}
+
+
+def segments(gt: PoseSeries, evals: dict[str, EstimateEvaluation], ev_cfg: dict, primary: str = "fused",
+             secondary: str | None = "lidar") -> dict:
+    errs = {k: (ev.ape_t_s, ev.ape_err_m) for k, ev in evals.items() if ev.ape_err_m is not None}
+    return breakdown(gt, errs, ev_cfg["segment_m"], ev_cfg["segment_s"], primary=primary, secondary=secondary)
+
+
+def _strip_arrays(d: dict) -> dict:
+    return {k: v for k, v in d.items() if k not in ("t_s", "values")}
+
+
+def estimate_metrics(ev: EstimateEvaluation) -> dict:
+    """One estimate's entry of a metrics dictionary."""
+    out = {"poses": ev.poses, "matched_poses": ev.matched_poses, **ev.metrics}
+    if ev.drift is not None:
+        out["kitti_drift"] = ev.drift
+    if ev.alignment_params is not None:
+        out["alignment"] = ev.alignment_params
+    if ev.note:
+        out["note"] = ev.note
+    return out
+
+
+def run_metrics(dataset: str, evals: dict[str, EstimateEvaluation], ratios: dict, ev_cfg: dict, applied: dict,
+                gnss_info: dict | None, cons: dict | None = None, seg: dict | None = None) -> dict:
+    """The content of a run's ``metrics.json``."""
+    cons = cons or {}
+    return {"dataset": dataset,
+            "evaluation": {"association": ev_cfg["association"], "alignment": ev_cfg["alignment"],
+                           "t_max_diff_s": ev_cfg["t_max_diff_s"], "rpe_delta_m": ev_cfg["rpe_delta_m"],
+                           "rpe_groups": list(keys.groups(ev_cfg["rpe_delta_m"]))},
+            "estimates": {name: estimate_metrics(ev) for name, ev in evals.items()}, "ratios": ratios,
+            "nis": {k: _strip_arrays(v) for k, v in cons.get("nis", {}).items()},
+            "nees": {k: _strip_arrays(v) for k, v in cons.get("nees", {}).items()},
+            "segments": seg, "gnss_degradation": gnss_info, "preprocessing": applied}

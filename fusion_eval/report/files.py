@@ -1,0 +1,106 @@
+"""Run outputs as files: TUM trajectories, metrics (JSON, CSV), evo result zips, the resolved configuration.
+
+Nothing time- or machine-dependent is written (no wall times, no absolute paths beyond the inputs), so
+the same inputs and seed give the same bytes; zips get fixed entry times.
+"""
+
+from __future__ import annotations
+
+import copy
+import io
+import json
+import platform
+import zipfile
+
+import yaml
+
+from .. import __version__
+from ..datasets.tum import format_tum
+from ..evaluation.keys import STATS
+from ..evaluation.trajectory import EstimateEvaluation
+from ..tables import csv_text
+from ..types import PoseSeries
+
+TUM_FILES = {"fused": "fused.tum", "lidar": "lidar.tum", "gnss": "gnss.tum", "imu_only": "imu_only.tum",
+             "groundtruth": "groundtruth.tum"}
+FIXED_ZIP_TIME = (1980, 1, 1, 0, 0, 0)
+
+
+def versions() -> dict:
+    """Versions of Python and of the packages that produced the numbers (read from metadata, no imports)."""
+    from importlib.metadata import PackageNotFoundError, version
+
+    out = {"fusion-eval": __version__, "python": platform.python_version()}
+    for pkg in ("numpy", "scipy", "evo", "numba", "pymap3d", "matplotlib", "pandas", "pyyaml", "click"):
+        try:
+            out[pkg] = version(pkg)
+        except PackageNotFoundError:
+            out[pkg] = None
+    return out
+
+
+def tum_text(name: str, s: PoseSeries) -> str:
+    hdr = f"fusion-eval {__version__} {name}: timestamp tx ty tz qx qy qz qw (world = local ENU, body = IMU)"
+    if not s.has_orientation:
+        hdr += "\nposition only: quaternions are identity placeholders"
+    return format_tum(s, hdr)
+
+
+def metrics_json(metrics: dict) -> str:
+    return json.dumps(metrics, indent=2, sort_keys=False) + "\n"
+
+
+def metrics_csv(evals: dict[str, EstimateEvaluation], ratios: dict) -> str:
+    groups = []
+    for ev in evals.values():
+        for g, d in ev.metrics.items():
+            for rel in d:
+                if (g, rel) not in groups:
+                    groups.append((g, rel))
+    cols = ["estimate", "poses", "matched_poses"] + [f"{g}_{rel}_{s}" for g, rel in groups for s in STATS] + \
+        ["fused_over_this_ape_rmse"]
+    rows = []
+    for name, ev in evals.items():
+        row = {"estimate": name, "poses": ev.poses, "matched_poses": ev.matched_poses,
+               "fused_over_this_ape_rmse": ratios.get(f"fused_over_{name}")}
+        for g, rel in groups:
+            d = (ev.metrics.get(g) or {}).get(rel)
+            for s in STATS:
+                row[f"{g}_{rel}_{s}"] = None if not d else float(d[s])
+        rows.append(row)
+    return csv_text(cols, rows)
+
+
+def resolved_config(cfg: dict, extra: dict) -> str:
+    """``config.resolved.yaml``: the configuration, then informational sections (the dataset, what was
+    applied, the versions); ``-c`` accepts the file and ignores those sections."""
+    return yaml.safe_dump({**cfg, **extra, "versions": versions()}, sort_keys=False)
+
+
+def evo_zips(ev: EstimateEvaluation) -> dict[str, bytes]:
+    """evo result files (``evo_res`` reads them), one per metric: ``<metric>_<estimate>.zip`` -> bytes."""
+    from evo.tools import file_interface
+
+    out = {}
+    for key, res in ev.results.items():
+        if key.startswith("rpe"):
+            # the RPE zips keep evo's statistics and error arrays (what evo_res reads); the reduced copies of the
+            # trajectories that evo_rpe adds cost most of the writing time and are in the APE zips in full
+            res = copy.copy(res)
+            res.trajectories = {}
+        raw = io.BytesIO()
+        file_interface.save_res_file(raw, res, confirm_overwrite=False)
+        out[f"{key}_{ev.name}.zip"] = normalized_zip(raw.getvalue())
+    return out
+
+
+def normalized_zip(data: bytes) -> bytes:
+    """The same zip with fixed entry times and sorted entries, so that identical runs give identical bytes."""
+    buf = io.BytesIO()
+    with zipfile.ZipFile(io.BytesIO(data)) as zin, zipfile.ZipFile(buf, "w") as zout:
+        for info in sorted(zin.infolist(), key=lambda i: i.filename):
+            zi = zipfile.ZipInfo(info.filename, date_time=FIXED_ZIP_TIME)
+            zi.compress_type = info.compress_type  # evo stores uncompressed; keep it so
+            zi.external_attr = 0o644 << 16
+            zout.writestr(zi, zin.read(info.filename))
+    return buf.getvalue()

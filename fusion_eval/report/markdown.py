@@ -1,0 +1,134 @@
+"""Markdown reports: a run's ``report.md`` and the sections ``compare`` and ``evaluate`` share.
+
+Everything is formatted from numbers the evaluation layer computed; nothing here computes metrics.
+"""
+
+from __future__ import annotations
+
+import yaml
+
+from ..evaluation.keys import rpe_distance_group
+from ..evaluation.run_metrics import ESTIMATES
+
+
+def drift_section(m: dict) -> list[str]:
+    rows = [(k, v["kitti_drift"]) for k, v in m["estimates"].items() if v.get("kitti_drift")]
+    if not rows:
+        return []
+    L = ["", "## KITTI drift metric", "",
+         "Averaged over all segments of 100, 200, ..., 800 m starting every 10 frames (the KITTI odometry devkit's definition).", "",
+         "| estimate | translational error [%] | rotational error [deg/100 m] | segments |", "|---|---:|---:|---:|"]
+    L += [f"| {k} | {d['t_err_pct']:.3f} | {d['r_err_deg_per_100m']:.4f} | {d['segments']} |" for k, d in rows]
+    return L
+
+
+def consistency_section(m: dict) -> list[str]:
+    L = ["", "## Filter consistency", "",
+         "| quantity | epochs | dof | mean | 95 % interval | fraction inside |", "|---|---:|---:|---:|---|---:|"]
+    for label, group in (("NEES", m.get("nees") or {}), ("NIS", m.get("nis") or {})):
+        for k, d in group.items():
+            lo, hi = d["bounds_95"]
+            L.append(f"| {label} {k} | {d['epochs']} | {d['dof']} | {d['mean']:.2f} | [{lo:.2f}, {hi:.2f}] | "
+                     f"{d['fraction_in_95'] * 100:.1f} % |")
+    L += ["", "NEES uses the filter's covariance and its error against the ground truth; NIS the innovations alone. A "
+          "consistent filter has a mean near the dof and about 95 % inside; a mean well below means the filter is "
+          "conservative (noise too large), well above overconfident."]
+    return L
+
+
+def segments_section(m: dict) -> list[str]:
+    seg = m.get("segments")
+    if not seg or not seg["segments"]:
+        return []
+    skip = ("imu_only",)   # dead reckoning's kilometres would drown the table
+    names = [k for k in seg["segments"][0]["rmse_m"] if k not in skip and any(s["rmse_m"].get(k) is not None for s in seg["segments"])]
+    a, b = seg.get("primary", "fused"), seg.get("secondary")
+    unit = "m" if seg["by"] == "distance" else "s"
+    L = ["", f"## Per-segment breakdown (every {seg['length']:g} {unit} along the route)", "",
+         "| segment | route [m] | time [s] | " + " | ".join(f"{n} APE RMSE [m]" for n in names)
+         + (f" | {a} - {b} [m] |" if b else " |"), "|---|---|---|" + "---:|" * (len(names) + bool(b))]
+    for s in seg["segments"]:
+        r = s["rmse_m"]
+        cells = " | ".join("n/a" if r.get(n) is None else f"{r[n]:.3f}" for n in names)
+        diff = ""
+        if b:
+            diff = " | " + ("n/a" if r.get(a) is None or r.get(b) is None else f"{r[a] - r[b]:+.3f}")
+        L.append(f"| {s['index']} | {s['start_m']:.0f}-{s['end_m']:.0f} | {s['start_s']:.0f}-{s['end_s']:.0f} | {cells}{diff} |")
+    by_i = {s["index"]: s for s in seg["segments"]}
+    L += ["", f"Worst segments for {a}: " + ", ".join(
+        f"{i} ({by_i[i]['start_m']:.0f}-{by_i[i]['end_m']:.0f} m, {by_i[i]['rmse_m'][a]:.3f} m)" for i in seg["worst"]) + ".", ""]
+    return L
+
+
+def fmt_stat(d, key="rmse", nd=3):
+    if not d:
+        return "n/a"
+    return f"{d[key]:.{nd}f}"
+
+
+def report_md(dataset: str, config_name: str, evals: dict, ratios: dict, cfg: dict, applied: dict,
+              gnss_info: dict | None, metrics: dict, plots_written: list[str]) -> str:
+    L = [f"# fusion-eval run: {dataset}", "", f"Configuration: `{config_name}`; lidar update: "
+         f"**{cfg['filter']['lidar_update']}**, GNSS fused: **{'yes' if cfg['filter']['use_gnss'] else 'no'}**, "
+         f"bias model: **{cfg['filter']['bias_model']}**.", "",
+         "## Summary against ground truth (evo, no alignment)", "",
+         "| estimate | matched poses | APE trans RMSE [m] | APE trans mean / max [m] | APE rot RMSE [deg] | "
+         f"RPE trans 1 frame RMSE [m] | RPE rot 1 frame RMSE [deg] | RPE trans {cfg['evaluation']['rpe_delta_m']:g} m RMSE [m] |",
+         "|---|---:|---:|---:|---:|---:|---:|---:|"]
+    dm = rpe_distance_group(cfg['evaluation']['rpe_delta_m'])
+    for name in ESTIMATES:
+        ev = evals.get(name)
+        if ev is None:
+            continue
+        m = ev.metrics
+        ape_t = (m.get("ape") or {}).get("translation_m")
+        L.append(f"| {name} | {ev.matched_poses}/{ev.poses} | {fmt_stat(ape_t)} | "
+                 f"{fmt_stat(ape_t, 'mean')} / {fmt_stat(ape_t, 'max')} | {fmt_stat((m.get('ape') or {}).get('rotation_deg'))} | "
+                 f"{fmt_stat((m.get('rpe_1frame') or {}).get('translation_m'), nd=4)} | "
+                 f"{fmt_stat((m.get('rpe_1frame') or {}).get('rotation_deg'), nd=4)} | "
+                 f"{fmt_stat((m.get(dm) or {}).get('translation_m'))} |")
+    L.append("")
+    for k, v in ratios.items():
+        if v is None:
+            continue
+        other = k.replace("fused_over_", "")
+        verdict = "better" if v < 1 else "worse"
+        L.append(f"- Fused APE RMSE / {other} APE RMSE = **{v:.3f}** (fusion is {verdict} than {other} alone, "
+                 f"{abs(1 - v) * 100:.1f} % {'lower' if v < 1 else 'higher'}).")
+    for name, ev in evals.items():
+        if ev.note:
+            L.append(f"- {name}: {ev.note}.")
+    ev0 = metrics.get("evaluation", {})
+    L += ["", f"Association: **{ev0.get('association', 'nearest')}**"
+          + (f" (nearest stamp within {cfg['evaluation']['t_max_diff_s']} s)" if ev0.get("association") == "nearest" else
+             " (reference interpolated at the estimate's stamps: linear position, SLERP rotation)")
+          + f"; alignment: **{ev0.get('alignment', 'none')}**. Matched poses are in the table above."]
+    L += drift_section(metrics) + consistency_section(metrics) + segments_section(metrics)
+    L += ["## GNSS degradation", ""]
+    if gnss_info is None:
+        L.append("The dataset has no GNSS stream.")
+    elif not gnss_info.get("degraded", True):
+        L.append(f"The GNSS stream is a receiver's output (the manifest does not mark it for degradation): used as it is, "
+                 f"{gnss_info['fixes_used']} fixes; std given to the filter: {gnss_info['std_given_to_filter_m']}.")
+    else:
+        rate = "every fix kept" if gnss_info["rate_hz"] is None else f"decimated to {gnss_info['rate_hz']:g} Hz"
+        L.append(f"KITTI's OXTS position is the GPS/INS solution that is also the ground truth, so it was degraded: "
+                 f"{rate} ({gnss_info['fixes_in']} -> {gnss_info['fixes_after_decimation']} fixes), white noise with std "
+                 f"{gnss_info['noise_std_m']} m (E, N, U; seed {gnss_info['seed']}), outages {gnss_info['outages_s'] or 'none'} s "
+                 f"({gnss_info['fixes_in_outages']} fixes removed); {gnss_info['fixes_used']} fixes used. "
+                 f"Std given to the filter: {gnss_info['std_given_to_filter_m']}.")
+    L += ["", "## Pre-processing applied", "",
+          f"- Start: t = {applied['t_start_s']:.6f} s (first IMU sample covered by ground truth"
+          f"{' and lidar' if cfg['filter']['lidar_update'] != 'none' else ''}).",
+          f"- Filled-in IMU packets: {applied['imu_filled_samples']} ({applied['imu_filled_packets']}); filled-in "
+          "ground-truth and GNSS packets are never used.",
+          f"- Gyro lag correction: {applied['gyro_lag_s'] * 1000:.1f} ms.",
+          f"- Time offsets [s]: {applied['time_offset_s']}.",
+          f"- Gravity: {applied['gravity_mps2']:.5f} m/s^2."]
+    if "lidar_anchor_t_s" in applied:
+        L.append(f"- Lidar odometry anchored at the ground-truth pose at t = {applied['lidar_anchor_t_s']:.6f} s; "
+                 f"{'resampled on the IMU stamps' if cfg['lidar']['interpolate_to_imu'] else 'at its own stamps'}.")
+    if plots_written:
+        L += ["", "## Plots", ""] + [f"![{p}]({p})" for p in plots_written]
+    L += ["", "## Configuration", "", "```yaml", yaml.safe_dump(cfg, sort_keys=False).rstrip(), "```", ""]
+    return "\n".join(L)

@@ -1,0 +1,69 @@
+"""The one place a run's configuration is assembled, for ``run``, ``compare``, ``sweep``, the Python API
+and the tests.
+
+Layers, later ones winning: the built-in defaults < the dataset manifest's suggested settings (``config:``)
+< the base configuration (``--config``, a sweep's ``config:``) < the variant < the overrides (``--set``
+items, or plain Python values through the API). Everything the user gave is validated when the request is
+made (:func:`request`), before any data is read; the manifest's layer joins when the dataset is known
+(:func:`resolve`). Gravity ``auto`` needs no second pass: the prepared run resolves it from the dataset's
+geodetic origin.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from pathlib import Path
+
+from .config import Layer, merge_layers, parse_file, parse_overrides, parse_sets, validate
+from .types import Dataset
+
+
+@dataclass(frozen=True)
+class ConfigRequest:
+    """The user's layers (validated) and the name the run reports its configuration by."""
+
+    layers: tuple[Layer, ...]
+    source: str = "default"
+
+
+def request(config: Path | dict | None = None, variant: Path | None = None, sets: tuple[str, ...] = (),
+            overrides: dict | None = None) -> ConfigRequest:
+    """Validate the user's layers: a base configuration (a file, or a ``{section: {key: value}}`` dict), a
+    variant file, ``--set`` items and Python overrides (``{"gnss.rate_hz": 2.0}``)."""
+    layers: list[Layer] = []
+    source = "default"
+    if isinstance(config, dict):
+        layers.append(validate(config, "config"))
+    elif config is not None:
+        layers.append(parse_file(Path(config)))
+        source = Path(config).stem
+    if variant is not None:
+        layers.append(parse_file(Path(variant)))
+        source = Path(variant).stem
+    if sets:
+        layers.append(parse_sets(tuple(sets)))
+    if overrides:
+        layers.append(parse_overrides(overrides))
+    return ConfigRequest(tuple(layers), source)
+
+
+def manifest_layer(ds: Dataset) -> tuple[Layer, ...]:
+    body = ds.description.get("config")
+    return (validate(body, f"{ds.description['manifest']} (config)"),) if body else ()
+
+
+def resolve(req: ConfigRequest, ds: Dataset) -> dict:
+    """The resolved (human-unit) configuration of a run of ``ds``."""
+    return merge_layers([*manifest_layer(ds), *req.layers])
+
+
+def dataset(path: str | Path | None = None) -> Dataset:
+    """The dataset at ``path`` (a folder with a manifest, a manifest file, or a raw KITTI drive folder; a
+    relative path not found in the working directory is looked up in the shipped tree); None: the default."""
+    from . import resources
+    from .datasets.manifest import load_dataset
+
+    p = resources.default_dataset() if path is None else resources.find(path)
+    ds = load_dataset(p)
+    ds.description.setdefault("path", str(p))
+    return ds
