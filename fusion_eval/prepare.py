@@ -13,7 +13,6 @@ from dataclasses import dataclass, field, replace
 import numpy as np
 
 from .calibration import estimate_gyro_lag
-from .config import get
 from .degrade import degrade_gnss
 from .errors import ConfigError, DataRangeError
 from .filters import check_combination, formulation_of, observations
@@ -40,11 +39,15 @@ class Prepared:
     gnss_info: dict | None
     applied: dict = field(default_factory=dict)   # effective offsets, lag, anchor (for the report)
     odometer: SpeedSeries | None = None          # forward speed, inside the run
+    streams: dict = field(default_factory=dict)  # the enabled observations' other streams, prepared, inside the run
+
+    def stream(self, name: str):
+        return getattr(self, name) if name in ("imu", "groundtruth", "gnss", "lidar", "odometer") else self.streams.get(name)
 
 
 def _offset(cfg: dict, ds: Dataset, stream: str) -> float:
-    """The stream's time offset: the configuration's, else the manifest's (default 0)."""
-    v = get(cfg, f"{stream}.time_offset_s")
+    """The stream's time offset: the configuration's (``<stream>.time_offset_s``), else the manifest's (default 0)."""
+    v = cfg.get(stream, {}).get("time_offset_s")
     return float(ds.description.get("time_offset_s", {}).get(stream, 0.0) if v is None else v)
 
 
@@ -213,10 +216,27 @@ def prepare(ds: Dataset, cfg: dict) -> Prepared:
             raise ConfigError("filter.init_velocity_from=groundtruth needs a ground truth with velocity (KITTI OXTS); use gnss")
     x0 = NominalState(p_w_m=np.array(p0), v_w_mps=np.array(v0), R_wb=np.array(R0), ba_b=np.zeros(3), bg_b=np.zeros(3))
 
+    # --- the enabled observations' own streams: offset, filled packets, the run's span, degradation
+    extra: dict = {}
+    for o in observations.enabled(cfg):
+        for spec in o.extra_streams:
+            raw = ds.extra[spec.name]
+            off = _offset(cfg, ds, spec.name)
+            applied["time_offset_s"][spec.name] = off
+            st = replace(raw, t_s=raw.t_s + off)
+            st = st.select(~st.filled)
+            st = st.select((st.t_s >= t0) & (st.t_s <= imu.t_s[-1]))
+            if spec.prepare is not None:
+                st, applied[spec.name] = spec.prepare(st, cfg, t0, ds.description.get("degrade", {}).get(spec.name, False))
+            if len(st) == 0:
+                raise DataRangeError(f"no {spec.what} of {raw.source} is left inside the IMU span "
+                                     f"({imu.t_s[0]:.3f}..{imu.t_s[-1]:.3f} s) after the time offset and degradation")
+            extra[spec.name] = st
+
     g = cfg["filter"]["gravity_mps2"]
     if g == "auto":
         g = normal_gravity_mps2(ds.geodetic_origin[0], ds.geodetic_origin[2]) if ds.geodetic_origin else 9.80665
     applied["gravity_mps2"] = float(g)
     applied["t_start_s"] = t0
     return Prepared(imu=imu, groundtruth=gt, gnss=gnss, lidar=lidar, k_start=k0, x0=x0, gravity_mps2=float(g),
-                    gnss_info=gnss_info, applied=applied, odometer=odo)
+                    gnss_info=gnss_info, applied=applied, odometer=odo, streams=extra)

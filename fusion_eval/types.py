@@ -209,6 +209,47 @@ class SpeedSeries:
 
 
 @dataclass(frozen=True)
+class VectorSeries:
+    """Stamped measurements of a vector quantity with their 1-sigma per component (the stream of an
+    observation beyond the built-in ones, e.g. a GNSS receiver's ENU velocity). ``what`` names the quantity,
+    with its frame and unit, for errors."""
+
+    t_s: np.ndarray
+    values: np.ndarray
+    std: np.ndarray
+    filled: np.ndarray | None = None
+    source: str = "<vectors>"
+    lines: np.ndarray | None = None
+    what: str = "measurement"
+
+    def __post_init__(self):
+        t = _frozen(self.t_s)
+        object.__setattr__(self, "t_s", t)
+        v = np.asarray(self.values, float)
+        v = v.reshape(t.size, -1) if v.ndim == 1 else v
+        object.__setattr__(self, "values", _frozen(v))
+        object.__setattr__(self, "std", _frozen(np.asarray(self.std, float).reshape(v.shape)))
+        filled = np.zeros(t.shape, bool) if self.filled is None else self.filled
+        object.__setattr__(self, "filled", _frozen(filled, bool))
+        if self.lines is not None:
+            object.__setattr__(self, "lines", _frozen(self.lines, np.int64))
+        _check_times(t, self.source, self.lines, self.what)
+        _check_rows("values", self.values, t.size, v.shape[1], self.source, self.lines, self.what)
+        _check_rows("std", self.std, t.size, v.shape[1], self.source, self.lines, self.what)
+        if np.any(self.std <= 0):
+            i = int(np.flatnonzero(np.any(self.std <= 0, axis=1))[0])
+            raise DataFormatError(self.source, _line(self.lines, i), f"{self.what} std must be > 0")
+
+    def __len__(self) -> int:
+        return int(self.t_s.size)
+
+    def select(self, mask: np.ndarray) -> "VectorSeries":
+        lines = None if self.lines is None else self.lines[mask]
+        return replace(self, t_s=self.t_s[mask], values=self.values[mask], std=self.std[mask], filled=self.filled[mask],
+                       lines=lines)
+
+
+@dataclass(frozen=True)
 class Dataset:
     """Every stream of one drive, in one world frame and on one clock."""
 

@@ -26,12 +26,17 @@ from ..types import GnssSeries, ImuSeries, PoseSeries, SpeedSeries
 from ._text import is_float, read_text
 
 N_FIELDS = 30
-LAT, LON, ALT, ROLL, PITCH, YAW = 0, 1, 2, 3, 4, 5
-VF, VL, VU = 8, 9, 10
-AX, AY, AZ = 11, 12, 13
-WX, WY, WZ = 17, 18, 19
-POS_ACC = 23
-POSMODE, VELMODE, ORIMODE = 27, 28, 29
+FIELDS = ("lat", "lon", "alt", "roll", "pitch", "yaw", "vn", "ve", "vf", "vl", "vu", "ax", "ay", "az", "af", "al", "au",
+          "wx", "wy", "wz", "wf", "wl", "wu", "pos_accuracy", "vel_accuracy", "navstat", "numsats", "posmode", "velmode",
+          "orimode")
+FIELD = {name: i for i, name in enumerate(FIELDS)}
+LAT, LON, ALT, ROLL, PITCH, YAW = (FIELD[k] for k in ("lat", "lon", "alt", "roll", "pitch", "yaw"))
+VN, VE = FIELD["vn"], FIELD["ve"]
+VF, VL, VU = FIELD["vf"], FIELD["vl"], FIELD["vu"]
+AX, AY, AZ = FIELD["ax"], FIELD["ay"], FIELD["az"]
+WX, WY, WZ = FIELD["wx"], FIELD["wy"], FIELD["wz"]
+POS_ACC, VEL_ACC = FIELD["pos_accuracy"], FIELD["vel_accuracy"]
+POSMODE, VELMODE, ORIMODE = FIELD["posmode"], FIELD["velmode"], FIELD["orimode"]
 
 _STAMP = re.compile(r"^(\d{4}-\d{2}-\d{2}) (\d{2}:\d{2}:\d{2})(?:\.(\d{1,9}))?$")
 
@@ -66,9 +71,7 @@ def parse_kitti_stamp(s: str) -> float | None:
 
 
 CSV_NAME = "packets.csv"
-CSV_HEADER = "t_s," + ",".join(["lat", "lon", "alt", "roll", "pitch", "yaw", "vn", "ve", "vf", "vl", "vu", "ax", "ay", "az",
-                                "af", "al", "au", "wx", "wy", "wz", "wf", "wl", "wu", "pos_accuracy", "vel_accuracy",
-                                "navstat", "numsats", "posmode", "velmode", "orimode"])
+CSV_HEADER = "t_s," + ",".join(FIELDS)
 
 
 def find_oxts_dir(path: Path) -> Path:
@@ -179,17 +182,21 @@ def positions_enu(pk: OxtsPackets, origin: tuple[float, float, float]) -> np.nda
     return geodetic_to_enu(v[:, LAT], v[:, LON], v[:, ALT], *origin)
 
 
+def accuracy(pk: OxtsPackets, field: int) -> np.ndarray:
+    """A reported accuracy column (``pos_accuracy``, ``vel_accuracy``), 1-sigma; a non-positive one (seen in
+    filled packets) is replaced by the median of the valid ones."""
+    acc = pk.values[:, field].copy()
+    good = acc > 0
+    acc[~good] = float(np.median(acc[good])) if good.any() else 1.0
+    return acc
+
+
 def gnss_from_oxts(pk: OxtsPackets, origin: tuple[float, float, float]) -> GnssSeries:
     """GNSS fixes in local ENU about ``origin``; 1-sigma from ``pos_accuracy`` on each axis.
 
-    OXTS gives no per-axis accuracy, so the same sigma is used for East, North and Up. A
-    non-positive accuracy (seen in filled packets) is replaced by the median of the valid ones.
+    OXTS gives no per-axis accuracy, so the same sigma is used for East, North and Up.
     """
-    v = pk.values
-    acc = v[:, POS_ACC].copy()
-    good = acc > 0
-    fallback = float(np.median(acc[good])) if good.any() else 1.0
-    acc[~good] = fallback
+    acc = accuracy(pk, POS_ACC)
     return GnssSeries(t_s=pk.t_s, p_w_m=positions_enu(pk, origin), std_w_m=np.repeat(acc[:, None], 3, axis=1),
                       filled=pk.filled, source=str(pk.stamps_path), lines=np.arange(1, pk.t_s.size + 1))
 

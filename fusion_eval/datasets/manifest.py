@@ -16,6 +16,7 @@ from ..errors import ConfigError, DataFormatError, DataRangeError
 from ..so3 import make_T, matrix_to_quat_xyzw
 from ..types import Dataset, GnssSeries, PoseSeries
 from . import gnss_csv, kitti_oxts, kitti_poses, speed, tum
+from .streams import ReadContext, StreamSpec
 
 STREAMS = ("imu", "gnss", "lidar", "groundtruth", "odometer")
 FORMATS = {
@@ -36,23 +37,28 @@ STREAM_KEYS = {
 TOP_KEYS = {"name", "description", "attribution", "geodetic_origin", "streams", "config", "truth"}
 
 
-def load_dataset(path: str | Path) -> Dataset:
-    """Load a dataset from a manifest file, a folder holding ``dataset.yaml``, or a KITTI raw drive folder."""
+def load_dataset(path: str | Path, extra_streams: tuple[StreamSpec, ...] = ()) -> Dataset:
+    """Load a dataset from a manifest file, a folder holding ``dataset.yaml``, or a KITTI raw drive folder.
+
+    ``extra_streams``: streams beyond the built-in ones that the manifest may name (declared by the
+    registered observations; :func:`fusion_eval.session.dataset` passes them).
+    """
     path = Path(path)
+    extra = {s.name: s for s in extra_streams}
     if not path.exists():
         raise DataFormatError(path, None, "dataset not found (expected a folder with dataset.yaml, a dataset.yaml, or a KITTI raw drive folder)")
     if path.is_file():
-        return _from_manifest(path)
+        return _from_manifest(path, extra)
     if (path / "dataset.yaml").exists():
-        return _from_manifest(path / "dataset.yaml")
+        return _from_manifest(path / "dataset.yaml", extra)
     if (path / "oxts").is_dir():
-        return _from_manifest_dict({"name": path.name, "streams": {s: {"format": "kitti_oxts", "path": "oxts"}
-                                                                   for s in ("imu", "gnss", "groundtruth")}},
-                                   path, path / "(implicit manifest)")
+        streams = {s: {"format": "kitti_oxts", "path": "oxts"} for s in ("imu", "gnss", "groundtruth")}
+        streams.update({n: {"format": "kitti_oxts", "path": "oxts"} for n, spec in extra.items() if spec.implicit_kitti_raw})
+        return _from_manifest_dict({"name": path.name, "streams": streams}, path, path / "(implicit manifest)", extra)
     raise DataFormatError(path, None, "expected dataset.yaml or an oxts/ folder (KITTI raw drive) in this folder")
 
 
-def _from_manifest(manifest: Path) -> Dataset:
+def _from_manifest(manifest: Path, extra: dict) -> Dataset:
     try:
         body = yaml.safe_load(manifest.read_text())
     except yaml.YAMLError as exc:
@@ -60,10 +66,11 @@ def _from_manifest(manifest: Path) -> Dataset:
         raise DataFormatError(manifest, None if mark is None else mark.line + 1, f"not valid YAML ({getattr(exc, 'problem', exc)})") from None
     if not isinstance(body, dict):
         raise DataFormatError(manifest, None, "a manifest must be a mapping with 'streams'")
-    return _from_manifest_dict(body, manifest.parent, manifest)
+    return _from_manifest_dict(body, manifest.parent, manifest, extra)
 
 
-def _from_manifest_dict(body: dict, root: Path, manifest: Path) -> Dataset:
+def _from_manifest_dict(body: dict, root: Path, manifest: Path, extra: dict | None = None) -> Dataset:
+    extra = extra or {}
     unknown = set(body) - TOP_KEYS
     if unknown:
         raise ConfigError(f"{manifest}: unknown manifest key {sorted(unknown)[0]!r} (known: {', '.join(sorted(TOP_KEYS))})")
@@ -71,17 +78,19 @@ def _from_manifest_dict(body: dict, root: Path, manifest: Path) -> Dataset:
     if not isinstance(streams, dict) or "imu" not in streams:
         raise ConfigError(f"{manifest}: 'streams' must be a mapping that names at least 'imu'")
     for name, spec in streams.items():
-        if name not in STREAMS:
-            raise ConfigError(f"{manifest}: unknown stream {name!r} (known: {', '.join(STREAMS)})")
+        if name not in STREAMS and name not in extra:
+            raise ConfigError(f"{manifest}: unknown stream {name!r} (known: {', '.join([*STREAMS, *extra])})")
         if not isinstance(spec, dict):
             raise ConfigError(f"{manifest}: stream {name!r} must be a mapping with 'format' and 'path'")
-        bad = set(spec) - STREAM_KEYS[name]
+        allowed = STREAM_KEYS[name] if name in STREAMS else extra[name].keys
+        formats = FORMATS[name] if name in STREAMS else tuple(extra[name].readers)
+        bad = set(spec) - allowed
         if bad:
             raise ConfigError(f"{manifest}: unknown key {sorted(bad)[0]!r} in stream {name!r} "
-                              f"(known: {', '.join(sorted(STREAM_KEYS[name]))})")
+                              f"(known: {', '.join(sorted(allowed))})")
         fmt = spec.get("format")
-        if fmt not in FORMATS[name]:
-            raise ConfigError(f"{manifest}: stream {name!r} has unknown format {fmt!r} (known for {name}: {', '.join(FORMATS[name])})")
+        if fmt not in formats:
+            raise ConfigError(f"{manifest}: stream {name!r} has unknown format {fmt!r} (known for {name}: {', '.join(formats)})")
         if not isinstance(spec.get("path"), str) or not spec["path"]:
             raise ConfigError(f"{manifest}: stream {name!r} needs a 'path' (a file or folder name)")
         if fmt != "kitti_poses" and "times" in spec:
@@ -127,6 +136,9 @@ def _from_manifest_dict(body: dict, root: Path, manifest: Path) -> Dataset:
         gt = _poses(streams["groundtruth"], root, oxts, origin_t, manifest, imu_pk)
     if "lidar" in streams:
         lidar = _poses(streams["lidar"], root, oxts, origin_t, manifest, imu_pk)
+    ctx = ReadContext(root=root, manifest=manifest, origin=origin_t, oxts=oxts)
+    extra_series = {name: extra[name].readers[streams[name]["format"]](streams[name], ctx)
+                    for name in streams if name in extra}
 
     description: dict[str, Any] = {
         "manifest": str(manifest),
@@ -140,6 +152,9 @@ def _from_manifest_dict(body: dict, root: Path, manifest: Path) -> Dataset:
         "gnss_degrade": bool(streams.get("gnss", {}).get("degrade", streams.get("gnss", {}).get("format") == "kitti_oxts")),
         # KITTI's OXTS forward speed is the GPS/INS solution too: add noise unless told otherwise
         "odometer_degrade": bool(streams.get("odometer", {}).get("degrade", streams.get("odometer", {}).get("format") == "kitti_oxts")),
+        # a declared stream is degraded when its format is a GPS/INS solution, unless the entry says otherwise
+        "degrade": {n: bool(streams[n].get("degrade", streams[n]["format"] in extra[n].degrade_formats))
+                    for n in streams if n in extra},
         "config": body.get("config") or {},
         "truth": body.get("truth"),
         "streams": {s: {k: (str(v) if k == "path" else v) for k, v in streams[s].items()} for s in streams},
@@ -149,7 +164,7 @@ def _from_manifest_dict(body: dict, root: Path, manifest: Path) -> Dataset:
     if description["lidar_anchor"] not in ("groundtruth", "none"):
         raise ConfigError(f"{manifest}: lidar 'anchor' must be 'groundtruth' or 'none', got {description['lidar_anchor']!r}")
     return Dataset(name=str(body.get("name", root.name)), imu=imu, groundtruth=gt, gnss=gnss, lidar=lidar, odometer=odo,
-                   geodetic_origin=origin_t, description=description)
+                   geodetic_origin=origin_t, description=description, extra=extra_series)
 
 
 def _gnss(spec, root, oxts, origin, manifest) -> GnssSeries:

@@ -18,6 +18,7 @@ from __future__ import annotations
 import logging
 import multiprocessing as mp
 import os
+from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
@@ -35,7 +36,7 @@ from ..outputs import StagedDir
 from ..so3 import inv_T, make_T, matrix_to_quat_xyzw
 from . import sensors
 from .motion import PROFILES, profile_segments, sample_motion
-from .settings import GRADES, SIM_SCHEMA
+from .settings import GRADES, sim_schema
 
 log = logging.getLogger(__name__)
 
@@ -59,7 +60,7 @@ class _NoAliases(yaml.SafeDumper):
 def sim_config(grade: str, sets: tuple[str, ...]) -> dict:
     if grade not in GRADES:
         raise ConfigError(f"unknown grade {grade!r} (known: {', '.join(GRADES)})")
-    return load_config(None, sets, schema_=SIM_SCHEMA, layers=((GRADES[grade], f"grade {grade}"),))
+    return load_config(None, sets, schema_=sim_schema(), layers=((GRADES[grade], f"grade {grade}"),))
 
 
 # decimals of the 30 OXTS fields: lat lon (1e-12 deg = 0.1 um), alt, angles, velocities, IMU, accuracies, status
@@ -205,6 +206,7 @@ def simulate(out_dir: Path, profile: str, duration_s: float, seed: int, grade: s
             "distance_m": float(np.sum(np.linalg.norm(np.diff(m.p_w_m, axis=0), axis=1))),
         }
         out.write_text("truth/sensors.yaml", yaml.dump(truth, Dumper=_NoAliases, sort_keys=False))
+        extra_streams, extra_config = _observation_sensors(m, c, seed, out)
         manifest = {
             "name": name,
             "description": f"simulated by fusion-eval {__version__}: profile {profile}, grade {grade}, seed {seed}, "
@@ -214,14 +216,52 @@ def simulate(out_dir: Path, profile: str, duration_s: float, seed: int, grade: s
                         "groundtruth": {"format": "kitti_oxts", "path": "oxts"},
                         "gnss": {"format": "csv_lla", "path": "gnss/gnss.csv", "degrade": False},
                         "odometer": {"format": "speed_txt", "path": "odometer/speed.txt"},
-                        "lidar": lidar_stream},
-            "config": suggested_config(c),
+                        "lidar": lidar_stream, **extra_streams},
+            "config": _merged(suggested_config(c), extra_config),
             "truth": {"imu_biases": "truth/imu_biases.csv", "poses": "truth/poses.tum", "sensors": "truth/sensors.yaml"},
         }
         out.write_text("dataset.yaml", "# fusion-eval dataset manifest of a simulated drive\n" +
                        yaml.safe_dump(manifest, sort_keys=False))
     return {"name": name, "samples": n, "distance_m": truth["distance_m"], "lidar_frames": int(l_idx.size),
             "gnss_fixes": int(gt_t.size)}
+
+
+@dataclass(frozen=True)
+class SimContext:
+    """What a registered observation's simulated sensor gets: the true motion, the simulator settings, its own
+    seeded generator (independent of every other sensor's draws), the staging folder and the ENU origin."""
+
+    motion: object
+    settings: dict
+    rng: np.random.Generator
+    out: StagedDir
+    origin: tuple[float, float, float]
+
+
+def _observation_sensors(m, c: dict, seed: int, out: StagedDir) -> tuple[dict, dict]:
+    """Run the simulated sensor of every registered observation that has one (found by name): their manifest
+    streams and suggested settings."""
+    from ..filters.observations import REGISTRY
+
+    streams: dict = {}
+    config: dict = {}
+    origin = (c["origin"]["lat_deg"], c["origin"]["lon_deg"], c["origin"]["alt_m"])
+    for o in REGISTRY:
+        if o.simulate is None:
+            continue
+        # a generator of its own, keyed on the observation's name: adding a sensor changes no other draw
+        rng = np.random.default_rng([seed, int.from_bytes(o.name.encode()[:8].ljust(8, b"\0"), "little")])
+        s, cf = o.simulate(SimContext(m, c, rng, out, origin))
+        streams.update(s)
+        config = _merged(config, cf)
+    return streams, config
+
+
+def _merged(a: dict, b: dict) -> dict:
+    out = {k: dict(v) for k, v in a.items()}
+    for sect, body in b.items():
+        out.setdefault(sect, {}).update(body)
+    return out
 
 
 def suggested_config(c: dict) -> dict:

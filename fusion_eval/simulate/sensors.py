@@ -47,18 +47,25 @@ def imu(m: Motion, c: dict, rng: np.random.Generator) -> ImuOut:
     return ImuOut(f, w, ba, bg, sa, sg)
 
 
-def gnss(m: Motion, c: dict, rng: np.random.Generator) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """Fix times, ENU positions with noise, jumps and outages applied, and the 1-sigma per axis."""
+def gnss_epochs(m: Motion, c: dict) -> tuple[np.ndarray, np.ndarray]:
+    """The receiver's epochs: sample indices at ``gnss.rate_hz``, and which of them fall outside the outages."""
     step = max(1, int(round(1.0 / (c["rate_hz"] * float(np.median(np.diff(m.t_s)))))))
     idx = np.arange(0, m.t_s.size, step)
+    rel = m.t_s[idx] - m.t_s[0]
+    keep = np.ones(idx.size, bool)
+    for a, b in c["outages_s"]:
+        keep &= ~((rel >= a) & (rel < b))
+    return idx, keep
+
+
+def gnss(m: Motion, c: dict, rng: np.random.Generator) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Fix times, ENU positions with noise, jumps and outages applied, and the 1-sigma per axis."""
+    idx, keep = gnss_epochs(m, c)
     t = m.t_s[idx]
     p = m.p_w_m[idx] + rng.standard_normal((idx.size, 3)) * np.asarray(c["noise_std_m"])
     rel = t - m.t_s[0]
     for a, b, de, dn, du in c["jumps"]:
         p[(rel >= a) & (rel < b)] += [de, dn, du]
-    keep = np.ones(idx.size, bool)
-    for a, b in c["outages_s"]:
-        keep &= ~((rel >= a) & (rel < b))
     std = np.maximum(np.asarray(c["noise_std_m"], float), 0.01)   # a receiver never claims zero
     return t[keep], p[keep], np.tile(std, (int(keep.sum()), 1))
 

@@ -5,6 +5,14 @@ from __future__ import annotations
 
 from ..config import S, Spec
 
+def sim_schema() -> dict[str, Spec]:
+    """The simulator's settings: the built-in sensors' (below) and those of the registered observations'
+    simulated sensors (declared in their modules)."""
+    from ..filters.observations import sim_keys
+
+    return {**SIM_SCHEMA, **sim_keys()}
+
+
 SIM_SCHEMA: dict[str, Spec] = {
     "imu.rate_hz": S(100.0, "IMU sample rate, Hz (10 to 400)", positive=True),
     "imu.accel_noise_mps2_sqrthz": S(0.001, "accelerometer white noise density, m/s^2/sqrt(Hz)", nonneg=True),

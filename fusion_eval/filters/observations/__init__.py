@@ -31,6 +31,19 @@ def dof_of(name: str) -> int:
     return by_name(name)[0].dof
 
 
+def extra_streams() -> tuple:
+    """The streams the registered observations bring (beyond imu, groundtruth, gnss, lidar, odometer)."""
+    return tuple(spec for o in REGISTRY for spec in o.extra_streams)
+
+
+def sim_keys() -> dict:
+    """The simulator settings of the observations' simulated sensors."""
+    out: dict = {}
+    for o in REGISTRY:
+        out.update(o.sim_keys)
+    return out
+
+
 def keys() -> dict:
     """Every observation's configuration keys (each declared by exactly one module)."""
     out: dict = {}
@@ -42,4 +55,4 @@ def keys() -> dict:
     return out
 
 
-__all__ = ["REGISTRY", "Bound", "Observation", "enabled", "by_name", "dof_of", "keys"]
+__all__ = ["REGISTRY", "Bound", "Observation", "enabled", "by_name", "dof_of", "keys", "extra_streams", "sim_keys"]
