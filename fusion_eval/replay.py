@@ -69,6 +69,7 @@ def replay(prep: Prepared, s: Settings, progress: Callable[[float], None] | None
     order = np.lexsort((index, which, times))
 
     nis: dict[str, tuple[list, list, list]] = {b.name: ([], [], []) for b in bound}
+    dof = {b.name: b.dof for b in bound}
     n_ev = order.size
     step = max(1, n_ev // 100)
     it, tol = s.filter.iterations, s.filter.iteration_tol
@@ -98,7 +99,7 @@ def replay(prep: Prepared, s: Settings, progress: Callable[[float], None] | None
     return FilterOutput(
         fused=fused, accel_bias_b=rec_x[:, NOMINAL.sl("ba")].copy(), gyro_bias_b=rec_x[:, NOMINAL.sl("bg")].copy(),
         sigma=np.sqrt(np.maximum(kf.arrays.rec_Pdiag[sl], 0.0)), P_pos_att=kf.arrays.rec_Ppt[sl],
-        nis={k: {"t_s": np.array(v[0]), "nis": np.array(v[1]), "dof": observations.dof_of(k),
+        nis={k: {"t_s": np.array(v[0]), "nis": np.array(v[1]), "dof": dof[k],
                  "rejected": int(np.size(v[2]) - np.count_nonzero(v[2]))} for k, v in nis.items() if v[0]},
         imu_only=imu_only, n_imu_samples=int(t_imu.size - k0), odometer_scale=k_scale,
     )

@@ -83,8 +83,9 @@ class Observation:
     def bind(self, run, s) -> Bound:
         raise NotImplementedError
 
-    def gate(self, s) -> float:
-        """The NIS above which an update is rejected (inf when the gate is off)."""
+    def gate(self, s, dof: int | None = None) -> float:
+        """The NIS above which an update is rejected (inf when the gate is off); ``dof`` when the observation
+        observes fewer rows than it declares."""
         if self.gate_key is None:
             return np.inf
         sect, key = self.gate_key.split(".")
@@ -93,7 +94,7 @@ class Observation:
             return np.inf
         from scipy.stats import chi2
 
-        return float(chi2.ppf(prob, self.dof))
+        return float(chi2.ppf(prob, self.dof if dof is None else dof))
 
     simulate = None                     # optional: (motion, sim_settings, rng, out) -> manifest stream entries
 
