@@ -57,9 +57,10 @@ def combinations() -> list[dict]:
     for cls, bias, lidar in itertools.product(formulations.REGISTRY, formulations.BIAS_MODELS, ("relative", "absolute", "none")):
         out.append({"filter.formulation": cls.name, "filter.process_model": cls.process_model, "filter.bias_model": bias,
                     "filter.lidar_update": lidar})
-    for name in formulations.formulations():
-        out.append({"filter.formulation": name, "filter.iterations": 3})
-        out.append({"filter.formulation": name, "filter.odometer_update": True, "filter.nhc": True})
+    for cls in formulations.REGISTRY:
+        axes = {"filter.formulation": cls.name, "filter.process_model": cls.process_model}
+        out.append({**axes, "filter.iterations": 3})
+        out.append({**axes, "filter.odometer_update": True, "filter.nhc": True})
     ok = []
     for c in out:
         cfg = default_config()

@@ -75,6 +75,7 @@ class FilterBase:
     streams: tuple[str, ...] = ()   # dataset streams its process model needs
     # own blocks -> the nominal quantity they correct ('p', 'v', 'R', 'ba', 'bg', 'k', 'clone.p', 'clone.R')
     targets: dict[str, str] = {}
+    _step = None            # the compiled step (also what the tests check the Jacobian of)
     _predict = None
     _record_cov = None
 
@@ -296,7 +297,7 @@ class ErrorStateBase(FilterBase):
         self.P[:self.n, :self.n] = G @ self.P[:self.n, :self.n] @ G.T
 
 
-_ATTR = {"p": "p_w_m", "v": "v_w_mps", "ba": "ba_b", "bg": "bg_b"}
+_ATTR = {"p": "p_w_m", "v": "v_w_mps", "ba": "ba_b", "bg": "bg_b", "k": "_k"}
 
 
 def _get(obj, q: str):

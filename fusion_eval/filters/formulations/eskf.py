@@ -141,6 +141,7 @@ class ErrorStateKF(ErrorStateBase):
     layout = LAYOUT
     pairs = tuple((b, b) for b in LAYOUT.blocks)
     targets = {"P": "p", "V": "v", "TH": "R", "BA": "ba", "BG": "bg", "CP": "clone.p", "CTH": "clone.R"}
+    _step = staticmethod(step)
     _predict = staticmethod(predict_to)
     _record_cov = staticmethod(record_cov_by_index)
 

@@ -216,6 +216,7 @@ class NominalStateEKF(FilterBase):
     label = "nominal-state EKF on the full state [p, v, q, ba, bg] with quaternion normalisation"
     layout = LAYOUT
     pairs = PAIRS
+    _step = staticmethod(step)
     _predict = staticmethod(predict_to)
     _record_cov = staticmethod(record_cov)
 

@@ -98,6 +98,7 @@ class OdometerGyroKF(ErrorStateBase):
     pairs = PAIRS
     uses_accelerometer = False
     targets = {"P": "p", "TH": "R", "K": "k", "BG": "bg", "CP": "clone.p", "CTH": "clone.R"}
+    _step = staticmethod(step)
     _predict = staticmethod(predict_to)
     _record_cov = staticmethod(record_cov_by_index)
 

@@ -76,9 +76,13 @@ class Observation:
     extra_streams: tuple = ()           # datasets.streams.StreamSpec of streams only this observation reads
     sim_keys: dict = {}                 # simulator settings of its simulated sensor (``simulate``)
 
+    @property
+    def enable_with(self) -> dict:
+        """The settings that turn it on (``--set`` keys and values)."""
+        return {self.enabled_by: True}
+
     def enabled(self, cfg: dict) -> bool:
-        sect, key = self.enabled_by.split(".")
-        return bool(cfg[sect][key])
+        return all(cfg[k.split(".")[0]][k.split(".")[1]] == v for k, v in self.enable_with.items())
 
     def bind(self, run, s) -> Bound:
         raise NotImplementedError

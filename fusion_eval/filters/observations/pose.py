@@ -49,8 +49,7 @@ class AbsolutePose(Observation):
         "lidar.absolute_att_std_deg": S(1.0, "absolute update: attitude std, deg", positive=True),
     }
 
-    def enabled(self, cfg: dict) -> bool:
-        return cfg["filter"]["lidar_update"] == "absolute"
+    enable_with = {"filter.lidar_update": "absolute"}
 
     def bind(self, run, s) -> Bound:
         lid = run.lidar

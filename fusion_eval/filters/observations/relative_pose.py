@@ -55,8 +55,7 @@ class RelativePose(Observation):
         "lidar.relative_att_std_deg": S(0.05, "relative update: rotation increment std, deg", positive=True),
     }
 
-    def enabled(self, cfg: dict) -> bool:
-        return cfg["filter"]["lidar_update"] == "relative"
+    enable_with = {"filter.lidar_update": "relative"}
 
     def bind(self, run, s) -> Bound:
         lid = run.lidar
