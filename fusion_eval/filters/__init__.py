@@ -50,7 +50,8 @@ def make_filter(run, s):
 
 def combinations() -> list[dict]:
     """Every registered formulation x bias model x lidar form that :func:`check_combination` accepts (as
-    ``--set`` dictionaries), plus the iterated update and the velocity observations on each formulation."""
+    ``--set`` dictionaries), plus, on each formulation, the iterated update, each other registered
+    observation, and the odometer with the non-holonomic constraint."""
     from ..config import default_config
 
     out = []
@@ -61,6 +62,9 @@ def combinations() -> list[dict]:
         axes = {"filter.formulation": cls.name, "filter.process_model": cls.process_model}
         out.append({**axes, "filter.iterations": 3})
         out.append({**axes, "filter.odometer_update": True, "filter.nhc": True})
+        for o in observations.REGISTRY:
+            if o.enabled_by not in ("filter.lidar_update", "filter.use_gnss", "filter.odometer_update", "filter.nhc"):
+                out.append({**axes, **o.enable_with})
     ok = []
     for c in out:
         cfg = default_config()
