@@ -62,9 +62,8 @@ def dataset(path: str | Path | None = None) -> Dataset:
     relative path not found in the working directory is looked up in the shipped tree); None: the default."""
     from . import resources
     from .datasets.manifest import load_dataset
-    from .filters.observations import extra_streams
 
     p = resources.default_dataset() if path is None else resources.find(path)
-    ds = load_dataset(p, extra_streams())
+    ds = load_dataset(p)
     ds.description.setdefault("path", str(p))
     return ds

@@ -37,12 +37,16 @@ STREAM_KEYS = {
 TOP_KEYS = {"name", "description", "attribution", "geodetic_origin", "streams", "config", "truth"}
 
 
-def load_dataset(path: str | Path, extra_streams: tuple[StreamSpec, ...] = ()) -> Dataset:
+def load_dataset(path: str | Path, extra_streams: tuple[StreamSpec, ...] | None = None) -> Dataset:
     """Load a dataset from a manifest file, a folder holding ``dataset.yaml``, or a KITTI raw drive folder.
 
-    ``extra_streams``: streams beyond the built-in ones that the manifest may name (declared by the
-    registered observations; :func:`fusion_eval.session.dataset` passes them).
+    ``extra_streams``: streams beyond the built-in ones that the manifest may name; None = those the
+    registered observations declare (the registry is where a new stream is declared, with its observation).
     """
+    if extra_streams is None:
+        from ..filters.observations import extra_streams as registered
+
+        extra_streams = registered()
     path = Path(path)
     extra = {s.name: s for s in extra_streams}
     if not path.exists():
