@@ -6,7 +6,7 @@ entries; the configuration schema takes their keys; reports, ``compare`` and the
 
 from __future__ import annotations
 
-from . import gnss_position, nhc, odometer, pose, relative_pose
+from . import gnss_position, gnss_velocity, nhc, odometer, pose, relative_pose
 from .base import Bound, Observation
 
 REGISTRY: tuple[Observation, ...] = (
@@ -15,6 +15,7 @@ REGISTRY: tuple[Observation, ...] = (
     gnss_position.OBSERVATION,
     odometer.OBSERVATION,
     nhc.OBSERVATION,
+    gnss_velocity.OBSERVATION,
 )
 
 
