@@ -30,6 +30,9 @@ from numba import njit
 
 from .layout import CANONICAL, POSE_BLOCKS
 
+# ``last``: the time, then the input row the state sits at
+LAST_T, LAST_U = 0, 1
+
 FilterArrays = namedtuple("FilterArrays", [
     "x",          # (NOMINAL.n,) nominal state, in place
     "P",          # (n_max, n_max) covariance of the formulation's own state, in place
@@ -48,8 +51,8 @@ FilterArrays = namedtuple("FilterArrays", [
 _LOOP = '''
 def {name}(a, n, k, t_target, cov):
     N = a.t.shape[0]
-    u0 = a.last[1:].copy()
-    t0 = a.last[0]
+    u0 = a.last[{u}:].copy()
+    t0 = a.last[{t}]
     while k < N and a.t[k] <= t_target:
         dt = a.t[k] - t0
         # a gap is a long interval between two samples, however an observation splits it
@@ -69,11 +72,11 @@ def {name}(a, n, k, t_target, cov):
         _step(a.x, a.P, n, u0, u1, t_target - t0, qscale, a.prm, a.aux, cov)
         t0 = t_target
         u0 = u1
-    a.last[0] = t0
-    a.last[1:] = u0
+    a.last[{t}] = t0
+    a.last[{u}:] = u0
     return k
 '''
-_DIGEST = hashlib.sha1(_LOOP.encode()).hexdigest()[:10]
+_DIGEST = hashlib.sha1((_LOOP + repr((LAST_T, LAST_U))).encode()).hexdigest()[:10]
 
 
 def compiled_loop(module_name: str, step, record_cov):
@@ -88,7 +91,7 @@ def compiled_loop(module_name: str, step, record_cov):
     mod = sys.modules[module_name]
     name = f"_predict_to_{_DIGEST}"
     ns = {"_step": step, "_record_cov": record_cov, "np": np, "__name__": module_name}
-    exec(compile(_LOOP.format(name=name), mod.__file__, "exec"), ns)  # noqa: S102 - our own template
+    exec(compile(_LOOP.format(name=name, t=LAST_T, u=LAST_U), mod.__file__, "exec"), ns)  # noqa: S102 - our own template
     fn = ns[name]
     fn.__qualname__ = name
     return njit(cache=True)(fn)

@@ -28,7 +28,7 @@ from ...errors import FilterDivergedError
 from ...so3 import exp_so3, log_so3, skew
 from .. import linalg
 from ..layout import CANONICAL, NOMINAL, Layout, canonical_index, canonical_map, own_from_canonical
-from ..propagate import new_arrays
+from ..propagate import LAST_T, new_arrays
 from ..state import ClonePose, NominalState
 from .imu_model import imu_inputs, imu_params
 
@@ -153,7 +153,7 @@ class FilterBase:
     # ---- shared ------------------------------------------------------------------------------
     @property
     def t(self) -> float:
-        return float(self.arrays.last[0])
+        return float(self.arrays.last[LAST_T])
 
     @property
     def rec_x(self) -> np.ndarray:

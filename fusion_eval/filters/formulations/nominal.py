@@ -38,6 +38,8 @@ PAIRS = (("P", "P"), ("V", "V"), ("TH", "Q"), ("BA", "BA"), ("BG", "BG"), ("CP",
 
 # scratch: the sign references of the state's and the clone's quaternions (see aligned_quat)
 AUX = Layout("nominal-state scratch", [("q", 4), ("qc", 4)])
+QUAT = Layout("quaternion (w, x, y, z)", [("w", 1), ("v", 3)])
+QV0, QV1 = QUAT.start("v"), QUAT["v"].stop
 AQ, AQC = AUX.sl("q"), AUX.sl("qc")
 AQ0 = AUX.start("q")
 
@@ -111,18 +113,18 @@ def quat_R(q):
 
 @njit(cache=True)
 def xi(q):
-    """Xi(q) = [q]_L[:, 1:4]: the right perturbation q (x) [1, dtheta/2] adds Xi(q) dtheta / 2."""
-    return quat_L(q)[:, 1:4].copy()
+    """Xi(q) = [q]_L[:, v]: the right perturbation q (x) [1, dtheta/2] adds Xi(q) dtheta / 2."""
+    return quat_L(q)[:, QV0:QV1].copy()
 
 
 @njit(cache=True)
 def dRa_dq(q, a):
     """d(R(q) a)/dq, 3x4 (Sola, eq. 174)."""
     w = q[0]
-    v = q[1:4]
+    v = q[QV0:QV1]
     out = np.empty((3, 4))
     out[:, 0] = w * a + np.cross(v, a)
-    out[:, 1:4] = (v @ a) * np.eye(3) + np.outer(v, a) - np.outer(a, v) - w * skew3(a)
+    out[:, QV0:QV1] = (v @ a) * np.eye(3) + np.outer(v, a) - np.outer(a, v) - w * skew3(a)
     return 2.0 * out
 
 
@@ -145,9 +147,9 @@ def nominal_F_Q(q, a_b, w_b, dt, prm, qscale):
     qw = np.empty(4)
     qw[0] = np.cos(0.5 * th)
     if th > 1e-12:
-        qw[1:4] = np.sin(0.5 * th) / th * phi
+        qw[QV0:QV1] = np.sin(0.5 * th) / th * phi
     else:
-        qw[1:4] = 0.5 * phi
+        qw[QV0:QV1] = 0.5 * phi
     F[NQ_ID:NQ_ID + 4, NQ_ID:NQ_ID + 4] = quat_R(qw)
     X = xi(q)
     F[NQ_ID:NQ_ID + 4, NBG_ID:NBG_ID + 3] = -0.5 * dt * X

@@ -21,7 +21,7 @@ from numba import njit
 from ..layout import Layout
 from ..linalg import symmetrize_into
 from ..mech import XBG, XK, XP, XV, attitude, exp3, skew3
-from ..propagate import compiled_loop, record_cov_by_index
+from ..propagate import LAST_U, compiled_loop, record_cov_by_index
 from ...config import S
 from .base import ErrorStateBase, bias_walks
 
@@ -105,7 +105,7 @@ class OdometerGyroKF(ErrorStateBase):
     def after_correction_state(self) -> None:
         # the velocity is derived, not a state: the odometer's speed along the corrected heading and scale
         x = self.x
-        x.v_w_mps[:] = x.R_wb[:, 0] * (1 - x.k_odo) * self.arrays.last[1 + UV]
+        x.v_w_mps[:] = x.R_wb[:, 0] * (1 - x.k_odo) * self.arrays.last[LAST_U + UV]
 
     keys = {
         "odometer.speed_noise_mps_sqrthz": S(0.05, "odometer + gyro model: speed noise density, m/s/sqrt(Hz)", positive=True),

@@ -12,18 +12,22 @@ from functools import partial
 import numpy as np
 
 from ...config import S
+from ..layout import Layout
 from ..mech import log3
 from .base import N_MAX, P, TH, Bound, Observation, rows_inside
 
 LIDAR_FORMS = ("relative", "absolute", "none")
+# rows of a pose residual: position, then attitude
+POSE_RESIDUAL = Layout("pose residual", [("p", 3), ("th", 3)])
+RP, RTH = POSE_RESIDUAL.sl("p"), POSE_RESIDUAL.sl("th")
 
 
 def absolute_pose(x, clone_p=None, clone_R=None, *, p_obs_w: np.ndarray, R_obs_wb: np.ndarray, pos_std_m: float,
                   att_std_rad: float):
     """Absolute pose (position and attitude), as from lidar matching against a prior map."""
-    H = np.zeros((6, N_MAX))
-    H[0:3, P] = np.eye(3)
-    H[3:6, TH] = np.eye(3)
+    H = np.zeros((POSE_RESIDUAL.n, N_MAX))
+    H[RP, P] = np.eye(3)
+    H[RTH, TH] = np.eye(3)
     r = np.concatenate([p_obs_w - x.p_w_m, log3(x.R_wb.T @ R_obs_wb)])
     Rm = np.diag([pos_std_m ** 2] * 3 + [att_std_rad ** 2] * 3)
     return H, r, Rm

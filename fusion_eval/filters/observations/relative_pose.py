@@ -21,7 +21,7 @@ from ...config import S
 from ...so3 import skew
 from ..mech import log3
 from .base import CP, CTH, N_MAX, P, TH, Bound, Observation
-from .pose import lidar_rows
+from .pose import POSE_RESIDUAL, RP, RTH, lidar_rows
 
 
 def relative_pose(x, clone_p_w: np.ndarray, clone_R_wb: np.ndarray, *, dp_obs_c: np.ndarray, dR_obs: np.ndarray,
@@ -30,12 +30,12 @@ def relative_pose(x, clone_p_w: np.ndarray, clone_R_wb: np.ndarray, *, dp_obs_c:
     Rc_T = clone_R_wb.T
     dp_pred = Rc_T @ (x.p_w_m - clone_p_w)
     dR_pred = Rc_T @ x.R_wb
-    H = np.zeros((6, N_MAX))
-    H[0:3, P] = Rc_T
-    H[0:3, CP] = -Rc_T
-    H[0:3, CTH] = skew(dp_pred)
-    H[3:6, TH] = np.eye(3)
-    H[3:6, CTH] = -dR_pred.T
+    H = np.zeros((POSE_RESIDUAL.n, N_MAX))
+    H[RP, P] = Rc_T
+    H[RP, CP] = -Rc_T
+    H[RP, CTH] = skew(dp_pred)
+    H[RTH, TH] = np.eye(3)
+    H[RTH, CTH] = -dR_pred.T
     r = np.concatenate([dp_obs_c - dp_pred, log3(dR_pred.T @ dR_obs)])
     Rm = np.diag([pos_std_m ** 2] * 3 + [att_std_rad ** 2] * 3)
     return H, r, Rm
