@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import pytest
+
 import numpy as np
 from scipy.spatial.transform import Rotation
 
@@ -9,6 +11,7 @@ from fusion_eval.calibration import estimate_gyro_lag
 from fusion_eval.types import ImuSeries, PoseSeries
 
 
+@pytest.mark.slow
 def test_recovers_a_known_lag_on_synthetic_data():
     rng = np.random.default_rng(0)
     t = np.arange(0, 120, 0.1)

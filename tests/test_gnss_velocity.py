@@ -103,6 +103,7 @@ def _run(d: Path, tmp: Path, *sets: str) -> dict:
     return json.loads((out / "metrics.json").read_text())
 
 
+@pytest.mark.slow
 def test_simulated_receiver_velocity_improves_the_fusion_and_is_consistent(sim, tmp_path):
     manifest = (sim / "dataset.yaml").read_text()
     assert "gnss/velocity.txt" in manifest

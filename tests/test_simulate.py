@@ -38,6 +38,7 @@ def _filter(ds_path: Path, *sets: str):
     return ds, prep, replay(prep, Settings(cfg))
 
 
+@pytest.mark.slow
 def test_noise_free_imu_follows_the_true_trajectory(tmp_path):
     # read back from the written files: the test covers the packet format's precision too
     d = _sim(tmp_path / "ideal", "--profile", "urban", "--duration", "600", "--grade", "ideal", "--set", "imu.rate_hz=100",
@@ -68,6 +69,7 @@ def test_same_seed_same_bytes(tmp_path):
     assert len(list((a / "oxts" / "data").iterdir())) == 2001   # KITTI layout: one packet per IMU sample
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("grade", sorted(GRADES))
 @pytest.mark.parametrize("profile", ["urban", "figure8", "highway", str(ROOT / "configs" / "profiles" / "block.yaml")])
 def test_run_works_on_every_profile_and_grade_without_flags(tmp_path, profile, grade):
@@ -94,6 +96,7 @@ def _truth_nees(prep, out):
     return pose_nees(out.fused.p_w_m, out.fused.R_wb(), gt.p_w_m[i], gt.R_wb()[i], out.P_pos_att)
 
 
+@pytest.mark.slow
 def test_eskf_with_true_noise_is_consistent(urban_gnss_mm):
     _, _, prep, out = urban_gnss_mm
     n_pos, n_att = _truth_nees(prep, out)
@@ -103,6 +106,7 @@ def test_eskf_with_true_noise_is_consistent(urban_gnss_mm):
     assert 2.0 < n_pos.mean() < 4.5 and 2.0 < n_att.mean() < 4.5
 
 
+@pytest.mark.slow
 def test_gnss_only_eskf_is_consistent(urban_gnss_mm):
     d = urban_gnss_mm[0]
     _, prep, out = _filter(d, "filter.lidar_update=none")
@@ -110,6 +114,7 @@ def test_gnss_only_eskf_is_consistent(urban_gnss_mm):
     assert fraction_inside(n_pos, 3)[0] >= 0.90 and fraction_inside(n_att, 3)[0] >= 0.90
 
 
+@pytest.mark.slow
 def test_estimated_biases_converge_to_the_true_ones(urban_gnss_mm):
     d, _, prep, out = urban_gnss_mm
     truth = np.loadtxt(d / "truth" / "imu_biases.csv", delimiter=",", skiprows=1)
@@ -121,6 +126,7 @@ def test_estimated_biases_converge_to_the_true_ones(urban_gnss_mm):
     assert np.all(sigma[3:] < 0.2 * np.radians(GRADES["automotive"]["imu"]["gyro_bias_init_std_dps"]))
 
 
+@pytest.mark.slow
 def test_fusion_beats_lidar_and_gnss_on_the_urban_profile(tmp_path):
     d = _sim(tmp_path / "urban", "--profile", "urban", "--duration", "240", "--seed", "2", "--set", "imu.rate_hz=50")
     out = tmp_path / "run"

@@ -44,6 +44,7 @@ def _rows(out: Path) -> dict:
     return {r["setting"]: r for r in csv.DictReader((out / "sweep.csv").read_text().splitlines())}
 
 
+@pytest.mark.slow
 def test_sweep_process_pool_and_dask_give_identical_metrics(small, tmp_path):
     sw = _sweep_file(tmp_path)
     a, b = tmp_path / "pool", tmp_path / "dask"
@@ -63,6 +64,7 @@ def test_sweep_process_pool_and_dask_give_identical_metrics(small, tmp_path):
     assert (a / "runs" / rid / "metrics.json").exists() and (a / "runs" / rid / "fused.tum").exists()
 
 
+@pytest.mark.slow
 def test_diverging_setting_is_recorded_as_failed_and_the_rest_finish(small, tmp_path):
     sw = _sweep_file(tmp_path, "  boom: {init.vel_std_mps: 1.0e+200}\n")
     out = tmp_path / "s"
@@ -74,6 +76,7 @@ def test_diverging_setting_is_recorded_as_failed_and_the_rest_finish(small, tmp_
     assert "## Failed runs" in (out / "sweep.md").read_text()
 
 
+@pytest.mark.slow
 def test_interrupted_sweep_resumes_without_losing_runs(small, tmp_path):
     sw = _sweep_file(tmp_path)
     out = tmp_path / "s"
@@ -156,6 +159,7 @@ def test_malformed_sweep_files_are_one_line_errors(small, tmp_path, body, needle
     assert r.exit_code == 2 and needle in r.stderr and "\n" not in r.stderr.strip(), r.output
 
 
+@pytest.mark.slow
 def test_best_yaml_is_a_configuration_run_accepts(small, tmp_path):
     sw = tmp_path / "s.yaml"
     sw.write_text("variants: [nominal]\nsettings:\n  a: {imu.gyro_noise_dps_sqrthz: 0.05}\n")

@@ -63,6 +63,7 @@ def _ape(prep, out) -> float:
     return float(np.sqrt(np.mean(np.sum((out.fused.p_w_m[ok] - gt.p_w_m[i[ok]]) ** 2, axis=1))))
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("combo", COMBOS, ids=[_id(c) for c in COMBOS])
 def test_every_combination_runs_on_simulated_data(sim_urban, combo):
     prep, out = _run(sim_urban, combo)
@@ -70,6 +71,7 @@ def test_every_combination_runs_on_simulated_data(sim_urban, combo):
     assert _ape(prep, out) < 10.0
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("combo", COMBOS, ids=[_id(c) for c in COMBOS])
 def test_every_combination_runs_on_kitti(kitti_slice, combo):
     prep, out = _run(kitti_slice, combo)
@@ -84,6 +86,7 @@ def test_invalid_combinations_are_rejected():
             check_combination(load_config(None, sets))
 
 
+@pytest.mark.slow
 def test_constant_bias_equals_random_walk_with_zero_bias_noise(sim_urban):
     zero = {"imu.accel_bias_rw_mps3_sqrthz": 0.0, "imu.gyro_bias_rw_dps2_sqrthz": 0.0}
     _, a = _run(sim_urban, {**zero, "filter.bias_model": "random_walk"})
@@ -128,6 +131,7 @@ def test_iterations_pull_a_nonlinear_update_closer_to_the_observation():
     assert res[1] < 0.1 * res[0], res
 
 
+@pytest.mark.slow
 def test_nominal_state_equals_error_state_under_small_errors(sim_mm):
     _, a = _run(sim_mm)
     _, b = _run(sim_mm, {"filter.formulation": "nominal_state"})
@@ -137,6 +141,7 @@ def test_nominal_state_equals_error_state_under_small_errors(sim_mm):
     assert np.allclose(a.sigma[:, :9], b.sigma[:, :9], rtol=0.02)
 
 
+@pytest.mark.slow
 def test_motion_constraint_reduces_lateral_velocity_error(sim_mm):
     errs = []
     for nhc in (False, True):
@@ -149,6 +154,7 @@ def test_motion_constraint_reduces_lateral_velocity_error(sim_mm):
     assert np.all(errs[1] < 0.7 * errs[0]), errs
 
 
+@pytest.mark.slow
 def test_odometer_gyro_model_tracks_a_simulated_drive(sim_urban):
     prep, out = _run(sim_urban, {"filter.process_model": "odometer_gyro", "filter.lidar_update": "none"})
     # far better than the 1 Hz GNSS it is fused with (about 2.3 m RMSE) ...
@@ -175,6 +181,7 @@ def test_compare_command_writes_table_and_plots(kitti_slice, tmp_path):
     assert r.exit_code == 2 and "unknown variant 'nope'" in r.stderr
 
 
+@pytest.mark.slow
 def test_nominal_state_follows_the_error_state_through_a_heading_of_180_degrees(tmp_path):
     """The quaternion of the nominal-state filter keeps its sign when the heading passes 180 degrees
     (w = cos(yaw/2) changes sign there): relative lidar updates with clones, on a closed block."""

@@ -31,7 +31,7 @@ def default_patterns(kind: str, rpe_delta_m: float) -> tuple[str, ...]:
     """What ``check`` compares when no ``--metric`` is given: the RMSE of APE and RPE (per frame and per
     ``evaluation.rpe_delta_m``, as the metrics file records it) of every estimate and the ratios; for a
     sweep's CSV the fused RMSE columns."""
-    return keys.check_patterns(rpe_delta_m) if kind == "json" else keys.csv_check_patterns(rpe_delta_m)
+    return keys.check_patterns(rpe_delta_m) if kind == "json" else keys.csv_check_patterns()
 
 
 class CheckUsageError(FusionEvalError):
@@ -45,8 +45,7 @@ def load_metrics(path: Path) -> tuple[dict[str, float], str, float]:
     if not path.exists():
         raise DataFormatError(path, None, "file not found (expected a metrics.json of fusion-eval run or a sweep.csv)")
     if path.suffix == ".csv":
-        flat, delta = _flat_csv(path)
-        return flat, "csv", delta
+        return _flat_csv(path), "csv", keys.DEFAULT_RPE_DELTA_M
     try:
         body = json.loads(path.read_text())
     except json.JSONDecodeError as exc:
@@ -78,7 +77,7 @@ def load_metrics(path: Path) -> tuple[dict[str, float], str, float]:
     return out, "json", keys.rpe_delta_of(body)
 
 
-def _flat_csv(path: Path) -> tuple[dict[str, float], float]:
+def _flat_csv(path: Path) -> dict[str, float]:
     out = {}
     try:
         rows = list(csv.DictReader(path.read_text().splitlines()))
@@ -99,19 +98,7 @@ def _flat_csv(path: Path) -> tuple[dict[str, float], float]:
                 continue
     if not out:
         raise DataFormatError(path, None, "no finished runs with numeric metrics")
-    return out, _csv_rpe_delta(list(rows[0]))
-
-
-_RPE_COL = re.compile(r"^fused_rpe_([0-9.e+-]+)m_trans_rmse_m$")
-
-
-def _csv_rpe_delta(columns: list[str]) -> float:
-    """The per-distance RPE length of a sweep's CSV, from its column name (``fused_rpe_50m_trans_rmse_m``)."""
-    for c in columns:
-        m = _RPE_COL.match(c)
-        if m:
-            return float(m.group(1))
-    return keys.DEFAULT_RPE_DELTA_M
+    return out
 
 
 def _is_num(v) -> bool:

@@ -66,8 +66,9 @@ def check_patterns(delta_m: float) -> tuple[str, ...]:
             f"*.{rpe_distance_group(delta_m)}.translation_m.rmse", "ratios.*")
 
 
-def csv_check_patterns(delta_m: float) -> tuple[str, ...]:
-    """The columns ``check`` compares by default in a sweep's CSV."""
+def csv_check_patterns() -> tuple[str, ...]:
+    """The columns ``check`` compares by default in a sweep's CSV (the per-distance RPE of any length: a sweep
+    may vary ``evaluation.rpe_delta_m``)."""
     return (f"*.{column('fused', APE, 'translation_m', 'rmse')}", f"*.{column('fused', APE, 'rotation_deg', 'rmse')}",
             f"*.{column('fused', RPE_FRAME, 'translation_m', 'rmse')}",
-            f"*.{column('fused', rpe_distance_group(delta_m), 'translation_m', 'rmse')}")
+            f"*.{column('fused', 'rpe_*m', 'translation_m', 'rmse')}")

@@ -1,0 +1,78 @@
+"""The package as users get it: every code package listed, and a wheel (not the checkout) that runs the
+default, compares shipped variants, runs a shipped sweep and the README's API example from another directory."""
+
+from __future__ import annotations
+
+import os
+import re
+import subprocess
+import sys
+import zipfile
+from pathlib import Path
+
+import pytest
+
+from conftest import ROOT
+
+try:                                   # Python 3.11+
+    import tomllib
+except ModuleNotFoundError:            # pragma: no cover
+    tomllib = None
+
+
+def test_every_code_package_is_listed_in_pyproject():
+    if tomllib is None:
+        pytest.skip("needs Python 3.11's tomllib")
+    listed = set(tomllib.loads((ROOT / "pyproject.toml").read_text())["tool"]["setuptools"]["packages"])
+    found = {".".join(p.parent.relative_to(ROOT).parts) for p in (ROOT / "fusion_eval").rglob("__init__.py")}
+    assert found <= listed, f"packages missing from pyproject.toml: {sorted(found - listed)}"
+
+
+def _api_example() -> str:
+    readme = (ROOT / "README.md").read_text()
+    section = readme[readme.index("## Python API"):]
+    return re.search(r"```python\n(.*?)```", section, re.S).group(1)
+
+
+@pytest.fixture(scope="module")
+def wheel_site(tmp_path_factory) -> Path:
+    """The built wheel, unpacked: the package as pip installs it, without the checkout beside it."""
+    tmp = tmp_path_factory.mktemp("wheel")
+    r = subprocess.run([sys.executable, "-m", "pip", "wheel", "-q", "--no-deps", "-w", str(tmp / "w"), str(ROOT)],
+                       capture_output=True, text=True, timeout=600)
+    if r.returncode != 0:
+        pytest.skip(f"cannot build a wheel here: {r.stderr.strip().splitlines()[-1] if r.stderr.strip() else r.returncode}")
+    whl = next((tmp / "w").glob("fusion_eval-*.whl"))
+    site = tmp / "site"
+    with zipfile.ZipFile(whl) as z:
+        names = z.namelist()
+        assert "fusion_eval/_shipped/data/kitti-00/dataset.yaml" in names
+        assert "fusion_eval/_shipped/configs/sweeps/noise5.yaml" in names
+        assert "fusion_eval/_shipped/configs/variants/nominal.yaml" in names
+        z.extractall(site)
+    return site
+
+
+def _run(site: Path, cwd: Path, *args: str, code: str | None = None) -> subprocess.CompletedProcess:
+    env = {**os.environ, "PYTHONPATH": str(site)}
+    cmd = [sys.executable, "-c", code] if code else [sys.executable, "-m", "fusion_eval", *args]
+    return subprocess.run(cmd, cwd=cwd, env=env, capture_output=True, text=True, timeout=900)
+
+
+@pytest.mark.slow
+def test_the_wheel_works_from_any_directory(wheel_site, tmp_path):
+    cwd = tmp_path / "elsewhere"
+    cwd.mkdir()
+    r = _run(wheel_site, cwd, code="import fusion_eval, sys; print(fusion_eval.__file__)")
+    assert r.returncode == 0 and r.stdout.strip().startswith(str(wheel_site)), r.stdout + r.stderr
+    r = _run(wheel_site, cwd, "-q", "run", "--out", "X", "--no-plots")
+    assert r.returncode == 0 and (cwd / "X" / "metrics.json").exists(), r.stderr
+    r = _run(wheel_site, cwd, "-q", "compare", "--variants", "eskf,nominal", "--out", "C", "--no-plots")
+    assert r.returncode == 0 and (cwd / "C" / "compare.md").exists(), r.stderr
+    r = _run(wheel_site, cwd, "-q", "sweep", "--grid", "noise5", "--out", "S", "--no-plots", "--jobs", "2")
+    assert r.returncode == 0, r.stderr
+    rows = (cwd / "S" / "sweep.csv").read_text().splitlines()
+    assert len(rows) == 7 and all(",ok," in row for row in rows[1:]), rows
+    r = _run(wheel_site, cwd, code=_api_example())
+    assert r.returncode == 0, r.stderr
+    assert (cwd / "out" / "metrics.json").exists() and len(r.stdout.split()) == 2

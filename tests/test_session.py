@@ -1,0 +1,124 @@
+"""One configuration session: the layers, a resolved configuration read back, metric names that follow the
+settings, and sweeps whose tasks run from any directory."""
+
+from __future__ import annotations
+
+import csv
+import json
+import os
+import subprocess
+import sys
+from pathlib import Path
+
+import pytest
+from click.testing import CliRunner
+
+from conftest import ROOT
+from fusion_eval import session
+from fusion_eval.cli import main
+from fusion_eval.config import Settings, merge_layers, parse_overrides
+from fusion_eval.errors import ConfigError
+
+
+def test_layers_merge_in_order(kitti_slice, tmp_path):
+    base = tmp_path / "base.yaml"
+    base.write_text("imu:\n  gyro_noise_dps_sqrthz: 0.2\n  accel_noise_mps2_sqrthz: 0.4\n")
+    var = tmp_path / "var.yaml"
+    var.write_text("imu:\n  gyro_noise_dps_sqrthz: 0.3\n")
+    req = session.request(config=base, variant=var, sets=("imu.accel_noise_mps2_sqrthz=0.5",),
+                          overrides={"lidar.relative_pos_std_frac": 0.02})
+    cfg = session.resolve(req, session.dataset(kitti_slice))
+    assert cfg["imu"]["gyro_noise_dps_sqrthz"] == 0.3           # variant over base
+    assert cfg["imu"]["accel_noise_mps2_sqrthz"] == 0.5         # --set over base
+    assert cfg["lidar"]["relative_pos_std_frac"] == 0.02
+    assert req.source == "var"
+    with pytest.raises(ConfigError, match="unknown section 'imuu'"):
+        session.request(overrides={"imuu.x": 1})
+
+
+def test_settings_are_built_from_the_schema_alone():
+    cfg = merge_layers([parse_overrides({"init.yaw_std_deg": 2.0})])
+    s = Settings(cfg)
+    assert s.init.yaw_std_rad == pytest.approx(2.0 * 3.141592653589793 / 180)
+    assert s.filter.nhc_max_turn_rate_rps == 0.13                 # already SI: unchanged
+
+
+def test_resolved_configuration_reruns_to_identical_metrics(kitti_slice, slice_run, tmp_path):
+    out = tmp_path / "again"
+    r = CliRunner().invoke(main, ["-q", "run", str(kitti_slice), "-c", str(slice_run / "config.resolved.yaml"),
+                                  "--out", str(out), "--no-plots"])
+    assert r.exit_code == 0, r.output
+    a = json.loads((slice_run / "metrics.json").read_text())
+    b = json.loads((out / "metrics.json").read_text())
+    assert a["estimates"] == b["estimates"] and a["nis"] == b["nis"] and a["nees"] == b["nees"]
+
+
+@pytest.fixture(scope="module")
+def small(tmp_path_factory):
+    from conftest import make_slice
+
+    return make_slice(tmp_path_factory.mktemp("ses") / "short", 300)
+
+
+@pytest.mark.slow
+def test_rpe_distance_follows_the_setting_through_run_sweep_and_check(small, tmp_path):
+    sw = tmp_path / "sw.yaml"
+    sw.write_text("settings:\n  short: {evaluation.rpe_delta_m: 50}\n")
+    out = tmp_path / "s"
+    r = CliRunner().invoke(main, ["-q", "sweep", str(small), "--grid", str(sw), "--out", str(out), "--jobs", "1", "--no-plots"])
+    assert r.exit_code == 0, r.output
+    rows = {row["setting"]: row for row in csv.DictReader((out / "sweep.csv").read_text().splitlines())}
+    assert rows["short"]["fused_rpe_50m_trans_rmse_m"] != "" and rows["default"]["fused_rpe_100m_trans_rmse_m"] != ""
+    run = out / "runs" / rows["short"]["id"] / "metrics.json"
+    m = json.loads(run.read_text())
+    assert m["evaluation"]["rpe_delta_m"] == 50.0 and "rpe_50m" in m["estimates"]["fused"]
+    r = CliRunner().invoke(main, ["check", str(run), "--baseline", str(run)])
+    assert r.exit_code == 0 and "fused.rpe_50m.translation_m.rmse" in r.output, r.output
+    r = CliRunner().invoke(main, ["check", str(out / "sweep.csv"), "--baseline", str(out / "sweep.csv")])
+    assert r.exit_code == 0 and "fused_rpe_50m_trans_rmse_m" in r.output and "fused_rpe_100m_trans_rmse_m" in r.output
+
+
+@pytest.mark.slow
+def test_sweep_tasks_carry_absolute_paths_and_run_from_another_directory(small, tmp_path, monkeypatch):
+    from fusion_eval.commands.sweep import plan
+
+    vdir = tmp_path / "myvariants"
+    vdir.mkdir()
+    (vdir / "tight.yaml").write_text("lidar:\n  relative_att_std_deg: 0.02\n")
+    work = tmp_path / "work"
+    work.mkdir()
+    (work / "sw.yaml").write_text("variants: [tight]\nsettings:\n  a: {imu.gyro_noise_dps_sqrthz: 0.05}\n")
+    rel_ds = os.path.relpath(small, work)
+    monkeypatch.chdir(work)
+    tasks, _ = plan(Path("sw.yaml"), [rel_ds], Path("out"), vdir)
+    assert all(Path(t.dataset).is_absolute() and Path(t.variant_path).is_absolute() and Path(t.out_root).is_absolute()
+               for t in tasks)
+    # a worker started elsewhere (another directory, another process) runs the task as it was sent
+    elsewhere = tmp_path / "elsewhere"
+    elsewhere.mkdir()
+    code = ("import pickle, sys; from fusion_eval.commands.sweep import run_task; "
+            "rec = run_task(pickle.loads(sys.stdin.buffer.read())); print(rec['status'], rec.get('error'))")
+    import pickle
+
+    p = subprocess.run([sys.executable, "-c", code], input=pickle.dumps(tasks[1]), cwd=elsewhere, capture_output=True,
+                       timeout=300, env={**os.environ, "PYTHONPATH": str(ROOT)})
+    assert p.returncode == 0 and p.stdout.decode().startswith("ok"), p.stdout.decode() + p.stderr.decode()
+    assert (work / "out" / "runs" / tasks[1].id / "metrics.json").exists()
+    r = CliRunner().invoke(main, ["-q", "sweep", rel_ds, "--grid", "sw.yaml", "--out", "o2", "--jobs", "1", "--no-plots",
+                                  "--variant-dir", str(vdir)])
+    assert r.exit_code == 0, r.output
+    r = CliRunner().invoke(main, ["-q", "sweep", rel_ds, "--grid", "sw.yaml", "--out", "o3", "--jobs", "1", "--no-plots"])
+    assert r.exit_code == 2 and "unknown variant 'tight'" in r.stderr
+
+
+def test_shipped_sweeps_variants_and_dataset_are_found_from_any_directory(tmp_path, monkeypatch):
+    from fusion_eval import resources
+    from fusion_eval.commands.sweep import plan
+
+    monkeypatch.chdir(tmp_path)
+    sweep = resources.sweep_file("noise5")
+    assert sweep.is_file() and sweep.name == "noise5.yaml"
+    tasks, _ = plan(sweep, [], Path("out"))
+    assert {Path(t.dataset).name for t in tasks} == {"kitti-00"} and len(tasks) == 6
+    assert all(Path(t.variant_path).parent.name == "variants" for t in tasks)
+    assert resources.default_dataset().is_dir() and (resources.variant_dir() / "nominal.yaml").is_file()
