@@ -7,7 +7,6 @@ attitude error uses the filter's own convention, the right perturbation ``R_true
 from __future__ import annotations
 
 import numpy as np
-from scipy.stats import chi2
 
 from ..so3 import log_so3
 
@@ -27,6 +26,8 @@ def pose_nees(p_est: np.ndarray, R_est: np.ndarray, p_true: np.ndarray, R_true: 
 
 def fraction_inside(values: np.ndarray, dof: int, prob: float = 0.95) -> tuple[float, float, float]:
     """The two-sided ``prob`` chi-square interval for ``dof`` and the fraction of ``values`` inside it."""
+    from scipy.stats import chi2   # scipy.stats takes about a second to import: only when asked
+
     lo, hi = chi2.ppf([(1 - prob) / 2, (1 + prob) / 2], dof)
     return float(np.mean((values >= lo) & (values <= hi))), float(lo), float(hi)
 

@@ -63,6 +63,7 @@ class Layout:
         for c, src in self.clone_of.items():
             if c not in self.clone or src not in self.core or self.blocks[c].size != self.blocks[src].size:
                 raise ValueError(f"{name}: clone block {c!r} cannot copy {src!r}")
+        self._clone_rows = self.index(*(self.clone_of[c] for c in self.clone)) if self.clone_of else np.zeros(0, int)
 
     def __getitem__(self, name: str) -> Block:
         return self.blocks[name]
@@ -82,7 +83,7 @@ class Layout:
 
     def clone_rows(self) -> np.ndarray:
         """The core rows a clone copies, in the order of the clone blocks."""
-        return self.index(*(self.clone_of[c] for c in self.clone))
+        return self._clone_rows
 
     def __repr__(self) -> str:
         return f"Layout({self.name!r}, " + ", ".join(f"{b.name}[{b.start}:{b.stop}]" for b in self.blocks.values()) + ")"

@@ -60,18 +60,19 @@ class RelativePose(Observation):
     def bind(self, run, s) -> Bound:
         lid = run.lidar
         rows = lidar_rows(run)
-        R = lid.R_wb()
+        R, p = lid.R_wb()[rows], lid.p_w_m[rows]
         c = s.lidar
-        std_m, frac, std_a = c.relative_pos_std_m, c.relative_pos_std_frac, c.relative_att_std_rad
+        # every increment at once: from frame j-1 to frame j, in frame j-1's body frame
+        dp_c = np.einsum("nji,nj->ni", R[:-1], p[1:] - p[:-1])
+        dR = np.einsum("nji,njk->nik", R[:-1], R[1:])
+        pos_std = np.hypot(c.relative_pos_std_m, c.relative_pos_std_frac * np.linalg.norm(dp_c, axis=1))
+        std_a = c.relative_att_std_rad
 
         def model(j):
             if j == 0:
                 return None                         # the first frame only starts the chain of clones
-            i, h = rows[j], rows[j - 1]
-            dp_c = R[h].T @ (lid.p_w_m[i] - lid.p_w_m[h])
-            dR = R[h].T @ R[i]
-            pos_std = float(np.hypot(std_m, frac * np.linalg.norm(dp_c)))
-            return partial(relative_pose, dp_obs_c=dp_c, dR_obs=dR, pos_std_m=pos_std, att_std_rad=std_a)
+            return partial(relative_pose, dp_obs_c=dp_c[j - 1], dR_obs=dR[j - 1], pos_std_m=float(pos_std[j - 1]),
+                           att_std_rad=std_a)
 
         return Bound(self.name, self.dof, lid.t_s[rows], model, after=lambda kf, j: kf.clone_pose())
 
