@@ -81,6 +81,24 @@ class Layout:
         """The indices of the named blocks, concatenated in the order given."""
         return np.concatenate([np.arange(self.blocks[n].start, self.blocks[n].stop) for n in names])
 
+    def pack(self, **values) -> np.ndarray:
+        """A vector of this layout from the value of every block (a parameter record, say)."""
+        missing = set(self.blocks) - set(values)
+        if missing:
+            raise ValueError(f"{self.name}: no value for {sorted(missing)}")
+        v = np.zeros(self.n)
+        for name, value in values.items():
+            v[self.sl(name)] = value
+        return v
+
+    def columns(self, **arrays) -> np.ndarray:
+        """Rows ``(N, n)`` of this layout from an ``(N, size)`` (or ``(N,)``) array per block (input rows, say)."""
+        first = next(iter(arrays.values()))
+        out = np.empty((np.shape(first)[0], self.n))
+        for name, a in arrays.items():
+            out[:, self.sl(name)] = np.reshape(a, (out.shape[0], self[name].size))
+        return out
+
     def clone_rows(self) -> np.ndarray:
         """The core rows a clone copies, in the order of the clone blocks."""
         return self._clone_rows

@@ -17,13 +17,9 @@ PRM_G, PRM_QA, PRM_QG, PRM_QBA, PRM_QBG = (PARAMS.start(b) for b in ("g", "qa", 
 
 def imu_params(g: float, accel_noise: float, gyro_noise: float, accel_bias_rw: float, gyro_bias_rw: float) -> np.ndarray:
     """The parameter record: gravity (m/s^2) and the noise densities (SI, per sqrt(Hz))."""
-    prm = np.zeros(PARAMS.n)
-    prm[PRM_G], prm[PRM_QA], prm[PRM_QG], prm[PRM_QBA], prm[PRM_QBG] = g, accel_noise, gyro_noise, accel_bias_rw, gyro_bias_rw
-    return prm
+    return PARAMS.pack(g=g, qa=accel_noise, qg=gyro_noise, qba=accel_bias_rw, qbg=gyro_bias_rw)
 
 
 def imu_inputs(f_b: np.ndarray, w_b: np.ndarray) -> np.ndarray:
     """Input rows ``[f_b, w_b]`` (N, 6)."""
-    u = np.empty((f_b.shape[0], IMU_INPUT.n))
-    u[:, IMU_INPUT.sl("f")], u[:, IMU_INPUT.sl("w")] = f_b, w_b
-    return u
+    return IMU_INPUT.columns(f=f_b, w=w_b)

@@ -38,15 +38,11 @@ PRM_QV, PRM_QSLIP, PRM_QG, PRM_QK, PRM_QBG = (PARAMS.start(b) for b in ("qv", "q
 
 
 def odo_params(speed_noise: float, slip_noise: float, gyro_noise: float, scale_rw: float, gyro_bias_rw: float) -> np.ndarray:
-    prm = np.zeros(PARAMS.n)
-    prm[PRM_QV], prm[PRM_QSLIP], prm[PRM_QG], prm[PRM_QK], prm[PRM_QBG] = speed_noise, slip_noise, gyro_noise, scale_rw, gyro_bias_rw
-    return prm
+    return PARAMS.pack(qv=speed_noise, qslip=slip_noise, qg=gyro_noise, qk=scale_rw, qbg=gyro_bias_rw)
 
 
 def odo_inputs(v_odo: np.ndarray, w_b: np.ndarray) -> np.ndarray:
-    u = np.empty((v_odo.shape[0], ODO_INPUT.n))
-    u[:, UV], u[:, ODO_INPUT.sl("w")] = v_odo, w_b
-    return u
+    return ODO_INPUT.columns(v=v_odo, w=w_b)
 
 
 @njit(cache=True)
