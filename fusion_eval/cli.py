@@ -15,6 +15,7 @@ from .errors import ConfigError, FusionEvalError
 
 log = logging.getLogger("fusion_eval")
 
+
 class _Handler(logging.Handler):
     def emit(self, record):
         click.echo(f"{record.levelname.lower()}: {record.getMessage()}" if record.levelno >= logging.WARNING
@@ -153,34 +154,27 @@ def compare(ctx, dataset, variants, variant_dir, config_path, sets, out_dir, ove
 def sweep(ctx, datasets, sweep_file, out_dir, jobs, variant_dir, scheduler, dask_mode, retry_failed, summarize_only,
           no_plots):
     """Run DATASET(s) over the settings of a sweep file, in parallel or on Dask, and rank the results."""
-    from .commands.sweep import execute, load_sweep, plan, swept_keys
-    from .commands.sweep_summary import write_summary
-    from .resources import sweep_file as find_sweep
+    from .commands.sweep import run_sweep
 
-    if scheduler and dask_mode:
-        raise ConfigError("give either --scheduler or --dask local, not both")
-    if jobs is not None and jobs < 1:
-        raise ConfigError("--jobs must be >= 1")
     t0 = time.perf_counter()
-    sweep_file = find_sweep(sweep_file)
-    tasks, body = plan(sweep_file, [str(d) for d in datasets], out_dir, variant_dir)
-    counts = {"run": 0, "failed": 0, "skipped": 0}
-    if not summarize_only:
-        bar = None if ctx.obj["quiet"] else _SweepProgress(len({t.id for t in tasks}))
-        try:
-            counts = execute(tasks, out_dir, jobs, scheduler, dask_mode == "local", retry_failed,
-                             progress=None if bar is None else bar.update)
-        finally:
-            if bar is not None:
-                bar.close()
-    if summarize_only and not (Path(out_dir) / "records").is_dir():
-        raise ConfigError(f"{out_dir}: no sweep records here (nothing to summarize)")
-    body = load_sweep(sweep_file)
-    summary = write_summary(tasks, out_dir, swept_keys(body), plots=not no_plots, grid_keys=list((body.get("grid") or {})))
+    bars: list = []
+
+    def progress_for(total: int):
+        if ctx.obj["quiet"]:
+            return None
+        bars.append(_SweepProgress(total))
+        return bars[-1].update
+
+    try:
+        res = run_sweep(sweep_file, [str(d) for d in datasets], out_dir, jobs, variant_dir, scheduler, dask_mode == "local",
+                        retry_failed, summarize_only, not no_plots, progress_for)
+    finally:
+        for bar in bars:
+            bar.close()
     if not ctx.obj["quiet"]:
-        best = summary["best"]
+        best, counts = res["summary"]["best"], res["counts"]
         if summarize_only:
-            st = [r["status"] for r in summary["rows"]]
+            st = [r["status"] for r in res["summary"]["rows"]]
             click.echo(f"summary of {st.count('ok')} finished, {st.count('failed')} failed and {st.count('pending')} "
                        f"pending runs ({time.perf_counter() - t0:.1f} s)")
         else:

@@ -304,3 +304,28 @@ def execute(tasks: list[Task], out_dir: Path, jobs: int | None, scheduler: str |
             for f in cf_completed(futs):
                 finished(f.result())
     return {"run": n_ok, "failed": n_fail, "skipped": skipped}
+
+
+def run_sweep(sweep: str | Path, datasets: list[str], out_dir: Path, jobs: int | None = None, variant_dir: Path | None = None,
+              scheduler: str | None = None, dask_local: bool = False, retry_failed: bool = False,
+              summarize_only: bool = False, plots: bool = True,
+              progress_for: Callable[[int], Callable | None] | None = None) -> dict:
+    """Plan, run (unless ``summarize_only``) and summarise a sweep; ``sweep`` a file or a shipped sweep's name.
+    ``progress_for(total)`` gives the progress callback of :func:`execute`. Returns the counts and the summary."""
+    from .sweep_summary import write_summary
+
+    if scheduler and dask_local:
+        raise ConfigError("give either --scheduler or --dask local, not both")
+    if jobs is not None and jobs < 1:
+        raise ConfigError("--jobs must be >= 1")
+    sweep_path = resources.sweep_file(str(sweep))
+    tasks, body = plan(sweep_path, datasets, out_dir, variant_dir)
+    counts = {"run": 0, "failed": 0, "skipped": 0}
+    if summarize_only:
+        if not (Path(out_dir) / "records").is_dir():
+            raise ConfigError(f"{out_dir}: no sweep records here (nothing to summarize)")
+    else:
+        progress = progress_for(len({t.id for t in tasks})) if progress_for else None
+        counts = execute(tasks, out_dir, jobs, scheduler, dask_local, retry_failed, progress=progress)
+    summary = write_summary(tasks, out_dir, swept_keys(body), plots=plots, grid_keys=list(body.get("grid") or {}))
+    return {"counts": counts, "summary": summary, "tasks": tasks}
