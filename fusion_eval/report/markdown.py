@@ -60,6 +60,21 @@ def segments_section(m: dict) -> list[str]:
     return L
 
 
+_UNITS = {"mps": "m/s", "m": "m"}
+
+
+def _stream_info(name: str, info: dict) -> str:
+    unit = next((k.split("std_given_to_filter_")[1] for k in info if k.startswith("std_given_to_filter_")), "")
+    given = info.get(f"std_given_to_filter_{unit}")
+    if not info["degraded"]:
+        return f"Stream `{name}`: used as it is, {info['fixes_used']} measurements; std given to the filter: {given}."
+    rate = "every measurement kept" if info["rate_hz"] is None else f"decimated to {info['rate_hz']:g} Hz"
+    return (f"Stream `{name}` (a GPS/INS solution, degraded): {rate} ({info['fixes_in']} -> {info['fixes_after_decimation']}), "
+            f"white noise with std {info.get(f'noise_std_{unit}')} {_UNITS.get(unit, unit)} (seed {info.get('seed')}), outages "
+            f"{info['outages_s'] or 'none'} ({info['fixes_in_outages']} removed); {info['fixes_used']} used. "
+            f"Std given to the filter: {given}.")
+
+
 def fmt_stat(d, key="rmse", nd=3):
     if not d:
         return "n/a"
@@ -117,6 +132,10 @@ def report_md(dataset: str, config_name: str, evals: dict, ratios: dict, cfg: di
                  f"{gnss_info['noise_std_m']} m (E, N, U; seed {gnss_info['seed']}), outages {gnss_info['outages_s'] or 'none'} s "
                  f"({gnss_info['fixes_in_outages']} fixes removed); {gnss_info['fixes_used']} fixes used. "
                  f"Std given to the filter: {gnss_info['std_given_to_filter_m']}.")
+    for name, info in applied.items():   # the enabled observations' own streams (e.g. gnss_velocity)
+        if isinstance(info, dict) and "degraded" in info:
+            L.append("")
+            L.append(_stream_info(name, info))
     L += ["", "## Pre-processing applied", "",
           f"- Start: t = {applied['t_start_s']:.6f} s (first IMU sample covered by ground truth"
           f"{' and lidar' if cfg['filter']['lidar_update'] != 'none' else ''}).",
