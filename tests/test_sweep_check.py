@@ -174,3 +174,23 @@ def test_best_yaml_is_a_configuration_run_accepts(small, tmp_path):
     r = CliRunner().invoke(main, ["-q", "sweep", str(small), "--grid", str(sw), "--out", str(tmp_path / "none"),
                                   "--summarize-only"])
     assert r.exit_code == 2 and "no sweep records" in r.stderr
+
+
+def test_grid_random_and_named_settings_are_planned(small, tmp_path):
+    """Every kind of setting of a sweep file, checked against the schema (the shipped grid2d among them)."""
+    from fusion_eval import resources
+    from fusion_eval.commands.sweep import load_sweep, plan, settings_of
+
+    sw = tmp_path / "all.yaml"
+    sw.write_text("settings:\n  a: {imu.gyro_noise_dps_sqrthz: 0.05}\n"
+                  "grid:\n  imu.gyro_noise_dps_sqrthz: [0.03, 0.3]\n  lidar.relative_pos_std_frac: [0.003, 0.03]\n"
+                  "random: {n: 3, seed: 1, ranges: {imu.accel_noise_mps2_sqrthz: [0.1, 1.0]}}\n")
+    names = [n for n, _ in settings_of(load_sweep(sw), str(sw))]
+    assert names[:2] == ["default", "a"] and len(names) == 1 + 1 + 4 + 3 and names[-1] == "random-002"
+    assert "imu.gyro_noise_dps_sqrthz=0.03,lidar.relative_pos_std_frac=0.003" in names
+    tasks, body = plan(resources.sweep_file("grid2d"), [str(small)], tmp_path / "o")
+    assert len(tasks) == 10 and {t.setting for t in tasks} >= {"default", "imu.gyro_noise_dps_sqrthz=0.3,lidar.relative_pos_std_frac=0.03"}
+    bad = tmp_path / "bad.yaml"
+    bad.write_text("grid:\n  imu.nope: [1, 2]\n")
+    r = CliRunner().invoke(main, ["-q", "sweep", str(small), "--grid", str(bad), "--out", str(tmp_path / "x")])
+    assert r.exit_code == 2 and "unknown configuration key 'imu.nope'" in r.stderr

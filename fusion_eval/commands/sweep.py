@@ -107,12 +107,12 @@ def settings_of(body: dict, where: str) -> list[tuple[str, dict]]:
     """(name, {key: value}) for every setting: 'default' first, then named, grid and random ones."""
     out: list[tuple[str, dict]] = [("default", {})]
 
-    keys = schema()
+    known = schema()
 
     def check(key, value):
-        if key not in keys:
+        if key not in known:
             raise ConfigError(f"{where}: unknown configuration key {key!r} in the sweep")
-        return check_value(key, keys[key], value, where)
+        return check_value(key, known[key], value, where)
 
     for name, ov in (body.get("settings") or {}).items():
         if not isinstance(ov, dict):
@@ -120,12 +120,12 @@ def settings_of(body: dict, where: str) -> list[tuple[str, dict]]:
         out.append((str(name), {k: check(k, v) for k, v in ov.items()}))
     grid = body.get("grid") or {}
     if grid:
-        keys = list(grid)
-        for k in keys:
+        gkeys = list(grid)
+        for k in gkeys:
             if not isinstance(grid[k], list) or not grid[k]:
                 raise ConfigError(f"{where}: grid key {k!r} needs a non-empty list of values")
-        for combo in itertools.product(*(grid[k] for k in keys)):
-            ov = {k: check(k, v) for k, v in zip(keys, combo)}
+        for combo in itertools.product(*(grid[k] for k in gkeys)):
+            ov = {k: check(k, v) for k, v in zip(gkeys, combo)}
             out.append((",".join(f"{k}={v}" for k, v in ov.items()), ov))
     rnd = body.get("random")
     if rnd:
