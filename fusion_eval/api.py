@@ -97,7 +97,8 @@ def run(dataset: Dataset | str | Path | None = None, overrides: dict | None = No
 
 
 def _as_series(x, times: str | Path | None, what: str) -> tuple[PoseSeries, str, dict]:
-    from .commands.evaluate import read_trajectory
+    from .datasets.trajectory_file import read_trajectory
+    from .errors import ConfigError
     from .evaluation.trajectory import from_evo
 
     if isinstance(x, PoseSeries):
@@ -107,7 +108,8 @@ def _as_series(x, times: str | Path | None, what: str) -> tuple[PoseSeries, str,
         return s, Path(x).stem, {"file": str(x), "stamps": how}
     if hasattr(x, "positions_xyz") and hasattr(x, "timestamps"):
         return from_evo(x), (x.meta.get("name") or what), {"stamps": "given"}
-    raise TypeError(f"{what}: expected a PoseSeries, an evo PoseTrajectory3D or a trajectory file path, got {type(x).__name__}")
+    raise ConfigError(f"{what}: expected a PoseSeries, an evo PoseTrajectory3D or a trajectory file path, "
+                      f"got {type(x).__name__}")
 
 
 def evaluate(reference, estimate, alignment: str = "none", association: str = "nearest", t_max_diff_s: float = 0.01,
@@ -116,7 +118,7 @@ def evaluate(reference, estimate, alignment: str = "none", association: str = "n
     """evo's APE/RPE, the KITTI drift metric and the per-segment breakdown of ``estimate`` against
     ``reference`` (each a trajectory file, an evo ``PoseTrajectory3D`` or a :class:`PoseSeries`): the
     ``metrics.json`` of ``fusion-eval evaluate``."""
-    from .commands.evaluate import evaluate_series, validate_options
+    from .evaluation.estimates import evaluate_series, validate_options
 
     validate_options(association, alignment, t_max_diff_s, rpe_delta_m, segment_m, segment_s)
     ref, _, ref_about = _as_series(reference, reference_times, "reference")
@@ -124,5 +126,5 @@ def evaluate(reference, estimate, alignment: str = "none", association: str = "n
     if name in ("groundtruth", "reference"):
         name = "estimate"
     metrics, _ = evaluate_series(ref, {name: est}, association, alignment, t_max_diff_s, rpe_delta_m, segment_m,
-                                 segment_s, {name: about})
+                                 segment_s, {name: about}, ref_stamps=ref_about["stamps"])
     return {"reference": ref_about.get("file", ref.source), "reference_stamps": ref_about["stamps"], **metrics}

@@ -135,12 +135,6 @@ def schema() -> dict[str, Spec]:
     return dict(sorted(keys.items(), key=lambda kv: order.get(kv[0].split(".")[0], len(order))))
 
 
-def __getattr__(name: str):
-    if name == "SCHEMA":   # the assembled schema, as a module attribute for readers of the old name
-        return schema()
-    raise AttributeError(name)
-
-
 def defaults_of(schema_: dict[str, Spec]) -> dict:
     out: dict = {}
     for key, spec in schema_.items():
@@ -372,6 +366,8 @@ class _Section:
         self._name, self._values = name, values
 
     def __getattr__(self, key: str):
+        if key.startswith("_"):            # copy/pickle look for dunder hooks before __init__ ran
+            raise AttributeError(key)
         try:
             return self._values[key]
         except KeyError:
@@ -400,7 +396,12 @@ class Settings:
             self._sections[sect] = _Section(sect, vals)
 
     def __getattr__(self, sect: str) -> _Section:
+        if sect.startswith("_"):
+            raise AttributeError(sect)
         try:
             return self._sections[sect]
         except KeyError:
             raise AttributeError(f"settings: no section {sect!r}") from None
+
+    def __reduce__(self):
+        return Settings, (self.cfg,)

@@ -30,15 +30,17 @@ def request(config: Path | dict | None = None, variant: Path | None = None, sets
             overrides: dict | None = None) -> ConfigRequest:
     """Validate the user's layers: a base configuration (a file, or a ``{section: {key: value}}`` dict), a
     variant file, ``--set`` items and Python overrides (``{"gnss.rate_hz": 2.0}``)."""
+    from . import resources
+
     layers: list[Layer] = []
     source = "default"
     if isinstance(config, dict):
         layers.append(validate(config, "config"))
     elif config is not None:
-        layers.append(parse_file(Path(config)))
+        layers.append(parse_file(resources.find(config)))     # e.g. configs/lidar-imu.yaml from any directory
         source = Path(config).stem
     if variant is not None:
-        layers.append(parse_file(Path(variant)))
+        layers.append(parse_file(resources.find(variant)))
         source = Path(variant).stem
     if sets:
         layers.append(parse_sets(tuple(sets)))

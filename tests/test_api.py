@@ -80,7 +80,7 @@ def test_evaluate_matches_evo_on_kitti_00(tmp_path):
     m = fe.evaluate(gt, est, alignment="se3")
     assert m["estimates"]["00_poses_kitti"]["ape"]["translation_m"]["rmse"] == pytest.approx(3.515636, abs=2e-6)
     # evo trajectories (or pose series) work as well as files
-    from fusion_eval.commands.evaluate import read_trajectory
+    from fusion_eval.datasets.trajectory_file import read_trajectory
     from fusion_eval.evaluation import to_evo
 
     ref = to_evo(read_trajectory(gt)[0], "gt")
@@ -89,3 +89,8 @@ def test_evaluate_matches_evo_on_kitti_00(tmp_path):
     assert m2["estimates"]["kiss-icp"]["ape"]["translation_m"]["rmse"] == pytest.approx(3.515636, abs=2e-6)
     with pytest.raises(ConfigError, match="--alignment must be one of"):
         fe.evaluate(ref, traj, alignment="bogus")
+    with pytest.raises(ConfigError, match="expected a PoseSeries, an evo PoseTrajectory3D or a trajectory file path"):
+        fe.evaluate(ref, 42)
+    # a KITTI pose file without times is matched by index: it cannot be compared with stamped poses
+    with pytest.raises(FusionEvalError, match="both have stamps, or both be matched by index"):
+        fe.evaluate(shared_path("kitti-odometry", "00", "00_gt_tum.txt"), est)

@@ -220,8 +220,10 @@ def check(metrics_path: Path, baseline: Path, rtol: float, atol: float, patterns
 
     if not (math.isfinite(rtol) and math.isfinite(atol)) or rtol < 0 or atol < 0:
         raise ConfigError(f"--rtol and --atol must be finite numbers >= 0, got {rtol} and {atol}")
+    from .. import resources
+
     current, kind, delta = load_metrics(metrics_path)
-    base, base_kind, _ = load_metrics(baseline)
+    base, base_kind, _ = load_metrics(resources.find(baseline))     # configs/baselines/... from any directory
     if kind != base_kind:
         raise ConfigError(f"{metrics_path} is a {kind} file but the baseline {baseline} is a {base_kind} file")
     pats = tuple(patterns) or default_patterns(kind, delta)

@@ -148,7 +148,9 @@ def profile_segments(name: str) -> tuple[list[Segment], float, int]:
         return fn(), 0.0, n_prefix
     p = Path(name)
     if p.suffix in (".yaml", ".yml"):
-        return from_waypoints_yaml(p)
+        from ..resources import find
+
+        return from_waypoints_yaml(find(p))          # configs/profiles/... from any directory
     raise ConfigError(f"unknown profile {name!r} (known: {', '.join(PROFILES)}, or a waypoint YAML file)")
 
 

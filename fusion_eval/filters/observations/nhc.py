@@ -33,7 +33,8 @@ class NonHolonomic(Observation):
     def bind(self, run, s) -> Bound:
         f = s.filter
         t, w = run.imu.t_s, run.imu.w_b_rps
-        step = max(1, int(round(1.0 / (f.nhc_rate_hz * float(np.median(np.diff(t)))))))
+        dt = float(np.median(np.diff(t))) if t.size > 1 else np.inf
+        step = max(1, int(round(1.0 / (f.nhc_rate_hz * dt)))) if np.isfinite(dt) else t.size
         cand = np.arange(run.k_start + step, t.size, step)
         k = cand[np.linalg.norm(w[cand], axis=1) < f.nhc_max_turn_rate_rps]
         std = np.full(3, f.nhc_std_mps)

@@ -1,0 +1,56 @@
+"""The evaluation of estimates against one reference (what ``fusion-eval evaluate`` and ``fusion_eval.evaluate``
+report): evo's APE/RPE, the KITTI drift metric and the per-segment breakdown of each estimate."""
+
+from __future__ import annotations
+
+import math
+
+from ..datasets.trajectory_file import BY_INDEX
+from ..errors import ConfigError, DataFormatError
+from ..types import PoseSeries
+from .run_metrics import estimate_metrics
+from .segments import breakdown
+from .trajectory import EstimateEvaluation, evaluate
+
+ASSOCIATIONS = ("nearest", "interpolate")
+ALIGNMENTS = ("none", "origin", "se3", "sim3", "4dof")
+
+
+def validate_options(association: str, alignment: str, t_max_diff_s: float, rpe_delta_m: float, segment_m: float,
+                     segment_s: float | None) -> None:
+    """Refuse options ``evaluate`` cannot honour, naming the option."""
+    if association not in ASSOCIATIONS:
+        raise ConfigError(f"--association must be one of {', '.join(ASSOCIATIONS)}, got {association!r}")
+    if alignment not in ALIGNMENTS:
+        raise ConfigError(f"--alignment must be one of {', '.join(ALIGNMENTS)}, got {alignment!r}")
+    for name, v in (("--t-max-diff", t_max_diff_s), ("--rpe-delta-m", rpe_delta_m), ("--segment-m", segment_m),
+                    ("--segment-s", segment_s)):
+        if v is not None and not (isinstance(v, (int, float)) and math.isfinite(v) and v > 0):
+            raise ConfigError(f"{name} must be a finite number > 0, got {v}")
+
+
+def evaluate_series(ref: PoseSeries, estimates: dict[str, PoseSeries], association: str = "nearest",
+                    alignment: str = "none", t_max_diff_s: float = 0.01, rpe_delta_m: float = 100.0,
+                    segment_m: float = 100.0, segment_s: float | None = None,
+                    about: dict | None = None, ref_stamps: str | None = None) -> tuple[dict, dict[str, EstimateEvaluation]]:
+    """evo's APE/RPE, the KITTI drift metric and the per-segment breakdown of each estimate against ``ref``:
+    the ``metrics.json`` of ``fusion-eval evaluate`` and the evaluations behind it. ``about`` adds, per
+    estimate, where it came from (``file``, ``stamps``: how its stamps were obtained); stamps and frame indices
+    are not mixed: matching a stamped trajectory to one matched by index would give meaningless numbers."""
+    about = about or {}
+    for name, a in about.items():
+        if ref_stamps is not None and (a.get("stamps") == BY_INDEX) != (ref_stamps == BY_INDEX):
+            raise DataFormatError(a.get("file", name), None,
+                                  "the reference and the estimates must both have stamps, or both be matched by index "
+                                  "(give --times / --ref-times for KITTI pose files)")
+    evals = {name: evaluate(ref, est, name, t_max_diff_s, rpe_delta_m, association, alignment)
+             for name, est in estimates.items()}
+    names = list(evals)
+    errs = {k: (ev.ape_t_s, ev.ape_err_m) for k, ev in evals.items() if ev.ape_err_m is not None}
+    seg = breakdown(ref, errs, segment_m, segment_s, primary=names[0], secondary=names[1] if len(names) > 1 else None) \
+        if errs else None
+    est_m = {k: {**(about.get(k) or {}), **estimate_metrics(ev)} for k, ev in evals.items()}
+    metrics = {"evaluation": {"association": association, "alignment": alignment, "t_max_diff_s": t_max_diff_s,
+                              "rpe_delta_m": rpe_delta_m},
+               "estimates": est_m, "segments": seg}
+    return metrics, evals
