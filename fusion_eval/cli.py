@@ -11,7 +11,7 @@ from pathlib import Path
 import click
 
 from . import __version__
-from .errors import ConfigError, FusionEvalError
+from .errors import FusionEvalError
 
 log = logging.getLogger("fusion_eval")
 
@@ -117,7 +117,6 @@ def compare(ctx, dataset, variants, variant_dir, config_path, sets, out_dir, ove
     from .commands.compare import compare as run_compare
 
     names = [v.strip() for v in variants.split(",") if v.strip()]
-    out_dir = out_dir or Path("results") / f"compare-{time.strftime('%Y%m%d-%H%M%S')}"
     progress = None if ctx.obj["quiet"] else _Progress("variants")
     t0 = time.perf_counter()
     try:
@@ -132,7 +131,7 @@ def compare(ctx, dataset, variants, variant_dir, config_path, sets, out_dir, ove
             rot = r.get("ape_rot_rmse_deg")
             click.echo(f"{r['variant']:<26} {r['estimate']:<9} {r['ape_trans_rmse_m']:>19.3f} "
                        f"{'n/a' if rot is None else f'{rot:.3f}':>19}")
-        click.echo(f"wrote {out_dir}/ ({time.perf_counter() - t0:.1f} s)")
+        click.echo(f"wrote {res['out_dir']}/ ({time.perf_counter() - t0:.1f} s)")
 
 
 @main.command()

@@ -21,33 +21,7 @@ import numpy as np
 import yaml
 
 from .errors import ConfigError
-
-
-class Spec(NamedTuple):
-    """One configuration key: default, meaning, and what values it accepts.
-
-    ``kind``: ``choice`` (one of ``choices``), ``bool``, ``int``, ``float``, ``vec3`` (3 numbers, or one
-    number for all three), ``windows`` (list of ``[start, end]``), ``jumps``. ``auto`` admits the string
-    'auto', ``nullable`` admits null; ``positive``/``nonneg``/``below`` bound numbers (``below``: strictly less).
-    """
-
-    default: Any
-    doc: str
-    kind: str = "float"
-    choices: tuple = ()
-    positive: bool = False
-    nonneg: bool = False
-    nullable: bool = False
-    auto: bool = False
-    below: float | None = None
-
-
-def S(default, doc, kind=None, *, below_one: bool = False, **kw) -> Spec:
-    if kind is None:
-        kind = {bool: "bool", int: "int", float: "float", list: "vec3", str: "choice"}.get(type(default), "float")
-    if below_one:
-        kw["below"] = 1.0
-    return Spec(default, doc, kind, **kw)
+from .spec import S, Spec  # noqa: F401  (re-exported: config.S, config.Spec)
 
 
 # Sections written in config.resolved.yaml for information; a config file may hold them (ignored).

@@ -4,15 +4,11 @@ leaves a half-written output directory and never destroys an earlier one."""
 
 from __future__ import annotations
 
-import io
 import os
 import shutil
-import zipfile
 from pathlib import Path
 
 from .errors import OutputError
-
-FIXED_ZIP_TIME = (1980, 1, 1, 0, 0, 0)
 
 
 class StagedDir:
@@ -57,18 +53,6 @@ class StagedDir:
         tmp.write_bytes(data)
         os.replace(tmp, target)
         return target
-
-    def normalize_zip(self, name: str) -> None:
-        """Rewrite a zip with fixed entry times so that identical runs give identical bytes."""
-        src = self.staging / name
-        buf = io.BytesIO()
-        with zipfile.ZipFile(src) as zin, zipfile.ZipFile(buf, "w") as zout:
-            for info in sorted(zin.infolist(), key=lambda i: i.filename):
-                zi = zipfile.ZipInfo(info.filename, date_time=FIXED_ZIP_TIME)
-                zi.compress_type = info.compress_type  # evo stores uncompressed; keep it so
-                zi.external_attr = 0o644 << 16
-                zout.writestr(zi, zin.read(info.filename))
-        self.write_bytes(name, buf.getvalue())
 
     def __exit__(self, exc_type, exc, tb) -> bool:
         if exc_type is not None:

@@ -41,9 +41,6 @@ class Prepared:
     odometer: SpeedSeries | None = None          # forward speed, inside the run
     streams: dict = field(default_factory=dict)  # the enabled observations' other streams, prepared, inside the run
 
-    def stream(self, name: str):
-        return getattr(self, name) if name in ("imu", "groundtruth", "gnss", "lidar", "odometer") else self.streams.get(name)
-
 
 def _offset(cfg: dict, ds: Dataset, stream: str) -> float:
     """The stream's time offset: the configuration's (``<stream>.time_offset_s``), else the manifest's (default 0)."""
@@ -77,20 +74,17 @@ def anchor_lidar(lidar_odom: PoseSeries, gt: PoseSeries) -> tuple[PoseSeries, fl
     return replace(base, p_w_m=T_w[:, :3, 3], q_wb_xyzw=matrix_to_quat_xyzw(T_w[:, :3, :3])), float(lidar_odom.t_s[a])
 
 
-def needed_streams(cfg: dict) -> dict[str, str]:
-    """The streams the configured filter needs, each with the key that asks for it."""
-    need: dict[str, str] = {}
+def needed_streams(cfg: dict) -> dict[str, tuple[str, str]]:
+    """The streams the configured filter needs, each with the key that asks for it and the setting that
+    would do without it."""
+    need: dict[str, tuple[str, str]] = {}
     for o in observations.enabled(cfg):
+        off = ", ".join(f"{k}={str(v).lower() if isinstance(v, bool) else v}" for k, v in o.disable_with.items())
         for st in o.streams:
-            need.setdefault(st, o.enabled_by)
+            need.setdefault(st, (o.enabled_by, off))
     for st in formulation_of(cfg).streams:
-        need.setdefault(st, "filter.process_model")
+        need.setdefault(st, ("filter.process_model", "filter.process_model=imu"))
     return need
-
-
-def _off(key: str) -> str:
-    return f"{key}={'none' if key == 'filter.lidar_update' else 'false'}" if key != "filter.process_model" else \
-        "filter.process_model=imu"
 
 
 def prepare(ds: Dataset, cfg: dict) -> Prepared:
@@ -100,9 +94,9 @@ def prepare(ds: Dataset, cfg: dict) -> Prepared:
     use_gnss = "gnss" in need
     if ds.groundtruth is None:
         raise ConfigError(f"dataset {ds.name!r} has no groundtruth stream; fusion-eval run evaluates against ground truth")
-    for st, key in need.items():
+    for st, (key, off) in need.items():
         if ds.stream(st) is None:
-            raise ConfigError(f"dataset {ds.name!r} has no {st} stream, which {key} needs; set {_off(key)}")
+            raise ConfigError(f"dataset {ds.name!r} has no {st} stream, which {key} needs; set {off}")
 
     applied: dict = {"time_offset_s": {}}
     # --- IMU: offset, drop filled packets, gyro lag

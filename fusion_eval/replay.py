@@ -18,7 +18,7 @@ from .config import Settings
 from .filters import make_filter, observations
 from .filters.formulations.eskf import dead_reckon
 from .filters.formulations.imu_model import imu_inputs, imu_params
-from .filters.layout import NOMINAL
+from .filters.state import unpack
 from .prepare import Prepared
 from .so3 import matrix_to_quat_xyzw
 from .types import PoseSeries
@@ -45,9 +45,9 @@ def dead_reckoning(prep: Prepared, s: Settings) -> PoseSeries:
     """Pure IMU integration (accelerometer and gyro) from the filter's initial state: the unfiltered IMU."""
     t = np.ascontiguousarray(prep.imu.t_s)
     k0 = prep.k_start
-    rec = dead_reckon(prep.x0, imu_params(prep.gravity_mps2, 0.0, 0.0, 0.0, 0.0), t,
-                      imu_inputs(prep.imu.f_b_mps2, prep.imu.w_b_rps), k0)
-    p, R = rec[k0:, NOMINAL.sl("p")], rec[k0:, NOMINAL.sl("R")].reshape(-1, 3, 3)
+    rec = unpack(dead_reckon(prep.x0, imu_params(prep.gravity_mps2, 0.0, 0.0, 0.0, 0.0), t,
+                             imu_inputs(prep.imu.f_b_mps2, prep.imu.w_b_rps), k0)[k0:])
+    p, R = rec["p"], rec["R"]
     t = t[k0:]
     finite = np.all(np.isfinite(p), axis=1) & np.all(np.abs(p) < 1e9, axis=1)
     return PoseSeries(t_s=t[finite], p_w_m=p[finite], q_wb_xyzw=matrix_to_quat_xyzw(R[finite]), source="imu_only")
@@ -89,15 +89,14 @@ def replay(prep: Prepared, s: Settings, progress: Callable[[float], None] | None
         progress(1.0)
 
     sl = slice(k0, None)
-    rec_x = kf.rec_x[sl]
-    R = rec_x[:, NOMINAL.sl("R")].reshape(-1, 3, 3)
-    fused = PoseSeries(t_s=t_imu[sl], p_w_m=rec_x[:, NOMINAL.sl("p")], q_wb_xyzw=matrix_to_quat_xyzw(R),
-                       v_w_mps=rec_x[:, NOMINAL.sl("v")], source="fused")
+    rec = unpack(kf.rec_x[sl])
+    fused = PoseSeries(t_s=t_imu[sl], p_w_m=rec["p"], q_wb_xyzw=matrix_to_quat_xyzw(rec["R"]), v_w_mps=rec["v"],
+                       source="fused")
     if imu_only is None:
         imu_only = dead_reckoning(prep, s)
-    k_scale = rec_x[:, NOMINAL.start("k")].copy() if "K" in kf.layout else None
+    k_scale = kf.odometer_scale(kf.rec_x[sl])
     return FilterOutput(
-        fused=fused, accel_bias_b=rec_x[:, NOMINAL.sl("ba")].copy(), gyro_bias_b=rec_x[:, NOMINAL.sl("bg")].copy(),
+        fused=fused, accel_bias_b=rec["ba"].copy(), gyro_bias_b=rec["bg"].copy(),
         sigma=np.sqrt(np.maximum(kf.arrays.rec_Pdiag[sl], 0.0)), P_pos_att=kf.arrays.rec_Ppt[sl],
         nis={k: {"t_s": np.array(v[0]), "nis": np.array(v[1]), "dof": dof[k],
                  "rejected": int(np.size(v[2]) - np.count_nonzero(v[2]))} for k, v in nis.items() if v[0]},

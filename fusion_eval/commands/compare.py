@@ -58,8 +58,9 @@ def _rms_lateral_vertical(vb: np.ndarray) -> dict:
 
 
 def compare(dataset_path: Path | None, variants: list[str], variant_dir: Path | None, base_config: Path | None,
-            sets: tuple[str, ...], out_dir: Path, overwrite: bool = False, make_plots: bool = True,
+            sets: tuple[str, ...], out_dir: Path | None, overwrite: bool = False, make_plots: bool = True,
             progress: Callable[[float], None] | None = None) -> dict:
+    out_dir = out_dir if out_dir is not None else Path("results") / f"compare-{time.strftime('%Y%m%d-%H%M%S')}"
     staged = StagedDir(out_dir, overwrite=overwrite)
     staged.check()
     if len(set(variants)) != len(variants) or not variants:
@@ -76,7 +77,8 @@ def compare(dataset_path: Path | None, variants: list[str], variant_dir: Path | 
         prep = prepare(ds, cfg)
         base_prep = base_prep or prep
         with np.errstate(over="ignore", invalid="ignore"):
-            filt = replay(prep, Settings(cfg))
+            # dead reckoning is reported once, from the first variant's streams
+            filt = replay(prep, Settings(cfg), imu_only=runs[0].filt.imu_only if runs else None)
         runs.append(VariantRun(name, cfg, filt, None, time.perf_counter() - t0))
         log.info("variant %s: filtered in %.2f s", name, runs[-1].runtime_s)
         if progress:
@@ -134,8 +136,9 @@ def compare(dataset_path: Path | None, variants: list[str], variant_dir: Path | 
 
             plots.plot_compare_ape(out.path("ape_over_time.png"), runs, evs_u, float(runs[0].filt.fused.t_s[0]))
             plots.plot_compare_biases(out.path("biases.png"), runs)
-            plots.plot_compare_body_velocity(out.path("body_velocity.png"), runs, gt, gt_vb)
-    return result
+            plots.plot_compare_body_velocity(out.path("body_velocity.png"), runs, [body_velocity(r.filt.fused) for r in runs],
+                                             gt, gt_vb)
+    return {**result, "out_dir": str(out_dir)}
 
 
 def _variant_row(r: VariantRun, gt: PoseSeries, evs_u: dict, ev_cfg: dict) -> dict:

@@ -32,15 +32,19 @@ def check_combination(cfg: dict) -> None:
         missing = sorted(o.blocks - have)
         if missing:
             what = ", ".join(_NAMES.get(b, b) for b in missing)
+            off = ", ".join(f"{k}={_text(v)}" for k, v in o.disable_with.items())
             raise ConfigError(f"{o.enabled_by}={_value(cfg, o.enabled_by)} ({o.label}) needs the {what} state, which "
                               f"filter.formulation={cls.name} with filter.process_model={cls.process_model} does not "
-                              f"have: set {o.enabled_by}={'none' if o.enabled_by == 'filter.lidar_update' else 'false'}")
+                              f"have: set {off}")
+
+
+def _text(v) -> str:
+    return str(v).lower() if isinstance(v, bool) else str(v)
 
 
 def _value(cfg: dict, key: str):
     s, k = key.split(".")
-    v = cfg[s][k]
-    return str(v).lower() if isinstance(v, bool) else v
+    return _text(cfg[s][k])
 
 
 def make_filter(run, s):
@@ -50,21 +54,21 @@ def make_filter(run, s):
 
 def combinations() -> list[dict]:
     """Every registered formulation x bias model x lidar form that :func:`check_combination` accepts (as
-    ``--set`` dictionaries), plus, on each formulation, the iterated update, each other registered
-    observation, and the odometer with the non-holonomic constraint."""
+    ``--set`` dictionaries), plus, on each formulation, the iterated update, each registered observation the
+    defaults leave off, and all of those at once."""
     from ..config import default_config
 
+    base = default_config()
+    extra = [o for o in observations.REGISTRY if not o.enabled(base) and o.enabled_by != "filter.lidar_update"]
     out = []
-    for cls, bias, lidar in itertools.product(formulations.REGISTRY, formulations.BIAS_MODELS, ("relative", "absolute", "none")):
+    for cls, bias, lidar in itertools.product(formulations.REGISTRY, formulations.BIAS_MODELS, pose_forms()):
         out.append({"filter.formulation": cls.name, "filter.process_model": cls.process_model, "filter.bias_model": bias,
                     "filter.lidar_update": lidar})
     for cls in formulations.REGISTRY:
         axes = {"filter.formulation": cls.name, "filter.process_model": cls.process_model}
         out.append({**axes, "filter.iterations": 3})
-        out.append({**axes, "filter.odometer_update": True, "filter.nhc": True})
-        for o in observations.REGISTRY:
-            if o.enabled_by not in ("filter.lidar_update", "filter.use_gnss", "filter.odometer_update", "filter.nhc"):
-                out.append({**axes, **o.enable_with})
+        out += [{**axes, **o.enable_with} for o in extra]
+        out.append({**axes, **{k: v for o in extra for k, v in o.enable_with.items()}})
     ok = []
     for c in out:
         cfg = default_config()
@@ -77,3 +81,9 @@ def combinations() -> list[dict]:
             continue
         ok.append(c)
     return ok
+
+
+def pose_forms() -> tuple[str, ...]:
+    """The lidar forms: the registered pose observations' and 'none'."""
+    return (*(o.enable_with["filter.lidar_update"] for o in observations.REGISTRY if o.enabled_by == "filter.lidar_update"),
+            "none")

@@ -7,11 +7,24 @@ observation models and the rest of the package read it through the views ``p_w_m
 
 from __future__ import annotations
 
+from typing import Callable
+
 import numpy as np
 
 from .layout import CLONE, NOMINAL
 
 _P, _V, _R, _BA, _BG, _K = (NOMINAL.sl(b) for b in ("p", "v", "R", "ba", "bg", "k"))
+
+# an observation model, called as model(x, clone_p, clone_R) -> (H over the canonical error state, r, R)
+ObservationModel = Callable[..., tuple[np.ndarray, np.ndarray, np.ndarray]]
+
+
+def unpack(rec_x: np.ndarray) -> dict[str, np.ndarray]:
+    """Recorded nominal vectors ``(N, NOMINAL.n)`` as arrays: p, v (N, 3), R (N, 3, 3), ba, bg (N, 3), k (N,)."""
+    out = {b: rec_x[:, NOMINAL.sl(b)] for b in NOMINAL.core}
+    out["R"] = out["R"].reshape(-1, 3, 3)
+    out["k"] = out["k"][:, 0]
+    return out
 
 
 class NominalState:

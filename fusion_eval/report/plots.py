@@ -173,15 +173,14 @@ def plot_compare_biases(path: Path, runs) -> None:
     _save(fig, path)
 
 
-def plot_compare_body_velocity(path: Path, runs, gt, gt_vb) -> None:
+def plot_compare_body_velocity(path: Path, runs, body_v: list, gt, gt_vb) -> None:
     """Lateral and vertical body-frame velocity of each variant (what the motion constraint acts on)."""
     fig, axes = plt.subplots(2, 1, figsize=(10, 6), sharex=True)
     t0 = runs[0].filt.fused.t_s[0]
     if gt_vb is not None:
         for ax, k in zip(axes, (1, 2)):
             ax.plot(gt.t_s - t0, gt_vb[:, k], color="black", lw=1.2, label="ground truth", zorder=10)
-    for i, r in enumerate(runs):
-        vb = np.einsum("nji,nj->ni", r.filt.fused.R_wb(), r.filt.fused.v_w_mps)
+    for i, (r, vb) in enumerate(zip(runs, body_v)):
         for ax, k in zip(axes, (1, 2)):
             ax.plot(r.filt.fused.t_s - t0, vb[:, k], lw=0.7, alpha=0.7, color=_VCOLORS[i % len(_VCOLORS)], label=r.name)
     axes[0].set_ylabel("lateral [m/s]")

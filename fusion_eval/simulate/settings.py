@@ -3,7 +3,7 @@ and the sensor-grade presets of ``--grade``."""
 
 from __future__ import annotations
 
-from ..config import S, Spec
+from ..spec import S, Spec
 
 def sim_schema() -> dict[str, Spec]:
     """The simulator's settings: the built-in sensors' (below) and those of the registered observations'

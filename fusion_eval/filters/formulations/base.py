@@ -20,8 +20,6 @@ until the step is below ``tol`` or ``iterations`` is reached, then updates ``P``
 
 from __future__ import annotations
 
-from typing import Callable
-
 import numpy as np
 
 from ...errors import FilterDivergedError
@@ -29,10 +27,9 @@ from ...so3 import exp_so3, log_so3, skew
 from .. import linalg
 from ..layout import CANONICAL, NOMINAL, Layout, canonical_index, canonical_map, own_from_canonical
 from ..propagate import LAST_T, new_arrays
-from ..state import ClonePose, NominalState
+from ..state import ClonePose, NominalState, ObservationModel
 from .imu_model import imu_inputs, imu_params
 
-ObservationModel = Callable[..., tuple[np.ndarray, np.ndarray, np.ndarray]]
 
 
 def canonical_prior_std(s) -> np.ndarray:
@@ -70,7 +67,6 @@ class FilterBase:
     process_model = "imu"           # filter.process_model
     layout: Layout
     pairs: tuple[tuple[str, str], ...]
-    uses_accelerometer = True
     keys: dict = {}                 # configuration keys this formulation owns
     streams: tuple[str, ...] = ()   # dataset streams its process model needs
     # own blocks -> the nominal quantity they correct ('p', 'v', 'R', 'ba', 'bg', 'k', 'clone.p', 'clone.R')
@@ -149,6 +145,10 @@ class FilterBase:
 
     def on_clone(self) -> None:
         pass
+
+    def odometer_scale(self, rec_x: np.ndarray) -> np.ndarray | None:
+        """The recorded odometer scale error, for formulations that estimate one (None otherwise)."""
+        return None
 
     # ---- shared ------------------------------------------------------------------------------
     @property
@@ -303,7 +303,3 @@ _ATTR = {"p": "p_w_m", "v": "v_w_mps", "ba": "ba_b", "bg": "bg_b", "k": "_k"}
 def _get(obj, q: str):
     return getattr(obj, _ATTR[q])
 
-
-def nominal_slices():
-    """Slices of the recorded nominal vector: position, velocity, attitude, biases, odometer scale."""
-    return {b: NOMINAL.sl(b) for b in NOMINAL.core}

@@ -27,10 +27,10 @@ from numba import njit
 
 from ...errors import FilterDivergedError
 from .. import linalg
-from ..layout import CANONICAL, CLONE, NOMINAL
+from ..layout import CANONICAL, CLONE
 from ..mech import XBA, XBG, XP, XR, XV, attitude, exp3, mech_step, skew3
 from ..propagate import compiled_loop, new_arrays, record_cov_by_index
-from ..state import NominalState
+from ..state import NominalState, unpack
 from .base import ErrorStateBase
 from .imu_model import PRM_G, PRM_QA, PRM_QBA, PRM_QBG, PRM_QG, UF, UW
 
@@ -181,4 +181,5 @@ def dead_reckon(x0: NominalState, prm: np.ndarray, t: np.ndarray, u: np.ndarray,
 
 def positions_attitudes(rec_x: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """Positions ``(N, 3)`` and attitudes ``(N, 3, 3)`` of recorded nominal vectors."""
-    return rec_x[:, NOMINAL.sl("p")], rec_x[:, NOMINAL.sl("R")].reshape(-1, 3, 3)
+    u = unpack(rec_x)
+    return u["p"], u["R"]

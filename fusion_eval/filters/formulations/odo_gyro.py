@@ -22,7 +22,7 @@ from ..layout import Layout
 from ..linalg import symmetrize_into
 from ..mech import XBG, XK, XP, XV, attitude, exp3, skew3
 from ..propagate import LAST_U, compiled_loop, record_cov_by_index
-from ...config import S
+from ...spec import S
 from .base import ErrorStateBase, bias_walks
 
 LAYOUT = Layout("odometer + gyro", [("P", 3), ("TH", 3), ("K", 1), ("BG", 3)], clone=[("CP", 3), ("CTH", 3)],
@@ -92,11 +92,13 @@ class OdometerGyroKF(ErrorStateBase):
     label = "odometer + gyro (wheel speed and gyro drive the prediction; error state [dp, dtheta, dk, dbg])"
     layout = LAYOUT
     pairs = PAIRS
-    uses_accelerometer = False
     targets = {"P": "p", "TH": "R", "K": "k", "BG": "bg", "CP": "clone.p", "CTH": "clone.R"}
     _step = staticmethod(step)
     _predict = staticmethod(predict_to)
     _record_cov = staticmethod(record_cov_by_index)
+
+    def odometer_scale(self, rec_x: np.ndarray) -> np.ndarray:
+        return rec_x[:, XK].copy()
 
     def after_correction_state(self) -> None:
         # the velocity is derived, not a state: the odometer's speed along the corrected heading and scale

@@ -24,14 +24,6 @@ def enabled(cfg: dict) -> list[Observation]:
     return [o for o in REGISTRY if o.enabled(cfg)]
 
 
-def by_name(name: str) -> list[Observation]:
-    return [o for o in REGISTRY if o.name == name]
-
-
-def dof_of(name: str) -> int:
-    return by_name(name)[0].dof
-
-
 def extra_streams() -> tuple:
     """The streams the registered observations bring (beyond imu, groundtruth, gnss, lidar, odometer)."""
     return tuple(spec for o in REGISTRY for spec in o.extra_streams)
@@ -56,4 +48,4 @@ def keys() -> dict:
     return out
 
 
-__all__ = ["REGISTRY", "Bound", "Observation", "enabled", "by_name", "dof_of", "keys", "extra_streams", "sim_keys"]
+__all__ = ["REGISTRY", "Bound", "Observation", "enabled", "keys", "extra_streams", "sim_keys"]

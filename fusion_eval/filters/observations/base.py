@@ -21,21 +21,18 @@ gives ``r = dtheta``.
 
 from __future__ import annotations
 
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 from typing import Callable
 
 import numpy as np
 
 from ...so3 import skew
 from ..layout import CANONICAL
-from ..state import NominalState
+from ..state import NominalState, ObservationModel
 
 N_MAX = CANONICAL.n
 P, V, TH = CANONICAL.sl("P"), CANONICAL.sl("V"), CANONICAL.sl("TH")
 CP, CTH = CANONICAL.sl("CP"), CANONICAL.sl("CTH")
-
-ObservationModel = Callable[..., tuple[np.ndarray, np.ndarray, np.ndarray]]
-
 
 @dataclass
 class Bound:
@@ -52,7 +49,6 @@ class Bound:
     model: Callable[[int], ObservationModel | None]
     after: Callable | None = None
     gate: float = np.inf
-    info: dict = field(default_factory=dict)
 
     def apply(self, kf, j: int, iterations: int = 1, tol: float = 1e-8) -> tuple[float, bool] | None:
         m = self.model(j)
@@ -80,6 +76,11 @@ class Observation:
     def enable_with(self) -> dict:
         """The settings that turn it on (``--set`` keys and values)."""
         return {self.enabled_by: True}
+
+    @property
+    def disable_with(self) -> dict:
+        """The settings that turn it off (named in errors)."""
+        return {self.enabled_by: False}
 
     def enabled(self, cfg: dict) -> bool:
         return all(cfg[k.split(".")[0]][k.split(".")[1]] == v for k, v in self.enable_with.items())

@@ -10,7 +10,7 @@ from functools import partial
 
 import numpy as np
 
-from ...config import S
+from ...spec import S
 from ...so3 import skew
 from .base import N_MAX, P, TH, Bound, Observation, rows_inside
 

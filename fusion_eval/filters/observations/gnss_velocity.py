@@ -21,7 +21,7 @@ from functools import partial
 
 import numpy as np
 
-from ...config import S
+from ...spec import S
 from ...datasets import kitti_oxts
 from ...datasets.streams import StreamSpec
 from ...datasets.vectors import read_vectors

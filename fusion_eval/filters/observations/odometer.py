@@ -6,7 +6,7 @@ from functools import partial
 
 import numpy as np
 
-from ...config import S
+from ...spec import S
 from .base import Bound, Observation, body_velocity, rows_inside
 
 

@@ -11,7 +11,7 @@ from functools import partial
 
 import numpy as np
 
-from ...config import S
+from ...spec import S
 from ..layout import Layout
 from ..mech import log3
 from .base import N_MAX, P, TH, Bound, Observation, rows_inside
@@ -54,6 +54,7 @@ class AbsolutePose(Observation):
     }
 
     enable_with = {"filter.lidar_update": "absolute"}
+    disable_with = {"filter.lidar_update": "none"}
 
     def bind(self, run, s) -> Bound:
         lid = run.lidar

@@ -17,7 +17,7 @@ from functools import partial
 
 import numpy as np
 
-from ...config import S
+from ...spec import S
 from ...so3 import skew
 from ..mech import log3
 from .base import CP, CTH, N_MAX, P, TH, Bound, Observation
@@ -56,6 +56,7 @@ class RelativePose(Observation):
     }
 
     enable_with = {"filter.lidar_update": "relative"}
+    disable_with = {"filter.lidar_update": "none"}
 
     def bind(self, run, s) -> Bound:
         lid = run.lidar

@@ -1,0 +1,36 @@
+"""One configuration key's specification (:class:`Spec`): the leaf every module that declares keys imports.
+
+The configuration (:mod:`fusion_eval.config`) assembles the schema from the core keys and the keys the
+registered formulations, observations and simulated sensors declare with :func:`S` in their own modules.
+"""
+
+from __future__ import annotations
+
+from typing import Any, NamedTuple
+
+
+class Spec(NamedTuple):
+    """One configuration key: default, meaning, and what values it accepts.
+
+    ``kind``: ``choice`` (one of ``choices``), ``bool``, ``int``, ``float``, ``vec3`` (3 numbers, or one
+    number for all three), ``windows`` (list of ``[start, end]``), ``jumps``. ``auto`` admits the string
+    'auto', ``nullable`` admits null; ``positive``/``nonneg``/``below`` bound numbers (``below``: strictly less).
+    """
+
+    default: Any
+    doc: str
+    kind: str = "float"
+    choices: tuple = ()
+    positive: bool = False
+    nonneg: bool = False
+    nullable: bool = False
+    auto: bool = False
+    below: float | None = None
+
+
+def S(default, doc, kind=None, *, below_one: bool = False, **kw) -> Spec:
+    if kind is None:
+        kind = {bool: "bool", int: "int", float: "float", list: "vec3", str: "choice"}.get(type(default), "float")
+    if below_one:
+        kw["below"] = 1.0
+    return Spec(default, doc, kind, **kw)
