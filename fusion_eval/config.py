@@ -246,6 +246,9 @@ def parse_file(path: Path, schema_: dict[str, Spec] | None = None) -> Layer:
     """A configuration file as a layer. A ``config.resolved.yaml`` is accepted: its informational sections
     (dataset, applied, config_source, versions) are ignored."""
     body = read_yaml(path) or {}
+    if isinstance(body, dict) and "streams" in body:
+        raise ConfigError(f"{path}: this is a dataset manifest (it has 'streams'), not a configuration: give it as the "
+                          "DATASET argument")
     return validate(body, str(path), schema_, informational=INFORMATIONAL_SECTIONS)
 
 

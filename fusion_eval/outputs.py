@@ -23,7 +23,7 @@ class StagedDir:
         if self.final.exists() and not self.final.is_dir():
             raise OutputError(f"{self.final}: output path exists and is not a directory")
         if self.final.is_dir() and any(self.final.iterdir()) and not self.overwrite:
-            raise OutputError(f"{self.final}: output directory exists and is not empty (use --overwrite to replace it)")
+            raise OutputError(f"{self.final}: output directory exists and is not empty (use --overwrite, or overwrite=True in Python, to replace it)")
 
     def __enter__(self) -> "StagedDir":
         self.check()

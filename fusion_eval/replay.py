@@ -62,6 +62,9 @@ def replay(prep: Prepared, s: Settings, progress: Callable[[float], None] | None
     t_end = float(t_imu[-1])
     kf = make_filter(prep, s)
     bound = [o.bind(prep, s) for o in observations.enabled(s.cfg)]
+    if not bound:
+        log.warning("no observation is enabled: the fused estimate is the %s prediction alone (dead reckoning)",
+                    s.filter.process_model)
     # events as (time, registry position, event index), sorted: at equal stamps the registry order decides
     times = np.concatenate([b.t_s for b in bound]) if bound else np.zeros(0)
     which = np.concatenate([np.full(b.t_s.size, i) for i, b in enumerate(bound)]) if bound else np.zeros(0, int)

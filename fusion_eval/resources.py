@@ -73,7 +73,13 @@ def variant_dir() -> Path:
 
 def sweep_file(name: str) -> Path:
     """A sweep file: a path, else a shipped sweep by name (``noise5`` -> ``configs/sweeps/noise5.yaml``)."""
+    from .errors import ConfigError
+
     p = find(name)
     if p.exists():
         return p
-    return find(Path(SWEEPS) / (name if name.endswith((".yaml", ".yml")) else f"{name}.yaml"))
+    q = find(Path(SWEEPS) / (name if name.endswith((".yaml", ".yml")) else f"{name}.yaml"))
+    if not q.exists():
+        shipped = sorted(f.stem for f in find(SWEEPS).glob("*.yaml")) if find(SWEEPS).is_dir() else []
+        raise ConfigError(f"{name}: sweep file not found (neither a file nor a shipped sweep: {', '.join(shipped) or 'none'})")
+    return q

@@ -36,6 +36,24 @@ def test_layers_merge_in_order(kitti_slice, tmp_path):
         session.request(overrides={"imuu.x": 1})
 
 
+def test_manifest_suggestions_sit_between_the_defaults_and_the_user(tmp_path):
+    from conftest import make_slice
+
+    d = make_slice(tmp_path / "ds", 120)
+    m = d / "dataset.yaml"
+    m.write_text(m.read_text() + "config:\n  imu:\n    gyro_noise_dps_sqrthz: 0.2\n    accel_noise_mps2_sqrthz: 0.6\n")
+    ds = session.dataset(d)
+    cfg = session.resolve(session.request(sets=("imu.accel_noise_mps2_sqrthz=0.7",)), ds)
+    assert cfg["imu"]["gyro_noise_dps_sqrthz"] == 0.2 and cfg["imu"]["accel_noise_mps2_sqrthz"] == 0.7
+    # Python overrides come after --set items
+    cfg = session.resolve(session.request(sets=("imu.accel_noise_mps2_sqrthz=0.7",),
+                                          overrides={"imu.accel_noise_mps2_sqrthz": 0.8}), ds)
+    assert cfg["imu"]["accel_noise_mps2_sqrthz"] == 0.8
+    m.write_text(m.read_text() + "    nope: 1\n")
+    with pytest.raises(ConfigError, match=r"dataset.yaml \(config\): unknown key 'imu.nope'"):
+        session.resolve(session.request(), session.dataset(d))
+
+
 def test_settings_are_built_from_the_schema_alone():
     cfg = merge_layers([parse_overrides({"init.yaw_std_deg": 2.0})])
     s = Settings(cfg)

@@ -8,6 +8,7 @@ from __future__ import annotations
 
 import numpy as np
 
+from ..filters.layout import POSE
 from ..so3 import log_so3
 
 
@@ -21,7 +22,8 @@ def pose_nees(p_est: np.ndarray, R_est: np.ndarray, p_true: np.ndarray, R_true: 
     """Position and attitude NEES per epoch (each 3 dof)."""
     e_p = p_true - p_est
     e_th = log_so3(np.einsum("nji,njk->nik", R_est, R_true))
-    return nees(e_p, P_pos_att[:, :3, :3]), nees(e_th, P_pos_att[:, 3:, 3:])
+    p, th = POSE.sl("P"), POSE.sl("TH")
+    return nees(e_p, P_pos_att[:, p, p]), nees(e_th, P_pos_att[:, th, th])
 
 
 def fraction_inside(values: np.ndarray, dof: int, prob: float = 0.95) -> tuple[float, float, float]:

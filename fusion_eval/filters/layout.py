@@ -112,8 +112,9 @@ CANONICAL = Layout("canonical error state", [("P", 3), ("V", 3), ("TH", 3), ("BA
 NOMINAL = Layout("nominal state", [("p", 3), ("v", 3), ("R", 9), ("ba", 3), ("bg", 3), ("k", 1)])
 CLONE = Layout("cloned pose", [("p", 3), ("R", 9)])
 
-# The position and attitude blocks, whose joint covariance the filters record for NEES.
+# The position and attitude blocks, whose joint covariance the filters record for NEES (in this layout).
 POSE_BLOCKS = ("P", "TH")
+POSE = Layout("recorded pose covariance", [(b, CANONICAL[b].size) for b in POSE_BLOCKS])
 
 
 def _xi(q: np.ndarray) -> np.ndarray:

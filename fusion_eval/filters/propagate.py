@@ -76,7 +76,7 @@ def {name}(a, n, k, t_target, cov):
     a.last[{u}:] = u0
     return k
 '''
-_DIGEST = hashlib.sha1((_LOOP + repr((LAST_T, LAST_U))).encode()).hexdigest()[:10]
+_DIGEST = hashlib.sha1((_LOOP + repr((LAST_T, LAST_U))).encode()).hexdigest()[:10]  # not a state index
 
 
 def compiled_loop(module_name: str, step, record_cov):

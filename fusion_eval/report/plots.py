@@ -53,7 +53,7 @@ def plot_trajectories(path: Path, series: dict) -> None:
             ax.plot(s.p_w_m[:, 0], s.p_w_m[:, 1], "-", lw=1.6 if name == "groundtruth" else 1.1,
                     color=COLORS[name], label=LABELS[name], alpha=0.9)
     ax.plot(gt[0, 0], gt[0, 1], "k^", ms=8, label="start")
-    lo, hi = gt[:, :2].min(axis=0), gt[:, :2].max(axis=0)
+    lo, hi = gt[:, :2].min(axis=0), gt[:, :2].max(axis=0)  # not a state index: East, North
     pad = 0.08 * (hi - lo).max() + 5.0
     ax.set_xlim(lo[0] - pad, hi[0] + pad)
     ax.set_ylim(lo[1] - pad, hi[1] + pad)
@@ -342,7 +342,7 @@ def plot_segment_map(path: Path, evals: dict, seg: dict) -> None:
         fig.colorbar(sc, ax=axes[0, 1], label=f"{a} APE - {b} APE [m] (blue: {a} better)")
         axes[0, 1].set_title(f"Where {a} is better (blue) or worse (red) than {b}")
     d = np.concatenate([[0.0], np.cumsum(np.linalg.norm(np.diff(p, axis=0), axis=1))])
-    for i in seg.get("worst", [])[:5]:
+    for i in seg.get("worst", [])[:5]:  # not a state index
         s = next(x for x in seg["segments"] if x["index"] == i)
         if seg["by"] == "distance":
             k = int(np.searchsorted(d, 0.5 * (s["start_m"] + s["end_m"])))

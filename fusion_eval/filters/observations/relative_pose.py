@@ -64,8 +64,9 @@ class RelativePose(Observation):
         R, p = lid.R_wb()[rows], lid.p_w_m[rows]
         c = s.lidar
         # every increment at once: from frame j-1 to frame j, in frame j-1's body frame
-        dp_c = np.einsum("nji,nj->ni", R[:-1], p[1:] - p[:-1])
-        dR = np.einsum("nji,njk->nik", R[:-1], R[1:])
+        prev, cur = slice(None, -1), slice(1, None)          # consecutive frames (rows, not state indices)
+        dp_c = np.einsum("nji,nj->ni", R[prev], p[cur] - p[prev])
+        dR = np.einsum("nji,njk->nik", R[prev], R[cur])
         pos_std = np.hypot(c.relative_pos_std_m, c.relative_pos_std_frac * np.linalg.norm(dp_c, axis=1))
         std_a = c.relative_att_std_rad
 
