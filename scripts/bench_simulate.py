@@ -26,7 +26,8 @@ import numpy as np
 ROOT = Path(__file__).resolve().parent.parent
 sys.path.insert(0, str(ROOT))
 
-from fusion_eval.config import Settings, load_config  # noqa: E402
+from fusion_eval import session  # noqa: E402
+from fusion_eval.config import Settings  # noqa: E402
 from fusion_eval.evaluation.consistency import fraction_inside, pose_nees  # noqa: E402
 from fusion_eval.datasets.manifest import load_dataset  # noqa: E402
 from fusion_eval.prepare import prepare  # noqa: E402
@@ -51,7 +52,7 @@ def consistency(tmp: str, mode: str, extra: tuple[str, ...]) -> None:
         subprocess.run(cli() + ["-q", "simulate", str(d), "--profile", "urban", "--duration", "300", "--seed", "1",
                                 "--set", f"lidar.mode={mode}", "--set", "output.layout=csv"], check=True)
     ds = load_dataset(d)
-    cfg = load_config(None, extra, layers=((ds.description["config"], "manifest"),))
+    cfg = session.resolve(session.request(sets=extra), ds)
     prep = prepare(ds, cfg)
     out = replay(prep, Settings(cfg))
     gt = prep.groundtruth

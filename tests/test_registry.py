@@ -21,6 +21,7 @@ from fusion_eval.filters.layout import CANONICAL, canonical_blocks
 from fusion_eval.filters.state import ClonePose, NominalState
 from fusion_eval.interp import interpolate_pose_at
 from fusion_eval.prepare import prepare
+from fusion_eval import session
 from fusion_eval.session import dataset
 from fusion_eval.so3 import exp_so3, log_so3
 
@@ -66,7 +67,7 @@ def test_observation_jacobian_matches_finite_differences(sim, obs):
     # a lever arm makes the attitude and gyro-bias columns of the GNSS models non-trivial
     sets += ("gnss.lever_arm_b_m=[0.5, -0.3, 1.2]",)
     ds = dataset(sim)
-    cfg = load_config(None, sets, layers=((ds.description["config"], "manifest"),))
+    cfg = session.resolve(session.request(sets=sets), ds)
     prep = prepare(ds, cfg)
     b = obs.bind(prep, Settings(cfg))
     assert b.t_s.size > 5, "the observation never fires on the simulated drive"

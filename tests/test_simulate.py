@@ -13,7 +13,8 @@ from click.testing import CliRunner
 
 from conftest import ROOT
 from fusion_eval.cli import main
-from fusion_eval.config import Settings, load_config
+from fusion_eval import session
+from fusion_eval.config import Settings
 from fusion_eval.evaluation.consistency import fraction_inside, pose_nees
 from fusion_eval.datasets.manifest import load_dataset
 from fusion_eval.filters.formulations.eskf import dead_reckon, positions_attitudes
@@ -33,7 +34,7 @@ def _sim(out: Path, *args: str) -> Path:
 
 def _filter(ds_path: Path, *sets: str):
     ds = load_dataset(ds_path)
-    cfg = load_config(None, sets, layers=((ds.description["config"], "manifest"),))
+    cfg = session.resolve(session.request(sets=sets), ds)
     prep = prepare(ds, cfg)
     return ds, prep, replay(prep, Settings(cfg))
 

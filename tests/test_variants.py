@@ -9,6 +9,7 @@ import pytest
 from click.testing import CliRunner
 
 from fusion_eval.cli import main
+from fusion_eval import session
 from fusion_eval.config import Settings, load_config
 from fusion_eval.datasets.manifest import load_dataset
 from fusion_eval.errors import ConfigError
@@ -51,7 +52,7 @@ def _run(ds_path: Path, sets: dict | tuple = ()):
     ds = load_dataset(ds_path)
     items = tuple(f"{k}={str(v).lower() if isinstance(v, bool) else v}" for k, v in dict(sets).items()) \
         if isinstance(sets, dict) else tuple(sets)
-    cfg = load_config(None, items, layers=((ds.description["config"], "manifest"),) if ds.description.get("config") else ())
+    cfg = session.resolve(session.request(sets=items), ds)
     prep = prepare(ds, cfg)
     return prep, replay(prep, Settings(cfg))
 
