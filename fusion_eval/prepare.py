@@ -129,6 +129,8 @@ def prepare(ds: Dataset, cfg: dict) -> Prepared:
         if ds.description.get("lidar_anchor", "groundtruth") == "groundtruth":
             lid, t_anchor = anchor_lidar(lid, gt)
             applied["lidar_anchor_t_s"] = t_anchor
+        if ds.description.get("lidar_clock"):
+            applied["lidar_clock"] = ds.description["lidar_clock"]
         if cfg["lidar"]["interpolate_to_imu"]:
             lid = snap_to_stamps(lid, imu.t_s)
         lidar = lid

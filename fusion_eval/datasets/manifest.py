@@ -15,7 +15,7 @@ import yaml
 from ..errors import ConfigError, DataFormatError, DataRangeError
 from ..so3 import make_T, matrix_to_quat_xyzw
 from ..types import Dataset, GnssSeries, PoseSeries
-from . import gnss_csv, kitti_oxts, kitti_poses, speed, tum
+from . import clock, gnss_csv, kitti_oxts, kitti_poses, speed, tum
 from .streams import ReadContext, StreamSpec
 
 STREAMS = ("imu", "gnss", "lidar", "groundtruth", "odometer")
@@ -138,8 +138,9 @@ def _from_manifest_dict(body: dict, root: Path, manifest: Path, extra: dict | No
         gnss = _gnss(streams["gnss"], root, oxts, origin_t, manifest)
     if "groundtruth" in streams:
         gt = _poses(streams["groundtruth"], root, oxts, origin_t, manifest, imu_pk)
+    lidar_notes: dict = {}
     if "lidar" in streams:
-        lidar = _poses(streams["lidar"], root, oxts, origin_t, manifest, imu_pk)
+        lidar = _poses(streams["lidar"], root, oxts, origin_t, manifest, imu_pk, lidar_notes)
     ctx = ReadContext(root=root, manifest=manifest, origin=origin_t, oxts=oxts)
     extra_series = {name: extra[name].readers[streams[name]["format"]](streams[name], ctx)
                     for name in streams if name in extra}
@@ -151,6 +152,8 @@ def _from_manifest_dict(body: dict, root: Path, manifest: Path, extra: dict | No
         "time_offset_s": {s: float(streams[s].get("time_offset_s", 0.0)) for s in streams},
         "gyro_lag_s": imu_spec.get("gyro_lag_s", 0.0),
         "lidar_anchor": streams.get("lidar", {}).get("anchor", "groundtruth"),
+        # the lidar frame clock recovered from the stamps of the IMU packets (times.smooth_s), if asked for
+        "lidar_clock": lidar_notes.get("clock"),
         # KITTI's OXTS position is the GPS/INS solution (= the ground truth): degrade it by default;
         # a receiver's (or a simulator's) fixes are used as they are.
         "gnss_degrade": bool(streams.get("gnss", {}).get("degrade", streams.get("gnss", {}).get("format") == "kitti_oxts")),
@@ -222,7 +225,8 @@ def _extrinsic(spec, root, manifest) -> np.ndarray:
     raise ConfigError(f"{manifest}: frame 'cam0' needs T_cam0_imu, or T_cam0_velo and T_velo_imu")
 
 
-def _pose_times(spec, root, manifest, n_poses: int, pose_path: Path, raw: kitti_oxts.OxtsPackets) -> np.ndarray:
+def _pose_times(spec, root, manifest, n_poses: int, pose_path: Path, raw: kitti_oxts.OxtsPackets,
+                notes: dict) -> np.ndarray:
     times = spec.get("times")
     if not isinstance(times, dict):
         raise ConfigError(f"{manifest}: KITTI poses need 'times': {{file: times.txt}} and/or {{align_to: imu, index_offset: 0}}")
@@ -255,11 +259,17 @@ def _pose_times(spec, root, manifest, n_poses: int, pose_path: Path, raw: kitti_
         if j[0] < 0 or j[-1] >= raw.t_s.size:
             raise DataRangeError(f"{manifest}: lidar frames 0..{n_poses - 1} with index_offset {offset} map outside the "
                                  f"{raw.t_s.size} IMU packets; give a times file or another index_offset")
-        return raw.t_s[j].copy()
+        smooth = times.get("smooth_s")
+        if smooth is None:
+            return raw.t_s[j].copy()
+        if not _is_num(smooth) or smooth <= 0:
+            raise ConfigError(f"{manifest}: times.smooth_s must be a positive number of seconds, got {smooth!r}")
+        t, notes["clock"] = clock.smooth_frame_times(raw.t_s[j], ~raw.filled[j], float(smooth))
+        return t
     raise ConfigError(f"{manifest}: 'times' needs 'file' or 'align_to: imu'")
 
 
-def _poses(spec, root, oxts, origin, manifest, imu_pk) -> PoseSeries:
+def _poses(spec, root, oxts, origin, manifest, imu_pk, notes: dict | None = None) -> PoseSeries:
     fmt = spec["format"]
     if fmt == "kitti_oxts":
         return kitti_oxts.poses_from_oxts(oxts(spec), origin)
@@ -269,7 +279,7 @@ def _poses(spec, root, oxts, origin, manifest, imu_pk) -> PoseSeries:
     else:
         ppath = root / spec["path"]
         T_c0_ci, lines = kitti_poses.read_kitti_poses(ppath)
-        t = _pose_times(spec, root, manifest, T_c0_ci.shape[0], ppath, imu_pk)
+        t = _pose_times(spec, root, manifest, T_c0_ci.shape[0], ppath, imu_pk, {} if notes is None else notes)
         T = T_c0_ci
         poses = None
     T_c_b = _extrinsic(spec, root, manifest)

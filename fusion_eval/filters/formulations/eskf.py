@@ -13,11 +13,13 @@ Continuous error dynamics (the classic IMU + lidar ESKF derivation)::
     dth' = -[w - bg]x dtheta   - dbg  + n_g
     dba' = n_ba,   dbg' = n_bg          (random walk; zero for the constant-bias model)
 
-discretised as ``F = I + F_t T`` and ``Q_d = B Q B^T`` with B as in that derivation: ``R T`` and ``I T``
-on the white noises, ``I sqrt(T)`` on the bias random walks, Q the discrete variances. With noise
-densities ``sigma`` (per sqrt(Hz)) both give ``sigma^2 T`` per axis, and since ``R R^T = I`` the
-discrete process noise is diagonal; :func:`propagate_cov` uses that and the sparsity of F to do
-``F P F^T + Q`` in O(n) 3x3 products instead of a dense O(n^3) product.
+discretised by ``filter.discretization`` (:mod:`fusion_eval.filters.discretize`). The first-order form is
+``F = I + F_t T`` and ``Q_d = B Q B^T`` with B as in that derivation: ``R T`` and ``I T`` on the white
+noises, ``I sqrt(T)`` on the bias random walks, Q the discrete variances. With noise densities ``sigma``
+(per sqrt(Hz)) both give ``sigma^2 T`` per axis, and since ``R R^T = I`` the discrete process noise is
+diagonal; :func:`propagate_cov` uses that and the sparsity of F to do ``F P F^T + Q`` in O(n) 3x3 products
+instead of a dense O(n^3) product. The second-order and Van Loan forms take ``F_t`` and ``Q_c`` from
+:func:`continuous_model`.
 """
 
 from __future__ import annotations
@@ -26,13 +28,13 @@ import numpy as np
 from numba import njit
 
 from ...errors import FilterDivergedError
-from .. import linalg
+from .. import discretize, linalg
 from ..layout import CANONICAL, CLONE
 from ..mech import XBA, XBG, XP, XR, XV, attitude, exp3, mech_step, skew3
 from ..propagate import compiled_loop, new_arrays, record_cov_by_index
 from ..state import NominalState, unpack
-from .base import ErrorStateBase
-from .imu_model import PRM_G, PRM_QA, PRM_QBA, PRM_QBG, PRM_QG, UF, UW
+from .base import ErrorStateBase, bias_walks
+from .imu_model import PRM_G, PRM_DISC, PRM_QA, PRM_QBA, PRM_QBG, PRM_QG, UF, UW, imu_params
 
 LAYOUT = CANONICAL
 P_ID, V_ID, TH_ID, BA_ID, BG_ID = (LAYOUT.start(b) for b in ("P", "V", "TH", "BA", "BG"))
@@ -90,13 +92,41 @@ def propagate_cov(P, n, R, f_b, w_b, dt, prm, qscale):
 
 
 @njit(cache=True)
+def continuous_model(R, f_b, w_b, prm, qscale):
+    """The continuous error dynamics ``F_t`` (15x15) and white-noise spectral density ``Q_c`` (diagonal, 15)."""
+    Ft = np.zeros((N_CORE, N_CORE))
+    A = -(R @ skew3(f_b))
+    C = -skew3(w_b)
+    for i in range(3):
+        Ft[P_ID + i, V_ID + i] = 1.0
+        Ft[TH_ID + i, BG_ID + i] = -1.0
+        for k in range(3):
+            Ft[V_ID + i, TH_ID + k] = A[i, k]
+            Ft[V_ID + i, BA_ID + k] = -R[i, k]
+            Ft[TH_ID + i, TH_ID + k] = C[i, k]
+    Qc = np.zeros(N_CORE)
+    for i in range(3):
+        Qc[V_ID + i] = prm[PRM_QA] * prm[PRM_QA] * qscale
+        Qc[TH_ID + i] = prm[PRM_QG] * prm[PRM_QG] * qscale
+        Qc[BA_ID + i] = prm[PRM_QBA] * prm[PRM_QBA]
+        Qc[BG_ID + i] = prm[PRM_QBG] * prm[PRM_QBG]
+    return Ft, Qc
+
+
+@njit(cache=True)
 def step(x, P, n, u0, u1, dt, qscale, prm, aux, cov):
     """One IMU interval: covariance linearised at the start-of-interval attitude and the midpoint,
     bias-corrected IMU values, then the midpoint mechanization."""
     if cov:
         fm = 0.5 * (u0[UF:UF + 3] + u1[UF:UF + 3]) - x[XBA:XBA + 3]
         wm = 0.5 * (u0[UW:UW + 3] + u1[UW:UW + 3]) - x[XBG:XBG + 3]
-        propagate_cov(P, n, attitude(x), fm, wm, dt, prm, qscale)
+        method = int(prm[PRM_DISC])
+        if method == discretize.FIRST_ORDER:
+            propagate_cov(P, n, attitude(x), fm, wm, dt, prm, qscale)     # sparse, same result
+        else:
+            Ft, Qc = continuous_model(attitude(x), fm, wm, prm, qscale)
+            Phi, Qd = discretize.transition(Ft, Qc, dt, method)
+            discretize.propagate_dense(P, n, Phi, Qd)
     mech_step(x, u0[UF:UF + 3], u0[UW:UW + 3], u1[UF:UF + 3], u1[UW:UW + 3], dt, prm[PRM_G])
 
 
@@ -144,6 +174,13 @@ class ErrorStateKF(ErrorStateBase):
     _step = staticmethod(step)
     _predict = staticmethod(predict_to)
     _record_cov = staticmethod(record_cov_by_index)
+    keys = discretize.KEYS
+
+    @classmethod
+    def run_params(cls, s, gravity_mps2: float) -> np.ndarray:
+        qba, qbg = bias_walks(s)
+        return imu_params(gravity_mps2, s.imu.accel_noise_mps2_sqrthz, s.imu.gyro_noise_rps_sqrthz, qba, qbg,
+                          s.filter.discretization)
 
     def update(self, model, iterations: int = 1, tol: float = 1e-8, gate: float = np.inf) -> tuple[float, bool]:
         """Joseph-form update, injection and reset; the plain EKF update runs in compiled kernels."""

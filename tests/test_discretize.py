@@ -1,0 +1,128 @@
+"""Discretisation of the error-state propagation: Van Loan against scipy's expm and against a finely sub-stepped
+integration of the same linear system, the second-order form's local error, and the ESKF's sparse first-order kernel
+against the dense form; the discretisations side by side with the nominal-state filter on a simulated drive."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+from scipy.linalg import expm
+from scipy.spatial.transform import Rotation
+
+from fusion_eval.filters import discretize
+from fusion_eval.filters.formulations import eskf
+from fusion_eval.filters.formulations.imu_model import imu_params
+
+N = eskf.N_CORE
+
+
+def _model(seed=0, qscale=1.0, turn_rps=0.3):
+    rng = np.random.default_rng(seed)
+    R = Rotation.random(random_state=seed).as_matrix()
+    f = np.array([0.8, -0.4, 9.81]) + 0.3 * rng.standard_normal(3)
+    w = np.array([0.02, -0.01, turn_rps]) + 0.01 * rng.standard_normal(3)
+    prm = imu_params(9.81, 0.05, np.radians(0.1), 1e-3, 1e-5, "van_loan")
+    return eskf.continuous_model(R, f, w, prm, qscale)
+
+
+def _lyapunov_rk4(Ft, Qc, P0, T, steps):
+    """``P' = F P + P F^T + Q_c`` by classical RK4 from ``P0`` over ``T`` (the reference)."""
+    Q = np.diag(Qc)
+    f = lambda P: Ft @ P + P @ Ft.T + Q      # noqa: E731
+    h = T / steps
+    P = P0.copy()
+    for _ in range(steps):
+        k1 = f(P)
+        k2 = f(P + 0.5 * h * k1)
+        k3 = f(P + 0.5 * h * k2)
+        k4 = f(P + h * k3)
+        P = P + h / 6 * (k1 + 2 * k2 + 2 * k3 + k4)
+    return P
+
+
+@pytest.mark.parametrize("dt", [0.005, 0.1, 1.7])
+def test_van_loan_equals_scipy_expm_of_the_block_matrix(dt):
+    Ft, Qc = _model()
+    Phi, Qd = discretize.van_loan(Ft, Qc, dt)
+    M = np.block([[-Ft, np.diag(Qc)], [np.zeros((N, N)), Ft.T]]) * dt
+    E = expm(M)
+    Phi_ref = E[N:, N:].T
+    assert np.abs(Phi - Phi_ref).max() < 1e-12 * max(1.0, np.abs(Phi_ref).max())
+    Qd_ref = Phi_ref @ E[:N, N:]
+    assert np.abs(Qd - Qd_ref).max() <= 1e-12 * np.abs(Qd_ref).max()
+    assert np.abs(Phi - expm(Ft * dt)).max() < 1e-12 * max(1.0, np.abs(Phi).max())
+
+
+@pytest.mark.parametrize("dt", [0.01, 0.1, 1.0])
+def test_van_loan_equals_a_finely_substepped_propagation(dt):
+    Ft, Qc = _model(seed=3)
+    rng = np.random.default_rng(1)
+    A = rng.standard_normal((N, N)) * 0.1
+    P0 = A @ A.T + np.diag(np.full(N, 1e-4))
+    Phi, Qd = discretize.van_loan(Ft, Qc, dt)
+    P = Phi @ P0 @ Phi.T + Qd
+    ref = _lyapunov_rk4(Ft, Qc, P0, dt, 4000)
+    assert np.abs(P - ref).max() < 1e-9 * max(1.0, np.abs(ref).max())
+
+
+def test_second_order_local_error_is_third_order_and_its_noise_positive():
+    Ft, Qc = _model(seed=5)
+    errs = []
+    for dt in (0.1, 0.05, 0.025):
+        Phi2, Qd2 = discretize.second_order(Ft, Qc, dt)
+        Phi, Qd = discretize.van_loan(Ft, Qc, dt)
+        errs.append(np.abs(Phi2 - Phi).max())
+        assert np.linalg.eigvalsh(Qd2).min() >= -1e-18
+        # the trapezoid integrates Phi(s) Q_c Phi(s)^T to O(T^3) as well
+        assert np.abs(Qd2 - Qd).max() < 0.05 * np.abs(Qd).max()
+    ratio = np.array(errs[:-1]) / np.array(errs[1:])
+    assert np.all((ratio > 7.0) & (ratio < 9.0)), ratio
+    # and the first-order form is only second-order accurate
+    Phi1, _ = discretize.transition(Ft, Qc, 0.1, discretize.FIRST_ORDER)
+    assert np.abs(Phi1 - discretize.van_loan(Ft, Qc, 0.1)[0]).max() > 10 * errs[0]
+
+
+def test_sparse_first_order_kernel_equals_the_dense_form_with_a_clone():
+    rng = np.random.default_rng(2)
+    R = Rotation.random(random_state=4).as_matrix()
+    f, w = np.array([0.3, 0.1, 9.8]), np.array([0.01, 0.02, 0.2])
+    prm = imu_params(9.81, 0.05, 0.002, 1e-3, 1e-5, "first_order")
+    n = eskf.LAYOUT.n
+    A = rng.standard_normal((n, n)) * 0.1
+    P = A @ A.T
+    sparse = P.copy()
+    eskf.propagate_cov(sparse, n, R, f, w, 0.1, prm, 1.0)
+    Ft, Qc = eskf.continuous_model(R, f, w, prm, 1.0)
+    Phi, Qd = discretize.transition(Ft, Qc, 0.1, discretize.FIRST_ORDER)
+    dense = P.copy()
+    discretize.propagate_dense(dense, n, Phi, Qd)
+    assert np.abs(sparse - dense).max() < 1e-14
+    # the clone (the states after the core) keeps its own block
+    assert np.array_equal(dense[N:, N:], P[N:, N:])
+
+
+def test_every_discretisation_is_a_configuration_choice():
+    from fusion_eval.config import schema
+
+    spec = schema()["filter.discretization"]
+    assert set(spec.choices) == {"first_order", "second_order", "van_loan"}
+    assert spec.default == "van_loan"
+
+
+@pytest.mark.slow
+def test_van_loan_eskf_agrees_with_the_nominal_state_filter_on_a_10_hz_simulation(tmp_path):
+    # the nominal-state EKF linearises its own exact discrete step; at 10 Hz the exact discretisation of the
+    # error dynamics should give the same answer to within a few per cent (both with and without GNSS)
+    import fusion_eval as fe
+    from fusion_eval.commands.simulate import simulate
+
+    simulate(tmp_path / "sim", "urban", 300.0, 1, "automotive", ("imu.rate_hz=10", "output.layout=csv"))
+    ds = fe.load_dataset(tmp_path / "sim")
+    for gnss in (False, True):
+        base = {"filter.use_gnss": gnss}
+        vl = fe.run(ds, overrides={**base, "filter.discretization": "van_loan"}).metrics
+        ns = fe.run(ds, overrides={**base, "filter.formulation": "nominal_state"}).metrics
+        a, b = (m["estimates"]["fused"]["ape"]["translation_m"]["rmse"] for m in (vl, ns))
+        assert abs(a - b) <= 0.05 * b, (gnss, a, b)
+        for k in ("position", "attitude"):
+            assert abs(vl["nees"][k]["fraction_in_95"] - ns["nees"][k]["fraction_in_95"]) <= 0.05
