@@ -80,6 +80,8 @@ CORE: dict[str, Spec] = {
     "evaluation.alignment": S("none", "alignment before APE: 'none' (all estimates share the ground truth's frame), "
                                       "'origin', 'se3', 'sim3' (evo's) or '4dof' (yaw + translation)",
                               choices=("none", "origin", "se3", "sim3", "4dof")),
+    "evaluation.span": S("common", "score every estimate over the same span, the intersection of their coverage with the "
+                         "ground truth ('common'), or each over its own poses ('own')", choices=("common", "own")),
     "evaluation.segment_m": S(100.0, "per-segment breakdown: window length along the route, m", positive=True),
     "evaluation.segment_s": S(None, "per-segment breakdown by time instead: window length, s (null = by distance)",
                               "float", positive=True, nullable=True),

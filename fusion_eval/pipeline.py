@@ -17,6 +17,7 @@ import numpy as np
 
 from . import report, session
 from .config import Settings
+from .evaluation import span
 from .evaluation.run_metrics import consistency, fused_error, ratio_metrics, run_metrics, segments
 from .evaluation.trajectory import EstimateEvaluation, evaluate
 from .outputs import StagedDir
@@ -81,9 +82,15 @@ def execute(ds: Dataset, cfg: dict, *, dataset_path: str | Path | None = None, c
         series["gnss"] = prep.gnss.as_poses()
     ev_cfg = cfg["evaluation"]
     gt = prep.groundtruth
+    # the fused estimate and dead reckoning cover the IMU samples from the start on
+    spans = {n: span.coverage(series[n]) for n in ("lidar", "gnss") if n in series}
+    spans["fused"] = (float(prep.imu.t_s[prep.k_start]), float(prep.imu.t_s[-1]))
+    sp = span.span_for(ev_cfg["span"], gt, spans)
+    ref = span.crop(gt, sp)              # as evo's --t_start/--t_end: the reference reduced to the span
     with executor(jobs) as pool:
         series["imu_only"] = dead_reckoning(prep, s)
-        futures = {n: pool.submit(evaluate_estimate, gt, series[n], n, ev_cfg) for n in ("lidar", "gnss") if n in series}
+        futures = {n: pool.submit(evaluate_estimate, ref, series[n], n, ev_cfg)
+                   for n in ("lidar", "gnss") if n in series}
         t = time.perf_counter()
         # overflow in absurd settings is reported as divergence (exit 3), not as numpy warnings
         with np.errstate(over="ignore", invalid="ignore"):
@@ -91,7 +98,8 @@ def execute(ds: Dataset, cfg: dict, *, dataset_path: str | Path | None = None, c
         timings["filter"] = time.perf_counter() - t
         t = time.perf_counter()
         series["fused"] = filt.fused
-        futures.update({n: pool.submit(evaluate_estimate, gt, series[n], n, ev_cfg) for n in ("fused", "imu_only")})
+        futures.update({n: pool.submit(evaluate_estimate, ref, series[n], n, ev_cfg)
+                        for n in ("fused", "imu_only")})
         err = fused_error(gt, filt)
         first = pool.submit(report.write_filter_outputs, out, series, filt, err, cfg["output"]["plots"]) \
             if out is not None else None
@@ -100,7 +108,7 @@ def execute(ds: Dataset, cfg: dict, *, dataset_path: str | Path | None = None, c
         ratios = ratio_metrics(evals)
         cons = consistency(gt, filt)
         seg = segments(gt, evals, ev_cfg)
-        metrics = run_metrics(ds.name, evals, ratios, ev_cfg, prep.applied, prep.gnss_info, cons, seg)
+        metrics = run_metrics(ds.name, evals, ratios, ev_cfg, prep.applied, prep.gnss_info, cons, seg, sp)
         dataset_path = ds.description.get("path") if dataset_path is None else dataset_path
         resolved_extra = {"dataset": {"path": None if dataset_path is None else str(dataset_path), "name": ds.name,
                                       "manifest": ds.description.get("manifest"),

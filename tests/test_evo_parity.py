@@ -22,6 +22,14 @@ def _evo_cli(name: str) -> str:
     return found
 
 
+def _span_args(run_dir) -> list[str]:
+    """evo's --t_start/--t_end of the run's common span (metrics.json), as the report prints them."""
+    from fusion_eval.evaluation.span import evo_options
+
+    sp = json.loads((run_dir / "metrics.json").read_text())["evaluation"]["span"]
+    return evo_options(sp if sp["mode"] == "common" else None).split()
+
+
 def _run(tmp_path, tool, args, tag):
     z = tmp_path / f"{tag}.zip"
     subprocess.run([_evo_cli(tool), "tum", *args, "--save_results", str(z), "--no_warnings"], check=True,
@@ -43,13 +51,14 @@ CASES = [
 @pytest.mark.parametrize("key,tool,extra", CASES, ids=["-".join(c[0]) for c in CASES])
 def test_metrics_equal_evo_command_line(slice_run, tmp_path, estimate, key, tool, extra):
     ours = json.loads((slice_run / "metrics.json").read_text())["estimates"][estimate][key[0]][key[1]]
-    stats = _run(tmp_path, tool, [str(slice_run / "groundtruth.tum"), str(slice_run / f"{estimate}.tum"), *extra],
-                 f"{estimate}-{'-'.join(key)}")
+    stats = _run(tmp_path, tool, [str(slice_run / "groundtruth.tum"), str(slice_run / f"{estimate}.tum"), *extra,
+                                  *_span_args(slice_run)], f"{estimate}-{'-'.join(key)}")
     for s in ("rmse", "mean", "median", "std", "min", "max"):
         assert abs(ours[s] - stats[s]) <= 1e-6, (s, ours[s], stats[s])
 
 
 def test_gnss_ape_equals_evo_command_line(slice_run, tmp_path):
     ours = json.loads((slice_run / "metrics.json").read_text())["estimates"]["gnss"]["ape"]["translation_m"]
-    stats = _run(tmp_path, "evo_ape", [str(slice_run / "groundtruth.tum"), str(slice_run / "gnss.tum")], "gnss")
+    stats = _run(tmp_path, "evo_ape", [str(slice_run / "groundtruth.tum"), str(slice_run / "gnss.tum"),
+                                       *_span_args(slice_run)], "gnss")
     assert abs(ours["rmse"] - stats["rmse"]) <= 1e-6

@@ -22,7 +22,7 @@ from .. import session
 from ..config import Settings
 from ..datasets.tum import format_tum
 from ..errors import ConfigError
-from ..evaluation import keys
+from ..evaluation import keys, span
 from ..evaluation.run_metrics import consistency, segments
 from ..evaluation.trajectory import evaluate, ratio
 from ..filters import observations
@@ -91,10 +91,15 @@ def compare(dataset_path: Path | None, variants: list[str], variant_dir: Path | 
         unfiltered["lidar"] = base_prep.lidar
     if base_prep.gnss is not None:
         unfiltered["gnss"] = base_prep.gnss.as_poses()
+    # every variant and every unfiltered estimate over one span (evaluation.span, the first variant's setting)
+    spans = {r.name: span.coverage(r.filt.fused) for r in runs}
+    spans.update({k: span.coverage(s) for k, s in unfiltered.items()})
+    sp = span.span_for(ev_cfg["span"], gt, spans)
+    ref = span.crop(gt, sp)              # as evo's --t_start/--t_end: the reference reduced to the span
     with executor(None) as pool:
         args = (ev_cfg["t_max_diff_s"], ev_cfg["rpe_delta_m"], ev_cfg["association"], ev_cfg["alignment"])
-        fut_v = [pool.submit(evaluate, gt, r.filt.fused, r.name, *args) for r in runs]
-        fut_u = {k: pool.submit(evaluate, gt, s, k, *args) for k, s in unfiltered.items()}
+        fut_v = [pool.submit(evaluate, ref, r.filt.fused, r.name, *args) for r in runs]
+        fut_u = {k: pool.submit(evaluate, ref, s, k, *args) for k, s in unfiltered.items()}
         for r, f in zip(runs, fut_v):
             r.ev = f.result()
             r.ev.results = {}
@@ -120,11 +125,12 @@ def compare(dataset_path: Path | None, variants: list[str], variant_dir: Path | 
     seg = segments(gt, seg_evals, ev_cfg, primary=runs[0].name, secondary="lidar" if "lidar" in seg_evals else None)
 
     with staged as out:
-        result = {"dataset": ds.name, "variants": variants, "rows": table, "groundtruth_body_velocity_rms_mps": truth_body,
-                  "segments": seg}
+        result = {"dataset": ds.name, "variants": variants, "span": sp if sp is not None else {"mode": "own"},
+                  "rows": table, "groundtruth_body_velocity_rms_mps": truth_body, "segments": seg}
         out.write_text("compare.json", json.dumps(result, indent=2) + "\n")
         out.write_text("compare.csv", csv_text(CSV_COLUMNS, table))
-        out.write_text("compare.md", _markdown(ds.name, table, truth_body, make_plots) + "\n".join(segments_section({"segments": seg})) + "\n")
+        out.write_text("compare.md", _markdown(ds.name, table, truth_body, make_plots, sp)
+                       + "\n".join(segments_section({"segments": seg})) + "\n")
         taken: set = set()
         for r in runs:
             folder = folder_name(r.name, taken)
@@ -171,7 +177,7 @@ def _pct(x) -> str:
     return "" if x is None else f"{x * 100:.1f} %"
 
 
-def _markdown(name: str, rows: list[dict], truth_body, plots: bool) -> str:
+def _markdown(name: str, rows: list[dict], truth_body, plots: bool, sp: dict | None = None) -> str:
     order = [o.name for o in observations.REGISTRY]
     header = ["variant", "estimate", "APE trans RMSE [m]", "APE rot RMSE [deg]", "RPE trans 1 frame [m]", "fused/lidar",
               "fused/GNSS", "KITTI drift [%] / [deg/100 m]", "NEES pos in 95 %", "lateral / vertical body velocity RMS [m/s]",
@@ -187,7 +193,7 @@ def _markdown(name: str, rows: list[dict], truth_body, plots: bool) -> str:
                      ", ".join(f"{b:.1f}" for b in r.get("final_gyro_bias_dph", [])),
                      ", ".join(f"{k} {nis[k]:.2f}" for k in sorted(nis, key=lambda k: order.index(k) if k in order else 99)),
                      str(r.get("runtime_s", ""))])
-    L = [f"# fusion-eval compare: {name}", ""] + markdown(header, body, align="llrrrrrlllllr")
+    L = [f"# fusion-eval compare: {name}", "", f"Span: {span.describe(sp)}.", ""] + markdown(header, body, align="llrrrrrlllllr")
     if truth_body:
         L += ["", f"Ground truth body velocity RMS: lateral {truth_body['lateral']:.3f} m/s, vertical {truth_body['vertical']:.3f} m/s."]
     if plots:

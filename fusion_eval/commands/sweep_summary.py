@@ -53,11 +53,27 @@ def rows_of(tasks: list[Task], out_dir: Path, keys: list[str]) -> tuple[list[dic
             ratios = m.get("ratios") or {}
             row["fused_over_lidar"] = ratios.get("fused_over_lidar")
             row["fused_over_gnss"] = ratios.get("fused_over_gnss")
+            sp = (m.get("evaluation") or {}).get("span") or {}
+            row["span_s"] = sp.get("from_groundtruth_start_s")
             row.update(runtime_s=r.get("runtime_s"), status=r["status"], error=r.get("error") or "")
         rows.append(row)
     if not metric_cols:
         metric_cols = [c for c, _ in mk.summary_columns(mk.DEFAULT_RPE_DELTA_M)]
     return rows, metric_cols
+
+
+def _span_note(rows: list[dict]) -> str:
+    """Whether the runs of one dataset were scored over the same span (each run's common span depends on the
+    coverage of its estimates: a GNSS rate or an outage at an end moves it)."""
+    spans = {tuple(round(v, 3) for v in r["span_s"]) for r in rows if r.get("span_s")}
+    if not spans:
+        return "Span: each estimate over its own poses."
+    if len(spans) == 1:
+        a, b = next(iter(spans))
+        return f"Span: every run and estimate over {a:.2f} .. {b:.2f} s after the ground truth's first pose."
+    lo, hi = max(a for a, _ in spans), min(b for _, b in spans)
+    return (f"Span: the runs' common spans differ ({len(spans)} distinct; all cover {lo:.2f} .. {hi:.2f} s after the ground "
+            "truth's first pose): their figures are not over exactly the same stretch.")
 
 
 def _atomic(path: Path, text: str) -> None:
@@ -83,7 +99,7 @@ def write_summary(tasks: list[Task], out_dir: Path, keys: list[str], plots: bool
     rot, rpe = mk.column("fused", mk.APE, "rotation_deg", "rmse"), mk.column("fused", mk.RPE_FRAME, "translation_m", "rmse")
     for ds in datasets:
         sub = sorted((r for r in ok if r["dataset"] == ds), key=lambda r: r[METRIC])
-        L += [f"## {ds}", ""] + markdown(
+        L += [f"## {ds}", "", _span_note(sub), ""] + markdown(
             ["rank", "variant", "setting", "APE trans RMSE [m]", "APE rot RMSE [deg]", "RPE 1 frame [m]", "fused/lidar",
              "fused/GNSS", "time [s]"],
             [[i, r["variant"], r["setting"], r[METRIC], r.get(rot), r.get(rpe), r["fused_over_lidar"], r["fused_over_gnss"],

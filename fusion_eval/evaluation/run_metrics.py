@@ -77,13 +77,14 @@ def estimate_metrics(ev: EstimateEvaluation) -> dict:
 
 
 def run_metrics(dataset: str, evals: dict[str, EstimateEvaluation], ratios: dict, ev_cfg: dict, applied: dict,
-                gnss_info: dict | None, cons: dict | None = None, seg: dict | None = None) -> dict:
+                gnss_info: dict | None, cons: dict | None = None, seg: dict | None = None, span: dict | None = None) -> dict:
     """The content of a run's ``metrics.json``."""
     cons = cons or {}
     return {"dataset": dataset,
             "evaluation": {"association": ev_cfg["association"], "alignment": ev_cfg["alignment"],
                            "t_max_diff_s": ev_cfg["t_max_diff_s"], "rpe_delta_m": ev_cfg["rpe_delta_m"],
-                           "rpe_groups": list(keys.groups(ev_cfg["rpe_delta_m"]))},
+                           "rpe_groups": list(keys.groups(ev_cfg["rpe_delta_m"])),
+                           "span": span if span is not None else {"mode": "own"}},
             "estimates": {name: estimate_metrics(ev) for name, ev in evals.items()}, "ratios": ratios,
             "nis": {k: _strip_arrays(v) for k, v in cons.get("nis", {}).items()},
             "nees": {k: _strip_arrays(v) for k, v in cons.get("nees", {}).items()},

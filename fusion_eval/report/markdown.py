@@ -9,6 +9,7 @@ import yaml
 
 from ..evaluation.keys import rpe_distance_group
 from ..evaluation.run_metrics import ESTIMATES
+from ..evaluation.span import describe as describe_span
 
 
 def drift_section(m: dict) -> list[str]:
@@ -117,7 +118,8 @@ def report_md(dataset: str, config_name: str, evals: dict, ratios: dict, cfg: di
     L += ["", f"Association: **{ev0.get('association', 'nearest')}**"
           + (f" (nearest stamp within {cfg['evaluation']['t_max_diff_s']} s)" if ev0.get("association") == "nearest" else
              " (reference interpolated at the estimate's stamps: linear position, SLERP rotation)")
-          + f"; alignment: **{ev0.get('alignment', 'none')}**. Matched poses are in the table above."]
+          + f"; alignment: **{ev0.get('alignment', 'none')}**. Matched poses are in the table above.",
+          "", "Span: " + describe_span(ev0.get("span") if (ev0.get("span") or {}).get("mode") == "common" else None) + "."]
     L += drift_section(metrics) + consistency_section(metrics) + segments_section(metrics)
     L += ["## GNSS degradation", ""]
     if gnss_info is None:

@@ -1,0 +1,70 @@
+"""The time span every estimate of a report is scored over.
+
+A ratio "fused / lidar" compares like with like only on the same stretch of road: the fused estimate runs from
+the first IMU sample to the last, the lidar from its anchor to its last scan, 1 Hz GNSS from its first fix to its
+last. ``evaluation.span: common`` (the default) scores every estimate over the intersection of their coverage
+with the ground truth; ``own`` scores each over its own poses.
+
+The span is applied as evo's ``--t_start``/``--t_end`` are: the reference is reduced to the time range
+(``reduce_to_time_range``) before association, so ``evo_ape tum groundtruth.tum fused.tum --t_start T0 --t_end T1``
+on the written files reproduces the metrics. The ends are rounded outwards to the microsecond, so that the
+file's 9-decimal stamps and the in-memory ones fall on the same side of them.
+"""
+
+from __future__ import annotations
+
+import math
+
+from ..errors import DataRangeError
+from ..types import PoseSeries
+
+MODES = ("common", "own")
+
+
+def coverage(series: PoseSeries) -> tuple[float, float]:
+    return float(series.t_s[0]), float(series.t_s[-1])
+
+
+def common_span(gt: PoseSeries, spans: dict[str, tuple[float, float]]) -> dict:
+    """The intersection of the estimates' spans (``name -> (t0, t1)``) with the ground truth's, and which
+    estimate limits each end."""
+    t0, t1 = coverage(gt)
+    lo_by = hi_by = "groundtruth"
+    for name, (a, b) in spans.items():
+        if a > t0:
+            t0, lo_by = a, name
+        if b < t1:
+            t1, hi_by = b, name
+    if not t1 > t0:
+        raise DataRangeError(f"the estimates share no time span with each other and the ground truth "
+                             f"({', '.join(f'{k} {a:.3f}..{b:.3f} s' for k, (a, b) in spans.items())})")
+    g0 = coverage(gt)[0]
+    t0, t1 = math.floor((t0 - 1e-6) * 1e6) / 1e6, math.ceil((t1 + 1e-6) * 1e6) / 1e6
+    return {"mode": "common", "t0_s": t0, "t1_s": t1, "duration_s": t1 - t0, "start_set_by": lo_by, "end_set_by": hi_by,
+            "from_groundtruth_start_s": [t0 - g0, t1 - g0]}
+
+
+def crop(series: PoseSeries, span: dict | None) -> PoseSeries:
+    """The poses inside the span, as evo's ``reduce_to_time_range`` keeps them (applied to the reference)."""
+    if span is None:
+        return series
+    m = (series.t_s >= span["t0_s"]) & (series.t_s <= span["t1_s"])
+    return series if m.all() else series.select(m)
+
+
+def evo_options(span: dict | None) -> str:
+    """The evo command-line options that score a written trajectory over the same span."""
+    return "" if span is None else f"--t_start {span['t0_s']:.6f} --t_end {span['t1_s']:.6f}"
+
+
+def describe(span: dict | None) -> str:
+    if span is None:
+        return "each estimate over its own poses (evaluation.span=own)"
+    a, b = span["from_groundtruth_start_s"]
+    return (f"every estimate over the same {span['duration_s']:.1f} s, {a:.2f} .. {b:.2f} s after the ground truth's first "
+            f"pose (start set by {span['start_set_by']}, end by {span['end_set_by']}; evaluation.span=common; evo_ape / evo_rpe "
+            f"on the written files: `{evo_options(span)}`)")
+
+
+def span_for(mode: str, gt: PoseSeries, spans: dict[str, tuple[float, float]]) -> dict | None:
+    return common_span(gt, spans) if mode == "common" else None

@@ -1,0 +1,60 @@
+"""Every estimate of a report, and every variant of a comparison, scored over the same span."""
+
+from __future__ import annotations
+
+import json
+
+import numpy as np
+import pytest
+from click.testing import CliRunner
+
+import fusion_eval as fe
+from fusion_eval.cli import main
+from fusion_eval.errors import DataRangeError
+from fusion_eval.evaluation import span
+from fusion_eval.types import PoseSeries
+
+
+def _poses(t):
+    t = np.asarray(t, float)
+    q = np.tile([0.0, 0.0, 0.0, 1.0], (t.size, 1))
+    return PoseSeries(t_s=t, p_w_m=np.zeros((t.size, 3)), q_wb_xyzw=q)
+
+
+def test_common_span_is_the_intersection_and_names_what_limits_it():
+    gt = _poses(np.arange(0, 100, 0.1))
+    sp = span.common_span(gt, {"fused": (0.0, 99.9), "lidar": (1.2, 95.0), "gnss": (0.5, 99.5)})
+    # the ends rounded outwards to the microsecond
+    assert (sp["start_set_by"], sp["end_set_by"]) == ("lidar", "lidar")
+    assert 1.2 - 3e-6 < sp["t0_s"] < 1.2 and 95.0 < sp["t1_s"] < 95.0 + 3e-6
+    cropped = span.crop(_poses(np.arange(0, 1000) * 0.1), sp)
+    assert cropped.t_s[0] == pytest.approx(1.2) and cropped.t_s[-1] == pytest.approx(95.0)
+    assert span.evo_options(sp).split()[::2] == ["--t_start", "--t_end"]
+    with pytest.raises(DataRangeError, match="share no time span"):
+        span.common_span(gt, {"a": (0.0, 10.0), "b": (20.0, 30.0)})
+
+
+def test_a_run_scores_every_estimate_on_the_common_span(kitti_slice):
+    ds = fe.load_dataset(kitti_slice)
+    common = fe.run(ds, overrides={"output.plots": False}).metrics
+    own = fe.run(ds, overrides={"output.plots": False, "evaluation.span": "own"}).metrics
+    sp = common["evaluation"]["span"]
+    assert sp["mode"] == "common" and sp["duration_s"] > 80 and own["evaluation"]["span"] == {"mode": "own"}
+    # the fused estimate loses the poses before the lidar's first frame; nothing gains any
+    e, o = common["estimates"], own["estimates"]
+    assert all(e[k]["matched_poses"] <= o[k]["matched_poses"] for k in e)
+    assert e["fused"]["matched_poses"] < o["fused"]["matched_poses"]
+    ratio = e["fused"]["ape"]["translation_m"]["rmse"] / e["lidar"]["ape"]["translation_m"]["rmse"]
+    assert common["ratios"]["fused_over_lidar"] == pytest.approx(ratio)
+
+
+def test_compare_scores_every_variant_on_one_span(kitti_slice, tmp_path):
+    out = tmp_path / "cmp"
+    r = CliRunner().invoke(main, ["-q", "compare", str(kitti_slice), "--variants", "eskf,lidar-relative-no-gnss,gnss-only",
+                                  "--out", str(out), "--no-plots"])
+    assert r.exit_code == 0, r.output
+    c = json.loads((out / "compare.json").read_text())
+    assert c["span"]["mode"] == "common"
+    fused = [row for row in c["rows"] if row["estimate"] == "fused"]
+    assert len({row["matched_poses"] for row in fused}) == 1, [row["matched_poses"] for row in fused]
+    assert "Span: every estimate over the same" in (out / "compare.md").read_text()
