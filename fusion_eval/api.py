@@ -81,11 +81,12 @@ class Result:
 
 def run(dataset: Dataset | str | Path | None = None, overrides: dict | None = None, config: str | Path | dict | None = None,
         variant: str | Path | None = None, progress: Callable[[float], None] | None = None,
-        jobs: int | None = None) -> Result:
+        jobs: int | None = None, trials: int = 1) -> Result:
     """Run a dataset through the configured filter and evaluate it, in memory (nothing is written).
 
     Layers as for ``fusion-eval run``: the defaults < the manifest's suggestions < ``config`` (a file or a
     ``{section: {key: value}}`` dict) < ``variant`` (a name in ``configs/variants`` or a file) < ``overrides``.
+    ``trials`` > 1: Monte-Carlo trials over the seeds (``metrics["trials"]``; the result is trial 0's).
     """
     from .variants import resolve_variant
 
@@ -93,7 +94,7 @@ def run(dataset: Dataset | str | Path | None = None, overrides: dict | None = No
     req = session.request(config=config, variant=vpath, overrides=overrides)
     ds = dataset if isinstance(dataset, Dataset) else session.dataset(dataset)
     cfg = session.resolve(req, ds)
-    return Result(execute(ds, cfg, config_source=req.source, progress=progress, jobs=jobs))
+    return Result(execute(ds, cfg, config_source=req.source, progress=progress, jobs=jobs, trials=trials))
 
 
 def _as_series(x, times: str | Path | None, what: str) -> tuple[PoseSeries, str, dict]:

@@ -74,8 +74,11 @@ def main(ctx, verbose, quiet):
               help="Output directory (default: results/<dataset>-<config>-<time>). Must not exist or be empty.")
 @click.option("--overwrite", is_flag=True, help="Replace an existing output directory (only once the new run succeeded).")
 @click.option("--no-plots", is_flag=True, help="Skip the PNG plots.")
+@click.option("--trials", type=click.IntRange(min=1), default=1, show_default=True,
+              help="Monte-Carlo trials over the seeds of every random element (GNSS degradation, odometer noise, ...); "
+                   "metrics.json gets each metric's mean, std, min, max and 95 % intervals.")
 @click.pass_context
-def run(ctx, dataset, config_path, sets, out_dir, overwrite, no_plots):
+def run(ctx, dataset, config_path, sets, out_dir, overwrite, no_plots, trials):
     """Replay DATASET through the filter and write trajectories, metrics and a report.
 
     DATASET is a folder with a dataset.yaml manifest, a manifest file, or a KITTI raw drive folder
@@ -89,7 +92,7 @@ def run(ctx, dataset, config_path, sets, out_dir, overwrite, no_plots):
     t0 = time.perf_counter()
     progress = None if quiet else _Progress("filtering")
     try:
-        res = run_command(dataset, config_path, sets, out_dir, overwrite=overwrite, progress=progress)
+        res = run_command(dataset, config_path, sets, out_dir, overwrite=overwrite, progress=progress, trials=trials)
     finally:
         if progress is not None:
             progress.close()
@@ -111,8 +114,10 @@ def run(ctx, dataset, config_path, sets, out_dir, overwrite, no_plots):
 @click.option("-o", "--out", "out_dir", type=click.Path(path_type=Path), help="Output directory (default: results/compare-<time>).")
 @click.option("--overwrite", is_flag=True, help="Replace an existing output directory once the comparison succeeded.")
 @click.option("--no-plots", is_flag=True, help="Skip the PNG plots.")
+@click.option("--trials", type=click.IntRange(min=1), default=1, show_default=True,
+              help="Monte-Carlo trials over the seeds of every random element: the table gives means (APE +/- std).")
 @click.pass_context
-def compare(ctx, dataset, variants, variant_dir, config_path, sets, out_dir, overwrite, no_plots):
+def compare(ctx, dataset, variants, variant_dir, config_path, sets, out_dir, overwrite, no_plots, trials):
     """Run several filter variants on DATASET and write one comparison table and overlaid plots."""
     from .commands.compare import compare as run_compare
 
@@ -121,7 +126,7 @@ def compare(ctx, dataset, variants, variant_dir, config_path, sets, out_dir, ove
     t0 = time.perf_counter()
     try:
         res = run_compare(dataset, names, variant_dir, config_path, tuple(sets), out_dir, overwrite=overwrite,
-                          make_plots=not no_plots, progress=progress)
+                          make_plots=not no_plots, progress=progress, trials=trials)
     finally:
         if progress is not None:
             progress.close()
@@ -129,8 +134,9 @@ def compare(ctx, dataset, variants, variant_dir, config_path, sets, out_dir, ove
         click.echo(f"{'variant':<26} {'estimate':<9} {'APE trans RMSE [m]':>19} {'APE rot RMSE [deg]':>19}")
         for r in res["rows"]:
             rot = r.get("ape_rot_rmse_deg")
+            sd = r.get("ape_trans_rmse_m_std")
             click.echo(f"{r['variant']:<26} {r['estimate']:<9} {r['ape_trans_rmse_m']:>19.3f} "
-                       f"{'n/a' if rot is None else f'{rot:.3f}':>19}")
+                       f"{'n/a' if rot is None else f'{rot:.3f}':>19}" + ("" if sd is None else f"  (+/- {sd:.3f} over {r['trials']} trials)"))
         click.echo(f"wrote {res['out_dir']}/ ({time.perf_counter() - t0:.1f} s)")
 
 
@@ -149,9 +155,12 @@ def compare(ctx, dataset, variants, variant_dir, config_path, sets, out_dir, ove
 @click.option("--retry-failed", is_flag=True, help="Run again the runs recorded as failed.")
 @click.option("--summarize-only", is_flag=True, help="Only rebuild sweep.csv, sweep.md, plots and best.yaml from the records.")
 @click.option("--no-plots", is_flag=True, help="Skip the summary plots.")
+@click.option("--trials", type=click.IntRange(min=1), default=None,
+              help="Monte-Carlo trials of every setting (default: the sweep file's 'trials', else 1): the summary ranks "
+                   "by the mean over the trials.")
 @click.pass_context
 def sweep(ctx, datasets, sweep_file, out_dir, jobs, variant_dir, scheduler, dask_mode, retry_failed, summarize_only,
-          no_plots):
+          no_plots, trials):
     """Run DATASET(s) over the settings of a sweep file, in parallel or on Dask, and rank the results."""
     from .commands.sweep import run_sweep
 
@@ -166,7 +175,7 @@ def sweep(ctx, datasets, sweep_file, out_dir, jobs, variant_dir, scheduler, dask
 
     try:
         res = run_sweep(sweep_file, [str(d) for d in datasets], out_dir, jobs, variant_dir, scheduler, dask_mode == "local",
-                        retry_failed, summarize_only, not no_plots, progress_for)
+                        retry_failed, summarize_only, not no_plots, progress_for, trials)
     finally:
         for bar in bars:
             bar.close()
@@ -275,8 +284,11 @@ def simulate_track_cmd(out_file, duration_s, interval_s, seed, start, heading_de
 @click.option("--summary", "summary_path", type=click.Path(path_type=Path),
               help="Markdown summary (default: check.md next to METRICS).")
 @click.option("--update-baseline", is_flag=True, help="Replace the baseline with METRICS and exit 0.")
+@click.option("--trial-stat", type=click.Choice(["mean", "median", "max", "min", "std", "p97.5", "none"]), default="mean",
+              show_default=True, help="For a metrics.json of a run with --trials: compare this statistic of each metric "
+                                      "over the trials ('none': trial 0's own values).")
 @click.pass_context
-def check(ctx, metrics_path, baseline, rtol, atol, patterns, rules, junit_path, summary_path, update_baseline):
+def check(ctx, metrics_path, baseline, rtol, atol, patterns, rules, junit_path, summary_path, update_baseline, trial_stat):
     """Compare METRICS with a baseline; exit 0 if within tolerance and every rule holds, 1 on a regression,
     2 on a usage or data error."""
     from .commands.check import check as run_check, update_baseline as write_baseline
@@ -285,7 +297,8 @@ def check(ctx, metrics_path, baseline, rtol, atol, patterns, rules, junit_path, 
         write_baseline(metrics_path, baseline)
         click.echo(f"baseline {baseline} updated from {metrics_path}")
         return
-    res = run_check(metrics_path, baseline, rtol, atol, tuple(patterns), tuple(rules), junit_path, summary_path)
+    res = run_check(metrics_path, baseline, rtol, atol, tuple(patterns), tuple(rules), junit_path, summary_path,
+                    None if trial_stat == "none" else trial_stat)
     w = max(len(r.metric) for r in res.rows)
     click.echo(f"{'metric':<{w}}  {'baseline':>12}  {'current':>12}  {'change':>10}  verdict")
     for r in res.rows:

@@ -31,10 +31,12 @@ SECTION_ORDER = ("filter", "imu", "lidar", "gnss", "odometer", "init", "evaluati
 # The core keys: what no single formulation or observation owns. Keys of the formulations and observations
 # are declared in their modules (fusion_eval/filters/formulations/, fusion_eval/filters/observations/).
 CORE: dict[str, Spec] = {
-    "filter.bias_model": S("random_walk", "IMU bias model: 'random_walk' or 'constant' (bias states kept, no process noise)",
+    "filter.bias_model": S("random_walk", "IMU bias model: 'random_walk', 'constant' (bias states kept, no process noise) "
+                                          "or 'gauss_markov' (first order, correlation time imu.*_bias_corr_time_s)",
                            choices=("<bias models>",)),
-    "filter.formulation": S("error_state", "'error_state' (ESKF: 15-state error, injection and reset) or 'nominal_state' "
-                                           "(EKF on the full state [p, v, q, ba, bg] with quaternion normalisation)",
+    "filter.formulation": S("error_state", "'error_state' (ESKF: 15-state error, injection and reset), 'nominal_state' "
+                                           "(EKF on the full state [p, v, q, ba, bg] with quaternion normalisation) or "
+                                           "'invariant' (right-invariant EKF on SE_2(3), biases additive)",
                             choices=("<formulations>",)),
     "filter.process_model": S("imu", "'imu' (strapdown mechanization) or 'odometer_gyro' (wheel speed and gyro drive the "
                                      "prediction; error state [dp, dtheta, dk, dbg])", choices=("<process models>",)),
@@ -48,7 +50,11 @@ CORE: dict[str, Spec] = {
                                    choices=("groundtruth", "gnss")),
     "imu.time_offset_s": S(None, "added to IMU stamps; null = the manifest's value (default 0)", "float", nullable=True),
     "imu.gyro_lag_s": S(None, "the gyro reports the rate of gyro_lag_s earlier and is advanced by this much; 'auto' = estimated "
-                              "from the lidar rotation increments; null = the manifest's value", "float", nullable=True, auto=True),
+                              "from the data (gyro vs lidar rotation rate; the device figure without lidar); null = the "
+                              "manifest's value (default 0)", "float", nullable=True, auto=True),
+    "imu.accel_lag_s": S(None, "the accelerometer reports the specific force of accel_lag_s earlier and is advanced by this "
+                               "much; 'auto' = estimated from the data (accelerometer vs lidar acceleration; the device figure "
+                               "without lidar); null = the manifest's value (default 0)", "float", nullable=True, auto=True),
     "imu.filled_packets": S("drop", "provider-filled IMU samples: 'drop' (default) or 'keep'", choices=("drop", "keep")),
     "imu.accel_noise_mps2_sqrthz": S(0.3, "accelerometer white noise density (velocity random walk), m/s^2/sqrt(Hz)", nonneg=True),
     "imu.gyro_noise_dps_sqrthz": S(0.1, "gyroscope white noise density (angle random walk), deg/s/sqrt(Hz)", nonneg=True),
@@ -56,7 +62,12 @@ CORE: dict[str, Spec] = {
     "imu.gyro_bias_rw_dps2_sqrthz": S(1e-5, "gyroscope bias random walk, deg/s^2/sqrt(Hz)", nonneg=True),
     "imu.gap_factor": S(1.5, "an IMU interval longer than gap_factor x the median interval is a gap", positive=True),
     "imu.gap_noise_scale": S(10.0, "process noise std multiplier on intervals that are gaps", positive=True),
-    "lidar.time_offset_s": S(None, "added to lidar stamps; null = the manifest's value (default 0)", "float", nullable=True),
+    "lidar.time_offset_s": S(None, "added to lidar stamps; 'auto' = estimated from the data (accelerometer vs lidar "
+                                   "acceleration; not together with imu.accel_lag_s=auto); null = the manifest's value "
+                                   "(default 0)", "float", nullable=True, auto=True),
+    "lidar.extrinsic_rotation": S("calibration", "lidar-IMU rotation: the 'calibration' files' as they are, or 'auto' = corrected "
+                                                 "by a hand-eye estimate from the data (gyro and accelerometer vs lidar)",
+                                  choices=("calibration", "auto")),
     "lidar.interpolate_to_imu": S(True, "resample the lidar poses onto the IMU stamps (SLERP) before fusing"),
     "gnss.time_offset_s": S(None, "added to GNSS stamps; null = the manifest's value (default 0)", "float", nullable=True),
     "gnss.rate_hz": S(1.0, "decimate GNSS to this rate (null = keep every fix); only for streams the manifest marks 'degrade'",

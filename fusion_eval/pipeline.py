@@ -16,7 +16,9 @@ from typing import Callable
 import numpy as np
 
 from . import report, session
+from . import trials as mc
 from .config import Settings
+from .errors import FusionEvalError
 from .evaluation import span
 from .evaluation.run_metrics import consistency, fused_error, ratio_metrics, run_metrics, segments
 from .evaluation.trajectory import EstimateEvaluation, evaluate
@@ -60,15 +62,27 @@ def evaluate_estimate(reference: PoseSeries, estimate: PoseSeries, name: str, ev
     return ev
 
 
+def trial_metrics(ds: Dataset, cfg: dict) -> dict:
+    """One Monte-Carlo trial's metrics (in a worker: nothing written, nothing else sent back)."""
+    try:
+        with np.errstate(over="ignore", invalid="ignore"):
+            return execute(ds, cfg, jobs=1).metrics
+    except FusionEvalError as exc:          # a diverged trial is a result, counted in the summary
+        return {"failed": str(exc)}
+
+
 def execute(ds: Dataset, cfg: dict, *, dataset_path: str | Path | None = None, config_source: str = "default",
             progress: Callable[[float], None] | None = None, jobs: int | None = None,
-            out: StagedDir | None = None) -> RunResult:
+            out: StagedDir | None = None, trials: int = 1) -> RunResult:
     """Run the configured filter on ``ds`` and evaluate it (and every unfiltered estimate) with evo.
 
     With ``out`` (an open :class:`StagedDir`) every output of ``fusion-eval run`` is written into it. evo's
     metrics loop over poses in Python: the unfiltered estimates are evaluated in worker processes while this
     one runs the filter, then the fused and dead-reckoning ones alongside the plots that need no metrics, so
     both cores stay busy. ``jobs=1`` does everything in this process.
+
+    With ``trials`` > 1 the run is trial 0 of that many Monte-Carlo trials (:mod:`fusion_eval.trials`): the
+    others run on the same pool, and ``metrics["trials"]`` summarises every metric over all of them.
     """
     timings: dict = {}
     t = time.perf_counter()
@@ -87,14 +101,26 @@ def execute(ds: Dataset, cfg: dict, *, dataset_path: str | Path | None = None, c
     spans["fused"] = (float(prep.imu.t_s[prep.k_start]), float(prep.imu.t_s[-1]))
     sp = span.span_for(ev_cfg["span"], gt, spans)
     ref = span.crop(gt, sp)              # as evo's --t_start/--t_end: the reference reduced to the span
+    n_trials = mc.check_count(trials)
     with executor(jobs) as pool:
+        done = [0]
+
+        def finished(_f):
+            done[0] += 1
+            if progress is not None:
+                progress(done[0] / n_trials)
+        trial_futs = []
+        for i in range(1, n_trials):
+            trial_futs.append(pool.submit(trial_metrics, ds, mc.apply(cfg, i)))
+            trial_futs[-1].add_done_callback(finished)
         series["imu_only"] = dead_reckoning(prep, s)
         futures = {n: pool.submit(evaluate_estimate, ref, series[n], n, ev_cfg)
                    for n in ("lidar", "gnss") if n in series}
         t = time.perf_counter()
         # overflow in absurd settings is reported as divergence (exit 3), not as numpy warnings
         with np.errstate(over="ignore", invalid="ignore"):
-            filt = replay(prep, s, progress=progress, imu_only=series["imu_only"])
+            filt = replay(prep, s, progress=None if progress is None or n_trials > 1 else progress,
+                          imu_only=series["imu_only"])
         timings["filter"] = time.perf_counter() - t
         t = time.perf_counter()
         series["fused"] = filt.fused
@@ -109,6 +135,9 @@ def execute(ds: Dataset, cfg: dict, *, dataset_path: str | Path | None = None, c
         cons = consistency(gt, filt)
         seg = segments(gt, evals, ev_cfg)
         metrics = run_metrics(ds.name, evals, ratios, ev_cfg, prep.applied, prep.gnss_info, cons, seg, sp)
+        if n_trials > 1:
+            finished(None)
+            metrics["trials"] = mc.section(cfg, [metrics] + [f.result() for f in trial_futs])
         dataset_path = ds.description.get("path") if dataset_path is None else dataset_path
         resolved_extra = {"dataset": {"path": None if dataset_path is None else str(dataset_path), "name": ds.name,
                                       "manifest": ds.description.get("manifest"),
@@ -125,7 +154,7 @@ def execute(ds: Dataset, cfg: dict, *, dataset_path: str | Path | None = None, c
 
 
 def run_to_dir(dataset_path: str | Path, req: session.ConfigRequest, out_dir: Path, overwrite: bool = False,
-               progress: Callable[[float], None] | None = None, jobs: int | None = None) -> RunResult:
+               progress: Callable[[float], None] | None = None, jobs: int | None = None, trials: int = 1) -> RunResult:
     """Load the dataset, resolve the configuration, run, evaluate and write every output atomically into
     ``out_dir`` (nothing is left behind when it fails)."""
     staged = StagedDir(out_dir, overwrite=overwrite)
@@ -137,7 +166,8 @@ def run_to_dir(dataset_path: str | Path, req: session.ConfigRequest, out_dir: Pa
     log.debug("loaded %s: %d IMU samples, %s GNSS fixes, %s lidar poses, %s ground-truth poses", ds.name, len(ds.imu),
               len(ds.gnss) if ds.gnss else 0, len(ds.lidar) if ds.lidar else 0, len(ds.groundtruth) if ds.groundtruth else 0)
     with staged as out:
-        res = execute(ds, cfg, dataset_path=dataset_path, config_source=req.source, progress=progress, jobs=jobs, out=out)
+        res = execute(ds, cfg, dataset_path=dataset_path, config_source=req.source, progress=progress, jobs=jobs, out=out,
+                      trials=trials)
     res.timings_s["load"] = load_s
     res.out_dir = Path(out_dir)
     return res

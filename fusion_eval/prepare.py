@@ -1,8 +1,8 @@
 """From a loaded dataset and a configuration to the streams the filter replays.
 
-Applies, in this order and nowhere else: stream time offsets, the gyro lag, dropping filled-in
-packets, GNSS degradation, anchoring the lidar odometry in the world frame, and resampling it on
-the IMU stamps. Checks that the streams overlap in time and picks the initial state.
+Applies, in this order and nowhere else: stream time offsets, dropping filled-in packets, the IMU
+channel lags and the lidar clock offset (given or estimated, :mod:`fusion_eval.timing`), GNSS
+degradation, anchoring the lidar odometry in the world frame, and resampling it on the IMU stamps. Checks that the streams overlap in time and picks the initial state.
 """
 
 from __future__ import annotations
@@ -12,7 +12,8 @@ from dataclasses import dataclass, field, replace
 
 import numpy as np
 
-from .calibration import estimate_gyro_lag
+from . import timing
+from .calibration.extrinsic import apply_rotation, estimate_rotation
 from .degrade import degrade_gnss
 from .errors import ConfigError, DataRangeError
 from .filters import check_combination, formulation_of, observations
@@ -42,18 +43,12 @@ class Prepared:
     streams: dict = field(default_factory=dict)  # the enabled observations' other streams, prepared, inside the run
 
 
-def _offset(cfg: dict, ds: Dataset, stream: str) -> float:
-    """The stream's time offset: the configuration's (``<stream>.time_offset_s``), else the manifest's (default 0)."""
+def _offset(cfg: dict, ds: Dataset, stream: str, auto: bool = False):
+    """The stream's time offset: the configuration's (``<stream>.time_offset_s``), else the manifest's (default 0);
+    'auto' passes through where ``auto`` (the lidar's, estimated by :mod:`fusion_eval.timing`)."""
     v = cfg.get(stream, {}).get("time_offset_s")
-    return float(ds.description.get("time_offset_s", {}).get(stream, 0.0) if v is None else v)
-
-
-def apply_gyro_lag(imu: ImuSeries, lag_s: float) -> ImuSeries:
-    """Advance the gyro by ``lag_s``: the rate used at t is the one recorded at ``t + lag_s`` (ends held)."""
-    if lag_s == 0.0:
-        return imu
-    w = np.column_stack([np.interp(imu.t_s + lag_s, imu.t_s, imu.w_b_rps[:, i]) for i in range(3)])
-    return replace(imu, w_b_rps=w)
+    v = ds.description.get("time_offset_s", {}).get(stream, 0.0) if v is None else v
+    return v if (auto and v == "auto") else float(v)
 
 
 def anchor_lidar(lidar_odom: PoseSeries, gt: PoseSeries) -> tuple[PoseSeries, float]:
@@ -111,6 +106,9 @@ def prepare(ds: Dataset, cfg: dict) -> Prepared:
     applied["imu_filled_packets"] = cfg["imu"]["filled_packets"]
     if len(imu) < 2:
         raise DataRangeError(f"{ds.imu.source}: fewer than 2 usable IMU samples")
+    # --- time alignment: the IMU channel lags and the lidar clock offset, given or estimated from the data
+    imu, lidar_off, timing_applied = timing.align(ds, cfg, imu, _offset(cfg, ds, "lidar", auto=True))
+    applied.update(timing_applied)
 
     # --- ground truth: the same clock as its source; filled-in packets are not truth
     gt = ds.groundtruth
@@ -123,9 +121,14 @@ def prepare(ds: Dataset, cfg: dict) -> Prepared:
     # --- lidar: offset, anchor in the world frame, resample on the IMU stamps
     lidar = None
     if ds.lidar is not None:
-        off = _offset(cfg, ds, "lidar")
-        applied["time_offset_s"]["lidar"] = off
-        lid = replace(ds.lidar, t_s=ds.lidar.t_s + off)
+        applied["time_offset_s"]["lidar"] = lidar_off
+        lid = replace(ds.lidar, t_s=ds.lidar.t_s + lidar_off)
+        if cfg["lidar"]["extrinsic_rotation"] == "auto":
+            # the mount rotation against the calibration file, from the time-aligned signals (hand-eye)
+            rot = estimate_rotation(imu, lid if lid.filled is None else lid.select(~lid.filled))
+            lid = apply_rotation(lid, rot.R_E)
+            applied["lidar_extrinsic"] = rot.as_dict()
+            log.info("lidar rotation correction estimated: roll, pitch, yaw %s mrad", np.round(rot.rpy_mrad, 2))
         if ds.description.get("lidar_anchor", "groundtruth") == "groundtruth":
             lid, t_anchor = anchor_lidar(lid, gt)
             applied["lidar_anchor_t_s"] = t_anchor
@@ -136,20 +139,6 @@ def prepare(ds: Dataset, cfg: dict) -> Prepared:
         lidar = lid
         if use_lidar and (len(lidar) < 2 or lidar.t_s[-1] <= imu.t_s[0] or lidar.t_s[0] >= imu.t_s[-1]):
             raise DataRangeError(f"lidar ({ds.lidar.source}) and IMU ({ds.imu.source}) do not overlap in time")
-
-    # --- gyro lag: given, or estimated from the lidar rotation increments (no ground truth needed)
-    lag = cfg["imu"]["gyro_lag_s"]
-    lag = ds.description.get("gyro_lag_s", 0.0) if lag is None else lag
-    if lag == "auto":
-        if lidar is None:
-            raise ConfigError("imu.gyro_lag_s=auto needs a lidar stream to estimate the lag from")
-        lid_on_imu = lidar if cfg["lidar"]["interpolate_to_imu"] else snap_to_stamps(lidar, imu.t_s)
-        lag = estimate_gyro_lag(imu, lid_on_imu)
-        applied["gyro_lag_estimated"] = True
-        log.info("gyro lag estimated from the lidar rotation increments: %.1f ms", lag * 1000)
-    lag = float(lag)
-    imu = apply_gyro_lag(imu, lag)
-    applied["gyro_lag_s"] = lag
 
     # --- start: first IMU sample covered by the ground truth (and the lidar, when it is fused)
     t_min = gt.t_s[0]
@@ -189,7 +178,8 @@ def prepare(ds: Dataset, cfg: dict) -> Prepared:
         applied["time_offset_s"]["odometer"] = off
         odo = replace(ds.odometer, t_s=ds.odometer.t_s + off)
         if ds.description.get("odometer_degrade", False) and cfg["odometer"]["added_noise_std_mps"] > 0:
-            rng = np.random.default_rng(cfg["gnss"]["seed"] + 1)
+            # its own stream of gnss.seed (seed + 1 would be the next Monte-Carlo trial's GNSS noise)
+            rng = np.random.default_rng([cfg["gnss"]["seed"], 2])
             odo = replace(odo, v_mps=odo.v_mps + rng.standard_normal(len(odo)) * cfg["odometer"]["added_noise_std_mps"])
             applied["odometer_added_noise_std_mps"] = cfg["odometer"]["added_noise_std_mps"]
         if needs_odo and (odo.t_s[-1] <= imu.t_s[k0] or odo.t_s[0] >= imu.t_s[-1]):

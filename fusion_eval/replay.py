@@ -91,6 +91,7 @@ def replay(prep: Prepared, s: Settings, progress: Callable[[float], None] | None
     if progress is not None:
         progress(1.0)
 
+    summaries = {b.name: b.summary() for b in bound if b.summary is not None}
     sl = slice(k0, None)
     rec = unpack(kf.rec_x[sl])
     fused = PoseSeries(t_s=t_imu[sl], p_w_m=rec["p"], q_wb_xyzw=matrix_to_quat_xyzw(rec["R"]), v_w_mps=rec["v"],
@@ -102,7 +103,8 @@ def replay(prep: Prepared, s: Settings, progress: Callable[[float], None] | None
         fused=fused, accel_bias_b=rec["ba"].copy(), gyro_bias_b=rec["bg"].copy(),
         sigma=np.sqrt(np.maximum(kf.arrays.rec_Pdiag[sl], 0.0)), P_pos_att=kf.arrays.rec_Ppt[sl],
         nis={k: {"t_s": np.array(v[0]), "nis": np.array(v[1]), "dof": dof[k],
-                 "rejected": int(np.size(v[2]) - np.count_nonzero(v[2]))} for k, v in nis.items() if v[0]},
+                 "rejected": int(np.size(v[2]) - np.count_nonzero(v[2])),
+                 **({"adapt": summaries[k]} if summaries.get(k) else {})} for k, v in nis.items() if v[0]},
         imu_only=imu_only, n_imu_samples=int(t_imu.size - k0), odometer_scale=k_scale,
     )
 

@@ -43,7 +43,7 @@ def _lyapunov_rk4(Ft, Qc, P0, T, steps):
 @pytest.mark.parametrize("dt", [0.005, 0.1, 1.7])
 def test_van_loan_equals_scipy_expm_of_the_block_matrix(dt):
     Ft, Qc = _model()
-    Phi, Qd = discretize.van_loan(Ft, Qc, dt)
+    Phi, Qd = discretize.van_loan(Ft, np.diag(Qc), dt)
     M = np.block([[-Ft, np.diag(Qc)], [np.zeros((N, N)), Ft.T]]) * dt
     E = expm(M)
     Phi_ref = E[N:, N:].T
@@ -59,7 +59,7 @@ def test_van_loan_equals_a_finely_substepped_propagation(dt):
     rng = np.random.default_rng(1)
     A = rng.standard_normal((N, N)) * 0.1
     P0 = A @ A.T + np.diag(np.full(N, 1e-4))
-    Phi, Qd = discretize.van_loan(Ft, Qc, dt)
+    Phi, Qd = discretize.van_loan(Ft, np.diag(Qc), dt)
     P = Phi @ P0 @ Phi.T + Qd
     ref = _lyapunov_rk4(Ft, Qc, P0, dt, 4000)
     assert np.abs(P - ref).max() < 1e-9 * max(1.0, np.abs(ref).max())
@@ -69,8 +69,8 @@ def test_second_order_local_error_is_third_order_and_its_noise_positive():
     Ft, Qc = _model(seed=5)
     errs = []
     for dt in (0.1, 0.05, 0.025):
-        Phi2, Qd2 = discretize.second_order(Ft, Qc, dt)
-        Phi, Qd = discretize.van_loan(Ft, Qc, dt)
+        Phi2, Qd2 = discretize.second_order(Ft, np.diag(Qc), dt)
+        Phi, Qd = discretize.van_loan(Ft, np.diag(Qc), dt)
         errs.append(np.abs(Phi2 - Phi).max())
         assert np.linalg.eigvalsh(Qd2).min() >= -1e-18
         # the trapezoid integrates Phi(s) Q_c Phi(s)^T to O(T^3) as well
@@ -79,14 +79,16 @@ def test_second_order_local_error_is_third_order_and_its_noise_positive():
     assert np.all((ratio > 7.0) & (ratio < 9.0)), ratio
     # and the first-order form is only second-order accurate
     Phi1, _ = discretize.transition(Ft, Qc, 0.1, discretize.FIRST_ORDER)
-    assert np.abs(Phi1 - discretize.van_loan(Ft, Qc, 0.1)[0]).max() > 10 * errs[0]
+    assert np.abs(Phi1 - discretize.van_loan(Ft, np.diag(Qc), 0.1)[0]).max() > 10 * errs[0]
 
 
-def test_sparse_first_order_kernel_equals_the_dense_form_with_a_clone():
+@pytest.mark.parametrize("decay", [0.0, 1 / 300.0])
+def test_sparse_first_order_kernel_equals_the_dense_form_with_a_clone(decay):
+    """Also with Gauss-Markov biases (decay rates 1/tau on the bias diagonal of F)."""
     rng = np.random.default_rng(2)
     R = Rotation.random(random_state=4).as_matrix()
     f, w = np.array([0.3, 0.1, 9.8]), np.array([0.01, 0.02, 0.2])
-    prm = imu_params(9.81, 0.05, 0.002, 1e-3, 1e-5, "first_order")
+    prm = imu_params(9.81, 0.05, 0.002, 1e-3, 1e-5, "first_order", decay, 2 * decay)
     n = eskf.LAYOUT.n
     A = rng.standard_normal((n, n)) * 0.1
     P = A @ A.T

@@ -89,6 +89,10 @@ def test_interrupted_sweep_resumes_without_losing_runs(small, tmp_path):
     proc.wait()
     before = {p.name: p.read_bytes() for p in (out / "records").glob("*.json")}
     assert 2 <= len(before) < 6
+    from fusion_eval.commands.sweep import plan
+
+    ids = {t.id for t in plan(sw, [str(small)], out)[0]}
+    assert {n[:-5] for n in before} <= ids, (sorted(before), sorted(ids))   # the same runs, planned in this process
     r = CliRunner().invoke(main, ["sweep", str(small), "--grid", str(sw), "--out", str(out), "--jobs", "1"])
     assert r.exit_code == 0, r.output
     assert f"{len(before)} already recorded" in r.output

@@ -38,9 +38,10 @@ class CheckUsageError(FusionEvalError):
     """A rule or pattern that cannot be evaluated."""
 
 
-def load_metrics(path: Path) -> tuple[dict[str, float], str, float]:
+def load_metrics(path: Path, trial_stat: str | None = "mean") -> tuple[dict[str, float], str, float]:
     """Flatten a metrics.json or sweep.csv into ``{path: value}``; returns it, the kind ('json' or 'csv') and
-    the per-distance RPE length the metrics were computed with."""
+    the per-distance RPE length the metrics were computed with. A metrics.json of a run with ``--trials`` gives
+    each metric's ``trial_stat`` over the trials (None: the first trial's own values)."""
     path = Path(path)
     if not path.exists():
         raise DataFormatError(path, None, "file not found (expected a metrics.json of fusion-eval run or a sweep.csv)")
@@ -52,26 +53,11 @@ def load_metrics(path: Path) -> tuple[dict[str, float], str, float]:
         raise DataFormatError(path, exc.lineno, f"not valid JSON ({exc.msg})") from None
     if not isinstance(body, dict) or not isinstance(body.get("estimates"), dict):
         raise DataFormatError(path, None, "expected a metrics.json of fusion-eval run (a mapping with 'estimates')")
-    out: dict[str, float] = {}
-    for est, d in body["estimates"].items():
-        for group, rels in d.items():
-            if not isinstance(rels, dict):
-                continue
-            for rel, stats in rels.items():
-                if not isinstance(stats, dict):
-                    continue
-                for stat, v in stats.items():
-                    if _is_num(v):
-                        out[f"{est}.{group}.{rel}.{stat}"] = float(v)
-                        if rel == "translation_m":
-                            out[f"{est}.{group}.{stat}"] = float(v)
-    for k, v in (body.get("ratios") or {}).items():
-        if _is_num(v):
-            out[f"ratios.{k}"] = float(v)
-    for kind, d in (body.get("nis") or {}).items():
-        for k in ("mean", "fraction_in_95"):
-            if _is_num(d.get(k)):
-                out[f"nis.{kind}.{k}"] = float(d[k])
+    out = keys.flatten(body)
+    if trial_stat is not None and body.get("trials"):
+        # a Monte-Carlo run: every metric is replaced by that statistic over its trials
+        stats = body["trials"]["stats"]
+        out = {k: float(stats[k][trial_stat]) for k in out if k in stats and _is_num(stats[k].get(trial_stat))}
     if not out:
         raise DataFormatError(path, None, "no numeric metrics found")
     return out, "json", keys.rpe_delta_of(body)
@@ -214,7 +200,8 @@ class CheckResult:
 
 
 def check(metrics_path: Path, baseline: Path, rtol: float, atol: float, patterns: tuple[str, ...] = (),
-          rules: tuple[str, ...] = (), junit_path: Path | None = None, summary_path: Path | None = None) -> CheckResult:
+          rules: tuple[str, ...] = (), junit_path: Path | None = None, summary_path: Path | None = None,
+          trial_stat: str | None = "mean") -> CheckResult:
     """Compare a metrics file with its baseline, evaluate the rules, write the summary (and JUnit)."""
     from ..errors import ConfigError
 
@@ -222,8 +209,8 @@ def check(metrics_path: Path, baseline: Path, rtol: float, atol: float, patterns
         raise ConfigError(f"--rtol and --atol must be finite numbers >= 0, got {rtol} and {atol}")
     from .. import resources
 
-    current, kind, delta = load_metrics(metrics_path)
-    base, base_kind, _ = load_metrics(resources.find(baseline))     # configs/baselines/... from any directory
+    current, kind, delta = load_metrics(metrics_path, trial_stat)
+    base, base_kind, _ = load_metrics(resources.find(baseline), trial_stat)   # configs/baselines/... from any directory
     if kind != base_kind:
         raise ConfigError(f"{metrics_path} is a {kind} file but the baseline {baseline} is a {base_kind} file")
     pats = tuple(patterns) or default_patterns(kind, delta)

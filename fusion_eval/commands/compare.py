@@ -22,6 +22,7 @@ from .. import session
 from ..config import Settings
 from ..datasets.tum import format_tum
 from ..errors import ConfigError
+from .. import trials as mc
 from ..evaluation import keys, span
 from ..evaluation.run_metrics import consistency, segments
 from ..evaluation.trajectory import evaluate, ratio
@@ -57,19 +58,8 @@ def _rms_lateral_vertical(vb: np.ndarray) -> dict:
     return {"lateral": float(np.sqrt(np.mean(vb[:, 1] ** 2))), "vertical": float(np.sqrt(np.mean(vb[:, 2] ** 2)))}
 
 
-def compare(dataset_path: Path | None, variants: list[str], variant_dir: Path | None, base_config: Path | None,
-            sets: tuple[str, ...], out_dir: Path | None, overwrite: bool = False, make_plots: bool = True,
-            progress: Callable[[float], None] | None = None) -> dict:
-    out_dir = out_dir if out_dir is not None else Path("results") / f"compare-{time.strftime('%Y%m%d-%H%M%S')}"
-    staged = StagedDir(out_dir, overwrite=overwrite)
-    staged.check()
-    if len(set(variants)) != len(variants) or not variants:
-        raise ConfigError("--variants needs one or more distinct names")
-    paths = [resolve_variant(v, variant_dir) for v in variants]
-    reqs = [session.request(config=base_config, variant=p, sets=sets) for p in paths]   # all validated before any work
-    ds = session.dataset(dataset_path)
-    cfgs = [session.resolve(r, ds) for r in reqs]
-
+def _replay_all(ds, variants: list[str], cfgs: list[dict], progress=None, frac: float = 1.0) -> tuple[list[VariantRun], object]:
+    """Every variant's filter over the same dataset (dead reckoning once, from the first variant's streams)."""
     runs: list[VariantRun] = []
     base_prep = None
     for i, (name, cfg) in enumerate(zip(variants, cfgs)):
@@ -77,36 +67,37 @@ def compare(dataset_path: Path | None, variants: list[str], variant_dir: Path | 
         prep = prepare(ds, cfg)
         base_prep = base_prep or prep
         with np.errstate(over="ignore", invalid="ignore"):
-            # dead reckoning is reported once, from the first variant's streams
             filt = replay(prep, Settings(cfg), imu_only=runs[0].filt.imu_only if runs else None)
         runs.append(VariantRun(name, cfg, filt, None, time.perf_counter() - t0))
         log.info("variant %s: filtered in %.2f s", name, runs[-1].runtime_s)
         if progress:
-            progress((i + 1) / (len(variants) + 1))
+            progress(frac * (i + 1) / (len(variants) + 1))
+    return runs, base_prep
 
+
+def _evaluate_all(runs: list[VariantRun], base_prep, ev_cfg: dict, pool):
+    """evo's metrics of every variant and unfiltered estimate, over one span (evaluation.span, the first
+    variant's setting); returns the unfiltered series, their evaluations and the span."""
     gt = base_prep.groundtruth
-    ev_cfg = cfgs[0]["evaluation"]
     unfiltered: dict[str, PoseSeries] = {"imu_only": runs[0].filt.imu_only}
     if base_prep.lidar is not None:
         unfiltered["lidar"] = base_prep.lidar
     if base_prep.gnss is not None:
         unfiltered["gnss"] = base_prep.gnss.as_poses()
-    # every variant and every unfiltered estimate over one span (evaluation.span, the first variant's setting)
     spans = {r.name: span.coverage(r.filt.fused) for r in runs}
     spans.update({k: span.coverage(s) for k, s in unfiltered.items()})
     sp = span.span_for(ev_cfg["span"], gt, spans)
     ref = span.crop(gt, sp)              # as evo's --t_start/--t_end: the reference reduced to the span
-    with executor(None) as pool:
-        args = (ev_cfg["t_max_diff_s"], ev_cfg["rpe_delta_m"], ev_cfg["association"], ev_cfg["alignment"])
-        fut_v = [pool.submit(evaluate, ref, r.filt.fused, r.name, *args) for r in runs]
-        fut_u = {k: pool.submit(evaluate, ref, s, k, *args) for k, s in unfiltered.items()}
-        for r, f in zip(runs, fut_v):
-            r.ev = f.result()
-            r.ev.results = {}
-        evs_u = {k: f.result() for k, f in fut_u.items()}
-    if progress:
-        progress(1.0)
+    args = (ev_cfg["t_max_diff_s"], ev_cfg["rpe_delta_m"], ev_cfg["association"], ev_cfg["alignment"])
+    fut_v = [pool.submit(evaluate, ref, r.filt.fused, r.name, *args) for r in runs]
+    fut_u = {k: pool.submit(evaluate, ref, s, k, *args) for k, s in unfiltered.items()}
+    for r, f in zip(runs, fut_v):
+        r.ev = f.result()
+        r.ev.results = {}
+    return unfiltered, {k: f.result() for k, f in fut_u.items()}, sp
 
+
+def _table(runs: list[VariantRun], evs_u: dict, gt: PoseSeries, ev_cfg: dict) -> list[dict]:
     table = [_variant_row(r, gt, evs_u, ev_cfg) for r in runs]
     for k, ev in evs_u.items():
         m = ev.metrics
@@ -116,6 +107,51 @@ def compare(dataset_path: Path | None, variants: list[str], variant_dir: Path | 
                       "rpe_1frame_trans_rmse_m": ((m.get("rpe_1frame") or {}).get("translation_m") or {}).get("rmse"),
                       "kitti_drift_t_err_pct": (ev.drift or {}).get("t_err_pct"),
                       "kitti_drift_r_err_deg_per_100m": (ev.drift or {}).get("r_err_deg_per_100m")})
+    return table
+
+
+def trial_table(ds, variants: list[str], cfgs: list[dict]) -> list[dict]:
+    """One Monte-Carlo trial of a comparison: its table only (in a worker)."""
+    runs, base_prep = _replay_all(ds, variants, cfgs)
+    _, evs_u, _ = _evaluate_all(runs, base_prep, cfgs[0]["evaluation"], executor(1))
+    return _table(runs, evs_u, base_prep.groundtruth, cfgs[0]["evaluation"])
+
+
+def compare(dataset_path: Path | None, variants: list[str], variant_dir: Path | None, base_config: Path | None,
+            sets: tuple[str, ...], out_dir: Path | None, overwrite: bool = False, make_plots: bool = True,
+            progress: Callable[[float], None] | None = None, trials: int = 1) -> dict:
+    out_dir = out_dir if out_dir is not None else Path("results") / f"compare-{time.strftime('%Y%m%d-%H%M%S')}"
+    staged = StagedDir(out_dir, overwrite=overwrite)
+    staged.check()
+    n_trials = mc.check_count(trials)
+    if len(set(variants)) != len(variants) or not variants:
+        raise ConfigError("--variants needs one or more distinct names")
+    paths = [resolve_variant(v, variant_dir) for v in variants]
+    reqs = [session.request(config=base_config, variant=p, sets=sets) for p in paths]   # all validated before any work
+    ds = session.dataset(dataset_path)
+    cfgs = [session.resolve(r, ds) for r in reqs]
+
+    with executor(None) as pool:
+        # trials 1.. on the pool (each one a whole comparison) while this process does trial 0 and its files
+        trial_futs = [pool.submit(trial_table, ds, variants, [mc.apply(c, i) for c in cfgs]) for i in range(1, n_trials)]
+        runs, base_prep = _replay_all(ds, variants, cfgs, progress, 1.0 / n_trials)
+        gt = base_prep.groundtruth
+        ev_cfg = cfgs[0]["evaluation"]
+        unfiltered, evs_u, sp = _evaluate_all(runs, base_prep, ev_cfg, pool)
+        table = _table(runs, evs_u, gt, ev_cfg)
+        tables = [table]
+        for i, f in enumerate(trial_futs, 2):
+            tables.append(f.result())
+            if progress:
+                progress(i / n_trials)
+    if progress:
+        progress(1.0)
+    trials_info = None
+    if n_trials > 1:
+        trials_info = {"n": n_trials, "seeds": [mc.trial_overrides(cfgs[0], i) for i in range(n_trials)],
+                       "per_trial": tables}
+        table = mc.aggregate_rows(tables, ("variant", "estimate"))
+
     gt_vb = body_velocity(gt) if gt.v_w_mps is not None else None
     truth_body = None if gt_vb is None else _rms_lateral_vertical(gt_vb)
 
@@ -127,9 +163,11 @@ def compare(dataset_path: Path | None, variants: list[str], variant_dir: Path | 
     with staged as out:
         result = {"dataset": ds.name, "variants": variants, "span": sp if sp is not None else {"mode": "own"},
                   "rows": table, "groundtruth_body_velocity_rms_mps": truth_body, "segments": seg}
+        if trials_info:
+            result["trials"] = trials_info
         out.write_text("compare.json", json.dumps(result, indent=2) + "\n")
-        out.write_text("compare.csv", csv_text(CSV_COLUMNS, table))
-        out.write_text("compare.md", _markdown(ds.name, table, truth_body, make_plots, sp)
+        out.write_text("compare.csv", csv_text(CSV_COLUMNS + (["trials", "ape_trans_rmse_m_std"] if trials_info else []), table))
+        out.write_text("compare.md", _markdown(ds.name, table, truth_body, make_plots, sp, n_trials)
                        + "\n".join(segments_section({"segments": seg})) + "\n")
         taken: set = set()
         for r in runs:
@@ -177,7 +215,7 @@ def _pct(x) -> str:
     return "" if x is None else f"{x * 100:.1f} %"
 
 
-def _markdown(name: str, rows: list[dict], truth_body, plots: bool, sp: dict | None = None) -> str:
+def _markdown(name: str, rows: list[dict], truth_body, plots: bool, sp: dict | None = None, n_trials: int = 1) -> str:
     order = [o.name for o in observations.REGISTRY]
     header = ["variant", "estimate", "APE trans RMSE [m]", "APE rot RMSE [deg]", "RPE trans 1 frame [m]", "fused/lidar",
               "fused/GNSS", "KITTI drift [%] / [deg/100 m]", "NEES pos in 95 %", "lateral / vertical body velocity RMS [m/s]",
@@ -186,14 +224,19 @@ def _markdown(name: str, rows: list[dict], truth_body, plots: bool, sp: dict | N
     for r in rows:
         bv = r.get("body_velocity_rms_mps")
         nis = r.get("nis_mean") or {}
-        body.append([r["variant"], r["estimate"], cell(r["ape_trans_rmse_m"]), cell(r.get("ape_rot_rmse_deg")),
+        ape = cell(r["ape_trans_rmse_m"]) + (f" +/- {cell(r['ape_trans_rmse_m_std'])}" if "ape_trans_rmse_m_std" in r else "")
+        body.append([r["variant"], r["estimate"], ape, cell(r.get("ape_rot_rmse_deg")),
                      cell(r.get("rpe_1frame_trans_rmse_m"), 4), cell(r.get("fused_over_lidar")), cell(r.get("fused_over_gnss")),
                      f"{cell(r.get('kitti_drift_t_err_pct'))} / {cell(r.get('kitti_drift_r_err_deg_per_100m'))}",
                      _pct(r.get("nees_position_in_95")), "" if not bv else f"{bv['lateral']:.3f} / {bv['vertical']:.3f}",
                      ", ".join(f"{b:.1f}" for b in r.get("final_gyro_bias_dph", [])),
                      ", ".join(f"{k} {nis[k]:.2f}" for k in sorted(nis, key=lambda k: order.index(k) if k in order else 99)),
-                     str(r.get("runtime_s", ""))])
-    L = [f"# fusion-eval compare: {name}", "", f"Span: {span.describe(sp)}.", ""] + markdown(header, body, align="llrrrrrlllllr")
+                     cell(r.get("runtime_s"), 2)])
+    L = [f"# fusion-eval compare: {name}", "", f"Span: {span.describe(sp)}.", ""]
+    if n_trials > 1:
+        L += [f"Means over {n_trials} Monte-Carlo trials (the seeds of every random element; APE: mean +/- std); the "
+              "plots and trajectories are trial 0's, every trial's table is in compare.json.", ""]
+    L += markdown(header, body, align="llrrrrrlllllr")
     if truth_body:
         L += ["", f"Ground truth body velocity RMS: lateral {truth_body['lateral']:.3f} m/s, vertical {truth_body['vertical']:.3f} m/s."]
     if plots:

@@ -17,11 +17,11 @@ def default_out_dir(dataset: Path, config_name: str) -> Path:
 
 
 def run(dataset: Path | None, config: Path | None, sets: tuple[str, ...], out_dir: Path | None, overwrite: bool = False,
-        progress: Callable[[float], None] | None = None) -> RunResult:
+        progress: Callable[[float], None] | None = None, trials: int = 1) -> RunResult:
     req = session.request(config=config, sets=sets)           # a bad configuration fails before any data is read
     dataset = resources.default_dataset() if dataset is None else resources.find(dataset)
     out_dir = out_dir if out_dir is not None else default_out_dir(dataset, req.source)
-    return run_to_dir(dataset, req, out_dir, overwrite=overwrite, progress=progress)
+    return run_to_dir(dataset, req, out_dir, overwrite=overwrite, progress=progress, trials=trials)
 
 
 def summary_table(metrics: dict) -> str:
@@ -38,4 +38,14 @@ def summary_table(metrics: dict) -> str:
     for k, v in metrics["ratios"].items():
         if v is not None:
             lines.append(f"{k.replace('_', ' ')} (APE RMSE): {v:.3f}")
+    tr = metrics.get("trials")
+    if tr:
+        lines.append(f"over {tr['n']} trials (mean +/- std, 95 % CI of the mean):")
+        for p in ("fused.ape.translation_m.rmse", "ratios.fused_over_lidar", "ratios.fused_over_gnss"):
+            st = tr["stats"].get(p)
+            if st and st.get("n"):
+                lo, hi = st["ci95_mean"]
+                lines.append(f"  {p}: {st['mean']:.3f} +/- {st['std']:.3f} ({lo:.3f} .. {hi:.3f})")
+        if tr.get("failed"):
+            lines.append(f"  {len(tr['failed'])} trials failed (see report.md)")
     return "\n".join(lines)

@@ -45,13 +45,14 @@ from typing import Callable
 import numpy as np
 
 from .. import resources, session
+from .. import trials as mc
 from ..config import check_value, read_yaml, schema
 from ..errors import ConfigError, FusionEvalError
 from ..variants import resolve_variant
 
 log = logging.getLogger(__name__)
 
-SWEEP_KEYS = {"datasets", "variants", "config", "plots", "grid", "settings", "random"}
+SWEEP_KEYS = {"datasets", "variants", "config", "plots", "grid", "settings", "random", "trials"}
 
 
 @dataclass(frozen=True)
@@ -65,6 +66,7 @@ class Task:
     base_config: dict | None
     plots: bool
     out_root: str                 # absolute
+    trial: int = 0                # Monte-Carlo trial: the seeds of every random element plus this
 
 
 def _num(v):
@@ -85,6 +87,9 @@ def load_sweep(path: Path) -> dict:
                             ("plots", bool, "true or false"), ("config", str, "a configuration file path")):
         if key in body and body[key] is not None and not isinstance(body[key], kind):
             raise ConfigError(f"{path}: '{key}' must be {what}, got {body[key]!r}")
+    tr = body.get("trials", 1)
+    if isinstance(tr, bool) or not isinstance(tr, int) or tr < 1:
+        raise ConfigError(f"{path}: 'trials' must be a whole number >= 1 (Monte-Carlo trials of every setting), got {tr!r}")
     rnd = body.get("random")
     if rnd:
         n, seed, ranges = rnd.get("n"), rnd.get("seed", 0), rnd.get("ranges")
@@ -157,9 +162,12 @@ def swept_keys(body: dict) -> list[str]:
     return keys
 
 
-def plan(sweep_path: Path, datasets: list[str], out_dir: Path, variant_dir: Path | None = None) -> tuple[list[Task], dict]:
-    """Every (dataset, variant, setting) run of a sweep, each with absolute paths."""
+def plan(sweep_path: Path, datasets: list[str], out_dir: Path, variant_dir: Path | None = None,
+         trials: int | None = None) -> tuple[list[Task], dict]:
+    """Every (dataset, variant, setting, trial) run of a sweep, each with absolute paths. ``trials``: Monte-Carlo
+    trials of every setting (default: the sweep file's ``trials``, else 1)."""
     body = load_sweep(sweep_path)
+    n_trials = mc.check_count(trials if trials is not None else body.get("trials", 1))
     here = Path(sweep_path).resolve().parent
     project = resources.project_root_of(sweep_path)
     given = list(datasets)
@@ -183,10 +191,14 @@ def plan(sweep_path: Path, datasets: list[str], out_dir: Path, variant_dir: Path
         ds_abs = str(Path(ds_path).resolve())
         for v in variants:
             for name, ov in settings:
-                cfg = session.resolve(session.request(config=base, variant=vpaths[v], overrides=ov), ds)
-                key = json.dumps({"dataset": ds_abs, "config": cfg}, sort_keys=True)
-                rid = hashlib.sha256(key.encode()).hexdigest()[:12]
-                tasks.append(Task(rid, ds_abs, v, vpaths[v], name, ov, base, bool(body.get("plots", False)), out_root))
+                cfg0 = session.resolve(session.request(config=base, variant=vpaths[v], overrides=ov), ds)
+                for i in range(n_trials):
+                    ov_i = {**ov, **mc.trial_overrides(cfg0, i)} if i else ov
+                    cfg = mc.apply(cfg0, i)
+                    key = json.dumps({"dataset": ds_abs, "config": cfg}, sort_keys=True)
+                    rid = hashlib.sha256(key.encode()).hexdigest()[:12]
+                    tasks.append(Task(rid, ds_abs, v, vpaths[v], name, ov_i, base, bool(body.get("plots", False)), out_root,
+                                      i))
     ids = [t.id for t in tasks]
     if len(set(ids)) != len(ids):
         log.warning("some settings resolve to the same configuration; they share one run")
@@ -206,7 +218,7 @@ def run_task(task: Task) -> dict:
 
     t0 = time.perf_counter()
     rec = {"id": task.id, "dataset": task.dataset, "variant": task.variant, "setting": task.setting,
-           "overrides": task.overrides}
+           "overrides": task.overrides, "trial": task.trial}
     out = Path(task.out_root) / "runs" / task.id
     try:
         overrides = {**task.overrides, **({} if task.plots else {"output.plots": False})}
@@ -309,7 +321,7 @@ def execute(tasks: list[Task], out_dir: Path, jobs: int | None, scheduler: str |
 def run_sweep(sweep: str | Path, datasets: list[str], out_dir: Path, jobs: int | None = None, variant_dir: Path | None = None,
               scheduler: str | None = None, dask_local: bool = False, retry_failed: bool = False,
               summarize_only: bool = False, plots: bool = True,
-              progress_for: Callable[[int], Callable | None] | None = None) -> dict:
+              progress_for: Callable[[int], Callable | None] | None = None, trials: int | None = None) -> dict:
     """Plan, run (unless ``summarize_only``) and summarise a sweep; ``sweep`` a file or a shipped sweep's name.
     ``progress_for(total)`` gives the progress callback of :func:`execute`. Returns the counts and the summary."""
     from .sweep_summary import write_summary
@@ -319,7 +331,7 @@ def run_sweep(sweep: str | Path, datasets: list[str], out_dir: Path, jobs: int |
     if jobs is not None and jobs < 1:
         raise ConfigError("--jobs must be >= 1")
     sweep_path = resources.sweep_file(str(sweep))
-    tasks, body = plan(sweep_path, datasets, out_dir, variant_dir)
+    tasks, body = plan(sweep_path, datasets, out_dir, variant_dir, trials)
     counts = {"run": 0, "failed": 0, "skipped": 0}
     if summarize_only:
         if not (Path(out_dir) / "records").is_dir():

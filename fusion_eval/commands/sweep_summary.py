@@ -39,7 +39,7 @@ def rows_of(tasks: list[Task], out_dir: Path, keys: list[str]) -> tuple[list[dic
             continue
         seen.add(key)
         r = recs.get(t.id)
-        row = {"id": t.id, "dataset": t.dataset, "variant": t.variant, "setting": t.setting}
+        row = {"id": t.id, "dataset": t.dataset, "variant": t.variant, "setting": t.setting, "trial": t.trial}
         for k in keys:
             row[k] = t.overrides.get(k, "")
         if r is None:
@@ -60,6 +60,30 @@ def rows_of(tasks: list[Task], out_dir: Path, keys: list[str]) -> tuple[list[dic
     if not metric_cols:
         metric_cols = [c for c, _ in mk.summary_columns(mk.DEFAULT_RPE_DELTA_M)]
     return rows, metric_cols
+
+
+def _over_trials(rows: list[dict], keys: list[str]) -> list[dict]:
+    """One row per (dataset, variant, setting): the means of its finished trials (``trials``, the rank metric's
+    std, ``failed_trials``); a setting none of whose trials finished keeps its first trial's status."""
+    from ..trials import aggregate_rows
+
+    by = ("dataset", "variant", "setting")
+    groups: dict = {}
+    for r in rows:
+        groups.setdefault(tuple(r[b] for b in by), []).append(r)
+    out = []
+    for group in groups.values():
+        ok = [r for r in group if r["status"] == "ok" and r.get(METRIC) is not None]
+        n_failed = sum(r["status"] == "failed" for r in group)
+        if not ok:
+            out.append({**group[0], "trials": 0, "failed_trials": n_failed})
+            continue
+        agg = aggregate_rows([[r] for r in ok], by, spread=METRIC)[0]
+        agg.update(id=ok[0]["id"], trial="mean", failed_trials=n_failed, status="ok",
+                   error="; ".join(r["error"] for r in group if r["status"] == "failed"))
+        agg.pop(f"{METRIC}_ci95", None)
+        out.append(agg)
+    return out
 
 
 def _span_note(rows: list[dict]) -> str:
@@ -89,21 +113,33 @@ def write_summary(tasks: list[Task], out_dir: Path, keys: list[str], plots: bool
     rows, metric_cols = rows_of(tasks, out_dir, keys)
     cols = ["id", "dataset", "variant", "setting", *keys, *metric_cols, "fused_over_lidar", "fused_over_gnss", "runtime_s",
             "status", "error"]
+    n_trials = 1 + max((t.trial for t in tasks), default=0)
+    if n_trials > 1:
+        # every trial in sweep_trials.csv; everything below is over the means of each setting's trials
+        _atomic(out_dir / "sweep_trials.csv", csv_text(["trial", *cols], rows, float_format="{:.6g}"))
+        rows = _over_trials(rows, keys)
+        cols = [*cols[:-2], "trials", f"{METRIC}_std", "failed_trials", "status", "error"]
     _atomic(out_dir / "sweep.csv", csv_text(cols, rows, float_format="{:.6g}"))
 
     ok = [r for r in rows if r["status"] == "ok" and r.get(METRIC) is not None]
     L = ["# fusion-eval sweep", "",
          f"{len(rows)} runs: {sum(r['status'] == 'ok' for r in rows)} finished, {sum(r['status'] == 'failed' for r in rows)} "
          f"failed, {sum(r['status'] == 'pending' for r in rows)} pending. Ranked by fused APE translation RMSE (lower is better).", ""]
+    if n_trials > 1:
+        L[2] = (f"{len(rows)} settings x {n_trials} Monte-Carlo trials (the seeds of every random element); the figures are "
+                f"means over each setting's finished trials (std of the APE RMSE in its own column; every trial in "
+                f"sweep_trials.csv). Ranked by the mean fused APE translation RMSE (lower is better).")
     datasets = sorted({r["dataset"] for r in rows})
     rot, rpe = mk.column("fused", mk.APE, "rotation_deg", "rmse"), mk.column("fused", mk.RPE_FRAME, "translation_m", "rmse")
     for ds in datasets:
         sub = sorted((r for r in ok if r["dataset"] == ds), key=lambda r: r[METRIC])
+        sd = [r.get(f"{METRIC}_std") for r in sub] if n_trials > 1 else None
         L += [f"## {ds}", "", _span_note(sub), ""] + markdown(
-            ["rank", "variant", "setting", "APE trans RMSE [m]", "APE rot RMSE [deg]", "RPE 1 frame [m]", "fused/lidar",
-             "fused/GNSS", "time [s]"],
-            [[i, r["variant"], r["setting"], r[METRIC], r.get(rot), r.get(rpe), r["fused_over_lidar"], r["fused_over_gnss"],
-              r["runtime_s"]] for i, r in enumerate(sub, 1)], align="rllrrrrrr", decimals=[0, 0, 0, 3, 3, 4, 3, 3, 1])
+            ["rank", "variant", "setting", "APE trans RMSE [m]", *(["std [m]"] if sd else []), "APE rot RMSE [deg]",
+             "RPE 1 frame [m]", "fused/lidar", "fused/GNSS", "time [s]"],
+            [[i, r["variant"], r["setting"], r[METRIC], *([sd[i - 1]] if sd else []), r.get(rot), r.get(rpe),
+              r["fused_over_lidar"], r["fused_over_gnss"], r["runtime_s"]] for i, r in enumerate(sub, 1)],
+            align="rllr" + ("r" if sd else "") + "rrrrr", decimals=[0, 0, 0, 3, *([3] if sd else []), 3, 4, 3, 3, 1])
         L.append("")
     # averaged across datasets: only settings that finished on every dataset
     avg: dict = {}

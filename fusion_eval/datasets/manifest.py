@@ -28,7 +28,7 @@ FORMATS = {
 }
 _POSE_KEYS = {"frame", "T_cam0_imu", "T_cam0_velo", "T_velo_imu", "times"}
 STREAM_KEYS = {
-    "imu": {"format", "path", "time_offset_s", "gyro_lag_s"},
+    "imu": {"format", "path", "time_offset_s", "gyro_lag_s", "accel_lag_s"},
     "gnss": {"format", "path", "time_offset_s", "std_m", "degrade"},
     "groundtruth": {"format", "path", "time_offset_s"} | _POSE_KEYS,
     "lidar": {"format", "path", "time_offset_s", "anchor"} | _POSE_KEYS,
@@ -57,6 +57,8 @@ def load_dataset(path: str | Path, extra_streams: tuple[StreamSpec, ...] | None 
         return _from_manifest(path / "dataset.yaml", extra)
     if (path / "oxts").is_dir():
         streams = {s: {"format": "kitti_oxts", "path": "oxts"} for s in ("imu", "gnss", "groundtruth")}
+        # the OXTS rates lag the packet clock: estimated, or the device figure (fusion_eval.timing)
+        streams["imu"]["gyro_lag_s"] = "auto"
         streams.update({n: {"format": "kitti_oxts", "path": "oxts"} for n, spec in extra.items() if spec.implicit_kitti_raw})
         return _from_manifest_dict({"name": path.name, "streams": streams}, path, path / "(implicit manifest)", extra)
     raise DataFormatError(path, None, "expected dataset.yaml or an oxts/ folder (KITTI raw drive) in this folder")
@@ -100,9 +102,10 @@ def _from_manifest_dict(body: dict, root: Path, manifest: Path, extra: dict | No
         if fmt != "kitti_poses" and "times" in spec:
             raise ConfigError(f"{manifest}: 'times' applies to kitti_poses streams only (stream {name!r} is {fmt}: "
                               "its file has its own timestamps)")
-        for key in ("time_offset_s", "gyro_lag_s"):
+        for key in ("time_offset_s", "gyro_lag_s", "accel_lag_s"):
             v = spec.get(key, 0.0)
-            if not (v == "auto" and key == "gyro_lag_s") and not _is_num(v):
+            may_be_auto = key != "time_offset_s" or name == "lidar"     # estimated by fusion_eval.timing
+            if not (v == "auto" and may_be_auto) and not _is_num(v):
                 raise ConfigError(f"{manifest}: {key} of stream {name!r} must be a number of seconds, got {v!r}")
         if "degrade" in spec and not isinstance(spec["degrade"], bool):
             raise ConfigError(f"{manifest}: 'degrade' of stream {name!r} must be true or false, got {spec['degrade']!r}")
@@ -149,8 +152,10 @@ def _from_manifest_dict(body: dict, root: Path, manifest: Path, extra: dict | No
         "manifest": str(manifest),
         "attribution": body.get("attribution"),
         "description": body.get("description"),
-        "time_offset_s": {s: float(streams[s].get("time_offset_s", 0.0)) for s in streams},
+        "time_offset_s": {s: (v if v == "auto" else float(v)) for s in streams
+                          for v in [streams[s].get("time_offset_s", 0.0)]},
         "gyro_lag_s": imu_spec.get("gyro_lag_s", 0.0),
+        "accel_lag_s": imu_spec.get("accel_lag_s", 0.0),
         "lidar_anchor": streams.get("lidar", {}).get("anchor", "groundtruth"),
         # the lidar frame clock recovered from the stamps of the IMU packets (times.smooth_s), if asked for
         "lidar_clock": lidar_notes.get("clock"),

@@ -72,3 +72,38 @@ def csv_check_patterns() -> tuple[str, ...]:
     return (f"*.{column('fused', APE, 'translation_m', 'rmse')}", f"*.{column('fused', APE, 'rotation_deg', 'rmse')}",
             f"*.{column('fused', RPE_FRAME, 'translation_m', 'rmse')}",
             f"*.{column('fused', 'rpe_*m', 'translation_m', 'rmse')}")
+
+
+def _num(v) -> bool:
+    import math
+
+    return isinstance(v, (int, float)) and not isinstance(v, bool) and math.isfinite(v)
+
+
+def flatten(metrics: dict) -> dict[str, float]:
+    """A ``metrics.json`` as ``{check path: value}``: ``<estimate>.<group>.<relation>.<stat>`` (and the translation
+    part also as ``<estimate>.<group>.<stat>``), ``<estimate>.kitti_drift.<stat>``, ``ratios.<name>``,
+    ``nis.<observation>.mean|fraction_in_95`` and ``nees.<position|attitude>.mean|fraction_in_95``."""
+    out: dict[str, float] = {}
+    for est, d in (metrics.get("estimates") or {}).items():
+        for group, rels in d.items():
+            if not isinstance(rels, dict):
+                continue
+            for rel, stats in rels.items():
+                if isinstance(stats, dict):
+                    for stat, v in stats.items():
+                        if _num(v):
+                            out[f"{est}.{group}.{rel}.{stat}"] = float(v)
+                            if rel == "translation_m":
+                                out[f"{est}.{group}.{stat}"] = float(v)
+                elif _num(stats) and group == "kitti_drift":
+                    out[f"{est}.{group}.{rel}"] = float(stats)
+    for k, v in (metrics.get("ratios") or {}).items():
+        if _num(v):
+            out[f"ratios.{k}"] = float(v)
+    for section in ("nis", "nees"):
+        for kind, d in (metrics.get(section) or {}).items():
+            for k in ("mean", "fraction_in_95"):
+                if isinstance(d, dict) and _num(d.get(k)):
+                    out[f"{section}.{kind}.{k}"] = float(d[k])
+    return out

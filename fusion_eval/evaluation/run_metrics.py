@@ -37,7 +37,8 @@ def consistency(gt: PoseSeries, filt) -> dict:
     covariance against its error from the ground truth), each with its 95 % chi-square summary and the
     series (``t_s``, ``values``) for plots."""
     out: dict = {"nis": {k: {**summary(d["nis"], d["dof"]), "rejected": d.get("rejected", 0), "t_s": d["t_s"],
-                             "values": d["nis"]} for k, d in filt.nis.items()}}
+                             "values": d["nis"], **({"adapt": d["adapt"]} if "adapt" in d else {})}
+                         for k, d in filt.nis.items()}}
     gi, sel = _truth_at_fused(gt, filt)
     n_pos, n_att = pose_nees(filt.fused.p_w_m[sel], filt.fused.R_wb()[sel], gi.p_w_m, gi.R_wb(), filt.P_pos_att[sel])
     ok = np.isfinite(n_pos) & np.isfinite(n_att)

@@ -27,6 +27,10 @@ def formulation_of(cfg: dict):
 def check_combination(cfg: dict) -> None:
     """Reject combinations of variant axes that do not make sense, naming the keys."""
     cls = formulation_of(cfg)
+    bias = cfg["filter"]["bias_model"]
+    if bias not in cls.bias_models:
+        raise ConfigError(f"filter.bias_model={bias} is not implemented by filter.formulation={cls.name} with "
+                          f"filter.process_model={cls.process_model} (it has: {', '.join(cls.bias_models)})")
     have = canonical_blocks(cls.layout, cls.pairs)
     for o in observations.enabled(cfg):
         missing = sorted(o.blocks - have)

@@ -59,13 +59,12 @@ def expm(A):
 
 @njit(cache=True)
 def van_loan(Ft, Qc, dt):
-    """Exact ``Phi = expm(F_t T)`` and ``Q_d = int_0^T Phi(s) Q_c Phi(s)^T ds`` (``Qc``: the diagonal, (n,))."""
+    """Exact ``Phi = expm(F_t T)`` and ``Q_d = int_0^T Phi(s) Q_c Phi(s)^T ds`` (``Qc``: the full density, (n, n))."""
     n = Ft.shape[0]
     M = np.zeros((2 * n, 2 * n))
     M[:n, :n] = -Ft * dt
     M[n:, n:] = Ft.T * dt
-    for i in range(n):
-        M[i, n + i] = Qc[i] * dt
+    M[:n, n:] = Qc * dt
     E = expm(M)
     Phi = np.ascontiguousarray(E[n:, n:].T)
     Qd = Phi @ np.ascontiguousarray(E[:n, n:])
@@ -74,28 +73,28 @@ def van_loan(Ft, Qc, dt):
 
 @njit(cache=True)
 def second_order(Ft, Qc, dt):
-    """``Phi = I + F_t T + (F_t T)^2 / 2`` and ``Q_d = T/2 (Phi Q_c Phi^T + Q_c)``."""
+    """``Phi = I + F_t T + (F_t T)^2 / 2`` and ``Q_d = T/2 (Phi Q_c Phi^T + Q_c)`` (``Qc``: (n, n))."""
     n = Ft.shape[0]
     FT = Ft * dt
     Phi = np.eye(n) + FT + 0.5 * (FT @ FT)
-    Qd = 0.5 * dt * ((Phi * Qc) @ Phi.T)
-    for i in range(n):
-        Qd[i, i] += 0.5 * dt * Qc[i]
-    return Phi, Qd
+    Qd = 0.5 * dt * (Phi @ Qc @ Phi.T + Qc)
+    return Phi, 0.5 * (Qd + Qd.T)
 
 
 @njit(cache=True)
-def transition(Ft, Qc, dt, method):
-    """``(Phi, Q_d)`` by ``method`` (one of :data:`METHODS`' values)."""
+def transition_full(Ft, Qc, dt, method):
+    """``(Phi, Q_d)`` by ``method`` (one of :data:`METHODS`' values) for a full noise density ``Qc`` (n, n)."""
     if method == VAN_LOAN:
         return van_loan(Ft, Qc, dt)
     if method == SECOND_ORDER:
         return second_order(Ft, Qc, dt)
-    n = Ft.shape[0]
-    Qd = np.zeros((n, n))
-    for i in range(n):
-        Qd[i, i] = Qc[i] * dt
-    return np.eye(n) + Ft * dt, Qd
+    return np.eye(Ft.shape[0]) + Ft * dt, Qc * dt
+
+
+@njit(cache=True)
+def transition(Ft, Qc, dt, method):
+    """``(Phi, Q_d)`` for a diagonal noise density (``Qc``: the diagonal, (n,))."""
+    return transition_full(Ft, np.diag(Qc), dt, method)
 
 
 @njit(cache=True)

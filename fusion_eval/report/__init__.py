@@ -41,6 +41,11 @@ def write_evaluation(out: StagedDir, res, plots_written: list[str], pool=None) -
             out.write_bytes(name, data)
     out.write_text("metrics.json", files.metrics_json(res.metrics))
     out.write_text("metrics.csv", files.metrics_csv(res.evals, res.ratios))
+    if res.metrics.get("trials"):
+        from ..tables import csv_text
+        from ..trials import csv_rows
+
+        out.write_text("trials.csv", csv_text(*csv_rows(res.metrics["trials"]), float_format="{:.6g}"))
     out.write_text("config.resolved.yaml", files.resolved_config(res.cfg, res.resolved_extra))
     jobs = []
     plots_written = list(plots_written)
@@ -55,6 +60,9 @@ def write_evaluation(out: StagedDir, res, plots_written: list[str], pool=None) -
         if res.consistency.get("nees"):
             jobs.append((plots.plot_consistency, out.path("consistency.png"), res.consistency, t0))
             plots_written.append("consistency.png")
+        if res.metrics.get("trials"):
+            jobs.append((plots.plot_trials, out.path("trials.png"), res.metrics["trials"]))
+            plots_written.append("trials.png")
         if res.segments and "fused" in res.evals:
             jobs.append((plots.plot_segment_map, out.path("segments_map.png"), res.evals, res.segments))
             plots_written.append("segments_map.png")

@@ -31,6 +31,13 @@ def consistency_section(m: dict) -> list[str]:
             lo, hi = d["bounds_95"]
             L.append(f"| {label} {k} | {d['epochs']} | {d['dof']} | {d['mean']:.2f} | [{lo:.2f}, {hi:.2f}] | "
                      f"{d['fraction_in_95'] * 100:.1f} % |")
+    for k, d in (m.get("nis") or {}).items():
+        if d.get("rejected"):
+            L.append(f"\n{d['rejected']} {k} update(s) rejected by the chi-square gate (not in the NIS above).")
+        if d.get("adapt"):
+            a = d["adapt"]
+            L.append(f"\n{k} noise adapted online to its innovations: position std x {a['pos_std_factor_median']:.2f}, "
+                     f"rotation std x {a['att_std_factor_median']:.2f} (median over the second half of the drive).")
     L += ["", "NEES uses the filter's covariance and its error against the ground truth; NIS the innovations alone. A "
           "consistent filter has a mean near the dof and about 95 % inside; a mean well below means the filter is "
           "conservative (noise too large), well above overconfident."]
@@ -62,6 +69,20 @@ def segments_section(m: dict) -> list[str]:
 
 
 _UNITS = {"mps": "m/s", "m": "m"}
+
+
+def _estimates(applied: dict) -> list[str]:
+    """One line per quantity estimated from the data (time offsets, extrinsic), with its uncertainty."""
+    out = []
+    for name, e in applied.get("time_estimates", {}).items():
+        unc = "" if e.get("std_s") is None else f" +/- {e['std_s'] * 1000:.1f} ms (jackknife)"
+        out.append(f"- Estimated {name.replace('_', ' ')}: {e['value_s'] * 1000:.1f} ms{unc}, from {e['method']}.")
+    x = applied.get("lidar_extrinsic")
+    if x:
+        out.append(f"- Estimated lidar-IMU rotation correction (roll, pitch, yaw): "
+                   f"{', '.join(f'{v:.2f}' for v in x['rpy_mrad'])} mrad +/- {', '.join(f'{v:.2f}' for v in x['std_mrad'])}"
+                   f" (jackknife), from {x['method']}; applied to the lidar poses.")
+    return out
 
 
 def _stream_info(name: str, info: dict) -> str:
@@ -120,6 +141,10 @@ def report_md(dataset: str, config_name: str, evals: dict, ratios: dict, cfg: di
              " (reference interpolated at the estimate's stamps: linear position, SLERP rotation)")
           + f"; alignment: **{ev0.get('alignment', 'none')}**. Matched poses are in the table above.",
           "", "Span: " + describe_span(ev0.get("span") if (ev0.get("span") or {}).get("mode") == "common" else None) + "."]
+    if metrics.get("trials"):
+        from ..trials import markdown as trials_md
+
+        L += [""] + trials_md(metrics["trials"])
     L += drift_section(metrics) + consistency_section(metrics) + segments_section(metrics)
     L += ["## GNSS degradation", ""]
     if gnss_info is None:
@@ -143,7 +168,9 @@ def report_md(dataset: str, config_name: str, evals: dict, ratios: dict, cfg: di
           f"{' and lidar' if cfg['filter']['lidar_update'] != 'none' else ''}).",
           f"- Filled-in IMU packets: {applied['imu_filled_samples']} ({applied['imu_filled_packets']}); filled-in "
           "ground-truth and GNSS packets are never used.",
-          f"- Gyro lag correction: {applied['gyro_lag_s'] * 1000:.1f} ms.",
+          f"- IMU channel lags corrected: gyro {applied['gyro_lag_s'] * 1000:.1f} ms, accelerometer "
+          f"{applied.get('accel_lag_s', 0.0) * 1000:.1f} ms.",
+          *_estimates(applied),
           f"- Time offsets [s]: {applied['time_offset_s']}.",
           f"- Gravity: {applied['gravity_mps2']:.5f} m/s^2."]
     if applied.get("lidar_clock"):

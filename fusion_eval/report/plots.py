@@ -371,3 +371,35 @@ def plot_generic_trajectories(path: Path, ref, estimates: dict) -> None:
     ax.grid(alpha=0.3)
     ax.legend(fontsize=8)
     _save(fig, path)
+
+
+def plot_trials(path: Path, sec: dict) -> None:
+    """Monte-Carlo trials: each trial's APE translation RMSE per estimate and its fused/sensor ratios, with the
+    mean and the 95 % confidence interval of the mean."""
+    rows = [r for r in sec["per_trial"] if "failed" not in r]
+    fig, axes = plt.subplots(1, 2, figsize=(11, 4))
+    panels = [(axes[0], [(n, f"{n}.ape.translation_m.rmse") for n in ("fused", "lidar", "gnss")], "APE translation RMSE [m]"),
+              (axes[1], [(n, f"ratios.fused_over_{n}") for n in ("lidar", "gnss")], "fused APE RMSE / sensor alone")]
+    for ax, items, ylabel in panels:
+        shown = 0
+        for x, (name, key) in enumerate(items):
+            v = np.array([r[key] for r in rows if r.get(key) is not None], float)
+            if v.size == 0:
+                continue
+            st = sec["stats"].get(key, {})
+            jitter = (np.arange(v.size) - (v.size - 1) / 2) * (0.3 / max(v.size, 1))
+            c = COLORS.get(name, "tab:gray") if not key.startswith("ratios") else COLORS.get(name)
+            ax.plot(x + jitter, v, "o", color=c, alpha=0.6, ms=4)
+            lo, hi = st.get("ci95_mean", [np.nan, np.nan])
+            ax.errorbar([x + 0.3], [st["mean"]], yerr=[[st["mean"] - lo], [hi - st["mean"]]] if np.isfinite(lo) else None,
+                        fmt="s", color="black", capsize=4, ms=5)
+            shown += 1
+        ax.set_xticks(range(len(items)))
+        ax.set_xticklabels([LABELS.get(n, n) if not k.startswith("ratios") else f"fused / {n}" for n, k in items])
+        ax.set_ylabel(ylabel)
+        ax.grid(alpha=0.3, axis="y")
+        if items[0][1].startswith("ratios"):
+            ax.axhline(1.0, color="gray", lw=0.8, ls="--")
+    fig.suptitle(f"{sec['n']} Monte-Carlo trials (dots), mean with its 95 % confidence interval (squares)")
+    fig.subplots_adjust(left=0.08, right=0.98, top=0.88, bottom=0.1, wspace=0.25)
+    _save(fig, path)

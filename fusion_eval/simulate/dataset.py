@@ -33,7 +33,7 @@ from ..errors import ConfigError
 from ..fastfmt import format_table, table_text
 from ..geo import normal_gravity_mps2
 from ..outputs import StagedDir
-from ..so3 import inv_T, make_T, matrix_to_quat_xyzw
+from ..so3 import exp_so3, inv_T, make_T, matrix_to_quat_xyzw
 from . import sensors
 from .motion import PROFILES, profile_segments, sample_motion
 from .settings import GRADES, sim_schema
@@ -120,7 +120,7 @@ def simulate(out_dir: Path, profile: str, duration_s: float, seed: int, grade: s
     n = int(round(duration_s * rate)) + 1
     t = c["start"]["posix_s"] + np.arange(n) / rate
     m = sample_motion(segs, yaw0, t, g, n_prefix=n_prefix)
-    im = sensors.imu(m, c["imu"], rng)
+    im = sensors.imu(_lagged(m, c["imu"], segs, yaw0, t, g, n_prefix), c["imu"], rng)
     gt_t, gps_p, gps_std = sensors.gnss(m, c["gnss"], rng)
     odo_t, odo_v = sensors.odometer(m, c["odometer"], rng)
     lc = c["lidar"]
@@ -175,19 +175,23 @@ def simulate(out_dir: Path, profile: str, duration_s: float, seed: int, grade: s
         Tr[:3, :] = np.reshape(TR_VELO_TO_CAM0, (3, 4))
         T_c_b = Tr @ T_velo_imu
         t_l = t[l_idx]
+        t_l_stamp = t_l - lc["time_offset_s"]          # the lidar clock's stamps
+        E = make_T(exp_so3(np.asarray(lc["extrinsic_error_rpy_mrad"], float) * 1e-3), np.asarray(lc["extrinsic_error_m"], float))
         if lc["mode"] == "odometry":
-            T_c = T_c_b[None] @ make_T(l_R, l_p) @ inv_T(T_c_b)[None]
+            # the true mount differs from the calibration file by E: the tool reads E T E^-1 as IMU motion
+            T_c = (T_c_b @ E)[None] @ make_T(l_R, l_p) @ inv_T(T_c_b @ E)[None]
             out.write_text("lidar/poses.txt", "\n".join(" ".join(f"{x:.12e}" for x in T[:3, :].ravel()) for T in T_c) + "\n")
             out.write_text("lidar/times.txt", "\n".join(f"{x - t_l[0]:.9f}" for x in t_l) + "\n")
             out.write_text("lidar/calib.txt", "Tr: " + " ".join(f"{x:.12e}" for x in TR_VELO_TO_CAM0) + "\n")
             lidar_stream = {"format": "kitti_poses", "path": "lidar/poses.txt", "frame": "cam0",
                             "T_cam0_velo": {"file": "lidar/calib.txt", "key": "Tr"},
                             "T_velo_imu": {"file": "calib_imu_to_velo.txt"},
-                            "times": {"file": "lidar/times.txt", "t0_s": float(t_l[0])}, "anchor": "groundtruth"}
+                            "times": {"file": "lidar/times.txt", "t0_s": float(t_l_stamp[0])}, "anchor": "groundtruth"}
         else:
-            q = matrix_to_quat_xyzw(l_R)
+            T_m = make_T(l_R, l_p) @ inv_T(E)[None]        # the IMU pose the mis-calibrated chain reports
+            q = matrix_to_quat_xyzw(T_m[:, :3, :3])
             out.write_text("lidar/map_matching.tum", "# t x y z qx qy qz qw (world IMU poses, map matching)\n" +
-                           table_text(np.column_stack([t_l, l_p, q]), [6] + [9] * 7))
+                           table_text(np.column_stack([t_l_stamp, T_m[:, :3, 3], q]), [6] + [9] * 7))
             lidar_stream = {"format": "tum", "path": "lidar/map_matching.tum", "frame": "imu", "anchor": "none"}
 
         out.write_text("truth/imu_biases.csv", "t_s,ba_x_mps2,ba_y_mps2,ba_z_mps2,bg_x_rps,bg_y_rps,bg_z_rps\n" +
@@ -224,6 +228,19 @@ def simulate(out_dir: Path, profile: str, duration_s: float, seed: int, grade: s
                        yaml.safe_dump(manifest, sort_keys=False))
     return {"name": name, "samples": n, "distance_m": truth["distance_m"], "lidar_frames": int(l_idx.size),
             "gnss_fixes": int(gt_t.size)}
+
+
+def _lagged(m, ci: dict, segs, yaw0: float, t: np.ndarray, g: float, n_prefix: int):
+    """The motion the IMU channels see: each reports its quantity of ``<channel>_lag_s`` earlier (sampled
+    exactly there, not interpolated)."""
+    from dataclasses import replace
+
+    f, w = m.f_b_mps2, m.w_b_rps
+    if ci["accel_lag_s"]:
+        f = sample_motion(segs, yaw0, t - ci["accel_lag_s"], g, n_prefix=n_prefix, t_origin_s=t[0]).f_b_mps2
+    if ci["gyro_lag_s"]:
+        w = sample_motion(segs, yaw0, t - ci["gyro_lag_s"], g, n_prefix=n_prefix, t_origin_s=t[0]).w_b_rps
+    return replace(m, f_b_mps2=f, w_b_rps=w)
 
 
 @dataclass(frozen=True)
@@ -268,10 +285,12 @@ def suggested_config(c: dict) -> dict:
     """The filter settings a user would take from these sensors' datasheets (the simulator's true specs)."""
     i, lc = c["imu"], c["lidar"]
     odo = lc["mode"] == "odometry"
+    gm = i["bias_corr_time_s"] > 0    # a datasheet's bias instability with its correlation time
     return {
-        "filter": {"lidar_update": "relative" if odo else "absolute"},
+        "filter": {"lidar_update": "relative" if odo else "absolute"} | ({"bias_model": "gauss_markov"} if gm else {}),
         "imu": {k: max(i[k], 1e-9) for k in ("accel_noise_mps2_sqrthz", "gyro_noise_dps_sqrthz",
-                                             "accel_bias_rw_mps3_sqrthz", "gyro_bias_rw_dps2_sqrthz")} | {"gyro_lag_s": 0.0},
+                                             "accel_bias_rw_mps3_sqrthz", "gyro_bias_rw_dps2_sqrthz")} | {"gyro_lag_s": 0.0}
+               | ({"accel_bias_corr_time_s": i["bias_corr_time_s"], "gyro_bias_corr_time_s": i["bias_corr_time_s"]} if gm else {}),
         "lidar": ({"relative_pos_std_m": max(lc["pos_noise_std_m"], 1e-3), "relative_pos_std_frac": lc["scale_drift"],
                    "relative_att_std_deg": max(lc["att_noise_std_deg"], 1e-3)} if odo else
                   {"absolute_pos_std_m": max(lc["pos_noise_std_m"], 1e-3), "absolute_att_std_deg": max(lc["att_noise_std_deg"], 1e-3)}),

@@ -194,12 +194,17 @@ def repeat_to(segs: list[Segment], duration_s: float, n_prefix: int = 1) -> list
 
 
 def sample_motion(segs: list[Segment], yaw0_rad: float, t_s: np.ndarray, g_mps2: float, oversample: int = 4,
-                  n_prefix: int = 1) -> Motion:
-    """Evaluate the motion at the stamps ``t_s`` (uniform), integrating yaw and position on a finer grid."""
+                  n_prefix: int = 1, t_origin_s: float | None = None) -> Motion:
+    """Evaluate the motion at the stamps ``t_s`` (uniform), integrating yaw and position on a finer grid.
+
+    ``t_origin_s``: the time at which the profile starts (default ``t_s[0]``); an earlier origin samples the
+    same motion later in its course (the rates and specific force are exact there; yaw and position are
+    integrated from ``t_s[0]``)."""
     n = t_s.size
+    t_origin = t_s[0] if t_origin_s is None else t_origin_s
     dt = (t_s[-1] - t_s[0]) / (n - 1)
     tf = t_s[0] + np.arange((n - 1) * oversample + 1) * (dt / oversample)
-    val, der = _channels(repeat_to(segs, t_s[-1] - t_s[0], n_prefix), tf - t_s[0])
+    val, der = _channels(repeat_to(segs, t_s[-1] - t_origin, n_prefix), np.maximum(tf - t_origin, 0.0))
     v, yaw_rate, slope = val.T
     dv, _, dslope = der.T
     pitch, dpitch = -slope, -dslope

@@ -36,8 +36,16 @@ def imu(m: Motion, c: dict, rng: np.random.Generator) -> ImuOut:
     walk_a = rng.standard_normal((n, 3)) * c["accel_bias_rw_mps3_sqrthz"] * np.sqrt(dt)
     walk_g = rng.standard_normal((n, 3)) * c["gyro_bias_rw_dps2_sqrthz"] * D2R * np.sqrt(dt)
     walk_a[0] = walk_g[0] = 0.0
-    ba = ba0 + np.cumsum(walk_a, axis=0)
-    bg = bg0 + np.cumsum(walk_g, axis=0)
+    tau = c["bias_corr_time_s"]
+    if tau > 0:
+        # first-order Gauss-Markov, exact discretisation: b_k+1 = a b_k + w_k, var(w) = q^2 tau / 2 (1 - a^2);
+        # walk_* hold q sqrt(dt) draws, rescaled to that variance
+        a = np.exp(-dt / tau)
+        k = np.sqrt(tau / 2 * (1 - a * a) / dt)
+        ba, bg = _ar1(ba0, walk_a * k, a), _ar1(bg0, walk_g * k, a)
+    else:
+        ba = ba0 + np.cumsum(walk_a, axis=0)
+        bg = bg0 + np.cumsum(walk_g, axis=0)
     na = rng.standard_normal((n, 3)) * c["accel_noise_mps2_sqrthz"] / np.sqrt(dt)
     ng = rng.standard_normal((n, 3)) * c["gyro_noise_dps_sqrthz"] * D2R / np.sqrt(dt)
     sa = rng.standard_normal(3) * c["scale_factor_std_ppm"]
@@ -45,6 +53,15 @@ def imu(m: Motion, c: dict, rng: np.random.Generator) -> ImuOut:
     f = m.f_b_mps2 * (1 + sa * 1e-6) + ba + na
     w = m.w_b_rps * (1 + sg * 1e-6) + bg + ng
     return ImuOut(f, w, ba, bg, sa, sg)
+
+
+def _ar1(x0: np.ndarray, w: np.ndarray, a: float) -> np.ndarray:
+    """x_0 = x0, x_k = a x_k-1 + w_k (rows), by a linear filter (no Python loop over the samples)."""
+    from scipy.signal import lfilter
+
+    w = w.copy()
+    w[0] = x0
+    return lfilter([1.0], [1.0, -a], w, axis=0)
 
 
 def gnss_epochs(m: Motion, c: dict) -> tuple[np.ndarray, np.ndarray]:

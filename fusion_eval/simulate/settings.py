@@ -21,6 +21,10 @@ SIM_SCHEMA: dict[str, Spec] = {
     "imu.gyro_bias_rw_dps2_sqrthz": S(1e-5, "gyroscope bias random walk, deg/s^2/sqrt(Hz)", nonneg=True),
     "imu.accel_bias_init_std_mps2": S(0.02, "std of the initial accelerometer bias (drawn once per axis), m/s^2", nonneg=True),
     "imu.gyro_bias_init_std_dps": S(0.05, "std of the initial gyroscope bias, deg/s", nonneg=True),
+    "imu.bias_corr_time_s": S(0.0, "bias process: 0 = random walk; > 0 = first-order Gauss-Markov with this correlation "
+                                   "time (s), driven by the *_bias_rw_* densities", nonneg=True),
+    "imu.accel_lag_s": S(0.0, "the accelerometer reports the specific force of accel_lag_s earlier (a latency), s", nonneg=True),
+    "imu.gyro_lag_s": S(0.0, "the gyro reports the rate of gyro_lag_s earlier (KITTI's OXTS: about 60 ms), s", nonneg=True),
     "imu.scale_factor_std_ppm": S(0.0, "std of the accelerometer and gyro scale-factor errors (drawn once per axis), ppm", nonneg=True),
     "gnss.rate_hz": S(1.0, "GNSS fix rate, Hz", positive=True),
     "gnss.noise_std_m": S([1.0, 1.0, 2.0], "GNSS white noise per axis E/N/U, m", nonneg=True),
@@ -37,6 +41,11 @@ SIM_SCHEMA: dict[str, Spec] = {
     "lidar.att_noise_std_deg": S(0.05, "attitude noise per increment or per pose, deg", nonneg=True),
     "lidar.scale_drift": S(0.005, "odometry: fractional scale error of the translation increments", nonneg=True),
     "lidar.yaw_drift_deg_per_100m": S(0.3, "odometry: yaw drift added per 100 m travelled, deg", nonneg=True),
+    "lidar.time_offset_s": S(0.0, "the lidar stamps are written this much early (true time = stamp + offset): the "
+                                  "filter's lidar.time_offset_s that corrects it, s"),
+    "lidar.extrinsic_error_rpy_mrad": S([0.0, 0.0, 0.0], "rotation of the true lidar mount against the calibration file "
+                                                          "written (roll, pitch, yaw about the IMU axes), mrad", "vec3"),
+    "lidar.extrinsic_error_m": S([0.0, 0.0, 0.0], "lever-arm error of the calibration file written (IMU axes), m", "vec3"),
     "lidar.outlier_prob": S(0.0, "map matching: probability that a pose is an outlier (0 to 1)", nonneg=True),
     "lidar.outlier_std_m": S(3.0, "map matching: position std of outliers, m", nonneg=True),
     "origin.lat_deg": S(49.0, "geodetic origin of the local ENU frame: latitude, deg"),

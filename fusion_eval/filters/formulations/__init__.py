@@ -9,8 +9,9 @@ it owns (``keys``). The configuration's choices of ``filter.formulation``, ``fil
 from __future__ import annotations
 
 from ...errors import ConfigError
-from .base import FilterBase, bias_walks, gap_of
+from .base import FilterBase, bias_decays, bias_walks, gap_of
 from .eskf import ErrorStateKF
+from .invariant import RightInvariantEKF
 from .nominal import NominalStateEKF
 from .odo_gyro import OdometerGyroKF
 
@@ -18,12 +19,15 @@ REGISTRY: tuple[type[FilterBase], ...] = (
     ErrorStateKF,
     NominalStateEKF,
     OdometerGyroKF,
+    RightInvariantEKF,
 )
 
 # Bias models: what the bias states' process noise is (see base.bias_walks).
 BIAS_MODELS = {
     "random_walk": "biases as random walks with the imu.*_bias_rw_* densities",
     "constant": "bias states kept, no process noise",
+    "gauss_markov": "first-order Gauss-Markov biases: db/dt = -b/tau + w, tau = imu.*_bias_corr_time_s, w the "
+                    "imu.*_bias_rw_* densities (steady-state std = density * sqrt(tau / 2))",
 }
 
 
@@ -51,5 +55,5 @@ def keys() -> dict:
     return out
 
 
-__all__ = ["REGISTRY", "BIAS_MODELS", "FilterBase", "lookup", "formulations", "process_models", "bias_walks", "gap_of",
+__all__ = ["REGISTRY", "BIAS_MODELS", "FilterBase", "lookup", "formulations", "process_models", "bias_walks", "bias_decays", "gap_of",
            "keys"]

@@ -45,6 +45,14 @@ def canonical_prior_std(s) -> np.ndarray:
     return std
 
 
+def bias_decays(s) -> tuple[float, float]:
+    """Accelerometer and gyro bias decay rates 1/tau (1/s) under the Gauss-Markov bias model, else 0: the random
+    walk is the limit tau -> inf, the constant bias that with no driving noise."""
+    if s.filter.bias_model != "gauss_markov":
+        return 0.0, 0.0
+    return 1.0 / s.imu.accel_bias_corr_time_s, 1.0 / s.imu.gyro_bias_corr_time_s
+
+
 def bias_walks(s) -> tuple[float, float]:
     """Accelerometer and gyro bias random-walk densities (SI) under the configured bias model: the constant
     model keeps the bias states (their initial uncertainty is estimated away) with no random walk."""
@@ -65,6 +73,7 @@ class FilterBase:
 
     name = "base"                   # filter.formulation
     process_model = "imu"           # filter.process_model
+    bias_models = ("random_walk", "constant")   # filter.bias_model values its process model implements
     layout: Layout
     pairs: tuple[tuple[str, str], ...]
     keys: dict = {}                 # configuration keys this formulation owns
@@ -87,8 +96,7 @@ class FilterBase:
         self.n = L.n_core
         self.P = np.zeros((L.n, L.n))
         self.aux = self.initial_aux()
-        E = own_from_canonical(L, self.pairs, L.n_core, self.quats())[:, :CANONICAL.n_core]
-        self.P[:L.n_core, :L.n_core] = E @ P0 @ E.T
+        self.P[:L.n_core, :L.n_core] = self.own_prior(P0)
         for b, var in (extra_var or {}).items():
             self.P[L.sl(b), L.sl(b)] = np.eye(L[b].size) * var
         self.cidx = canonical_index(L, self.pairs)
@@ -121,6 +129,11 @@ class FilterBase:
         return {}
 
     # ---- hooks -------------------------------------------------------------------------------
+    def own_prior(self, P0: np.ndarray) -> np.ndarray:
+        """The prior of the own core state from the canonical one, ``E P0 E^T`` (``E`` from the pairs)."""
+        E = own_from_canonical(self.layout, self.pairs, self.layout.n_core, self.quats())[:, :CANONICAL.n_core]
+        return E @ P0 @ E.T
+
     def initial_aux(self) -> np.ndarray:
         return np.zeros(1)
 
@@ -180,6 +193,13 @@ class FilterBase:
 
     def model_args(self):
         return self.x, self.clone.p_w_m, self.clone.R_wb
+
+    def innovation(self, model: ObservationModel) -> tuple[np.ndarray, np.ndarray]:
+        """The residual and its covariance ``S = H P H^T + R`` at the current estimate (before an update)."""
+        Hc, r, Rm = model(*self.model_args())
+        H = Hc @ self.D()
+        n = self.n
+        return r, H @ self.P[:n, :n] @ H.T + Rm
 
     def update(self, model: ObservationModel, iterations: int = 1, tol: float = 1e-8,
                gate: float = np.inf) -> tuple[float, bool]:

@@ -11,7 +11,8 @@ Continuous error dynamics (the classic IMU + lidar ESKF derivation)::
     dp'  = dv
     dv'  = -R [f - ba]x dtheta - R dba + R n_a
     dth' = -[w - bg]x dtheta   - dbg  + n_g
-    dba' = n_ba,   dbg' = n_bg          (random walk; zero for the constant-bias model)
+    dba' = -dba / tau_a + n_ba,   dbg' = -dbg / tau_g + n_bg
+                                        (Gauss-Markov; 1/tau = 0 for the random walk, n = 0 for the constant bias)
 
 discretised by ``filter.discretization`` (:mod:`fusion_eval.filters.discretize`). The first-order form is
 ``F = I + F_t T`` and ``Q_d = B Q B^T`` with B as in that derivation: ``R T`` and ``I T`` on the white
@@ -33,8 +34,9 @@ from ..layout import CANONICAL, CLONE
 from ..mech import XBA, XBG, XP, XR, XV, attitude, exp3, mech_step, skew3
 from ..propagate import compiled_loop, new_arrays, record_cov_by_index
 from ..state import NominalState, unpack
-from .base import ErrorStateBase, bias_walks
-from .imu_model import PRM_G, PRM_DISC, PRM_QA, PRM_QBA, PRM_QBG, PRM_QG, UF, UW, imu_params
+from ...spec import S
+from .base import ErrorStateBase, bias_decays, bias_walks
+from .imu_model import PRM_G, PRM_DISC, PRM_KBA, PRM_KBG, PRM_QA, PRM_QBA, PRM_QBG, PRM_QG, UF, UW, imu_params
 
 LAYOUT = CANONICAL
 P_ID, V_ID, TH_ID, BA_ID, BG_ID = (LAYOUT.start(b) for b in ("P", "V", "TH", "BA", "BG"))
@@ -79,6 +81,16 @@ def propagate_cov(P, n, R, f_b, w_b, dt, prm, qscale):
             P[i, TH_ID + j] = t
         for j in range(BA_ID, n):
             P[i, j] = M[i, j]
+    # Gauss-Markov biases: F has 1 - dt/tau on the bias diagonal (identity for a random walk)
+    fa, fg = 1.0 - prm[PRM_KBA] * dt, 1.0 - prm[PRM_KBG] * dt
+    if fa != 1.0 or fg != 1.0:
+        for i in range(3):
+            for j in range(n):
+                P[BA_ID + i, j] *= fa
+                P[BG_ID + i, j] *= fg
+            for j in range(n):
+                P[j, BA_ID + i] *= fa
+                P[j, BG_ID + i] *= fg
     qa = prm[PRM_QA] * prm[PRM_QA] * dt * qscale
     qg = prm[PRM_QG] * prm[PRM_QG] * dt * qscale
     qba = prm[PRM_QBA] * prm[PRM_QBA] * dt
@@ -104,6 +116,8 @@ def continuous_model(R, f_b, w_b, prm, qscale):
             Ft[V_ID + i, TH_ID + k] = A[i, k]
             Ft[V_ID + i, BA_ID + k] = -R[i, k]
             Ft[TH_ID + i, TH_ID + k] = C[i, k]
+        Ft[BA_ID + i, BA_ID + i] = -prm[PRM_KBA]
+        Ft[BG_ID + i, BG_ID + i] = -prm[PRM_KBG]
     Qc = np.zeros(N_CORE)
     for i in range(3):
         Qc[V_ID + i] = prm[PRM_QA] * prm[PRM_QA] * qscale
@@ -128,9 +142,20 @@ def step(x, P, n, u0, u1, dt, qscale, prm, aux, cov):
             Phi, Qd = discretize.transition(Ft, Qc, dt, method)
             discretize.propagate_dense(P, n, Phi, Qd)
     mech_step(x, u0[UF:UF + 3], u0[UW:UW + 3], u1[UF:UF + 3], u1[UW:UW + 3], dt, prm[PRM_G])
+    if prm[PRM_KBA] > 0.0 or prm[PRM_KBG] > 0.0:
+        # the mean of a Gauss-Markov bias decays toward zero: E[b(t + dt) | b(t)] = exp(-dt / tau) b(t)
+        da, dg = np.exp(-prm[PRM_KBA] * dt), np.exp(-prm[PRM_KBG] * dt)
+        for i in range(3):
+            x[XBA + i] *= da
+            x[XBG + i] *= dg
 
 
 predict_to = compiled_loop(__name__, step, record_cov_by_index)
+
+BIAS_KEYS = {
+    "imu.accel_bias_corr_time_s": S(3600.0, "Gauss-Markov bias model: accelerometer bias correlation time, s", positive=True),
+    "imu.gyro_bias_corr_time_s": S(3600.0, "Gauss-Markov bias model: gyro bias correlation time, s", positive=True),
+}
 
 
 @njit(cache=True)
@@ -174,13 +199,14 @@ class ErrorStateKF(ErrorStateBase):
     _step = staticmethod(step)
     _predict = staticmethod(predict_to)
     _record_cov = staticmethod(record_cov_by_index)
-    keys = discretize.KEYS
+    keys = {**discretize.KEYS, **BIAS_KEYS}
+    bias_models = ("random_walk", "constant", "gauss_markov")
 
     @classmethod
     def run_params(cls, s, gravity_mps2: float) -> np.ndarray:
         qba, qbg = bias_walks(s)
         return imu_params(gravity_mps2, s.imu.accel_noise_mps2_sqrthz, s.imu.gyro_noise_rps_sqrthz, qba, qbg,
-                          s.filter.discretization)
+                          s.filter.discretization, *bias_decays(s))
 
     def update(self, model, iterations: int = 1, tol: float = 1e-8, gate: float = np.inf) -> tuple[float, bool]:
         """Joseph-form update, injection and reset; the plain EKF update runs in compiled kernels."""

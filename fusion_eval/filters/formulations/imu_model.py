@@ -11,18 +11,22 @@ from ..layout import Layout
 IMU_INPUT = Layout("IMU input", [("f", 3), ("w", 3)])
 UF, UW = IMU_INPUT.start("f"), IMU_INPUT.start("w")
 
-# The process parameter record (SI): gravity, white-noise densities, bias random walks.
-PARAMS = Layout("IMU process parameters", [("g", 1), ("qa", 1), ("qg", 1), ("qba", 1), ("qbg", 1), ("disc", 1)])
-PRM_G, PRM_QA, PRM_QG, PRM_QBA, PRM_QBG, PRM_DISC = (PARAMS.start(b) for b in ("g", "qa", "qg", "qba", "qbg", "disc"))
+# The process parameter record (SI): gravity, white-noise densities, bias driving noises, the discretisation,
+# and the bias decay rates 1/tau of a first-order Gauss-Markov bias (0 = random walk).
+PARAMS = Layout("IMU process parameters", [("g", 1), ("qa", 1), ("qg", 1), ("qba", 1), ("qbg", 1), ("disc", 1),
+                                           ("kba", 1), ("kbg", 1)])
+PRM_G, PRM_QA, PRM_QG, PRM_QBA, PRM_QBG, PRM_DISC, PRM_KBA, PRM_KBG = (
+    PARAMS.start(b) for b in ("g", "qa", "qg", "qba", "qbg", "disc", "kba", "kbg"))
 
 
 def imu_params(g: float, accel_noise: float, gyro_noise: float, accel_bias_rw: float, gyro_bias_rw: float,
-               discretization: str = "first_order") -> np.ndarray:
-    """The parameter record: gravity (m/s^2), the noise densities (SI, per sqrt(Hz)) and the discretisation of
+               discretization: str = "first_order", accel_bias_decay: float = 0.0, gyro_bias_decay: float = 0.0
+               ) -> np.ndarray:
+    """The parameter record: gravity (m/s^2), the noise densities (SI, per sqrt(Hz)), the discretisation of
     the error dynamics (:data:`fusion_eval.filters.discretize.METHODS`; formulations that linearise their own
-    discrete step, like the nominal-state EKF, ignore it)."""
+    discrete step, like the nominal-state EKF, ignore it) and the bias decay rates (1/s, Gauss-Markov)."""
     return PARAMS.pack(g=g, qa=accel_noise, qg=gyro_noise, qba=accel_bias_rw, qbg=gyro_bias_rw,
-                       disc=METHODS[discretization])
+                       disc=METHODS[discretization], kba=accel_bias_decay, kbg=gyro_bias_decay)
 
 
 def imu_inputs(f_b: np.ndarray, w_b: np.ndarray) -> np.ndarray:

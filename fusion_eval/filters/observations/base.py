@@ -49,10 +49,19 @@ class Bound:
     model: Callable[[int], ObservationModel | None]
     after: Callable | None = None
     gate: float = np.inf
+    on_result: Callable | None = None   # (t, r, S, nis, accepted) after each update: adaptive noise
+    summary: Callable | None = None     # () -> dict for the report (e.g. the adapted noise scales)
 
     def apply(self, kf, j: int, iterations: int = 1, tol: float = 1e-8) -> tuple[float, bool] | None:
         m = self.model(j)
-        res = None if m is None else kf.update(m, iterations, tol, self.gate)
+        if m is None:
+            res = None
+        elif self.on_result is not None:
+            r, S = kf.innovation(m)                 # before the update changes P
+            res = kf.update(m, iterations, tol, self.gate)
+            self.on_result(kf.t, r, S, *res)
+        else:
+            res = kf.update(m, iterations, tol, self.gate)
         if self.after is not None:
             self.after(kf, j)
         return res

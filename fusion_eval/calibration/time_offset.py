@@ -1,0 +1,273 @@
+"""Time offsets of the lidar clock and of the gyro, estimated from the data by cross-correlation.
+
+Two signals that the lidar odometry and the IMU both see, compared on a common fine grid for a range of
+candidate shifts:
+
+- **accelerometer vs lidar** (the lidar clock against the IMU clock): the lidar's world-frame acceleration
+  (its positions differentiated twice) against the accelerometer rotated by the lidar's attitude. Gravity
+  is a constant in that frame, solved out in closed form, so neither the anchoring of the odometry nor the
+  gravity magnitude matters. The shift that minimises the residual is ``lidar.time_offset_s``: the true
+  time of a lidar stamp ``t`` is ``t + offset``.
+- **gyro vs lidar** (the gyro against the lidar clock): the body-frame rate of the lidar's rotation
+  increments against the gyro. The residual is minimised over a free scale (the correlation coefficient
+  is maximised), so an odometry that under-rotates every turn, as KISS-ICP does, does not pull the lag the
+  way a residual of the raw increments does. The gyro lag is this shift minus the lidar offset: the gyro
+  reports at ``t`` the rate of ``t - lag``.
+
+Why correlation and not filter states: the offsets are constants of a drive, observable only in the
+turns and the accelerations, and a batch estimate over the whole drive uses every one of them with no
+tuning of a random-walk noise; it is also cheap (a fraction of a second) and reproducible. The
+uncertainty is a block jackknife: the drive is split into ``blocks`` stretches of equal duration, the
+estimate is repeated leaving each out, and the spread of those estimates gives the standard error, which
+is honest about the correlation of neighbouring samples (a formal curvature-based variance is not).
+
+Every signal goes through the same zero-phase path (linear interpolation onto a 5 ms grid, a Gaussian
+low-pass): a symmetric filter delays neither side, so it cannot bias the shift. Grid points near a gap
+in either stream (dropped filled-in OXTS packets, missing scans) are left out.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, replace
+
+import numpy as np
+from scipy.ndimage import gaussian_filter1d
+from scipy.spatial.transform import Rotation, Slerp
+
+from ..errors import DataRangeError
+from ..types import ImuSeries, PoseSeries
+
+GRID_S = 0.005          # comparison grid; the minimum is refined below it by a parabola
+MAX_SHIFT_S = 0.25      # search range of each shift, +/- (KITTI's known lag is 60 ms)
+ACCEL_SMOOTH_S = 0.25   # Gaussian sigma of the acceleration comparison: second differences of cm-level
+                        # lidar positions at 10 Hz are metres/s^2 of noise unsmoothed
+RATE_SMOOTH_S = 0.08    # Gaussian sigma of the rate comparison
+BLOCKS = 10
+
+
+@dataclass(frozen=True)
+class TimeEstimate:
+    """One estimated shift: value and jackknife standard error in seconds, and what it was found from."""
+
+    value_s: float
+    std_s: float
+    method: str
+    samples: int
+
+    def as_dict(self) -> dict:
+        return {"value_s": float(self.value_s), "std_s": float(self.std_s), "method": self.method, "samples": int(self.samples)}
+
+
+def _valid_on_grid(t_src: np.ndarray, grid: np.ndarray, max_gap_s: float) -> np.ndarray:
+    """Grid points bracketed by two source samples at most ``max_gap_s`` apart."""
+    j = np.searchsorted(t_src, grid)
+    ok = (j > 0) & (j < t_src.size)
+    jj = np.clip(j, 1, t_src.size - 1)
+    return ok & (t_src[jj] - t_src[jj - 1] <= max_gap_s)
+
+
+def _interp(t_src: np.ndarray, x: np.ndarray, grid: np.ndarray) -> np.ndarray:
+    return np.column_stack([np.interp(grid, t_src, x[:, i]) for i in range(x.shape[1])])
+
+
+def _smooth(x: np.ndarray, valid: np.ndarray, sigma_s: float) -> tuple[np.ndarray, np.ndarray]:
+    """Gaussian low-pass on the grid; a point stays valid only if its whole kernel (+/- 3 sigma) is."""
+    s = sigma_s / GRID_S
+    m = gaussian_filter1d(valid.astype(float), s, axis=0, truncate=3.0)
+    y = gaussian_filter1d(np.where(valid[:, None], x, 0.0), s, axis=0, truncate=3.0)
+    return y, m > 1.0 - 1e-6
+
+
+def _max_gap(t: np.ndarray) -> float:
+    return 2.5 * float(np.median(np.diff(t)))
+
+
+def _lidar_rates(lidar: PoseSeries) -> tuple[np.ndarray, np.ndarray]:
+    """Body-frame mean rates of the rotation increments (rad/s), at the increments' mid-times."""
+    R = Rotation.from_quat(lidar.q_wb_xyzw)
+    dt = np.diff(lidar.t_s)
+    w = (R[:-1].inv() * R[1:]).as_rotvec() / dt[:, None]
+    return 0.5 * (lidar.t_s[:-1] + lidar.t_s[1:]), w
+
+
+def _shifts(max_shift_s: float) -> np.ndarray:
+    k = int(round(max_shift_s / GRID_S))
+    return np.arange(-k, k + 1)
+
+
+def _refine(cost: np.ndarray, shifts: np.ndarray) -> float:
+    """Shift (s) at the minimum of ``cost``, refined by a parabola through the best grid point and its neighbours."""
+    i = int(np.argmin(cost))
+    x = float(shifts[i]) * GRID_S
+    if 0 < i < cost.size - 1:
+        c0, c1, c2 = cost[i - 1:i + 2]
+        d = c0 - 2 * c1 + c2
+        if d > 0:
+            x += float(0.5 * GRID_S * (c0 - c2) / d)
+    return x
+
+
+def _jackknife(per_block_cost, shifts: np.ndarray, blocks: int) -> tuple[float, float, np.ndarray]:
+    """Estimate from all blocks, its jackknife standard error and the leave-one-out estimates. ``per_block_cost(keep)`` returns the cost
+    curve over the blocks flagged in ``keep``."""
+    full = _refine(per_block_cost(np.ones(blocks, bool)), shifts)
+    loo = []
+    for b in range(blocks):
+        keep = np.ones(blocks, bool)
+        keep[b] = False
+        loo.append(_refine(per_block_cost(keep), shifts))
+    loo = np.asarray(loo)
+    return full, float(np.sqrt((blocks - 1) / blocks * np.sum((loo - loo.mean()) ** 2))), loo
+
+
+def _common_grid(imu: ImuSeries, lidar: PoseSeries, max_shift_s: float) -> np.ndarray:
+    t0 = max(imu.t_s[0], lidar.t_s[0]) + max_shift_s
+    t1 = min(imu.t_s[-1], lidar.t_s[-1]) - max_shift_s
+    if t1 - t0 < 20.0:
+        raise DataRangeError(f"IMU ({imu.source}) and lidar ({lidar.source}) overlap for {max(t1 - t0, 0):.1f} s; "
+                             "estimating their time offset needs at least 20 s")
+    return t0 + np.arange(int((t1 - t0) / GRID_S)) * GRID_S
+
+
+def _block_of(n: int, blocks: int) -> np.ndarray:
+    return np.minimum((np.arange(n) * blocks) // n, blocks - 1)
+
+
+def _extended(grid: np.ndarray, pad: int) -> np.ndarray:
+    """The grid extended by ``pad`` points on each side (the shifted IMU signal is read from it)."""
+    return grid[0] + (np.arange(grid.size + 2 * pad) - pad) * GRID_S
+
+
+def _block_sums(x: np.ndarray, ok: np.ndarray, blk: np.ndarray, blocks: int) -> np.ndarray:
+    """Sum of ``x`` (N, ...) over the valid points of each block."""
+    return np.stack([x[ok & (blk == b)].sum(axis=0) for b in range(blocks)])
+
+
+def accel_cost_terms(imu: ImuSeries, lidar: PoseSeries, shifts: np.ndarray, grid: np.ndarray, blocks: int):
+    """Per shift and block, the sums that give the body-frame residual d = A - F(t + shift) - B g with the
+    gravity g solved out: A = smooth(R^T a_lidar), B = smooth(R^T), F = smooth(f). Smoothing each side once
+    (before shifting) keeps the comparison exact: the low-pass is linear and the same on both sides."""
+    gl = _valid_on_grid(lidar.t_s, grid, _max_gap(lidar.t_s))
+    p = _interp(lidar.t_s, lidar.p_w_m, grid)
+    a_w = np.gradient(np.gradient(p, GRID_S, axis=0), GRID_S, axis=0)
+    Rt = Slerp(lidar.t_s, Rotation.from_quat(lidar.q_wb_xyzw))(np.clip(grid, lidar.t_s[0], lidar.t_s[-1])).inv()
+    A, ok_l = _smooth(Rt.apply(a_w), gl, ACCEL_SMOOTH_S)
+    B, _ = _smooth(Rt.as_matrix().reshape(-1, 9), gl, ACCEL_SMOOTH_S)
+    B = B.reshape(-1, 3, 3)
+    pad = int(shifts.max())
+    ext = _extended(grid, pad)
+    F, ok_i = _smooth(_interp(imu.t_s, imu.f_b_mps2, ext), _valid_on_grid(imu.t_s, ext, _max_gap(imu.t_s)), ACCEL_SMOOTH_S)
+    blk = _block_of(grid.size, blocks)
+    # per shift and block: sum |A - F|^2, sum B^T (A - F) (3), sum B^T B (9), count
+    terms = np.zeros((shifts.size, blocks, 14))
+    for n, k in enumerate(shifts):
+        sl = slice(pad + k, pad + k + grid.size)
+        ok = ok_l & ok_i[sl]
+        r = A - F[sl]
+        x = np.column_stack([np.sum(r * r, axis=1), np.einsum("nji,nj->ni", B, r),
+                             np.einsum("nki,nkj->nij", B, B).reshape(-1, 9), np.ones(grid.size)])
+        terms[n] = _block_sums(x, ok, blk, blocks)
+    return terms
+
+
+def rate_cost_terms(imu: ImuSeries, lidar: PoseSeries, shifts: np.ndarray, grid: np.ndarray, blocks: int):
+    """Per shift and block: sums of w_l, w_g, |w_l|^2, w_l . w_g, |w_g|^2 and the count (gyro at t + shift)."""
+    tm, w = _lidar_rates(lidar)
+    wl, ok_l = _smooth(_interp(tm, w, grid), _valid_on_grid(tm, grid, _max_gap(lidar.t_s)), RATE_SMOOTH_S)
+    pad = int(shifts.max())
+    ext = _extended(grid, pad)
+    wg, ok_i = _smooth(_interp(imu.t_s, imu.w_b_rps, ext), _valid_on_grid(imu.t_s, ext, _max_gap(imu.t_s)), RATE_SMOOTH_S)
+    blk = _block_of(grid.size, blocks)
+    terms = np.zeros((shifts.size, blocks, 10))
+    for n, k in enumerate(shifts):
+        sl = slice(pad + k, pad + k + grid.size)
+        ok = ok_l & ok_i[sl]
+        g = wg[sl]
+        x = np.column_stack([wl, g, np.sum(wl * wl, axis=1), np.sum(wl * g, axis=1), np.sum(g * g, axis=1),
+                             np.ones(grid.size)])
+        terms[n] = _block_sums(x, ok, blk, blocks)
+    return terms
+
+
+def _accel_cost(terms: np.ndarray, keep: np.ndarray) -> np.ndarray:
+    """Mean squared residual with the best constant gravity, per shift."""
+    t = terms[:, keep].sum(axis=1)
+    n = np.maximum(t[:, 13], 1.0)
+    btr, btb = t[:, 1:4], t[:, 4:13].reshape(-1, 3, 3)
+    g = np.linalg.solve(btb + 1e-12 * np.eye(3), btr[..., None])[..., 0]
+    return (t[:, 0] - np.sum(btr * g, axis=1)) / n
+
+
+def _rate_cost(terms: np.ndarray, keep: np.ndarray) -> np.ndarray:
+    """Minus the correlation coefficient of the (mean-removed) rates, per shift: blind to a scale error."""
+    t = terms[:, keep].sum(axis=1)
+    n = np.maximum(t[:, 9], 1.0)
+    sl, sg = t[:, 0:3], t[:, 3:6]
+    cll = t[:, 6] - np.sum(sl * sl, axis=1) / n
+    clg = t[:, 7] - np.sum(sl * sg, axis=1) / n
+    cgg = t[:, 8] - np.sum(sg * sg, axis=1) / n
+    return -clg / np.sqrt(np.maximum(cll * cgg, 1e-300))
+
+
+@dataclass(frozen=True)
+class Shifts:
+    """The two raw shifts (s) at which the IMU signals best match the lidar's, with the leave-one-block-out
+    estimates that give their joint uncertainty: the lidar signal at stamp t matches the accelerometer at
+    ``t + accel`` and the gyro at ``t + rate``."""
+
+    accel: float
+    rate: float
+    accel_loo: np.ndarray
+    rate_loo: np.ndarray
+    samples: int
+
+    def std(self, a: float, r: float) -> float:
+        """Jackknife standard error of the combination ``a * accel + r * rate``."""
+        x = a * self.accel_loo + r * self.rate_loo
+        n = x.size
+        return float(np.sqrt((n - 1) / n * np.sum((x - x.mean()) ** 2)))
+
+
+def measure_shifts(imu: ImuSeries, lidar: PoseSeries, max_shift_s: float = MAX_SHIFT_S, blocks: int = BLOCKS) -> Shifts:
+    """The accelerometer and gyro shifts against the lidar; see the module docstring. ``lidar`` holds IMU
+    poses (extrinsic applied) on the lidar's own stamps, in any world frame."""
+    # on a clock relative to the first IMU sample: a 5 ms grid in POSIX seconds (1.8e9) loses 1e-7 s per
+    # point to rounding, which accumulates into milliseconds over a drive
+    t_ref = float(imu.t_s[0])
+    imu, lidar = replace(imu, t_s=imu.t_s - t_ref), replace(lidar, t_s=lidar.t_s - t_ref)
+    shifts = _shifts(max_shift_s)
+    grid = _common_grid(imu, lidar, max_shift_s)
+    at = accel_cost_terms(imu, lidar, shifts, grid, blocks)
+    rt = rate_cost_terms(imu, lidar, shifts, grid, blocks)
+    if at[..., 13].sum() == 0 or rt[..., 9].sum() == 0:
+        raise DataRangeError(f"no stretch of {imu.source} and {lidar.source} without gaps to estimate time offsets from")
+    acc, _, acc_loo = _jackknife(lambda keep: _accel_cost(at, keep), shifts, blocks)
+    rate, _, rate_loo = _jackknife(lambda keep: _rate_cost(rt, keep), shifts, blocks)
+    for name, v in (("accelerometer", acc), ("gyro", rate)):
+        if abs(v) >= max_shift_s - 2 * GRID_S:
+            raise DataRangeError(f"the {name} of {imu.source} matches the lidar of {lidar.source} best at the end of the "
+                                 f"searched range (+/-{max_shift_s * 1000:.0f} ms): the streams do not share one clock "
+                                 "to within that; set the offsets by hand")
+    return Shifts(acc, rate, acc_loo, rate_loo, int(at[shifts.size // 2, :, 13].sum()))
+
+
+def resolve(sh: Shifts, lidar_offset_s, accel_lag_s, gyro_lag_s) -> dict[str, TimeEstimate]:
+    """The lidar offset and the two IMU channel lags, each given (a number) or 'auto'.
+
+    The data fix only differences: accel shift = lidar offset + accel lag, rate shift = lidar offset +
+    gyro lag. So at most one of the lidar offset and the accelerometer lag can be 'auto' (which clock is
+    the reference is the user's knowledge, not the data's)."""
+    if lidar_offset_s == "auto" and accel_lag_s == "auto":
+        raise ValueError("lidar offset and accelerometer lag cannot both be estimated")
+    out: dict[str, TimeEstimate] = {}
+    if lidar_offset_s == "auto":
+        off, off_coef = sh.accel - float(accel_lag_s), (1.0, 0.0)
+        out["lidar_offset"] = TimeEstimate(off, sh.std(1, 0), "accelerometer vs lidar acceleration", sh.samples)
+    else:
+        off, off_coef = float(lidar_offset_s), (0.0, 0.0)
+    if accel_lag_s == "auto":
+        out["accel_lag"] = TimeEstimate(sh.accel - off, sh.std(1, 0), "accelerometer vs lidar acceleration", sh.samples)
+    if gyro_lag_s == "auto":
+        out["gyro_lag"] = TimeEstimate(sh.rate - off, sh.std(-off_coef[0], 1), "gyro vs lidar rotation rate (correlation)",
+                                       sh.samples)
+    return out

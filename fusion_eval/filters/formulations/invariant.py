@@ -1,0 +1,237 @@
+"""Right-invariant EKF on SE_2(3) with IMU biases (Barrau and Bonnabel, 2017; Hartley et al., IJRR 2020).
+
+The navigation state ``X = (R, v, p)`` is an element of SE_2(3); its error is right-invariant,
+``X = Exp(xi) X_hat`` with ``xi = [xi_p, xi_v, xi_R]`` (world frame), to first order::
+
+    R = Exp(xi_R) R_hat,   v = v_hat + xi_R x v_hat + xi_v,   p = p_hat + xi_R x p_hat + xi_p
+
+and the biases ``[dba, dbg]`` additive (the "imperfect" InEKF: the biases break the group structure).
+Without them the error dynamics are exactly linear and independent of the estimate (log-linearity):
+the estimated trajectory does not enter F, which is what makes the filter consistent where the ESKF's
+linearisation point is wrong (a poorly known heading). With the biases::
+
+    xi_p' = xi_v                            - [p]x R dbg - [p]x R n_g
+    xi_v' = [g]x xi_R - R dba - [v]x R dbg  - R n_a      - [v]x R n_g
+    xi_R' =                   - R dbg       - R n_g
+    dba'  = -dba / tau_a + n_ba,   dbg' = -dbg / tau_g + n_bg
+
+(``g`` the world gravity vector), discretised by ``filter.discretization`` with the full (non-diagonal)
+noise density. The observations keep their canonical Jacobians: with ``dtheta = R^T xi_R``,
+``dv = xi_v - [v]x xi_R``, ``dp = xi_p - [p]x xi_R`` the map ``D = d(canonical)/d(xi)`` converts them
+(``H = H_canonical D``), and the recorded covariance is ``D P D^T``. A correction is injected on the group,
+``X <- Exp(dxi) X`` (with SE_2(3)'s left Jacobian on v and p), with no reset Jacobian (the invariant error
+needs none to first order). The pose clone carries ``[xi_pc, xi_Rc]`` of SE(3) the same way.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+from numba import njit
+
+from ...errors import FilterDivergedError
+from .. import discretize, linalg
+from ..layout import CANONICAL, POSE_BLOCKS, Layout
+from ..mech import XBA, XBG, XP, XV, attitude, exp3, log3, mech_step, skew3
+from ..propagate import compiled_loop
+from ..state import ClonePose, NominalState
+from .base import FilterBase, bias_decays, bias_walks
+from .eskf import BIAS_KEYS
+from .imu_model import PRM_DISC, PRM_G, PRM_KBA, PRM_KBG, PRM_QA, PRM_QBA, PRM_QBG, PRM_QG, UF, UW, imu_params
+
+LAYOUT = Layout("right-invariant EKF", [("P", 3), ("V", 3), ("TH", 3), ("BA", 3), ("BG", 3)],
+                clone=[("CP", 3), ("CTH", 3)], clone_of={"CP": "P", "CTH": "TH"})
+IP, IV, ITH, IBA, IBG = (LAYOUT.start(b) for b in ("P", "V", "TH", "BA", "BG"))
+ICP, ICTH = LAYOUT.start("CP"), LAYOUT.start("CTH")
+N_CORE = LAYOUT.n_core
+CP0, CV0, CTH0 = CANONICAL.start("P"), CANONICAL.start("V"), CANONICAL.start("TH")
+CCP0, CCTH0 = CANONICAL.start("CP"), CANONICAL.start("CTH")
+_PT = CANONICAL.index(*POSE_BLOCKS)
+
+
+@njit(cache=True)
+def continuous_model(R, v, p, prm, qscale):
+    """``A`` (15x15) and the full noise density ``Q_c`` (15x15) of the right-invariant error."""
+    A = np.zeros((N_CORE, N_CORE))
+    g = np.zeros(3)
+    g[2] = -prm[PRM_G]
+    Pr, Vr = skew3(p) @ R, skew3(v) @ R
+    Gx = skew3(g)
+    for i in range(3):
+        A[IP + i, IV + i] = 1.0
+        A[IBA + i, IBA + i] = -prm[PRM_KBA]
+        A[IBG + i, IBG + i] = -prm[PRM_KBG]
+        for k in range(3):
+            A[IP + i, IBG + k] = -Pr[i, k]
+            A[IV + i, ITH + k] = Gx[i, k]
+            A[IV + i, IBA + k] = -R[i, k]
+            A[IV + i, IBG + k] = -Vr[i, k]
+            A[ITH + i, IBG + k] = -R[i, k]
+    # the white noises enter through G = [[0, -[p]x R], [-R, -[v]x R], [0, -R]] (accelerometer, gyro)
+    Gn = np.zeros((N_CORE, 6))
+    for i in range(3):
+        for k in range(3):
+            Gn[IP + i, 3 + k] = -Pr[i, k]
+            Gn[IV + i, k] = -R[i, k]
+            Gn[IV + i, 3 + k] = -Vr[i, k]
+            Gn[ITH + i, 3 + k] = -R[i, k]
+    qn = np.zeros(6)
+    for i in range(3):
+        qn[i] = prm[PRM_QA] * prm[PRM_QA] * qscale
+        qn[3 + i] = prm[PRM_QG] * prm[PRM_QG] * qscale
+    Qc = (Gn * qn) @ Gn.T
+    for i in range(3):
+        Qc[IBA + i, IBA + i] += prm[PRM_QBA] * prm[PRM_QBA]
+        Qc[IBG + i, IBG + i] += prm[PRM_QBG] * prm[PRM_QBG]
+    return A, Qc
+
+
+@njit(cache=True)
+def step(x, P, n, u0, u1, dt, qscale, prm, aux, cov):
+    """One IMU interval: the invariant error's transition at the start-of-interval state, then the same
+    midpoint mechanization as every IMU formulation (and the Gauss-Markov decay of the bias means)."""
+    if cov:
+        A, Qc = continuous_model(attitude(x), x[XV:XV + 3].copy(), x[XP:XP + 3].copy(), prm, qscale)
+        Phi, Qd = discretize.transition_full(A, Qc, dt, int(prm[PRM_DISC]))
+        discretize.propagate_dense(P, n, Phi, Qd)
+    mech_step(x, u0[UF:UF + 3], u0[UW:UW + 3], u1[UF:UF + 3], u1[UW:UW + 3], dt, prm[PRM_G])
+    if prm[PRM_KBA] > 0.0 or prm[PRM_KBG] > 0.0:
+        da, dg = np.exp(-prm[PRM_KBA] * dt), np.exp(-prm[PRM_KBG] * dt)
+        for i in range(3):
+            x[XBA + i] *= da
+            x[XBG + i] *= dg
+
+
+@njit(cache=True)
+def core_map(R, v, p):
+    """``D = d(canonical core error)/d(xi, dba, dbg)`` (15x15) at the estimate."""
+    D = np.eye(N_CORE)
+    Sp, Sv = skew3(p), skew3(v)
+    for i in range(3):
+        for k in range(3):
+            D[CP0 + i, ITH + k] = -Sp[i, k]
+            D[CV0 + i, ITH + k] = -Sv[i, k]
+            D[CTH0 + i, ITH + k] = R[k, i]          # dtheta = R^T xi_R
+    return D
+
+
+@njit(cache=True)
+def record_cov(P, n, x, aux, cidx, diag_out, ppt_out):
+    """The canonical core covariance ``D P D^T``."""
+    D = core_map(attitude(x), x[XV:XV + 3].copy(), x[XP:XP + 3].copy())
+    C = D @ np.ascontiguousarray(P[:N_CORE, :N_CORE]) @ D.T
+    for i in range(N_CORE):
+        diag_out[i] = C[i, i]
+    for i in range(_PT.shape[0]):
+        for j in range(_PT.shape[0]):
+            ppt_out[i, j] = C[_PT[i], _PT[j]]
+
+
+predict_to = compiled_loop(__name__, step, record_cov)
+
+
+@njit(cache=True)
+def left_jacobian(phi):
+    """SO(3)'s left Jacobian ``J_l(phi)`` (the V matrix of SE(3)'s exponential)."""
+    th2 = phi @ phi
+    K = skew3(phi)
+    if th2 < 1e-12:
+        return np.eye(3) + 0.5 * K + (K @ K) / 6.0
+    th = np.sqrt(th2)
+    return np.eye(3) + ((1.0 - np.cos(th)) / th2) * K + ((th - np.sin(th)) / (th2 * th)) * (K @ K)
+
+
+def _exp_apply(dR_phi: np.ndarray, vecs: list[tuple[np.ndarray, np.ndarray]], R: np.ndarray) -> None:
+    """``X <- Exp(dxi) X`` in place: R <- Exp(phi) R and each vector u <- Exp(phi) u + J_l(phi) du."""
+    E, J = exp3(dR_phi), left_jacobian(dR_phi)
+    R[:, :] = E @ R
+    for u, du in vecs:
+        u[:] = E @ u + J @ du
+
+
+class RightInvariantEKF(FilterBase):
+    """The right-invariant EKF: nominal state as the ESKF's, error ``xi`` on SE_2(3) plus additive biases."""
+
+    name = "invariant"
+    process_model = "imu"
+    label = "right-invariant EKF on SE_2(3) (log-linear error [xi_p, xi_v, xi_R], biases additive)"
+    layout = LAYOUT
+    pairs = tuple((b, b) for b in LAYOUT.blocks)       # the same blocks, through core_map rather than identity
+    targets = {"P": "p", "V": "v", "TH": "R", "BA": "ba", "BG": "bg", "CP": "clone.p", "CTH": "clone.R"}
+    _step = staticmethod(step)
+    _predict = staticmethod(predict_to)
+    _record_cov = staticmethod(record_cov)
+    keys: dict = {}            # filter.discretization and the bias keys are the ESKF's (declared once, there)
+    bias_models = ("random_walk", "constant", "gauss_markov")
+
+    @classmethod
+    def run_params(cls, s, gravity_mps2: float) -> np.ndarray:
+        qba, qbg = bias_walks(s)
+        return imu_params(gravity_mps2, s.imu.accel_noise_mps2_sqrthz, s.imu.gyro_noise_rps_sqrthz, qba, qbg,
+                          s.filter.discretization, *bias_decays(s))
+
+    def own_prior(self, P0: np.ndarray) -> np.ndarray:
+        Dinv = np.linalg.inv(core_map(self.x.R_wb, self.x.v_w_mps.copy(), self.x.p_w_m.copy()))
+        return Dinv @ P0 @ Dinv.T
+
+    def D(self) -> np.ndarray:
+        D = np.zeros((CANONICAL.n, self.n))
+        D[:N_CORE, :N_CORE] = core_map(self.x.R_wb, self.x.v_w_mps.copy(), self.x.p_w_m.copy())
+        if self.n > N_CORE:
+            c = self.clone
+            D[CCP0:CCP0 + 3, ICP:ICP + 3] = np.eye(3)
+            D[CCP0:CCP0 + 3, ICTH:ICTH + 3] = -skew3(c.p_w_m.copy())
+            D[CCTH0:CCTH0 + 3, ICTH:ICTH + 3] = c.R_wb.T
+        return D
+
+    # ---- the group operations (iterated updates and injection) --------------------------------
+    def snapshot(self):
+        return self.xv.copy(), self.clone.vec.copy() if self.cloned else None
+
+    def boxminus(self, snap) -> np.ndarray:
+        """``xi`` with ``X = Exp(xi) X_snap`` (and the clone's), in the own coordinates."""
+        x0 = NominalState.from_vector(snap[0])
+        dR = self.x.R_wb @ x0.R_wb.T
+        phi = log3(dR)
+        Ji = np.linalg.inv(left_jacobian(phi))
+        out = [Ji @ (self.x.p_w_m - dR @ x0.p_w_m), Ji @ (self.x.v_w_mps - dR @ x0.v_w_mps), phi,
+               self.x.ba_b - x0.ba_b, self.x.bg_b - x0.bg_b]
+        if self.n > N_CORE:
+            c0 = ClonePose(snap[1])
+            dRc = self.clone.R_wb @ c0.R_wb.T
+            phic = log3(dRc)
+            out += [np.linalg.inv(left_jacobian(phic)) @ (self.clone.p_w_m - dRc @ c0.p_w_m), phic]
+        return np.concatenate(out)
+
+    def boxplus_from(self, snap, dx: np.ndarray) -> None:
+        self.xv[:] = snap[0]
+        if snap[1] is not None:
+            self.clone.vec[:] = snap[1]
+        self._inject(dx)
+
+    def _inject(self, dx: np.ndarray) -> None:
+        x = self.x
+        _exp_apply(dx[ITH:ITH + 3], [(x.p_w_m, dx[IP:IP + 3]), (x.v_w_mps, dx[IV:IV + 3])], x.R_wb)
+        x.ba_b[:] += dx[IBA:IBA + 3]
+        x.bg_b[:] += dx[IBG:IBG + 3]
+        if self.n > N_CORE:
+            _exp_apply(dx[ICTH:ICTH + 3], [(self.clone.p_w_m, dx[ICP:ICP + 3])], self.clone.R_wb)
+
+    def update(self, model, iterations: int = 1, tol: float = 1e-8, gate: float = np.inf) -> tuple[float, bool]:
+        if iterations > 1:
+            return self.update_iterated(model, iterations, tol, gate)
+        Hc, r, Rm = model(*self.model_args())
+        if not (np.isfinite(r).all() and np.isfinite(Rm).all()):
+            raise FilterDivergedError(f"filter diverged at t={self.t:.3f} s: non-finite residual")
+        H = np.ascontiguousarray(Hc @ self.D())
+        try:
+            dx, nis, ok = linalg.joseph_update(self.P, self.n, H, r, np.ascontiguousarray(Rm, float), gate)
+        except np.linalg.LinAlgError as exc:
+            raise FilterDivergedError(f"filter diverged at t={self.t:.3f} s: innovation covariance not invertible ({exc})") from None
+        if not (np.all(np.isfinite(dx)) and np.isfinite(nis)):
+            raise FilterDivergedError(f"filter diverged at t={self.t:.3f} s: non-finite correction")
+        if not ok:
+            return float(nis), False
+        self._inject(dx)
+        self._check("non-finite state or negative variance after an update")
+        self._record_if_on_sample()
+        return float(nis), True

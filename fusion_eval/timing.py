@@ -1,0 +1,91 @@
+"""The time alignment of the streams before the replay: the lidar clock offset and the IMU channel lags, each
+given or estimated from the data ('auto', see :mod:`fusion_eval.calibration.time_offset`).
+
+When the drive has no lidar to estimate from, 'auto' falls back on what is known of the device: for KITTI's
+OXTS unit, the lags this estimator measured on the five KITTI IMU + lidar drives in ``../shared/data``
+(KISS-ICP and SiMpLE odometry of seqs 00, 05, 06, 07; README "Time offsets"), none of it from ground truth.
+"""
+
+from __future__ import annotations
+
+import logging
+from dataclasses import replace
+
+import numpy as np
+
+from .calibration import measure_shifts, resolve
+from .errors import ConfigError
+from .types import Dataset, ImuSeries, PoseSeries
+
+log = logging.getLogger(__name__)
+
+# KITTI OXTS RT3003: accelerometer and gyro shifts against the lidar (= the packet clock of the ground truth
+# and GNSS), inverse-variance mean over the five drives: accel 65.5, 63.8, 65.2, 58.2, 59.6 ms (+/- 2-5);
+# gyro 58.8, 60.0, 59.9, 58.9, 59.3 ms (+/- 1-3).
+MIN_OVERLAP_S = 20.0    # below this, too few turns to find a shift of a few ms
+
+DEVICE_LAGS_S = {"kitti_oxts": {"accel_lag_s": 0.063, "gyro_lag_s": 0.059}}
+
+
+def advance(imu: ImuSeries, accel_s: float, gyro_s: float) -> ImuSeries:
+    """Each channel advanced by its lag: the value used at t is the one recorded at ``t + lag`` (ends held)."""
+    def shifted(x, lag):
+        if lag == 0.0:
+            return x
+        return np.column_stack([np.interp(imu.t_s + lag, imu.t_s, x[:, i]) for i in range(3)])
+
+    return replace(imu, f_b_mps2=shifted(imu.f_b_mps2, accel_s), w_b_rps=shifted(imu.w_b_rps, gyro_s))
+
+
+def _given(cfg: dict, section: str, key: str, manifest_value):
+    """The configured value, else the manifest's."""
+    v = cfg[section].get(key)
+    return manifest_value if v is None else v
+
+
+def align(ds: Dataset, cfg: dict, imu: ImuSeries, lidar_offset_given) -> tuple[ImuSeries, float, dict]:
+    """The IMU with its channel lags applied, the lidar offset to add to its stamps, and what was applied
+    (for the report). ``imu``: offset and filled-in packets already handled; ``lidar_offset_given``: the
+    configured or manifest lidar offset (a number or 'auto')."""
+    accel = _given(cfg, "imu", "accel_lag_s", ds.description.get("accel_lag_s", 0.0))
+    gyro = _given(cfg, "imu", "gyro_lag_s", ds.description.get("gyro_lag_s", 0.0))
+    off = lidar_offset_given if ds.lidar is not None else 0.0
+    applied: dict = {"time_estimates": {}}
+    if "auto" in (accel, gyro, off):
+        if off == "auto" and accel == "auto":
+            raise ConfigError("lidar.time_offset_s=auto and imu.accel_lag_s=auto together are ambiguous: the data fix "
+                              "only their sum; give one of them (KITTI: the lidar is on the packet clock, lidar.time_offset_s=0)")
+        overlap = 0.0 if ds.lidar is None or len(ds.lidar) < 2 else (
+            min(imu.t_s[-1], ds.lidar.t_s[-1]) - max(imu.t_s[0], ds.lidar.t_s[0]))
+        if overlap >= MIN_OVERLAP_S:
+            sh = measure_shifts(imu, _on_imu_frame(ds.lidar))
+            est = resolve(sh, off, accel, gyro)
+            applied["time_estimates"] = {k: v.as_dict() for k, v in est.items()}
+            off = est["lidar_offset"].value_s if off == "auto" else off
+            accel = est["accel_lag"].value_s if accel == "auto" else accel
+            gyro = est["gyro_lag"].value_s if gyro == "auto" else gyro
+            for k, v in est.items():
+                log.info("%s estimated from the data: %.1f +/- %.1f ms", k.replace("_", " "), v.value_s * 1e3, v.std_s * 1e3)
+        else:
+            fmt = ds.description.get("streams", {}).get("imu", {}).get("format")
+            known = DEVICE_LAGS_S.get(fmt)
+            if known is None:
+                raise ConfigError(f"imu.accel_lag_s / imu.gyro_lag_s / lidar.time_offset_s = auto need {MIN_OVERLAP_S:g} s of "
+                                  f"lidar overlapping the IMU to estimate them from (here {max(overlap, 0.0):.1f} s, and no "
+                                  f"known figure for IMU format {fmt!r}); give them in seconds")
+            for name, val in (("accel_lag_s", accel), ("gyro_lag_s", gyro)):
+                if val == "auto":
+                    applied["time_estimates"][name[:-2]] = {"value_s": known[name], "std_s": None, "samples": 0,
+                                                            "method": f"the {fmt} device figure (no {MIN_OVERLAP_S:g} s of lidar to estimate from)"}
+            accel = known["accel_lag_s"] if accel == "auto" else accel
+            gyro = known["gyro_lag_s"] if gyro == "auto" else gyro
+            off = 0.0 if off == "auto" else off
+    accel, gyro, off = float(accel), float(gyro), float(off)
+    applied.update(accel_lag_s=accel, gyro_lag_s=gyro)
+    return advance(imu, accel, gyro), off, applied
+
+
+def _on_imu_frame(lidar: PoseSeries) -> PoseSeries:
+    """The lidar series as the estimator reads it: IMU poses on the lidar stamps (the readers already apply
+    the extrinsic), filled-in frames left out."""
+    return lidar if lidar.filled is None else lidar.select(~lidar.filled)

@@ -1,0 +1,163 @@
+"""Monte-Carlo trials: one configuration repeated over N seeds of every random element, summarised per metric.
+
+A run's random elements are its degradations (GNSS fixes, GNSS velocity, the odometer's added noise), each
+drawn from a seed key of the configuration. Trial ``i`` adds ``i`` to every seed key that is set (``gnss.seed``,
+and any other ``*.seed`` key given a value; those left null follow ``gnss.seed``), so trial 0 is the run
+itself and the trials are reproducible. A simulated drive's sensor noise is in its files: to vary it,
+simulate with other ``--seed`` values.
+
+Per metric (every path :func:`fusion_eval.evaluation.keys.flatten` gives): the mean, the standard deviation
+(``ddof=1``), min, max, median, the 2.5 and 97.5 percentiles of the trials (``p2.5``, ``p97.5``: where 95 % of
+single runs fall) and the 95 % confidence interval of the mean (Student's t, ``ci95_mean``).
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+
+from .config import schema
+from .errors import ConfigError
+from .evaluation import keys
+
+STATS = ("mean", "std", "min", "max", "median", "p2.5", "p97.5", "ci95_mean")
+# shown in reports and tables, in this order
+HEADLINE = ("fused.ape.translation_m.rmse", "fused.ape.rotation_deg.rmse", "lidar.ape.translation_m.rmse",
+            "gnss.ape.translation_m.rmse", "ratios.fused_over_lidar", "ratios.fused_over_gnss",
+            "nees.position.fraction_in_95", "nees.attitude.fraction_in_95")
+
+
+def check_count(n: int) -> int:
+    if isinstance(n, bool) or not isinstance(n, int) or n < 1:
+        raise ConfigError(f"--trials must be a whole number >= 1, got {n!r}")
+    return n
+
+
+def seed_keys() -> tuple[str, ...]:
+    """Every configuration key that seeds a random element."""
+    return tuple(k for k in schema() if k.split(".")[-1] == "seed")
+
+
+def trial_overrides(cfg: dict, i: int) -> dict:
+    """The dotted overrides of trial ``i``: each seed key that has a value, plus ``i``."""
+    out = {}
+    for k in seed_keys():
+        sect, key = k.split(".")
+        v = cfg.get(sect, {}).get(key)
+        if v is not None:
+            out[k] = int(v) + i
+    return out
+
+
+def apply(cfg: dict, i: int) -> dict:
+    """A resolved configuration with trial ``i``'s seeds (a copy; trial 0 is ``cfg`` itself)."""
+    if i == 0:
+        return cfg
+    out = {s: dict(v) if isinstance(v, dict) else v for s, v in cfg.items()}
+    for k, v in trial_overrides(cfg, i).items():
+        sect, key = k.split(".")
+        out[sect][key] = v
+    return out
+
+
+def _t95(n: int) -> float:
+    from scipy.stats import t
+
+    return float(t.ppf(0.975, n - 1))
+
+
+def stats(values) -> dict:
+    """The statistics of one metric over the trials (NaN-free values)."""
+    v = np.asarray(values, float)
+    n = v.size
+    if n == 0:
+        return {"n": 0}
+    mean = float(v.mean())
+    std = float(v.std(ddof=1)) if n > 1 else 0.0
+    half = _t95(n) * std / math.sqrt(n) if n > 1 else float("nan")
+    return {"n": int(n), "mean": mean, "std": std, "min": float(v.min()), "max": float(v.max()),
+            "median": float(np.median(v)), "p2.5": float(np.percentile(v, 2.5)), "p97.5": float(np.percentile(v, 97.5)),
+            "ci95_mean": [mean - half, mean + half]}
+
+
+def summarize(per_trial: list[dict]) -> dict:
+    """``{path: stats}`` over the trials' flattened metrics (a path missing in a trial is left out of it)."""
+    flats = [keys.flatten(m) for m in per_trial]
+    paths = list(dict.fromkeys(p for f in flats for p in f))
+    return {p: stats([f[p] for f in flats if p in f]) for p in paths}
+
+
+def section(cfg: dict, per_trial: list[dict]) -> dict:
+    """The ``trials`` section of a metrics.json (a failed trial is ``{"failed": message}``: listed, not averaged)."""
+    ok = [m for m in per_trial if "failed" not in m]
+    return {"n": len(per_trial), "seeds": [trial_overrides(cfg, i) for i in range(len(per_trial))],
+            "failed": [{"trial": i, "error": m["failed"]} for i, m in enumerate(per_trial) if "failed" in m],
+            "stats": summarize(ok),
+            "per_trial": [{"trial": i, **({"failed": m["failed"]} if "failed" in m else
+                                          {p: v for p, v in keys.flatten(m).items() if p in HEADLINE})}
+                          for i, m in enumerate(per_trial)]}
+
+
+def csv_rows(sec: dict) -> tuple[list[str], list[dict]]:
+    """``trials.csv``: one row per trial, its seeds and headline metrics."""
+    seed_cols = sorted({k for s in sec["seeds"] for k in s})
+    cols = ["trial", *seed_cols, *HEADLINE, "failed"]
+    rows = [{**{"trial": r["trial"], "failed": r.get("failed", "")}, **sec["seeds"][r["trial"]],
+             **{p: r.get(p) for p in HEADLINE}} for r in sec["per_trial"]]
+    return cols, rows
+
+
+def markdown(sec: dict) -> list[str]:
+    """The report's table of the headline metrics over the trials."""
+    from .tables import markdown as md
+
+    rows = []
+    for p in HEADLINE:
+        s = sec["stats"].get(p)
+        if not s or not s.get("n"):
+            continue
+        lo, hi = s["ci95_mean"]
+        rows.append([p, f"{s['mean']:.4g}", f"{s['std']:.3g}", f"{s['min']:.4g}", f"{s['max']:.4g}",
+                     f"{s['p2.5']:.4g} .. {s['p97.5']:.4g}", "" if math.isnan(lo) else f"{lo:.4g} .. {hi:.4g}"])
+    seeds = sec["seeds"]
+    L = ["## Monte-Carlo trials", "",
+         f"{sec['n']} trials over the seeds of every random element (trial i adds i to "
+         f"{', '.join(sorted(seeds[0])) or 'the seeds'}); trial 0's outputs are the files of this folder; per trial: "
+         "`trials.csv`, `trials.png`.", ""]
+    if sec.get("failed"):
+        L += [f"{len(sec['failed'])} trials failed and are not in the statistics: "
+              + "; ".join(f"trial {f['trial']}: {f['error']}" for f in sec["failed"]), ""]
+    return L + md(["metric", "mean", "std", "min", "max", "95 % of trials", "95 % CI of the mean"], rows,
+                  align="lrrrrll") + [""]
+
+
+def _mean_of(values: list):
+    """The mean of one table field over the trials: numbers, lists of numbers elementwise, dicts per key."""
+    vals = [v for v in values if v is not None]
+    if not vals:
+        return None
+    v0 = vals[0]
+    if isinstance(v0, bool) or isinstance(v0, str):
+        return v0
+    if isinstance(v0, (int, float)):
+        return float(np.mean(vals))
+    if isinstance(v0, (list, tuple)):
+        return np.mean(np.asarray(vals, float), axis=0).tolist()
+    if isinstance(v0, dict):
+        return {k: _mean_of([v.get(k) for v in vals]) for k in v0}
+    return v0
+
+
+def aggregate_rows(tables: list[list[dict]], by: tuple[str, ...], spread: str = "ape_trans_rmse_m") -> list[dict]:
+    """Rows of several trials' tables averaged field by field, matched on the ``by`` fields; each row also gets
+    ``trials`` and the spread of ``spread`` (``<spread>_std``, ``<spread>_ci95``)."""
+    out = []
+    for row in tables[0]:
+        key = tuple(row.get(b) for b in by)
+        same = [r for t in tables for r in t if tuple(r.get(b) for b in by) == key]
+        agg = {k: (row[k] if k in by else _mean_of([r.get(k) for r in same])) for k in row}
+        st = stats([r[spread] for r in same if r.get(spread) is not None])
+        agg.update({"trials": len(same), f"{spread}_std": st.get("std"), f"{spread}_ci95": st.get("ci95_mean")})
+        out.append(agg)
+    return out

@@ -1,0 +1,65 @@
+"""The right-invariant EKF and the Gauss-Markov bias model: the error maps, the limits, consistency on simulated data."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+from scipy.spatial.transform import Rotation
+
+import fusion_eval as fe
+from fusion_eval.filters.formulations import invariant as inv
+
+
+def _group_exp(xi_p, xi_v, xi_R, R, v, p):
+    """X = Exp(xi) X_hat on SE_2(3)."""
+    E, J = Rotation.from_rotvec(xi_R).as_matrix(), inv.left_jacobian(np.asarray(xi_R, float))
+    return E @ R, E @ v + J @ xi_v, E @ p + J @ xi_p
+
+
+def test_core_map_is_the_derivative_of_the_canonical_error():
+    R = Rotation.random(random_state=1).as_matrix()
+    v, p = np.array([12.0, -3.0, 0.4]), np.array([850.0, -420.0, 12.0])
+    D = inv.core_map(R, v, p)
+    h = 1e-6
+    for k in range(9):
+        xi = np.zeros(9)
+        xi[k] = h
+        R1, v1, p1 = _group_exp(xi[0:3], xi[3:6], xi[6:9], R, v, p)
+        canon = np.concatenate([p1 - p, v1 - v, Rotation.from_matrix(R.T @ R1).as_rotvec()])
+        np.testing.assert_allclose(canon / h, D[:9, k], atol=1e-4 * max(1.0, np.abs(D[:9, k]).max()))
+    assert np.allclose(D[9:, 9:], np.eye(6))
+
+
+def test_gauss_markov_with_an_infinite_correlation_time_is_the_random_walk(kitti_slice):
+    ds = fe.load_dataset(kitti_slice)
+    for f in ("error_state", "invariant"):
+        rw = fe.run(ds, overrides={"filter.formulation": f}).metrics
+        gm = fe.run(ds, overrides={"filter.formulation": f, "filter.bias_model": "gauss_markov",
+                                   "imu.accel_bias_corr_time_s": 1e15, "imu.gyro_bias_corr_time_s": 1e15}).metrics
+        a, b = (m["estimates"]["fused"]["ape"]["translation_m"]["rmse"] for m in (rw, gm))
+        assert a == pytest.approx(b, rel=1e-9, abs=1e-9), f
+        short = fe.run(ds, overrides={"filter.formulation": f, "filter.bias_model": "gauss_markov",
+                                      "imu.accel_bias_corr_time_s": 1.0, "imu.gyro_bias_corr_time_s": 1.0}).metrics
+        assert short["estimates"]["fused"]["ape"]["translation_m"]["rmse"] != pytest.approx(a, rel=1e-6)
+
+
+def test_invariant_matches_the_eskf_on_kitti_with_gnss(kitti_slice):
+    ds = fe.load_dataset(kitti_slice)
+    a = fe.run(ds).metrics["estimates"]["fused"]["ape"]["translation_m"]["rmse"]
+    b = fe.run(ds, overrides={"filter.formulation": "invariant"}).metrics["estimates"]["fused"]["ape"]["translation_m"]["rmse"]
+    assert b == pytest.approx(a, rel=0.05)
+
+
+@pytest.mark.slow
+def test_every_imu_formulation_is_consistent_on_a_simulation_with_true_white_noise(tmp_path):
+    """Sensors whose errors are the white noises the filters assume (no lidar scale or yaw drift): position and
+    attitude NEES inside the 95 % interval on at least 90 % of the epochs, for every formulation."""
+    from fusion_eval.simulate.dataset import simulate
+
+    out = tmp_path / "w"
+    simulate(out, "urban", 300.0, 0, "automotive", ("lidar.scale_drift=0", "lidar.yaw_drift_deg_per_100m=0"), jobs=1)
+    ds = fe.load_dataset(out)
+    for f in ("error_state", "nominal_state", "invariant"):
+        m = fe.run(ds, overrides={"filter.formulation": f}).metrics
+        for q in ("position", "attitude"):
+            assert m["nees"][q]["fraction_in_95"] >= 0.9, (f, q, m["nees"][q])

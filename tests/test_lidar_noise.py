@@ -1,0 +1,40 @@
+"""Honest lidar noise: the online NIS-matched scale, the chi-square gate and their place in the report."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+import fusion_eval as fe
+from fusion_eval.report.markdown import consistency_section
+
+
+@pytest.fixture(scope="module")
+def runs(kitti_slice):
+    ds = fe.load_dataset(kitti_slice)
+    return {mode: fe.run(ds, overrides={"lidar.noise_adapt": mode}).metrics for mode in ("none", "nis")}
+
+
+def test_adaptive_noise_brings_the_lidar_nis_to_its_dof(runs):
+    fixed, adapted = runs["none"]["nis"]["lidar"], runs["nis"]["nis"]["lidar"]
+    assert abs(fixed["mean"] - 6) > 0.3 * 6            # the configured noise is not consistent on this drive ...
+    assert abs(adapted["mean"] - 6) < 0.3 * 6          # ... the adapted one is, within 30 % of the dof
+    a = adapted["adapt"]
+    assert 0 < a["pos_std_factor_median"] < 1 and 0 < a["att_std_factor_median"] < 1   # the defaults are loose
+    assert "noise adapted online" in "\n".join(consistency_section(runs["nis"]))
+
+
+def test_auto_adapts_with_gnss_only(kitti_slice):
+    ds = fe.load_dataset(kitti_slice)
+    with_gnss = fe.run(ds).metrics["nis"]["lidar"]
+    without = fe.run(ds, overrides={"filter.use_gnss": False}).metrics["nis"]["lidar"]
+    assert "adapt" in with_gnss and "adapt" not in without
+
+
+def test_the_gate_rejects_and_the_report_counts(kitti_slice):
+    ds = fe.load_dataset(kitti_slice)
+    m = fe.run(ds, overrides={"lidar.relative_pos_std_m": 0.002, "lidar.relative_pos_std_frac": 0.0,
+                              "lidar.noise_adapt": "none", "lidar.gate_prob": 0.99}).metrics
+    n = m["nis"]["lidar"]
+    assert n["rejected"] > 0
+    assert f"{n['rejected']} lidar update(s) rejected" in "\n".join(consistency_section(m))

@@ -1,0 +1,96 @@
+"""Monte-Carlo trials: the seeds of every random element, the statistics over trials, and --trials in run,
+compare, sweep and check."""
+
+from __future__ import annotations
+
+import csv
+import json
+
+import numpy as np
+import pytest
+from click.testing import CliRunner
+from scipy import stats as st
+
+from fusion_eval import trials as mc
+from fusion_eval.cli import main
+from fusion_eval.config import load_config
+
+
+def test_every_seed_that_is_set_moves_with_the_trial():
+    cfg = load_config(None, ("gnss.seed=7", "gnss_velocity.seed=3"))
+    assert set(mc.seed_keys()) >= {"gnss.seed", "gnss_velocity.seed"}
+    assert mc.trial_overrides(cfg, 2) == {"gnss.seed": 9, "gnss_velocity.seed": 5}
+    plain = load_config(None, ())
+    assert mc.trial_overrides(plain, 4) == {"gnss.seed": 4}       # gnss_velocity.seed null: it follows gnss.seed
+    assert mc.apply(plain, 0) is plain and mc.apply(plain, 3)["gnss"]["seed"] == 3 and plain["gnss"]["seed"] == 0
+
+
+def test_statistics_over_trials():
+    v = np.array([0.71, 0.80, 0.76, 0.66, 0.74])
+    s = mc.stats(v)
+    half = st.t.ppf(0.975, v.size - 1) * v.std(ddof=1) / np.sqrt(v.size)
+    assert s["mean"] == pytest.approx(v.mean()) and s["std"] == pytest.approx(v.std(ddof=1))
+    assert s["ci95_mean"] == pytest.approx([v.mean() - half, v.mean() + half])
+    assert (s["min"], s["max"], s["n"]) == (0.66, 0.80, 5)
+    rows = mc.aggregate_rows([[{"v": "a", "x": 1.0, "b": [1.0, 2.0], "nis": {"l": 2.0}}],
+                              [{"v": "a", "x": 3.0, "b": [3.0, 4.0], "nis": {"l": 4.0}}]], ("v",), spread="x")
+    assert rows[0]["x"] == 2.0 and rows[0]["b"] == [2.0, 3.0] and rows[0]["nis"] == {"l": 3.0} and rows[0]["trials"] == 2
+    with pytest.raises(Exception, match="whole number"):
+        mc.check_count(0)
+
+
+def test_run_with_trials_summarises_every_metric_and_check_gates_on_the_mean(kitti_slice, tmp_path):
+    out = tmp_path / "run"
+    r = CliRunner().invoke(main, ["-q", "run", str(kitti_slice), "--trials", "3", "--out", str(out), "--no-plots"])
+    assert r.exit_code == 0, r.output
+    m = json.loads((out / "metrics.json").read_text())
+    tr = m["trials"]
+    assert tr["n"] == 3 and [s["gnss.seed"] for s in tr["seeds"]] == [0, 1, 2]
+    per = [p["fused.ape.translation_m.rmse"] for p in tr["per_trial"]]
+    assert len(set(per)) == 3                                   # the seeds do change the result
+    assert per[0] == m["estimates"]["fused"]["ape"]["translation_m"]["rmse"]   # trial 0 is the run itself
+    s = tr["stats"]["fused.ape.translation_m.rmse"]
+    assert s["mean"] == pytest.approx(np.mean(per)) and s["std"] == pytest.approx(np.std(per, ddof=1))
+    # the lidar has no random element: the same in every trial
+    assert tr["stats"]["lidar.ape.translation_m.rmse"]["std"] == 0.0
+    rows = list(csv.DictReader((out / "trials.csv").read_text().splitlines()))
+    assert [int(x["trial"]) for x in rows] == [0, 1, 2]
+    assert "## Monte-Carlo trials" in (out / "report.md").read_text()
+    # check compares the mean over trials (or trial 0's own value with --trial-stat none)
+    base = tmp_path / "base.json"
+    base.write_text(json.dumps({**m, "trials": None}))
+    mean_rule = f"fused.ape.rmse == {s['mean']!r}"
+    r = CliRunner().invoke(main, ["check", str(out / "metrics.json"), "-b", str(base), "-m", "fused.ape.*", "-r", mean_rule,
+                                  "--rtol", "1"])
+    assert r.exit_code == 0 and "holds" in r.output, r.output
+    r = CliRunner().invoke(main, ["check", str(out / "metrics.json"), "-b", str(base), "-m", "fused.ape.*", "-r", mean_rule,
+                                  "--trial-stat", "none", "--rtol", "1"])
+    assert r.exit_code == 1 and "FAILS" in r.output
+
+
+@pytest.mark.slow
+def test_compare_and_sweep_with_trials_report_means(kitti_slice, tmp_path):
+    out = tmp_path / "cmp"
+    r = CliRunner().invoke(main, ["-q", "compare", str(kitti_slice), "--variants", "eskf,constant-bias", "--trials", "2",
+                                  "--out", str(out), "--no-plots"])
+    assert r.exit_code == 0, r.output
+    c = json.loads((out / "compare.json").read_text())
+    assert c["trials"]["n"] == 2 and len(c["trials"]["per_trial"]) == 2
+    for row in c["rows"]:
+        per = [next(x for x in t if x["variant"] == row["variant"] and x["estimate"] == row["estimate"])["ape_trans_rmse_m"]
+               for t in c["trials"]["per_trial"]]
+        assert row["ape_trans_rmse_m"] == pytest.approx(np.mean(per)) and row["trials"] == 2
+    assert "Means over 2 Monte-Carlo trials" in (out / "compare.md").read_text()
+
+    sweep = tmp_path / "s.yaml"
+    sweep.write_text(f"datasets: [{kitti_slice}]\nvariants: [eskf]\ntrials: 2\nsettings:\n  quiet: {{imu.accel_noise_mps2_sqrthz: 0.1}}\n")
+    out = tmp_path / "sw"
+    r = CliRunner().invoke(main, ["-q", "sweep", "--grid", str(sweep), "--out", str(out), "--no-plots", "--jobs", "1"])
+    assert r.exit_code == 0, r.output
+    per = list(csv.DictReader((out / "sweep_trials.csv").read_text().splitlines()))
+    mean = list(csv.DictReader((out / "sweep.csv").read_text().splitlines()))
+    assert len(per) == 4 and len(mean) == 2
+    for row in mean:
+        vals = [float(p["fused_ape_trans_rmse_m"]) for p in per if p["setting"] == row["setting"]]
+        assert float(row["fused_ape_trans_rmse_m"]) == pytest.approx(np.mean(vals), rel=1e-5)
+        assert row["trials"] == "2"
