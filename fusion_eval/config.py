@@ -56,8 +56,10 @@ CORE: dict[str, Spec] = {
                                "much; 'auto' = estimated from the data (accelerometer vs lidar acceleration; the device figure "
                                "without lidar); null = the manifest's value (default 0)", "float", nullable=True, auto=True),
     "imu.filled_packets": S("drop", "provider-filled IMU samples: 'drop' (default) or 'keep'", choices=("drop", "keep")),
-    "imu.accel_noise_mps2_sqrthz": S(0.3, "accelerometer white noise density (velocity random walk), m/s^2/sqrt(Hz)", nonneg=True),
-    "imu.gyro_noise_dps_sqrthz": S(0.1, "gyroscope white noise density (angle random walk), deg/s/sqrt(Hz)", nonneg=True),
+    "imu.accel_noise_mps2_sqrthz": S("auto", "accelerometer white noise density (velocity random walk), m/s^2/sqrt(Hz); "
+                                          "'auto' = from the stream's second differences", "float", nonneg=True, auto=True),
+    "imu.gyro_noise_dps_sqrthz": S("auto", "gyroscope white noise density (angle random walk), deg/s/sqrt(Hz); 'auto' = from "
+                                        "the stream's second differences", "float", nonneg=True, auto=True),
     "imu.accel_bias_rw_mps3_sqrthz": S(1e-4, "accelerometer bias random walk, m/s^3/sqrt(Hz)", nonneg=True),
     "imu.gyro_bias_rw_dps2_sqrthz": S(1e-5, "gyroscope bias random walk, deg/s^2/sqrt(Hz)", nonneg=True),
     "imu.gap_factor": S(1.5, "an IMU interval longer than gap_factor x the median interval is a gap", positive=True),

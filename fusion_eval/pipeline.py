@@ -17,14 +17,13 @@ import numpy as np
 
 from . import report, session
 from . import trials as mc
-from .config import Settings
 from .errors import FusionEvalError
 from .evaluation import span
 from .evaluation.run_metrics import consistency, fused_error, ratio_metrics, run_metrics, segments
 from .evaluation.trajectory import EstimateEvaluation, evaluate
 from .outputs import StagedDir
 from .pool import executor
-from .prepare import Prepared, prepare
+from .prepare import Prepared, prepare, settings_for
 from .replay import FilterOutput, dead_reckoning, replay
 from .types import Dataset, PoseSeries
 
@@ -87,7 +86,7 @@ def execute(ds: Dataset, cfg: dict, *, dataset_path: str | Path | None = None, c
     timings: dict = {}
     t = time.perf_counter()
     prep = prepare(ds, cfg)
-    s = Settings(cfg)
+    s = settings_for(cfg, prep)
     timings["prepare"] = time.perf_counter() - t
     series: dict[str, PoseSeries] = {"groundtruth": prep.groundtruth}
     if prep.lidar is not None:

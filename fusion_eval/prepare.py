@@ -13,6 +13,8 @@ from dataclasses import dataclass, field, replace
 import numpy as np
 
 from . import timing
+from .calibration import imu_noise
+from .config import Settings
 from .calibration.extrinsic import apply_rotation, estimate_rotation
 from .degrade import degrade_gnss
 from .errors import ConfigError, DataRangeError
@@ -41,6 +43,17 @@ class Prepared:
     applied: dict = field(default_factory=dict)   # effective offsets, lag, anchor (for the report)
     odometer: SpeedSeries | None = None          # forward speed, inside the run
     streams: dict = field(default_factory=dict)  # the enabled observations' other streams, prepared, inside the run
+    resolved: dict = field(default_factory=dict)  # configuration values estimated from the data ('auto'), by section
+
+
+def settings_for(cfg: dict, prep: Prepared) -> Settings:
+    """The SI settings of the run: the configuration with what :func:`prepare` estimated in place of 'auto'."""
+    if not prep.resolved:
+        return Settings(cfg)
+    c = {sect: dict(body) for sect, body in cfg.items()}
+    for sect, body in prep.resolved.items():
+        c[sect].update(body)
+    return Settings(c)
 
 
 def _offset(cfg: dict, ds: Dataset, stream: str, auto: bool = False):
@@ -107,6 +120,7 @@ def prepare(ds: Dataset, cfg: dict) -> Prepared:
     if len(imu) < 2:
         raise DataRangeError(f"{ds.imu.source}: fewer than 2 usable IMU samples")
     # --- time alignment: the IMU channel lags and the lidar clock offset, given or estimated from the data
+    imu_recorded = imu         # as recorded: the lag correction interpolates, which would smooth the noise estimate
     imu, lidar_off, timing_applied = timing.align(ds, cfg, imu, _offset(cfg, ds, "lidar", auto=True))
     applied.update(timing_applied)
 
@@ -185,6 +199,15 @@ def prepare(ds: Dataset, cfg: dict) -> Prepared:
         if needs_odo and (odo.t_s[-1] <= imu.t_s[k0] or odo.t_s[0] >= imu.t_s[-1]):
             raise DataRangeError(f"odometer ({ds.odometer.source}) and IMU do not overlap in time")
 
+    # --- IMU white noise: given, or from the stream's own second differences (no ground truth), once the streams are known to overlap
+    resolved: dict = {}
+    noise_keys = (("accel_noise_mps2_sqrthz", "accel_mps2_sqrthz", 1.0),
+                  ("gyro_noise_dps_sqrthz", "gyro_rps_sqrthz", 180 / np.pi))
+    if any(cfg["imu"][k] == "auto" for k, _, _ in noise_keys):
+        est = imu_noise.estimate(imu_recorded)
+        resolved["imu"] = {k: est[e] * f for k, e, f in noise_keys if cfg["imu"][k] == "auto"}
+    if resolved:
+        applied["imu_noise"] = dict(resolved["imu"])
     # --- initial state
     if cfg["filter"]["init_pose_from"] == "lidar":
         if lidar is None:
@@ -225,4 +248,4 @@ def prepare(ds: Dataset, cfg: dict) -> Prepared:
     applied["gravity_mps2"] = float(g)
     applied["t_start_s"] = t0
     return Prepared(imu=imu, groundtruth=gt, gnss=gnss, lidar=lidar, k_start=k0, x0=x0, gravity_mps2=float(g),
-                    gnss_info=gnss_info, applied=applied, odometer=odo, streams=extra)
+                    gnss_info=gnss_info, applied=applied, odometer=odo, streams=extra, resolved=resolved)

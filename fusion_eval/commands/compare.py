@@ -19,7 +19,6 @@ import numpy as np
 import yaml
 
 from .. import session
-from ..config import Settings
 from ..datasets.tum import format_tum
 from ..errors import ConfigError
 from .. import trials as mc
@@ -29,7 +28,7 @@ from ..evaluation.trajectory import evaluate, ratio
 from ..filters import observations
 from ..outputs import StagedDir
 from ..pool import executor
-from ..prepare import prepare
+from ..prepare import prepare, settings_for
 from ..replay import replay
 from ..report.files import versions
 from ..report.markdown import segments_section
@@ -67,7 +66,7 @@ def _replay_all(ds, variants: list[str], cfgs: list[dict], progress=None, frac: 
         prep = prepare(ds, cfg)
         base_prep = base_prep or prep
         with np.errstate(over="ignore", invalid="ignore"):
-            filt = replay(prep, Settings(cfg), imu_only=runs[0].filt.imu_only if runs else None)
+            filt = replay(prep, settings_for(cfg, prep), imu_only=runs[0].filt.imu_only if runs else None)
         runs.append(VariantRun(name, cfg, filt, None, time.perf_counter() - t0))
         log.info("variant %s: filtered in %.2f s", name, runs[-1].runtime_s)
         if progress:

@@ -77,6 +77,11 @@ def _estimates(applied: dict) -> list[str]:
     for name, e in applied.get("time_estimates", {}).items():
         unc = "" if e.get("std_s") is None else f" +/- {e['std_s'] * 1000:.1f} ms (jackknife)"
         out.append(f"- Estimated {name.replace('_', ' ')}: {e['value_s'] * 1000:.1f} ms{unc}, from {e['method']}.")
+    n = applied.get("imu_noise")
+    if n:
+        parts = [f"accelerometer {n['accel_noise_mps2_sqrthz']:.4f} m/s^2/sqrt(Hz)" if "accel_noise_mps2_sqrthz" in n else "",
+                 f"gyro {n['gyro_noise_dps_sqrthz']:.4f} deg/s/sqrt(Hz)" if "gyro_noise_dps_sqrthz" in n else ""]
+        out.append(f"- IMU white noise estimated from the stream's second differences: {', '.join(p for p in parts if p)}.")
     x = applied.get("lidar_extrinsic")
     if x:
         out.append(f"- Estimated lidar-IMU rotation correction (roll, pitch, yaw): "
