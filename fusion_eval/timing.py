@@ -58,7 +58,7 @@ def align(ds: Dataset, cfg: dict, imu: ImuSeries, lidar_offset_given) -> tuple[I
         overlap = 0.0 if ds.lidar is None or len(ds.lidar) < 2 else (
             min(imu.t_s[-1], ds.lidar.t_s[-1]) - max(imu.t_s[0], ds.lidar.t_s[0]))
         if overlap >= MIN_OVERLAP_S:
-            sh = measure_shifts(imu, _on_imu_frame(ds.lidar))
+            sh = measure_shifts(imu, _on_imu_frame(ds.lidar), accel="auto" in (accel, off), rate=gyro == "auto")
             est = resolve(sh, off, accel, gyro)
             applied["time_estimates"] = {k: v.as_dict() for k, v in est.items()}
             off = est["lidar_offset"].value_s if off == "auto" else off

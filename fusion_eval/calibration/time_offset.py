@@ -139,8 +139,9 @@ def _extended(grid: np.ndarray, pad: int) -> np.ndarray:
 
 
 def _block_sums(x: np.ndarray, ok: np.ndarray, blk: np.ndarray, blocks: int) -> np.ndarray:
-    """Sum of ``x`` (N, ...) over the valid points of each block."""
-    return np.stack([x[ok & (blk == b)].sum(axis=0) for b in range(blocks)])
+    """Sum of ``x`` (N, k) over the valid points of each block (blocks are contiguous runs of the grid)."""
+    starts = np.searchsorted(blk, np.arange(blocks))
+    return np.add.reduceat(np.where(ok[:, None], x, 0.0), starts, axis=0)
 
 
 def accel_cost_terms(imu: ImuSeries, lidar: PoseSeries, shifts: np.ndarray, grid: np.ndarray, blocks: int):
@@ -154,19 +155,22 @@ def accel_cost_terms(imu: ImuSeries, lidar: PoseSeries, shifts: np.ndarray, grid
     A, ok_l = _smooth(Rt.apply(a_w), gl, ACCEL_SMOOTH_S)
     B, _ = _smooth(Rt.as_matrix().reshape(-1, 9), gl, ACCEL_SMOOTH_S)
     B = B.reshape(-1, 3, 3)
-    pad = int(shifts.max())
+    pad = int(np.abs(shifts).max())
     ext = _extended(grid, pad)
     F, ok_i = _smooth(_interp(imu.t_s, imu.f_b_mps2, ext), _valid_on_grid(imu.t_s, ext, _max_gap(imu.t_s)), ACCEL_SMOOTH_S)
     blk = _block_of(grid.size, blocks)
     # per shift and block: sum |A - F|^2, sum B^T (A - F) (3), sum B^T B (9), count
     terms = np.zeros((shifts.size, blocks, 14))
+    x = np.empty((grid.size, 14))
+    x[:, 4:13] = np.einsum("nki,nkj->nij", B, B).reshape(-1, 9)      # the same at every shift
+    x[:, 13] = 1.0
+    BtA = np.einsum("nji,nj->ni", B, A)
     for n, k in enumerate(shifts):
         sl = slice(pad + k, pad + k + grid.size)
-        ok = ok_l & ok_i[sl]
         r = A - F[sl]
-        x = np.column_stack([np.sum(r * r, axis=1), np.einsum("nji,nj->ni", B, r),
-                             np.einsum("nki,nkj->nij", B, B).reshape(-1, 9), np.ones(grid.size)])
-        terms[n] = _block_sums(x, ok, blk, blocks)
+        x[:, 0] = np.einsum("ij,ij->i", r, r)
+        x[:, 1:4] = BtA - np.einsum("nji,nj->ni", B, F[sl])
+        terms[n] = _block_sums(x, ok_l & ok_i[sl], blk, blocks)
     return terms
 
 
@@ -174,18 +178,22 @@ def rate_cost_terms(imu: ImuSeries, lidar: PoseSeries, shifts: np.ndarray, grid:
     """Per shift and block: sums of w_l, w_g, |w_l|^2, w_l . w_g, |w_g|^2 and the count (gyro at t + shift)."""
     tm, w = _lidar_rates(lidar)
     wl, ok_l = _smooth(_interp(tm, w, grid), _valid_on_grid(tm, grid, _max_gap(lidar.t_s)), RATE_SMOOTH_S)
-    pad = int(shifts.max())
+    pad = int(np.abs(shifts).max())
     ext = _extended(grid, pad)
     wg, ok_i = _smooth(_interp(imu.t_s, imu.w_b_rps, ext), _valid_on_grid(imu.t_s, ext, _max_gap(imu.t_s)), RATE_SMOOTH_S)
     blk = _block_of(grid.size, blocks)
     terms = np.zeros((shifts.size, blocks, 10))
+    x = np.empty((grid.size, 10))
+    x[:, 0:3] = wl
+    x[:, 6] = np.einsum("ij,ij->i", wl, wl)
+    x[:, 9] = 1.0
     for n, k in enumerate(shifts):
         sl = slice(pad + k, pad + k + grid.size)
-        ok = ok_l & ok_i[sl]
         g = wg[sl]
-        x = np.column_stack([wl, g, np.sum(wl * wl, axis=1), np.sum(wl * g, axis=1), np.sum(g * g, axis=1),
-                             np.ones(grid.size)])
-        terms[n] = _block_sums(x, ok, blk, blocks)
+        x[:, 3:6] = g
+        x[:, 7] = np.einsum("ij,ij->i", wl, g)
+        x[:, 8] = np.einsum("ij,ij->i", g, g)
+        terms[n] = _block_sums(x, ok_l & ok_i[sl], blk, blocks)
     return terms
 
 
@@ -223,32 +231,46 @@ class Shifts:
 
     def std(self, a: float, r: float) -> float:
         """Jackknife standard error of the combination ``a * accel + r * rate``."""
-        x = a * self.accel_loo + r * self.rate_loo
+        x = (a * self.accel_loo if a else 0.0) + (r * self.rate_loo if r else 0.0)   # an unmeasured shift is NaN
         n = x.size
         return float(np.sqrt((n - 1) / n * np.sum((x - x.mean()) ** 2)))
 
 
-def measure_shifts(imu: ImuSeries, lidar: PoseSeries, max_shift_s: float = MAX_SHIFT_S, blocks: int = BLOCKS) -> Shifts:
-    """The accelerometer and gyro shifts against the lidar; see the module docstring. ``lidar`` holds IMU
-    poses (extrinsic applied) on the lidar's own stamps, in any world frame."""
+COARSE = 4              # the coarse search steps every 4 grid points (20 ms), the fine one +/-2 coarse steps
+
+
+def _search(terms_fn, cost_fn, imu, lidar, grid, blocks: int, max_shift_s: float):
+    """Coarse-to-fine minimum of a shift cost: the estimate and its leave-one-block-out estimates."""
+    full = _shifts(max_shift_s)
+    coarse = full[::COARSE]
+    c = cost_fn(terms_fn(imu, lidar, coarse, grid, blocks), np.ones(blocks, bool))
+    k0 = int(coarse[int(np.argmin(c))])
+    fine = np.arange(max(k0 - 2 * COARSE, full[0]), min(k0 + 2 * COARSE, full[-1]) + 1)
+    t = terms_fn(imu, lidar, fine, grid, blocks)
+    if t[..., -1].sum() == 0:
+        raise DataRangeError(f"no stretch of {imu.source} and {lidar.source} without gaps to estimate time offsets from")
+    est, _, loo = _jackknife(lambda keep: cost_fn(t, keep), fine, blocks)
+    return est, loo, int(t[fine.size // 2, :, -1].sum())
+
+
+def measure_shifts(imu: ImuSeries, lidar: PoseSeries, max_shift_s: float = MAX_SHIFT_S, blocks: int = BLOCKS,
+                   accel: bool = True, rate: bool = True) -> Shifts:
+    """The accelerometer and gyro shifts against the lidar (each only if asked for; NaN otherwise); see the module
+    docstring. ``lidar`` holds IMU poses (extrinsic applied) on the lidar's own stamps, in any world frame."""
     # on a clock relative to the first IMU sample: a 5 ms grid in POSIX seconds (1.8e9) loses 1e-7 s per
     # point to rounding, which accumulates into milliseconds over a drive
     t_ref = float(imu.t_s[0])
     imu, lidar = replace(imu, t_s=imu.t_s - t_ref), replace(lidar, t_s=lidar.t_s - t_ref)
-    shifts = _shifts(max_shift_s)
     grid = _common_grid(imu, lidar, max_shift_s)
-    at = accel_cost_terms(imu, lidar, shifts, grid, blocks)
-    rt = rate_cost_terms(imu, lidar, shifts, grid, blocks)
-    if at[..., 13].sum() == 0 or rt[..., 9].sum() == 0:
-        raise DataRangeError(f"no stretch of {imu.source} and {lidar.source} without gaps to estimate time offsets from")
-    acc, _, acc_loo = _jackknife(lambda keep: _accel_cost(at, keep), shifts, blocks)
-    rate, _, rate_loo = _jackknife(lambda keep: _rate_cost(rt, keep), shifts, blocks)
-    for name, v in (("accelerometer", acc), ("gyro", rate)):
-        if abs(v) >= max_shift_s - 2 * GRID_S:
+    nan = (float("nan"), np.full(blocks, np.nan), 0)
+    acc, acc_loo, n_a = _search(accel_cost_terms, _accel_cost, imu, lidar, grid, blocks, max_shift_s) if accel else nan
+    rt, rate_loo, n_r = _search(rate_cost_terms, _rate_cost, imu, lidar, grid, blocks, max_shift_s) if rate else nan
+    for name, v in (("accelerometer", acc), ("gyro", rt)):
+        if np.isfinite(v) and abs(v) >= max_shift_s - 2 * GRID_S:
             raise DataRangeError(f"the {name} of {imu.source} matches the lidar of {lidar.source} best at the end of the "
                                  f"searched range (+/-{max_shift_s * 1000:.0f} ms): the streams do not share one clock "
                                  "to within that; set the offsets by hand")
-    return Shifts(acc, rate, acc_loo, rate_loo, int(at[shifts.size // 2, :, 13].sum()))
+    return Shifts(acc, rt, acc_loo, rate_loo, max(n_a, n_r))
 
 
 def resolve(sh: Shifts, lidar_offset_s, accel_lag_s, gyro_lag_s) -> dict[str, TimeEstimate]:

@@ -194,12 +194,11 @@ class FilterBase:
     def model_args(self):
         return self.x, self.clone.p_w_m, self.clone.R_wb
 
-    def innovation(self, model: ObservationModel) -> tuple[np.ndarray, np.ndarray]:
-        """The residual and its covariance ``S = H P H^T + R`` at the current estimate (before an update)."""
-        Hc, r, Rm = model(*self.model_args())
+    def innovation_cov(self, Hc: np.ndarray, Rm: np.ndarray) -> np.ndarray:
+        """The innovation covariance ``S = H P H^T + R`` at the current estimate (``Hc``: canonical columns)."""
         H = Hc @ self.D()
         n = self.n
-        return r, H @ self.P[:n, :n] @ H.T + Rm
+        return H @ self.P[:n, :n] @ H.T + Rm
 
     def update(self, model: ObservationModel, iterations: int = 1, tol: float = 1e-8,
                gate: float = np.inf) -> tuple[float, bool]:

@@ -31,12 +31,13 @@ from numba import njit
 from ...errors import FilterDivergedError
 from .. import discretize, linalg
 from ..layout import CANONICAL, CLONE
-from ..mech import XBA, XBG, XP, XR, XV, attitude, exp3, mech_step, skew3
+from ..mech import XBA, XBG, XP, XV, attitude, exp3, mech_step, skew3
 from ..propagate import compiled_loop, new_arrays, record_cov_by_index
 from ..state import NominalState, unpack
 from ...spec import S
-from .base import ErrorStateBase, bias_decays, bias_walks
-from .imu_model import PRM_G, PRM_DISC, PRM_KBA, PRM_KBG, PRM_QA, PRM_QBA, PRM_QBG, PRM_QG, UF, UW, imu_params
+from . import imu_model
+from .base import ErrorStateBase
+from .imu_model import PRM_G, PRM_DISC, PRM_KBA, PRM_KBG, PRM_QA, PRM_QBA, PRM_QBG, PRM_QG, UF, UW, decay_biases
 
 LAYOUT = CANONICAL
 P_ID, V_ID, TH_ID, BA_ID, BG_ID = (LAYOUT.start(b) for b in ("P", "V", "TH", "BA", "BG"))
@@ -142,12 +143,7 @@ def step(x, P, n, u0, u1, dt, qscale, prm, aux, cov):
             Phi, Qd = discretize.transition(Ft, Qc, dt, method)
             discretize.propagate_dense(P, n, Phi, Qd)
     mech_step(x, u0[UF:UF + 3], u0[UW:UW + 3], u1[UF:UF + 3], u1[UW:UW + 3], dt, prm[PRM_G])
-    if prm[PRM_KBA] > 0.0 or prm[PRM_KBG] > 0.0:
-        # the mean of a Gauss-Markov bias decays toward zero: E[b(t + dt) | b(t)] = exp(-dt / tau) b(t)
-        da, dg = np.exp(-prm[PRM_KBA] * dt), np.exp(-prm[PRM_KBG] * dt)
-        for i in range(3):
-            x[XBA + i] *= da
-            x[XBG + i] *= dg
+    decay_biases(x, dt, prm)
 
 
 predict_to = compiled_loop(__name__, step, record_cov_by_index)
@@ -204,9 +200,7 @@ class ErrorStateKF(ErrorStateBase):
 
     @classmethod
     def run_params(cls, s, gravity_mps2: float) -> np.ndarray:
-        qba, qbg = bias_walks(s)
-        return imu_params(gravity_mps2, s.imu.accel_noise_mps2_sqrthz, s.imu.gyro_noise_rps_sqrthz, qba, qbg,
-                          s.filter.discretization, *bias_decays(s))
+        return imu_model.run_params(s, gravity_mps2)
 
     def update(self, model, iterations: int = 1, tol: float = 1e-8, gate: float = np.inf) -> tuple[float, bool]:
         """Joseph-form update, injection and reset; the plain EKF update runs in compiled kernels."""

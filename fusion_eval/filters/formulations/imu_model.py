@@ -3,8 +3,10 @@
 from __future__ import annotations
 
 import numpy as np
+from numba import njit
 
 from ..discretize import METHODS
+from ..mech import XBA, XBG
 from ..layout import Layout
 
 # IMU input rows: specific force and angular rate in the body frame
@@ -32,3 +34,23 @@ def imu_params(g: float, accel_noise: float, gyro_noise: float, accel_bias_rw: f
 def imu_inputs(f_b: np.ndarray, w_b: np.ndarray) -> np.ndarray:
     """Input rows ``[f_b, w_b]`` (N, 6)."""
     return IMU_INPUT.columns(f=f_b, w=w_b)
+
+
+@njit(cache=True)
+def decay_biases(x, dt, prm):
+    """The mean of a Gauss-Markov bias decays toward zero, ``E[b(t + dt) | b(t)] = exp(-dt / tau) b(t)``
+    (in place on the nominal vector; nothing for a random walk or a constant bias)."""
+    if prm[PRM_KBA] > 0.0 or prm[PRM_KBG] > 0.0:
+        da, dg = np.exp(-prm[PRM_KBA] * dt), np.exp(-prm[PRM_KBG] * dt)
+        for i in range(3):
+            x[XBA + i] *= da
+            x[XBG + i] *= dg
+
+
+def run_params(s, gravity_mps2: float) -> np.ndarray:
+    """The parameter record of a run's SI settings ``s``: noise densities, bias model, discretisation."""
+    from .base import bias_decays, bias_walks
+
+    qba, qbg = bias_walks(s)
+    return imu_params(gravity_mps2, s.imu.accel_noise_mps2_sqrthz, s.imu.gyro_noise_rps_sqrthz, qba, qbg,
+                      s.filter.discretization, *bias_decays(s))

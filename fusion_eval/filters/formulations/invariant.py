@@ -31,12 +31,12 @@ from numba import njit
 from ...errors import FilterDivergedError
 from .. import discretize, linalg
 from ..layout import CANONICAL, POSE_BLOCKS, Layout
-from ..mech import XBA, XBG, XP, XV, attitude, exp3, log3, mech_step, skew3
+from ..mech import XP, XV, attitude, exp3, log3, mech_step, skew3
 from ..propagate import compiled_loop
 from ..state import ClonePose, NominalState
-from .base import FilterBase, bias_decays, bias_walks
-from .eskf import BIAS_KEYS
-from .imu_model import PRM_DISC, PRM_G, PRM_KBA, PRM_KBG, PRM_QA, PRM_QBA, PRM_QBG, PRM_QG, UF, UW, imu_params
+from . import imu_model
+from .base import FilterBase
+from .imu_model import PRM_DISC, PRM_G, PRM_KBA, PRM_KBG, PRM_QA, PRM_QBA, PRM_QBG, PRM_QG, UF, UW, decay_biases
 
 LAYOUT = Layout("right-invariant EKF", [("P", 3), ("V", 3), ("TH", 3), ("BA", 3), ("BG", 3)],
                 clone=[("CP", 3), ("CTH", 3)], clone_of={"CP": "P", "CTH": "TH"})
@@ -94,11 +94,7 @@ def step(x, P, n, u0, u1, dt, qscale, prm, aux, cov):
         Phi, Qd = discretize.transition_full(A, Qc, dt, int(prm[PRM_DISC]))
         discretize.propagate_dense(P, n, Phi, Qd)
     mech_step(x, u0[UF:UF + 3], u0[UW:UW + 3], u1[UF:UF + 3], u1[UW:UW + 3], dt, prm[PRM_G])
-    if prm[PRM_KBA] > 0.0 or prm[PRM_KBG] > 0.0:
-        da, dg = np.exp(-prm[PRM_KBA] * dt), np.exp(-prm[PRM_KBG] * dt)
-        for i in range(3):
-            x[XBA + i] *= da
-            x[XBG + i] *= dg
+    decay_biases(x, dt, prm)
 
 
 @njit(cache=True)
@@ -165,9 +161,7 @@ class RightInvariantEKF(FilterBase):
 
     @classmethod
     def run_params(cls, s, gravity_mps2: float) -> np.ndarray:
-        qba, qbg = bias_walks(s)
-        return imu_params(gravity_mps2, s.imu.accel_noise_mps2_sqrthz, s.imu.gyro_noise_rps_sqrthz, qba, qbg,
-                          s.filter.discretization, *bias_decays(s))
+        return imu_model.run_params(s, gravity_mps2)
 
     def own_prior(self, P0: np.ndarray) -> np.ndarray:
         Dinv = np.linalg.inv(core_map(self.x.R_wb, self.x.v_w_mps.copy(), self.x.p_w_m.copy()))

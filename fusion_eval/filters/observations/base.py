@@ -57,8 +57,10 @@ class Bound:
         if m is None:
             res = None
         elif self.on_result is not None:
-            r, S = kf.innovation(m)                 # before the update changes P
-            res = kf.update(m, iterations, tol, self.gate)
+            Hc, r, Rm = m(*kf.model_args())
+            S = kf.innovation_cov(Hc, Rm)           # before the update changes P
+            once = m if iterations > 1 else (lambda *_: (Hc, r, Rm))     # the plain update needs no re-evaluation
+            res = kf.update(once, iterations, tol, self.gate)
             self.on_result(kf.t, r, S, *res)
         else:
             res = kf.update(m, iterations, tol, self.gate)
