@@ -32,7 +32,7 @@ from fusion_eval.filters.formulations.base import canonical_prior_std, gap_of  #
 from fusion_eval.filters.formulations.eskf import ErrorStateKF  # noqa: E402
 from fusion_eval.filters.formulations.imu_model import imu_inputs  # noqa: E402
 from fusion_eval.filters.state import NominalState  # noqa: E402
-from fusion_eval.prepare import prepare  # noqa: E402
+from fusion_eval.prepare import prepare, settings_for  # noqa: E402
 from fusion_eval.replay import replay  # noqa: E402
 
 
@@ -41,7 +41,7 @@ def propagation_rate(n_samples: int, clone: bool) -> float:
     t = np.arange(n_samples) * 0.01
     f = np.tile([0.0, 0.0, 9.81], (n_samples, 1)) + rng.normal(size=(n_samples, 3)) * 0.1
     w = rng.normal(size=(n_samples, 3)) * 0.01
-    s = Settings(load_config(None))
+    s = Settings(load_config(None, ("imu.accel_noise_mps2_sqrthz=0.3", "imu.gyro_noise_dps_sqrthz=0.1")))
     prm = ErrorStateKF.run_params(s, 9.81)
     x0 = NominalState(np.zeros(3), np.zeros(3), np.eye(3), np.zeros(3), np.zeros(3))
     kf = ErrorStateKF(x0, np.diag(canonical_prior_std(s) ** 2), prm, t, imu_inputs(f, w), 0, gap_of(s, t))
@@ -57,7 +57,7 @@ def replay_rate() -> tuple[float, float, int]:
     ds = session.dataset(ROOT / "data" / "kitti-00")
     cfg = session.resolve(session.request(config=ROOT / "configs" / "default.yaml"), ds)
     prep = prepare(ds, cfg)
-    s = Settings(cfg)
+    s = settings_for(cfg, prep)
     imu_only = replay(prep, s).imu_only  # warm-up
     t0 = time.perf_counter()
     out = replay(prep, s, imu_only=imu_only)

@@ -27,10 +27,9 @@ ROOT = Path(__file__).resolve().parent.parent
 sys.path.insert(0, str(ROOT))
 
 from fusion_eval import session  # noqa: E402
-from fusion_eval.config import Settings  # noqa: E402
 from fusion_eval.evaluation.consistency import fraction_inside, pose_nees  # noqa: E402
 from fusion_eval.datasets.manifest import load_dataset  # noqa: E402
-from fusion_eval.prepare import prepare  # noqa: E402
+from fusion_eval.prepare import prepare, settings_for  # noqa: E402
 from fusion_eval.replay import replay  # noqa: E402
 
 
@@ -54,7 +53,7 @@ def consistency(tmp: str, mode: str, extra: tuple[str, ...]) -> None:
     ds = load_dataset(d)
     cfg = session.resolve(session.request(sets=extra), ds)
     prep = prepare(ds, cfg)
-    out = replay(prep, Settings(cfg))
+    out = replay(prep, settings_for(cfg, prep))
     gt = prep.groundtruth
     i = np.searchsorted(gt.t_s, out.fused.t_s)
     n_pos, n_att = pose_nees(out.fused.p_w_m, out.fused.R_wb(), gt.p_w_m[i], gt.R_wb()[i], out.P_pos_att)

@@ -20,7 +20,7 @@ from fusion_eval.filters import formulations, observations
 from fusion_eval.filters.layout import CANONICAL, canonical_blocks
 from fusion_eval.filters.state import ClonePose, NominalState
 from fusion_eval.interp import interpolate_pose_at
-from fusion_eval.prepare import prepare
+from fusion_eval.prepare import prepare, settings_for
 from fusion_eval import session
 from fusion_eval.session import dataset
 from fusion_eval.so3 import exp_so3, log_so3
@@ -69,7 +69,7 @@ def test_observation_jacobian_matches_finite_differences(sim, obs):
     ds = dataset(sim)
     cfg = session.resolve(session.request(sets=sets), ds)
     prep = prepare(ds, cfg)
-    b = obs.bind(prep, Settings(cfg))
+    b = obs.bind(prep, settings_for(cfg, prep))
     assert b.t_s.size > 5, "the observation never fires on the simulated drive"
     rng = np.random.default_rng(7)
     checked = 0

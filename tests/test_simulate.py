@@ -14,14 +14,13 @@ from click.testing import CliRunner
 from conftest import ROOT
 from fusion_eval.cli import main
 from fusion_eval import session
-from fusion_eval.config import Settings
 from fusion_eval.evaluation.consistency import fraction_inside, pose_nees
 from fusion_eval.datasets.manifest import load_dataset
 from fusion_eval.filters.formulations.eskf import dead_reckon, positions_attitudes
 from fusion_eval.filters.formulations.imu_model import imu_inputs, imu_params
 from fusion_eval.filters.layout import CANONICAL
 from fusion_eval.filters.state import NominalState
-from fusion_eval.prepare import prepare
+from fusion_eval.prepare import prepare, settings_for
 from fusion_eval.replay import replay
 from fusion_eval.simulate.settings import GRADES
 
@@ -36,7 +35,7 @@ def _filter(ds_path: Path, *sets: str):
     ds = load_dataset(ds_path)
     cfg = session.resolve(session.request(sets=sets), ds)
     prep = prepare(ds, cfg)
-    return ds, prep, replay(prep, Settings(cfg))
+    return ds, prep, replay(prep, settings_for(cfg, prep))
 
 
 @pytest.mark.slow

@@ -10,7 +10,7 @@ from click.testing import CliRunner
 
 from fusion_eval.cli import main
 from fusion_eval import session
-from fusion_eval.config import Settings, load_config
+from fusion_eval.config import load_config
 from fusion_eval.datasets.manifest import load_dataset
 from fusion_eval.errors import ConfigError
 from fusion_eval.filters import check_combination, combinations
@@ -18,7 +18,7 @@ from fusion_eval.filters.formulations.eskf import ErrorStateKF
 from fusion_eval.filters.observations.gnss_position import gnss_position
 from fusion_eval.filters.observations.relative_pose import relative_pose
 from fusion_eval.filters.state import NominalState
-from fusion_eval.prepare import prepare
+from fusion_eval.prepare import prepare, settings_for
 from fusion_eval.replay import replay
 from fusion_eval.so3 import exp_so3, log_so3
 
@@ -54,7 +54,7 @@ def _run(ds_path: Path, sets: dict | tuple = ()):
         if isinstance(sets, dict) else tuple(sets)
     cfg = session.resolve(session.request(sets=items), ds)
     prep = prepare(ds, cfg)
-    return prep, replay(prep, Settings(cfg))
+    return prep, replay(prep, settings_for(cfg, prep))
 
 
 def _ape(prep, out) -> float:

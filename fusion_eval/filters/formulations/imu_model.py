@@ -49,8 +49,12 @@ def decay_biases(x, dt, prm):
 
 def run_params(s, gravity_mps2: float) -> np.ndarray:
     """The parameter record of a run's SI settings ``s``: noise densities, bias model, discretisation."""
+    from ...errors import ConfigError
     from .base import bias_decays, bias_walks
 
+    if "auto" in (s.imu.accel_noise_mps2_sqrthz, s.imu.gyro_noise_rps_sqrthz):
+        raise ConfigError("imu noise 'auto' is estimated from the data by prepare(): build the settings with "
+                          "fusion_eval.prepare.settings_for(cfg, prepared)")
     qba, qbg = bias_walks(s)
     return imu_params(gravity_mps2, s.imu.accel_noise_mps2_sqrthz, s.imu.gyro_noise_rps_sqrthz, qba, qbg,
                       s.filter.discretization, *bias_decays(s))
