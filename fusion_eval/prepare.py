@@ -2,7 +2,8 @@
 
 Applies, in this order and nowhere else: stream time offsets, dropping filled-in packets, the IMU
 channel lags and the lidar clock offset (given or estimated, :mod:`fusion_eval.timing`), GNSS
-degradation, anchoring the lidar odometry in the world frame, and resampling it on the IMU stamps. Checks that the streams overlap in time and picks the initial state.
+degradation, anchoring the lidar odometry in the world frame, and resampling it on the IMU stamps.
+Checks that the streams overlap in time and picks the initial state.
 """
 
 from __future__ import annotations
@@ -139,7 +140,7 @@ def prepare(ds: Dataset, cfg: dict) -> Prepared:
         lid = replace(ds.lidar, t_s=ds.lidar.t_s + lidar_off)
         if cfg["lidar"]["extrinsic_rotation"] == "auto":
             # the mount rotation against the calibration file, from the time-aligned signals (hand-eye)
-            rot = estimate_rotation(imu, lid if lid.filled is None else lid.select(~lid.filled))
+            rot = estimate_rotation(imu, lid.select(~lid.filled))
             lid = apply_rotation(lid, rot.R_E)
             applied["lidar_extrinsic"] = rot.as_dict()
             log.info("lidar rotation correction estimated: roll, pitch, yaw %s mrad", np.round(rot.rpy_mrad, 2))
@@ -199,7 +200,8 @@ def prepare(ds: Dataset, cfg: dict) -> Prepared:
         if needs_odo and (odo.t_s[-1] <= imu.t_s[k0] or odo.t_s[0] >= imu.t_s[-1]):
             raise DataRangeError(f"odometer ({ds.odometer.source}) and IMU do not overlap in time")
 
-    # --- IMU white noise: given, or from the stream's own second differences (no ground truth), once the streams are known to overlap
+    # --- IMU white noise: given, or from the stream's own second differences (no ground truth), estimated
+    #     once the streams are known to overlap
     resolved: dict = {}
     noise_keys = (("accel_noise_mps2_sqrthz", "accel_mps2_sqrthz", 1.0),
                   ("gyro_noise_dps_sqrthz", "gyro_rps_sqrthz", 180 / np.pi))

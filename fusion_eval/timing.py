@@ -15,15 +15,15 @@ import numpy as np
 
 from .calibration import measure_shifts, resolve
 from .errors import ConfigError
-from .types import Dataset, ImuSeries, PoseSeries
+from .types import Dataset, ImuSeries
 
 log = logging.getLogger(__name__)
 
-# KITTI OXTS RT3003: accelerometer and gyro shifts against the lidar (= the packet clock of the ground truth
-# and GNSS), inverse-variance mean over the five drives: accel 65.5, 63.8, 65.2, 58.2, 59.6 ms (+/- 2-5);
-# gyro 58.8, 60.0, 59.9, 58.9, 59.3 ms (+/- 1-3).
 MIN_OVERLAP_S = 20.0    # below this, too few turns to find a shift of a few ms
 
+# KITTI OXTS RT3003: accelerometer and gyro shifts against the lidar (= the packet clock of the ground truth
+# and GNSS), inverse-variance mean over the five drives: accel 65.5, 63.8, 65.2, 58.2, 59.6 ms (+/- 2-5);
+# gyro 58.8, 60.0, 59.9, 58.9, 59.3 ms (+/- 0.4-1.2).
 DEVICE_LAGS_S = {"kitti_oxts": {"accel_lag_s": 0.063, "gyro_lag_s": 0.059}}
 
 
@@ -58,7 +58,8 @@ def align(ds: Dataset, cfg: dict, imu: ImuSeries, lidar_offset_given) -> tuple[I
         overlap = 0.0 if ds.lidar is None or len(ds.lidar) < 2 else (
             min(imu.t_s[-1], ds.lidar.t_s[-1]) - max(imu.t_s[0], ds.lidar.t_s[0]))
         if overlap >= MIN_OVERLAP_S:
-            sh = measure_shifts(imu, _on_imu_frame(ds.lidar), accel="auto" in (accel, off), rate=gyro == "auto")
+            # the readers give IMU poses on the lidar stamps (extrinsic applied); filled-in frames left out
+            sh = measure_shifts(imu, ds.lidar.select(~ds.lidar.filled), accel="auto" in (accel, off), rate=gyro == "auto")
             est = resolve(sh, off, accel, gyro)
             applied["time_estimates"] = {k: v.as_dict() for k, v in est.items()}
             off = est["lidar_offset"].value_s if off == "auto" else off
@@ -84,8 +85,3 @@ def align(ds: Dataset, cfg: dict, imu: ImuSeries, lidar_offset_given) -> tuple[I
     applied.update(accel_lag_s=accel, gyro_lag_s=gyro)
     return advance(imu, accel, gyro), off, applied
 
-
-def _on_imu_frame(lidar: PoseSeries) -> PoseSeries:
-    """The lidar series as the estimator reads it: IMU poses on the lidar stamps (the readers already apply
-    the extrinsic), filled-in frames left out."""
-    return lidar if lidar.filled is None else lidar.select(~lidar.filled)

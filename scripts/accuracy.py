@@ -95,6 +95,8 @@ def main() -> None:
     print("|---|---|---:|---:|---:|---:|---:|---|")
     import numpy as np
 
+    from fusion_eval import trials as mc
+
     for (group, label), rs in rows.items():
         if "error" in rs[0]:
             print(f"| {group} | {label} | {rs[0]['error']} |")
@@ -108,7 +110,8 @@ def main() -> None:
         fmt = (lambda v: "-" if v is None else f"{v:.3f}")
         ratio = (lambda a_, b_: "-" if a_ is None or b_ is None else f"{a_ / b_:.2f}")
         nis = rs[0]["nis_lidar"]
-        sd = f" +/- {np.std([r['fused'] for r in rs]):.3f} (n={len(rs)})" if len(rs) > 1 else ""
+        # the same statistics as the product's --trials (fusion_eval.trials.stats: std with ddof=1)
+        sd = f" +/- {mc.stats([r['fused'] for r in rs])['std']:.3f} (n={len(rs)})" if len(rs) > 1 else ""
         print(f"| {group} | {label} | {fmt(li)} | {fmt(g)} | {fmt(f)}{sd} | {ratio(f, li)} | {ratio(f, g)} | "
               + ("-" if nis is None else f"{nis[0]:.2f} ({nis[1]})") + " |")
 

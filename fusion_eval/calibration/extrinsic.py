@@ -21,10 +21,10 @@ from __future__ import annotations
 from dataclasses import dataclass, replace
 
 import numpy as np
-from scipy.spatial.transform import Rotation, Slerp
+from scipy.spatial.transform import Rotation
 
 from ..errors import DataRangeError
-from ..so3 import make_T, matrix_to_quat_xyzw
+from ..so3 import inv_T, make_T, matrix_to_quat_xyzw
 from ..types import ImuSeries, PoseSeries
 from . import time_offset as to
 
@@ -54,18 +54,11 @@ def _signals(imu: ImuSeries, lidar: PoseSeries):
     t_ref = float(imu.t_s[0])
     imu, lidar = replace(imu, t_s=imu.t_s - t_ref), replace(lidar, t_s=lidar.t_s - t_ref)
     grid = to._common_grid(imu, lidar, 0.0)
-    tm, w = to._lidar_rates(lidar)
-    wl, ok_r = to._smooth(to._interp(tm, w, grid), to._valid_on_grid(tm, grid, to._max_gap(lidar.t_s)), to.RATE_SMOOTH_S)
-    ok_imu = to._valid_on_grid(imu.t_s, grid, to._max_gap(imu.t_s))
-    wg, ok_g = to._smooth(to._interp(imu.t_s, imu.w_b_rps, grid), ok_imu, to.RATE_SMOOTH_S)
-    gl = to._valid_on_grid(lidar.t_s, grid, to._max_gap(lidar.t_s))
-    p = to._interp(lidar.t_s, lidar.p_w_m, grid)
-    a_w = np.gradient(np.gradient(p, to.GRID_S, axis=0), to.GRID_S, axis=0)
-    Rt = Slerp(lidar.t_s, Rotation.from_quat(lidar.q_wb_xyzw))(np.clip(grid, lidar.t_s[0], lidar.t_s[-1])).inv()
-    A, ok_a = to._smooth(Rt.apply(a_w), gl, to.ACCEL_SMOOTH_S)
-    B, _ = to._smooth(Rt.as_matrix().reshape(-1, 9), gl, to.ACCEL_SMOOTH_S)
-    F, ok_f = to._smooth(to._interp(imu.t_s, imu.f_b_mps2, grid), ok_imu, to.ACCEL_SMOOTH_S)
-    return wl, wg, ok_r & ok_g, A, B.reshape(-1, 3, 3), F, ok_a & ok_f
+    wl, ok_r = to.lidar_rate_signal(lidar, grid)
+    wg, ok_g = to.imu_signal(imu.t_s, imu.w_b_rps, grid, to.RATE_SMOOTH_S)
+    A, B, ok_a = to.lidar_accel_signal(lidar, grid)
+    F, ok_f = to.imu_signal(imu.t_s, imu.f_b_mps2, grid, to.ACCEL_SMOOTH_S)
+    return wl, wg, ok_r & ok_g, A, B, F, ok_a & ok_f
 
 
 def _solve(wl, wg, A, B, F, iters: int = 4) -> np.ndarray:
@@ -111,7 +104,7 @@ def apply_rotation(lidar: PoseSeries, R_E: np.ndarray) -> PoseSeries:
     T = make_T(lidar.R_wb(), lidar.p_w_m)
     E = make_T(R_E, np.zeros(3))
     Ei = make_T(R_E.T, np.zeros(3))
-    X = np.linalg.inv(T[0])[None] @ T
+    X = inv_T(T[0])[None] @ T
     Tc = T[0][None] @ Ei[None] @ X @ E[None]
     return replace(lidar, p_w_m=Tc[:, :3, 3], q_wb_xyzw=matrix_to_quat_xyzw(Tc[:, :3, :3]))
 

@@ -144,57 +144,79 @@ def _block_sums(x: np.ndarray, ok: np.ndarray, blk: np.ndarray, blocks: int) -> 
     return np.add.reduceat(np.where(ok[:, None], x, 0.0), starts, axis=0)
 
 
-def accel_cost_terms(imu: ImuSeries, lidar: PoseSeries, shifts: np.ndarray, grid: np.ndarray, blocks: int):
-    """Per shift and block, the sums that give the body-frame residual d = A - F(t + shift) - B g with the
-    gravity g solved out: A = smooth(R^T a_lidar), B = smooth(R^T), F = smooth(f). Smoothing each side once
-    (before shifting) keeps the comparison exact: the low-pass is linear and the same on both sides."""
+def lidar_accel_signal(lidar: PoseSeries, grid: np.ndarray):
+    """The lidar's body-frame acceleration ``A = smooth(R^T a)`` and gravity matrix ``B = smooth(R^T)`` on the
+    grid (``A - B g`` is the specific force the IMU sees), with their validity."""
     gl = _valid_on_grid(lidar.t_s, grid, _max_gap(lidar.t_s))
     p = _interp(lidar.t_s, lidar.p_w_m, grid)
     a_w = np.gradient(np.gradient(p, GRID_S, axis=0), GRID_S, axis=0)
     Rt = Slerp(lidar.t_s, Rotation.from_quat(lidar.q_wb_xyzw))(np.clip(grid, lidar.t_s[0], lidar.t_s[-1])).inv()
-    A, ok_l = _smooth(Rt.apply(a_w), gl, ACCEL_SMOOTH_S)
+    A, ok = _smooth(Rt.apply(a_w), gl, ACCEL_SMOOTH_S)
     B, _ = _smooth(Rt.as_matrix().reshape(-1, 9), gl, ACCEL_SMOOTH_S)
-    B = B.reshape(-1, 3, 3)
+    return A, B.reshape(-1, 3, 3), ok
+
+
+def lidar_rate_signal(lidar: PoseSeries, grid: np.ndarray):
+    """The lidar's body-frame rotation rate, low-passed, on the grid, with its validity."""
+    tm, w = _lidar_rates(lidar)
+    return _smooth(_interp(tm, w, grid), _valid_on_grid(tm, grid, _max_gap(lidar.t_s)), RATE_SMOOTH_S)
+
+
+def imu_signal(t_s: np.ndarray, x: np.ndarray, grid: np.ndarray, sigma_s: float):
+    """An IMU channel on the grid through the same zero-phase path as the lidar's, with its validity."""
+    return _smooth(_interp(t_s, x, grid), _valid_on_grid(t_s, grid, _max_gap(t_s)), sigma_s)
+
+
+def _scan(shifts: np.ndarray, n: int, ok_fixed: np.ndarray, ok_moving: np.ndarray, blocks: int, fill) -> np.ndarray:
+    """Per shift and block, the sums of the columns ``fill(sl)`` writes for the moving (IMU) signal's slice
+    ``sl`` of the extended grid, over the points valid on both sides."""
     pad = int(np.abs(shifts).max())
-    ext = _extended(grid, pad)
-    F, ok_i = _smooth(_interp(imu.t_s, imu.f_b_mps2, ext), _valid_on_grid(imu.t_s, ext, _max_gap(imu.t_s)), ACCEL_SMOOTH_S)
-    blk = _block_of(grid.size, blocks)
-    # per shift and block: sum |A - F|^2, sum B^T (A - F) (3), sum B^T B (9), count
-    terms = np.zeros((shifts.size, blocks, 14))
+    blk = _block_of(n, blocks)
+    out = []
+    for k in shifts:
+        sl = slice(pad + k, pad + k + n)
+        out.append(_block_sums(fill(sl), ok_fixed & ok_moving[sl], blk, blocks))
+    return np.asarray(out)
+
+
+def accel_cost_terms(imu: ImuSeries, lidar: PoseSeries, shifts: np.ndarray, grid: np.ndarray, blocks: int):
+    """Per shift and block, the sums that give the body-frame residual d = A - F(t + shift) - B g with the
+    gravity g solved out: A = smooth(R^T a_lidar), B = smooth(R^T), F = smooth(f). Smoothing each side once
+    (before shifting) keeps the comparison exact: the low-pass is linear and the same on both sides."""
+    A, B, ok_l = lidar_accel_signal(lidar, grid)
+    F, ok_i = imu_signal(imu.t_s, imu.f_b_mps2, _extended(grid, int(np.abs(shifts).max())), ACCEL_SMOOTH_S)
+    # columns: |A - F|^2, B^T (A - F) (3), B^T B (9), count; the last two the same at every shift
     x = np.empty((grid.size, 14))
-    x[:, 4:13] = np.einsum("nki,nkj->nij", B, B).reshape(-1, 9)      # the same at every shift
+    x[:, 4:13] = np.einsum("nki,nkj->nij", B, B).reshape(-1, 9)
     x[:, 13] = 1.0
     BtA = np.einsum("nji,nj->ni", B, A)
-    for n, k in enumerate(shifts):
-        sl = slice(pad + k, pad + k + grid.size)
+
+    def fill(sl):
         r = A - F[sl]
         x[:, 0] = np.einsum("ij,ij->i", r, r)
         x[:, 1:4] = BtA - np.einsum("nji,nj->ni", B, F[sl])
-        terms[n] = _block_sums(x, ok_l & ok_i[sl], blk, blocks)
-    return terms
+        return x
+
+    return _scan(shifts, grid.size, ok_l, ok_i, blocks, fill)
 
 
 def rate_cost_terms(imu: ImuSeries, lidar: PoseSeries, shifts: np.ndarray, grid: np.ndarray, blocks: int):
     """Per shift and block: sums of w_l, w_g, |w_l|^2, w_l . w_g, |w_g|^2 and the count (gyro at t + shift)."""
-    tm, w = _lidar_rates(lidar)
-    wl, ok_l = _smooth(_interp(tm, w, grid), _valid_on_grid(tm, grid, _max_gap(lidar.t_s)), RATE_SMOOTH_S)
-    pad = int(np.abs(shifts).max())
-    ext = _extended(grid, pad)
-    wg, ok_i = _smooth(_interp(imu.t_s, imu.w_b_rps, ext), _valid_on_grid(imu.t_s, ext, _max_gap(imu.t_s)), RATE_SMOOTH_S)
-    blk = _block_of(grid.size, blocks)
-    terms = np.zeros((shifts.size, blocks, 10))
+    wl, ok_l = lidar_rate_signal(lidar, grid)
+    wg, ok_i = imu_signal(imu.t_s, imu.w_b_rps, _extended(grid, int(np.abs(shifts).max())), RATE_SMOOTH_S)
     x = np.empty((grid.size, 10))
     x[:, 0:3] = wl
     x[:, 6] = np.einsum("ij,ij->i", wl, wl)
     x[:, 9] = 1.0
-    for n, k in enumerate(shifts):
-        sl = slice(pad + k, pad + k + grid.size)
+
+    def fill(sl):
         g = wg[sl]
         x[:, 3:6] = g
         x[:, 7] = np.einsum("ij,ij->i", wl, g)
         x[:, 8] = np.einsum("ij,ij->i", g, g)
-        terms[n] = _block_sums(x, ok_l & ok_i[sl], blk, blocks)
-    return terms
+        return x
+
+    return _scan(shifts, grid.size, ok_l, ok_i, blocks, fill)
 
 
 def _accel_cost(terms: np.ndarray, keep: np.ndarray) -> np.ndarray:

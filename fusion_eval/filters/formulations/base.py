@@ -203,8 +203,40 @@ class FilterBase:
     def update(self, model: ObservationModel, iterations: int = 1, tol: float = 1e-8,
                gate: float = np.inf) -> tuple[float, bool]:
         """Update with an observation model (called as ``model(x, clone_p, clone_R)``); returns the NIS and
-        whether the update was applied (an innovation with NIS above ``gate`` is rejected)."""
-        return self.update_iterated(model, iterations, tol, gate)
+        whether the update was applied (an innovation with NIS above ``gate`` is rejected). The plain EKF
+        update of a formulation with ``compiled_update`` runs in compiled kernels (:meth:`update_compiled`)."""
+        if iterations > 1 or not self.compiled_update:
+            return self.update_iterated(model, iterations, tol, gate)
+        return self.update_compiled(model, gate)
+
+    compiled_update = False      # formulations that define own_jacobian and inject
+
+    def own_jacobian(self, Hc: np.ndarray) -> np.ndarray:
+        """``H`` over the own state from the canonical columns ``Hc``."""
+        return np.ascontiguousarray(Hc @ self.D())
+
+    def inject(self, dx: np.ndarray) -> None:
+        """Add a correction of the own state to the estimate (and reset ``P`` where the formulation needs it)."""
+        raise NotImplementedError
+
+    def update_compiled(self, model: ObservationModel, gate: float = np.inf) -> tuple[float, bool]:
+        """The plain EKF update: the Joseph update of ``P`` in compiled kernels, then :meth:`inject`."""
+        Hc, r, Rm = model(*self.model_args())
+        if not (np.isfinite(r).all() and np.isfinite(Rm).all()):
+            raise FilterDivergedError(f"filter diverged at t={self.t:.3f} s: non-finite residual")
+        try:
+            dx, nis, ok = linalg.joseph_update(self.P, self.n, self.own_jacobian(Hc), r, np.ascontiguousarray(Rm, float),
+                                               gate)
+        except np.linalg.LinAlgError as exc:
+            raise FilterDivergedError(f"filter diverged at t={self.t:.3f} s: innovation covariance not invertible ({exc})") from None
+        if not (np.all(np.isfinite(dx)) and np.isfinite(nis)):
+            raise FilterDivergedError(f"filter diverged at t={self.t:.3f} s: non-finite correction")
+        if not ok:
+            return float(nis), False
+        self.inject(dx)
+        self._check("non-finite state or negative variance after an update")
+        self._record_if_on_sample()
+        return float(nis), True
 
     def update_iterated(self, model: ObservationModel, iterations: int = 1, tol: float = 1e-8,
                         gate: float = np.inf) -> tuple[float, bool]:

@@ -28,7 +28,6 @@ from __future__ import annotations
 import numpy as np
 from numba import njit
 
-from ...errors import FilterDivergedError
 from .. import discretize, linalg
 from ..layout import CANONICAL, CLONE
 from ..mech import XBA, XBG, XP, XV, attitude, exp3, mech_step, skew3
@@ -202,26 +201,13 @@ class ErrorStateKF(ErrorStateBase):
     def run_params(cls, s, gravity_mps2: float) -> np.ndarray:
         return imu_model.run_params(s, gravity_mps2)
 
-    def update(self, model, iterations: int = 1, tol: float = 1e-8, gate: float = np.inf) -> tuple[float, bool]:
-        """Joseph-form update, injection and reset; the plain EKF update runs in compiled kernels."""
-        if iterations > 1:
-            return self.update_iterated(model, iterations, tol, gate)
-        H, r, Rm = model(*self.model_args())
-        n = self.n
-        if not (np.isfinite(r).all() and np.isfinite(Rm).all()):
-            raise FilterDivergedError(f"filter diverged at t={self.t:.3f} s: non-finite residual")
-        try:
-            dx, nis, ok = linalg.joseph_update(self.P, n, np.ascontiguousarray(H[:, :n]), r, Rm, gate)
-        except np.linalg.LinAlgError as exc:
-            raise FilterDivergedError(f"filter diverged at t={self.t:.3f} s: innovation covariance not invertible ({exc})") from None
-        if not (np.all(np.isfinite(dx)) and np.isfinite(nis)):
-            raise FilterDivergedError(f"filter diverged at t={self.t:.3f} s: non-finite correction")
-        if not ok:
-            return float(nis), False
-        inject_reset(self.xv, self.clone.vec, self.P, n, dx)
-        self._check("non-finite state or negative variance after an update")
-        self._record_if_on_sample()
-        return float(nis), True
+    compiled_update = True
+
+    def own_jacobian(self, Hc: np.ndarray) -> np.ndarray:
+        return np.ascontiguousarray(Hc[:, :self.n])          # D = I: the canonical error is this state
+
+    def inject(self, dx: np.ndarray) -> None:
+        inject_reset(self.xv, self.clone.vec, self.P, self.n, dx)
 
 
 def dead_reckon(x0: NominalState, prm: np.ndarray, t: np.ndarray, u: np.ndarray, k0: int) -> np.ndarray:

@@ -28,8 +28,7 @@ from __future__ import annotations
 import numpy as np
 from numba import njit
 
-from ...errors import FilterDivergedError
-from .. import discretize, linalg
+from .. import discretize
 from ..layout import CANONICAL, POSE_BLOCKS, Layout
 from ..mech import XP, XV, attitude, exp3, log3, mech_step, skew3
 from ..propagate import compiled_loop
@@ -200,32 +199,15 @@ class RightInvariantEKF(FilterBase):
         self.xv[:] = snap[0]
         if snap[1] is not None:
             self.clone.vec[:] = snap[1]
-        self._inject(dx)
+        self.inject(dx)
 
-    def _inject(self, dx: np.ndarray) -> None:
+    compiled_update = True
+
+    def inject(self, dx: np.ndarray) -> None:
+        """``X <- Exp(dx) X`` on the group (no reset Jacobian), biases additive."""
         x = self.x
         _exp_apply(dx[ITH:ITH + 3], [(x.p_w_m, dx[IP:IP + 3]), (x.v_w_mps, dx[IV:IV + 3])], x.R_wb)
         x.ba_b[:] += dx[IBA:IBA + 3]
         x.bg_b[:] += dx[IBG:IBG + 3]
         if self.n > N_CORE:
             _exp_apply(dx[ICTH:ICTH + 3], [(self.clone.p_w_m, dx[ICP:ICP + 3])], self.clone.R_wb)
-
-    def update(self, model, iterations: int = 1, tol: float = 1e-8, gate: float = np.inf) -> tuple[float, bool]:
-        if iterations > 1:
-            return self.update_iterated(model, iterations, tol, gate)
-        Hc, r, Rm = model(*self.model_args())
-        if not (np.isfinite(r).all() and np.isfinite(Rm).all()):
-            raise FilterDivergedError(f"filter diverged at t={self.t:.3f} s: non-finite residual")
-        H = np.ascontiguousarray(Hc @ self.D())
-        try:
-            dx, nis, ok = linalg.joseph_update(self.P, self.n, H, r, np.ascontiguousarray(Rm, float), gate)
-        except np.linalg.LinAlgError as exc:
-            raise FilterDivergedError(f"filter diverged at t={self.t:.3f} s: innovation covariance not invertible ({exc})") from None
-        if not (np.all(np.isfinite(dx)) and np.isfinite(nis)):
-            raise FilterDivergedError(f"filter diverged at t={self.t:.3f} s: non-finite correction")
-        if not ok:
-            return float(nis), False
-        self._inject(dx)
-        self._check("non-finite state or negative variance after an update")
-        self._record_if_on_sample()
-        return float(nis), True
