@@ -40,6 +40,9 @@ def main() -> None:
         other = Path(tmp) / "other"
         subprocess.run(["git", "worktree", "add", "--detach", str(other), a.rev], cwd=ROOT, check=True,
                        capture_output=True)
+        shared = ROOT.parent / "shared"
+        if shared.exists():     # ../shared beside the other checkout too: the same relative data paths work in both
+            (Path(tmp) / "shared").symlink_to(shared)
         try:
             mine, theirs = [], []
             for i in range(a.runs + 1):
