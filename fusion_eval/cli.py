@@ -237,18 +237,24 @@ def evaluate(ctx, reference, estimates, out_dir, ref_times, times, association, 
 @click.option("--lidar-var", nargs=2, type=float, default=(0.0225, 0.0225), show_default=True, help="Lidar R diagonal, m^2.")
 @click.option("--radar-var", nargs=3, type=float, default=(0.09, 0.0009, 0.09), show_default=True,
               help="Radar R diagonal: rho [m^2], phi [rad^2], rho_dot [m^2/s^2].")
+@click.option("--smooth", is_flag=True, help="Also an RTS smoother over the filter (reported beside it).")
 @click.option("--overwrite", is_flag=True, help="Replace an existing output directory.")
 @click.option("--no-plots", is_flag=True, help="Skip the plots.")
 @click.pass_context
-def track(ctx, input_path, out_dir, sensors, noise_ax, noise_ay, lidar_var, radar_var, overwrite, no_plots):
+def track(ctx, input_path, out_dir, sensors, noise_ax, noise_ay, lidar_var, radar_var, smooth, overwrite, no_plots):
     """Track a 2-D target from lidar (KF) and radar (EKF) measurements; RMSE against the file's ground truth."""
     from .commands.track import track as run_track
 
-    metrics = run_track(input_path, out_dir, sensors, noise_ax, noise_ay, lidar_var, radar_var, overwrite, not no_plots)
+    metrics = run_track(input_path, out_dir, sensors, noise_ax, noise_ay, lidar_var, radar_var, overwrite, not no_plots,
+                        smooth)
     if not ctx.obj["quiet"]:
         r = metrics["rmse"]
         click.echo(f"RMSE [px, py, vx, vy] = [{r['px']:.4f}, {r['py']:.4f}, {r['vx']:.4f}, {r['vy']:.4f}] "
                    f"({metrics['estimates']} estimates, sensors: {sensors})")
+        if "smoothed" in metrics:
+            r = metrics["smoothed"]["rmse"]
+            click.echo(f"smoothed (RTS): RMSE [px, py, vx, vy] = [{r['px']:.4f}, {r['py']:.4f}, {r['vx']:.4f}, "
+                       f"{r['vy']:.4f}]")
         for k, d in metrics["nis"].items():
             click.echo(f"NIS {k}: mean {d['mean']:.2f} (dof {d['dof']}), {d['fraction_above_95'] * 100:.1f} % above the 95 % line")
         click.echo(f"wrote {out_dir}/")

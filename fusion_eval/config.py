@@ -26,7 +26,7 @@ from .spec import S, Spec  # noqa: F401  (re-exported: config.S, config.Spec)
 
 # Sections written in config.resolved.yaml for information; a config file may hold them (ignored).
 INFORMATIONAL_SECTIONS = ("dataset", "applied", "config_source", "versions")
-SECTION_ORDER = ("filter", "imu", "lidar", "gnss", "odometer", "init", "evaluation", "output")
+SECTION_ORDER = ("filter", "smoother", "imu", "lidar", "gnss", "odometer", "init", "evaluation", "output")
 
 # The core keys: what no single formulation or observation owns. Keys of the formulations and observations
 # are declared in their modules (fusion_eval/filters/formulations/, fusion_eval/filters/observations/).
@@ -48,6 +48,10 @@ CORE: dict[str, Spec] = {
                                choices=("groundtruth", "lidar")),
     "filter.init_velocity_from": S("groundtruth", "initial velocity from 'groundtruth' or from differencing the first two 'gnss' fixes",
                                    choices=("groundtruth", "gnss")),
+    "smoother.method": S("none", "offline smoothing beside the filter, written as the 'smoothed' estimate: 'none', 'rts' "
+                                 "(Rauch-Tung-Striebel backward pass over the filter's own models) or 'batch' (GTSAM factor "
+                                 "graph of every measurement the filter used; the 'smoother' extra)",
+                         choices=("none", "rts", "batch")),
     "imu.time_offset_s": S(None, "added to IMU stamps; null = the manifest's value (default 0)", "float", nullable=True),
     "imu.gyro_lag_s": S(None, "the gyro reports the rate of gyro_lag_s earlier and is advanced by this much; 'auto' = estimated "
                               "from the data (gyro vs lidar rotation rate; the device figure without lidar); null = the "

@@ -19,7 +19,8 @@ from . import report, session
 from . import trials as mc
 from .errors import FusionEvalError
 from .evaluation import span
-from .evaluation.run_metrics import consistency, fused_error, ratio_metrics, run_metrics, segments
+from .evaluation.run_metrics import (ESTIMATES, consistency, fused_error, ratio_metrics, run_metrics, segments,
+                                     smoother_section)
 from .evaluation.trajectory import EstimateEvaluation, evaluate
 from .outputs import StagedDir
 from .pool import executor
@@ -123,17 +124,21 @@ def execute(ds: Dataset, cfg: dict, *, dataset_path: str | Path | None = None, c
         timings["filter"] = time.perf_counter() - t
         t = time.perf_counter()
         series["fused"] = filt.fused
+        if filt.smoothed is not None:
+            series["smoothed"] = filt.smoothed.fused
+            timings["smoother"] = filt.smoother_info["backward_s"]
         futures.update({n: pool.submit(evaluate_estimate, ref, series[n], n, ev_cfg)
-                        for n in ("fused", "imu_only")})
+                        for n in ("fused", "smoothed", "imu_only") if n in series})
         err = fused_error(gt, filt)
         first = pool.submit(report.write_filter_outputs, out, series, filt, err, cfg["output"]["plots"]) \
             if out is not None else None
-        evals = {n: futures[n].result() for n in ("fused", "lidar", "gnss", "imu_only") if n in futures}
+        evals = {n: futures[n].result() for n in ESTIMATES if n in futures}
         timings["evaluate"] = time.perf_counter() - t
         ratios = ratio_metrics(evals)
         cons = consistency(gt, filt)
         seg = segments(gt, evals, ev_cfg)
-        metrics = run_metrics(ds.name, evals, ratios, ev_cfg, prep.applied, prep.gnss_info, cons, seg, sp)
+        metrics = run_metrics(ds.name, evals, ratios, ev_cfg, prep.applied, prep.gnss_info, cons, seg, sp,
+                              smoother=smoother_section(gt, filt))
         if n_trials > 1:
             finished(None)
             metrics["trials"] = mc.section(cfg, [metrics] + [f.result() for f in trial_futs])

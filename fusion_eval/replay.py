@@ -26,7 +26,7 @@ from .types import PoseSeries
 log = logging.getLogger(__name__)
 
 
-@dataclass(frozen=True)
+@dataclass
 class FilterOutput:
     """The filter's record at the IMU stamps from the start sample on."""
 
@@ -39,6 +39,8 @@ class FilterOutput:
     imu_only: PoseSeries
     n_imu_samples: int
     odometer_scale: np.ndarray | None = None   # (N,) odometer scale error k (formulations with a K block)
+    smoothed: "FilterOutput | None" = None     # the RTS smoother's estimate (smoother.method=rts), same fields
+    smoother_info: dict | None = None          # what the smoother kept and how long it took
 
 
 def dead_reckoning(prep: Prepared, s: Settings) -> PoseSeries:
@@ -70,6 +72,18 @@ def replay(prep: Prepared, s: Settings, progress: Callable[[float], None] | None
     which = np.concatenate([np.full(b.t_s.size, i) for i, b in enumerate(bound)]) if bound else np.zeros(0, int)
     index = np.concatenate([np.arange(b.t_s.size) for b in bound]) if bound else np.zeros(0, int)
     order = np.lexsort((index, which, times))
+    record = batch = None
+    if s.smoother.method == "rts":
+        from .smoothing.record import EpochRecord
+
+        record = kf.recorder = EpochRecord(kf, times.size)
+        record.epoch(kf)
+    elif s.smoother.method == "batch":
+        from .smoothing.batch import BatchRecord, check
+
+        check(s)
+        batch = BatchRecord(kf.xv.copy())
+        batch.epoch(kf)
 
     nis: dict[str, tuple[list, list, list]] = {b.name: ([], [], []) for b in bound}
     dof = {b.name: b.dof for b in bound}
@@ -79,7 +93,14 @@ def replay(prep: Prepared, s: Settings, progress: Callable[[float], None] | None
     for j, e in enumerate(order):
         t, b = float(times[e]), bound[which[e]]
         kf.predict_to(max(t, kf.t))
+        if batch is not None:         # the model with the noise it has now (adaptive noise moves after the update)
+            model, clone_t = b.model(int(index[e])), kf.clone_t
         res = b.apply(kf, int(index[e]), it, tol)
+        if record is not None:
+            record.epoch(kf)
+        if batch is not None:
+            batch.update(kf, model, clone_t, res is not None and res[1])
+            batch.epoch(kf)
         if res is not None:
             rec = nis[b.name]
             rec[0].append(t)
@@ -88,24 +109,51 @@ def replay(prep: Prepared, s: Settings, progress: Callable[[float], None] | None
         if progress is not None and j % step == 0:
             progress(j / n_ev)
     kf.predict_to(t_end)
+    if record is not None:
+        record.epoch(kf)
+    if batch is not None:
+        batch.epoch(kf)
     if progress is not None:
         progress(1.0)
 
     summaries = {b.name: b.summary() for b in bound if b.summary is not None}
-    sl = slice(k0, None)
-    rec = unpack(kf.rec_x[sl])
-    fused = PoseSeries(t_s=t_imu[sl], p_w_m=rec["p"], q_wb_xyzw=matrix_to_quat_xyzw(rec["R"]), v_w_mps=rec["v"],
-                       source="fused")
     if imu_only is None:
         imu_only = dead_reckoning(prep, s)
-    k_scale = kf.odometer_scale(kf.rec_x[sl])
+    a = kf.arrays
+    out = _output(kf, t_imu, k0, a.rec_x, a.rec_Pdiag, a.rec_Ppt, "fused", imu_only,
+                  nis={k: {"t_s": np.array(v[0]), "nis": np.array(v[1]), "dof": dof[k],
+                           "rejected": int(np.size(v[2]) - np.count_nonzero(v[2])),
+                           **({"adapt": summaries[k]} if summaries.get(k) else {})} for k, v in nis.items() if v[0]})
+    if record is not None:
+        import time
+
+        from .smoothing.rts import smooth
+
+        t0 = time.perf_counter()
+        sm = smooth(kf, record, k0)
+        out.smoothed = _output(kf, t_imu, k0, sm.rec_x, sm.rec_Pdiag, sm.rec_Ppt, "smoothed", imu_only, nis={})
+        out.smoother_info = {"method": "rts", "epochs": int(record.epochs.size),
+                             "clones": int(record.clones.size), "bytes_per_epoch": record.bytes_per_epoch(),
+                             "record_bytes": record.nbytes(),
+                             "backward_s": time.perf_counter() - t0}
+    if batch is not None:
+        from .smoothing.batch import batch_smooth
+
+        sm, out.smoother_info = batch_smooth(kf, batch, s, k0)
+        out.smoothed = _output(kf, t_imu, k0, sm.rec_x, sm.rec_Pdiag, sm.rec_Ppt, "smoothed", imu_only, nis={})
+    return out
+
+
+def _output(kf, t_imu, k0, rec_x, rec_Pdiag, rec_Ppt, source, imu_only, nis) -> FilterOutput:
+    """A filter output (``fused`` or ``smoothed``) from the record at the IMU samples ``k0 ..``."""
+    sl = slice(k0, None)
+    rec = unpack(rec_x[sl])
+    poses = PoseSeries(t_s=t_imu[sl], p_w_m=rec["p"], q_wb_xyzw=matrix_to_quat_xyzw(rec["R"]), v_w_mps=rec["v"],
+                       source=source)
     return FilterOutput(
-        fused=fused, accel_bias_b=rec["ba"].copy(), gyro_bias_b=rec["bg"].copy(),
-        sigma=np.sqrt(np.maximum(kf.arrays.rec_Pdiag[sl], 0.0)), P_pos_att=kf.arrays.rec_Ppt[sl],
-        nis={k: {"t_s": np.array(v[0]), "nis": np.array(v[1]), "dof": dof[k],
-                 "rejected": int(np.size(v[2]) - np.count_nonzero(v[2])),
-                 **({"adapt": summaries[k]} if summaries.get(k) else {})} for k, v in nis.items() if v[0]},
-        imu_only=imu_only, n_imu_samples=int(t_imu.size - k0), odometer_scale=k_scale,
+        fused=poses, accel_bias_b=rec["ba"].copy(), gyro_bias_b=rec["bg"].copy(),
+        sigma=np.sqrt(np.maximum(rec_Pdiag[sl], 0.0)), P_pos_att=rec_Ppt[sl], nis=nis,
+        imu_only=imu_only, n_imu_samples=int(t_imu.size - k0), odometer_scale=kf.odometer_scale(rec_x[sl]),
     )
 
 

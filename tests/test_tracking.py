@@ -95,3 +95,45 @@ def test_absurd_values_are_reported_with_their_line(tmp_path):
     p.write_text("\n".join(lines) + "\n")
     r = CliRunner().invoke(main, ["-q", "track", str(p), "--out", str(tmp_path / "o")])
     assert r.exit_code == 2 and f"{p.name}:11:" in r.stderr and "not plausible" in r.stderr, r.output
+
+
+def test_the_rts_smoother_equals_the_batch_solution_with_lidar_alone(tmp_path):
+    """Lidar only: a linear-Gaussian model, so the smoother is the batch least-squares (MAP) estimate to 1e-9."""
+    from fusion_eval.tracking.ekf import smooth
+
+    m = read_measurements(_file(tmp_path, interval_s=0.05, duration_s=4.0))
+    p = TrackParams(sensors="lidar")
+    res = smooth(run_track(m, p))
+    from fusion_eval.tracking.ekf import F_Q
+
+    # the joint Gaussian of every state (the white-acceleration Q is rank 2 per axis: no information form), then
+    # conditioned on every lidar measurement after the first (which initialises the state)
+    M = res.x.shape[0]
+    mu, S = np.zeros(4 * M), np.zeros((4 * M, 4 * M))
+    mu[:4], S[:4, :4] = res.x[0], res.P[0]
+    for j in range(1, M):
+        F, Q = F_Q((res.t_us[j] - res.t_us[j - 1]) / 1e6, p)
+        mu[4 * j:4 * j + 4] = F @ mu[4 * j - 4:4 * j]
+        S[4 * j:4 * j + 4, :4 * j] = F @ S[4 * j - 4:4 * j, :4 * j]
+        S[:4 * j, 4 * j:4 * j + 4] = S[4 * j:4 * j + 4, :4 * j].T
+        S[4 * j:4 * j + 4, 4 * j:4 * j + 4] = F @ S[4 * j - 4:4 * j, 4 * j - 4:4 * j] @ F.T + Q
+    H = np.zeros((2 * (M - 1), 4 * M))
+    for j in range(1, M):
+        H[2 * j - 2:2 * j, 4 * j:4 * j + 2] = np.eye(2)
+    R = np.kron(np.eye(M - 1), np.diag(p.lidar_var))
+    z = res.z[1:, :2].ravel()
+    K = S @ H.T @ np.linalg.inv(H @ S @ H.T + R)
+    sol = (mu + K @ (z - H @ mu)).reshape(M, 4)
+    np.testing.assert_allclose(res.x_smoothed, sol, rtol=1e-9, atol=1e-10)   # the batch inverse of 80x80 loses more
+
+
+def test_track_smooth_reports_both_and_beats_the_filter_on_velocity(tmp_path):
+    p = _file(tmp_path)
+    out = tmp_path / "out"
+    r = CliRunner().invoke(main, ["track", str(p), "--out", str(out), "--smooth"])
+    assert r.exit_code == 0, r.output
+    assert "smoothed (RTS): RMSE" in r.output
+    m = json.loads((out / "metrics.json").read_text())
+    assert m["smoothed"]["rmse"]["vx"] < 0.75 * m["rmse"]["vx"] and m["smoothed"]["rmse"]["vy"] < 0.75 * m["rmse"]["vy"]
+    assert all(v < 1.0 for v in m["smoothed"]["over_filter"].values())
+    assert "px_s" in (out / "estimates.csv").read_text().splitlines()[0]

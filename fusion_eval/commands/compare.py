@@ -46,6 +46,7 @@ class VariantRun:
     filt: object
     ev: object
     runtime_s: float
+    ev_smoothed: object = None      # the smoother's estimate, when the variant selects one
 
 
 def body_velocity(poses: PoseSeries) -> np.ndarray:
@@ -89,15 +90,25 @@ def _evaluate_all(runs: list[VariantRun], base_prep, ev_cfg: dict, pool):
     ref = span.crop(gt, sp)              # as evo's --t_start/--t_end: the reference reduced to the span
     args = (ev_cfg["t_max_diff_s"], ev_cfg["rpe_delta_m"], ev_cfg["association"], ev_cfg["alignment"])
     fut_v = [pool.submit(evaluate, ref, r.filt.fused, r.name, *args) for r in runs]
+    fut_s = [pool.submit(evaluate, ref, r.filt.smoothed.fused, r.name, *args) if r.filt.smoothed is not None else None
+             for r in runs]
     fut_u = {k: pool.submit(evaluate, ref, s, k, *args) for k, s in unfiltered.items()}
-    for r, f in zip(runs, fut_v):
+    for r, f, fs in zip(runs, fut_v, fut_s):
         r.ev = f.result()
         r.ev.results = {}
+        if fs is not None:
+            r.ev_smoothed = fs.result()
+            r.ev_smoothed.results = {}
     return unfiltered, {k: f.result() for k, f in fut_u.items()}, sp
 
 
 def _table(runs: list[VariantRun], evs_u: dict, gt: PoseSeries, ev_cfg: dict) -> list[dict]:
-    table = [_variant_row(r, gt, evs_u, ev_cfg) for r in runs]
+    table = []
+    for r in runs:
+        table.append(_variant_row(r, gt, evs_u, ev_cfg))
+        if r.ev_smoothed is not None:
+            table.append(_variant_row(VariantRun(r.name, r.cfg, r.filt.smoothed, r.ev_smoothed, r.runtime_s), gt, evs_u,
+                                      ev_cfg, estimate="smoothed"))
     for k, ev in evs_u.items():
         m = ev.metrics
         table.append({"variant": "(unfiltered)", "estimate": k, "matched_poses": ev.matched_poses,
@@ -156,6 +167,7 @@ def compare(dataset_path: Path | None, variants: list[str], variant_dir: Path | 
 
     # per-segment breakdown: every variant and the unfiltered lidar and GNSS, windows along the route
     seg_evals = {r.name: r.ev for r in runs}
+    seg_evals.update({f"{r.name} smoothed": r.ev_smoothed for r in runs if r.ev_smoothed is not None})
     seg_evals.update({k: ev for k, ev in evs_u.items() if k != "imu_only"})
     seg = segments(gt, seg_evals, ev_cfg, primary=runs[0].name, secondary="lidar" if "lidar" in seg_evals else None)
 
@@ -172,6 +184,9 @@ def compare(dataset_path: Path | None, variants: list[str], variant_dir: Path | 
         for r in runs:
             folder = folder_name(r.name, taken)
             out.write_text(f"variants/{folder}/fused.tum", format_tum(r.filt.fused, f"fusion-eval compare: variant {r.name}"))
+            if r.filt.smoothed is not None:
+                out.write_text(f"variants/{folder}/smoothed.tum",
+                               format_tum(r.filt.smoothed.fused, f"fusion-eval compare: variant {r.name}, smoothed"))
             out.write_text(f"variants/{folder}/config.resolved.yaml",
                            yaml.safe_dump({**r.cfg, "versions": versions()}, sort_keys=False))
         if make_plots:
@@ -184,11 +199,11 @@ def compare(dataset_path: Path | None, variants: list[str], variant_dir: Path | 
     return {**result, "out_dir": str(out_dir)}
 
 
-def _variant_row(r: VariantRun, gt: PoseSeries, evs_u: dict, ev_cfg: dict) -> dict:
+def _variant_row(r: VariantRun, gt: PoseSeries, evs_u: dict, ev_cfg: dict, estimate: str = "fused") -> dict:
     m = r.ev.metrics
     d = keys.rpe_distance_group(ev_cfg["rpe_delta_m"])
     nees = consistency(gt, r.filt).get("nees", {}).get("position")
-    row = {"variant": r.name, "estimate": "fused", "matched_poses": r.ev.matched_poses,
+    row = {"variant": r.name, "estimate": estimate, "matched_poses": r.ev.matched_poses,
            "ape_trans_rmse_m": m["ape"]["translation_m"]["rmse"], "ape_rot_rmse_deg": m["ape"]["rotation_deg"]["rmse"],
            "rpe_1frame_trans_rmse_m": (m.get("rpe_1frame") or {}).get("translation_m", {}).get("rmse"),
            f"{d}_trans_rmse_m": ((m.get(d) or {}).get("translation_m") or {}).get("rmse"),

@@ -15,9 +15,10 @@ def _positive(name: str, v: float) -> None:
 
 
 def track(input_path: Path, out_dir: Path, sensors: str, noise_ax: float, noise_ay: float, lidar_var, radar_var,
-          overwrite: bool = False, make_plots: bool = True) -> dict:
+          overwrite: bool = False, make_plots: bool = True, smooth: bool = False) -> dict:
     """Run the tracker on a measurement file and write its outputs; returns the metrics."""
     from ..tracking.ekf import TrackParams, run_track
+    from ..tracking.ekf import smooth as rts
     from ..tracking.measurements import read_measurements
     from ..tracking.report import write_track_outputs
 
@@ -30,6 +31,8 @@ def track(input_path: Path, out_dir: Path, sensors: str, noise_ax: float, noise_
     staged.check()
     m = read_measurements(input_path)
     res = run_track(m, params)
+    if smooth:
+        res = rts(res)
     with staged as out:
         return write_track_outputs(out, res, params, str(input_path), make_plots)
 

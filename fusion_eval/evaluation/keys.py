@@ -83,7 +83,7 @@ def _num(v) -> bool:
 def flatten(metrics: dict) -> dict[str, float]:
     """A ``metrics.json`` as ``{check path: value}``: ``<estimate>.<group>.<relation>.<stat>`` (and the translation
     part also as ``<estimate>.<group>.<stat>``), ``<estimate>.kitti_drift.<stat>``, ``ratios.<name>``,
-    ``nis.<observation>.mean|fraction_in_95`` and ``nees.<position|attitude>.mean|fraction_in_95``."""
+    ``nis.<observation>.mean|fraction_in_95`` and ``nees.<position|attitude>.mean|fraction_in_95`` (``nees_smoothed.`` for the smoother's)."""
     out: dict[str, float] = {}
     for est, d in (metrics.get("estimates") or {}).items():
         for group, rels in d.items():
@@ -101,7 +101,7 @@ def flatten(metrics: dict) -> dict[str, float]:
     for k, v in (metrics.get("ratios") or {}).items():
         if _num(v):
             out[f"ratios.{k}"] = float(v)
-    for section in ("nis", "nees"):
+    for section in ("nis", "nees", "nees_smoothed"):
         for kind, d in (metrics.get(section) or {}).items():
             for k in ("mean", "fraction_in_95"):
                 if isinstance(d, dict) and _num(d.get(k)):

@@ -16,20 +16,42 @@ from .consistency import pose_nees, summary
 from .segments import breakdown
 from .trajectory import EstimateEvaluation
 
-ESTIMATES = ("fused", "lidar", "gnss", "imu_only")
+ESTIMATES = ("fused", "smoothed", "lidar", "gnss", "imu_only")
 
 
 def ratio_metrics(evals: dict[str, EstimateEvaluation]) -> dict:
     """Fused APE translation RMSE over that of each unfiltered sensor."""
     from .trajectory import ratio
 
-    return {"fused_over_lidar": ratio(evals.get("fused"), evals.get("lidar")),
-            "fused_over_gnss": ratio(evals.get("fused"), evals.get("gnss"))}
+    out = {"fused_over_lidar": ratio(evals.get("fused"), evals.get("lidar")),
+           "fused_over_gnss": ratio(evals.get("fused"), evals.get("gnss"))}
+    if "smoothed" in evals:
+        out.update({"smoothed_over_fused": ratio(evals["smoothed"], evals.get("fused")),
+                    "smoothed_over_lidar": ratio(evals["smoothed"], evals.get("lidar")),
+                    "smoothed_over_gnss": ratio(evals["smoothed"], evals.get("gnss"))})
+    return out
 
 
 def _truth_at_fused(gt: PoseSeries, filt):
     gi = interpolate_poses(gt, filt.fused.t_s)
     return gi, np.isin(filt.fused.t_s, gi.t_s)
+
+
+def nees(gt: PoseSeries, filt) -> dict:
+    """Position and attitude NEES of an estimate with covariance (fused or smoothed) against the ground truth."""
+    gi, sel = _truth_at_fused(gt, filt)
+    n_pos, n_att = pose_nees(filt.fused.p_w_m[sel], filt.fused.R_wb()[sel], gi.p_w_m, gi.R_wb(), filt.P_pos_att[sel])
+    ok = np.isfinite(n_pos) & np.isfinite(n_att)
+    return {"position": {**summary(n_pos[ok], 3), "t_s": gi.t_s[ok], "values": n_pos[ok]},
+            "attitude": {**summary(n_att[ok], 3), "t_s": gi.t_s[ok], "values": n_att[ok]}} if ok.any() else {}
+
+
+def smoother_section(gt: PoseSeries, filt) -> dict | None:
+    """What the smoother did (method, epochs kept, bytes per epoch) and the smoothed estimate's NEES."""
+    if filt.smoothed is None:
+        return None
+    info = {k: v for k, v in filt.smoother_info.items() if not k.endswith("_s")}     # timings are not metrics
+    return {**info, "nees": {k: _strip_arrays(v) for k, v in nees(gt, filt.smoothed).items()}}
 
 
 def consistency(gt: PoseSeries, filt) -> dict:
@@ -39,11 +61,9 @@ def consistency(gt: PoseSeries, filt) -> dict:
     out: dict = {"nis": {k: {**summary(d["nis"], d["dof"]), "rejected": d.get("rejected", 0), "t_s": d["t_s"],
                              "values": d["nis"], **({"adapt": d["adapt"]} if "adapt" in d else {})}
                          for k, d in filt.nis.items()}}
-    gi, sel = _truth_at_fused(gt, filt)
-    n_pos, n_att = pose_nees(filt.fused.p_w_m[sel], filt.fused.R_wb()[sel], gi.p_w_m, gi.R_wb(), filt.P_pos_att[sel])
-    ok = np.isfinite(n_pos) & np.isfinite(n_att)
-    out["nees"] = {"position": {**summary(n_pos[ok], 3), "t_s": gi.t_s[ok], "values": n_pos[ok]},
-                   "attitude": {**summary(n_att[ok], 3), "t_s": gi.t_s[ok], "values": n_att[ok]}} if ok.any() else {}
+    out["nees"] = nees(gt, filt)
+    if filt.smoothed is not None:
+        out["nees_smoothed"] = nees(gt, filt.smoothed)
     return out
 
 
@@ -51,8 +71,10 @@ def fused_error(gt: PoseSeries, filt) -> dict:
     """The fused position error per ENU axis at the fused stamps inside the ground truth, with the filter's
     1-sigma of each axis (for the error-against-3-sigma plot)."""
     gi, sel = _truth_at_fused(gt, filt)
-    return {"t_s": gi.t_s, "err_w_m": filt.fused.p_w_m[sel] - gi.p_w_m,
-            "sigma_w_m": filt.sigma[sel][:, CANONICAL.sl("P")]}
+    out = {"t_s": gi.t_s, "err_w_m": filt.fused.p_w_m[sel] - gi.p_w_m, "sigma_w_m": filt.sigma[sel][:, CANONICAL.sl("P")]}
+    if filt.smoothed is not None:      # the same stamps: the smoother records where the filter does
+        out["smoothed"] = (filt.smoothed.fused.p_w_m[sel] - gi.p_w_m, filt.smoothed.sigma[sel][:, CANONICAL.sl("P")])
+    return out
 
 
 def segments(gt: PoseSeries, evals: dict[str, EstimateEvaluation], ev_cfg: dict, primary: str = "fused",
@@ -78,10 +100,11 @@ def estimate_metrics(ev: EstimateEvaluation) -> dict:
 
 
 def run_metrics(dataset: str, evals: dict[str, EstimateEvaluation], ratios: dict, ev_cfg: dict, applied: dict,
-                gnss_info: dict | None, cons: dict | None = None, seg: dict | None = None, span: dict | None = None) -> dict:
+                gnss_info: dict | None, cons: dict | None = None, seg: dict | None = None, span: dict | None = None,
+                smoother: dict | None = None) -> dict:
     """The content of a run's ``metrics.json``."""
     cons = cons or {}
-    return {"dataset": dataset,
+    out = {"dataset": dataset,
             "evaluation": {"association": ev_cfg["association"], "alignment": ev_cfg["alignment"],
                            "t_max_diff_s": ev_cfg["t_max_diff_s"], "rpe_delta_m": ev_cfg["rpe_delta_m"],
                            "rpe_groups": list(keys.groups(ev_cfg["rpe_delta_m"])),
@@ -90,3 +113,7 @@ def run_metrics(dataset: str, evals: dict[str, EstimateEvaluation], ratios: dict
             "nis": {k: _strip_arrays(v) for k, v in cons.get("nis", {}).items()},
             "nees": {k: _strip_arrays(v) for k, v in cons.get("nees", {}).items()},
             "segments": seg, "gnss_degradation": gnss_info, "preprocessing": applied}
+    if smoother is not None:
+        out["smoother"] = {k: v for k, v in smoother.items() if k != "nees"}
+        out["nees_smoothed"] = smoother["nees"]
+    return out

@@ -29,7 +29,8 @@ def write_filter_outputs(out: StagedDir, series: dict, filt, fused_err: dict, ma
 
     plots.plot_trajectories(out.path("trajectories.png"), series)
     plots.plot_biases(out.path("biases.png"), filt.fused.t_s, filt.accel_bias_b, filt.gyro_bias_b, filt.sigma)
-    plots.plot_error_sigma(out.path("fused_error_3sigma.png"), fused_err["t_s"], fused_err["err_w_m"], fused_err["sigma_w_m"])
+    plots.plot_error_sigma(out.path("fused_error_3sigma.png"), fused_err["t_s"], fused_err["err_w_m"], fused_err["sigma_w_m"],
+                           fused_err.get("smoothed"))
     return list(FILTER_PLOTS)
 
 

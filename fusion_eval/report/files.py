@@ -21,7 +21,7 @@ from ..evaluation.trajectory import EstimateEvaluation
 from ..tables import csv_text
 from ..types import PoseSeries
 
-TUM_FILES = {"fused": "fused.tum", "lidar": "lidar.tum", "gnss": "gnss.tum", "imu_only": "imu_only.tum",
+TUM_FILES = {"fused": "fused.tum", "smoothed": "smoothed.tum", "lidar": "lidar.tum", "gnss": "gnss.tum", "imu_only": "imu_only.tum",
              "groundtruth": "groundtruth.tum"}
 FIXED_ZIP_TIME = (1980, 1, 1, 0, 0, 0)
 

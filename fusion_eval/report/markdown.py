@@ -26,7 +26,8 @@ def drift_section(m: dict) -> list[str]:
 def consistency_section(m: dict) -> list[str]:
     L = ["", "## Filter consistency", "",
          "| quantity | epochs | dof | mean | 95 % interval | fraction inside |", "|---|---:|---:|---:|---|---:|"]
-    for label, group in (("NEES", m.get("nees") or {}), ("NIS", m.get("nis") or {})):
+    for label, group in (("NEES", m.get("nees") or {}), ("NEES smoothed", m.get("nees_smoothed") or {}),
+                         ("NIS", m.get("nis") or {})):
         for k, d in group.items():
             lo, hi = d["bounds_95"]
             L.append(f"| {label} {k} | {d['epochs']} | {d['dof']} | {d['mean']:.2f} | [{lo:.2f}, {hi:.2f}] | "
@@ -133,10 +134,22 @@ def report_md(dataset: str, config_name: str, evals: dict, ratios: dict, cfg: di
     for k, v in ratios.items():
         if v is None:
             continue
-        other = k.replace("fused_over_", "")
+        mine, other = k.split("_over_")
         verdict = "better" if v < 1 else "worse"
-        L.append(f"- Fused APE RMSE / {other} APE RMSE = **{v:.3f}** (fusion is {verdict} than {other} alone, "
+        what = {"fused": "fusion", "smoothed": "the smoothed estimate"}[mine]
+        alone = "the filter" if other == "fused" else f"{other} alone"
+        L.append(f"- {mine.capitalize()} APE RMSE / {other} APE RMSE = **{v:.3f}** ({what} is {verdict} than {alone}, "
                  f"{abs(1 - v) * 100:.1f} % {'lower' if v < 1 else 'higher'}).")
+    if metrics.get("smoother"):
+        sm = metrics["smoother"]
+        if sm["method"] == "rts":
+            L.append(f"- Smoother: **rts** over {sm['epochs']} epochs ({sm['clones']} clones), forward record "
+                     f"{sm['record_bytes'] / 1e6:.1f} MB ({sm['bytes_per_epoch']} bytes per epoch).")
+        else:
+            L.append(f"- Smoother: **batch** (GTSAM): {sm['keyframes']} keyframes, {sm['factors']} factors ("
+                     f"{sm['imu_factors']} IMU, {sm['lidar_relative_factors']} lidar increments, "
+                     f"{sm['lidar_absolute_factors']} lidar poses, {sm['gnss_factors']} GNSS), Levenberg-Marquardt in "
+                     f"{sm['iterations']} iterations, error {sm['initial_error']:.4g} -> {sm['final_error']:.4g}.")
     for name, ev in evals.items():
         if ev.note:
             L.append(f"- {name}: {ev.note}.")

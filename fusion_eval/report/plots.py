@@ -14,9 +14,10 @@ from ..filters.layout import CANONICAL  # noqa: E402
 
 BA_ID, BG_ID = (CANONICAL.start(b) for b in ("BA", "BG"))
 
-COLORS = {"groundtruth": "black", "fused": "tab:red", "lidar": "tab:blue", "gnss": "tab:green", "imu_only": "tab:orange"}
-LABELS = {"groundtruth": "ground truth", "fused": "fused", "lidar": "lidar odometry", "gnss": "GNSS",
-          "imu_only": "IMU dead reckoning"}
+COLORS = {"groundtruth": "black", "fused": "tab:red", "smoothed": "tab:purple", "lidar": "tab:blue", "gnss": "tab:green",
+          "imu_only": "tab:orange"}
+LABELS = {"groundtruth": "ground truth", "fused": "fused", "smoothed": "smoothed (RTS)", "lidar": "lidar odometry",
+          "gnss": "GNSS", "imu_only": "IMU dead reckoning"}
 _META = {"Software": None}
 _VCOLORS = plt.rcParams["axes.prop_cycle"].by_key()["color"]  # no version string in the PNG: same inputs, same bytes
 
@@ -43,7 +44,7 @@ def plot_trajectories(path: Path, series: dict) -> None:
     diverging dead-reckoning track does not squash the rest."""
     fig, ax = plt.subplots(figsize=(8, 7))
     gt = series["groundtruth"].p_w_m
-    for name in ("groundtruth", "lidar", "imu_only", "gnss", "fused"):
+    for name in ("groundtruth", "lidar", "imu_only", "gnss", "fused", "smoothed"):
         s = series.get(name)
         if s is None or len(s) == 0:
             continue
@@ -69,7 +70,7 @@ def plot_trajectories(path: Path, series: dict) -> None:
 def plot_ape_over_time(path: Path, evals: dict, t0: float) -> None:
     """APE translation of each estimate over time (log scale: dead reckoning grows by orders of magnitude)."""
     fig, ax = plt.subplots(figsize=(10, 4.5))
-    known = [n for n in ("imu_only", "gnss", "lidar", "fused") if n in evals]
+    known = [n for n in ("imu_only", "gnss", "lidar", "fused", "smoothed") if n in evals]
     for i, name in enumerate(known + [n for n in evals if n not in known]):
         ev = evals[name]
         if ev.ape_err_m is None:
@@ -108,28 +109,37 @@ def plot_biases(path: Path, t_s: np.ndarray, ba: np.ndarray, bg: np.ndarray, sig
     _save(fig, path)
 
 
-def plot_error_sigma(path: Path, t_s: np.ndarray, err_w: np.ndarray, sigma: np.ndarray) -> None:
+def plot_error_sigma(path: Path, t_s: np.ndarray, err_w: np.ndarray, sigma: np.ndarray,
+                     smoothed: tuple[np.ndarray, np.ndarray] | None = None) -> None:
     """Fused position error per ENU axis with the filter's own +/-3 sigma (``sigma``: (N, 3) per axis): is
-    the covariance honest?"""
-    inside_all = [np.mean(np.abs(err_w[:, i]) <= 3 * sigma[:, i]) * 100 for i in range(3)]
+    the covariance honest? ``smoothed``: the smoother's error and sigma at the same stamps, drawn over it."""
+    def inside(e, sg):
+        return [np.mean(np.abs(e[:, i]) <= 3 * sg[:, i]) * 100 for i in range(3)]
+
+    inside_f = inside(err_w, sigma)
+    inside_s = inside(*smoothed) if smoothed is not None else None
     k = _every(t_s.size)
-    t_s, err_w, sigma = t_s[k], err_w[k], sigma[k]
-    t = t_s - t_s[0]
+    t = t_s[k] - t_s[0]
     fig, axes = plt.subplots(3, 1, figsize=(10, 7), sharex=True)
     for i, (ax, axis) in enumerate(zip(axes, ("East", "North", "Up"))):
-        s3 = 3 * sigma[:, i]
-        ax.fill_between(t, -s3, s3, color="tab:gray", alpha=0.3, lw=0, label="+/-3 sigma")
-        ax.plot(t, err_w[:, i], color="tab:red", lw=0.9, label="fused - ground truth")
-        inside = inside_all[i]
+        s3 = 3 * sigma[k, i]
+        ax.fill_between(t, -s3, s3, color="tab:gray", alpha=0.3, lw=0, label="+/-3 sigma (filter)")
+        ax.plot(t, err_w[k, i], color=COLORS["fused"], lw=0.9, label="fused - ground truth")
+        title = f"{axis}: {inside_f[i]:.1f} % of epochs inside 3 sigma"
+        if smoothed is not None:
+            e, sg = smoothed[0][k, i], 3 * smoothed[1][k, i]
+            ax.plot(t, sg, color=COLORS["smoothed"], lw=0.6, ls="--", label="+/-3 sigma (smoothed)")
+            ax.plot(t, -sg, color=COLORS["smoothed"], lw=0.6, ls="--")
+            ax.plot(t, e, color=COLORS["smoothed"], lw=0.9, label="smoothed - ground truth")
+            title += f" (smoothed: {inside_s[i]:.1f} %)"
         ax.set_ylabel(f"{axis} [m]")
-        ax.set_title(f"{axis}: {inside:.1f} % of epochs inside 3 sigma", fontsize=9, loc="left")
+        ax.set_title(title, fontsize=9, loc="left")
         ax.grid(alpha=0.3)
-    axes[0].legend(loc="upper right", fontsize=8)
+    axes[0].legend(loc="upper right", fontsize=8, ncol=2 if smoothed is not None else 1)
     axes[-1].set_xlabel("time since start [s]")
-    fig.suptitle("Fused position error with the filter's +/-3 sigma")
+    fig.suptitle("Position error with its own +/-3 sigma" + (" (filter and smoother)" if smoothed is not None else ""))
     fig.subplots_adjust(left=0.08, right=0.98, top=0.9, bottom=0.08, hspace=0.35)
     _save(fig, path)
-
 
 
 def plot_compare_ape(path: Path, runs, evs_unfiltered: dict, t0: float) -> None:
@@ -301,7 +311,9 @@ def plot_drift(path: Path, evals: dict) -> None:
 
 def plot_consistency(path: Path, cons: dict, t0: float) -> None:
     """NEES (position, attitude) and NIS per observation type over time, with the 95 % chi-square bounds."""
-    items = [("NEES " + k, d) for k, d in cons.get("nees", {}).items()] + [("NIS " + k, d) for k, d in cons.get("nis", {}).items()]
+    items = [("NEES " + k, d) for k, d in cons.get("nees", {}).items()]
+    items += [("NEES smoothed " + k, d) for k, d in cons.get("nees_smoothed", {}).items()]
+    items += [("NIS " + k, d) for k, d in cons.get("nis", {}).items()]
     fig, axes = plt.subplots(len(items), 1, figsize=(10, 2.2 * len(items)), sharex=True, squeeze=False)
     for ax, (label, d) in zip(axes[:, 0], items):
         lo, hi = d["bounds_95"]

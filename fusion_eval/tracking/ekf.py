@@ -78,6 +78,12 @@ class TrackResult:
     z: np.ndarray             # (M, 3)
     nis: np.ndarray           # (M,) NaN where no update
     used: np.ndarray          # indices of the measurements used
+    P: np.ndarray | None = None        # (M, 4, 4) posterior covariances
+    F: np.ndarray | None = None        # (M, 4, 4) transition into each estimate from the previous one (F[0] unused)
+    x_prior: np.ndarray | None = None  # (M, 4) predictions before each update
+    P_prior: np.ndarray | None = None  # (M, 4, 4)
+    x_smoothed: np.ndarray | None = None   # (M, 4) the RTS smoother's estimate (``smooth``)
+    P_smoothed: np.ndarray | None = None
 
 
 def run_track(m, p: TrackParams) -> TrackResult:
@@ -91,6 +97,7 @@ def _run_track(m, p: TrackParams) -> TrackResult:
     R_l, R_r = np.diag(p.lidar_var), np.diag(p.radar_var)
     H_l = np.array([[1.0, 0, 0, 0], [0, 1.0, 0, 0]])
     xs, nis = [], []
+    Ps, Fs, xps, Pps = [], [], [], []
     x = P = None
     t_prev = None
     for i in idx:
@@ -105,19 +112,23 @@ def _run_track(m, p: TrackParams) -> TrackResult:
             t_prev = t
             xs.append(x.copy())
             nis.append(np.nan)
+            Ps.append(P.copy()), Fs.append(np.eye(4)), xps.append(x.copy()), Pps.append(P.copy())
             continue
         dt = (t - t_prev) / 1e6
         t_prev = t
+        F = np.eye(4)
         if dt > 0:
             F, Q = F_Q(dt, p)
             x = F @ x
             P = F @ P @ F.T + Q
+        Fs.append(F), xps.append(x.copy()), Pps.append(P.copy())
         try:
             if k == "L":
                 dx, s, _ = joseph_update(P, 4, H_l, z[:2] - H_l @ x, R_l, np.inf)
             elif np.hypot(x[0], x[1]) < p.min_range:
                 xs.append(x.copy())          # too close to the sensor to linearise the radar model
                 nis.append(np.nan)
+                Ps.append(P.copy())
                 continue
             else:
                 r = z - h_radar(x)
@@ -131,10 +142,28 @@ def _run_track(m, p: TrackParams) -> TrackResult:
                                       "(non-finite state; check its values)")
         xs.append(x.copy())
         nis.append(float(s))
+        Ps.append(P.copy())
     used = np.array(idx)
     return TrackResult(t_us=m.t_us[used], x=np.array(xs), gt=m.gt[used], kind=m.kind[used], z=m.z[used],
-                       nis=np.array(nis), used=used)
+                       nis=np.array(nis), used=used, P=np.array(Ps), F=np.array(Fs), x_prior=np.array(xps),
+                       P_prior=np.array(Pps))
 
 
-def rmse(res: TrackResult) -> np.ndarray:
-    return np.sqrt(np.mean((res.x - res.gt) ** 2, axis=0))
+def smooth(res: TrackResult) -> TrackResult:
+    """The Rauch-Tung-Striebel backward pass over the tracker's record (``track --smooth``): the same gain
+    kernel as the ego-motion smoother (:func:`fusion_eval.smoothing.rts.rts_step`), on an additive state. The
+    radar EKF's Jacobians stay those of the forward pass (an extended RTS smoother)."""
+    from ..smoothing.rts import rts_step
+
+    M = res.x.shape[0]
+    xs, Ps = res.x.copy(), res.P.copy()
+    for j in range(M - 2, -1, -1):
+        d, Ps[j] = rts_step(res.P[j], res.F[j + 1], res.P_prior[j + 1], xs[j + 1] - res.x_prior[j + 1], Ps[j + 1])
+        xs[j] = res.x[j] + d
+    res.x_smoothed, res.P_smoothed = xs, Ps
+    return res
+
+
+def rmse(res: TrackResult, smoothed: bool = False) -> np.ndarray:
+    x = res.x_smoothed if smoothed else res.x
+    return np.sqrt(np.mean((x - res.gt) ** 2, axis=0))

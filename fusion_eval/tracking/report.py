@@ -32,10 +32,16 @@ def write_track_outputs(out: StagedDir, res: TrackResult, params, source: str, m
                "nis": nis_summary(res),
                "params": {"noise_ax": params.noise_ax, "noise_ay": params.noise_ay, "lidar_var": list(params.lidar_var),
                           "radar_var": list(params.radar_var)}}
-    rows = ["timestamp_us,sensor,px,py,vx,vy,px_gt,py_gt,vx_gt,vy_gt,nis"]
+    sm = res.x_smoothed is not None
+    if sm:
+        es = rmse(res, smoothed=True)
+        metrics["smoothed"] = {"method": "rts", "rmse": dict(zip(("px", "py", "vx", "vy"), map(float, es))),
+                               "over_filter": dict(zip(("px", "py", "vx", "vy"), map(float, es / e)))}
+    rows = ["timestamp_us,sensor,px,py,vx,vy,px_gt,py_gt,vx_gt,vy_gt,nis" + (",px_s,py_s,vx_s,vy_s" if sm else "")]
     for i in range(len(res.t_us)):
         rows.append(",".join([str(int(res.t_us[i])), str(res.kind[i])] + [f"{v:.6f}" for v in res.x[i]] +
-                             [f"{v:.6f}" for v in res.gt[i]] + ["" if not np.isfinite(res.nis[i]) else f"{res.nis[i]:.6f}"]))
+                             [f"{v:.6f}" for v in res.gt[i]] + ["" if not np.isfinite(res.nis[i]) else f"{res.nis[i]:.6f}"]
+                             + ([f"{v:.6f}" for v in res.x_smoothed[i]] if sm else [])))
     out.write_text("estimates.csv", "\n".join(rows) + "\n")
     out.write_text("metrics.json", json.dumps(metrics, indent=2) + "\n")
     if make_plots:
@@ -58,7 +64,12 @@ def _plot(out: StagedDir, res: TrackResult, metrics: dict) -> None:
     ax.plot(rz[:, 0] * np.cos(rz[:, 1]), rz[:, 0] * np.sin(rz[:, 1]), "x", ms=3, color="tab:orange", label="radar (to x, y)")
     ax.plot(res.x[:, 0], res.x[:, 1], "-", color="tab:red", lw=1.2, label="estimate")
     r = metrics["rmse"]
-    ax.set_title(f"RMSE px {r['px']:.3f}, py {r['py']:.3f}, vx {r['vx']:.3f}, vy {r['vy']:.3f}")
+    title = f"RMSE px {r['px']:.3f}, py {r['py']:.3f}, vx {r['vx']:.3f}, vy {r['vy']:.3f}"
+    if res.x_smoothed is not None:
+        ax.plot(res.x_smoothed[:, 0], res.x_smoothed[:, 1], "-", color="tab:purple", lw=1.2, label="smoothed (RTS)")
+        s = metrics["smoothed"]["rmse"]
+        title += f"\nsmoothed: px {s['px']:.3f}, py {s['py']:.3f}, vx {s['vx']:.3f}, vy {s['vy']:.3f}"
+    ax.set_title(title, fontsize=10)
     ax.set_xlabel("x [m]")
     ax.set_ylabel("y [m]")
     ax.set_aspect("equal", adjustable="box")

@@ -23,8 +23,9 @@ from __future__ import annotations
 import numpy as np
 
 from ...errors import FilterDivergedError
-from ...so3 import exp_so3, log_so3, skew
+from ...so3 import skew
 from .. import linalg
+from ..mech import exp3, log3
 from ..layout import CANONICAL, NOMINAL, Layout, canonical_index, canonical_map, own_from_canonical
 from ..propagate import LAST_T, new_arrays
 from ..state import ClonePose, NominalState, ObservationModel
@@ -83,6 +84,11 @@ class FilterBase:
     _step = None            # the compiled step (also what the tests check the Jacobian of)
     _predict = None
     _record_cov = None
+    clone_t = None          # stamp of the cloned pose
+    recorder = None         # an RTS smoother's forward record (fusion_eval.smoothing.record), when smoothing
+    # whether the RTS smoother runs over it: its error coordinates must be minimal (a 4-parameter quaternion's
+    # norm direction makes the backward gains ill-posed; measured to diverge on the simulation)
+    smoothable = True
 
     def __init__(self, x0: NominalState, P0: np.ndarray, prm: np.ndarray, t: np.ndarray, u: np.ndarray, k0: int,
                  gap: tuple[float, float] = (np.inf, 1.0), extra_var: dict[str, float] | None = None):
@@ -283,6 +289,8 @@ class FilterBase:
 
     def clone_pose(self) -> None:
         """Stochastic cloning: append a copy of the current pose to the state (replacing any clone)."""
+        if self.recorder is not None:
+            self.recorder.before_clone(self)
         rows = self.layout.clone_rows()
         core = self.layout.n_core
         m = rows.size
@@ -292,6 +300,7 @@ class FilterBase:
         self.P[core:core + m, core:core + m] = Pc[np.ix_(rows, rows)]
         self.n = core + m
         self.clone.set(self.x.p_w_m, self.x.R_wb)
+        self.clone_t = self.t           # the stamp of the pose the clone holds (the batch smoother's between-factor)
         self.cloned = True
         self.on_clone()
 
@@ -322,7 +331,7 @@ class ErrorStateBase(FilterBase):
             src, q = self._value(self.targets[b.name])
             base = c0 if src is self.clone else x0
             if q == "R":
-                out.append(log_so3(base.R_wb.T @ src.R_wb))
+                out.append(log3(base.R_wb.T @ src.R_wb))   # compiled: the smoother calls it per sample
             else:
                 out.append(np.atleast_1d(_get(src, q) - _get(base, q)))
         return np.concatenate(out)
@@ -334,7 +343,7 @@ class ErrorStateBase(FilterBase):
             src, q = self._value(self.targets[b.name])
             base = c0 if src is self.clone else x0
             if q == "R":
-                src.R_wb[:] = base.R_wb @ exp_so3(dx[b.sl])
+                src.R_wb[:] = base.R_wb @ exp3(np.ascontiguousarray(dx[b.sl]))
             elif q == "k":
                 src.k_odo = base.k_odo + float(dx[b.start])
             else:

@@ -30,7 +30,7 @@ from numba import njit
 
 from .. import discretize, linalg
 from ..layout import CANONICAL, CLONE
-from ..mech import XBA, XBG, XP, XV, attitude, exp3, mech_step, skew3
+from ..mech import XBA, XBG, XP, XV, attitude, exp3, log3, mech_step, skew3
 from ..propagate import compiled_loop, new_arrays, record_cov_by_index
 from ..state import NominalState, unpack
 from ...spec import S
@@ -177,6 +177,47 @@ def inject_reset(x, xc, P, n, dx):
     P[:n, :n] = newP
 
 
+@njit(cache=True)
+def boxminus_vec(x, xc, x0, xc0, n):
+    """``(x, clone) [-] (x0, clone0)`` over the first ``n`` error states (right perturbations on attitudes)."""
+    d = np.zeros(n)
+    R, R0 = attitude(x), attitude(x0)
+    dth = log3(np.ascontiguousarray(R0.T @ R))
+    for i in range(3):
+        d[P_ID + i] = x[XP + i] - x0[XP + i]
+        d[V_ID + i] = x[XV + i] - x0[XV + i]
+        d[TH_ID + i] = dth[i]
+        d[BA_ID + i] = x[XBA + i] - x0[XBA + i]
+        d[BG_ID + i] = x[XBG + i] - x0[XBG + i]
+    if n > N_CORE:
+        Rc = xc[CLONE_R:CLONE_R + 9].reshape((3, 3))
+        Rc0 = xc0[CLONE_R:CLONE_R + 9].reshape((3, 3))
+        dthc = log3(np.ascontiguousarray(Rc0.T @ Rc))
+        for i in range(3):
+            d[CP_ID + i] = xc[CLONE_P + i] - xc0[CLONE_P + i]
+            d[CTH_ID + i] = dthc[i]
+    return d
+
+
+@njit(cache=True)
+def boxplus_into(x, xc, x0, xc0, dx, n):
+    """``(x, clone) <- (x0, clone0) [+] dx`` (the injection of :func:`inject_reset` without the reset of P)."""
+    x[:] = x0
+    xc[:] = xc0
+    for i in range(3):
+        x[XP + i] += dx[P_ID + i]
+        x[XV + i] += dx[V_ID + i]
+        x[XBA + i] += dx[BA_ID + i]
+        x[XBG + i] += dx[BG_ID + i]
+    R = attitude(x)
+    R[:, :] = R @ exp3(dx[TH_ID:TH_ID + 3].copy())
+    if n > N_CORE:
+        for i in range(3):
+            xc[CLONE_P + i] += dx[CP_ID + i]
+        Rc = xc[CLONE_R:CLONE_R + 9].reshape((3, 3))
+        Rc[:, :] = Rc @ exp3(dx[CTH_ID:CTH_ID + 3].copy())
+
+
 class ErrorStateKF(ErrorStateBase):
     """The ESKF. Holds the nominal state, the error covariance ``P`` and at most one cloned pose.
 
@@ -208,6 +249,15 @@ class ErrorStateKF(ErrorStateBase):
 
     def inject(self, dx: np.ndarray) -> None:
         inject_reset(self.xv, self.clone.vec, self.P, self.n, dx)
+
+    # the generic right-perturbation operations, compiled (the iterated update and the smoother call them often)
+    def boxminus(self, snap) -> np.ndarray:
+        c0 = self.clone.vec if snap[1] is None else snap[1]
+        return boxminus_vec(self.xv, self.clone.vec, snap[0], c0, self.n)
+
+    def boxplus_from(self, snap, dx: np.ndarray) -> None:
+        c0 = self.clone.vec.copy() if snap[1] is None else snap[1]
+        boxplus_into(self.xv, self.clone.vec, snap[0], c0, np.ascontiguousarray(dx, float), self.n)
 
 
 def dead_reckon(x0: NominalState, prm: np.ndarray, t: np.ndarray, u: np.ndarray, k0: int) -> np.ndarray:

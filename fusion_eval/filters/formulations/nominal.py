@@ -221,6 +221,7 @@ class NominalStateEKF(FilterBase):
     _step = staticmethod(step)
     _predict = staticmethod(predict_to)
     _record_cov = staticmethod(record_cov)
+    smoothable = False
 
     def initial_aux(self) -> np.ndarray:
         aux = np.zeros(AUX.n)

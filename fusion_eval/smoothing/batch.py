@@ -1,0 +1,259 @@
+"""The batch factor-graph estimate (``smoother.method: batch``) with GTSAM: every measurement the filter used, at
+once, optimised with Levenberg-Marquardt.
+
+Keyframes are the filter's epochs (each lidar/GNSS stamp; the start and the end), each with a pose ``X``, a
+velocity ``V`` and an IMU bias ``B``. Between consecutive keyframes a ``CombinedImuFactor`` preintegrates the very
+inputs the filter stepped with (midpoint of consecutive samples, the partial interval to an event stamp
+interpolated, the same lag corrections), with the filter's IMU noise densities and bias random walks. Each
+update the filter applied becomes a factor with the noise the filter used at that moment (adaptive lidar noise
+included): a relative lidar increment a ``BetweenFactor<Pose3>`` between the keyframe of its clone and its own, an
+absolute lidar pose a ``PriorFactor<Pose3>``, a GNSS fix a ``GPSFactor`` (``GPSFactorArm`` with a lever arm).
+Updates the filter's gate rejected are left out. Priors on the first keyframe come from the same initialisation.
+The initial values are the filter's own posteriors; the marginal covariances give the NEES.
+
+GTSAM's Pose3 tangent is ``[omega, t]`` with the translation perturbation in the body frame; the canonical error
+is ``[dp_world, dtheta]`` with ``dtheta`` a right perturbation, so ``Sigma_canonical = J Sigma J^T`` with
+``J = [[0, R], [I, 0]]``. IMU samples between keyframes get the keyframe's IMU prediction and its covariance.
+"""
+
+from __future__ import annotations
+
+import time
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from ..errors import ConfigError
+from ..filters.formulations.imu_model import PRM_G, UF, UW
+from ..filters.layout import CANONICAL, NOMINAL
+from ..filters.observations.gnss_position import gnss_position
+from ..filters.observations.pose import absolute_pose
+from ..filters.observations.relative_pose import relative_pose
+from ..filters.state import NominalState
+from .rts import Smoothed
+
+EXTRA = "pip install 'fusion-eval[smoother]' (or: pip install gtsam)"
+
+
+def require_gtsam():
+    try:
+        import gtsam
+    except ImportError:
+        raise ConfigError(f"smoother.method=batch needs GTSAM, which is not installed: {EXTRA}") from None
+    return gtsam
+
+
+@dataclass
+class BatchRecord:
+    """What the replay hands the batch estimate: each applied update (its stamp, its model with the noise used
+    then, the stamp of the clone it refers to) and the filter's posterior at each epoch (initial values)."""
+
+    x0: np.ndarray                                    # the filter's initial nominal vector
+    updates: list = field(default_factory=list)       # (t, model partial, clone stamp or None)
+    posterior: dict = field(default_factory=dict)     # t -> nominal vector
+
+    def epoch(self, kf) -> None:
+        self.posterior[round(kf.t, 9)] = kf.xv.copy()
+
+    def update(self, kf, model, clone_t, accepted: bool) -> None:
+        if model is not None and accepted:
+            self.updates.append((kf.t, model, clone_t))
+
+
+def check(s) -> None:
+    """Refuse what the graph cannot express, naming the keys (before the filter runs)."""
+    if s.filter.process_model != "imu":
+        raise ConfigError(f"smoother.method=batch fuses IMU preintegration: filter.process_model={s.filter.process_model} "
+                          "is not supported (use imu, or smoother.method=rts)")
+    if s.filter.bias_model == "gauss_markov":
+        raise ConfigError("smoother.method=batch models the IMU biases as random walks (CombinedImuFactor): "
+                          "filter.bias_model=gauss_markov is not supported (use random_walk or constant)")
+    require_gtsam()
+
+
+_FACTORS = (relative_pose, absolute_pose, gnss_position)   # the observation models with a factor
+
+
+def _factor_of(model):
+    fn = getattr(model, "func", None)
+    if fn not in _FACTORS:
+        name = getattr(fn, "__name__", repr(model))
+        raise ConfigError(f"smoother.method=batch has no factor for the observation model {name}: turn that observation off "
+                          "(filter.use_gnss_velocity, filter.odometer_update, filter.nhc) or use smoother.method=rts")
+    return fn
+
+
+def batch_smooth(kf, rec: BatchRecord, s, k0: int, progress=None) -> tuple[Smoothed, dict]:
+    gtsam = require_gtsam()
+    from gtsam.symbol_shorthand import B, V, X
+
+    t0_wall = time.perf_counter()
+    a = kf.arrays
+    t, u, prm_g = a.t, a.u, float(a.prm[PRM_G])
+    keys_t = np.array(sorted(rec.posterior))
+    index = {tt: i for i, tt in enumerate(keys_t)}
+    n_kf = keys_t.size
+
+    params = gtsam.PreintegrationCombinedParams.MakeSharedU(prm_g)
+    I3 = np.eye(3)
+    params.setAccelerometerCovariance(I3 * s.imu.accel_noise_mps2_sqrthz ** 2)
+    params.setGyroscopeCovariance(I3 * s.imu.gyro_noise_rps_sqrthz ** 2)
+    # a constant bias is a random walk of (almost) no noise: the factor needs a positive definite covariance
+    qba, qbg = ((1e-12, 1e-12) if s.filter.bias_model == "constant"
+                else (s.imu.accel_bias_rw_mps3_sqrthz, s.imu.gyro_bias_rw_rps2_sqrthz))
+    params.setBiasAccCovariance(I3 * max(qba, 1e-12) ** 2)
+    params.setBiasOmegaCovariance(I3 * max(qbg, 1e-12) ** 2)
+    params.setIntegrationCovariance(I3 * 1e-10)
+
+    graph = gtsam.NonlinearFactorGraph()
+    values = gtsam.Values()
+
+    def nav(x):
+        st = NominalState.from_vector(x)
+        return gtsam.Pose3(gtsam.Rot3(st.R_wb.copy()), st.p_w_m.copy()), st.v_w_mps.copy(), \
+            gtsam.imuBias.ConstantBias(st.ba_b.copy(), st.bg_b.copy())
+
+    for i, tt in enumerate(keys_t):
+        pose, vel, bias = nav(rec.posterior[tt])
+        values.insert(X(i), pose)
+        values.insert(V(i), vel)
+        values.insert(B(i), bias)
+
+    # priors from the filter's initialisation (canonical prior: position, velocity, attitude, biases)
+    x0 = NominalState.from_vector(rec.x0.copy())
+    ini = s.init
+    pose0 = gtsam.Pose3(gtsam.Rot3(x0.R_wb.copy()), x0.p_w_m.copy())
+    graph.add(gtsam.PriorFactorPose3(X(0), pose0, gtsam.noiseModel.Diagonal.Sigmas(
+        np.r_[ini.roll_pitch_std_rad, ini.roll_pitch_std_rad, ini.yaw_std_rad, np.full(3, ini.pos_std_m)])))
+    graph.add(gtsam.PriorFactorVector(V(0), x0.v_w_mps.copy(), gtsam.noiseModel.Isotropic.Sigma(3, ini.vel_std_mps)))
+    graph.add(gtsam.PriorFactorConstantBias(B(0), gtsam.imuBias.ConstantBias(x0.ba_b.copy(), x0.bg_b.copy()),
+                                            gtsam.noiseModel.Diagonal.Sigmas(np.r_[np.full(3, max(ini.accel_bias_std_mps2, 1e-9)),
+                                                                                   np.full(3, max(ini.gyro_bias_std_rps, 1e-9))])))
+    # the start sits at sample k0; the replay stepped every sample, then to each event stamp (inputs interpolated)
+    if abs(keys_t[0] - t[k0]) > 1e-9:
+        raise ConfigError("smoother.method=batch: the first epoch is not the filter's start (internal)")
+    pims: list = []
+    k, t_prev, u_prev = k0 + 1, float(t[k0]), u[k0].copy()
+    N = t.size
+    sample_of: list[list[tuple[int, float]]] = [[] for _ in range(n_kf)]   # samples after keyframe i, before i+1
+    bias_lin = gtsam.imuBias.ConstantBias()
+    for i in range(1, n_kf):
+        tb = float(keys_t[i])
+        pim = gtsam.PreintegratedCombinedMeasurements(params, bias_lin)
+        while k < N and t[k] <= tb + 1e-12:
+            dt = t[k] - t_prev
+            if dt > 0:
+                um = 0.5 * (u_prev + u[k])
+                pim.integrateMeasurement(um[UF:UF + 3], um[UW:UW + 3], dt)
+            if t[k] < tb - 1e-9:
+                sample_of[i - 1].append((k, pim.deltaTij()))
+            t_prev, u_prev = float(t[k]), u[k].copy()
+            k += 1
+        if tb > t_prev + 1e-12 and k < N:
+            frac = (tb - t_prev) / (t[k] - t_prev)
+            u1 = u_prev + frac * (u[k] - u_prev)
+            um = 0.5 * (u_prev + u1)
+            pim.integrateMeasurement(um[UF:UF + 3], um[UW:UW + 3], tb - t_prev)
+            t_prev, u_prev = tb, u1
+        pims.append(pim)
+        if pim.deltaTij() > 0:
+            graph.add(gtsam.CombinedImuFactor(X(i - 1), V(i - 1), X(i), V(i), B(i - 1), B(i), pim))
+        else:               # two epochs at the same instant (cannot happen: one epoch per stamp); tie them
+            graph.add(gtsam.BetweenFactorPose3(X(i - 1), X(i), gtsam.Pose3(), gtsam.noiseModel.Isotropic.Sigma(6, 1e-6)))
+    while k < N:            # samples after the last keyframe (none: the replay ends with an epoch at the end)
+        k += 1
+
+    counts = {"imu": n_kf - 1, "lidar_relative": 0, "lidar_absolute": 0, "gnss": 0}
+    for tt, model, clone_t in rec.updates:
+        fn = _factor_of(model)
+        kw = model.keywords
+        i = index[round(tt, 9)]
+        if fn is relative_pose:
+            j = index[round(clone_t, 9)]
+            noise = gtsam.noiseModel.Diagonal.Sigmas(np.r_[np.full(3, kw["att_std_rad"]), np.full(3, kw["pos_std_m"])])
+            graph.add(gtsam.BetweenFactorPose3(X(j), X(i), gtsam.Pose3(gtsam.Rot3(kw["dR_obs"]), kw["dp_obs_c"]), noise))
+            counts["lidar_relative"] += 1
+        elif fn is absolute_pose:
+            noise = gtsam.noiseModel.Diagonal.Sigmas(np.r_[np.full(3, kw["att_std_rad"]), np.full(3, kw["pos_std_m"])])
+            graph.add(gtsam.PriorFactorPose3(X(i), gtsam.Pose3(gtsam.Rot3(kw["R_obs_wb"]), kw["p_obs_w"]), noise))
+            counts["lidar_absolute"] += 1
+        else:
+            noise = gtsam.noiseModel.Diagonal.Sigmas(np.asarray(kw["std_w"], float))
+            lever = np.asarray(kw["lever_arm_b"], float)
+            if np.any(lever != 0):
+                graph.add(gtsam.GPSFactorArm(X(i), np.asarray(kw["p_obs_w"], float), lever, noise))
+            else:
+                graph.add(gtsam.GPSFactor(X(i), np.asarray(kw["p_obs_w"], float), noise))
+            counts["gnss"] += 1
+
+    t_build = time.perf_counter() - t0_wall
+    lm = gtsam.LevenbergMarquardtParams()
+    lm.setMaxIterations(50)
+    lm.setRelativeErrorTol(1e-7)
+    lm.setLinearSolverType("MULTIFRONTAL_QR")   # the bias random walks (1e-7 rad/s^2/sqrt(Hz)) make the normal equations too stiff for Cholesky
+    opt = gtsam.LevenbergMarquardtOptimizer(graph, values, lm)
+    err0 = graph.error(values)
+    result = opt.optimize()
+    t_opt = time.perf_counter() - t0_wall - t_build
+    # the marginals from a QR-factored Bayes tree (iSAM2 fed the solution once): Marginals' Cholesky of the normal
+    # equations fails on the stiff bias chain
+    ip = gtsam.ISAM2Params()
+    ip.setFactorization("QR")
+    marg = gtsam.ISAM2(ip)
+    marg.update(graph, result)
+
+    out = Smoothed(np.full((N, NOMINAL.n), np.nan), np.full((N, CANONICAL.n_core), np.nan), np.full((N, 6, 6), np.nan))
+    P_, V_, TH_, BA_, BG_ = (CANONICAL.sl(b) for b in ("P", "V", "TH", "BA", "BG"))
+    for i, tt in enumerate(keys_t):
+        pose, vel, bias = result.atPose3(X(i)), result.atVector(V(i)), result.atConstantBias(B(i))
+        R = pose.rotation().matrix()
+        Sp = marg.marginalCovariance(X(i))
+        J = np.zeros((6, 6))
+        J[0:3, 3:6] = R                      # dp_world = R t_local
+        J[3:6, 0:3] = I3                     # dtheta = omega (both right perturbations)
+        Sc = J @ Sp @ J.T
+        diag = np.empty(CANONICAL.n_core)
+        diag[P_], diag[TH_] = np.diag(Sc)[:3], np.diag(Sc)[3:]
+        diag[V_] = np.diag(marg.marginalCovariance(V(i)))
+        Sb = np.diag(marg.marginalCovariance(B(i)))
+        diag[BA_], diag[BG_] = Sb[:3], Sb[3:]
+        rows = [(int(np.searchsorted(t, tt - 1e-9)), None)] + sample_of[i]
+        nav_i = gtsam.NavState(pose, vel)
+        for kk, dT in rows:
+            if kk >= N or (dT is None and abs(t[kk] - tt) > 1e-9):
+                continue
+            if dT is None:
+                st = nav_i
+            else:                 # an IMU sample between keyframes: the keyframe's IMU prediction to it
+                st = _predict_to(gtsam, params, bias, nav_i, t, u, kk, float(tt))
+            x = NominalState(st.position(), st.velocity(), st.attitude().matrix(), bias.accelerometer(), bias.gyroscope())
+            out.rec_x[kk] = x.vec
+            out.rec_Pdiag[kk] = diag
+            out.rec_Ppt[kk] = Sc
+        if progress is not None and i % 200 == 0:
+            progress(i / n_kf)
+    info = {"method": "batch", "keyframes": int(n_kf), "factors": int(graph.size()), **{f"{k}_factors": v for k, v in counts.items()},
+            "iterations": int(opt.iterations()), "initial_error": float(err0), "final_error": float(graph.error(result)),
+            "build_s": t_build, "optimize_s": t_opt, "backward_s": time.perf_counter() - t0_wall}
+    return out, info
+
+
+def _predict_to(gtsam, params, bias, nav, t, u, k, t_key):
+    """The keyframe's state carried by the IMU from ``t_key`` to sample ``k`` (the replay's stepping)."""
+    pim = gtsam.PreintegratedCombinedMeasurements(params, bias)
+    j = int(np.searchsorted(t, t_key + 1e-12))        # first sample after the keyframe
+    # from the keyframe to sample j: the input at the keyframe interpolated between samples j-1 and j
+    tp = t_key
+    if j > 0 and t[j] > t_key:
+        frac = (t_key - t[j - 1]) / (t[j] - t[j - 1])
+        up = u[j - 1] + frac * (u[j] - u[j - 1])
+    else:
+        up = u[j]
+    while j <= k:
+        dt = t[j] - tp
+        if dt > 0:
+            um = 0.5 * (up + u[j])
+            pim.integrateMeasurement(um[UF:UF + 3], um[UW:UW + 3], dt)
+        tp, up = float(t[j]), u[j]
+        j += 1
+    return pim.predict(nav, bias)

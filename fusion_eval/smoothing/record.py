@@ -1,0 +1,93 @@
+"""What the forward pass keeps for the backward (RTS) pass: the filter at each observation epoch, and the
+joint state before each stochastic clone.
+
+The forward filter is recorded only where something other than the IMU happens: at each event stamp (after
+every update and clone at that stamp), at the start and at the end. Between two such epochs the state and
+covariance are a deterministic function of the first epoch's posterior and the IMU inputs, so the backward
+pass recomputes them with the formulation's own compiled step (:mod:`fusion_eval.smoothing.rts`) instead of
+storing every IMU sample: memory grows with the number of lidar/GNSS epochs, not with the IMU rate.
+
+Per epoch: the nominal vector, the clone's nominal pose, the formulation's scratch (``aux``), the input row
+the filter sits at, the next sample index and the covariance ``P[:n, :n]`` (upper triangle). A clone adds a
+second such record, taken just before the clone replaces the previous one: the joint covariance of the current
+state and the old clone, from which the backward pass recovers the old clone given the smoothed state
+(``docs/rts_smoother.md``). With the 21-state ESKF that is 2,232 bytes per epoch and as much per lidar frame
+(:meth:`EpochRecord.bytes_per_epoch`).
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from ..filters.propagate import LAST_T, LAST_U
+
+
+class _Store:
+    """Preallocated rows of one kind of record (capacity known before the replay: one per event, plus two)."""
+
+    def __init__(self, capacity: int, n_max: int, n_x: int, n_c: int, n_aux: int, n_u: int):
+        self.n_max = n_max
+        self.iu = np.triu_indices(n_max)
+        self.t = np.zeros(capacity)
+        self.k_next = np.zeros(capacity, np.int64)
+        self.n = np.zeros(capacity, np.int64)
+        self.x = np.zeros((capacity, n_x))
+        self.c = np.zeros((capacity, n_c))
+        self.aux = np.zeros((capacity, n_aux))
+        self.u = np.zeros((capacity, n_u))
+        self.P = np.zeros((capacity, len(self.iu[0])))
+        self.size = 0
+
+    def put(self, i: int, kf) -> None:
+        n = kf.n
+        self.t[i] = kf.t
+        self.k_next[i] = kf.k_next
+        self.n[i] = n
+        self.x[i] = kf.xv
+        self.c[i] = kf.clone.vec
+        self.aux[i] = kf.aux
+        self.u[i] = kf.arrays.last[LAST_U:]
+        # the upper triangle of the leading n x n block, in the packing of the full n_max x n_max one
+        Pm = np.zeros((self.n_max, self.n_max))
+        Pm[:n, :n] = kf.P[:n, :n]
+        self.P[i] = Pm[self.iu]
+
+    def bytes_per_row(self) -> int:
+        return int(sum(a[:1].nbytes for a in (self.t, self.k_next, self.n, self.x, self.c, self.aux, self.u, self.P)))
+
+
+class EpochRecord:
+    """The forward pass's record for the RTS smoother; attach it to a filter (``kf.recorder``) before the replay."""
+
+    def __init__(self, kf, n_events: int):
+        shape = (kf.layout.n, kf.xv.size, kf.clone.vec.size, kf.aux.size, kf.arrays.last.size - LAST_U)
+        self.epochs = _Store(n_events + 2, *shape)
+        self.clones = _Store(n_events + 1, *shape)
+        self.clone_epoch = np.zeros(n_events + 1, np.int64)    # the epoch each clone record belongs to
+
+    def _epoch_index(self, t: float) -> int:
+        """The epoch a record at ``t`` belongs to: the last one when it has the same stamp, else a new one."""
+        e = self.epochs
+        return e.size - 1 if e.size and abs(e.t[e.size - 1] - t) < 1e-12 else e.size
+
+    def epoch(self, kf) -> None:
+        """Record the filter after everything that happened at its current stamp (one epoch per stamp)."""
+        i = self._epoch_index(kf.t)
+        self.epochs.put(i, kf)
+        self.epochs.size = i + 1
+
+    def before_clone(self, kf) -> None:
+        """Record the joint state of the filter and its old clone, just before a new clone replaces it."""
+        c = self.clones
+        self.clone_epoch[c.size] = self._epoch_index(kf.t)
+        c.put(c.size, kf)
+        c.size += 1
+
+    def bytes_per_epoch(self) -> int:
+        return self.epochs.bytes_per_row()
+
+    def nbytes(self) -> int:
+        return self.epochs.bytes_per_row() * self.epochs.size + self.clones.bytes_per_row() * self.clones.size
+
+
+__all__ = ["EpochRecord", "LAST_T"]

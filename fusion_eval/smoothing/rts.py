@@ -1,0 +1,211 @@
+"""The Rauch-Tung-Striebel smoother over any registered formulation (``smoother.method: rts``).
+
+Backward pass on the formulation's own error coordinates (derivation: ``docs/rts_smoother.md``). For an
+interval ``j -> j+1`` with the filter's posterior ``x_j, P_j`` at ``j``, transition ``Phi_j`` and prior
+``x_{j+1}^-, P_{j+1}^-``, and the smoothed ``x^s_{j+1}, P^s_{j+1}``::
+
+    C_j     = P_j Phi_j^T (P_{j+1}^-)^-1
+    x^s_j   = x_j [+] C_j (x^s_{j+1} [-] x_{j+1}^-)
+    P^s_j   = P_j + C_j (P^s_{j+1} - P_{j+1}^-) C_j^T
+
+``[+]`` and ``[-]`` are the formulation's own ``boxplus_from``/``boxminus`` (injection on the manifold: right
+perturbation for the ESKF, SE_2(3) exponential for the invariant filter, additive with normalisation for the
+nominal-state EKF). Between two recorded epochs (:mod:`.record`) the intervals are recomputed with the
+formulation's compiled step, which also yields ``Phi_j``: it propagates an augmented covariance whose extra rows
+are a constant copy of the core state (the contract every step already keeps for a pose clone), so the cross
+block becomes ``Phi_j`` with no formulation code written twice. A stochastic clone is undone in the backward
+pass by conditioning the old clone on the smoothed current state (the clone is a copy of a past pose; later
+data depend on it only through the current state).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from . import kernels
+from .record import EpochRecord
+
+
+@dataclass
+class Smoothed:
+    """The smoothed record at the IMU samples ``k0 ..``: nominal vectors and canonical covariances (as the
+    filter records them)."""
+
+    rec_x: np.ndarray        # (N, NOMINAL.n)
+    rec_Pdiag: np.ndarray    # (N, 15)
+    rec_Ppt: np.ndarray      # (N, 6, 6)
+
+
+RCOND = 1e-10       # relative eigenvalue of a correlation matrix below which a direction is degenerate
+
+
+def rts_step(P_j: np.ndarray, Phi_j: np.ndarray, P_prior: np.ndarray, e: np.ndarray, Ps_next: np.ndarray):
+    """One backward step with a full transition ``Phi_j``: the correction ``C e`` to add to the posterior at j
+    and the smoothed covariance there (also what the tracking filters use)."""
+    return kernels.backward(np.ascontiguousarray(P_j, float), np.ascontiguousarray(Phi_j, float),
+                            np.ascontiguousarray(P_prior, float), np.ascontiguousarray(e, float),
+                            np.ascontiguousarray(Ps_next, float), RCOND)
+
+
+class _Workspace:
+    """The finished filter object, reused to evaluate its own ``[+]``/``[-]`` at recorded states."""
+
+    def __init__(self, kf):
+        self.kf = kf
+
+    def load(self, x, c, aux, n) -> None:
+        kf = self.kf
+        kf.xv[:] = x
+        kf.clone.vec[:] = c
+        kf.aux[:] = aux
+        kf.n = int(n)
+        kf.cloned = kf.n > kf.layout.n_core
+
+    def minus(self, a, b, n) -> np.ndarray:
+        """``a [-] b`` over the first ``n`` own states; ``a``, ``b``: ``(x, clone, aux)``."""
+        self.load(*b, n)
+        snap = self.kf.snapshot()
+        self.load(*a, n)
+        return self.kf.boxminus(snap)
+
+    def plus(self, b, d, n):
+        """``b [+] d`` as ``(x, clone, aux)``."""
+        self.load(*b, n)
+        kf = self.kf
+        kf.boxplus_from(kf.snapshot(), d)
+        kf.after_correction_state()
+        return kf.xv.copy(), kf.clone.vec.copy(), kf.aux.copy()
+
+
+class RTS:
+    """The backward pass over a finished filter ``kf`` and its :class:`EpochRecord`."""
+
+    def __init__(self, kf, rec: EpochRecord):
+        self.kf, self.rec = kf, rec
+        self.ws = _Workspace(kf)
+        a = kf.arrays
+        self.t, self.u, self.gap, self.prm = a.t, a.u, a.gap, a.prm
+        self.nc = kf.layout.n_core
+
+    # ---- the forward intervals between two epochs, recomputed ----------------------------------
+    def _step(self, x, aux, A, u0, u1, dt, qscale):
+        """One interval with the formulation's compiled step on the covariance ``A`` of the core (a clone is
+        constant, so it needs no propagation): the propagated ``A`` and the core transition ``Phi``."""
+        nc = self.nc
+        Pa = kernels.augmented(A, nc)        # a constant copy of the core: its cross block becomes Phi
+        self.kf._step(x, Pa, 2 * nc, u0, u1, dt, qscale, self.prm, aux, True)
+        return np.ascontiguousarray(Pa[:nc, :nc]), np.ascontiguousarray(Pa[:nc, nc:])
+
+    def segment(self, a: int, t_b: float):
+        """The points from epoch ``a`` to ``t_b`` as the forward loop stepped them (:mod:`..filters.propagate`),
+        and the core transitions between consecutive points. Each point is ``[x, aux, A, B, P, sample or -1]``:
+        with a clone ``c``, ``A`` is the core's covariance given ``c`` and ``B`` the cross block (``P`` the joint);
+        without one, ``A = P``."""
+        ep = self.rec.epochs
+        t, u, gap = self.t, self.u, self.gap
+        nc = self.nc
+        x, aux, P = ep.x[a].copy(), ep.aux[a].copy(), self.cov(ep, a)
+        n = P.shape[0]
+        if n > nc:
+            A, B, Dinv = kernels.condition(P, nc, RCOND)
+            self._D, self._Dinv = np.ascontiguousarray(P[nc:, nc:]), Dinv
+        else:
+            A, B = P, None
+        u0, t0, k = ep.u[a].copy(), float(ep.t[a]), int(ep.k_next[a])
+        points, phis = [[x.copy(), aux.copy(), A, B, P, -1]], []
+        N = t.size
+
+        def advance(u1, dt, qscale, sample):
+            nonlocal A, B
+            A, phi = self._step(x, aux, A, u0, u1, dt, qscale)
+            if B is not None:
+                B = phi @ B
+                Pj = kernels.assemble(A, B, self._D, self._Dinv)
+            else:
+                Pj = A
+            points.append([x.copy(), aux.copy(), A, B, Pj, sample])
+            phis.append(phi)
+
+        while k < N and t[k] <= t_b:
+            dt = t[k] - t0
+            if dt > 0.0:
+                advance(u[k], dt, gap[1] if (k > 0 and t[k] - t[k - 1] > gap[0]) else 1.0, k)
+            else:
+                points[-1][5] = k
+            t0, u0 = t[k], u[k].copy()
+            k += 1
+        if t_b > t0 and k < N:
+            frac = (t_b - t0) / (t[k] - t0)
+            advance(u0 + frac * (u[k] - u0), t_b - t0, gap[1] if (k > 0 and t[k] - t[k - 1] > gap[0]) else 1.0, -1)
+        return points, phis
+
+    def cov(self, store, i: int) -> np.ndarray:
+        return kernels.unpack_upper(store.P[i], store.n_max, int(store.n[i]))
+
+    # ---- undoing a clone ---------------------------------------------------------------------
+    def _unclone(self, i: int, xs, Ps):
+        """From the smoothed state after clone record ``i`` to the smoothed state before it (with the old clone)."""
+        cl, nc = self.rec.clones, self.nc
+        pre = (cl.x[i], cl.c[i], cl.aux[i])
+        Pt = self.cov(cl, i)
+        e = self.ws.minus(xs, pre, nc)
+        d, P = kernels.uncondition(Pt, nc, e, np.ascontiguousarray(Ps[:nc, :nc]), RCOND)
+        return self.ws.plus(pre, d, Pt.shape[0]), P
+
+    # ---- the backward pass -------------------------------------------------------------------
+    def run(self, k0: int) -> Smoothed:
+        kf, ep = self.kf, self.rec.epochs
+        N = self.t.size
+        out = Smoothed(np.full((N, kf.xv.size), np.nan), np.full((N, kf.arrays.rec_Pdiag.shape[1]), np.nan),
+                       np.full((N,) + kf.arrays.rec_Ppt.shape[1:], np.nan))
+        clones_of: dict[int, list[int]] = {}
+        for i in range(self.rec.clones.size):
+            clones_of.setdefault(int(self.rec.clone_epoch[i]), []).append(i)
+        last = ep.size - 1
+        xs = (ep.x[last].copy(), ep.c[last].copy(), ep.aux[last].copy())     # the last epoch: smoothed = filtered
+        Ps = self.cov(ep, last)
+        for b in range(last, 0, -1):
+            self._emit(out, self._sample_at(b), xs, Ps)
+            for i in reversed(clones_of.get(b, [])):
+                xs, Ps = self._unclone(i, xs, Ps)
+            points, phis = self.segment(b - 1, float(ep.t[b]))
+            n = Ps.shape[0]
+            cj = ep.c[b - 1]                      # the clone is constant between epochs
+            for j in range(len(phis) - 1, -1, -1):
+                xj, auxj, Aj, Bj, Pj, kj = points[j]
+                xp, auxp, Ap, _, Pp, _ = points[j + 1]
+                e = self.ws.minus(xs, (xp, cj, auxp), n)
+                if Bj is None:
+                    d, Ps = kernels.backward(Pj, phis[j], Pp, e, Ps, RCOND)
+                else:
+                    d, Ps = kernels.backward_clone(Aj, Bj, self._Dinv, phis[j], Ap, e, Ps, Pj, Pp, RCOND)
+                xs = self.ws.plus((xj, cj, auxj), d, n)
+                if j > 0:                         # point 0 is epoch b-1, emitted with its own clones undone
+                    self._emit(out, kj, xs, Ps)
+        self._emit(out, self._sample_at(0), xs, Ps)
+        return out
+
+    def _sample_at(self, i: int) -> int:
+        """The sample epoch ``i`` sits on, or -1."""
+        ep = self.rec.epochs
+        k = int(ep.k_next[i]) - 1
+        return k if 0 <= k < self.t.size and abs(self.t[k] - ep.t[i]) < 1e-9 else -1
+
+    def _emit(self, out: Smoothed, k: int, xs, Ps) -> None:
+        if k < 0:
+            return
+        kf = self.kf
+        x, _, aux = xs
+        out.rec_x[k] = x
+        P = np.ascontiguousarray(Ps)
+        kf._record_cov(P, P.shape[0], x.copy(), aux.copy(), kf.cidx, out.rec_Pdiag[k], out.rec_Ppt[k])
+
+
+def smooth(kf, rec: EpochRecord, k0: int) -> Smoothed:
+    """Run the RTS backward pass over a finished replay."""
+    return RTS(kf, rec).run(k0)
+
+
+__all__ = ["Smoothed", "smooth", "rts_step"]

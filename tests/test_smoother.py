@@ -1,0 +1,305 @@
+"""The RTS smoother: exact on a linear-Gaussian model (against the batch least-squares solution), the recomputed
+forward intervals equal to the filter's own, consistent and better than the filter on a simulation, and in every
+output of a run."""
+
+from __future__ import annotations
+
+import json
+
+import numpy as np
+import pytest
+from numba import njit
+
+import fusion_eval as fe
+from fusion_eval.errors import ConfigError
+from fusion_eval.filters.formulations.base import ErrorStateBase
+from fusion_eval.filters.layout import CANONICAL, Layout
+from fusion_eval.filters.mech import XP, XV
+from fusion_eval.filters.propagate import compiled_loop, record_cov_by_index
+from fusion_eval.filters.state import NominalState
+from fusion_eval.smoothing.record import EpochRecord
+from fusion_eval.smoothing.rts import smooth
+
+# ---- a linear-Gaussian formulation: constant-velocity motion driven by a known acceleration input ----------
+LIN = Layout("linear test", [("P", 3), ("V", 3)], clone=[("CP", 3)], clone_of={"CP": "P"})
+
+
+@njit(cache=False)
+def _lin_step(x, P, n, u0, u1, dt, qscale, prm, aux, cov):
+    a = 0.5 * (u0[:3] + u1[:3])
+    if cov:
+        F = np.eye(n)
+        for i in range(3):
+            F[i, 3 + i] = dt
+        q = prm[0] * prm[0] * qscale
+        newP = F @ np.ascontiguousarray(P[:n, :n]) @ F.T
+        for i in range(3):
+            newP[i, i] += q * dt ** 3 / 3.0
+            newP[i, 3 + i] += q * dt ** 2 / 2.0
+            newP[3 + i, i] += q * dt ** 2 / 2.0
+            newP[3 + i, 3 + i] += q * dt
+        P[:n, :n] = 0.5 * (newP + newP.T)
+    for i in range(3):
+        x[XP + i] += x[XV + i] * dt + 0.5 * a[i] * dt * dt
+        x[XV + i] += a[i] * dt
+
+
+class LinearCV(ErrorStateBase):
+    name = "linear_test"
+    layout = LIN
+    pairs = (("P", "P"), ("V", "V"), ("CP", "CP"))
+    targets = {"P": "p", "V": "v", "CP": "clone.p"}
+    _step = staticmethod(_lin_step)
+    _predict = staticmethod(compiled_loop(__name__, _lin_step, record_cov_by_index))
+    _record_cov = staticmethod(record_cov_by_index)
+
+
+def _interp_inputs(t, u, times):
+    """The input rows the replay loop steps with at ``times`` (linear interpolation, as the loop does)."""
+    return np.stack([np.array([np.interp(tt, t, u[:, j]) for j in range(u.shape[1])]) for tt in times])
+
+
+def _batch(x0, P0, q, nodes, u_nodes, gnss, rel):
+    """The batch least-squares (MAP) solution over the states at ``nodes``: mean and covariance of each."""
+    m = len(nodes)
+    N = 6 * m
+    Lam, eta = np.zeros((N, N)), np.zeros(N)
+
+    def add(J, r0, W):      # a residual r = J X - r0 with weight W
+        nonlocal Lam, eta
+        Lam += J.T @ W @ J
+        eta += J.T @ W @ r0
+
+    J = np.zeros((6, N))
+    J[:, :6] = np.eye(6)
+    add(J, x0, np.linalg.inv(P0))
+    for i in range(m - 1):
+        dt = nodes[i + 1] - nodes[i]
+        a = 0.5 * (u_nodes[i] + u_nodes[i + 1])
+        F = np.eye(6)
+        F[:3, 3:] = dt * np.eye(3)
+        b = np.concatenate([0.5 * a * dt * dt, a * dt])
+        Q = q * q * np.block([[dt ** 3 / 3 * np.eye(3), dt ** 2 / 2 * np.eye(3)], [dt ** 2 / 2 * np.eye(3), dt * np.eye(3)]])
+        J = np.zeros((6, N))
+        J[:, 6 * (i + 1):6 * (i + 2)] = np.eye(6)
+        J[:, 6 * i:6 * (i + 1)] = -F
+        add(J, b, np.linalg.inv(Q))
+    for i, z, R in gnss:
+        J = np.zeros((3, N))
+        J[:, 6 * i:6 * i + 3] = np.eye(3)
+        add(J, z, np.linalg.inv(R))
+    for i0, i1, z, R in rel:
+        J = np.zeros((3, N))
+        J[:, 6 * i1:6 * i1 + 3] = np.eye(3)
+        J[:, 6 * i0:6 * i0 + 3] = -np.eye(3)
+        add(J, z, np.linalg.inv(R))
+    cov = np.linalg.inv(Lam)
+    return (cov @ eta).reshape(m, 6), cov
+
+
+def test_rts_equals_the_batch_least_squares_solution_on_a_linear_gaussian_model():
+    """Position fixes and relative-position increments through a stochastic clone, some at sample stamps and some
+    between them (partial intervals), one at the very first stamp: every smoothed mean and variance at the samples
+    equals the batch solution to 1e-9."""
+    rng = np.random.default_rng(3)
+    t = np.round(np.arange(0.0, 6.0, 0.1), 10)      # the literal event stamps below fall exactly on samples
+    u = rng.normal(0.0, 0.5, (t.size, 3))
+    q = 0.3
+    x0 = NominalState(np.array([1.0, -2.0, 0.5]), np.array([3.0, 0.5, 0.0]), np.eye(3), np.zeros(3), np.zeros(3))
+    P0c = np.diag(np.r_[np.full(3, 0.2 ** 2), np.full(3, 0.1 ** 2), np.full(9, 1e-4)])
+    kf = LinearCV(x0, P0c, np.array([q]), t, u, 0)
+    lidar_t = np.r_[0.0, 0.3, 0.65, 1.0, 1.4, 2.05, 2.5, 3.0, 3.55, 4.0, 4.7, 5.2]
+    gnss_t = np.array([0.5, 1.4, 2.5, 3.33, 4.5, 5.9])
+    events = sorted([(tt, 0) for tt in lidar_t] + [(tt, 1) for tt in gnss_t])
+    rec = kf.recorder = EpochRecord(kf, len(events))
+    rec.epoch(kf)
+    R_rel, R_gnss = np.diag([0.05, 0.04, 0.06]) ** 2, np.diag([0.5, 0.5, 1.0]) ** 2
+    z_of = {}
+    for tt, kind in events:
+        kf.predict_to(tt)
+        if kind == 1:
+            z = rng.normal(0, 1, 3)
+            z_of[(tt, 1)] = z
+
+            def model(x, cp, cR, z=z):
+                H = np.zeros((3, CANONICAL.n))
+                H[:, CANONICAL.sl("P")] = np.eye(3)
+                return H, z - x.p_w_m, R_gnss
+            kf.update(model)
+        else:
+            if kf.cloned:
+                z = rng.normal(0, 0.5, 3)
+                z_of[(tt, 0)] = z
+
+                def model(x, cp, cR, z=z):
+                    H = np.zeros((3, CANONICAL.n))
+                    H[:, CANONICAL.sl("P")] = np.eye(3)
+                    H[:, CANONICAL.sl("CP")] = -np.eye(3)
+                    return H, z - (x.p_w_m - cp), R_rel
+                kf.update(model)
+            kf.clone_pose()
+        rec.epoch(kf)
+    kf.predict_to(t[-1])
+    rec.epoch(kf)
+    sm = smooth(kf, rec, 0)
+
+    nodes = np.unique(np.r_[t, lidar_t, gnss_t])
+    idx = {round(v, 9): i for i, v in enumerate(nodes)}
+    gnss = [(idx[round(tt, 9)], z_of[(tt, 1)], R_gnss) for tt in gnss_t]
+    rel = [(idx[round(a, 9)], idx[round(b, 9)], z_of[(b, 0)], R_rel) for a, b in zip(lidar_t[:-1], lidar_t[1:])]
+    P0 = P0c[:6, :6]
+    mean, cov = _batch(x0.vec[:6].copy(), P0, q, nodes, _interp_inputs(t, u, nodes), gnss, rel)
+    at = np.array([idx[round(v, 9)] for v in t])
+    np.testing.assert_allclose(sm.rec_x[:, :6], mean[at], rtol=0, atol=1e-9)
+    var = np.array([np.diag(cov[6 * i:6 * i + 6, 6 * i:6 * i + 6]) for i in at])
+    np.testing.assert_allclose(sm.rec_Pdiag[:, :6], var, rtol=1e-9, atol=1e-15)
+    # and the filter itself is not the smoother: the last state agrees, the first does not
+    np.testing.assert_allclose(kf.rec_x[-1, :6], sm.rec_x[-1, :6], atol=1e-12)
+    assert np.abs(kf.rec_x[0, :6] - sm.rec_x[0, :6]).max() > 1e-3
+
+
+def _capture(monkeypatch):
+    import fusion_eval.smoothing.rts as rts
+
+    seen = {}
+    orig = rts.smooth
+
+    def spy(kf, rec, k0):
+        seen.update(kf=kf, rec=rec)
+        return orig(kf, rec, k0)
+    monkeypatch.setattr(rts, "smooth", spy)
+    return seen
+
+
+@pytest.mark.parametrize("formulation", ["error_state", "invariant"])
+def test_the_recomputed_intervals_are_the_filters_own(kitti_slice, monkeypatch, formulation):
+    """Between GNSS epochs the backward pass recomputes each IMU interval with the formulation's compiled step (and
+    its transition from an augmented covariance): the states and variances equal what the filter recorded."""
+    from fusion_eval.smoothing.rts import RTS
+
+    seen = _capture(monkeypatch)
+    ds = fe.load_dataset(kitti_slice)
+    fe.run(ds, overrides={"smoother.method": "rts", "filter.lidar_update": "none", "filter.formulation": formulation})
+    kf, rec = seen["kf"], seen["rec"]
+    bw = RTS(kf, rec)
+    checked = 0
+    for b in range(1, rec.epochs.size):
+        points, phis = bw.segment(b - 1, float(rec.epochs.t[b]))
+        assert len(phis) == len(points) - 1
+        for x, aux, A, B, P, k in points[1:-1]:          # samples strictly inside: the filter recorded its prior there
+            np.testing.assert_allclose(x, kf.rec_x[k], rtol=0, atol=1e-9)
+            diag = np.empty(15)
+            kf._record_cov(np.ascontiguousarray(P), P.shape[0], x, aux, kf.cidx, diag, np.empty((6, 6)))
+            np.testing.assert_allclose(diag, kf.arrays.rec_Pdiag[k], rtol=1e-9, atol=1e-18)
+            checked += 1
+    assert checked > 50
+
+
+def test_a_run_writes_and_reports_the_smoothed_estimate(kitti_slice, tmp_path):
+    from click.testing import CliRunner
+
+    from fusion_eval.cli import main
+
+    out = tmp_path / "run"
+    r = CliRunner().invoke(main, ["-q", "run", str(kitti_slice), "--out", str(out), "--set", "smoother.method=rts"])
+    assert r.exit_code == 0, r.output
+    m = json.loads((out / "metrics.json").read_text())
+    s, f = (m["estimates"][k]["ape"]["translation_m"]["rmse"] for k in ("smoothed", "fused"))
+    assert s < f
+    assert m["ratios"]["smoothed_over_fused"] == pytest.approx(s / f)
+    assert m["smoother"]["method"] == "rts" and m["smoother"]["bytes_per_epoch"] > 0
+    assert set(m["nees_smoothed"]) == {"position", "attitude"}
+    assert (out / "smoothed.tum").read_text().count("\n") > 100
+    report = (out / "report.md").read_text()
+    assert "| smoothed |" in report and "NEES smoothed position" in report
+    # check gates on it like on any estimate
+    mj = str(out / "metrics.json")
+    r = CliRunner().invoke(main, ["check", mj, "-b", mj, "--metric", "smoothed.*", "--require", "smoothed.ape.rmse < fused.ape.rmse",
+                                  "--require", "nees_smoothed.position.fraction_in_95 > 0.5"])
+    assert r.exit_code == 0, r.output
+    r = CliRunner().invoke(main, ["check", mj, "-b", mj, "--require", "smoothed.ape.rmse > fused.ape.rmse"])
+    assert r.exit_code != 0
+
+
+def test_the_nominal_state_filter_is_refused_with_a_reason(kitti_slice):
+    with pytest.raises(ConfigError, match="smoother.method=rts is not available with filter.formulation=nominal_state"):
+        fe.run(fe.load_dataset(kitti_slice), overrides={"smoother.method": "rts", "filter.formulation": "nominal_state"})
+
+
+@pytest.mark.slow
+def test_the_smoother_is_consistent_and_better_than_the_filter_on_a_simulation(tmp_path):
+    """Sensors with the white noises the filters assume: the smoothed NEES is inside its 95 % interval on >= 90 % of
+    the epochs, and the smoothed error below the filtered one, for each formulation the smoother runs over."""
+    from fusion_eval.simulate.dataset import simulate
+
+    out = tmp_path / "w"
+    simulate(out, "urban", 300.0, 0, "automotive", ("lidar.scale_drift=0", "lidar.yaw_drift_deg_per_100m=0"), jobs=1)
+    ds = fe.load_dataset(out)
+    for f in ("error_state", "invariant"):
+        m = fe.run(ds, overrides={"filter.formulation": f, "smoother.method": "rts"}).metrics
+        for q in ("position", "attitude"):
+            assert m["nees_smoothed"][q]["fraction_in_95"] >= 0.9, (f, q, m["nees_smoothed"][q])
+        e = m["estimates"]
+        for rel in ("translation_m", "rotation_deg"):
+            assert e["smoothed"]["ape"][rel]["rmse"] < 0.8 * e["fused"]["ape"][rel]["rmse"], (f, rel)
+
+
+def test_the_batch_estimate_runs_and_says_what_it_built(kitti_slice, tmp_path):
+    pytest.importorskip("gtsam", reason="the 'smoother' extra (gtsam) is not installed")
+    res = fe.run(fe.load_dataset(kitti_slice), overrides={"smoother.method": "batch"})
+    m = res.metrics
+    info = m["smoother"]
+    assert info["method"] == "batch" and info["keyframes"] > 10
+    nis = m["nis"]
+    assert info["lidar_relative_factors"] == nis["lidar"]["epochs"] - nis["lidar"]["rejected"]
+    assert info["gnss_factors"] == nis["gnss"]["epochs"] - nis["gnss"]["rejected"] > 0
+    assert info["final_error"] < 1e-3 * info["initial_error"] or info["final_error"] < 10 * info["factors"]
+    s, f = (m["estimates"][k]["ape"]["translation_m"]["rmse"] for k in ("smoothed", "fused"))
+    assert s < f
+    assert np.isfinite(res.filter.smoothed.P_pos_att).all()
+    from click.testing import CliRunner
+
+    from fusion_eval.cli import main
+
+    r = CliRunner().invoke(main, ["-q", "run", str(kitti_slice), "--out", str(tmp_path / "b"), "--no-plots",
+                                  "--set", "smoother.method=batch"])
+    assert r.exit_code == 0, r.output
+    assert "Smoother: **batch** (GTSAM)" in (tmp_path / "b" / "report.md").read_text()
+    assert (tmp_path / "b" / "smoothed.tum").exists()
+
+
+def test_the_batch_estimate_names_the_missing_extra(kitti_slice, monkeypatch):
+    import builtins
+
+    real = builtins.__import__
+
+    def no_gtsam(name, *a, **kw):
+        if name == "gtsam" or name.startswith("gtsam."):
+            raise ImportError("No module named 'gtsam'")
+        return real(name, *a, **kw)
+    monkeypatch.setattr(builtins, "__import__", no_gtsam)
+    with pytest.raises(ConfigError, match=r"needs GTSAM, which is not installed: pip install 'fusion-eval\[smoother\]'"):
+        fe.run(fe.load_dataset(kitti_slice), overrides={"smoother.method": "batch"})
+
+
+def test_the_batch_estimate_refuses_what_it_cannot_express(kitti_slice):
+    with pytest.raises(ConfigError, match="filter.bias_model=gauss_markov is not supported"):
+        fe.run(fe.load_dataset(kitti_slice), overrides={"smoother.method": "batch", "filter.bias_model": "gauss_markov"})
+
+
+@pytest.mark.slow
+def test_the_batch_estimate_agrees_with_rts_on_a_simulation(tmp_path):
+    """The same measurements and noise, two solvers: the GTSAM optimum and the RTS pass over the filter agree within
+    their reported uncertainties (and their covariances agree), on white-noise sensors."""
+    pytest.importorskip("gtsam", reason="the 'smoother' extra (gtsam) is not installed")
+    from fusion_eval.simulate.dataset import simulate
+
+    out = tmp_path / "w"
+    simulate(out, "urban", 120.0, 1, "automotive", ("lidar.scale_drift=0", "lidar.yaw_drift_deg_per_100m=0"), jobs=1)
+    ds = fe.load_dataset(out)
+    a, b = (fe.run(ds, overrides={"smoother.method": m}).filter.smoothed for m in ("rts", "batch"))
+    d = a.fused.p_w_m - b.fused.p_w_m
+    sig = np.sqrt(a.sigma[:, 0:3] ** 2 + b.sigma[:, 0:3] ** 2)
+    assert np.all(np.abs(d) <= 3 * sig)
+    assert np.sqrt(np.mean(d ** 2)) < 0.2 * np.median(a.sigma[:, 0:3])
+    np.testing.assert_allclose(np.median(b.sigma[:, 0:3], axis=0), np.median(a.sigma[:, 0:3], axis=0), rtol=0.05)
