@@ -26,6 +26,15 @@ STATS = ("mean", "std", "min", "max", "median", "p2.5", "p97.5", "ci95_mean")
 HEADLINE = ("fused.ape.translation_m.rmse", "fused.ape.rotation_deg.rmse", "lidar.ape.translation_m.rmse",
             "gnss.ape.translation_m.rmse", "ratios.fused_over_lidar", "ratios.fused_over_gnss",
             "nees.position.fraction_in_95", "nees.attitude.fraction_in_95")
+# with a smoother (smoother.method), after those
+SMOOTHED = ("smoothed.ape.translation_m.rmse", "smoothed.ape.rotation_deg.rmse", "ratios.smoothed_over_fused",
+            "ratios.smoothed_over_lidar", "ratios.smoothed_over_gnss", "nees_smoothed.position.fraction_in_95",
+            "nees_smoothed.attitude.fraction_in_95")
+
+
+def headline(sec: dict) -> tuple[str, ...]:
+    """The headline paths of a trials section: the smoothed ones only when the runs had a smoother."""
+    return HEADLINE + tuple(p for p in SMOOTHED if p in sec["stats"])
 
 
 def check_count(n: int) -> int:
@@ -95,16 +104,16 @@ def section(cfg: dict, per_trial: list[dict]) -> dict:
             "failed": [{"trial": i, "error": m["failed"]} for i, m in enumerate(per_trial) if "failed" in m],
             "stats": summarize(ok),
             "per_trial": [{"trial": i, **({"failed": m["failed"]} if "failed" in m else
-                                          {p: v for p, v in keys.flatten(m).items() if p in HEADLINE})}
+                                          {p: v for p, v in keys.flatten(m).items() if p in HEADLINE + SMOOTHED})}
                           for i, m in enumerate(per_trial)]}
 
 
 def csv_rows(sec: dict) -> tuple[list[str], list[dict]]:
     """``trials.csv``: one row per trial, its seeds and headline metrics."""
     seed_cols = sorted({k for s in sec["seeds"] for k in s})
-    cols = ["trial", *seed_cols, *HEADLINE, "failed"]
+    cols = ["trial", *seed_cols, *headline(sec), "failed"]
     rows = [{**{"trial": r["trial"], "failed": r.get("failed", "")}, **sec["seeds"][r["trial"]],
-             **{p: r.get(p) for p in HEADLINE}} for r in sec["per_trial"]]
+             **{p: r.get(p) for p in headline(sec)}} for r in sec["per_trial"]]
     return cols, rows
 
 
@@ -113,7 +122,7 @@ def markdown(sec: dict) -> list[str]:
     from .tables import markdown as md
 
     rows = []
-    for p in HEADLINE:
+    for p in headline(sec):
         s = sec["stats"].get(p)
         if not s or not s.get("n"):
             continue

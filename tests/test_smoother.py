@@ -186,7 +186,7 @@ def test_the_recomputed_intervals_are_the_filters_own(kitti_slice, monkeypatch, 
     for b in range(1, rec.epochs.size):
         points, phis = bw.segment(b - 1, float(rec.epochs.t[b]))
         assert len(phis) == len(points) - 1
-        for x, aux, A, B, P, k in points[1:-1]:          # samples strictly inside: the filter recorded its prior there
+        for x, aux, A, B, P, k, _ in points[1:-1]:          # samples strictly inside: the filter recorded its prior there
             np.testing.assert_allclose(x, kf.rec_x[k], rtol=0, atol=1e-9)
             diag = np.empty(15)
             kf._record_cov(np.ascontiguousarray(P), P.shape[0], x, aux, kf.cidx, diag, np.empty((6, 6)))
@@ -303,3 +303,18 @@ def test_the_batch_estimate_agrees_with_rts_on_a_simulation(tmp_path):
     assert np.all(np.abs(d) <= 3 * sig)
     assert np.sqrt(np.mean(d ** 2)) < 0.2 * np.median(a.sigma[:, 0:3])
     np.testing.assert_allclose(np.median(b.sigma[:, 0:3], axis=0), np.median(a.sigma[:, 0:3], axis=0), rtol=0.05)
+
+
+def test_a_formulation_that_derives_part_of_its_state_from_the_input_is_smoothed_with_it(kitti_slice):
+    """The odometer + gyro model derives its velocity from the odometer input: the smoothed velocity must be the one
+    of each sample's own input, not of whatever input the filter object last sat at."""
+    res = fe.run(fe.load_dataset(kitti_slice), overrides={"smoother.method": "rts", "filter.process_model": "odometer_gyro",
+                                                          "filter.lidar_update": "none"})
+    f, s = res.filter.fused, res.filter.smoothed.fused
+    speed_f, speed_s = np.linalg.norm(f.v_w_mps, axis=1), np.linalg.norm(s.v_w_mps, axis=1)
+    assert np.median(np.abs(speed_s - speed_f)) < 0.05 * np.median(speed_f)
+
+
+def test_the_batch_estimate_refuses_an_observation_it_has_no_factor_for_before_filtering(kitti_slice):
+    with pytest.raises(ConfigError, match=r"smoother.method=batch has no factor for .*\(filter.nhc\): set filter.nhc=false"):
+        fe.run(fe.load_dataset(kitti_slice), overrides={"smoother.method": "batch", "filter.nhc": True})

@@ -16,7 +16,7 @@ BA_ID, BG_ID = (CANONICAL.start(b) for b in ("BA", "BG"))
 
 COLORS = {"groundtruth": "black", "fused": "tab:red", "smoothed": "tab:purple", "lidar": "tab:blue", "gnss": "tab:green",
           "imu_only": "tab:orange"}
-LABELS = {"groundtruth": "ground truth", "fused": "fused", "smoothed": "smoothed (RTS)", "lidar": "lidar odometry",
+LABELS = {"groundtruth": "ground truth", "fused": "fused", "smoothed": "smoothed", "lidar": "lidar odometry",
           "gnss": "GNSS", "imu_only": "IMU dead reckoning"}
 _META = {"Software": None}
 _VCOLORS = plt.rcParams["axes.prop_cycle"].by_key()["color"]  # no version string in the PNG: same inputs, same bytes

@@ -13,7 +13,8 @@ The initial values are the filter's own posteriors; the marginal covariances giv
 
 GTSAM's Pose3 tangent is ``[omega, t]`` with the translation perturbation in the body frame; the canonical error
 is ``[dp_world, dtheta]`` with ``dtheta`` a right perturbation, so ``Sigma_canonical = J Sigma J^T`` with
-``J = [[0, R], [I, 0]]``. IMU samples between keyframes get the keyframe's IMU prediction and its covariance.
+``J = [[0, R], [I, 0]]``. IMU samples between keyframes (a 100 Hz IMU with 10 Hz lidar) get the previous keyframe's
+IMU prediction and that keyframe's covariance; the metrics at the keyframes are exact.
 """
 
 from __future__ import annotations
@@ -68,10 +69,18 @@ def check(s) -> None:
     if s.filter.bias_model == "gauss_markov":
         raise ConfigError("smoother.method=batch models the IMU biases as random walks (CombinedImuFactor): "
                           "filter.bias_model=gauss_markov is not supported (use random_walk or constant)")
+    from ..filters import observations
+
+    for o in observations.enabled(s.cfg):
+        if o.name not in _OBSERVATIONS:
+            off = ", ".join(f"{k}={str(v).lower()}" for k, v in o.disable_with.items())
+            raise ConfigError(f"smoother.method=batch has no factor for {o.label} ({o.enabled_by}): set {off}, "
+                              "or use smoother.method=rts")
     require_gtsam()
 
 
 _FACTORS = (relative_pose, absolute_pose, gnss_position)   # the observation models with a factor
+_OBSERVATIONS = ("lidar", "gnss")                           # the registered observations they belong to
 
 
 def _factor_of(model):
@@ -135,18 +144,19 @@ def batch_smooth(kf, rec: BatchRecord, s, k0: int, progress=None) -> tuple[Smoot
     pims: list = []
     k, t_prev, u_prev = k0 + 1, float(t[k0]), u[k0].copy()
     N = t.size
-    sample_of: list[list[tuple[int, float]]] = [[] for _ in range(n_kf)]   # samples after keyframe i, before i+1
-    bias_lin = gtsam.imuBias.ConstantBias()
+    # per keyframe interval: the integration steps (sample index or -1 for the partial step to the stamp, input, dt)
+    steps_of: list[list[tuple[int, np.ndarray, float]]] = [[] for _ in range(n_kf)]
     for i in range(1, n_kf):
         tb = float(keys_t[i])
+        # linearised at the filter's own bias there (the factor corrects to first order around it)
+        _, _, bias_lin = nav(rec.posterior[keys_t[i - 1]])
         pim = gtsam.PreintegratedCombinedMeasurements(params, bias_lin)
         while k < N and t[k] <= tb + 1e-12:
             dt = t[k] - t_prev
             if dt > 0:
                 um = 0.5 * (u_prev + u[k])
                 pim.integrateMeasurement(um[UF:UF + 3], um[UW:UW + 3], dt)
-            if t[k] < tb - 1e-9:
-                sample_of[i - 1].append((k, pim.deltaTij()))
+                steps_of[i - 1].append((k if t[k] < tb - 1e-9 else -1, um, dt))
             t_prev, u_prev = float(t[k]), u[k].copy()
             k += 1
         if tb > t_prev + 1e-12 and k < N:
@@ -154,12 +164,13 @@ def batch_smooth(kf, rec: BatchRecord, s, k0: int, progress=None) -> tuple[Smoot
             u1 = u_prev + frac * (u[k] - u_prev)
             um = 0.5 * (u_prev + u1)
             pim.integrateMeasurement(um[UF:UF + 3], um[UW:UW + 3], tb - t_prev)
+            steps_of[i - 1].append((-1, um, tb - t_prev))
             t_prev, u_prev = tb, u1
         pims.append(pim)
         if pim.deltaTij() > 0:
             graph.add(gtsam.CombinedImuFactor(X(i - 1), V(i - 1), X(i), V(i), B(i - 1), B(i), pim))
-        else:               # two epochs at the same instant (cannot happen: one epoch per stamp); tie them
-            graph.add(gtsam.BetweenFactorPose3(X(i - 1), X(i), gtsam.Pose3(), gtsam.noiseModel.Isotropic.Sigma(6, 1e-6)))
+        else:               # two epochs at one instant cannot happen (one epoch per stamp)
+            raise ConfigError("smoother.method=batch: two keyframes at one stamp (internal)")
     while k < N:            # samples after the last keyframe (none: the replay ends with an epoch at the end)
         k += 1
 
@@ -217,18 +228,19 @@ def batch_smooth(kf, rec: BatchRecord, s, k0: int, progress=None) -> tuple[Smoot
         diag[V_] = np.diag(marg.marginalCovariance(V(i)))
         Sb = np.diag(marg.marginalCovariance(B(i)))
         diag[BA_], diag[BG_] = Sb[:3], Sb[3:]
-        rows = [(int(np.searchsorted(t, tt - 1e-9)), None)] + sample_of[i]
         nav_i = gtsam.NavState(pose, vel)
-        for kk, dT in rows:
-            if kk >= N or (dT is None and abs(t[kk] - tt) > 1e-9):
-                continue
-            if dT is None:
-                st = nav_i
-            else:                 # an IMU sample between keyframes: the keyframe's IMU prediction to it
-                st = _predict_to(gtsam, params, bias, nav_i, t, u, kk, float(tt))
+        kk = int(np.searchsorted(t, tt - 1e-9))
+        samples = [(kk, nav_i)] if kk < N and abs(t[kk] - tt) <= 1e-9 else []
+        # IMU samples before the next keyframe: the keyframe's IMU prediction, one preintegration for the interval
+        pim = gtsam.PreintegratedCombinedMeasurements(params, bias)
+        for kk, um, dt in steps_of[i]:
+            pim.integrateMeasurement(um[UF:UF + 3], um[UW:UW + 3], dt)
+            if kk >= 0:
+                samples.append((kk, pim.predict(nav_i, bias)))
+        for kk, st in samples:
             x = NominalState(st.position(), st.velocity(), st.attitude().matrix(), bias.accelerometer(), bias.gyroscope())
             out.rec_x[kk] = x.vec
-            out.rec_Pdiag[kk] = diag
+            out.rec_Pdiag[kk] = diag      # between keyframes: the keyframe's covariance (the prediction's is not added)
             out.rec_Ppt[kk] = Sc
         if progress is not None and i % 200 == 0:
             progress(i / n_kf)
@@ -236,24 +248,3 @@ def batch_smooth(kf, rec: BatchRecord, s, k0: int, progress=None) -> tuple[Smoot
             "iterations": int(opt.iterations()), "initial_error": float(err0), "final_error": float(graph.error(result)),
             "build_s": t_build, "optimize_s": t_opt, "backward_s": time.perf_counter() - t0_wall}
     return out, info
-
-
-def _predict_to(gtsam, params, bias, nav, t, u, k, t_key):
-    """The keyframe's state carried by the IMU from ``t_key`` to sample ``k`` (the replay's stepping)."""
-    pim = gtsam.PreintegratedCombinedMeasurements(params, bias)
-    j = int(np.searchsorted(t, t_key + 1e-12))        # first sample after the keyframe
-    # from the keyframe to sample j: the input at the keyframe interpolated between samples j-1 and j
-    tp = t_key
-    if j > 0 and t[j] > t_key:
-        frac = (t_key - t[j - 1]) / (t[j] - t[j - 1])
-        up = u[j - 1] + frac * (u[j] - u[j - 1])
-    else:
-        up = u[j]
-    while j <= k:
-        dt = t[j] - tp
-        if dt > 0:
-            um = 0.5 * (up + u[j])
-            pim.integrateMeasurement(um[UF:UF + 3], um[UW:UW + 3], dt)
-        tp, up = float(t[j]), u[j]
-        j += 1
-    return pim.predict(nav, bias)

@@ -11,7 +11,7 @@ Per epoch: the nominal vector, the clone's nominal pose, the formulation's scrat
 the filter sits at, the next sample index and the covariance ``P[:n, :n]`` (upper triangle). A clone adds a
 second such record, taken just before the clone replaces the previous one: the joint covariance of the current
 state and the old clone, from which the backward pass recovers the old clone given the smoothed state
-(``docs/rts_smoother.md``). With the 21-state ESKF that is 2,232 bytes per epoch and as much per lidar frame
+(``docs/rts_smoother.md``). With the 21-state ESKF that is 2,200 bytes per epoch and as much per lidar frame
 (:meth:`EpochRecord.bytes_per_epoch`).
 """
 

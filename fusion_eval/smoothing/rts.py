@@ -9,8 +9,8 @@ interval ``j -> j+1`` with the filter's posterior ``x_j, P_j`` at ``j``, transit
     P^s_j   = P_j + C_j (P^s_{j+1} - P_{j+1}^-) C_j^T
 
 ``[+]`` and ``[-]`` are the formulation's own ``boxplus_from``/``boxminus`` (injection on the manifold: right
-perturbation for the ESKF, SE_2(3) exponential for the invariant filter, additive with normalisation for the
-nominal-state EKF). Between two recorded epochs (:mod:`.record`) the intervals are recomputed with the
+perturbation for the ESKF, the SE_2(3) exponential for the invariant filter; the nominal-state EKF is not smoothed,
+see ``docs/rts_smoother.md``). Between two recorded epochs (:mod:`.record`) the intervals are recomputed with the
 formulation's compiled step, which also yields ``Phi_j``: it propagates an augmented covariance whose extra rows
 are a constant copy of the core state (the contract every step already keeps for a pose clone), so the cross
 block becomes ``Phi_j`` with no formulation code written twice. A stochastic clone is undone in the backward
@@ -24,6 +24,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from ..filters.propagate import LAST_U
 from . import kernels
 from .record import EpochRecord
 
@@ -55,8 +56,11 @@ class _Workspace:
     def __init__(self, kf):
         self.kf = kf
 
-    def load(self, x, c, aux, n) -> None:
+    def load(self, x, c, aux, u, n) -> None:
+        """Put a recorded state into the filter object (with the input row it sat at: a formulation may derive
+        part of its state from it, as the odometer + gyro model derives the velocity)."""
         kf = self.kf
+        kf.arrays.last[LAST_U:] = u
         kf.xv[:] = x
         kf.clone.vec[:] = c
         kf.aux[:] = aux
@@ -64,19 +68,19 @@ class _Workspace:
         kf.cloned = kf.n > kf.layout.n_core
 
     def minus(self, a, b, n) -> np.ndarray:
-        """``a [-] b`` over the first ``n`` own states; ``a``, ``b``: ``(x, clone, aux)``."""
+        """``a [-] b`` over the first ``n`` own states; ``a``, ``b``: ``(x, clone, aux, input row)``."""
         self.load(*b, n)
         snap = self.kf.snapshot()
         self.load(*a, n)
         return self.kf.boxminus(snap)
 
     def plus(self, b, d, n):
-        """``b [+] d`` as ``(x, clone, aux)``."""
+        """``b [+] d`` as ``(x, clone, aux, input row)``."""
         self.load(*b, n)
         kf = self.kf
         kf.boxplus_from(kf.snapshot(), d)
         kf.after_correction_state()
-        return kf.xv.copy(), kf.clone.vec.copy(), kf.aux.copy()
+        return kf.xv.copy(), kf.clone.vec.copy(), kf.aux.copy(), b[3]
 
 
 class RTS:
@@ -114,7 +118,7 @@ class RTS:
         else:
             A, B = P, None
         u0, t0, k = ep.u[a].copy(), float(ep.t[a]), int(ep.k_next[a])
-        points, phis = [[x.copy(), aux.copy(), A, B, P, -1]], []
+        points, phis = [[x.copy(), aux.copy(), A, B, P, -1, u0.copy()]], []
         N = t.size
 
         def advance(u1, dt, qscale, sample):
@@ -125,7 +129,7 @@ class RTS:
                 Pj = kernels.assemble(A, B, self._D, self._Dinv)
             else:
                 Pj = A
-            points.append([x.copy(), aux.copy(), A, B, Pj, sample])
+            points.append([x.copy(), aux.copy(), A, B, Pj, sample, np.array(u1, float)])
             phis.append(phi)
 
         while k < N and t[k] <= t_b:
@@ -148,7 +152,7 @@ class RTS:
     def _unclone(self, i: int, xs, Ps):
         """From the smoothed state after clone record ``i`` to the smoothed state before it (with the old clone)."""
         cl, nc = self.rec.clones, self.nc
-        pre = (cl.x[i], cl.c[i], cl.aux[i])
+        pre = (cl.x[i], cl.c[i], cl.aux[i], cl.u[i])
         Pt = self.cov(cl, i)
         e = self.ws.minus(xs, pre, nc)
         d, P = kernels.uncondition(Pt, nc, e, np.ascontiguousarray(Ps[:nc, :nc]), RCOND)
@@ -164,7 +168,7 @@ class RTS:
         for i in range(self.rec.clones.size):
             clones_of.setdefault(int(self.rec.clone_epoch[i]), []).append(i)
         last = ep.size - 1
-        xs = (ep.x[last].copy(), ep.c[last].copy(), ep.aux[last].copy())     # the last epoch: smoothed = filtered
+        xs = (ep.x[last].copy(), ep.c[last].copy(), ep.aux[last].copy(), ep.u[last].copy())   # last: smoothed = filtered
         Ps = self.cov(ep, last)
         for b in range(last, 0, -1):
             self._emit(out, self._sample_at(b), xs, Ps)
@@ -174,14 +178,14 @@ class RTS:
             n = Ps.shape[0]
             cj = ep.c[b - 1]                      # the clone is constant between epochs
             for j in range(len(phis) - 1, -1, -1):
-                xj, auxj, Aj, Bj, Pj, kj = points[j]
-                xp, auxp, Ap, _, Pp, _ = points[j + 1]
-                e = self.ws.minus(xs, (xp, cj, auxp), n)
+                xj, auxj, Aj, Bj, Pj, kj, uj = points[j]
+                xp, auxp, Ap, _, Pp, _, up = points[j + 1]
+                e = self.ws.minus(xs, (xp, cj, auxp, up), n)
                 if Bj is None:
                     d, Ps = kernels.backward(Pj, phis[j], Pp, e, Ps, RCOND)
                 else:
                     d, Ps = kernels.backward_clone(Aj, Bj, self._Dinv, phis[j], Ap, e, Ps, Pj, Pp, RCOND)
-                xs = self.ws.plus((xj, cj, auxj), d, n)
+                xs = self.ws.plus((xj, cj, auxj, uj), d, n)
                 if j > 0:                         # point 0 is epoch b-1, emitted with its own clones undone
                     self._emit(out, kj, xs, Ps)
         self._emit(out, self._sample_at(0), xs, Ps)
@@ -197,7 +201,7 @@ class RTS:
         if k < 0:
             return
         kf = self.kf
-        x, _, aux = xs
+        x, _, aux, _ = xs
         out.rec_x[k] = x
         P = np.ascontiguousarray(Ps)
         kf._record_cov(P, P.shape[0], x.copy(), aux.copy(), kf.cidx, out.rec_Pdiag[k], out.rec_Ppt[k])
