@@ -58,3 +58,23 @@ def slice_run(kitti_slice, tmp_path_factory) -> Path:
     res = CliRunner().invoke(main, ["-q", "run", str(kitti_slice), "--out", str(out)])
     assert res.exit_code == 0, res.output
     return out
+
+
+@pytest.fixture(scope="session")
+def white_sim(tmp_path_factory):
+    """A 120 s urban drive whose sensors have the white noises the filters assume (no lidar scale or yaw drift), and
+    the runs made on it, by formulation and smoother (shared by the slow consistency tests)."""
+    import fusion_eval as fe
+    from fusion_eval.simulate.dataset import simulate
+
+    out = tmp_path_factory.mktemp("white") / "w"
+    simulate(out, "urban", 120.0, 1, "automotive", ("lidar.scale_drift=0", "lidar.yaw_drift_deg_per_100m=0"), jobs=1)
+    ds = fe.load_dataset(out)
+    runs: dict = {}
+
+    def run(formulation="error_state", method="rts"):
+        key = (formulation, method)
+        if key not in runs:
+            runs[key] = fe.run(ds, overrides={"filter.formulation": formulation, "smoother.method": method})
+        return runs[key]
+    return run

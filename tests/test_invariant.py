@@ -51,15 +51,11 @@ def test_invariant_matches_the_eskf_on_kitti_with_gnss(kitti_slice):
 
 
 @pytest.mark.slow
-def test_every_imu_formulation_is_consistent_on_a_simulation_with_true_white_noise(tmp_path):
+def test_every_imu_formulation_is_consistent_on_a_simulation_with_true_white_noise(white_sim):
     """Sensors whose errors are the white noises the filters assume (no lidar scale or yaw drift): position and
-    attitude NEES inside the 95 % interval on at least 90 % of the epochs, for every formulation."""
-    from fusion_eval.simulate.dataset import simulate
-
-    out = tmp_path / "w"
-    simulate(out, "urban", 300.0, 0, "automotive", ("lidar.scale_drift=0", "lidar.yaw_drift_deg_per_100m=0"), jobs=1)
-    ds = fe.load_dataset(out)
+    attitude NEES inside the 95 % interval on at least 90 % of the epochs, for every formulation (the runs are shared
+    with the smoother's tests: a smoother does not change the filter)."""
     for f in ("error_state", "nominal_state", "invariant"):
-        m = fe.run(ds, overrides={"filter.formulation": f}).metrics
+        m = white_sim(f, "none" if f == "nominal_state" else "rts").metrics
         for q in ("position", "attitude"):
             assert m["nees"][q]["fraction_in_95"] >= 0.9, (f, q, m["nees"][q])

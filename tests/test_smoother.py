@@ -227,21 +227,16 @@ def test_the_nominal_state_filter_is_refused_with_a_reason(kitti_slice):
 
 
 @pytest.mark.slow
-def test_the_smoother_is_consistent_and_better_than_the_filter_on_a_simulation(tmp_path):
-    """Sensors with the white noises the filters assume: the smoothed NEES is inside its 95 % interval on >= 90 % of
-    the epochs, and the smoothed error below the filtered one, for each formulation the smoother runs over."""
-    from fusion_eval.simulate.dataset import simulate
-
-    out = tmp_path / "w"
-    simulate(out, "urban", 300.0, 0, "automotive", ("lidar.scale_drift=0", "lidar.yaw_drift_deg_per_100m=0"), jobs=1)
-    ds = fe.load_dataset(out)
-    for f in ("error_state", "invariant"):
-        m = fe.run(ds, overrides={"filter.formulation": f, "smoother.method": "rts"}).metrics
-        for q in ("position", "attitude"):
-            assert m["nees_smoothed"][q]["fraction_in_95"] >= 0.9, (f, q, m["nees_smoothed"][q])
-        e = m["estimates"]
-        for rel in ("translation_m", "rotation_deg"):
-            assert e["smoothed"]["ape"][rel]["rmse"] < 0.8 * e["fused"]["ape"][rel]["rmse"], (f, rel)
+@pytest.mark.parametrize("formulation", ["error_state", "invariant"])
+def test_the_smoother_is_consistent_and_better_than_the_filter_on_a_simulation(white_sim, formulation):
+    """The smoothed NEES is inside its 95 % interval on >= 90 % of the epochs, and the smoothed error below the
+    filtered one, for each formulation the smoother runs over (measured: 99.7 % / 98 %, 0.27 against 0.58 m)."""
+    m = white_sim(formulation).metrics
+    for q in ("position", "attitude"):
+        assert m["nees_smoothed"][q]["fraction_in_95"] >= 0.9, (formulation, q, m["nees_smoothed"][q])
+    e = m["estimates"]
+    for rel in ("translation_m", "rotation_deg"):
+        assert e["smoothed"]["ape"][rel]["rmse"] < 0.8 * e["fused"]["ape"][rel]["rmse"], (formulation, rel)
 
 
 def test_the_batch_estimate_runs_and_says_what_it_built(kitti_slice, tmp_path):
@@ -288,16 +283,11 @@ def test_the_batch_estimate_refuses_what_it_cannot_express(kitti_slice):
 
 
 @pytest.mark.slow
-def test_the_batch_estimate_agrees_with_rts_on_a_simulation(tmp_path):
+def test_the_batch_estimate_agrees_with_rts_on_a_simulation(white_sim):
     """The same measurements and noise, two solvers: the GTSAM optimum and the RTS pass over the filter agree within
     their reported uncertainties (and their covariances agree), on white-noise sensors."""
     pytest.importorskip("gtsam", reason="the 'smoother' extra (gtsam) is not installed")
-    from fusion_eval.simulate.dataset import simulate
-
-    out = tmp_path / "w"
-    simulate(out, "urban", 120.0, 1, "automotive", ("lidar.scale_drift=0", "lidar.yaw_drift_deg_per_100m=0"), jobs=1)
-    ds = fe.load_dataset(out)
-    a, b = (fe.run(ds, overrides={"smoother.method": m}).filter.smoothed for m in ("rts", "batch"))
+    a, b = (white_sim(method=m).filter.smoothed for m in ("rts", "batch"))
     d = a.fused.p_w_m - b.fused.p_w_m
     sig = np.sqrt(a.sigma[:, 0:3] ** 2 + b.sigma[:, 0:3] ** 2)
     assert np.all(np.abs(d) <= 3 * sig)

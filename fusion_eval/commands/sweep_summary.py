@@ -50,6 +50,11 @@ def rows_of(tasks: list[Task], out_dir: Path, keys: list[str]) -> tuple[list[dic
                 row[col] = _get(m, path)
                 if col not in metric_cols:
                     metric_cols.append(col)
+            if "smoothed" in (m.get("estimates") or {}):       # a run with a smoother: its estimate beside the filter's
+                for col, path in mk.smoothed_columns():
+                    row[col] = _get(m, path)
+                    if col not in metric_cols:
+                        metric_cols.append(col)
             ratios = m.get("ratios") or {}
             row["fused_over_lidar"] = ratios.get("fused_over_lidar")
             row["fused_over_gnss"] = ratios.get("fused_over_gnss")

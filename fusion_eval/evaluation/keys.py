@@ -56,6 +56,12 @@ def summary_columns(delta_m: float) -> list[tuple[str, tuple]]:
     return cols
 
 
+def smoothed_columns() -> list[tuple[str, tuple]]:
+    """The sweep columns of a smoothed estimate (``smoother.method``), when the runs have one."""
+    return [(column("smoothed", APE, "translation_m", "rmse"), ("smoothed", APE, "translation_m", "rmse")),
+            (column("smoothed", APE, "rotation_deg", "rmse"), ("smoothed", APE, "rotation_deg", "rmse"))]
+
+
 RANK_COLUMN = column("fused", APE, "translation_m", "rmse")   # what sweeps rank by
 
 
