@@ -138,7 +138,7 @@ def execute(ds: Dataset, cfg: dict, *, dataset_path: str | Path | None = None, c
         cons = consistency(gt, filt)
         seg = segments(gt, evals, ev_cfg)
         metrics = run_metrics(ds.name, evals, ratios, ev_cfg, prep.applied, prep.gnss_info, cons, seg, sp,
-                              smoother=smoother_section(gt, filt))
+                              smoother=smoother_section(filt))
         if n_trials > 1:
             finished(None)
             metrics["trials"] = mc.section(cfg, [metrics] + [f.result() for f in trial_futs])

@@ -15,6 +15,7 @@ from typing import Callable
 import numpy as np
 
 from .config import Settings
+from . import smoothing
 from .filters import make_filter, observations
 from .filters.formulations.eskf import dead_reckon
 from .filters.formulations.imu_model import imu_inputs, imu_params
@@ -39,7 +40,7 @@ class FilterOutput:
     imu_only: PoseSeries
     n_imu_samples: int
     odometer_scale: np.ndarray | None = None   # (N,) odometer scale error k (formulations with a K block)
-    smoothed: "FilterOutput | None" = None     # the RTS smoother's estimate (smoother.method=rts), same fields
+    smoothed: "FilterOutput | None" = None     # the smoother's estimate (smoother.method), same fields
     smoother_info: dict | None = None          # what the smoother kept and how long it took
 
 
@@ -72,18 +73,7 @@ def replay(prep: Prepared, s: Settings, progress: Callable[[float], None] | None
     which = np.concatenate([np.full(b.t_s.size, i) for i, b in enumerate(bound)]) if bound else np.zeros(0, int)
     index = np.concatenate([np.arange(b.t_s.size) for b in bound]) if bound else np.zeros(0, int)
     order = np.lexsort((index, which, times))
-    record = batch = None
-    if s.smoother.method == "rts":
-        from .smoothing.record import EpochRecord
-
-        record = kf.recorder = EpochRecord(kf, times.size)
-        record.epoch(kf)
-    elif s.smoother.method == "batch":
-        from .smoothing.batch import BatchRecord, check
-
-        check(s)
-        batch = BatchRecord(kf.xv.copy())
-        batch.epoch(kf)
+    smoother = smoothing.start(kf, s, times.size)
 
     nis: dict[str, tuple[list, list, list]] = {b.name: ([], [], []) for b in bound}
     dof = {b.name: b.dof for b in bound}
@@ -93,14 +83,12 @@ def replay(prep: Prepared, s: Settings, progress: Callable[[float], None] | None
     for j, e in enumerate(order):
         t, b = float(times[e]), bound[which[e]]
         kf.predict_to(max(t, kf.t))
-        if batch is not None:         # the model with the noise it has now (adaptive noise moves after the update)
-            model, clone_t = b.model(int(index[e])), kf.clone_t
+        if smoother is not None:
+            smoother.before_update(kf, b, int(index[e]))
         res = b.apply(kf, int(index[e]), it, tol)
-        if record is not None:
-            record.epoch(kf)
-        if batch is not None:
-            batch.update(kf, model, clone_t, res is not None and res[1])
-            batch.epoch(kf)
+        if smoother is not None:
+            smoother.after_update(kf, res)
+            smoother.epoch(kf)
         if res is not None:
             rec = nis[b.name]
             rec[0].append(t)
@@ -109,10 +97,8 @@ def replay(prep: Prepared, s: Settings, progress: Callable[[float], None] | None
         if progress is not None and j % step == 0:
             progress(j / n_ev)
     kf.predict_to(t_end)
-    if record is not None:
-        record.epoch(kf)
-    if batch is not None:
-        batch.epoch(kf)
+    if smoother is not None:
+        smoother.epoch(kf)
     if progress is not None:
         progress(1.0)
 
@@ -124,22 +110,8 @@ def replay(prep: Prepared, s: Settings, progress: Callable[[float], None] | None
                   nis={k: {"t_s": np.array(v[0]), "nis": np.array(v[1]), "dof": dof[k],
                            "rejected": int(np.size(v[2]) - np.count_nonzero(v[2])),
                            **({"adapt": summaries[k]} if summaries.get(k) else {})} for k, v in nis.items() if v[0]})
-    if record is not None:
-        import time
-
-        from .smoothing.rts import smooth
-
-        t0 = time.perf_counter()
-        sm = smooth(kf, record, k0)
-        out.smoothed = _output(kf, t_imu, k0, sm.rec_x, sm.rec_Pdiag, sm.rec_Ppt, "smoothed", imu_only, nis={})
-        out.smoother_info = {"method": "rts", "epochs": int(record.epochs.size),
-                             "clones": int(record.clones.size), "bytes_per_epoch": record.bytes_per_epoch(),
-                             "record_bytes": record.nbytes(),
-                             "backward_s": time.perf_counter() - t0}
-    if batch is not None:
-        from .smoothing.batch import batch_smooth
-
-        sm, out.smoother_info = batch_smooth(kf, batch, s, k0)
+    if smoother is not None:
+        sm, out.smoother_info = smoother.finish(kf, k0)
         out.smoothed = _output(kf, t_imu, k0, sm.rec_x, sm.rec_Pdiag, sm.rec_Ppt, "smoothed", imu_only, nis={})
     return out
 

@@ -46,12 +46,11 @@ def nees(gt: PoseSeries, filt) -> dict:
             "attitude": {**summary(n_att[ok], 3), "t_s": gi.t_s[ok], "values": n_att[ok]}} if ok.any() else {}
 
 
-def smoother_section(gt: PoseSeries, filt) -> dict | None:
-    """What the smoother did (method, epochs kept, bytes per epoch) and the smoothed estimate's NEES."""
+def smoother_section(filt) -> dict | None:
+    """What the smoother did (method; epochs kept and bytes, or keyframes and factors), without its timings."""
     if filt.smoothed is None:
         return None
-    info = {k: v for k, v in filt.smoother_info.items() if not k.endswith("_s")}     # timings are not metrics
-    return {**info, "nees": {k: _strip_arrays(v) for k, v in nees(gt, filt.smoothed).items()}}
+    return {k: v for k, v in filt.smoother_info.items() if not k.endswith("_s")}     # timings are not metrics
 
 
 def consistency(gt: PoseSeries, filt) -> dict:
@@ -114,6 +113,6 @@ def run_metrics(dataset: str, evals: dict[str, EstimateEvaluation], ratios: dict
             "nees": {k: _strip_arrays(v) for k, v in cons.get("nees", {}).items()},
             "segments": seg, "gnss_degradation": gnss_info, "preprocessing": applied}
     if smoother is not None:
-        out["smoother"] = {k: v for k, v in smoother.items() if k != "nees"}
-        out["nees_smoothed"] = smoother["nees"]
+        out["smoother"] = smoother
+        out["nees_smoothed"] = {k: _strip_arrays(v) for k, v in cons.get("nees_smoothed", {}).items()}
     return out

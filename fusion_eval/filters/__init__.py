@@ -31,10 +31,9 @@ def check_combination(cfg: dict) -> None:
     if bias not in cls.bias_models:
         raise ConfigError(f"filter.bias_model={bias} is not implemented by filter.formulation={cls.name} with "
                           f"filter.process_model={cls.process_model} (it has: {', '.join(cls.bias_models)})")
-    if cfg.get("smoother", {}).get("method", "none") == "rts" and not cls.smoothable:
-        raise ConfigError(f"smoother.method={cfg['smoother']['method']} is not available with filter.formulation={cls.name}: "
-                          "its 4-parameter quaternion error makes the backward gains ill-posed; use "
-                          "filter.formulation=error_state or invariant")
+    from .. import smoothing
+
+    smoothing.check(cfg, cls)
     have = canonical_blocks(cls.layout, cls.pairs)
     for o in observations.enabled(cfg):
         missing = sorted(o.blocks - have)

@@ -61,22 +61,47 @@ class BatchRecord:
             self.updates.append((kf.t, model, clone_t))
 
 
-def check(s) -> None:
-    """Refuse what the graph cannot express, naming the keys (before the filter runs)."""
-    if s.filter.process_model != "imu":
-        raise ConfigError(f"smoother.method=batch fuses IMU preintegration: filter.process_model={s.filter.process_model} "
-                          "is not supported (use imu, or smoother.method=rts)")
-    if s.filter.bias_model == "gauss_markov":
-        raise ConfigError("smoother.method=batch models the IMU biases as random walks (CombinedImuFactor): "
-                          "filter.bias_model=gauss_markov is not supported (use random_walk or constant)")
-    from ..filters import observations
+class BatchSmoother:
+    """``smoother.method: batch`` in the replay (:mod:`fusion_eval.smoothing`)."""
 
-    for o in observations.enabled(s.cfg):
-        if o.name not in _OBSERVATIONS:
-            off = ", ".join(f"{k}={str(v).lower()}" for k, v in o.disable_with.items())
-            raise ConfigError(f"smoother.method=batch has no factor for {o.label} ({o.enabled_by}): set {off}, "
-                              "or use smoother.method=rts")
-    require_gtsam()
+    name = "batch"
+
+    @staticmethod
+    def check(cfg: dict, formulation) -> None:
+        """Refuse what the graph cannot express, naming the keys (before any data is read)."""
+        f = cfg["filter"]
+        if f["process_model"] != "imu":
+            raise ConfigError(f"smoother.method=batch fuses IMU preintegration: filter.process_model={f['process_model']} "
+                              "is not supported (use imu, or smoother.method=rts)")
+        if f["bias_model"] == "gauss_markov":
+            raise ConfigError("smoother.method=batch models the IMU biases as random walks (CombinedImuFactor): "
+                              "filter.bias_model=gauss_markov is not supported (use random_walk or constant)")
+        from ..filters import observations
+
+        for o in observations.enabled(cfg):
+            if o.name not in _OBSERVATIONS:
+                off = ", ".join(f"{k}={str(v).lower()}" for k, v in o.disable_with.items())
+                raise ConfigError(f"smoother.method=batch has no factor for {o.label} ({o.enabled_by}): set {off}, "
+                                  "or use smoother.method=rts")
+        require_gtsam()
+
+    def __init__(self, kf, s, n_events: int):
+        self.s = s
+        self.rec = BatchRecord(kf.xv.copy())
+        self.rec.epoch(kf)
+
+    def epoch(self, kf) -> None:
+        self.rec.epoch(kf)
+
+    def before_update(self, kf, bound, j: int) -> None:
+        # the model with the noise it has now (adaptive noise moves after the update), and the clone it refers to
+        self._model, self._clone_t = bound.model(j), kf.clone_t
+
+    def after_update(self, kf, res) -> None:
+        self.rec.update(kf, self._model, self._clone_t, res is not None and res[1])
+
+    def finish(self, kf, k0: int) -> tuple[Smoothed, dict]:
+        return batch_smooth(kf, self.rec, self.s, k0)
 
 
 _FACTORS = (relative_pose, absolute_pose, gnss_position)   # the observation models with a factor
@@ -171,8 +196,6 @@ def batch_smooth(kf, rec: BatchRecord, s, k0: int, progress=None) -> tuple[Smoot
             graph.add(gtsam.CombinedImuFactor(X(i - 1), V(i - 1), X(i), V(i), B(i - 1), B(i), pim))
         else:               # two epochs at one instant cannot happen (one epoch per stamp)
             raise ConfigError("smoother.method=batch: two keyframes at one stamp (internal)")
-    while k < N:            # samples after the last keyframe (none: the replay ends with an epoch at the end)
-        k += 1
 
     counts = {"imu": n_kf - 1, "lidar_relative": 0, "lidar_absolute": 0, "gnss": 0}
     for tt, model, clone_t in rec.updates:
@@ -201,13 +224,12 @@ def batch_smooth(kf, rec: BatchRecord, s, k0: int, progress=None) -> tuple[Smoot
     lm = gtsam.LevenbergMarquardtParams()
     lm.setMaxIterations(50)
     lm.setRelativeErrorTol(1e-7)
-    lm.setLinearSolverType("MULTIFRONTAL_QR")   # the bias random walks (1e-7 rad/s^2/sqrt(Hz)) make the normal equations too stiff for Cholesky
     opt = gtsam.LevenbergMarquardtOptimizer(graph, values, lm)
     err0 = graph.error(values)
     result = opt.optimize()
     t_opt = time.perf_counter() - t0_wall - t_build
-    # the marginals from a QR-factored Bayes tree (iSAM2 fed the solution once): Marginals' Cholesky of the normal
-    # equations fails on the stiff bias chain
+    # the marginals from a QR-factored Bayes tree (iSAM2 fed the solution once): gtsam.Marginals' Cholesky fails on
+    # the stiff bias chain (random walks of 1e-7 rad/s^2/sqrt(Hz): "indeterminant system" at the first bias)
     ip = gtsam.ISAM2Params()
     ip.setFactorization("QR")
     marg = gtsam.ISAM2(ip)

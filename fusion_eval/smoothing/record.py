@@ -19,7 +19,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from ..filters.propagate import LAST_T, LAST_U
+from ..filters.propagate import LAST_U
 
 
 class _Store:
@@ -90,4 +90,4 @@ class EpochRecord:
         return self.epochs.bytes_per_row() * self.epochs.size + self.clones.bytes_per_row() * self.clones.size
 
 
-__all__ = ["EpochRecord", "LAST_T"]
+__all__ = ["EpochRecord"]

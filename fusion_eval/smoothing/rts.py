@@ -20,10 +20,12 @@ data depend on it only through the current state).
 
 from __future__ import annotations
 
+import time
 from dataclasses import dataclass
 
 import numpy as np
 
+from ..errors import ConfigError
 from ..filters.propagate import LAST_U
 from . import kernels
 from .record import EpochRecord
@@ -204,7 +206,7 @@ class RTS:
         x, _, aux, _ = xs
         out.rec_x[k] = x
         P = np.ascontiguousarray(Ps)
-        kf._record_cov(P, P.shape[0], x.copy(), aux.copy(), kf.cidx, out.rec_Pdiag[k], out.rec_Ppt[k])
+        kf._record_cov(P, P.shape[0], x, aux, kf.cidx, out.rec_Pdiag[k], out.rec_Ppt[k])
 
 
 def smooth(kf, rec: EpochRecord, k0: int) -> Smoothed:
@@ -212,4 +214,38 @@ def smooth(kf, rec: EpochRecord, k0: int) -> Smoothed:
     return RTS(kf, rec).run(k0)
 
 
-__all__ = ["Smoothed", "smooth", "rts_step"]
+class RtsSmoother:
+    """``smoother.method: rts`` in the replay (:mod:`fusion_eval.smoothing`)."""
+
+    name = "rts"
+
+    @staticmethod
+    def check(cfg: dict, formulation) -> None:
+        if not formulation.smoothable:
+            raise ConfigError(f"smoother.method=rts is not available with filter.formulation={formulation.name}: its "
+                              "4-parameter quaternion error makes the backward gains ill-posed; use "
+                              "filter.formulation=error_state or invariant")
+
+    def __init__(self, kf, s, n_events: int):
+        self.rec = kf.recorder = EpochRecord(kf, n_events)     # the filter records the state before each clone
+        self.rec.epoch(kf)
+
+    def epoch(self, kf) -> None:
+        self.rec.epoch(kf)
+
+    def before_update(self, kf, bound, j: int) -> None:
+        pass
+
+    def after_update(self, kf, res) -> None:
+        pass
+
+    def finish(self, kf, k0: int) -> tuple[Smoothed, dict]:
+        t0 = time.perf_counter()
+        sm = smooth(kf, self.rec, k0)
+        rec = self.rec
+        return sm, {"method": self.name, "epochs": int(rec.epochs.size), "clones": int(rec.clones.size),
+                    "bytes_per_epoch": rec.bytes_per_epoch(), "record_bytes": rec.nbytes(),
+                    "backward_s": time.perf_counter() - t0}
+
+
+__all__ = ["Smoothed", "smooth", "rts_step", "RtsSmoother"]

@@ -154,23 +154,30 @@ BIAS_KEYS = {
 
 
 @njit(cache=True)
-def inject_reset(x, xc, P, n, dx):
-    """Inject the error ``dx`` into the nominal state (and clone), then reset: ``P <- G P G^T``
-    with ``G = I - [dtheta/2]x`` on each attitude block (Sola, eq. 287)."""
+def inject_state(x, xc, dx, n):
+    """Inject the error ``dx`` into the nominal state (and the clone, when ``n`` covers it), in place."""
     for i in range(3):
         x[XP + i] += dx[P_ID + i]
         x[XV + i] += dx[V_ID + i]
         x[XBA + i] += dx[BA_ID + i]
         x[XBG + i] += dx[BG_ID + i]
     R = attitude(x)
-    R[:, :] = R @ exp3(dx[TH_ID:TH_ID + 3])
-    G = np.eye(n)
-    G[TH_ID:TH_ID + 3, TH_ID:TH_ID + 3] -= 0.5 * skew3(dx[TH_ID:TH_ID + 3])
+    R[:, :] = R @ exp3(np.ascontiguousarray(dx[TH_ID:TH_ID + 3]))
     if n > N_CORE:
         for i in range(3):
             xc[CLONE_P + i] += dx[CP_ID + i]
         Rc = xc[CLONE_R:CLONE_R + 9].reshape((3, 3))
-        Rc[:, :] = Rc @ exp3(dx[CTH_ID:CTH_ID + 3])
+        Rc[:, :] = Rc @ exp3(np.ascontiguousarray(dx[CTH_ID:CTH_ID + 3]))
+
+
+@njit(cache=True)
+def inject_reset(x, xc, P, n, dx):
+    """Inject the error ``dx`` into the nominal state (and clone), then reset: ``P <- G P G^T``
+    with ``G = I - [dtheta/2]x`` on each attitude block (Sola, eq. 287)."""
+    inject_state(x, xc, dx, n)
+    G = np.eye(n)
+    G[TH_ID:TH_ID + 3, TH_ID:TH_ID + 3] -= 0.5 * skew3(dx[TH_ID:TH_ID + 3])
+    if n > N_CORE:
         G[CTH_ID:CTH_ID + 3, CTH_ID:CTH_ID + 3] -= 0.5 * skew3(dx[CTH_ID:CTH_ID + 3])
     Pn = np.ascontiguousarray(P[:n, :n])
     newP = G @ Pn @ G.T
@@ -201,21 +208,10 @@ def boxminus_vec(x, xc, x0, xc0, n):
 
 @njit(cache=True)
 def boxplus_into(x, xc, x0, xc0, dx, n):
-    """``(x, clone) <- (x0, clone0) [+] dx`` (the injection of :func:`inject_reset` without the reset of P)."""
+    """``(x, clone) <- (x0, clone0) [+] dx`` (:func:`inject_state` from a given state, no reset of P)."""
     x[:] = x0
     xc[:] = xc0
-    for i in range(3):
-        x[XP + i] += dx[P_ID + i]
-        x[XV + i] += dx[V_ID + i]
-        x[XBA + i] += dx[BA_ID + i]
-        x[XBG + i] += dx[BG_ID + i]
-    R = attitude(x)
-    R[:, :] = R @ exp3(dx[TH_ID:TH_ID + 3].copy())
-    if n > N_CORE:
-        for i in range(3):
-            xc[CLONE_P + i] += dx[CP_ID + i]
-        Rc = xc[CLONE_R:CLONE_R + 9].reshape((3, 3))
-        Rc[:, :] = Rc @ exp3(dx[CTH_ID:CTH_ID + 3].copy())
+    inject_state(x, xc, dx, n)
 
 
 class ErrorStateKF(ErrorStateBase):
