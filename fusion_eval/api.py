@@ -115,17 +115,19 @@ def _as_series(x, times: str | Path | None, what: str) -> tuple[PoseSeries, str,
 
 def evaluate(reference, estimate, alignment: str = "none", association: str = "nearest", t_max_diff_s: float = 0.01,
              rpe_delta_m: float = 100.0, segment_m: float = 100.0, segment_s: float | None = None,
-             reference_times: str | Path | None = None, estimate_times: str | Path | None = None) -> dict:
+             reference_times: str | Path | None = None, estimate_times: str | Path | None = None,
+             engine: str = "arrays") -> dict:
     """evo's APE/RPE, the KITTI drift metric and the per-segment breakdown of ``estimate`` against
     ``reference`` (each a trajectory file, an evo ``PoseTrajectory3D`` or a :class:`PoseSeries`): the
-    ``metrics.json`` of ``fusion-eval evaluate``."""
+    ``metrics.json`` of ``fusion-eval evaluate``. ``engine``: ``arrays`` (evo's metrics on whole arrays) or
+    ``evo`` (evo's own per-pose loops); the numbers are the same."""
     from .evaluation.estimates import evaluate_series, validate_options
 
-    validate_options(association, alignment, t_max_diff_s, rpe_delta_m, segment_m, segment_s)
+    validate_options(association, alignment, t_max_diff_s, rpe_delta_m, segment_m, segment_s, engine)
     ref, _, ref_about = _as_series(reference, reference_times, "reference")
     est, name, about = _as_series(estimate, estimate_times, "estimate")
     if name in ("groundtruth", "reference"):
         name = "estimate"
     metrics, _ = evaluate_series(ref, {name: est}, association, alignment, t_max_diff_s, rpe_delta_m, segment_m,
-                                 segment_s, {name: about}, ref_stamps=ref_about["stamps"])
+                                 segment_s, {name: about}, ref_stamps=ref_about["stamps"], engine=engine)
     return {"reference": ref_about.get("file", ref.source), "reference_stamps": ref_about["stamps"], **metrics}

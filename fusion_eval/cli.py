@@ -208,15 +208,17 @@ def sweep(ctx, datasets, sweep_file, out_dir, jobs, variant_dir, scheduler, dask
 @click.option("--segment-s", type=float, default=None, help="Per-segment window in time instead, s.")
 @click.option("--overwrite", is_flag=True, help="Replace an existing output directory.")
 @click.option("--no-plots", is_flag=True, help="Skip the PNG plots.")
+@click.option("--engine", type=click.Choice(["arrays", "evo"]), default="arrays", show_default=True,
+              help="evo's metrics on whole arrays, or evo's own per-pose loops (same numbers, ~10x slower).")
 @click.pass_context
 def evaluate(ctx, reference, estimates, out_dir, ref_times, times, association, alignment, t_max_diff, rpe_delta_m,
-             segment_m, segment_s, overwrite, no_plots):
+             segment_m, segment_s, overwrite, no_plots, engine):
     """Evaluate existing trajectory files (TUM, or KITTI poses with or without times) against REFERENCE:
     evo's APE/RPE, the KITTI drift metric and the per-segment breakdown."""
     from .commands.evaluate import run_evaluate
 
     m = run_evaluate(reference, list(estimates), out_dir, ref_times, times, association, alignment, t_max_diff,
-                     rpe_delta_m, segment_m, segment_s, overwrite, not no_plots)
+                     rpe_delta_m, segment_m, segment_s, overwrite, not no_plots, engine)
     if not ctx.obj["quiet"]:
         click.echo(f"{'estimate':<28} {'matched':>8} {'APE trans RMSE [m]':>19} {'KITTI t_err [%]':>16} {'r_err [deg/100m]':>17}")
         for k, d in m["estimates"].items():

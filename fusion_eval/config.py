@@ -97,6 +97,9 @@ CORE: dict[str, Spec] = {
     "evaluation.alignment": S("none", "alignment before APE: 'none' (all estimates share the ground truth's frame), "
                                       "'origin', 'se3', 'sim3' (evo's) or '4dof' (yaw + translation)",
                               choices=("none", "origin", "se3", "sim3", "4dof")),
+    "evaluation.engine": S("arrays", "how evo's APE/RPE are computed: 'arrays' (evo's association, alignment, pair selection "
+                                     "and results, the per-pose loops on whole arrays; equal to evo to 1e-9) or 'evo' "
+                                     "(evo's own per-pose loops, ~10x slower)", choices=("arrays", "evo")),
     "evaluation.span": S("common", "score every estimate over the same span, the intersection of their coverage with the "
                          "ground truth ('common'), or each over its own poses ('own')", choices=("common", "own")),
     "evaluation.segment_m": S(100.0, "per-segment breakdown: window length along the route, m", positive=True),

@@ -56,7 +56,7 @@ def evaluate_estimate(reference: PoseSeries, estimate: PoseSeries, name: str, ev
     """evo's metrics of one estimate and its evo result files (in a worker: the files travel back as bytes,
     smaller than the result objects they are made of)."""
     ev = evaluate(reference, estimate, name, ev_cfg["t_max_diff_s"], ev_cfg["rpe_delta_m"], ev_cfg["association"],
-                  ev_cfg["alignment"])
+                  ev_cfg["alignment"], ev_cfg["engine"])
     ev.zips = report.files.evo_zips(ev)
     ev.results = {}
     return ev

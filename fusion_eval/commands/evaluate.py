@@ -19,8 +19,8 @@ from ..tables import markdown
 
 def run_evaluate(reference: Path, estimates: list[Path], out_dir: Path, ref_times: Path | None, times: Path | None,
                  association: str, alignment: str, t_max_diff_s: float, rpe_delta_m: float, segment_m: float,
-                 segment_s: float | None, overwrite: bool, make_plots: bool) -> dict:
-    validate_options(association, alignment, t_max_diff_s, rpe_delta_m, segment_m, segment_s)
+                 segment_s: float | None, overwrite: bool, make_plots: bool, engine: str = "arrays") -> dict:
+    validate_options(association, alignment, t_max_diff_s, rpe_delta_m, segment_m, segment_s, engine)
     staged = StagedDir(out_dir, overwrite=overwrite)
     staged.check()
     ref, ref_how = read_trajectory(reference, ref_times)
@@ -33,7 +33,7 @@ def run_evaluate(reference: Path, estimates: list[Path], out_dir: Path, ref_time
         series[name] = est
         about[name] = {"file": str(p), "stamps": how}
     m, evals = evaluate_series(ref, series, association, alignment, t_max_diff_s, rpe_delta_m, segment_m, segment_s, about,
-                               ref_stamps=ref_how)
+                               ref_stamps=ref_how, engine=engine)
     metrics = {"reference": str(reference), "reference_stamps": ref_how, **m}
     with staged as out:
         out.write_text("metrics.json", json.dumps(metrics, indent=2) + "\n")

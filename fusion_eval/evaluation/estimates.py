@@ -14,11 +14,14 @@ from .trajectory import EstimateEvaluation, evaluate
 
 ASSOCIATIONS = ("nearest", "interpolate")
 ALIGNMENTS = ("none", "origin", "se3", "sim3", "4dof")
+ENGINES = ("arrays", "evo")
 
 
 def validate_options(association: str, alignment: str, t_max_diff_s: float, rpe_delta_m: float, segment_m: float,
-                     segment_s: float | None) -> None:
+                     segment_s: float | None, engine: str = "arrays") -> None:
     """Refuse options ``evaluate`` cannot honour, naming the option."""
+    if engine not in ENGINES:
+        raise ConfigError(f"--engine must be one of {', '.join(ENGINES)}, got {engine!r}")
     if association not in ASSOCIATIONS:
         raise ConfigError(f"--association must be one of {', '.join(ASSOCIATIONS)}, got {association!r}")
     if alignment not in ALIGNMENTS:
@@ -32,7 +35,8 @@ def validate_options(association: str, alignment: str, t_max_diff_s: float, rpe_
 def evaluate_series(ref: PoseSeries, estimates: dict[str, PoseSeries], association: str = "nearest",
                     alignment: str = "none", t_max_diff_s: float = 0.01, rpe_delta_m: float = 100.0,
                     segment_m: float = 100.0, segment_s: float | None = None,
-                    about: dict | None = None, ref_stamps: str | None = None) -> tuple[dict, dict[str, EstimateEvaluation]]:
+                    about: dict | None = None, ref_stamps: str | None = None,
+                    engine: str = "arrays") -> tuple[dict, dict[str, EstimateEvaluation]]:
     """evo's APE/RPE, the KITTI drift metric and the per-segment breakdown of each estimate against ``ref``:
     the ``metrics.json`` of ``fusion-eval evaluate`` and the evaluations behind it. ``about`` adds, per
     estimate, where it came from (``file``, ``stamps``: how its stamps were obtained); stamps and frame indices
@@ -43,7 +47,7 @@ def evaluate_series(ref: PoseSeries, estimates: dict[str, PoseSeries], associati
             raise DataFormatError(a.get("file", name), None,
                                   "the reference and the estimates must both have stamps, or both be matched by index "
                                   "(give --times / --ref-times for KITTI pose files)")
-    evals = {name: evaluate(ref, est, name, t_max_diff_s, rpe_delta_m, association, alignment)
+    evals = {name: evaluate(ref, est, name, t_max_diff_s, rpe_delta_m, association, alignment, engine)
              for name, est in estimates.items()}
     names = list(evals)
     errs = {k: (ev.ape_t_s, ev.ape_err_m) for k, ev in evals.items() if ev.ape_err_m is not None}
@@ -51,6 +55,6 @@ def evaluate_series(ref: PoseSeries, estimates: dict[str, PoseSeries], associati
         if errs else None
     est_m = {k: {**(about.get(k) or {}), **estimate_metrics(ev)} for k, ev in evals.items()}
     metrics = {"evaluation": {"association": association, "alignment": alignment, "t_max_diff_s": t_max_diff_s,
-                              "rpe_delta_m": rpe_delta_m},
+                              "rpe_delta_m": rpe_delta_m, "engine": engine},
                "estimates": est_m, "segments": seg}
     return metrics, evals

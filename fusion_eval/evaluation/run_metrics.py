@@ -106,6 +106,7 @@ def run_metrics(dataset: str, evals: dict[str, EstimateEvaluation], ratios: dict
     out = {"dataset": dataset,
             "evaluation": {"association": ev_cfg["association"], "alignment": ev_cfg["alignment"],
                            "t_max_diff_s": ev_cfg["t_max_diff_s"], "rpe_delta_m": ev_cfg["rpe_delta_m"],
+                           "engine": ev_cfg["engine"],
                            "rpe_groups": list(keys.groups(ev_cfg["rpe_delta_m"])),
                            "span": span if span is not None else {"mode": "own"}},
             "estimates": {name: estimate_metrics(ev) for name, ev in evals.items()}, "ratios": ratios,

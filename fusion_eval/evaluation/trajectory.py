@@ -23,7 +23,7 @@ from evo.main_rpe import rpe as evo_rpe
 from ..interp import interpolate_poses
 from ..so3 import wxyz_to_xyzw, xyzw_to_wxyz
 from ..types import PoseSeries
-from . import keys
+from . import engine, keys
 from .alignment import apply_4dof, yaw_translation_fit
 from .drift import kitti_drift
 
@@ -84,15 +84,83 @@ def associate(reference: PoseSeries, estimate: PoseSeries, method: str, t_max_di
                                        max_diff=t_max_diff_s)
 
 
+ENGINES = ("arrays", "evo")
+
+
+class _EvoLoops:
+    """evo's own ``ape``/``rpe`` (its per-pose loops), on deep copies as ``evo_ape``/``evo_rpe`` would get them."""
+
+    def __init__(self, ref_a, est_a):
+        # evo caches the SE(3) matrices on first use; filling the cache once here means every deep copy
+        # below carries it instead of rebuilding it (evo builds them in a Python loop).
+        _ = ref_a.poses_se3, est_a.poses_se3
+        self.ref_a, self.est_a = ref_a, est_a
+
+    def se3(self):
+        return np.array(self.ref_a.poses_se3), np.array(self.est_a.poses_se3)
+
+    def ape(self, rel):
+        return evo_ape(copy.deepcopy(self.ref_a), copy.deepcopy(self.est_a), rel)
+
+    def rpe(self, rel, delta, unit):
+        return evo_rpe(copy.deepcopy(self.ref_a), copy.deepcopy(self.est_a), rel, delta=delta, delta_unit=unit,
+                       all_pairs=False)
+
+
+class _Arrays:
+    """The same results from :mod:`.engine` (whole arrays; the pairs of each delta selected once, by evo)."""
+
+    def __init__(self, ref_a, est_a):
+        self.ref_a, self.est_a = ref_a, est_a
+        self.ref_T, self.est_T = engine.traj_se3(ref_a), engine.traj_se3(est_a)
+        self._pairs: dict = {}
+
+    def se3(self):
+        return self.ref_T, self.est_T
+
+    def ape(self, rel):
+        return engine.ape_result(self.ref_a, self.est_a, rel, engine.ape_error(self.ref_T, self.est_T, rel))
+
+    def rpe(self, rel, delta, unit):
+        metrics.RPE(rel, delta, unit)                  # evo's argument checks, before any work
+        if (delta, unit) not in self._pairs:
+            self._pairs[(delta, unit)] = engine.rpe_pairs(self.ref_T, self.est_T, delta, unit)
+        err, ids = engine.rpe_error(self.ref_T, self.est_T, rel, self._pairs[(delta, unit)])
+        return engine.rpe_result(self.ref_a, self.est_a, rel, err, ids, delta, unit)
+
+
+def _align(est_a, ref_a, alignment: str, arrays: bool):
+    """The estimate moved by evo's ``origin``/``se3``/``sim3`` alignment, and the alignment's parameters."""
+    if not arrays:
+        est_a = copy.deepcopy(est_a)
+        if alignment == "origin":
+            return est_a, {"T": np.asarray(est_a.align_origin(ref_a)).tolist()}
+        r, t, s = est_a.align(ref_a, correct_scale=alignment == "sim3")
+    else:
+        est_T, ref_T = engine.traj_se3(est_a), engine.traj_se3(ref_a)
+        if alignment == "origin":
+            moved, T = engine.align_origin(est_T, ref_T)
+            return engine.with_poses(est_a, moved), {"T": T.tolist()}
+        moved, (r, t, s) = engine.align_se3(est_T, est_a.positions_xyz, ref_a.positions_xyz, alignment == "sim3")
+        est_a = engine.with_poses(est_a, moved)
+    return est_a, {"rotation": np.asarray(r).tolist(), "translation_m": np.asarray(t).tolist(), "scale": float(s)}
+
+
 def evaluate(reference: PoseSeries, estimate: PoseSeries, name: str, t_max_diff_s: float,
-             rpe_delta_m: float, association: str = "nearest", alignment: str = "none") -> EstimateEvaluation:
+             rpe_delta_m: float, association: str = "nearest", alignment: str = "none",
+             engine_name: str = "arrays") -> EstimateEvaluation:
     """APE (translation, rotation), RPE (per frame, per ``rpe_delta_m`` metres) and the KITTI drift metric
     of one estimate.
 
     Poses are associated by ``association`` (see :func:`associate`), then aligned by ``alignment``:
     ``none``, ``origin``, ``se3`` or ``sim3`` (evo's), or ``4dof`` (yaw + translation, ours). For a
     position-only estimate only the APE translation is computed: its rotations mean nothing.
+    ``engine_name``: ``arrays`` computes evo's metrics on whole arrays (:mod:`.engine`), ``evo`` runs evo's own
+    per-pose loops; both give the same numbers and result files.
     """
+    if engine_name not in ENGINES:
+        raise ValueError(f"evaluation engine {engine_name!r}: expected one of {', '.join(ENGINES)}")
+    arrays = engine_name == "arrays"
     ev = EstimateEvaluation(name=name, poses=len(estimate), matched_poses=0)
     ev.association, ev.alignment = association, alignment
     try:
@@ -112,23 +180,15 @@ def evaluate(reference: PoseSeries, estimate: PoseSeries, name: str, t_max_diff_
         est_a = to_evo(moved, name)
         ev.alignment_params = {"yaw_deg": float(np.degrees(yaw)), "translation_m": t.tolist()}
     elif alignment in ("se3", "sim3", "origin"):
-        est_a = copy.deepcopy(est_a)
-        if alignment == "origin":
-            ev.alignment_params = {"T": np.asarray(est_a.align_origin(ref_a)).tolist()}
-        else:
-            r, t, s = est_a.align(ref_a, correct_scale=alignment == "sim3")
-            ev.alignment_params = {"rotation": np.asarray(r).tolist(), "translation_m": np.asarray(t).tolist(),
-                                   "scale": float(s)}
-    # evo caches the SE(3) matrices on first use; filling the cache once here means every deep copy
-    # below carries it instead of rebuilding it (evo builds them in a Python loop).
-    _ = ref_a.poses_se3, est_a.poses_se3
+        est_a, ev.alignment_params = _align(est_a, ref_a, alignment, arrays)
+    calc = _Arrays(ref_a, est_a) if arrays else _EvoLoops(ref_a, est_a)
     rels = [("translation_m", metrics.PoseRelation.translation_part)]
     if estimate.has_orientation:
         rels.append(("rotation_deg", metrics.PoseRelation.rotation_angle_deg))
 
     ev.metrics[keys.APE] = {}
     for key, rel in rels:
-        res = evo_ape(copy.deepcopy(ref_a), copy.deepcopy(est_a), rel)
+        res = calc.ape(rel)
         ev.metrics["ape"][key] = _stats(res)
         ev.results[f"ape_{key.split('_')[0]}"] = res
         if key == "translation_m":
@@ -136,7 +196,7 @@ def evaluate(reference: PoseSeries, estimate: PoseSeries, name: str, t_max_diff_
             ev.ape_err_m = np.array(res.np_arrays["error_array"])
             ev.ref_p_m = np.array(ref_a.positions_xyz)
     if estimate.has_orientation:
-        d = kitti_drift(np.array(ref_a.poses_se3), np.array(est_a.poses_se3))
+        d = kitti_drift(*calc.se3())
         ev.drift = None if d is None else d.as_dict()
     if not estimate.has_orientation:
         ev.note = "position only: no rotation or relative (RPE) metrics"
@@ -146,8 +206,7 @@ def evaluate(reference: PoseSeries, estimate: PoseSeries, name: str, t_max_diff_
         ev.metrics[label] = {}
         for key, rel in rels:
             try:
-                res = evo_rpe(copy.deepcopy(ref_a), copy.deepcopy(est_a), rel, delta=delta, delta_unit=unit,
-                              all_pairs=False)
+                res = calc.rpe(rel, delta, unit)
             except (metrics.MetricsException, FilterException) as exc:   # e.g. a drive shorter than delta
                 log.warning("%s: %s %s not computed: %s", name, label, key, exc)
                 ev.metrics[label][key] = None

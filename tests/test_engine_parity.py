@@ -1,0 +1,227 @@
+"""The array engine equals evo's own ``APE``/``RPE`` classes (to 1e-9) on real trajectories: KITTI poses,
+TUM RGB-D and EuRoC, every pose relation, every alignment, deltas in frames, metres and degrees, consecutive
+and all pairs; its ``Result`` objects equal ``evo.main_ape.ape``/``evo.main_rpe.rpe``'s, and a run evaluated
+with ``evaluation.engine: arrays`` equals one with ``evo``, result files included.
+
+The trajectories are cut to their first 600 associated poses so that evo's per-pose loops stay quick;
+``test_whole_kitti_trajectory`` (slow) runs one full 4,541-pose trajectory.
+"""
+
+from __future__ import annotations
+
+import copy
+import dataclasses
+import io
+
+import numpy as np
+import pytest
+from conftest import shared_path
+
+from evo.core import metrics, sync
+from evo.core.lie_algebra import LieAlgebraException
+from evo.main_ape import ape as evo_ape
+from evo.main_rpe import rpe as evo_rpe
+from evo.tools import file_interface
+from fusion_eval.evaluation import engine
+
+Rel, Unit = metrics.PoseRelation, metrics.Unit
+TOL = 1e-9
+N_POSES = 600
+APE_RELATIONS = [r for r in Rel if r != Rel.point_distance_error_ratio]     # evo's APE refuses the ratio
+ALIGNMENTS = ("none", "origin", "se3", "sim3")
+# (delta, unit, all_pairs, pairs_from_reference)
+DELTAS = [(1, Unit.frames, False, False), (10, Unit.frames, True, False), (2.0, Unit.meters, False, False),
+          (1.0, Unit.meters, True, True), (10.0, Unit.degrees, False, False)]
+
+
+def _cut(ref, est, n=N_POSES):
+    ids = np.arange(min(n, ref.num_poses))
+    for t in (ref, est):
+        t.reduce_to_ids(ids)
+    return ref, est
+
+
+def _load(name: str):
+    d = ("evo-test-data",)
+    if name == "kitti":
+        ref = file_interface.read_kitti_poses_file(shared_path(*d, "KITTI_00_gt.txt"))
+        est = file_interface.read_kitti_poses_file(shared_path(*d, "KITTI_00_ORB.txt"))
+        return _cut(ref, est)
+    if name == "tum":
+        ref = file_interface.read_tum_trajectory_file(shared_path(*d, "fr2_desk_groundtruth.txt"))
+        est = file_interface.read_tum_trajectory_file(shared_path(*d, "fr2_desk_ORB.txt"))
+    elif name == "tum-drift":
+        ref = file_interface.read_tum_trajectory_file(shared_path(*d, "freiburg1_xyz-groundtruth.txt"))
+        est = file_interface.read_tum_trajectory_file(shared_path(*d, "freiburg1_xyz-rgbdslam_drift.txt"))
+    else:
+        ref = file_interface.read_euroc_csv_trajectory(shared_path(*d, "V102_groundtruth.csv"))
+        est = file_interface.read_tum_trajectory_file(shared_path(*d, "V102.txt"))
+    return _cut(*sync.associate_trajectories(ref, est, max_diff=0.01))
+
+
+DATASETS = ("kitti", "tum", "tum-drift", "euroc")
+
+
+@pytest.fixture(scope="module")
+def pairs():
+    cache: dict = {}
+
+    def get(name: str, alignment: str):
+        if (name, alignment) not in cache:
+            ref, est = _load(name)
+            est_evo = copy.deepcopy(est)
+            ref_T, est_T = engine.traj_se3(ref), engine.traj_se3(est)
+            if alignment == "origin":
+                est_evo.align_origin(ref)
+                est_T, _ = engine.align_origin(est_T, ref_T)
+            elif alignment in ("se3", "sim3"):
+                est_evo.align(ref, correct_scale=alignment == "sim3")
+                est_T, _ = engine.align_se3(est_T, est.positions_xyz, ref.positions_xyz, alignment == "sim3")
+            cache[(name, alignment)] = (ref, est_evo, ref_T, est_T)
+        return cache[(name, alignment)]
+    return get
+
+
+def test_se3_stack_equals_evos_matrices(pairs):
+    for name in DATASETS:
+        ref, est, ref_T, est_T = pairs(name, "none")
+        assert np.max(np.abs(ref_T - np.array(ref.poses_se3))) <= TOL
+        assert np.max(np.abs(est_T - np.array(est.poses_se3))) <= TOL
+
+
+@pytest.mark.parametrize("alignment", ALIGNMENTS)
+@pytest.mark.parametrize("name", DATASETS)
+def test_alignment_equals_evos(pairs, name, alignment):
+    _, est, _, est_T = pairs(name, alignment)
+    assert np.max(np.abs(est_T - np.array(est.poses_se3))) <= TOL
+
+
+@pytest.mark.parametrize("relation", APE_RELATIONS, ids=lambda r: r.name)
+@pytest.mark.parametrize("alignment", ALIGNMENTS)
+@pytest.mark.parametrize("name", DATASETS)
+def test_ape_equals_evos_class(pairs, name, alignment, relation):
+    ref, est, ref_T, est_T = pairs(name, alignment)
+    m = metrics.APE(relation)
+    m.process_data((ref, est))
+    ours = engine.ape_error(ref_T, est_T, relation)
+    assert ours.shape == m.error.shape
+    assert np.max(np.abs(ours - m.error)) <= TOL
+
+
+@pytest.mark.parametrize("relation", list(Rel), ids=lambda r: r.name)
+@pytest.mark.parametrize("delta,unit,all_pairs,from_ref", DELTAS,
+                         ids=[f"{d}{u.name[0]}{'-all' if a else ''}{'-ref' if r else ''}" for d, u, a, r in DELTAS])
+@pytest.mark.parametrize("name,alignment", [("kitti", "none"), ("tum", "sim3"), ("tum-drift", "none"),
+                                            ("euroc", "se3")])
+def test_rpe_equals_evos_class(pairs, name, alignment, relation, delta, unit, all_pairs, from_ref):
+    ref, est, ref_T, est_T = pairs(name, alignment)
+    m = metrics.RPE(relation, delta, unit, 0.1, all_pairs, from_ref)
+    m.process_data((ref, est))
+    p = engine.rpe_pairs(ref_T, est_T, delta, unit, 0.1, all_pairs, from_ref)
+    ours, ids = engine.rpe_error(ref_T, est_T, relation, p)
+    assert list(ids) == list(m.delta_ids)
+    assert ours.shape == m.error.shape and len(ours) > 0
+    assert np.max(np.abs(ours - m.error)) <= TOL
+
+
+def _same_result(a, b):
+    assert a.info == b.info
+    assert a.stats.keys() == b.stats.keys()
+    for k in a.stats:
+        assert abs(a.stats[k] - b.stats[k]) <= TOL, k
+    assert a.np_arrays.keys() == b.np_arrays.keys()
+    for k in a.np_arrays:
+        assert a.np_arrays[k].shape == b.np_arrays[k].shape, k
+        assert np.max(np.abs(a.np_arrays[k] - b.np_arrays[k]), initial=0.0) <= TOL, k
+    assert a.trajectories.keys() == b.trajectories.keys()
+    for k in a.trajectories:
+        ta, tb = a.trajectories[k], b.trajectories[k]
+        assert np.max(np.abs(ta.positions_xyz - tb.positions_xyz)) <= TOL
+        qa, qb = ta.orientations_quat_wxyz, tb.orientations_quat_wxyz
+        assert np.max(np.minimum(np.abs(qa - qb), np.abs(qa + qb))) <= TOL
+        if hasattr(ta, "timestamps"):
+            assert np.array_equal(ta.timestamps, tb.timestamps)
+
+
+@pytest.mark.parametrize("name", ("tum", "euroc"))
+def test_results_equal_evos_main_functions(pairs, name):
+    """Statistics, arrays (times, distances), titles and the carried trajectories, APE and RPE, and what evo's
+    result files read back."""
+    ref, est, ref_T, est_T = pairs(name, "none")
+    for rel in (Rel.translation_part, Rel.rotation_angle_deg):
+        theirs = evo_ape(copy.deepcopy(ref), copy.deepcopy(est), rel)
+        ours = engine.ape_result(ref, est, rel, engine.ape_error(ref_T, est_T, rel))
+        _same_result(ours, theirs)
+        bufs = []
+        for r in (ours, theirs):
+            bufs.append(io.BytesIO())
+            file_interface.save_res_file(bufs[-1], r)
+        _same_result(*(file_interface.load_res_file(io.BytesIO(b.getvalue()), load_trajectories=True) for b in bufs))
+        for delta, unit in ((1, Unit.frames), (0.5, Unit.meters)):
+            theirs = evo_rpe(copy.deepcopy(ref), copy.deepcopy(est), rel, delta=delta, delta_unit=unit)
+            err, ids = engine.rpe_error(ref_T, est_T, rel, engine.rpe_pairs(ref_T, est_T, delta, unit))
+            _same_result(engine.rpe_result(ref, est, rel, err, ids, delta, unit), theirs)
+
+
+def test_invalid_rotation_refused_as_evo_refuses_it(pairs):
+    ref, est, ref_T, est_T = pairs("tum", "none")
+    bad = est_T.copy()
+    bad[5, :3, :3] *= 1.01                      # not a rotation: evo's so3_log raises
+    with pytest.raises(LieAlgebraException):
+        engine.ape_error(ref_T, bad, Rel.rotation_angle_deg)
+
+
+@pytest.mark.parametrize("alignment", ("none", "se3", "sim3", "origin", "4dof"))
+def test_run_evaluation_equal_with_either_engine(slice_run, alignment):
+    """A run's estimates evaluated both ways: every metric, the drift figures and every result file."""
+    from fusion_eval.datasets.tum import read_tum
+    from fusion_eval.evaluation.trajectory import evaluate
+    from fusion_eval.report.files import evo_zips
+
+    gt = read_tum(slice_run / "groundtruth.tum")
+    for est_name in ("fused", "lidar", "gnss"):
+        est = read_tum(slice_run / f"{est_name}.tum")
+        if est_name == "gnss":
+            est = dataclasses.replace(est, has_orientation=False)
+        a = evaluate(gt, est, est_name, 0.01, 50.0, alignment=alignment, engine_name="arrays")
+        b = evaluate(gt, est, est_name, 0.01, 50.0, alignment=alignment, engine_name="evo")
+        assert a.metrics.keys() == b.metrics.keys()
+        for g in b.metrics:
+            for k, sb in b.metrics[g].items():
+                sa = a.metrics[g][k]
+                assert (sa is None) == (sb is None)
+                for s in sb or {}:
+                    assert abs(sa[s] - sb[s]) <= TOL, (est_name, g, k, s)
+        assert (a.drift is None) == (b.drift is None)
+        if a.drift is not None:
+            assert abs(a.drift["t_err_pct"] - b.drift["t_err_pct"]) <= TOL
+            assert abs(a.drift["r_err_deg_per_100m"] - b.drift["r_err_deg_per_100m"]) <= TOL
+        if a.alignment_params:
+            for k, v in a.alignment_params.items():
+                assert np.allclose(v, b.alignment_params[k], atol=TOL, rtol=0)
+        for k in a.results:
+            _same_result(a.results[k], b.results[k])
+        za, zb = evo_zips(a), evo_zips(b)
+        assert za.keys() == zb.keys()
+        for k in za:
+            _same_result(*(file_interface.load_res_file(io.BytesIO(z[k]), load_trajectories=True) for z in (za, zb)))
+
+
+@pytest.mark.slow
+def test_whole_kitti_trajectory():
+    d = ("evo-test-data",)
+    ref = file_interface.read_kitti_poses_file(shared_path(*d, "KITTI_00_gt.txt"))
+    est = file_interface.read_kitti_poses_file(shared_path(*d, "KITTI_00_SPTAM.txt"))
+    est.align(ref, correct_scale=False)
+    ref_T, est_T = engine.traj_se3(ref), engine.traj_se3(est)
+    for rel in (Rel.translation_part, Rel.rotation_angle_deg, Rel.full_transformation):
+        m = metrics.APE(rel)
+        m.process_data((ref, est))
+        assert np.max(np.abs(engine.ape_error(ref_T, est_T, rel) - m.error)) <= TOL
+        m = metrics.RPE(rel, 100.0, Unit.meters, 0.1, all_pairs=True)
+        m.process_data((ref, est))
+        err, ids = engine.rpe_error(ref_T, est_T, rel, engine.rpe_pairs(ref_T, est_T, 100.0, Unit.meters, 0.1, True))
+        assert list(ids) == list(m.delta_ids)
+        assert np.max(np.abs(err - m.error)) <= TOL
+    # the README's reference figure for this pair: evo_ape kitti KITTI_00_gt.txt KITTI_00_SPTAM.txt -a
+    assert abs(np.sqrt(np.mean(engine.ape_error(ref_T, est_T, Rel.translation_part) ** 2)) - 3.738488) < 1e-6
