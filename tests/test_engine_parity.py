@@ -225,3 +225,27 @@ def test_whole_kitti_trajectory():
         assert np.max(np.abs(err - m.error)) <= TOL
     # the README's reference figure for this pair: evo_ape kitti KITTI_00_gt.txt KITTI_00_SPTAM.txt -a
     assert abs(np.sqrt(np.mean(engine.ape_error(ref_T, est_T, Rel.translation_part) ** 2)) - 3.738488) < 1e-6
+
+
+def test_result_zip_reads_back_as_evos_own_file(pairs):
+    """Our result files (fixed entry times, the compiled text writer) read back with evo's ``load_res_file``
+    as the file evo's ``save_res_file`` writes: the same info, statistics and arrays, the same trajectories
+    (positions to 1e-9 m, stamps to the microsecond their text keeps for Unix stamps)."""
+    from fusion_eval.report.files import result_zip
+
+    ref, est, ref_T, est_T = pairs("tum", "none")
+    res = engine.ape_result(ref, est, Rel.translation_part, engine.ape_error(ref_T, est_T, Rel.translation_part))
+    theirs = io.BytesIO()
+    file_interface.save_res_file(theirs, res)
+    a = file_interface.load_res_file(io.BytesIO(result_zip(res)), load_trajectories=True)
+    b = file_interface.load_res_file(io.BytesIO(theirs.getvalue()), load_trajectories=True)
+    assert a.info == b.info and a.stats == b.stats
+    assert a.np_arrays.keys() == b.np_arrays.keys()
+    assert all(np.array_equal(a.np_arrays[k], b.np_arrays[k]) for k in a.np_arrays)
+    assert a.trajectories.keys() == b.trajectories.keys() and len(a.trajectories) == 2
+    for k in a.trajectories:
+        assert np.max(np.abs(a.trajectories[k].positions_xyz - b.trajectories[k].positions_xyz)) <= 1e-9
+        assert np.max(np.abs(a.trajectories[k].timestamps - b.trajectories[k].timestamps)) <= 1e-6
+    assert result_zip(res) == result_zip(res)                          # same inputs, same bytes
+    assert file_interface.load_res_file(io.BytesIO(result_zip(res, trajectories=False)),
+                                        load_trajectories=True).trajectories == {}

@@ -22,11 +22,23 @@ def read_tum(path: Path) -> PoseSeries:
     return PoseSeries(t_s=rows[:, 0], p_w_m=rows[:, 1:4], q_wb_xyzw=rows[:, 4:8], source=str(path), lines=lines)
 
 
+def stamp_decimals(t_s: np.ndarray) -> int:
+    """Decimals of a stamp column: 9 (nanoseconds), or as many as a float64 stamp of this size holds exactly
+    (6 for Unix stamps of ~1.3e9 s, whose spacing is 0.24 us)."""
+    big = float(np.max(np.abs(t_s), initial=1.0))
+    return int(max(0, min(9, np.floor(np.log10(2.0 ** 53 / max(big, 1.0))))))
+
+
 def format_tum(poses: PoseSeries, header: str | None = None) -> str:
-    """TUM text with 9 decimals (nanoseconds, nanometres): evo reading it back gives the same metrics to 1e-6."""
-    out = []
-    if header:
-        out.extend(f"# {h}" for h in header.splitlines())
+    """TUM text: positions and quaternions with 9 decimals (nanometres), stamps with :func:`stamp_decimals`;
+    evo reading it back gives the same metrics to 1e-6. Formatted by the compiled table writer (a simulated
+    hour at 200 Hz is 5.8 million numbers)."""
+    from ..fastfmt import table_text
+
+    lines = [f"# {h}" for h in header.splitlines()] if header else []
     mat = np.column_stack([poses.t_s, poses.p_w_m, poses.q_wb_xyzw])
-    out.extend(" ".join(f"{x:.9f}" for x in row) for row in mat)
-    return "\n".join(out) + "\n"
+    if mat.size and np.all(np.isfinite(mat)) and np.abs(mat[:, 1:]).max() < 9e6:
+        body = table_text(mat, [stamp_decimals(poses.t_s)] + [9] * 7)
+    else:       # non-finite or huge values (a diverged dead reckoning): Python's formatting handles them
+        body = "".join(" ".join(f"{x:.9f}" for x in row) + "\n" for row in mat)
+    return "\n".join(lines) + ("\n" if lines else "") + body

@@ -78,20 +78,47 @@ def resolved_config(cfg: dict, extra: dict) -> str:
 
 
 def evo_zips(ev: EstimateEvaluation) -> dict[str, bytes]:
-    """evo result files (``evo_res`` reads them), one per metric: ``<metric>_<estimate>.zip`` -> bytes."""
-    from evo.tools import file_interface
+    """evo result files (``evo_res`` reads them), one per metric: ``<metric>_<estimate>.zip`` -> bytes.
 
+    Only the APE translation zip carries the (associated) reference and estimate trajectories: the other
+    zips of an estimate would hold copies of the same poses (or, for RPE, a reduced copy); each keeps evo's
+    statistics and arrays, which is what ``evo_res`` reads."""
     out = {}
     for key, res in ev.results.items():
-        if key.startswith("rpe"):
-            # the RPE zips keep evo's statistics and error arrays (what evo_res reads); the reduced copies of the
-            # trajectories that evo_rpe adds cost most of the writing time and are in the APE zips in full
-            res = copy.copy(res)
-            res.trajectories = {}
-        raw = io.BytesIO()
-        file_interface.save_res_file(raw, res, confirm_overwrite=False)
-        out[f"{key}_{ev.name}.zip"] = normalized_zip(raw.getvalue())
+        out[f"{key}_{ev.name}.zip"] = result_zip(res, trajectories=key == "ape_translation")
     return out
+
+
+def result_zip(res, trajectories: bool = True) -> bytes:
+    """An evo result file as ``evo.tools.file_interface.save_res_file`` writes it (``info.json``,
+    ``stats.json``, one ``.npy`` per array, one ``.tum`` per trajectory), with fixed entry times and sorted
+    entries so that identical runs give identical bytes. The trajectories' text comes from the compiled
+    writer (9 decimals) instead of ``np.savetxt``, which took most of the time of a run's writing."""
+    import numpy as np
+    from evo.core.trajectory import PoseTrajectory3D
+
+    entries = {"info.json": json.dumps(res.info).encode(), "stats.json": json.dumps(res.stats).encode()}
+    for name, array in res.np_arrays.items():
+        buf = io.BytesIO()
+        np.save(buf, array)
+        entries[f"{name}.npy"] = buf.getvalue()
+    for name, traj in (res.trajectories.items() if trajectories else ()):
+        if not isinstance(traj, PoseTrajectory3D):      # a path without stamps: evo's own KITTI writer
+            from evo.tools import file_interface
+
+            raw = io.BytesIO()
+            file_interface.save_res_file(raw, copy.copy(res), confirm_overwrite=False)
+            return normalized_zip(raw.getvalue())
+        poses = PoseSeries(t_s=np.asarray(traj.timestamps), p_w_m=traj.positions_xyz,
+                           q_wb_xyzw=traj.orientations_quat_wxyz[:, [1, 2, 3, 0]], source=name)
+        entries[f"{name}.tum"] = format_tum(poses).encode()
+    buf = io.BytesIO()
+    with zipfile.ZipFile(buf, "w") as zout:          # uncompressed, as evo writes them
+        for fname in sorted(entries):
+            zi = zipfile.ZipInfo(fname, date_time=FIXED_ZIP_TIME)
+            zi.external_attr = 0o644 << 16
+            zout.writestr(zi, entries[fname])
+    return buf.getvalue()
 
 
 def normalized_zip(data: bytes) -> bytes:

@@ -10,6 +10,10 @@ matplotlib.use("Agg")
 import matplotlib.pyplot as plt  # noqa: E402
 import numpy as np  # noqa: E402
 
+# A fixed title height: matplotlib otherwise measures every axis' tick labels at each draw to lift titles
+# over them (none of these plots has ticks on top), which was a third of the drawing time.
+matplotlib.rcParams["axes.titley"] = 1.0
+
 from ..filters.layout import CANONICAL  # noqa: E402
 
 BA_ID, BG_ID = (CANONICAL.start(b) for b in ("BA", "BG"))
@@ -28,14 +32,17 @@ def _every(n: int, at_most: int = 2500) -> slice:
 
 
 def _no_minor_labels(ax) -> None:
-    """Log axes label their minor ticks; measuring those labels dominated the drawing time."""
-    from matplotlib.ticker import NullFormatter
+    """Log axes label their minor ticks, and their major ticks in mathtext (10^k); laying those labels out
+    dominated the drawing time. Plain numbers, and no minor labels."""
+    from matplotlib.ticker import FuncFormatter, NullFormatter
 
     ax.yaxis.set_minor_formatter(NullFormatter())
+    ax.yaxis.set_major_formatter(FuncFormatter(lambda v, _pos: f"{v:g}"))
 
 
 def _save(fig, path: Path) -> None:
-    fig.savefig(path, dpi=110, metadata=_META)
+    # zlib level 1 instead of 6: cheaper encoding (0.18 s of 7 plots at 6), files ~15 % larger
+    fig.savefig(path, dpi=110, metadata=_META, pil_kwargs={"compress_level": 1})
     plt.close(fig)
 
 
