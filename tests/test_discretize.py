@@ -11,7 +11,8 @@ from scipy.spatial.transform import Rotation
 
 from fusion_eval.filters import discretize
 from fusion_eval.filters.formulations import eskf
-from fusion_eval.filters.formulations.imu_model import imu_params
+from fusion_eval.filters.formulations.eskf import continuous_model
+from fusion_eval.filters.formulations.imu_model import PRM_KBA, PRM_KBG, imu_params
 
 N = eskf.N_CORE
 
@@ -128,3 +129,41 @@ def test_van_loan_eskf_agrees_with_the_nominal_state_filter_on_a_10_hz_simulatio
         assert abs(a - b) <= 0.05 * b, (gnss, a, b)
         for k in ("position", "attitude"):
             assert abs(vl["nees"][k]["fraction_in_95"] - ns["nees"][k]["fraction_in_95"]) <= 0.05
+
+
+@pytest.mark.parametrize("dt", [0.001, 0.01, 0.1, 1.0, 5.0])
+def test_sparse_van_loan_series_equals_the_block_exponential(dt):
+    """The sparse Taylor series with doubling (the filter's) against the exponential of the whole 30x30
+    Van Loan matrix, for a random attitude, rates and Gauss-Markov biases, up to long gaps."""
+    rng = np.random.default_rng(int(dt * 1000))
+    Ft, Qc = _model()
+    Ft = Ft + np.diag(np.r_[np.zeros(9), -0.01 * np.ones(3), -0.02 * np.ones(3)])
+    Ft[6:9, 6:9] = -np.array([[0, -0.3, 0.2], [0.3, 0, -0.1], [-0.2, 0.1, 0]]) * rng.uniform(0.5, 2)
+    a = discretize.van_loan(Ft, np.diag(Qc), dt)
+    b = discretize.van_loan_block(Ft, np.diag(Qc), dt)
+    assert np.abs(a[0] - b[0]).max() <= 1e-13 * np.abs(b[0]).max()
+    assert np.abs(a[1] - b[1]).max() <= 1e-13 * np.abs(b[1]).max()
+    assert np.allclose(a[1], a[1].T, rtol=0, atol=0)
+
+
+@pytest.mark.parametrize("n", [15, 21])
+def test_sparse_first_order_covariance_equals_the_dense_product(n):
+    """``propagate_cov`` (in place, sparse F) equals ``F P F^T + Q`` with the dense ``F = I + F_t T``."""
+    from fusion_eval.filters.formulations.eskf import propagate_cov
+
+    rng = np.random.default_rng(n)
+    prm = imu_params(9.81, 0.05, np.radians(0.1), 1e-3, 1e-5, "first_order")
+    prm[PRM_KBA], prm[PRM_KBG] = 0.01, 0.02
+    L = rng.normal(size=(21, 21))
+    P = L @ L.T * 1e-2
+    R = Rotation.random(random_state=rng).as_matrix()
+    f, w, dt = rng.normal(size=3) * 5, rng.normal(size=3), 0.1
+    Ft, Qc = continuous_model(R, f, w, prm, 1.0)
+    F = np.eye(n)
+    F[:15, :15] += Ft * dt
+    F[9:15, 9:15] = np.diag(1.0 - dt * np.r_[[prm[PRM_KBA]] * 3, [prm[PRM_KBG]] * 3])
+    Q = np.zeros((n, n))
+    Q[:15, :15] = np.diag(Qc) * dt
+    expect = F @ P[:n, :n] @ F.T + Q
+    propagate_cov(P, n, R, f, w, dt, prm, 1.0)
+    assert np.abs(P[:n, :n] - expect).max() <= 1e-12 * np.abs(expect).max()

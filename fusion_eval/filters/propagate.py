@@ -60,7 +60,7 @@ def {name}(a, n, k, t_target, cov):
         if dt > 0.0:
             _step(a.x, a.P, n, u0, a.u[k], dt, qscale, a.prm, a.aux, cov)
         t0 = a.t[k]
-        u0 = a.u[k].copy()
+        u0 = a.u[k]                 # a view: the inputs are never written
         a.rec_x[k, :] = a.x
         if cov:
             _record_cov(a.P, n, a.x, a.aux, a.cidx, a.rec_Pdiag[k], a.rec_Ppt[k])

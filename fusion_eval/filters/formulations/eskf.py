@@ -53,34 +53,48 @@ def propagate_cov(P, n, R, f_b, w_b, dt, prm, qscale):
     linearised at; ``n`` is the number of states (15 + 6 with a clone); ``qscale`` multiplies the
     white-noise variances (gaps).
     """
-    A = -(R @ skew3(f_b)) * dt          # dv/dtheta
-    B = -R * dt                         # dv/dba
-    C = -skew3(w_b) * dt                # dtheta/dtheta (minus identity)
-    M = P[:n, :n].copy()
-    # rows: M = F P
+    # F's blocks: A = -R [f]x dt (dv/dtheta), B = -R dt (dv/dba), C = -[w]x dt (dtheta/dtheta minus I),
+    # in one scratch array; products written out (numpy's 3x3 products are BLAS calls, dearer than the sums)
+    ABC = np.empty((3, 3, 3))
+    f0, f1, f2 = f_b[0], f_b[1], f_b[2]
+    for i in range(3):
+        r0, r1, r2 = R[i, 0], R[i, 1], R[i, 2]
+        ABC[0, i, 0] = -(r1 * f2 - r2 * f1) * dt          # -(R [f]x)[i, :] dt
+        ABC[0, i, 1] = -(r2 * f0 - r0 * f2) * dt
+        ABC[0, i, 2] = -(r0 * f1 - r1 * f0) * dt
+        ABC[1, i, 0], ABC[1, i, 1], ABC[1, i, 2] = -r0 * dt, -r1 * dt, -r2 * dt
+    w0, w1, w2 = w_b[0] * dt, w_b[1] * dt, w_b[2] * dt
+    ABC[2, 0, 0], ABC[2, 0, 1], ABC[2, 0, 2] = 0.0, w2, -w1
+    ABC[2, 1, 0], ABC[2, 1, 1], ABC[2, 1, 2] = -w2, 0.0, w0
+    ABC[2, 2, 0], ABC[2, 2, 1], ABC[2, 2, 2] = w1, -w0, 0.0
+    # rows, in place: P <- F P. Row blocks P, V, TH each read only the old rows after them (V, then TH and
+    # BA, then TH and BG), so they are updated in that order; TH's three rows read one another: per column,
+    # the three new values are formed before any is written.
     for j in range(n):
         for i in range(3):
-            M[P_ID + i, j] = P[P_ID + i, j] + dt * P[V_ID + i, j]
+            P[P_ID + i, j] += dt * P[V_ID + i, j]
+        for i in range(3):
             s = P[V_ID + i, j]
-            t = P[TH_ID + i, j] - dt * P[BG_ID + i, j]
             for k in range(3):
-                s += A[i, k] * P[TH_ID + k, j] + B[i, k] * P[BA_ID + k, j]
-                t += C[i, k] * P[TH_ID + k, j]
-            M[V_ID + i, j] = s
-            M[TH_ID + i, j] = t
-    # columns: P = M F^T
+                s += ABC[0, i, k] * P[TH_ID + k, j] + ABC[1, i, k] * P[BA_ID + k, j]
+            P[V_ID + i, j] = s
+        t0 = P[TH_ID, j] - dt * P[BG_ID, j] + ABC[2, 0, 1] * P[TH_ID + 1, j] + ABC[2, 0, 2] * P[TH_ID + 2, j]
+        t1 = P[TH_ID + 1, j] - dt * P[BG_ID + 1, j] + ABC[2, 1, 0] * P[TH_ID, j] + ABC[2, 1, 2] * P[TH_ID + 2, j]
+        t2 = P[TH_ID + 2, j] - dt * P[BG_ID + 2, j] + ABC[2, 2, 0] * P[TH_ID, j] + ABC[2, 2, 1] * P[TH_ID + 1, j]
+        P[TH_ID, j], P[TH_ID + 1, j], P[TH_ID + 2, j] = t0, t1, t2
+    # columns, in place: P <- (F P) F^T, the same order on the column blocks
     for i in range(n):
         for j in range(3):
-            P[i, P_ID + j] = M[i, P_ID + j] + dt * M[i, V_ID + j]
-            s = M[i, V_ID + j]
-            t = M[i, TH_ID + j] - dt * M[i, BG_ID + j]
+            P[i, P_ID + j] += dt * P[i, V_ID + j]
+        for j in range(3):
+            s = P[i, V_ID + j]
             for k in range(3):
-                s += M[i, TH_ID + k] * A[j, k] + M[i, BA_ID + k] * B[j, k]
-                t += M[i, TH_ID + k] * C[j, k]
+                s += P[i, TH_ID + k] * ABC[0, j, k] + P[i, BA_ID + k] * ABC[1, j, k]
             P[i, V_ID + j] = s
-            P[i, TH_ID + j] = t
-        for j in range(BA_ID, n):
-            P[i, j] = M[i, j]
+        t0 = P[i, TH_ID] - dt * P[i, BG_ID] + P[i, TH_ID + 1] * ABC[2, 0, 1] + P[i, TH_ID + 2] * ABC[2, 0, 2]
+        t1 = P[i, TH_ID + 1] - dt * P[i, BG_ID + 1] + P[i, TH_ID] * ABC[2, 1, 0] + P[i, TH_ID + 2] * ABC[2, 1, 2]
+        t2 = P[i, TH_ID + 2] - dt * P[i, BG_ID + 2] + P[i, TH_ID] * ABC[2, 2, 0] + P[i, TH_ID + 1] * ABC[2, 2, 1]
+        P[i, TH_ID], P[i, TH_ID + 1], P[i, TH_ID + 2] = t0, t1, t2
     # Gauss-Markov biases: F has 1 - dt/tau on the bias diagonal (identity for a random walk)
     fa, fg = 1.0 - prm[PRM_KBA] * dt, 1.0 - prm[PRM_KBG] * dt
     if fa != 1.0 or fg != 1.0:
@@ -132,8 +146,11 @@ def step(x, P, n, u0, u1, dt, qscale, prm, aux, cov):
     """One IMU interval: covariance linearised at the start-of-interval attitude and the midpoint,
     bias-corrected IMU values, then the midpoint mechanization."""
     if cov:
-        fm = 0.5 * (u0[UF:UF + 3] + u1[UF:UF + 3]) - x[XBA:XBA + 3]
-        wm = 0.5 * (u0[UW:UW + 3] + u1[UW:UW + 3]) - x[XBG:XBG + 3]
+        fm = np.empty(3)
+        wm = np.empty(3)
+        for i in range(3):
+            fm[i] = 0.5 * (u0[UF + i] + u1[UF + i]) - x[XBA + i]
+            wm[i] = 0.5 * (u0[UW + i] + u1[UW + i]) - x[XBG + i]
         method = int(prm[PRM_DISC])
         if method == discretize.FIRST_ORDER:
             propagate_cov(P, n, attitude(x), fm, wm, dt, prm, qscale)     # sparse, same result
