@@ -41,6 +41,10 @@ CORE: dict[str, Spec] = {
     "filter.process_model": S("imu", "'imu' (strapdown mechanization) or 'odometer_gyro' (wheel speed and gyro drive the "
                                      "prediction; error state [dp, dtheta, dk, dbg])", choices=("<process models>",)),
     "filter.iterations": S(1, "iterated EKF: re-linearise each update up to this many times (1 = plain EKF)", positive=True),
+    "filter.replay": S("auto", "'auto' = the event loop in one compiled call when the formulation and every enabled "
+                               "observation have compiled kernels (no smoother, no iterated update), else from Python; "
+                               "'python' = always from Python (same estimate, slower; for debugging)",
+                       choices=("auto", "python")),
     "filter.iteration_tol": S(1e-8, "iterated EKF: stop when the correction changes by less than this (norm)", positive=True),
     "filter.gravity_mps2": S("auto", "gravity magnitude; 'auto' = WGS84 normal gravity at the geodetic origin (9.80665 without one)",
                              "float", positive=True, auto=True),

@@ -16,7 +16,7 @@ import numpy as np
 
 from .config import Settings
 from . import smoothing
-from .filters import make_filter, observations
+from .filters import compiled_replay, make_filter, observations
 from .filters.formulations.eskf import dead_reckon
 from .filters.formulations.imu_model import imu_inputs, imu_params
 from .filters.state import unpack
@@ -75,11 +75,37 @@ def replay(prep: Prepared, s: Settings, progress: Callable[[float], None] | None
     order = np.lexsort((index, which, times))
     smoother = smoothing.start(kf, s, times.size)
 
-    nis: dict[str, tuple[list, list, list]] = {b.name: ([], [], []) for b in bound}
+    it, tol = s.filter.iterations, s.filter.iteration_tol
+    if compiled_replay.usable(kf, bound, smoother, it, s.filter.replay):
+        nis = _replay_compiled(kf, bound, times, which, index, order, progress)
+    else:
+        nis = _replay_python(kf, bound, times, which, index, order, smoother, it, tol, progress)
+    kf.predict_to(t_end)
+    if smoother is not None:
+        smoother.epoch(kf)
+    if progress is not None:
+        progress(1.0)
     dof = {b.name: b.dof for b in bound}
+
+    summaries = {b.name: b.summary() for b in bound if b.summary is not None}
+    if imu_only is None:
+        imu_only = dead_reckoning(prep, s)
+    a = kf.arrays
+    out = _output(kf, t_imu, k0, a.rec_x, a.rec_Pdiag, a.rec_Ppt, "fused", imu_only,
+                  nis={k: {"t_s": np.asarray(v[0], float), "nis": np.asarray(v[1], float), "dof": dof[k],
+                           "rejected": int(np.size(v[2]) - np.count_nonzero(v[2])),
+                           **({"adapt": summaries[k]} if summaries.get(k) else {})} for k, v in nis.items() if len(v[0])})
+    if smoother is not None:
+        sm, out.smoother_info = smoother.finish(kf, k0)
+        out.smoothed = _output(kf, t_imu, k0, sm.rec_x, sm.rec_Pdiag, sm.rec_Ppt, "smoothed", imu_only, nis={})
+    return out
+
+
+def _replay_python(kf, bound, times, which, index, order, smoother, it, tol, progress) -> dict:
+    """The event loop stepped from Python (any formulation, observation, smoother, iterated update)."""
+    nis: dict[str, tuple[list, list, list]] = {b.name: ([], [], []) for b in bound}
     n_ev = order.size
     step = max(1, n_ev // 100)
-    it, tol = s.filter.iterations, s.filter.iteration_tol
     for j, e in enumerate(order):
         t, b = float(times[e]), bound[which[e]]
         kf.predict_to(max(t, kf.t))
@@ -96,23 +122,17 @@ def replay(prep: Prepared, s: Settings, progress: Callable[[float], None] | None
             rec[2].append(res[1])
         if progress is not None and j % step == 0:
             progress(j / n_ev)
-    kf.predict_to(t_end)
-    if smoother is not None:
-        smoother.epoch(kf)
-    if progress is not None:
-        progress(1.0)
+    return nis
 
-    summaries = {b.name: b.summary() for b in bound if b.summary is not None}
-    if imu_only is None:
-        imu_only = dead_reckoning(prep, s)
-    a = kf.arrays
-    out = _output(kf, t_imu, k0, a.rec_x, a.rec_Pdiag, a.rec_Ppt, "fused", imu_only,
-                  nis={k: {"t_s": np.array(v[0]), "nis": np.array(v[1]), "dof": dof[k],
-                           "rejected": int(np.size(v[2]) - np.count_nonzero(v[2])),
-                           **({"adapt": summaries[k]} if summaries.get(k) else {})} for k, v in nis.items() if v[0]})
-    if smoother is not None:
-        sm, out.smoother_info = smoother.finish(kf, k0)
-        out.smoothed = _output(kf, t_imu, k0, sm.rec_x, sm.rec_Pdiag, sm.rec_Ppt, "smoothed", imu_only, nis={})
+
+def _replay_compiled(kf, bound, times, which, index, order, progress) -> dict:
+    """The event loop in compiled chunks (:mod:`fusion_eval.filters.compiled_replay`); the same record."""
+    nis_ev, ok_ev = compiled_replay.run(kf, bound, times, which, index, order, progress)
+    ts, pos = times[order], which[order]
+    out = {}
+    for c, b in enumerate(bound):
+        sel = (pos == c) & np.isfinite(nis_ev)        # NaN: the event updated nothing (a first lidar frame)
+        out[b.name] = (ts[sel], nis_ev[sel], ok_ev[sel])
     return out
 
 

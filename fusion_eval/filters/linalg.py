@@ -46,16 +46,212 @@ def gain(P, n, H, Rm):
 
 
 @njit(cache=True)
-def joseph_update(P, n, H, r, Rm, gate):
-    """Kalman update of an error state; returns ``(dx, nis, accepted)`` and updates ``P`` in place.
-
-    An innovation whose NIS exceeds ``gate`` (a chi-square quantile; ``inf`` = no gating) is rejected:
-    ``P`` is left unchanged and ``dx`` is zero.
-    """
+def joseph_update_dense(P, n, H, r, Rm, gate):
+    """The Joseph update written as the textbook's dense products (the tests' oracle for
+    :func:`joseph_update`, which computes the same quantity in O(n^2 m))."""
     K, Sinv = gain(P, n, H, Rm)
     nis = r @ (Sinv @ r)
-    if nis > gate:      # (a NaN passes and surfaces as a non-finite correction: divergence, not rejection)
+    if nis > gate:
         return np.zeros(n), nis, False
     dx = K @ r
     joseph(P, n, K, H, Rm)
     return dx, nis, True
+
+
+def workspace(n_max: int, m_max: int):
+    """Scratch arrays of :func:`joseph_update_into` for up to ``n_max`` states and ``m_max`` residual rows."""
+    return np.zeros((3, m_max, n_max)), np.zeros((3, m_max, m_max)), np.zeros(n_max), np.zeros(n_max, np.int64)
+
+
+@njit(cache=True)
+def joseph_update_into(P, n, H, m, r, Rm, gate, wn, wm, dx, cols):
+    """Kalman update of an error state, in place and without allocation; returns ``(nis, accepted)``.
+
+    The same quantity as :func:`joseph_update_dense` (``P <- (I - K H) P (I - K H)^T + K R K^T``,
+    symmetrised, ``K = P H^T S^-1``), for a residual of ``m`` rows (``m << n``): with ``U = P H^T`` (n x m)
+    and ``P`` symmetric, ``H P = U^T`` and ``H U + R = S``, so the Joseph form expands, for any gain ``K``, to
+
+        P+ = P - K U^T - U K^T + K S K^T = P - (K Z^T + Z K^T) / 2,   Z = 2 U - K S
+
+    which is symmetric by construction and costs O(n^2 m) instead of the O(n^3) of the dense products (the
+    form is the Joseph form's value, not the short ``(I - K H) P``: an error in ``K`` still enters only to
+    second order); ``S`` is factored by a Cholesky decomposition (it is symmetric positive definite, or the
+    filter has failed). ``U``, ``K`` and ``Z`` are held transposed (m x n) so that every inner loop runs
+    along a row and vectorises; only the columns where ``H`` has a non-zero enter ``U`` (a pose residual
+    touches 12 of 21 states).
+    ``wn``: (3, m_max, n_max) scratch for U^T, K^T, Z^T; ``wm``: (>= 2, m_max, m_max) for S (left holding the
+    innovation covariance ``H P H^T + R``) and its Cholesky factor; ``dx``: the correction (n_max,);
+    ``cols``: (n_max,) int scratch. An innovation whose NIS exceeds ``gate`` is rejected (``P`` unchanged,
+    ``dx`` zero).
+    """
+    UT, KT, ZT = wn[0], wn[1], wn[2]
+    S, L = wm[0], wm[1]
+    nc = 0
+    for j in range(n):
+        for a in range(m):
+            if H[a, j] != 0.0:
+                cols[nc] = j
+                nc += 1
+                break
+    # P symmetric to the last bit, so that the update below keeps it so
+    for i in range(n):
+        for j in range(i + 1, n):
+            v = 0.5 * (P[i, j] + P[j, i])
+            P[i, j] = v
+            P[j, i] = v
+    for a in range(m):                      # U^T = H P
+        for i in range(n):
+            UT[a, i] = 0.0
+        for c in range(nc):
+            j = cols[c]
+            h = H[a, j]
+            for i in range(n):
+                UT[a, i] += h * P[j, i]
+    for a in range(m):                      # S = H U + R, symmetrised
+        for b in range(a, m):
+            s1 = 0.0
+            s2 = 0.0
+            for c in range(nc):
+                j = cols[c]
+                s1 += H[a, j] * UT[b, j]
+                s2 += H[b, j] * UT[a, j]
+            v = 0.5 * (s1 + s2 + Rm[a, b] + Rm[b, a])
+            S[a, b] = v
+            S[b, a] = v
+    for a in range(m):                      # Cholesky S = L L^T
+        for b in range(a + 1):
+            s = S[a, b]
+            for k in range(b):
+                s -= L[a, k] * L[b, k]
+            if a == b:
+                if not s > 0.0:
+                    raise np.linalg.LinAlgError("innovation covariance not positive definite")
+                L[a, a] = np.sqrt(s)
+            else:
+                L[a, b] = s / L[b, b]
+    nis = 0.0                               # |L^-1 r|^2, with dx[:m] as scratch
+    for a in range(m):
+        s = r[a]
+        for k in range(a):
+            s -= L[a, k] * dx[k]
+        dx[a] = s / L[a, a]
+        nis += dx[a] * dx[a]
+    if nis > gate:      # (a NaN passes and surfaces as a non-finite correction: divergence, not rejection)
+        for i in range(n):
+            dx[i] = 0.0
+        return nis, False
+    for a in range(m):                      # K^T = S^-1 U^T: L Y = U^T, then L^T K^T = Y
+        inv = 1.0 / L[a, a]
+        for i in range(n):
+            KT[a, i] = UT[a, i]
+        for k in range(a):
+            l = L[a, k]
+            for i in range(n):
+                KT[a, i] -= l * KT[k, i]
+        for i in range(n):
+            KT[a, i] *= inv
+    for a in range(m - 1, -1, -1):
+        inv = 1.0 / L[a, a]
+        for k in range(a + 1, m):
+            l = L[k, a]
+            for i in range(n):
+                KT[a, i] -= l * KT[k, i]
+        for i in range(n):
+            KT[a, i] *= inv
+    for i in range(n):
+        dx[i] = 0.0
+    for a in range(m):
+        ra = r[a]
+        for i in range(n):
+            dx[i] += KT[a, i] * ra
+    for b in range(m):                      # Z^T = 2 U^T - S K^T
+        for i in range(n):
+            ZT[b, i] = 2.0 * UT[b, i]
+        for a in range(m):
+            sba = S[b, a]
+            for i in range(n):
+                ZT[b, i] -= sba * KT[a, i]
+    for i in range(n):                      # P -= (K Z^T + Z K^T) / 2 on the upper triangle, then mirrored
+        for b in range(m):
+            ki = 0.5 * KT[b, i]
+            zi = 0.5 * ZT[b, i]
+            for j in range(i, n):
+                P[i, j] -= ki * ZT[b, j] + zi * KT[b, j]
+        for j in range(i + 1, n):
+            P[j, i] = P[i, j]
+    return nis, True
+
+
+@njit(cache=True)
+def block_nis(S, lo, hi, r, L, y):
+    """``r_b^T S_bb^-1 r_b`` of the diagonal block ``lo:hi`` of ``S`` and ``r`` (Cholesky in scalars; ``L``
+    and ``y``: scratch at least (hi - lo) square and long)."""
+    m = hi - lo
+    for a in range(m):
+        for b in range(a + 1):
+            s = S[lo + a, lo + b]
+            for k in range(b):
+                s -= L[a, k] * L[b, k]
+            if a == b:
+                if not s > 0.0:
+                    raise np.linalg.LinAlgError("innovation covariance not positive definite")
+                L[a, a] = np.sqrt(s)
+            else:
+                L[a, b] = s / L[b, b]
+    q = 0.0
+    for a in range(m):
+        s = r[lo + a]
+        for k in range(a):
+            s -= L[a, k] * y[k]
+        y[a] = s / L[a, a]
+        q += y[a] * y[a]
+    return q
+
+
+@njit(cache=True)
+def joseph_update_s(P, n, H, r, Rm, gate):
+    """:func:`joseph_update` that also returns the innovation covariance ``S = H P H^T + R`` it used."""
+    m = H.shape[0]
+    wn = np.zeros((3, m, n))
+    wm = np.zeros((2, m, m))
+    dx = np.zeros(n)
+    cols = np.zeros(n, np.int64)
+    nis, ok = joseph_update_into(P, n, H, m, np.ascontiguousarray(r), Rm, gate, wn, wm, dx, cols)
+    return dx, nis, ok, wm[0].copy()
+
+
+@njit(cache=True)
+def joseph_update(P, n, H, r, Rm, gate):
+    """Kalman update of an error state; returns ``(dx, nis, accepted)`` and updates ``P`` in place
+    (:func:`joseph_update_into` with scratch of its own; ``H``: (m, n)).
+
+    An innovation whose NIS exceeds ``gate`` (a chi-square quantile; ``inf`` = no gating) is rejected:
+    ``P`` is left unchanged and ``dx`` is zero.
+    """
+    dx, nis, ok, _ = joseph_update_s(P, n, H, r, Rm, gate)
+    return dx, nis, ok
+
+
+@njit(cache=True)
+def reset_attitude_block(P, n, b, dth):
+    """``P <- G P G^T`` for ``G`` the identity but ``I - [dth/2]x`` on the 3x3 block at ``b`` (the error-state
+    reset of one attitude, Sola eq. 287), as 3-row and 3-column operations: O(n) instead of O(n^3). A symmetric
+    ``P`` stays symmetric to the last bit (the clone copies rows, and the Python path columns, of it)."""
+    h0, h1, h2 = 0.5 * dth[0], 0.5 * dth[1], 0.5 * dth[2]
+    # G = [[1, h2, -h1], [-h2, 1, h0], [h1, -h0, 1]]
+    for j in range(n):
+        a0, a1, a2 = P[b, j], P[b + 1, j], P[b + 2, j]
+        P[b, j] = a0 + h2 * a1 - h1 * a2
+        P[b + 1, j] = -h2 * a0 + a1 + h0 * a2
+        P[b + 2, j] = h1 * a0 - h0 * a1 + a2
+    for i in range(n):
+        a0, a1, a2 = P[i, b], P[i, b + 1], P[i, b + 2]
+        P[i, b] = a0 + h2 * a1 - h1 * a2
+        P[i, b + 1] = -h2 * a0 + a1 + h0 * a2
+        P[i, b + 2] = h1 * a0 - h0 * a1 + a2
+    for i in range(b, b + 3):       # the 3x3 block itself was formed rows first: mirrored to stay exactly symmetric
+        for j in range(b, b + 3):
+            if j > i:
+                v = 0.5 * (P[i, j] + P[j, i])
+                P[i, j] = v
+                P[j, i] = v

@@ -40,6 +40,28 @@ def exp3(phi):
 
 
 @njit(cache=True)
+def rmul_exp3(R, phi):
+    """``R <- R Exp(phi)`` in place, in scalars (a 3x3 ``@`` is a BLAS call, dearer than the product)."""
+    th2 = phi[0] * phi[0] + phi[1] * phi[1] + phi[2] * phi[2]
+    if th2 < 1e-16:
+        a, b = 1.0, 0.5
+    else:
+        th = np.sqrt(th2)
+        a, b = np.sin(th) / th, (1.0 - np.cos(th)) / th2
+    p0, p1, p2 = phi[0], phi[1], phi[2]
+    # Exp(phi) = I + a K + b K^2, K = [phi]x, K^2 = phi phi^T - th2 I
+    e00, e11, e22 = 1.0 + b * (p0 * p0 - th2), 1.0 + b * (p1 * p1 - th2), 1.0 + b * (p2 * p2 - th2)
+    e01, e10 = -a * p2 + b * p0 * p1, a * p2 + b * p0 * p1
+    e02, e20 = a * p1 + b * p0 * p2, -a * p1 + b * p0 * p2
+    e12, e21 = -a * p0 + b * p1 * p2, a * p0 + b * p1 * p2
+    for i in range(3):
+        r0, r1, r2 = R[i, 0], R[i, 1], R[i, 2]
+        R[i, 0] = r0 * e00 + r1 * e10 + r2 * e20
+        R[i, 1] = r0 * e01 + r1 * e11 + r2 * e21
+        R[i, 2] = r0 * e02 + r1 * e12 + r2 * e22
+
+
+@njit(cache=True)
 def log3(R):
     """Rotation vector of a rotation matrix (the inverse of :func:`exp3`), accurate near 0 and pi.
 

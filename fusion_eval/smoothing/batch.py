@@ -27,9 +27,8 @@ import numpy as np
 from ..errors import ConfigError
 from ..filters.formulations.imu_model import PRM_G, UF, UW
 from ..filters.layout import CANONICAL, NOMINAL
-from ..filters.observations.gnss_position import gnss_position
-from ..filters.observations.pose import absolute_pose
-from ..filters.observations.relative_pose import relative_pose
+from ..filters.observations import gnss_position as gp, pose as ap, relative_pose as rp
+from ..filters.observations.base import kernel_model
 from ..filters.state import NominalState
 from .rts import Smoothed
 
@@ -104,17 +103,31 @@ class BatchSmoother:
         return batch_smooth(kf, self.rec, self.s, k0)
 
 
-_FACTORS = (relative_pose, absolute_pose, gnss_position)   # the observation models with a factor
+_FACTORS = (rp.relative_pose_kernel, ap.absolute_pose_kernel, gp.gnss_position_kernel)   # the models with a factor
 _OBSERVATIONS = ("lidar", "gnss")                           # the registered observations they belong to
 
 
 def _factor_of(model):
+    """The compiled kernel of an observation model that has a factor, else a one-line refusal."""
     fn = getattr(model, "func", None)
-    if fn not in _FACTORS:
+    kern = model.args[0] if fn is kernel_model and model.args else None
+    if kern not in _FACTORS:
         name = getattr(fn, "__name__", repr(model))
         raise ConfigError(f"smoother.method=batch has no factor for the observation model {name}: turn that observation off "
                           "(filter.use_gnss_velocity, filter.odometer_update, filter.nhc) or use smoother.method=rts")
-    return fn
+    return kern
+
+
+def _std_factors(model, *blocks: slice) -> list[float]:
+    """The adaptive noise's std factor on each residual block (1 where it adapts none) as the model had it."""
+    out = []
+    for b in blocks:
+        f = 1.0
+        for lo, hi, v in model.keywords.get("rm_scale") or ():
+            if lo == b.start and hi == b.stop:
+                f = float(np.sqrt(v))
+        out.append(f)
+    return out
 
 
 def batch_smooth(kf, rec: BatchRecord, s, k0: int, progress=None) -> tuple[Smoothed, dict]:
@@ -200,24 +213,27 @@ def batch_smooth(kf, rec: BatchRecord, s, k0: int, progress=None) -> tuple[Smoot
     counts = {"imu": n_kf - 1, "lidar_relative": 0, "lidar_absolute": 0, "gnss": 0}
     for tt, model, clone_t in rec.updates:
         fn = _factor_of(model)
-        kw = model.keywords
+        row = np.asarray(model.keywords["row"], float)
         i = index[round(tt, 9)]
-        if fn is relative_pose:
+        if fn is rp.relative_pose_kernel:
             j = index[round(clone_t, 9)]
-            noise = gtsam.noiseModel.Diagonal.Sigmas(np.r_[np.full(3, kw["att_std_rad"]), np.full(3, kw["pos_std_m"])])
-            graph.add(gtsam.BetweenFactorPose3(X(j), X(i), gtsam.Pose3(gtsam.Rot3(kw["dR_obs"]), kw["dp_obs_c"]), noise))
+            kp, ka = _std_factors(model, rp.RP, rp.RTH)
+            noise = gtsam.noiseModel.Diagonal.Sigmas(np.r_[np.full(3, row[rp.STD_TH] * ka), np.full(3, row[rp.STD_P] * kp)])
+            pose = gtsam.Pose3(gtsam.Rot3(row[rp.ROW.sl("dR")].reshape(3, 3)), row[rp.ROW.sl("dp")])
+            graph.add(gtsam.BetweenFactorPose3(X(j), X(i), pose, noise))
             counts["lidar_relative"] += 1
-        elif fn is absolute_pose:
-            noise = gtsam.noiseModel.Diagonal.Sigmas(np.r_[np.full(3, kw["att_std_rad"]), np.full(3, kw["pos_std_m"])])
-            graph.add(gtsam.PriorFactorPose3(X(i), gtsam.Pose3(gtsam.Rot3(kw["R_obs_wb"]), kw["p_obs_w"]), noise))
+        elif fn is ap.absolute_pose_kernel:
+            noise = gtsam.noiseModel.Diagonal.Sigmas(np.r_[np.full(3, row[ap.OSTH]), np.full(3, row[ap.OSP])])
+            pose = gtsam.Pose3(gtsam.Rot3(row[ap.ROW.sl("R")].reshape(3, 3)), row[ap.ROW.sl("p")])
+            graph.add(gtsam.PriorFactorPose3(X(i), pose, noise))
             counts["lidar_absolute"] += 1
         else:
-            noise = gtsam.noiseModel.Diagonal.Sigmas(np.asarray(kw["std_w"], float))
-            lever = np.asarray(kw["lever_arm_b"], float)
+            noise = gtsam.noiseModel.Diagonal.Sigmas(row[gp.ROW.sl("std")])
+            lever, p_obs = row[gp.ROW.sl("lever")], row[gp.ROW.sl("p")]
             if np.any(lever != 0):
-                graph.add(gtsam.GPSFactorArm(X(i), np.asarray(kw["p_obs_w"], float), lever, noise))
+                graph.add(gtsam.GPSFactorArm(X(i), p_obs, lever, noise))
             else:
-                graph.add(gtsam.GPSFactor(X(i), np.asarray(kw["p_obs_w"], float), noise))
+                graph.add(gtsam.GPSFactor(X(i), p_obs, noise))
             counts["gnss"] += 1
 
     t_build = time.perf_counter() - t0_wall

@@ -216,6 +216,7 @@ class FilterBase:
         return self.update_compiled(model, gate)
 
     compiled_update = False      # formulations that define own_jacobian and inject
+    last_S = None                # the innovation covariance of the last compiled update (adaptive noise reads it)
 
     def own_jacobian(self, Hc: np.ndarray) -> np.ndarray:
         """``H`` over the own state from the canonical columns ``Hc``."""
@@ -231,8 +232,8 @@ class FilterBase:
         if not (np.isfinite(r).all() and np.isfinite(Rm).all()):
             raise FilterDivergedError(f"filter diverged at t={self.t:.3f} s: non-finite residual")
         try:
-            dx, nis, ok = linalg.joseph_update(self.P, self.n, self.own_jacobian(Hc), r, np.ascontiguousarray(Rm, float),
-                                               gate)
+            dx, nis, ok, self.last_S = linalg.joseph_update_s(self.P, self.n, self.own_jacobian(Hc), r,
+                                                              np.ascontiguousarray(Rm, float), gate)
         except np.linalg.LinAlgError as exc:
             raise FilterDivergedError(f"filter diverged at t={self.t:.3f} s: innovation covariance not invertible ({exc})") from None
         if not (np.all(np.isfinite(dx)) and np.isfinite(nis)):

@@ -18,6 +18,9 @@ REGISTRY: tuple[Observation, ...] = (
     gnss_velocity.OBSERVATION,
 )
 
+# the compiled models, in registry order: the compiled replay dispatches on them (filters/compiled_replay.py)
+KERNELS: tuple = tuple(o.kernel for o in REGISTRY if o.kernel is not None)
+
 
 def enabled(cfg: dict) -> list[Observation]:
     """The observations the configuration turns on, in update order."""
@@ -48,4 +51,4 @@ def keys() -> dict:
     return out
 
 
-__all__ = ["REGISTRY", "Bound", "Observation", "enabled", "keys", "extra_streams", "sim_keys"]
+__all__ = ["REGISTRY", "KERNELS", "Bound", "Observation", "enabled", "keys", "extra_streams", "sim_keys"]

@@ -11,6 +11,11 @@ An observation is one module holding one :class:`Observation` (registered in
 * ``enabled(cfg)``: whether the configuration turns it on;
 * ``bind(run, s)``: when it fires, at its stream's stamps or at a rate (``Bound.t_s``), and its model at each
   event: the textbook ``(H, r, R)`` with ``H`` over the canonical columns, ``r = z - h(x_hat)``;
+* optionally a compiled ``kernel`` of its model, which the replay's compiled event loop calls
+  (:mod:`fusion_eval.filters.compiled_replay`; ``Bound.kernel``): ``kernel(x, xc, row, H, r, Rm) -> m`` writes
+  the first ``m`` rows of ``H`` (canonical columns), ``r`` and ``Rm`` from the nominal vector ``x``, the clone
+  vector ``xc`` and the event's data ``row`` (``m = 0``: nothing to update). The module's Python model is
+  that kernel called through :func:`kernel_model`, so the model is written once;
 * optionally a chi-square gate (``gate_key``: the probability of the innovation's chi-square interval
   beyond which an update is rejected), extra streams it brings (``extra_streams``) and a simulated sensor
   for ``fusion-eval simulate`` (``simulate``).
@@ -27,12 +32,48 @@ from typing import Callable
 import numpy as np
 
 from ...so3 import skew
-from ..layout import CANONICAL
+from ..layout import CANONICAL, CLONE, NOMINAL
 from ..state import NominalState, ObservationModel
 
 N_MAX = CANONICAL.n
 P, V, TH = CANONICAL.sl("P"), CANONICAL.sl("V"), CANONICAL.sl("TH")
 CP, CTH = CANONICAL.sl("CP"), CANONICAL.sl("CTH")
+# the same positions as integers, for the compiled kernels
+P_ID, V_ID, TH_ID, CP_ID, CTH_ID = (CANONICAL.start(b) for b in ("P", "V", "TH", "CP", "CTH"))
+XP, XV, XR = (NOMINAL.start(b) for b in ("p", "v", "R"))
+CLONE_P, CLONE_R = CLONE.start("p"), CLONE.start("R")
+M_MAX = 6           # not a state index: the most residual rows a kernel writes (H: M_MAX x N_MAX)
+
+
+@dataclass
+class Kernel:
+    """An observation's compiled model bound to a run: the kernel and one data row per event.
+
+    ``clone_after``: the event clones the pose after its update (relative pose). ``adapt_blocks``: the residual
+    row ranges whose noise is matched online to the innovations (``adapt_rate``: the forgetting rate; the
+    scales are those of :class:`Bound.adapt`)."""
+
+    fn: Callable
+    data: np.ndarray                    # (events, width) float64
+    clone_after: bool = False
+    adapt_blocks: tuple = ()            # ((start, stop), ...) residual rows
+    adapt_rate: float = 0.0
+
+
+def kernel_model(kernel, x, clone_p=None, clone_R=None, row=None, rm_scale=None):
+    """``(H, r, Rm)`` of a compiled kernel, for the Python callers (``x``: a :class:`NominalState`);
+    ``rm_scale``: ``((start, stop, factor), ...)`` diagonal blocks of ``Rm`` scaled by the adaptive noise (the
+    compiled replay scales them the same way)."""
+    xc = np.zeros(CLONE.n)
+    if clone_p is not None:
+        xc[CLONE.sl("p")] = clone_p
+        xc[CLONE.sl("R")] = np.asarray(clone_R, float).ravel()
+    H, r, Rm = np.zeros((M_MAX, N_MAX)), np.zeros(M_MAX), np.zeros((M_MAX, M_MAX))
+    m = kernel(np.ascontiguousarray(x.vec, float), xc, np.ascontiguousarray(row, float), H, r, Rm)
+    for lo, hi, f in rm_scale or ():
+        Rm[lo:hi, lo:hi] *= f
+    return H[:m], r[:m], Rm[:m, :m]
+
 
 @dataclass
 class Bound:
@@ -51,6 +92,8 @@ class Bound:
     gate: float = np.inf
     on_result: Callable | None = None   # (t, r, S, nis, accepted) after each update: adaptive noise
     summary: Callable | None = None     # () -> dict for the report (e.g. the adapted noise scales)
+    kernel: Kernel | None = None        # the compiled model, for the compiled replay (None: Python only)
+    adapt: object | None = None         # the adaptive noise state the compiled replay writes back (AdaptiveScale)
 
     def apply(self, kf, j: int, iterations: int = 1, tol: float = 1e-8) -> tuple[float, bool] | None:
         m = self.model(j)
@@ -58,10 +101,12 @@ class Bound:
             res = None
         elif self.on_result is not None:
             Hc, r, Rm = m(*kf.model_args())
-            S = kf.innovation_cov(Hc, Rm)           # before the update changes P
+            plain = iterations <= 1 and kf.compiled_update
+            # the innovation covariance before the update changes P: the one the compiled update used, else formed here
+            S = None if plain else kf.innovation_cov(Hc, Rm)
             once = m if iterations > 1 else (lambda *_: (Hc, r, Rm))     # the plain update needs no re-evaluation
             res = kf.update(once, iterations, tol, self.gate)
-            self.on_result(kf.t, r, S, *res)
+            self.on_result(kf.t, r, kf.last_S if plain else S, *res)
         else:
             res = kf.update(m, iterations, tol, self.gate)
         if self.after is not None:
@@ -82,6 +127,7 @@ class Observation:
     gate_key: str | None = None
     extra_streams: tuple = ()           # datasets.streams.StreamSpec of streams only this observation reads
     sim_keys: dict = {}                 # simulator settings of its simulated sensor (``simulate``)
+    kernel = None                       # its compiled model (``kernel(x, xc, row, H, r, Rm) -> m``), if it has one
 
     @property
     def enable_with(self) -> dict:

@@ -9,23 +9,45 @@ from __future__ import annotations
 from functools import partial
 
 import numpy as np
+from numba import njit
 
 from ...spec import S
-from ...so3 import skew
-from .base import N_MAX, P, TH, Bound, Observation, rows_inside
+from ..layout import Layout
+from .base import P_ID, TH_ID, XP, XR, Bound, Kernel, Observation, kernel_model, rows_inside
+
+# data row of one fix: observed antenna position, std per axis, lever arm
+ROW = Layout("gnss position data row", [("p", 3), ("std", 3), ("lever", 3)])
+GP, GSTD, GLEV = (ROW.start(b) for b in ("p", "std", "lever"))
+NRES = ROW["p"].size
+
+
+@njit(cache=True)
+def gnss_position_kernel(x, xc, row, H, r, Rm):
+    """GNSS antenna position ``p + R l``; with a lever arm the attitude enters as ``-R [l]x`` (3 rows)."""
+    l0, l1, l2 = row[GLEV], row[GLEV + 1], row[GLEV + 2]
+    H[:NRES, :] = 0.0
+    Rm[:NRES, :NRES] = 0.0
+    for i in range(3):
+        a0, a1, a2 = x[XR + 3 * i], x[XR + 3 * i + 1], x[XR + 3 * i + 2]
+        H[i, P_ID + i] = 1.0
+        # -(R [l]x)[i, :]
+        H[i, TH_ID] = -(a1 * l2 - a2 * l1)
+        H[i, TH_ID + 1] = -(a2 * l0 - a0 * l2)
+        H[i, TH_ID + 2] = -(a0 * l1 - a1 * l0)
+        r[i] = row[GP + i] - (x[XP + i] + a0 * l0 + a1 * l1 + a2 * l2)
+        Rm[i, i] = row[GSTD + i] * row[GSTD + i]
+    return NRES
 
 
 def gnss_position(x, clone_p=None, clone_R=None, *, p_obs_w: np.ndarray, std_w: np.ndarray, lever_arm_b: np.ndarray):
     """GNSS antenna position ``p + R l``; with a lever arm the attitude enters as ``-R [l]x``."""
-    H = np.zeros((3, N_MAX))
-    H[:, P] = np.eye(3)
-    H[:, TH] = -x.R_wb @ skew(lever_arm_b)
-    r = p_obs_w - (x.p_w_m + x.R_wb @ lever_arm_b)
-    return H, r, np.diag(np.asarray(std_w, float) ** 2)
+    return kernel_model(gnss_position_kernel, x, row=ROW.pack(p=p_obs_w, std=np.asarray(std_w, float) * np.ones(3),
+                                                              lever=lever_arm_b))
 
 
 class GnssPosition(Observation):
     name = "gnss"
+    kernel = staticmethod(gnss_position_kernel)
     label = "GNSS position"
     dof = 3
     streams = ("gnss",)
@@ -47,11 +69,13 @@ class GnssPosition(Observation):
         rows = rows_inside(g.t_s, float(t[run.k_start]), float(t[-1]))
         lever = np.asarray(s.gnss.lever_arm_b_m, float)
 
-        def model(j):
-            i = rows[j]
-            return partial(gnss_position, p_obs_w=g.p_w_m[i], std_w=g.std_w_m[i], lever_arm_b=lever)
+        data = ROW.columns(p=g.p_w_m[rows], std=g.std_w_m[rows], lever=np.tile(lever, (rows.size, 1)))
 
-        return Bound(self.name, self.dof, g.t_s[rows], model, gate=self.gate(s))
+        def model(j):
+            return partial(kernel_model, gnss_position_kernel, row=data[j])
+
+        return Bound(self.name, self.dof, g.t_s[rows], model, gate=self.gate(s),
+                     kernel=Kernel(gnss_position_kernel, np.ascontiguousarray(data)))
 
 
 OBSERVATION = GnssPosition()

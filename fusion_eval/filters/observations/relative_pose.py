@@ -27,34 +27,72 @@ from __future__ import annotations
 from functools import partial
 
 import numpy as np
+from numba import njit
 
 from ...spec import S
-from ...so3 import skew
+from .. import linalg
+from ..layout import Layout
 from ..mech import log3
 from ...so3 import log_so3 as log3_many
-from .base import CP, CTH, N_MAX, P, TH, Bound, Observation
+from .base import CLONE_P, CLONE_R, CP_ID, CTH_ID, P_ID, TH_ID, XP, XR, Bound, Kernel, Observation, kernel_model
 from .pose import POSE_RESIDUAL, RP, RTH, lidar_rows
+
+# data row of one lidar frame: 1 if it updates (0: the first frame, which only clones), the increment from the
+# previous frame in its body frame, the rotation increment row-major, position std, rotation std
+ROW = Layout("relative pose data row", [("update", 1), ("dp", 3), ("dR", 9), ("std_p", 1), ("std_th", 1)])
+UPD, DP, DR, STD_P, STD_TH = (ROW.start(b) for b in ("update", "dp", "dR", "std_p", "std_th"))
+NRES = POSE_RESIDUAL.n
+
+
+@njit(cache=True)
+def relative_pose_kernel(x, xc, row, H, r, Rm):
+    """Odometry increment between the cloned pose (previous lidar frame) and the current pose (6 rows)."""
+    if row[UPD] == 0.0:
+        return 0
+    H[:NRES, :] = 0.0
+    Rm[:NRES, :NRES] = 0.0
+    dpw = np.empty(3)
+    for i in range(3):
+        dpw[i] = x[XP + i] - xc[CLONE_P + i]
+    dp = np.empty(3)                  # R_c^T (p - p_c)
+    dR = np.empty((3, 3))             # R_c^T R
+    for i in range(3):
+        dp[i] = xc[CLONE_R + i] * dpw[0] + xc[CLONE_R + 3 + i] * dpw[1] + xc[CLONE_R + 6 + i] * dpw[2]
+        for k in range(3):
+            dR[i, k] = (xc[CLONE_R + i] * x[XR + k] + xc[CLONE_R + 3 + i] * x[XR + 3 + k]
+                        + xc[CLONE_R + 6 + i] * x[XR + 6 + k])
+    E = np.empty((3, 3))              # dR^T dR_obs
+    for i in range(3):
+        for k in range(3):
+            E[i, k] = dR[0, i] * row[DR + k] + dR[1, i] * row[DR + 3 + k] + dR[2, i] * row[DR + 6 + k]
+    th = log3(E)
+    for i in range(3):
+        for k in range(3):
+            H[i, P_ID + k] = xc[CLONE_R + 3 * k + i]          # R_c^T
+            H[i, CP_ID + k] = -xc[CLONE_R + 3 * k + i]
+            H[3 + i, CTH_ID + k] = -dR[k, i]                  # -dR^T
+        H[3 + i, TH_ID + i] = 1.0
+        r[i] = row[DP + i] - dp[i]
+        r[3 + i] = th[i]
+        Rm[i, i] = row[STD_P] * row[STD_P]
+        Rm[3 + i, 3 + i] = row[STD_TH] * row[STD_TH]
+    # [dp]x on the clone's attitude error
+    H[0, CTH_ID + 1], H[0, CTH_ID + 2] = -dp[2], dp[1]
+    H[1, CTH_ID], H[1, CTH_ID + 2] = dp[2], -dp[0]
+    H[2, CTH_ID], H[2, CTH_ID + 1] = -dp[1], dp[0]
+    return NRES
 
 
 def relative_pose(x, clone_p_w: np.ndarray, clone_R_wb: np.ndarray, *, dp_obs_c: np.ndarray, dR_obs: np.ndarray,
                   pos_std_m: float, att_std_rad: float):
     """Odometry increment between the cloned pose (previous lidar frame) and the current pose."""
-    Rc_T = clone_R_wb.T
-    dp_pred = Rc_T @ (x.p_w_m - clone_p_w)
-    dR_pred = Rc_T @ x.R_wb
-    H = np.zeros((POSE_RESIDUAL.n, N_MAX))
-    H[RP, P] = Rc_T
-    H[RP, CP] = -Rc_T
-    H[RP, CTH] = skew(dp_pred)
-    H[RTH, TH] = np.eye(3)
-    H[RTH, CTH] = -dR_pred.T
-    r = np.concatenate([dp_obs_c - dp_pred, log3(dR_pred.T @ dR_obs)])
-    Rm = np.diag([pos_std_m ** 2] * 3 + [att_std_rad ** 2] * 3)
-    return H, r, Rm
+    row = ROW.pack(update=1.0, dp=dp_obs_c, dR=np.asarray(dR_obs, float).ravel(), std_p=pos_std_m, std_th=att_std_rad)
+    return kernel_model(relative_pose_kernel, x, clone_p_w, clone_R_wb, row)
 
 
 class RelativePose(Observation):
     name = "lidar"
+    kernel = staticmethod(relative_pose_kernel)
     label = "lidar relative pose (cloning)"
     dof = 6
     streams = ("lidar",)
@@ -95,16 +133,23 @@ class RelativePose(Observation):
         mode = adapt_mode(s)
         scale = None if mode == "none" else AdaptiveScale(c.adapt_rate, mode == "nis")
 
+        # row j: the increment into frame j (the first frame only starts the chain of clones)
+        data = np.zeros((rows.size, ROW.n))
+        data[cur] = ROW.columns(update=np.ones(rows.size - 1), dp=dp_c, dR=dR.reshape(-1, 9), std_p=pos_std, std_th=att_std)
+
         def model(j):
             if j == 0:
-                return None                         # the first frame only starts the chain of clones
-            kp, ka = (1.0, 1.0) if scale is None else scale.std_factors()
-            return partial(relative_pose, dp_obs_c=dp_c[j - 1], dR_obs=dR[j - 1], pos_std_m=float(pos_std[j - 1]) * kp,
-                           att_std_rad=float(att_std[j - 1]) * ka)
+                return None
+            # the noise scales as they are now (the batch smoother reads the model after the update moved them)
+            return partial(kernel_model, relative_pose_kernel, row=data[j],
+                           rm_scale=None if scale is None else scale.rm_scale())
 
+        blocks = () if scale is None else tuple((sl.start, sl.stop) for sl in scale.blocks)
         return Bound(self.name, self.dof, lid.t_s[rows], model, after=lambda kf, j: kf.clone_pose(),
                      gate=self.gate(s), on_result=None if scale is None else scale.update,
-                     summary=None if scale is None else scale.summary)
+                     summary=None if scale is None else scale.summary,
+                     kernel=Kernel(relative_pose_kernel, data, clone_after=True, adapt_blocks=blocks,
+                                   adapt_rate=0.0 if scale is None else scale.rate), adapt=scale)
 
 
 def adapt_mode(s) -> str:
@@ -125,24 +170,25 @@ class AdaptiveScale:
         self.rate = rate
         self.blocks = (RP, RTH) if rotation else (RP,)
         self.var = np.ones(2)            # position, rotation
-        self.history: list[tuple[float, float, float]] = []
+        self.history: list = []          # (t, var_p, var_th) rows, or (k, 3) blocks of them (the compiled replay)
 
-    def std_factors(self) -> tuple[float, float]:
-        return float(np.sqrt(self.var[0])), float(np.sqrt(self.var[1]))
+    def rm_scale(self) -> tuple:
+        """``((start, stop, variance factor), ...)`` of the adapted residual blocks, now (for :func:`kernel_model`)."""
+        return tuple((sl.start, sl.stop, float(self.var[b])) for b, sl in enumerate(self.blocks))
 
     def update(self, t: float, r: np.ndarray, S: np.ndarray, nis: float, accepted: bool) -> None:
         if not accepted:
             return                       # a gated outlier says nothing about the noise of good matches
+        L, y = np.zeros((3, 3)), np.zeros(3)
         for b, sl in enumerate(self.blocks):
-            rb = r[sl]
-            q = float(rb @ np.linalg.solve(S[sl, sl], rb)) / 3.0
+            q = linalg.block_nis(S, sl.start, sl.stop, r, L, y) / 3.0     # the compiled replay's arithmetic
             # multiplicative step toward E[q] = 1, bounded so one wild increment cannot swing it
             self.var[b] = float(np.clip(self.var[b] * (1.0 + self.rate * (min(q, 10.0) - 1.0)), 1e-3, 1e3))
         self.history.append((t, *self.var))
 
     def summary(self) -> dict:
         """The final std factors and their median over the second half of the drive (the settled value)."""
-        h = np.asarray(self.history) if self.history else np.ones((1, 3))
+        h = np.vstack([np.reshape(e, (-1, 3)) for e in self.history]) if self.history else np.ones((1, 3))
         late = h[h.shape[0] // 2:]
         return {"pos_std_factor": float(np.sqrt(h[-1, 1])), "att_std_factor": float(np.sqrt(h[-1, 2])),
                 "pos_std_factor_median": float(np.sqrt(np.median(late[:, 1]))),

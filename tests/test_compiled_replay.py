@@ -1,0 +1,158 @@
+"""The replay's event loop in compiled code against the same loop stepped from Python (the oracle), and the
+structured update kernels against their dense textbook forms."""
+
+from __future__ import annotations
+
+import copy
+
+import numpy as np
+import pytest
+
+from fusion_eval import session
+from fusion_eval.errors import FilterDivergedError
+from fusion_eval.filters import compiled_replay, linalg, make_filter, observations
+from fusion_eval.filters.formulations.eskf import inject_reset, inject_reset_dense
+from fusion_eval.filters.layout import CLONE, NOMINAL
+from fusion_eval.prepare import prepare, settings_for
+from fusion_eval.replay import replay
+
+from conftest import KITTI00
+
+
+def _prepared(*sets, mode="auto"):
+    ds = session.dataset(KITTI00)
+    cfg = session.resolve(session.request(sets=tuple(sets)), ds)
+    prep = prepare(ds, cfg)
+    return prep, _with_mode(cfg, prep, mode)
+
+
+def _with_mode(cfg, prep, mode):
+    cfg = copy.deepcopy(cfg)
+    cfg["filter"]["replay"] = mode
+    return settings_for(cfg, prep)
+
+
+@pytest.fixture(scope="module")
+def default_run():
+    return _prepared()
+
+
+CASES = [
+    (),                                                                         # relative lidar + GNSS, adaptive noise
+    ("filter.discretization=first_order", "lidar.noise_adapt=none", "lidar.gate_prob=0.9"),   # gated: rejections
+    ("filter.lidar_update=absolute",),
+    ("filter.use_gnss=false", "lidar.noise_adapt=nis_position", "gnss.lever_arm_b_m=[0.3, -0.2, 0.8]"),
+]
+
+
+@pytest.mark.parametrize("sets", CASES, ids=["default", "gated", "absolute", "no-gnss-adapt-position"])
+def test_compiled_replay_equals_the_python_loop(sets):
+    prep, s = _prepared(*sets)
+    ref = replay(prep, _with_mode(s.cfg, prep, "python"))
+    kf = make_filter(prep, s)
+    bound = [o.bind(prep, s) for o in observations.enabled(s.cfg)]
+    assert compiled_replay.usable(kf, bound, None, 1, "auto")
+    got = replay(prep, s)
+    assert np.max(np.abs(got.fused.p_w_m - ref.fused.p_w_m)) < 1e-9
+    assert np.max(np.abs(got.fused.q_wb_xyzw - ref.fused.q_wb_xyzw)) < 1e-9
+    assert np.max(np.abs(got.gyro_bias_b - ref.gyro_bias_b)) < 1e-12
+    assert np.allclose(got.sigma, ref.sigma, rtol=1e-8, atol=1e-12, equal_nan=True)
+    assert np.allclose(got.P_pos_att, ref.P_pos_att, rtol=1e-8, atol=1e-14, equal_nan=True)
+    assert got.nis.keys() == ref.nis.keys()
+    for k in ref.nis:
+        a, b = got.nis[k], ref.nis[k]
+        assert np.array_equal(a["t_s"], b["t_s"])
+        assert np.allclose(a["nis"], b["nis"], rtol=1e-6)
+        assert a["rejected"] == b["rejected"]
+        if "adapt" in b:
+            assert a["adapt"] == pytest.approx(b["adapt"], rel=1e-8)
+    if "lidar.gate_prob=0.9" in sets:
+        assert ref.nis["lidar"]["rejected"] > 0          # the case exercises the gate
+
+
+def test_the_compiled_loop_is_not_used_where_it_does_not_apply(default_run):
+    prep, s = default_run
+    kf = make_filter(prep, s)
+    bound = [o.bind(prep, s) for o in observations.enabled(s.cfg)]
+    assert compiled_replay.usable(kf, bound, None, 1, "auto")
+    assert not compiled_replay.usable(kf, bound, None, 1, "python")
+    assert not compiled_replay.usable(kf, bound, object(), 1, "auto")          # a smoother records from Python
+    assert not compiled_replay.usable(kf, bound, None, 3, "auto")             # iterated EKF
+    no_kernel = [*bound[:1], type(bound[0])(**{**bound[0].__dict__, "kernel": None})]
+    assert not compiled_replay.usable(kf, no_kernel, None, 1, "auto")
+    for form in ("nominal_state", "invariant"):
+        prep2, s2 = _prepared(f"filter.formulation={form}")
+        kf2 = make_filter(prep2, s2)
+        assert not compiled_replay.usable(kf2, [o.bind(prep2, s2) for o in observations.enabled(s2.cfg)], None, 1,
+                                          "auto")
+
+
+def test_every_registered_kernel_is_dispatched():
+    # the loop is built over the registry's kernels: a new observation with a kernel is one module, one line
+    assert observations.KERNELS == tuple(o.kernel for o in observations.REGISTRY if o.kernel is not None)
+    assert len(observations.KERNELS) >= 3
+
+
+def test_a_non_finite_increment_stops_the_compiled_replay_with_a_divergence(default_run):
+    prep, s = default_run
+    kf = make_filter(prep, s)
+    bound = [o.bind(prep, s) for o in observations.enabled(s.cfg)]
+    bound[0].kernel.data[50, 1] = np.nan            # lidar increment 50
+    times = np.concatenate([b.t_s for b in bound])
+    which = np.concatenate([np.full(b.t_s.size, i) for i, b in enumerate(bound)])
+    index = np.concatenate([np.arange(b.t_s.size) for b in bound])
+    with pytest.raises(FilterDivergedError, match="non-finite residual"):
+        compiled_replay.run(kf, bound, times, which, index, np.lexsort((index, which, times)))
+    assert kf.t == pytest.approx(bound[0].t_s[50])
+
+
+@pytest.mark.parametrize("seed", range(5))
+def test_structured_joseph_update_equals_the_dense_form(seed):
+    rng = np.random.default_rng(seed)
+    n, m = 21, int(rng.integers(1, 7))
+    A = rng.normal(size=(n, n))
+    P = A @ A.T + 0.1 * np.eye(n)
+    H = rng.normal(size=(m, n)) * (rng.random((m, n)) < 0.4)            # sparse, as a pose residual's
+    B = rng.normal(size=(m, m))
+    Rm = B @ B.T + 0.5 * np.eye(m)
+    r = rng.normal(size=m)
+    P1, P2 = P.copy(), P.copy()
+    dx1, nis1, ok1 = linalg.joseph_update(P1, n, H, r, Rm, np.inf)
+    dx2, nis2, ok2 = linalg.joseph_update_dense(P2, n, H, r, Rm, np.inf)
+    assert ok1 and ok2
+    assert np.max(np.abs(P1 - P2)) < 1e-12 * np.max(np.abs(P2))
+    assert np.max(np.abs(dx1 - dx2)) < 1e-12 * max(1.0, np.max(np.abs(dx2)))
+    assert nis1 == pytest.approx(nis2, rel=1e-12)
+    assert np.array_equal(P1, P1.T)                                      # symmetric to the last bit
+    # gated: P untouched, no correction
+    P3 = P.copy()
+    dx3, nis3, ok3 = linalg.joseph_update(P3, n, H, r, Rm, 0.5 * nis2)
+    assert not ok3 and np.array_equal(P3, P) and not dx3.any()
+    # the block NIS of the innovation covariance
+    S = H @ P @ H.T + Rm
+    L, y = np.zeros((m, m)), np.zeros(m)
+    lo = 0
+    assert linalg.block_nis(S, lo, m, r, L, y) == pytest.approx(r @ np.linalg.solve(S, r), rel=1e-12)
+
+
+def test_joseph_update_refuses_an_indefinite_innovation_covariance():
+    P = np.eye(3)
+    with pytest.raises(np.linalg.LinAlgError):
+        linalg.joseph_update(P, 3, np.eye(3), np.ones(3), -2.0 * np.eye(3), np.inf)
+
+
+@pytest.mark.parametrize("n", [15, 21])
+def test_structured_reset_equals_the_dense_form(n):
+    rng = np.random.default_rng(n)
+    A = rng.normal(size=(n, n))
+    P = A @ A.T
+    x = np.zeros(NOMINAL.n)
+    x[NOMINAL.sl("R")] = np.eye(3).ravel()
+    xc = np.zeros(CLONE.n)
+    xc[CLONE.sl("R")] = np.eye(3).ravel()
+    dx = rng.normal(size=n) * 0.05
+    P1, P2, x1, x2, c1, c2 = P.copy(), P.copy(), x.copy(), x.copy(), xc.copy(), xc.copy()
+    inject_reset(x1, c1, P1, n, dx)
+    inject_reset_dense(x2, c2, P2, n, dx)
+    assert np.max(np.abs(P1 - P2)) < 1e-13 * np.max(np.abs(P2))
+    assert np.max(np.abs(x1 - x2)) < 1e-15 and np.max(np.abs(c1 - c2)) < 1e-15
