@@ -102,3 +102,31 @@ def test_set_overrides_and_lidar_forms(kitti_slice, tmp_path):
         assert not list(out.glob("*.png"))
         fused = read_tum(out / "fused.tum")
         assert np.isfinite(fused.p_w_m).all()
+
+
+HEAVY = ("matplotlib", "evo.tools.plot", "dask", "pandas")
+_PROBE = ("import sys, runpy\nsys.argv = ['fusion-eval'] + sys.argv[1:]\n"
+          "try:\n    runpy.run_module('fusion_eval', run_name='__main__')\nexcept SystemExit as e:\n    code = e.code\n"
+          f"print('LOADED', code, ','.join(m for m in {HEAVY!r} if m in sys.modules))")
+
+
+def _loaded(*args) -> tuple[int, list[str]]:
+    import subprocess
+    import sys
+
+    out = subprocess.run([sys.executable, "-c", _PROBE, *args], capture_output=True, text=True)
+    line = next(s for s in out.stdout.splitlines() if s.startswith("LOADED"))
+    _, code, mods = line.split(" ", 2) if line.count(" ") >= 2 else (*line.split(" "), "")
+    return int(code or 0), [m for m in mods.split(",") if m]
+
+
+def test_help_and_check_import_no_plotting_dask_or_pandas(slice_run):
+    """Start-up stays light: `--help` and `check` (a CI gate) load none of the heavy libraries."""
+    assert _loaded("--help") == (0, [])
+    m = str(slice_run / "metrics.json")
+    code, mods = _loaded("check", m, "--baseline", m)
+    assert code == 0 and mods == []
+    # the probe does see them when a command loads them
+    code, mods = _loaded("evaluate", str(slice_run / "groundtruth.tum"), str(slice_run / "fused.tum"), "--out",
+                         str(slice_run.parent / "probe-eval"))
+    assert code == 0 and "matplotlib" in mods

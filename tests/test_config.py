@@ -73,3 +73,13 @@ def test_configs_default_yaml_names_every_key():
     body = yaml.safe_load((ROOT / "configs" / "default.yaml").read_text())
     missing = [k for k in schema() if k.split(".")[1] not in (body.get(k.split(".")[0]) or {})]
     assert not missing, missing
+
+
+def test_chi2_quantiles_equal_scipy_stats():
+    from scipy.stats import chi2
+
+    from fusion_eval.stats import chi2_ppf
+
+    for dof in (1, 2, 3, 6, 15):
+        q = np.array([0.025, 0.5, 0.975, 0.9999])
+        assert np.array_equal(chi2_ppf(q, dof), chi2.ppf(q, dof))

@@ -249,3 +249,58 @@ def test_result_zip_reads_back_as_evos_own_file(pairs):
     assert result_zip(res) == result_zip(res)                          # same inputs, same bytes
     assert file_interface.load_res_file(io.BytesIO(result_zip(res, trajectories=False)),
                                         load_trajectories=True).trajectories == {}
+
+
+def _full(name: str):
+    d = ("evo-test-data",)
+    if name == "kitti":
+        # KITTI files have no stamps: index stamps, as the KITTI reader's fallback gives them
+        ref = file_interface.read_kitti_poses_file(shared_path(*d, "KITTI_00_gt.txt"))
+        est = file_interface.read_kitti_poses_file(shared_path(*d, "KITTI_00_ORB.txt"))
+        from evo.core.trajectory import PoseTrajectory3D
+        return (PoseTrajectory3D(poses_se3=ref.poses_se3, timestamps=np.arange(ref.num_poses) * 0.1),
+                PoseTrajectory3D(poses_se3=est.poses_se3, timestamps=np.arange(est.num_poses) * 0.1 + 0.004))
+    if name == "tum":
+        return (file_interface.read_tum_trajectory_file(shared_path(*d, "fr2_desk_groundtruth.txt")),
+                file_interface.read_tum_trajectory_file(shared_path(*d, "fr2_desk_ORB.txt")))
+    if name == "tum-drift":
+        return (file_interface.read_tum_trajectory_file(shared_path(*d, "freiburg1_xyz-groundtruth.txt")),
+                file_interface.read_tum_trajectory_file(shared_path(*d, "freiburg1_xyz-rgbdslam_drift.txt")))
+    return (file_interface.read_euroc_csv_trajectory(shared_path(*d, "V102_groundtruth.csv")),
+            file_interface.read_tum_trajectory_file(shared_path(*d, "V102.txt")))
+
+
+@pytest.mark.parametrize("name", DATASETS)
+def test_stamp_matching_equals_evos(name):
+    """evo's association (nearest stamp) on whole arrays: the same index pairs as evo's loop, for several
+    tolerances and offsets, and the same associated trajectories (whole files, not cut)."""
+    from fusion_eval.evaluation.trajectory import associate_nearest
+
+    ref, est = _full(name)
+    for a, b in ((ref, est), (est, ref)):
+        for max_diff in (0.001, 0.01, 0.05):
+            for offset in (0.0, 0.0123, -0.02):
+                i1, i2 = sync.matching_time_indices(a.timestamps, b.timestamps, max_diff, offset)
+                j1, j2 = engine.matching_time_indices(a.timestamps, b.timestamps, max_diff, offset)
+                assert list(j1) == i1 and list(j2) == i2, (max_diff, offset)
+    r1, e1 = sync.associate_trajectories(ref, est, max_diff=0.01)
+    r2, e2 = associate_nearest(ref, est, 0.01)
+    for x, y in ((r1, r2), (e1, e2)):
+        assert np.array_equal(x.timestamps, y.timestamps)
+        assert np.array_equal(x.positions_xyz, y.positions_xyz)
+        assert np.array_equal(x.orientations_quat_wxyz, y.orientations_quat_wxyz)
+        assert x.name == y.name
+    # consecutive RPE pairs by path length on the whole associated trajectories
+    from evo.core import filters
+    T = engine.traj_se3(e1)
+    for delta in (0.05, 1.0, 7.5):
+        want = filters.filter_pairs_by_path(list(T), delta)
+        assert [tuple(p) for p in engine.rpe_pairs(T, T, delta, Unit.meters).tolist()] == want
+
+
+def test_unsorted_stamps_fall_back_to_evos_linear_search():
+    s1 = np.array([0.0, 1.0, 2.0, 3.0])
+    s2 = np.array([2.001, 0.002, 1.0, 5.0])
+    i1, i2 = sync.matching_time_indices(s1, s2, 0.01)
+    j1, j2 = engine.matching_time_indices(s1, s2, 0.01)
+    assert list(j1) == i1 and list(j2) == i2 == [1, 2, 0]

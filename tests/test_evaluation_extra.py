@@ -152,3 +152,45 @@ def test_evaluate_command_on_kitti_and_tum_files(tmp_path):
     (tmp_path / "bad.txt").write_text("1 2 3\n")
     r = CliRunner().invoke(main, ["-q", "evaluate", str(gt), str(tmp_path / "bad.txt"), "--out", str(tmp_path / "b")])
     assert r.exit_code == 2 and "expected a TUM (8 values per line) or KITTI (12 values)" in r.stderr
+
+
+def test_segment_breakdown_equals_the_masked_form():
+    """The per-segment breakdown groups each estimate once; it equals the per-window masks it replaced."""
+
+    from fusion_eval.evaluation.segments import breakdown
+    from fusion_eval.types import PoseSeries
+
+    rng = np.random.default_rng(3)
+    n = 5000
+    t = 100.0 + np.cumsum(rng.uniform(0.05, 0.15, n))
+    p = np.cumsum(rng.normal(size=(n, 3)) * [1.0, 1.0, 0.05], axis=0)
+    gt = PoseSeries(t_s=t, p_w_m=p, q_wb_xyzw=np.tile([0.0, 0.0, 0.0, 1.0], (n, 1)))
+    errors = {"fused": (t[::2] + 0.01, rng.random(t[::2].size)), "lidar": (t[5:-5:3], rng.random(t[5:-5:3].size)),
+              "gnss": (t[::10] - 5.0, rng.random(t[::10].size))}
+
+    def masked(gt, errors, segment_m, segment_s=None):
+        d_gt = np.concatenate([[0.0], np.cumsum(np.linalg.norm(np.diff(gt.p_w_m, axis=0), axis=1))])
+        t0, by_time = gt.t_s[0], segment_s is not None
+        L = float(segment_s if by_time else segment_m)
+
+        def key(t):
+            return np.floor((t - t0) / L) if by_time else np.floor(np.interp(t, gt.t_s, d_gt) / L)
+        out = []
+        for k in range(int(key(np.array([gt.t_s[-1]]))[0]) + 1):
+            lo, hi = k * L, (k + 1) * L
+            m = ((gt.t_s - t0 >= lo) & (gt.t_s - t0 < hi)) if by_time else ((d_gt >= lo) & (d_gt < hi))
+            if not m.any():
+                continue
+            seg = {"index": k, "start_m": float(d_gt[m][0]), "end_m": float(d_gt[m][-1]),
+                   "start_s": float(gt.t_s[m][0] - t0), "end_s": float(gt.t_s[m][-1] - t0), "rmse_m": {}, "poses": {}}
+            for name, (tt, e) in errors.items():
+                sel = key(tt) == k
+                seg["rmse_m"][name] = float(np.sqrt(np.mean(e[sel] ** 2))) if sel.any() else None
+                seg["poses"][name] = int(sel.sum())
+            out.append(seg)
+        return out
+
+    for seg_m, seg_s in ((25.0, None), (3.0, None), (100.0, 7.5)):
+        got = breakdown(gt, errors, seg_m, seg_s)["segments"]
+        assert got == masked(gt, errors, seg_m, seg_s)
+        assert len(got) > 3

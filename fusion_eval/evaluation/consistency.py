@@ -10,6 +10,7 @@ import numpy as np
 
 from ..filters.layout import POSE
 from ..so3 import log_so3
+from ..stats import chi2_ppf
 
 
 def nees(err: np.ndarray, cov: np.ndarray) -> np.ndarray:
@@ -28,9 +29,7 @@ def pose_nees(p_est: np.ndarray, R_est: np.ndarray, p_true: np.ndarray, R_true: 
 
 def fraction_inside(values: np.ndarray, dof: int, prob: float = 0.95) -> tuple[float, float, float]:
     """The two-sided ``prob`` chi-square interval for ``dof`` and the fraction of ``values`` inside it."""
-    from scipy.stats import chi2   # scipy.stats takes about a second to import: only when asked
-
-    lo, hi = chi2.ppf([(1 - prob) / 2, (1 + prob) / 2], dof)
+    lo, hi = chi2_ppf(np.array([(1 - prob) / 2, (1 + prob) / 2]), dof)
     return float(np.mean((values >= lo) & (values <= hi))), float(lo), float(hi)
 
 

@@ -18,6 +18,7 @@ from __future__ import annotations
 
 import numpy as np
 from evo.core import geometry, metrics
+from numba import njit
 from evo.core.lie_algebra import LieAlgebraException
 from evo.core.result import Result
 from evo.core.trajectory import PoseTrajectory3D
@@ -136,10 +137,65 @@ def ape_error(ref_T: np.ndarray, est_T: np.ndarray, relation: Rel) -> np.ndarray
 
 def rpe_pairs(ref_T: np.ndarray, est_T: np.ndarray, delta: float, delta_unit: metrics.Unit, rel_tol: float = 0.1,
               all_pairs: bool = False, pairs_from_reference: bool = False) -> np.ndarray:
-    """evo's own pair selection (``id_pairs_from_delta``) as an (M, 2) index array."""
-    pairs = metrics.id_pairs_from_delta(ref_T if pairs_from_reference else est_T, delta, delta_unit, rel_tol,
-                                        all_pairs=all_pairs)
+    """evo's pair selection (``id_pairs_from_delta``) as an (M, 2) index array. Consecutive pairs by frames
+    (a range) and by path length, whose selection evo makes in Python loops over poses, are selected here, the
+    path by :func:`path_pair_ids` (the same arithmetic, compiled); both equal evo's on real trajectories
+    (``tests/test_engine_parity.py``). Everything else is evo's own selection."""
+    T = ref_T if pairs_from_reference else est_T
+    if delta_unit == metrics.Unit.frames and not all_pairs and int(delta) >= 1 and len(T) > int(delta):
+        ids = np.arange(0, len(T), int(delta))           # filter_pairs_by_index, consecutive
+        return np.column_stack([ids[:-1], ids[1:]])
+    if delta_unit == metrics.Unit.meters and not all_pairs and len(T) > 0:
+        steps = np.linalg.norm(T[1:, :3, 3] - T[:-1, :3, 3], axis=1)
+        ids = path_pair_ids(steps, float(delta))
+        if ids.size < 2:
+            from evo.core.filters import FilterException
+
+            raise FilterException(f"delta = {delta} ({delta_unit.value}) produced an empty index list - try lower "
+                                  "values or a less strict tolerance")
+        return np.column_stack([ids[:-1], ids[1:]])
+    pairs = metrics.id_pairs_from_delta(T, delta, delta_unit, rel_tol, all_pairs=all_pairs)
     return np.asarray(pairs, dtype=int).reshape(-1, 2)
+
+
+@njit(cache=True)
+def path_pair_ids(steps, delta):
+    """The pose indices ``evo.core.filters.filter_pairs_by_path`` keeps in consecutive mode: the first, then
+    each pose at which the path travelled since the last kept one reaches ``delta`` (``steps[i]``: the
+    distance from pose i to pose i + 1, summed one by one as evo sums them)."""
+    ids = np.empty(steps.size + 1, np.int64)
+    ids[0] = 0
+    n = 1
+    current = 0.0
+    for i in range(steps.size):
+        current += steps[i]
+        if current >= delta:
+            ids[n] = i + 1
+            n += 1
+            current = 0.0
+    return ids[:n]
+
+
+def matching_time_indices(stamps_1: np.ndarray, stamps_2: np.ndarray, max_diff: float = 0.01,
+                          offset_2: float = 0.0) -> tuple[np.ndarray, np.ndarray]:
+    """``evo.core.sync.matching_time_indices`` on whole arrays: for each stamp of ``stamps_1`` the nearest of
+    the sorted ``stamps_2`` (+ ``offset_2``) within ``max_diff``, with evo's comparisons and tie rule (the
+    earlier stamp on an exact tie). Unsorted ``stamps_2`` fall back to evo's own linear search."""
+    s2 = np.asarray(stamps_2, float) + offset_2
+    s1 = np.asarray(stamps_1, float)
+    if s2.size == 0 or not np.all(np.diff(s2) >= 0):
+        from evo.core import sync
+
+        a, b = sync.matching_time_indices(stamps_1, stamps_2, max_diff, offset_2)
+        return np.asarray(a, int), np.asarray(b, int)
+    inside = ~((s1 < s2[0] - max_diff) | (s1 > s2[-1] + max_diff))
+    j = np.minimum(np.searchsorted(s2, s1, side="right"), s2.size - 1)
+    diff_ub = s2[j] - s1
+    diff_lb = np.where(j > 0, s1 - s2[np.maximum(j - 1, 0)], np.inf)
+    up = (diff_ub <= max_diff) & (diff_ub < diff_lb)
+    down = ~up & (diff_lb <= max_diff) & (diff_lb <= diff_ub)
+    keep = inside & (up | down)
+    return np.flatnonzero(keep), np.where(up, j, j - 1)[keep]
 
 
 def rpe_error(ref_T: np.ndarray, est_T: np.ndarray, relation: Rel, pairs: np.ndarray):

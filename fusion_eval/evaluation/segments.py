@@ -30,21 +30,26 @@ def breakdown(gt: PoseSeries, errors: dict[str, tuple[np.ndarray, np.ndarray]], 
         return np.floor((t - t0) / L) if by_time else np.floor(np.interp(t, gt.t_s, d_gt) / L)
 
     n_seg = int(key(np.array([gt.t_s[-1]]))[0]) + 1
+    # each estimate's poses grouped by window once (a stable sort keeps their order inside a window, so each
+    # window's RMSE sums the same values in the same order as a mask would)
+    groups = {}
+    for name, (t, e) in errors.items():
+        kk = key(t)
+        order = np.argsort(kk, kind="stable")
+        groups[name] = (e[order], np.searchsorted(kk[order], np.arange(n_seg + 1), side="left"))
+    x_gt = gt.t_s - t0 if by_time else d_gt          # non-decreasing: a window is a run of samples
     segs = []
     for k in range(n_seg):
         lo, hi = k * L, (k + 1) * L
-        if by_time:
-            m = (gt.t_s - t0 >= lo) & (gt.t_s - t0 < hi)
-        else:
-            m = (d_gt >= lo) & (d_gt < hi)
-        if not m.any():
+        a, b = np.searchsorted(x_gt, lo, side="left"), np.searchsorted(x_gt, hi, side="left")
+        if a >= b:
             continue
-        seg = {"index": k, "start_m": float(d_gt[m][0]), "end_m": float(d_gt[m][-1]),
-               "start_s": float(gt.t_s[m][0] - t0), "end_s": float(gt.t_s[m][-1] - t0), "rmse_m": {}, "poses": {}}
-        for name, (t, e) in errors.items():
-            sel = key(t) == k
-            seg["rmse_m"][name] = float(np.sqrt(np.mean(e[sel] ** 2))) if sel.any() else None
-            seg["poses"][name] = int(sel.sum())
+        seg = {"index": k, "start_m": float(d_gt[a]), "end_m": float(d_gt[b - 1]),
+               "start_s": float(gt.t_s[a] - t0), "end_s": float(gt.t_s[b - 1] - t0), "rmse_m": {}, "poses": {}}
+        for name, (e_sorted, bounds) in groups.items():
+            sel = e_sorted[bounds[k]:bounds[k + 1]]
+            seg["rmse_m"][name] = float(np.sqrt(np.mean(sel ** 2))) if sel.size else None
+            seg["poses"][name] = int(sel.size)
         segs.append(seg)
     ranked = sorted((s for s in segs if s["rmse_m"].get(primary) is not None), key=lambda s: -s["rmse_m"][primary])
     return {"by": "time" if by_time else "distance", "length": L, "segments": segs, "primary": primary,

@@ -80,8 +80,31 @@ def associate(reference: PoseSeries, estimate: PoseSeries, method: str, t_max_di
         if len(est) == 0:
             raise sync.SyncException("no estimate stamp inside the reference's span")
         return to_evo(ref_i, "groundtruth"), to_evo(est, estimate.source)
-    return sync.associate_trajectories(to_evo(reference, "groundtruth"), to_evo(estimate, estimate.source),
-                                       max_diff=t_max_diff_s)
+    return associate_nearest(to_evo(reference, "groundtruth"), to_evo(estimate, estimate.source), t_max_diff_s)
+
+
+def associate_nearest(traj_1, traj_2, max_diff: float):
+    """``evo.core.sync.associate_trajectories`` (nearest stamp, no offset) with the stamps matched on whole
+    arrays (:func:`engine.matching_time_indices`) and the matched poses taken without deep copies: the same
+    pair of trajectories (``tests/test_engine_parity.py``)."""
+    second_longer = traj_2.num_poses > traj_1.num_poses
+    short, long_ = (traj_1, traj_2) if second_longer else (traj_2, traj_1)
+    i_short, i_long = engine.matching_time_indices(short.timestamps, long_.timestamps, max_diff)
+    if i_short.size == 0:
+        raise sync.SyncException(
+            f"found no matching timestamps between {traj_1.name or 'first trajectory'} and "
+            f"{traj_2.name or 'second trajectory'} with max. time diff {max_diff} (s) and time offset 0.0 (s)")
+    short, long_ = _subset(short, i_short), _subset(long_, i_long)
+    return (short, long_) if second_longer else (long_, short)
+
+
+def _subset(traj, ids: np.ndarray):
+    """The poses ``ids`` of an evo trajectory, as ``reduce_to_ids`` leaves a deep copy of it."""
+    if traj._cache.has_poses_se3():          # noqa: SLF001 - a path given as matrices keeps them (as evo's does)
+        return PoseTrajectory3D(poses_se3=np.asarray(traj.poses_se3)[ids], timestamps=np.asarray(traj.timestamps)[ids],
+                                meta=copy.deepcopy(traj.meta), name=traj.name)
+    return PoseTrajectory3D(positions_xyz=traj.positions_xyz[ids], orientations_quat_wxyz=traj.orientations_quat_wxyz[ids],
+                            timestamps=np.asarray(traj.timestamps)[ids], meta=copy.deepcopy(traj.meta), name=traj.name)
 
 
 ENGINES = ("arrays", "evo")

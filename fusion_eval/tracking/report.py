@@ -5,7 +5,7 @@ from __future__ import annotations
 import json
 
 import numpy as np
-from scipy.stats import chi2
+from ..stats import chi2_ppf
 
 from ..outputs import StagedDir
 from .ekf import TrackResult, rmse
@@ -19,7 +19,7 @@ def nis_summary(res: TrackResult) -> dict:
         v = res.nis[(res.kind == k) & np.isfinite(res.nis)]
         if v.size == 0:
             continue
-        line = float(chi2.ppf(0.95, DOF[k]))
+        line = float(chi2_ppf(0.95, DOF[k]))
         out[name] = {"updates": int(v.size), "dof": DOF[k], "mean": float(v.mean()), "chi2_95": line,
                      "fraction_above_95": float(np.mean(v > line))}
     return out

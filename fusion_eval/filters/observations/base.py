@@ -154,9 +154,9 @@ class Observation:
         prob = getattr(getattr(s, sect), key)
         if prob is None:
             return np.inf
-        from scipy.stats import chi2
+        from ...stats import chi2_ppf
 
-        return float(chi2.ppf(prob, self.dof if dof is None else dof))
+        return float(chi2_ppf(prob, self.dof if dof is None else dof))
 
     simulate = None                     # optional: (motion, sim_settings, rng, out) -> manifest stream entries
 
