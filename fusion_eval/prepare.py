@@ -210,6 +210,11 @@ def prepare(ds: Dataset, cfg: dict) -> Prepared:
         resolved["imu"] = {k: est[e] * f for k, e, f in noise_keys if cfg["imu"][k] == "auto"}
     if resolved:
         applied["imu_noise"] = dict(resolved["imu"])
+    if cfg["filter"].get("discretization") == "auto":          # formulations that discretise a continuous model
+        from .filters.discretize import resolve_auto
+
+        resolved["filter"] = {"discretization": resolve_auto("auto", imu.t_s)}
+        applied["discretization"] = resolved["filter"]["discretization"]
     # --- initial state
     if cfg["filter"]["init_pose_from"] == "lidar":
         if lidar is None:

@@ -108,8 +108,19 @@ def test_every_discretisation_is_a_configuration_choice():
     from fusion_eval.config import schema
 
     spec = schema()["filter.discretization"]
-    assert set(spec.choices) == {"first_order", "second_order", "van_loan"}
-    assert spec.default == "van_loan"
+    assert set(spec.choices) == {"first_order", "second_order", "van_loan", "auto"}
+    assert spec.default == "auto"
+
+
+def test_auto_discretisation_is_van_loan_below_100_hz():
+    t10, t100, t200 = (np.arange(1000) / hz for hz in (10.0, 100.0, 200.0))
+    assert discretize.resolve_auto("auto", t10) == "van_loan"
+    assert discretize.resolve_auto("auto", t100) == "first_order"
+    assert discretize.resolve_auto("auto", t200) == "first_order"
+    assert discretize.resolve_auto("second_order", t200) == "second_order"
+    # KITTI's OXTS stamps jitter around 10 Hz: still Van Loan
+    jitter = np.cumsum(0.1 + np.random.default_rng(0).normal(0, 0.002, 1000))
+    assert discretize.resolve_auto("auto", jitter) == "van_loan"
 
 
 @pytest.mark.slow

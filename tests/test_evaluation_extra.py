@@ -194,3 +194,15 @@ def test_segment_breakdown_equals_the_masked_form():
         got = breakdown(gt, errors, seg_m, seg_s)["segments"]
         assert got == masked(gt, errors, seg_m, seg_s)
         assert len(got) > 3
+
+
+def test_plot_envelope_keeps_every_peak_and_short_series_whole():
+    from fusion_eval.report.plots import _envelope
+
+    rng = np.random.default_rng(5)
+    y = rng.normal(size=720_001)
+    y[123_457] = 50.0                                  # one spike in an hour at 200 Hz
+    k = _envelope(y)
+    assert k.size <= 5002 and np.all(np.diff(k) > 0) and k[0] == 0 and k[-1] == y.size - 1
+    assert 123_457 in k and y[k].min() == y.min()
+    assert np.array_equal(_envelope(y[:4000]), np.arange(4000))

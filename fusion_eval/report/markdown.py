@@ -191,6 +191,9 @@ def report_md(dataset: str, config_name: str, evals: dict, ratios: dict, cfg: di
           *_estimates(applied),
           f"- Time offsets [s]: {applied['time_offset_s']}.",
           f"- Gravity: {applied['gravity_mps2']:.5f} m/s^2."]
+    if applied.get("discretization"):
+        L.append(f"- Error-state discretisation chosen from the IMU rate (filter.discretization = auto): "
+                 f"{applied['discretization']}.")
     if applied.get("lidar_clock"):
         c = applied["lidar_clock"]
         L.append(f"- Lidar frame times: the stamps of the IMU packets they were matched to, smoothed by a robust local line "

@@ -31,6 +31,21 @@ def _every(n: int, at_most: int = 2500) -> slice:
     return slice(None, None, max(1, -(-n // at_most)))
 
 
+def _envelope(y: np.ndarray, at_most: int = 5000) -> np.ndarray:
+    """Indices that keep a long series' look: above ``at_most`` points, the minimum and the maximum of each of
+    ``at_most / 2`` consecutive bins, in order (a stride would drop the peaks a reader looks for). Shorter series
+    are kept whole, so a plot of a short drive is unchanged."""
+    n = len(y)
+    if n <= at_most:
+        return np.arange(n)
+    b = -(-n // (at_most // 2))
+    m = -(-n // b)
+    blocks = np.concatenate([y, np.full(m * b - n, y[-1])]).reshape(m, b)     # padded with the last value
+    base = np.arange(m) * b
+    k = np.concatenate([base + np.argmin(blocks, axis=1), base + np.argmax(blocks, axis=1), [0, n - 1]])
+    return np.unique(np.minimum(k, n - 1))
+
+
 def _no_minor_labels(ax) -> None:
     """Log axes label their minor ticks, and their major ticks in mathtext (10^k); laying those labels out
     dominated the drawing time. Plain numbers, and no minor labels."""
@@ -55,10 +70,11 @@ def plot_trajectories(path: Path, series: dict) -> None:
         s = series.get(name)
         if s is None or len(s) == 0:
             continue
+        p = s.p_w_m[_every(len(s), 20000)]         # a path of 20,000 points is smooth at this size
         if name == "gnss":
-            ax.plot(s.p_w_m[:, 0], s.p_w_m[:, 1], ".", ms=2.5, color=COLORS[name], label=LABELS[name])
+            ax.plot(p[:, 0], p[:, 1], ".", ms=2.5, color=COLORS[name], label=LABELS[name])
         else:
-            ax.plot(s.p_w_m[:, 0], s.p_w_m[:, 1], "-", lw=1.6 if name == "groundtruth" else 1.1,
+            ax.plot(p[:, 0], p[:, 1], "-", lw=1.6 if name == "groundtruth" else 1.1,
                     color=COLORS[name], label=LABELS[name], alpha=0.9)
     ax.plot(gt[0, 0], gt[0, 1], "k^", ms=8, label="start")
     lo, hi = gt[:, :2].min(axis=0), gt[:, :2].max(axis=0)  # not a state index: East, North
@@ -84,7 +100,8 @@ def plot_ape_over_time(path: Path, evals: dict, t0: float) -> None:
             continue
         rmse = ev.metrics["ape"]["translation_m"]["rmse"]
         style = "." if name == "gnss" else "-"
-        ax.plot(ev.ape_t_s - t0, np.maximum(ev.ape_err_m, 1e-3), style, ms=2.5, lw=1.0,
+        k = _envelope(ev.ape_err_m)
+        ax.plot(ev.ape_t_s[k] - t0, np.maximum(ev.ape_err_m[k], 1e-3), style, ms=2.5, lw=1.0,
                 color=COLORS.get(name, _VCOLORS[i % len(_VCOLORS)]), label=f"{LABELS.get(name, name)} (RMSE {rmse:.2f} m)")
     ax.set_yscale("log")
     _no_minor_labels(ax)
@@ -154,12 +171,14 @@ def plot_compare_ape(path: Path, runs, evs_unfiltered: dict, t0: float) -> None:
     fig, ax = plt.subplots(figsize=(10, 4.5))
     for i, r in enumerate(runs):
         rmse = r.ev.metrics["ape"]["translation_m"]["rmse"]
-        ax.plot(r.ev.ape_t_s - t0, np.maximum(r.ev.ape_err_m, 1e-3), "-", lw=1.0, color=_VCOLORS[i % len(_VCOLORS)],
+        k = _envelope(r.ev.ape_err_m)
+        ax.plot(r.ev.ape_t_s[k] - t0, np.maximum(r.ev.ape_err_m[k], 1e-3), "-", lw=1.0, color=_VCOLORS[i % len(_VCOLORS)],
                 label=f"{r.name} (RMSE {rmse:.2f} m)")
     for name in ("lidar", "gnss"):
         ev = evs_unfiltered.get(name)
         if ev is not None and ev.ape_err_m is not None:
-            ax.plot(ev.ape_t_s - t0, np.maximum(ev.ape_err_m, 1e-3), ":" if name == "lidar" else ".", ms=2, lw=1.0,
+            k = _envelope(ev.ape_err_m)
+            ax.plot(ev.ape_t_s[k] - t0, np.maximum(ev.ape_err_m[k], 1e-3), ":" if name == "lidar" else ".", ms=2, lw=1.0,
                     color=COLORS[name], label=f"{LABELS[name]} (RMSE {ev.metrics['ape']['translation_m']['rmse']:.2f} m)")
     ax.set_yscale("log")
     ax.set_xlabel("time since start [s]")
@@ -279,7 +298,8 @@ def plot_sweep(out_dir: Path, rows: list[dict], keys: list[str], metric: str, ta
                 continue
             res = file_interface.load_res_file(z)
             ts = res.np_arrays["timestamps"]
-            ax.plot(ts - ts[0], res.np_arrays["error_array"], style, lw=1.0,
+            k = _envelope(res.np_arrays["error_array"])
+            ax.plot(ts[k] - ts[0], res.np_arrays["error_array"][k], style, lw=1.0,
                     label=f"{name} ({Path(t.dataset).name}, RMSE {res.stats['rmse']:.3f} m)")
         ax.set_xlabel("time since start [s]")
         ax.set_ylabel("APE translation [m]")
@@ -326,7 +346,9 @@ def plot_consistency(path: Path, cons: dict, t0: float) -> None:
         lo, hi = d["bounds_95"]
         # NEES is a continuous series (a line); NIS values are separate innovations (pixel markers, cheap to draw)
         style = "-" if label.startswith("NEES") else ","
-        ax.plot(np.asarray(d["t_s"]) - t0, np.maximum(d["values"], 1e-4), style, lw=0.7, color="tab:blue")
+        v = np.asarray(d["values"])
+        k = _envelope(v)
+        ax.plot(np.asarray(d["t_s"])[k] - t0, np.maximum(v[k], 1e-4), style, lw=0.7, color="tab:blue")
         ax.axhline(lo, color="tab:red", lw=0.8, ls="--")
         ax.axhline(hi, color="tab:red", lw=0.8, ls="--")
         ax.axhline(d["dof"], color="black", lw=0.6)

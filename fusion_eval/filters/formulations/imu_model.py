@@ -5,6 +5,7 @@ from __future__ import annotations
 import numpy as np
 from numba import njit
 
+from ...errors import ConfigError
 from ..discretize import METHODS
 from ..mech import XBA, XBG
 from ..layout import Layout
@@ -27,6 +28,9 @@ def imu_params(g: float, accel_noise: float, gyro_noise: float, accel_bias_rw: f
     """The parameter record: gravity (m/s^2), the noise densities (SI, per sqrt(Hz)), the discretisation of
     the error dynamics (:data:`fusion_eval.filters.discretize.METHODS`; formulations that linearise their own
     discrete step, like the nominal-state EKF, ignore it) and the bias decay rates (1/s, Gauss-Markov)."""
+    if discretization not in METHODS:
+        raise ConfigError(f"filter.discretization={discretization!r} is not resolved: 'auto' is chosen from the IMU "
+                          "rate when a run is prepared (prepare.settings_for); give one of " + ", ".join(METHODS))
     return PARAMS.pack(g=g, qa=accel_noise, qg=gyro_noise, qba=accel_bias_rw, qbg=gyro_bias_rw,
                        disc=METHODS[discretization], kba=accel_bias_decay, kbg=gyro_bias_decay)
 
