@@ -99,11 +99,10 @@ def run_vs_evo(runs: int, tmp: Path) -> None:
 # ---- 2. the replay, compiled against Python ---------------------------------------------------------
 def replay_figures(repeats: int = 5) -> None:
     ds = session.dataset(ROOT / "data" / "kitti-00")
-    cfg = session.resolve(session.request(), ds)
-    prep = prepare(ds, cfg)
 
     def per_sample(mode: str, *sets: str) -> float:
         c = session.resolve(session.request(sets=(f"filter.replay={mode}", *sets)), ds)
+        prep = prepare(ds, c)              # per configuration: prepare resolves its 'auto' values
         s = settings_for(c, prep)
         out = replay(prep, s)              # warm-up: compiles or loads the cache
         best = np.inf
@@ -171,11 +170,12 @@ def startup(runs: int, tmp: Path) -> None:
     print(f"4. fusion-eval --help {ta:5.2f} s   python -c pass {tb:5.2f} s   ratio {fmt_ratios(r)}   target <= 0.3 s")
     probe = ("import sys, runpy; sys.argv = ['fusion-eval'] + sys.argv[1:]\n"
              "try:\n    runpy.run_module('fusion_eval', run_name='__main__')\nexcept SystemExit:\n    pass\n"
-             f"print(','.join(m for m in {HEAVY!r} if m in sys.modules))")
+             f"print('LOADED', ','.join(m for m in {HEAVY!r} if m in sys.modules))")
     run_dir = tmp / "run"
     for args in (["--help"], ["check", str(run_dir / "metrics.json"), "--baseline", str(run_dir / "metrics.json")]):
         out = subprocess.run([sys.executable, "-c", probe, *args], capture_output=True, text=True, cwd=ROOT)
-        loaded = out.stdout.strip().splitlines()[-1] if out.stdout.strip() else ""
+        line = next((x for x in out.stdout.splitlines() if x.startswith("LOADED")), "LOADED ?")
+        loaded = line[len("LOADED"):].strip()
         print(f"   fusion-eval {args[0]:6s} imports of {', '.join(HEAVY)}: {loaded or 'none'}")
 
 

@@ -118,24 +118,8 @@ def joseph_update_into(P, n, H, m, r, Rm, gate, wn, wm, dx, cols):
             v = 0.5 * (s1 + s2 + Rm[a, b] + Rm[b, a])
             S[a, b] = v
             S[b, a] = v
-    for a in range(m):                      # Cholesky S = L L^T
-        for b in range(a + 1):
-            s = S[a, b]
-            for k in range(b):
-                s -= L[a, k] * L[b, k]
-            if a == b:
-                if not s > 0.0:
-                    raise np.linalg.LinAlgError("innovation covariance not positive definite")
-                L[a, a] = np.sqrt(s)
-            else:
-                L[a, b] = s / L[b, b]
-    nis = 0.0                               # |L^-1 r|^2, with dx[:m] as scratch
-    for a in range(m):
-        s = r[a]
-        for k in range(a):
-            s -= L[a, k] * dx[k]
-        dx[a] = s / L[a, a]
-        nis += dx[a] * dx[a]
+    cholesky_into(S, 0, m, L)
+    nis = whitened_norm2(L, m, r, 0, dx)    # dx[:m] as scratch
     if nis > gate:      # (a NaN passes and surfaces as a non-finite correction: divergence, not rejection)
         for i in range(n):
             dx[i] = 0.0
@@ -183,10 +167,9 @@ def joseph_update_into(P, n, H, m, r, Rm, gate, wn, wm, dx, cols):
 
 
 @njit(cache=True)
-def block_nis(S, lo, hi, r, L, y):
-    """``r_b^T S_bb^-1 r_b`` of the diagonal block ``lo:hi`` of ``S`` and ``r`` (Cholesky in scalars; ``L``
-    and ``y``: scratch at least (hi - lo) square and long)."""
-    m = hi - lo
+def cholesky_into(S, lo, m, L):
+    """``L L^T = S[lo:lo + m, lo:lo + m]`` into the first ``m`` rows of ``L``, in scalars (the innovation
+    covariance is symmetric positive definite, or the filter has failed: a non-positive pivot raises)."""
     for a in range(m):
         for b in range(a + 1):
             s = S[lo + a, lo + b]
@@ -198,6 +181,11 @@ def block_nis(S, lo, hi, r, L, y):
                 L[a, a] = np.sqrt(s)
             else:
                 L[a, b] = s / L[b, b]
+
+
+@njit(cache=True)
+def whitened_norm2(L, m, r, lo, y):
+    """``|L^-1 r[lo:lo + m]|^2`` by forward substitution (``y``: scratch of ``m``, left holding ``L^-1 r``)."""
     q = 0.0
     for a in range(m):
         s = r[lo + a]
@@ -206,6 +194,14 @@ def block_nis(S, lo, hi, r, L, y):
         y[a] = s / L[a, a]
         q += y[a] * y[a]
     return q
+
+
+@njit(cache=True)
+def block_nis(S, lo, hi, r, L, y):
+    """``r_b^T S_bb^-1 r_b`` of the diagonal block ``lo:hi`` of ``S`` and ``r`` (``L`` and ``y``: scratch at
+    least (hi - lo) square and long)."""
+    cholesky_into(S, lo, hi - lo, L)
+    return whitened_norm2(L, hi - lo, r, lo, y)
 
 
 @njit(cache=True)
