@@ -158,9 +158,12 @@ def compare(ctx, dataset, variants, variant_dir, config_path, sets, out_dir, ove
 @click.option("--trials", type=click.IntRange(min=1), default=None,
               help="Monte-Carlo trials of every setting (default: the sweep file's 'trials', else 1): the summary ranks "
                    "by the mean over the trials.")
+@click.option("--batch/--no-batch", default=True, show_default=True,
+              help="Runs that differ only in the filter's noise settings share one loading and preparation of the "
+                   "data and one evaluation of the unfiltered estimates (the same results); --no-batch runs each alone.")
 @click.pass_context
 def sweep(ctx, datasets, sweep_file, out_dir, jobs, variant_dir, scheduler, dask_mode, retry_failed, summarize_only,
-          no_plots, trials):
+          no_plots, trials, batch):
     """Run DATASET(s) over the settings of a sweep file, in parallel or on Dask, and rank the results."""
     from .commands.sweep import run_sweep
 
@@ -175,7 +178,7 @@ def sweep(ctx, datasets, sweep_file, out_dir, jobs, variant_dir, scheduler, dask
 
     try:
         res = run_sweep(sweep_file, [str(d) for d in datasets], out_dir, jobs, variant_dir, scheduler, dask_mode == "local",
-                        retry_failed, summarize_only, not no_plots, progress_for, trials)
+                        retry_failed, summarize_only, not no_plots, progress_for, trials, batch)
     finally:
         for bar in bars:
             bar.close()

@@ -71,6 +71,41 @@ def trial_metrics(ds: Dataset, cfg: dict) -> dict:
         return {"failed": str(exc)}
 
 
+@dataclass
+class Shared:
+    """What runs of one dataset with one preparation share, whatever the filter's own settings: the prepared
+    streams, the unfiltered estimates (dead reckoning from the same start) and their evaluations."""
+
+    prep: Prepared
+    series: dict[str, PoseSeries]            # groundtruth, lidar, gnss, imu_only
+    span: tuple
+    ref: PoseSeries                          # the reference cropped to the common span
+    futures: dict                            # name -> future of an unfiltered estimate's evaluation
+    timings: dict
+
+
+def share(ds: Dataset, cfg: dict, pool) -> Shared:
+    """Prepare ``ds`` for ``cfg`` and start evaluating the unfiltered estimates on ``pool``."""
+    t = time.perf_counter()
+    prep = prepare(ds, cfg)
+    timings = {"prepare": time.perf_counter() - t}
+    series: dict[str, PoseSeries] = {"groundtruth": prep.groundtruth}
+    if prep.lidar is not None:
+        series["lidar"] = prep.lidar
+    if prep.gnss is not None:
+        series["gnss"] = prep.gnss.as_poses()
+    ev_cfg = cfg["evaluation"]
+    gt = prep.groundtruth
+    # the fused estimate and dead reckoning cover the IMU samples from the start on
+    spans = {n: span.coverage(series[n]) for n in ("lidar", "gnss") if n in series}
+    spans["fused"] = (float(prep.imu.t_s[prep.k_start]), float(prep.imu.t_s[-1]))
+    sp = span.span_for(ev_cfg["span"], gt, spans)
+    ref = span.crop(gt, sp)              # as evo's --t_start/--t_end: the reference reduced to the span
+    futures = {n: pool.submit(evaluate_estimate, ref, series[n], n, ev_cfg) for n in ("lidar", "gnss") if n in series}
+    series["imu_only"] = dead_reckoning(prep, settings_for(cfg, prep))
+    return Shared(prep, series, sp, ref, futures, timings)
+
+
 def execute(ds: Dataset, cfg: dict, *, dataset_path: str | Path | None = None, config_source: str = "default",
             progress: Callable[[float], None] | None = None, jobs: int | None = None,
             out: StagedDir | None = None, trials: int = 1) -> RunResult:
@@ -84,76 +119,74 @@ def execute(ds: Dataset, cfg: dict, *, dataset_path: str | Path | None = None, c
     With ``trials`` > 1 the run is trial 0 of that many Monte-Carlo trials (:mod:`fusion_eval.trials`): the
     others run on the same pool, and ``metrics["trials"]`` summarises every metric over all of them.
     """
-    timings: dict = {}
-    t = time.perf_counter()
-    prep = prepare(ds, cfg)
-    s = settings_for(cfg, prep)
-    timings["prepare"] = time.perf_counter() - t
-    series: dict[str, PoseSeries] = {"groundtruth": prep.groundtruth}
-    if prep.lidar is not None:
-        series["lidar"] = prep.lidar
-    if prep.gnss is not None:
-        series["gnss"] = prep.gnss.as_poses()
-    ev_cfg = cfg["evaluation"]
-    gt = prep.groundtruth
-    # the fused estimate and dead reckoning cover the IMU samples from the start on
-    spans = {n: span.coverage(series[n]) for n in ("lidar", "gnss") if n in series}
-    spans["fused"] = (float(prep.imu.t_s[prep.k_start]), float(prep.imu.t_s[-1]))
-    sp = span.span_for(ev_cfg["span"], gt, spans)
-    ref = span.crop(gt, sp)              # as evo's --t_start/--t_end: the reference reduced to the span
-    n_trials = mc.check_count(trials)
     with executor(jobs) as pool:
-        done = [0]
+        return filter_and_evaluate(ds, cfg, share(ds, cfg, pool), pool, dataset_path=dataset_path,
+                                   config_source=config_source, progress=progress, out=out, trials=trials)
 
-        def finished(_f):
-            done[0] += 1
-            if progress is not None:
-                progress(done[0] / n_trials)
-        trial_futs = []
-        for i in range(1, n_trials):
-            trial_futs.append(pool.submit(trial_metrics, ds, mc.apply(cfg, i)))
-            trial_futs[-1].add_done_callback(finished)
-        series["imu_only"] = dead_reckoning(prep, s)
-        futures = {n: pool.submit(evaluate_estimate, ref, series[n], n, ev_cfg)
-                   for n in ("lidar", "gnss") if n in series}
+
+def filter_and_evaluate(ds: Dataset, cfg: dict, sh: Shared, pool, *, dataset_path: str | Path | None = None,
+                        config_source: str = "default", progress: Callable[[float], None] | None = None,
+                        out: StagedDir | None = None, trials: int = 1) -> RunResult:
+    """The filter's part of a run on prepared data (:func:`share`): replay, evaluate, summarise, write. ``cfg``
+    may differ from the one ``sh`` was prepared with only in what the filter alone reads (a sweep's noise
+    settings, :func:`fusion_eval.commands.sweep.batch_key`)."""
+    prep, gt, ref, ev_cfg = sh.prep, sh.prep.groundtruth, sh.ref, cfg["evaluation"]
+    timings = dict(sh.timings)
+    s = settings_for(cfg, prep)
+    series = dict(sh.series)
+    n_trials = mc.check_count(trials)
+    done = [0]
+
+    def finished(_f):
+        done[0] += 1
+        if progress is not None:
+            progress(done[0] / n_trials)
+    trial_futs = []
+    for i in range(1, n_trials):
+        trial_futs.append(pool.submit(trial_metrics, ds, mc.apply(cfg, i)))
+        trial_futs[-1].add_done_callback(finished)
+    t = time.perf_counter()
+    # overflow in absurd settings is reported as divergence (exit 3), not as numpy warnings
+    with np.errstate(over="ignore", invalid="ignore"):
+        filt = replay(prep, s, progress=None if progress is None or n_trials > 1 else progress,
+                      imu_only=series["imu_only"])
+    timings["filter"] = time.perf_counter() - t
+    t = time.perf_counter()
+    series["fused"] = filt.fused
+    if filt.smoothed is not None:
+        series["smoothed"] = filt.smoothed.fused
+        timings["smoother"] = filt.smoother_info["backward_s"]
+    futures = dict(sh.futures)
+    futures.update({n: pool.submit(evaluate_estimate, ref, series[n], n, ev_cfg) for n in ("fused", "smoothed")
+                    if n in series})
+    if "imu_only" not in futures:       # evaluated once per preparation (later runs of a batch reuse it)
+        futures["imu_only"] = sh.futures["imu_only"] = pool.submit(evaluate_estimate, ref, series["imu_only"],
+                                                                   "imu_only", ev_cfg)
+    err = fused_error(gt, filt)
+    first = pool.submit(report.write_filter_outputs, out, series, filt, err, cfg["output"]["plots"]) \
+        if out is not None else None
+    evals = {n: futures[n].result() for n in ESTIMATES if n in futures}
+    timings["evaluate"] = time.perf_counter() - t
+    ratios = ratio_metrics(evals)
+    cons = consistency(gt, filt)
+    seg = segments(gt, evals, ev_cfg)
+    metrics = run_metrics(ds.name, evals, ratios, ev_cfg, prep.applied, prep.gnss_info, cons, seg, sh.span,
+                          smoother=smoother_section(filt))
+    if n_trials > 1:
+        finished(None)
+        metrics["trials"] = mc.section(cfg, [metrics] + [f.result() for f in trial_futs])
+    dataset_path = ds.description.get("path") if dataset_path is None else dataset_path
+    resolved_extra = {"dataset": {"path": None if dataset_path is None else str(dataset_path), "name": ds.name,
+                                  "manifest": ds.description.get("manifest"),
+                                  "attribution": ds.description.get("attribution"),
+                                  "streams": ds.description.get("streams")},
+                      "applied": prep.applied, "config_source": config_source}
+    res = RunResult(ds.name, cfg, config_source, prep, filt, series, evals, ratios, cons, seg, err, metrics,
+                    resolved_extra, timings)
+    if out is not None:
         t = time.perf_counter()
-        # overflow in absurd settings is reported as divergence (exit 3), not as numpy warnings
-        with np.errstate(over="ignore", invalid="ignore"):
-            filt = replay(prep, s, progress=None if progress is None or n_trials > 1 else progress,
-                          imu_only=series["imu_only"])
-        timings["filter"] = time.perf_counter() - t
-        t = time.perf_counter()
-        series["fused"] = filt.fused
-        if filt.smoothed is not None:
-            series["smoothed"] = filt.smoothed.fused
-            timings["smoother"] = filt.smoother_info["backward_s"]
-        futures.update({n: pool.submit(evaluate_estimate, ref, series[n], n, ev_cfg)
-                        for n in ("fused", "smoothed", "imu_only") if n in series})
-        err = fused_error(gt, filt)
-        first = pool.submit(report.write_filter_outputs, out, series, filt, err, cfg["output"]["plots"]) \
-            if out is not None else None
-        evals = {n: futures[n].result() for n in ESTIMATES if n in futures}
-        timings["evaluate"] = time.perf_counter() - t
-        ratios = ratio_metrics(evals)
-        cons = consistency(gt, filt)
-        seg = segments(gt, evals, ev_cfg)
-        metrics = run_metrics(ds.name, evals, ratios, ev_cfg, prep.applied, prep.gnss_info, cons, seg, sp,
-                              smoother=smoother_section(filt))
-        if n_trials > 1:
-            finished(None)
-            metrics["trials"] = mc.section(cfg, [metrics] + [f.result() for f in trial_futs])
-        dataset_path = ds.description.get("path") if dataset_path is None else dataset_path
-        resolved_extra = {"dataset": {"path": None if dataset_path is None else str(dataset_path), "name": ds.name,
-                                      "manifest": ds.description.get("manifest"),
-                                      "attribution": ds.description.get("attribution"),
-                                      "streams": ds.description.get("streams")},
-                          "applied": prep.applied, "config_source": config_source}
-        res = RunResult(ds.name, cfg, config_source, prep, filt, series, evals, ratios, cons, seg, err, metrics,
-                        resolved_extra, timings)
-        if out is not None:
-            t = time.perf_counter()
-            report.write_evaluation(out, res, first.result(), pool)
-            timings["write"] = time.perf_counter() - t
+        report.write_evaluation(out, res, first.result(), pool)
+        timings["write"] = time.perf_counter() - t
     return res
 
 

@@ -198,3 +198,33 @@ def test_grid_random_and_named_settings_are_planned(small, tmp_path):
     bad.write_text("grid:\n  imu.nope: [1, 2]\n")
     r = CliRunner().invoke(main, ["-q", "sweep", str(small), "--grid", str(bad), "--out", str(tmp_path / "x")])
     assert r.exit_code == 2 and "unknown configuration key 'imu.nope'" in r.stderr
+
+
+@pytest.mark.slow
+def test_batched_sweep_equals_runs_made_one_by_one(small, tmp_path):
+    """Runs that differ only in filter settings share one preparation; their records and files are those of
+    runs made alone (and the GNSS setting, which the preparation reads, is a batch of its own)."""
+    from fusion_eval.commands.sweep import batches, plan
+
+    sw = _sweep_file(tmp_path)
+    tasks = plan(sw, [str(small)], tmp_path / "x")[0]
+    groups = batches(tasks, 1)
+    by_setting = {t.setting: len(g) for g in groups for t in g}
+    # a, b give the gyro density; default, c, d leave it 'auto' (estimated by the preparation): two batches
+    assert by_setting["a"] == by_setting["b"] == 2 and by_setting["default"] == by_setting["d"] == 3
+    assert by_setting["e"] == 1
+    a, b = tmp_path / "batch", tmp_path / "alone"
+    for out, flag in ((a, "--batch"), (b, "--no-batch")):
+        r = CliRunner().invoke(main, ["sweep", str(small), "--grid", str(sw), "--out", str(out), "--jobs", "1", flag])
+        assert r.exit_code == 0, r.output
+    recs_a = {p.name: json.loads(p.read_text()) for p in (a / "records").glob("*.json")}
+    recs_b = {p.name: json.loads(p.read_text()) for p in (b / "records").glob("*.json")}
+    assert recs_a.keys() == recs_b.keys() and len(recs_a) == 6
+    for k in recs_a:
+        assert recs_a[k]["status"] == recs_b[k]["status"] == "ok"
+        assert recs_a[k]["metrics"] == recs_b[k]["metrics"], k
+    rid = next(iter(recs_a))[:-5]
+    files_a = sorted(p.name for p in (a / "runs" / rid).iterdir())
+    assert files_a == sorted(p.name for p in (b / "runs" / rid).iterdir())
+    for f in ("fused.tum", "metrics.json", "report.md"):
+        assert (a / "runs" / rid / f).read_bytes() == (b / "runs" / rid / f).read_bytes(), f

@@ -67,6 +67,36 @@ class Task:
     plots: bool
     out_root: str                 # absolute
     trial: int = 0                # Monte-Carlo trial: the seeds of every random element plus this
+    batch: str = ""               # runs with one batch key share their data preparation (batch_key)
+
+
+# Keys that only the filter reads: not the data preparation, not the evaluation (checked: prepare, timing,
+# degrade, calibration, datasets and evaluation read none of them, but for whether an IMU density is 'auto').
+# Runs of one dataset whose configurations differ only in these are one batch: the data is loaded and
+# prepared once, the unfiltered estimates evaluated once, and each run replays and evaluates its own filter.
+FILTER_ONLY_KEYS = (
+    "imu.accel_noise_mps2_sqrthz", "imu.gyro_noise_dps_sqrthz", "imu.accel_bias_rw_mps3_sqrthz",
+    "imu.gyro_bias_rw_dps2_sqrthz", "imu.gap_noise_scale", "imu.accel_bias_corr_time_s", "imu.gyro_bias_corr_time_s",
+    "lidar.relative_pos_std_m", "lidar.relative_pos_std_frac", "lidar.relative_att_std_deg",
+    "lidar.relative_att_std_frac", "lidar.gate_prob", "lidar.noise_adapt", "lidar.adapt_rate",
+    "lidar.absolute_pos_std_m", "lidar.absolute_att_std_deg", "filter.nhc_std_mps",
+    "odometer.speed_noise_mps_sqrthz", "odometer.slip_noise_mps_sqrthz", "odometer.scale_rw_per_sqrts",
+    "init.pos_std_m", "init.vel_std_mps", "init.roll_pitch_std_deg", "init.yaw_std_deg", "init.accel_bias_std_mps2",
+    "init.gyro_bias_std_dps", "init.odometer_scale_std",
+)
+BATCH_MAX = 8            # runs per batch at most: an interrupted batch is redone whole; smaller keeps both cores busy
+
+
+def batch_key(dataset: str, cfg: dict) -> str:
+    """Equal for two runs that may share one preparation: same dataset, same configuration but for the
+    values of :data:`FILTER_ONLY_KEYS` (an 'auto' value stays distinct: preparation estimates it)."""
+    masked = {sect: dict(body) for sect, body in cfg.items()}
+    for k in FILTER_ONLY_KEYS:
+        sect, key = k.split(".", 1)
+        if key in masked.get(sect, {}):
+            masked[sect][key] = "auto" if masked[sect][key] == "auto" else "<filter>"
+    return hashlib.sha256(json.dumps({"dataset": dataset, "config": masked}, sort_keys=True,
+                                     default=str).encode()).hexdigest()[:12]
 
 
 def _num(v):
@@ -198,7 +228,7 @@ def plan(sweep_path: Path, datasets: list[str], out_dir: Path, variant_dir: Path
                     key = json.dumps({"dataset": ds_abs, "config": cfg}, sort_keys=True)
                     rid = hashlib.sha256(key.encode()).hexdigest()[:12]
                     tasks.append(Task(rid, ds_abs, v, vpaths[v], name, ov_i, base, bool(body.get("plots", False)), out_root,
-                                      i))
+                                      i, batch_key(ds_abs, cfg)))
     ids = [t.id for t in tasks]
     if len(set(ids)) != len(ids):
         log.warning("some settings resolve to the same configuration; they share one run")
@@ -234,6 +264,67 @@ def run_task(task: Task) -> dict:
     return rec
 
 
+def run_batch(tasks: list[Task]) -> list[dict]:
+    """Run sweep entries that share a batch key (:func:`batch_key`): the dataset loaded and prepared once, the
+    unfiltered estimates evaluated once, then each entry's filter replayed, evaluated and written as
+    :func:`run_task` would (the same files and metrics; ``tests/test_sweep_check.py``). Each record is written
+    as its run completes (the submitting process writes it again, the same bytes), so a killed batch keeps its
+    finished runs. Never raises."""
+    from ..outputs import StagedDir
+    from ..pipeline import filter_and_evaluate, share
+    from ..pool import Inline
+
+    if len(tasks) == 1:
+        return [run_task(tasks[0])]
+    recs, cfgs, reqs = [], [], []
+    t_load = time.perf_counter()
+    try:
+        ds = session.dataset(tasks[0].dataset)
+        for task in tasks:
+            overrides = {**task.overrides, **({} if task.plots else {"output.plots": False})}
+            reqs.append(session.request(config=task.base_config, variant=task.variant_path, overrides=overrides))
+            cfgs.append(session.resolve(reqs[-1], ds))
+        pool = Inline()
+        with np.errstate(all="ignore"):
+            sh = share(ds, cfgs[0], pool)
+    except FusionEvalError:          # the preparation failed: every entry would; each says why on its own
+        return [run_task(t) for t in tasks]
+    shared_s = (time.perf_counter() - t_load) / len(tasks)
+    for task, req, cfg in zip(tasks, reqs, cfgs):
+        t0 = time.perf_counter()
+        rec = {"id": task.id, "dataset": task.dataset, "variant": task.variant, "setting": task.setting,
+               "overrides": task.overrides, "trial": task.trial}
+        try:
+            staged = StagedDir(Path(task.out_root) / "runs" / task.id, overwrite=True)
+            with staged as out, np.errstate(all="ignore"):
+                res = filter_and_evaluate(ds, cfg, sh, pool, dataset_path=task.dataset, config_source=req.source,
+                                          out=out)
+            rec.update(status="ok", error=None, metrics=res.metrics)
+        except FusionEvalError as exc:
+            rec.update(status="failed", error=str(exc), metrics=None)
+        except Exception as exc:  # noqa: BLE001 - as in run_task
+            rec.update(status="failed", error=f"{type(exc).__name__}: {exc}", traceback=traceback.format_exc(),
+                       metrics=None)
+        rec["runtime_s"] = round(time.perf_counter() - t0 + shared_s, 3)
+        rec["batch"] = task.batch
+        write_record(Path(task.out_root), rec)
+        recs.append(rec)
+    return recs
+
+
+def batches(todo: list[Task], jobs: int) -> list[list[Task]]:
+    """The runs grouped by batch key, cut into chunks of at most :data:`BATCH_MAX` and at most an equal share of
+    the workers (so that a sweep of one batch still spreads over every core)."""
+    groups: dict[str, list[Task]] = {}
+    for t in todo:
+        groups.setdefault(t.batch or t.id, []).append(t)
+    out = []
+    for g in groups.values():
+        size = max(1, min(BATCH_MAX, math.ceil(len(g) / max(jobs, 1))))
+        out += [g[i:i + size] for i in range(0, len(g), size)]
+    return out
+
+
 def write_record(out_dir: Path, rec: dict) -> None:
     d = Path(out_dir) / "records"
     d.mkdir(parents=True, exist_ok=True)
@@ -260,8 +351,10 @@ def _cleanup_partials(out_dir: Path) -> None:
 
 
 def execute(tasks: list[Task], out_dir: Path, jobs: int | None, scheduler: str | None, dask_local: bool,
-            retry_failed: bool = False, progress: Callable[[int, int, int, int], None] | None = None) -> dict:
-    """Run every task without a record; records are written as runs complete. Returns counts."""
+            retry_failed: bool = False, progress: Callable[[int, int, int, int], None] | None = None,
+            batch: bool = True) -> dict:
+    """Run every task without a record; records are written as runs (or batches, :func:`run_batch`) complete.
+    ``batch`` False runs every task on its own. Returns counts."""
     out_dir = Path(out_dir)
     out_dir.mkdir(parents=True, exist_ok=True)
     _cleanup_partials(out_dir)
@@ -290,6 +383,11 @@ def execute(tasks: list[Task], out_dir: Path, jobs: int | None, scheduler: str |
         if progress:
             progress(n_ok, n_fail, total - n_ok - n_fail, skipped)
 
+    work = batches(todo, jobs) if batch else [[t] for t in todo]
+    shared = [w for w in work if len(w) > 1]
+    if shared:
+        log.info("%d of %d runs differ only in filter settings: %d batches, each loading and preparing the data once",
+                 sum(map(len, shared)), len(todo), len(shared))
     if scheduler or dask_local:
         from dask.distributed import Client, LocalCluster, as_completed
 
@@ -297,31 +395,35 @@ def execute(tasks: list[Task], out_dir: Path, jobs: int | None, scheduler: str |
             if dask_local else None
         client = Client(cluster if cluster is not None else scheduler)
         try:
-            futures = [client.submit(run_task, t, key=f"fusion-eval-{t.id}", pure=False) for t in todo]
+            futures = [client.submit(run_batch, w, key=f"fusion-eval-{w[0].id}-{len(w)}", pure=False) for w in work]
             for fut in as_completed(futures):
-                finished(fut.result())
+                for rec in fut.result():
+                    finished(rec)
         finally:
             client.close()
             if cluster is not None:
                 cluster.close()
     elif jobs == 1:
-        for t in todo:
-            finished(run_task(t))
+        for w in work:
+            for rec in run_batch(w):
+                finished(rec)
     else:
         import multiprocessing as mp
         from concurrent.futures import ProcessPoolExecutor, as_completed as cf_completed
 
         with ProcessPoolExecutor(max_workers=jobs, mp_context=mp.get_context("spawn")) as pool:
-            futs = [pool.submit(run_task, t) for t in todo]
+            futs = [pool.submit(run_batch, w) for w in work]
             for f in cf_completed(futs):
-                finished(f.result())
+                for rec in f.result():
+                    finished(rec)
     return {"run": n_ok, "failed": n_fail, "skipped": skipped}
 
 
 def run_sweep(sweep: str | Path, datasets: list[str], out_dir: Path, jobs: int | None = None, variant_dir: Path | None = None,
               scheduler: str | None = None, dask_local: bool = False, retry_failed: bool = False,
               summarize_only: bool = False, plots: bool = True,
-              progress_for: Callable[[int], Callable | None] | None = None, trials: int | None = None) -> dict:
+              progress_for: Callable[[int], Callable | None] | None = None, trials: int | None = None,
+              batch: bool = True) -> dict:
     """Plan, run (unless ``summarize_only``) and summarise a sweep; ``sweep`` a file or a shipped sweep's name.
     ``progress_for(total)`` gives the progress callback of :func:`execute`. Returns the counts and the summary."""
     from .sweep_summary import write_summary
@@ -338,6 +440,6 @@ def run_sweep(sweep: str | Path, datasets: list[str], out_dir: Path, jobs: int |
             raise ConfigError(f"{out_dir}: no sweep records here (nothing to summarize)")
     else:
         progress = progress_for(len({t.id for t in tasks})) if progress_for else None
-        counts = execute(tasks, out_dir, jobs, scheduler, dask_local, retry_failed, progress=progress)
+        counts = execute(tasks, out_dir, jobs, scheduler, dask_local, retry_failed, progress=progress, batch=batch)
     summary = write_summary(tasks, out_dir, swept_keys(body), plots=plots, grid_keys=list(body.get("grid") or {}))
     return {"counts": counts, "summary": summary, "tasks": tasks}
