@@ -16,7 +16,9 @@ Prints, on this machine:
   4. `fusion-eval --help` (target <= 0.3 s) against a bare `python -c pass`, and which of matplotlib,
      evo's plotting, dask and pandas `--help` and `check` import (none is the goal);
   5. with --hour: `fusion-eval run` on a simulated drive of 1 h at 200 Hz (csv layout; the simulation not
-     counted), wall time and peak memory (targets < 10 s, < 1 GiB), against `evo_ape` on its files.
+     counted), wall time and peak memory (targets < 10 s, < 1 GiB), against `evo_ape` on its files;
+  6. with --sweep: the shipped noise-only sweep `noise64` (65 runs on kitti-00, --jobs 2) in batches against the
+     same sweep run by run (`--no-batch`): filter-samples per second over the whole sweep (target >= 1 M/s).
 """
 
 from __future__ import annotations
@@ -194,11 +196,22 @@ def hour(tmp: Path) -> None:
           f"{t_evo:5.1f} s   ratio {t_run / t_evo:.1f}x   targets < 10 s, < 1 GiB")
 
 
+# ---- 6. a noise-only sweep ---------------------------------------------------------------------------
+def sweep(tmp: Path) -> None:
+    n_runs, n_samples = 65, 4409          # noise64 and the default; kitti-00's IMU samples from the start
+    cmd = exe("fusion-eval") + ["-q", "sweep", "--grid", "noise64", "--jobs", "2"]
+    tb = timed(cmd + ["--out", str(tmp / "sw-batch")], cwd=ROOT)
+    tn = timed(cmd + ["--out", str(tmp / "sw-alone"), "--no-batch"], cwd=ROOT)
+    print(f"6. sweep noise64 (65 runs, --jobs 2): batched {tb:6.1f} s = {n_runs * n_samples / tb:9,.0f} filter-samples/s"
+          f"   run by run {tn:6.1f} s = {n_runs * n_samples / tn:9,.0f} /s   ratio {tb / tn:.2f}   target >= 1,000,000 /s")
+
+
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("--runs", type=int, default=3, help="alternated pairs of the whole-run and start-up figures")
     ap.add_argument("--samples", type=int, default=200_000, help="IMU samples of the propagation figure")
     ap.add_argument("--hour", action="store_true", help="also the 1 h, 200 Hz simulated drive (a few minutes)")
+    ap.add_argument("--sweep", action="store_true", help="also the 65-run noise sweep, batched and run by run (a minute)")
     a = ap.parse_args()
     with tempfile.TemporaryDirectory() as d:
         tmp = Path(d)
@@ -208,6 +221,8 @@ def main() -> None:
         startup(a.runs, tmp)
         if a.hour:
             hour(tmp)
+        if a.sweep:
+            sweep(tmp)
 
 
 if __name__ == "__main__":
