@@ -34,6 +34,7 @@ MESSAGES = {BAD_RESIDUAL: "non-finite residual", BAD_CORRECTION: "non-finite cor
             BAD_STATE: "non-finite state or negative variance after an update"}
 # st: the loop's integer state
 ST_N, ST_K, ST_CLONED = 0, 1, 2
+CHUNK_EVENTS = 2000      # not a state index: events per compiled call (a call costs tens of microseconds)
 CLONE_P, CLONE_R = CLONE.start("p"), CLONE.start("R")
 
 _LOOP = '''
@@ -195,7 +196,8 @@ def run(kf, bound, times: np.ndarray, which: np.ndarray, index: np.ndarray, orde
     H, r, Rm = np.zeros((M_MAX, N_MAX)), np.zeros(M_MAX), np.zeros((M_MAX, M_MAX))
     wn, wm, dx, cols = linalg.workspace(N_MAX, M_MAX)
     clone_rows = np.ascontiguousarray(kf.layout.clone_rows(), np.int64)
-    chunk = max(1, n_ev // 50) if progress is not None else max(n_ev, 1)
+    # chunks of events: progress, and a Ctrl-C that numba's loop cannot see is taken between them
+    chunk = max(1, min(CHUNK_EVENTS, n_ev // 50 if progress is not None else CHUNK_EVENTS))
     j = 0
     try:
         while j < n_ev:
