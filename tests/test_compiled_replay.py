@@ -156,3 +156,36 @@ def test_structured_reset_equals_the_dense_form(n):
     inject_reset_dense(x2, c2, P2, n, dx)
     assert np.max(np.abs(P1 - P2)) < 1e-13 * np.max(np.abs(P2))
     assert np.max(np.abs(x1 - x2)) < 1e-15 and np.max(np.abs(c1 - c2)) < 1e-15
+
+
+def test_every_increment_gated_out_with_adaptive_noise():
+    """No accepted update: the adaptive noise keeps its prior scales on both paths (nothing to summarise)."""
+    prep, s = _prepared("lidar.gate_prob=1e-6")
+    ref = replay(prep, _with_mode(s.cfg, prep, "python"))
+    got = replay(prep, s)
+    assert ref.nis["lidar"]["rejected"] == got.nis["lidar"]["rejected"] == ref.nis["lidar"]["nis"].size > 4000
+    assert got.nis["lidar"]["adapt"] == ref.nis["lidar"]["adapt"]
+    assert got.nis["lidar"]["adapt"]["pos_std_factor"] == 1.0
+    assert np.max(np.abs(got.fused.p_w_m - ref.fused.p_w_m)) < 1e-9
+
+
+@pytest.mark.parametrize("n_frames", [0, 1])
+def test_relative_pose_binds_with_fewer_than_two_frames(n_frames):
+    from types import SimpleNamespace as NS
+
+    from fusion_eval.filters.observations.relative_pose import OBSERVATION
+
+    class Lidar:
+        t_s = np.array([0.5, 100.0, 100.1] if n_frames else [100.0, 100.1])     # the run spans 0..10 s
+        p_w_m = np.zeros((t_s.size, 3))
+
+        def R_wb(self):
+            return np.tile(np.eye(3), (self.t_s.size, 1, 1))
+
+    run = NS(lidar=Lidar(), imu=NS(t_s=np.linspace(0, 10, 101)), k_start=0)
+    s = NS(lidar=NS(relative_pos_std_m=0.02, relative_pos_std_frac=0.01, relative_att_std_rad=1e-3,
+                    relative_att_std_frac=0.0, noise_adapt="none", adapt_rate=0.02, gate_prob=None),
+           filter=NS(use_gnss=True))
+    b = OBSERVATION.bind(run, s)
+    assert b.t_s.size == n_frames and b.kernel.data.shape == (n_frames, 15)
+    assert not b.kernel.data[:, 0].any()          # a lone frame only starts the chain of clones

@@ -206,3 +206,13 @@ def test_plot_envelope_keeps_every_peak_and_short_series_whole():
     assert k.size <= 5002 and np.all(np.diff(k) > 0) and k[0] == 0 and k[-1] == y.size - 1
     assert 123_457 in k and y[k].min() == y.min()
     assert np.array_equal(_envelope(y[:4000]), np.arange(4000))
+
+
+def test_plot_envelope_skips_gaps():
+    from fusion_eval.report.plots import _envelope
+
+    y = np.random.default_rng(6).normal(size=50_000)
+    y[::7] = np.nan                                    # a gap in every bin
+    y[12_345] = 100.0
+    k = _envelope(y)
+    assert 12_345 in k and np.nanmin(y[k]) == np.nanmin(y)

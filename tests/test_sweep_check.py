@@ -228,3 +228,20 @@ def test_batched_sweep_equals_runs_made_one_by_one(small, tmp_path):
     assert files_a == sorted(p.name for p in (b / "runs" / rid).iterdir())
     for f in ("fused.tum", "metrics.json", "report.md"):
         assert (a / "runs" / rid / f).read_bytes() == (b / "runs" / rid / f).read_bytes(), f
+
+
+def test_a_batch_whose_preparation_fails_records_each_run_as_failed(small, tmp_path, monkeypatch):
+    """A failure (even a bug) while preparing a batch never ends the sweep: each run is then made alone and
+    recorded with its error, as a run outside a batch would be."""
+    import fusion_eval.pipeline as pl
+    from fusion_eval.commands import sweep as sw
+
+    tasks = sw.plan(_sweep_file(tmp_path), [str(small)], tmp_path / "s")[0]
+    group = next(g for g in sw.batches(tasks, 1) if len(g) > 1)
+
+    def boom(*_a, **_k):
+        raise ValueError("a bug in the preparation")
+    monkeypatch.setattr(pl, "prepare", boom)
+    recs = sw.run_batch(group)
+    assert [r["status"] for r in recs] == ["failed"] * len(group)
+    assert all("ValueError: a bug in the preparation" in r["error"] for r in recs)

@@ -287,7 +287,7 @@ def run_batch(tasks: list[Task]) -> list[dict]:
         pool = Inline()
         with np.errstate(all="ignore"):
             sh = share(ds, cfgs[0], pool)
-    except FusionEvalError:          # the preparation failed: every entry would; each says why on its own
+    except Exception:  # noqa: BLE001 - the preparation failed (or a bug): each entry runs alone and says why
         return [run_task(t) for t in tasks]
     shared_s = (time.perf_counter() - t_load) / len(tasks)
     for task, req, cfg in zip(tasks, reqs, cfgs):

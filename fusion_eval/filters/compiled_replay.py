@@ -137,7 +137,11 @@ def compiled_loop(formulation):
     if formulation in _CACHE:
         return _CACHE[formulation]
     mod = sys.modules[formulation._predict.py_func.__module__]
-    digest = _source_digest(formulation._inject_kernel, formulation._record_cov, joseph_update_into, linalg.block_nis, *KERNELS)
+    # the loop's cached copy is named by the sources it is built from and calls (numba's cache checks only the
+    # file of the function itself); deeper helpers change with these files' other functions (README, Tests)
+    digest = _source_digest(formulation._predict, formulation._step, formulation._inject_kernel, formulation._record_cov,
+                            joseph_update_into, linalg.cholesky_into, linalg.whitened_norm2, linalg.block_nis,
+                            linalg.reset_attitude_block, *KERNELS)
     name = f"_replay_{digest}"
     dispatch = "\n".join(f"        {'if' if c == 0 else 'elif'} kind == {c}:\n            m = _k{c}(a.x, xc, d{c}[i], H, r, Rm)"
                          for c in range(len(KERNELS)))
@@ -218,7 +222,8 @@ def run(kf, bound, times: np.ndarray, which: np.ndarray, index: np.ndarray, orde
     for b, c in zip(bound, slot):
         if b.adapt is not None:
             b.adapt.var[:] = ad_var[c]
-            b.adapt.history.append(ad_hist[c, :ad_count[c]].copy())     # one (k, 3) block
+            if ad_count[c]:                 # one (k, 3) block; none when no update was accepted
+                b.adapt.history.append(ad_hist[c, :ad_count[c]].copy())
     return nis_out, ok_out
 
 

@@ -60,7 +60,7 @@ def joseph_update_dense(P, n, H, r, Rm, gate):
 
 def workspace(n_max: int, m_max: int):
     """Scratch arrays of :func:`joseph_update_into` for up to ``n_max`` states and ``m_max`` residual rows."""
-    return np.zeros((3, m_max, n_max)), np.zeros((3, m_max, m_max)), np.zeros(n_max), np.zeros(n_max, np.int64)
+    return np.zeros((5, m_max, n_max)), np.zeros((3, m_max, m_max)), np.zeros(n_max), np.zeros(n_max, np.int64)
 
 
 @njit(cache=True)
@@ -68,23 +68,22 @@ def joseph_update_into(P, n, H, m, r, Rm, gate, wn, wm, dx, cols):
     """Kalman update of an error state, in place and without allocation; returns ``(nis, accepted)``.
 
     The same quantity as :func:`joseph_update_dense` (``P <- (I - K H) P (I - K H)^T + K R K^T``,
-    symmetrised, ``K = P H^T S^-1``), for a residual of ``m`` rows (``m << n``): with ``U = P H^T`` (n x m)
-    and ``P`` symmetric, ``H P = U^T`` and ``H U + R = S``, so the Joseph form expands, for any gain ``K``, to
-
-        P+ = P - K U^T - U K^T + K S K^T = P - (K Z^T + Z K^T) / 2,   Z = 2 U - K S
-
-    which is symmetric by construction and costs O(n^2 m) instead of the O(n^3) of the dense products (the
-    form is the Joseph form's value, not the short ``(I - K H) P``: an error in ``K`` still enters only to
-    second order); ``S`` is factored by a Cholesky decomposition (it is symmetric positive definite, or the
-    filter has failed). ``U``, ``K`` and ``Z`` are held transposed (m x n) so that every inner loop runs
-    along a row and vectorises; only the columns where ``H`` has a non-zero enter ``U`` (a pose residual
+    symmetrised, ``K = P H^T S^-1``), for a residual of ``m`` rows (``m << n``), in the Joseph form's own order
+    but on its structure: with ``U = P H^T`` (n x m), ``A = (I - K H) P = P - K U^T`` (in place), then
+    ``P+ = A (I - K H)^T + K R K^T = A - (W - K R) K^T`` with ``W = A H^T`` taken from ``A`` as the dense
+    product takes it. That is O(n^2 m) instead of the O(n^3) of the dense products, and keeps their rounding:
+    an expanded form (``P - K U^T - U K^T + K S K^T``) equal in exact arithmetic lost up to 6e-3 relative and
+    turned variances negative on badly scaled covariances (1e-4..1e4 stds, R down to 1e-16), where this order
+    and the dense one stay at 1e-15. ``S`` is factored by a Cholesky decomposition (it is symmetric positive
+    definite, or the filter has failed). ``U``, ``K`` and ``W`` are held transposed (m x n) so that the inner
+    loops run along rows; only the columns where ``H`` has a non-zero enter ``U`` and ``W`` (a pose residual
     touches 12 of 21 states).
-    ``wn``: (3, m_max, n_max) scratch for U^T, K^T, Z^T; ``wm``: (>= 2, m_max, m_max) for S (left holding the
+    ``wn``: (5, m_max, n_max) scratch for U^T, K^T, (W - K R)^T, H's non-zero columns and one row of P; ``wm``: (>= 2, m_max, m_max) for S (left holding the
     innovation covariance ``H P H^T + R``) and its Cholesky factor; ``dx``: the correction (n_max,);
     ``cols``: (n_max,) int scratch. An innovation whose NIS exceeds ``gate`` is rejected (``P`` unchanged,
     ``dx`` zero).
     """
-    UT, KT, ZT = wn[0], wn[1], wn[2]
+    UT, KT, VT, HC, row = wn[0], wn[1], wn[2], wn[3], wn[4, 0]
     S, L = wm[0], wm[1]
     nc = 0
     for j in range(n):
@@ -93,12 +92,6 @@ def joseph_update_into(P, n, H, m, r, Rm, gate, wn, wm, dx, cols):
                 cols[nc] = j
                 nc += 1
                 break
-    # P symmetric to the last bit, so that the update below keeps it so
-    for i in range(n):
-        for j in range(i + 1, n):
-            v = 0.5 * (P[i, j] + P[j, i])
-            P[i, j] = v
-            P[j, i] = v
     for a in range(m):                      # U^T = H P
         for i in range(n):
             UT[a, i] = 0.0
@@ -148,19 +141,31 @@ def joseph_update_into(P, n, H, m, r, Rm, gate, wn, wm, dx, cols):
         ra = r[a]
         for i in range(n):
             dx[i] += KT[a, i] * ra
-    for b in range(m):                      # Z^T = 2 U^T - S K^T
-        for i in range(n):
-            ZT[b, i] = 2.0 * UT[b, i]
+    # the Joseph form in its own order, on the structure: A = (I - K H) P = P - K U^T in place, then
+    # P+ = A (I - K H)^T + K R K^T = A - (W - K R) K^T with W = A H^T (from A, as the dense product takes it)
+    for i in range(n):
         for a in range(m):
-            sba = S[b, a]
-            for i in range(n):
-                ZT[b, i] -= sba * KT[a, i]
-    for i in range(n):                      # P -= (K Z^T + Z K^T) / 2 on the upper triangle, then mirrored
+            k = KT[a, i]
+            for j in range(n):
+                P[i, j] -= k * UT[a, j]
+    for a in range(m):                      # W^T = H A^T, on H's non-zero columns; then W^T - (K R)^T
+        for c in range(nc):
+            HC[a, c] = H[a, cols[c]]
+    for i in range(n):
+        for c in range(nc):                 # the row's entries H needs, gathered once
+            row[c] = P[i, cols[c]]
+        for a in range(m):
+            s = 0.0
+            for c in range(nc):
+                s += row[c] * HC[a, c]
+            for b in range(m):
+                s -= KT[b, i] * Rm[b, a]
+            VT[a, i] = s
+    for i in range(n):                      # P+ is symmetric: its upper triangle, mirrored
         for b in range(m):
-            ki = 0.5 * KT[b, i]
-            zi = 0.5 * ZT[b, i]
+            v = VT[b, i]
             for j in range(i, n):
-                P[i, j] -= ki * ZT[b, j] + zi * KT[b, j]
+                P[i, j] -= v * KT[b, j]
         for j in range(i + 1, n):
             P[j, i] = P[i, j]
     return nis, True
@@ -208,7 +213,7 @@ def block_nis(S, lo, hi, r, L, y):
 def joseph_update_s(P, n, H, r, Rm, gate):
     """:func:`joseph_update` that also returns the innovation covariance ``S = H P H^T + R`` it used."""
     m = H.shape[0]
-    wn = np.zeros((3, m, n))
+    wn = np.zeros((5, m, n))
     wm = np.zeros((2, m, m))
     dx = np.zeros(n)
     cols = np.zeros(n, np.int64)

@@ -40,9 +40,12 @@ def _envelope(y: np.ndarray, at_most: int = 5000) -> np.ndarray:
         return np.arange(n)
     b = -(-n // (at_most // 2))
     m = -(-n // b)
-    blocks = np.concatenate([y, np.full(m * b - n, y[-1])]).reshape(m, b)     # padded with the last value
+    # NaN (a gap) and the padding never win a bin: +inf for the minimum, -inf for the maximum
+    y = np.asarray(y, float)
+    blocks_lo = np.concatenate([np.where(np.isnan(y), np.inf, y), np.full(m * b - n, np.inf)]).reshape(m, b)
+    blocks_hi = np.concatenate([np.where(np.isnan(y), -np.inf, y), np.full(m * b - n, -np.inf)]).reshape(m, b)
     base = np.arange(m) * b
-    k = np.concatenate([base + np.argmin(blocks, axis=1), base + np.argmax(blocks, axis=1), [0, n - 1]])
+    k = np.concatenate([base + np.argmin(blocks_lo, axis=1), base + np.argmax(blocks_hi, axis=1), [0, n - 1]])
     return np.unique(np.minimum(k, n - 1))
 
 

@@ -135,7 +135,9 @@ class RelativePose(Observation):
 
         # row j: the increment into frame j (the first frame only starts the chain of clones)
         data = np.zeros((rows.size, ROW.n))
-        data[cur] = ROW.columns(update=np.ones(rows.size - 1), dp=dp_c, dR=dR.reshape(-1, 9), std_p=pos_std, std_th=att_std)
+        if rows.size > 1:
+            data[cur] = ROW.columns(update=np.ones(rows.size - 1), dp=dp_c, dR=dR.reshape(-1, 9), std_p=pos_std,
+                                    std_th=att_std)
 
         def model(j):
             if j == 0:
