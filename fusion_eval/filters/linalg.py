@@ -73,7 +73,7 @@ def joseph_update_into(P, n, H, m, r, Rm, gate, wn, wm, dx, cols):
     ``P+ = A (I - K H)^T + K R K^T = A - (W - K R) K^T`` with ``W = A H^T`` taken from ``A`` as the dense
     product takes it. That is O(n^2 m) instead of the O(n^3) of the dense products, and keeps their rounding:
     an expanded form (``P - K U^T - U K^T + K S K^T``) equal in exact arithmetic lost up to 6e-3 relative and
-    turned variances negative on badly scaled covariances (1e-4..1e4 stds, R down to 1e-16), where this order
+    turned variances negative on badly scaled covariances (stds from 1e-4 to 1e4, R from 1e-8 to 1), where this order
     and the dense one stay at 1e-15. ``S`` is factored by a Cholesky decomposition (it is symmetric positive
     definite, or the filter has failed). ``U``, ``K`` and ``W`` are held transposed (m x n) so that the inner
     loops run along rows; only the columns where ``H`` has a non-zero enter ``U`` and ``W`` (a pose residual
