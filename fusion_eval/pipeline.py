@@ -163,8 +163,8 @@ def filter_and_evaluate(ds: Dataset, cfg: dict, sh: Shared, pool, *, dataset_pat
         futures["imu_only"] = sh.futures["imu_only"] = pool.submit(evaluate_estimate, ref, series["imu_only"],
                                                                    "imu_only", ev_cfg)
     err = fused_error(gt, filt)
-    first = pool.submit(report.write_filter_outputs, out, series, filt, err, cfg["output"]["plots"]) \
-        if out is not None else None
+    # the TUM files and the filter's plots, each a job of its own, alongside the evaluations
+    first = report.write_filter_outputs(out, series, filt, err, cfg["output"]["plots"], pool) if out is not None else []
     evals = {n: futures[n].result() for n in ESTIMATES if n in futures}
     timings["evaluate"] = time.perf_counter() - t
     ratios = ratio_metrics(evals)
@@ -185,7 +185,9 @@ def filter_and_evaluate(ds: Dataset, cfg: dict, sh: Shared, pool, *, dataset_pat
                     resolved_extra, timings)
     if out is not None:
         t = time.perf_counter()
-        report.write_evaluation(out, res, first.result(), pool)
+        for f in first:
+            f.result()
+        report.write_evaluation(out, res, report.filter_plots(cfg["output"]["plots"]), pool)
         timings["write"] = time.perf_counter() - t
     return res
 

@@ -16,22 +16,37 @@ from .markdown import report_md
 FILTER_PLOTS = ["trajectories.png", "ape_over_time.png", "biases.png", "fused_error_3sigma.png"]
 
 
-def write_filter_outputs(out: StagedDir, series: dict, filt, fused_err: dict, make_plots: bool) -> list[str]:
-    """TUM files and the plots that need no evaluation. Returns the plots the report will list
-    (``ape_over_time.png`` is drawn with the metrics, in :func:`write_evaluation`)."""
+def write_filter_outputs(out: StagedDir, series: dict, filt, fused_err: dict, make_plots: bool, pool=None) -> list:
+    """TUM files and the plots that need no evaluation, each a job of its own on ``pool`` when given (so that
+    they spread over the workers). Returns the futures to wait for (or nothing: done here); the plots the
+    report lists are :func:`filter_plots` (``ape_over_time.png`` is drawn with the metrics, in
+    :func:`write_evaluation`)."""
+    jobs = [(_write_tums, out, series)]
+    if make_plots:
+        from . import plots
+
+        jobs += [(plots.plot_trajectories, out.path("trajectories.png"), series),
+                 (plots.plot_biases, out.path("biases.png"), filt.fused.t_s, filt.accel_bias_b, filt.gyro_bias_b,
+                  filt.sigma),
+                 (plots.plot_error_sigma, out.path("fused_error_3sigma.png"), fused_err["t_s"], fused_err["err_w_m"],
+                  fused_err["sigma_w_m"], fused_err.get("smoothed"))]
+    if pool is None:
+        for j in jobs:
+            j[0](*j[1:])
+        return []
+    return [pool.submit(*j) for j in jobs]
+
+
+def filter_plots(make_plots: bool) -> list[str]:
+    """The plots :func:`write_filter_outputs` draws."""
+    return list(FILTER_PLOTS) if make_plots else []
+
+
+def _write_tums(out: StagedDir, series: dict) -> None:
     for name, fname in files.TUM_FILES.items():
         s = series.get(name)
         if s is not None:
             out.write_text(fname, files.tum_text(name, s))
-    if not make_plots:
-        return []
-    from . import plots
-
-    plots.plot_trajectories(out.path("trajectories.png"), series)
-    plots.plot_biases(out.path("biases.png"), filt.fused.t_s, filt.accel_bias_b, filt.gyro_bias_b, filt.sigma)
-    plots.plot_error_sigma(out.path("fused_error_3sigma.png"), fused_err["t_s"], fused_err["err_w_m"], fused_err["sigma_w_m"],
-                           fused_err.get("smoothed"))
-    return list(FILTER_PLOTS)
 
 
 def write_evaluation(out: StagedDir, res, plots_written: list[str], pool=None) -> None:
@@ -77,5 +92,7 @@ def write_evaluation(out: StagedDir, res, plots_written: list[str], pool=None) -
 
 def write_run(out: StagedDir, res, pool=None) -> None:
     """Every output of ``fusion-eval run`` for an evaluated run."""
-    written = write_filter_outputs(out, res.series, res.filt, res.fused_error, res.cfg["output"]["plots"])
-    write_evaluation(out, res, written, pool)
+    make_plots = res.cfg["output"]["plots"]
+    for f in write_filter_outputs(out, res.series, res.filt, res.fused_error, make_plots, pool):
+        f.result()
+    write_evaluation(out, res, filter_plots(make_plots), pool)
