@@ -42,10 +42,11 @@ CASES = [
     ("filter.discretization=first_order", "lidar.noise_adapt=none", "lidar.gate_prob=0.9"),   # gated: rejections
     ("filter.lidar_update=absolute",),
     ("filter.use_gnss=false", "lidar.noise_adapt=nis_position", "gnss.lever_arm_b_m=[0.3, -0.2, 0.8]"),
+    ("filter.odometer_update=true", "filter.nhc=true"),                        # the body-velocity kernels
 ]
 
 
-@pytest.mark.parametrize("sets", CASES, ids=["default", "gated", "absolute", "no-gnss-adapt-position"])
+@pytest.mark.parametrize("sets", CASES, ids=["default", "gated", "absolute", "no-gnss-adapt-position", "odometer-nhc"])
 def test_compiled_replay_equals_the_python_loop(sets):
     prep, s = _prepared(*sets)
     ref = replay(prep, _with_mode(s.cfg, prep, "python"))
@@ -78,7 +79,7 @@ def test_the_compiled_loop_is_not_used_where_it_does_not_apply(default_run):
     assert not compiled_replay.usable(kf, bound, None, 1, "python")
     assert not compiled_replay.usable(kf, bound, object(), 1, "auto")          # a smoother records from Python
     assert not compiled_replay.usable(kf, bound, None, 3, "auto")             # iterated EKF
-    no_kernel = [*bound[:1], type(bound[0])(**{**bound[0].__dict__, "kernel": None})]
+    no_kernel = [*bound[:1], type(bound[0])(**{**bound[0].__dict__, "kernel": None})]      # e.g. GNSS velocity
     assert not compiled_replay.usable(kf, no_kernel, None, 1, "auto")
     for form in ("nominal_state", "invariant"):
         prep2, s2 = _prepared(f"filter.formulation={form}")
@@ -90,7 +91,8 @@ def test_the_compiled_loop_is_not_used_where_it_does_not_apply(default_run):
 def test_every_registered_kernel_is_dispatched():
     # the loop is built over the registry's kernels: a new observation with a kernel is one module, one line
     assert observations.KERNELS == tuple(o.kernel for o in observations.REGISTRY if o.kernel is not None)
-    assert len(observations.KERNELS) >= 3
+    assert len(observations.KERNELS) >= 5
+    assert len(set(observations.KERNELS)) == len(observations.KERNELS)      # a slot per observation
 
 
 def test_a_non_finite_increment_stops_the_compiled_replay_with_a_divergence(default_run):

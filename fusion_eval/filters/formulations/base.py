@@ -26,7 +26,7 @@ from ...errors import FilterDivergedError
 from ...so3 import skew
 from .. import linalg
 from ..mech import exp3, log3
-from ..layout import CANONICAL, NOMINAL, Layout, canonical_index, canonical_map, own_from_canonical
+from ..layout import CANONICAL, Layout, canonical_index, canonical_map, own_from_canonical
 from ..propagate import LAST_T, new_arrays
 from ..state import ClonePose, NominalState, ObservationModel
 from .imu_model import imu_inputs, imu_params

@@ -30,7 +30,7 @@ from numba import njit
 
 from .. import discretize, linalg
 from ..layout import CANONICAL, CLONE
-from ..mech import XBA, XBG, XP, XV, attitude, exp3, log3, mech_step, rmul_exp3, skew3
+from ..mech import XBA, XBG, XP, XV, attitude, log3, mech_step, rmul_exp3, skew3
 from ..propagate import compiled_loop, new_arrays, record_cov_by_index
 from ..state import NominalState, unpack
 from ...spec import S

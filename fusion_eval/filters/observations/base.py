@@ -30,10 +30,10 @@ from dataclasses import dataclass
 from typing import Callable
 
 import numpy as np
+from numba import njit
 
-from ...so3 import skew
-from ..layout import CANONICAL, CLONE, NOMINAL
-from ..state import NominalState, ObservationModel
+from ..layout import CANONICAL, CLONE, NOMINAL, Layout
+from ..state import ObservationModel
 
 N_MAX = CANONICAL.n
 P, V, TH = CANONICAL.sl("P"), CANONICAL.sl("V"), CANONICAL.sl("TH")
@@ -61,7 +61,7 @@ class Kernel:
 
 
 def kernel_model(kernel, x, clone_p=None, clone_R=None, row=None, rm_scale=None):
-    """``(H, r, Rm)`` of a compiled kernel, for the Python callers (``x``: a :class:`NominalState`);
+    """``(H, r, Rm)`` of a compiled kernel, for the Python callers (``x``: a :class:`~fusion_eval.filters.state.NominalState`);
     ``rm_scale``: ``((start, stop, factor), ...)`` diagonal blocks of ``Rm`` scaled by the adaptive noise (the
     compiled replay scales them the same way)."""
     xc = np.zeros(CLONE.n)
@@ -166,17 +166,35 @@ def rows_inside(t_s: np.ndarray, t0: float, t_end: float) -> np.ndarray:
     return np.flatnonzero((t_s >= t0 - 1e-9) & (t_s <= t_end))
 
 
-def body_velocity(x: NominalState, clone_p=None, clone_R=None, *, v_obs_b: np.ndarray, std_b: np.ndarray,
-                  rows: tuple[int, ...] = (0, 1, 2)):
-    """Body-frame velocity ``v_b = R^T v`` (rows: 0 forward, 1 lateral, 2 vertical).
+# data row of a body-velocity observation: observed v_b, std per axis, and which axes it observes (1) or not (0)
+BODY_VELOCITY_ROW = Layout("body velocity data row", [("v", 3), ("std", 3), ("used", 3)])
+_BV, _BSTD, _BUSED = (BODY_VELOCITY_ROW.start(b) for b in ("v", "std", "used"))
 
-    ``d v_b / d dv = R^T`` (R_bw) and ``d v_b / d dtheta = [v_b]x`` (``R = R_hat Exp(dtheta)``). An
-    odometer observes the forward row; the non-holonomic constraint observes lateral and vertical = 0.
-    """
-    v_b = x.R_wb.T @ x.v_w_mps
-    rows = list(rows)
-    H = np.zeros((3, N_MAX))
-    H[:, V] = x.R_wb.T
-    H[:, TH] = skew(v_b)
-    r = np.asarray(v_obs_b, float) - v_b
-    return H[rows], r[rows], np.diag(np.asarray(std_b, float)[rows] ** 2)
+
+@njit(cache=True)
+def body_velocity_rows(x, row, H, r, Rm):
+    """Body-frame velocity ``v_b = R^T v``, compiled: the observed axes (one row each; 0 forward, 1 lateral, 2
+    vertical), with
+    ``d v_b / d dv = R^T`` and ``d v_b / d dtheta = [v_b]x``. Each observation that uses it wraps it in a kernel
+    of its own (the compiled replay dispatches on the kernel)."""
+    vb = np.empty(3)
+    for q in range(3):
+        vb[q] = (x[XR + q] * x[XV] + x[XR + 3 + q] * x[XV + 1] + x[XR + 6 + q] * x[XV + 2])
+    m = 0
+    for q in range(3):
+        if row[_BUSED + q] == 0.0:
+            continue
+        for k in range(H.shape[1]):
+            H[m, k] = 0.0
+        for k in range(Rm.shape[1]):
+            Rm[m, k] = 0.0
+            Rm[k, m] = 0.0
+        for k in range(3):
+            H[m, V_ID + k] = x[XR + 3 * k + q]            # (R^T)[q, k]
+        # [v_b]x row q
+        H[m, TH_ID + (q + 1) % 3] = -vb[(q + 2) % 3]
+        H[m, TH_ID + (q + 2) % 3] = vb[(q + 1) % 3]
+        r[m] = row[_BV + q] - vb[q]
+        Rm[m, m] = row[_BSTD + q] * row[_BSTD + q]
+        m += 1
+    return m

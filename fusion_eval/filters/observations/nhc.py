@@ -9,13 +9,21 @@ from __future__ import annotations
 from functools import partial
 
 import numpy as np
+from numba import njit
 
 from ...spec import S
-from .base import Bound, Observation, body_velocity
+from .base import BODY_VELOCITY_ROW, Bound, Kernel, Observation, body_velocity_rows, kernel_model
+
+
+@njit(cache=True)
+def nhc_kernel(x, xc, row, H, r, Rm):
+    """The lateral and vertical rows of ``v_b = R^T v``, observed as zero (2 rows)."""
+    return body_velocity_rows(x, row, H, r, Rm)
 
 
 class NonHolonomic(Observation):
     name = "nhc"
+    kernel = staticmethod(nhc_kernel)
     label = "non-holonomic constraint"
     dof = 2
     streams = ()
@@ -37,9 +45,11 @@ class NonHolonomic(Observation):
         step = max(1, int(round(1.0 / (f.nhc_rate_hz * dt)))) if np.isfinite(dt) else t.size
         cand = np.arange(run.k_start + step, t.size, step)
         k = cand[np.linalg.norm(w[cand], axis=1) < f.nhc_max_turn_rate_rps]
-        std = np.full(3, f.nhc_std_mps)
-        model = partial(body_velocity, v_obs_b=np.zeros(3), std_b=std, rows=(1, 2))
-        return Bound(self.name, self.dof, t[k], lambda j: model)
+        data = BODY_VELOCITY_ROW.columns(v=np.zeros((k.size, 3)), std=np.full((k.size, 3), f.nhc_std_mps),
+                                         used=np.tile([0.0, 1.0, 1.0], (k.size, 1)))
+        model = partial(kernel_model, nhc_kernel, row=BODY_VELOCITY_ROW.pack(v=np.zeros(3), std=np.full(3, f.nhc_std_mps),
+                                                                            used=[0.0, 1.0, 1.0]))
+        return Bound(self.name, self.dof, t[k], lambda j: model, kernel=Kernel(nhc_kernel, data))
 
 
 OBSERVATION = NonHolonomic()

@@ -5,13 +5,21 @@ from __future__ import annotations
 from functools import partial
 
 import numpy as np
+from numba import njit
 
 from ...spec import S
-from .base import Bound, Observation, body_velocity, rows_inside
+from .base import BODY_VELOCITY_ROW, Bound, Kernel, Observation, body_velocity_rows, kernel_model, rows_inside
+
+
+@njit(cache=True)
+def odometer_kernel(x, xc, row, H, r, Rm):
+    """The forward row of ``v_b = R^T v`` (1 row)."""
+    return body_velocity_rows(x, row, H, r, Rm)
 
 
 class Odometer(Observation):
     name = "odometer"
+    kernel = staticmethod(odometer_kernel)
     label = "odometer forward speed"
     dof = 1
     streams = ("odometer",)
@@ -27,12 +35,16 @@ class Odometer(Observation):
         odo = run.odometer
         t = run.imu.t_s
         rows = rows_inside(odo.t_s, float(t[run.k_start]), float(t[-1]))
-        std = np.full(3, s.odometer.speed_std_mps)
+        n = rows.size
+        v = np.zeros((n, 3))
+        v[:, 0] = odo.v_mps[rows]                     # forward
+        data = BODY_VELOCITY_ROW.columns(v=v, std=np.full((n, 3), s.odometer.speed_std_mps),
+                                         used=np.tile([1.0, 0.0, 0.0], (n, 1)))
 
         def model(j):
-            return partial(body_velocity, v_obs_b=np.array([odo.v_mps[rows[j]], 0.0, 0.0]), std_b=std, rows=(0,))
+            return partial(kernel_model, odometer_kernel, row=data[j])
 
-        return Bound(self.name, self.dof, odo.t_s[rows], model)
+        return Bound(self.name, self.dof, odo.t_s[rows], model, kernel=Kernel(odometer_kernel, data))
 
 
 OBSERVATION = Odometer()
