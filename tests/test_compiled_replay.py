@@ -89,10 +89,18 @@ def test_the_compiled_loop_is_not_used_where_it_does_not_apply(default_run):
 
 
 def test_every_registered_kernel_is_dispatched():
-    # the loop is built over the registry's kernels: a new observation with a kernel is one module, one line
-    assert observations.KERNELS == tuple(o.kernel for o in observations.REGISTRY if o.kernel is not None)
-    assert len(observations.KERNELS) >= 5
-    assert len(set(observations.KERNELS)) == len(observations.KERNELS)      # a slot per observation
+    # the loop is built over the registry's kernels: a new observation with a kernel is one module, one line;
+    # each kernel its own slot, and every kernel a bound observation carries is its class's declared one
+    assert len(set(observations.KERNELS)) == len(observations.KERNELS) >= 5      # a slot per observation
+    seen = set()
+    for sets in (("filter.odometer_update=true", "filter.nhc=true"), ("filter.lidar_update=absolute",)):
+        prep, s = _prepared(*sets)
+        for o in observations.enabled(s.cfg):
+            b = o.bind(prep, s)
+            if o.kernel is not None:
+                assert b.kernel is not None and b.kernel.fn is o.kernel, o.name
+                seen.add(o.kernel)
+    assert seen == set(observations.KERNELS)
 
 
 def test_a_non_finite_increment_stops_the_compiled_replay_with_a_divergence(default_run):

@@ -246,21 +246,31 @@ def run_task(task: Task) -> dict:
     """Run one sweep entry; never raises for a failed run (the failure is the record)."""
     from ..pipeline import run_to_dir
 
+    def work():
+        req = session.request(config=task.base_config, variant=task.variant_path, overrides=_overrides(task))
+        return run_to_dir(task.dataset, req, Path(task.out_root) / "runs" / task.id, overwrite=True, jobs=1)
+    return _record(task, work)
+
+
+def _overrides(task: Task) -> dict:
+    return {**task.overrides, **({} if task.plots else {"output.plots": False})}
+
+
+def _record(task: Task, work: Callable, extra_s: float = 0.0) -> dict:
+    """The record of one entry: ``work()``'s metrics, or its error (a bug's traceback kept): a failed run
+    never stops a sweep."""
     t0 = time.perf_counter()
     rec = {"id": task.id, "dataset": task.dataset, "variant": task.variant, "setting": task.setting,
            "overrides": task.overrides, "trial": task.trial}
-    out = Path(task.out_root) / "runs" / task.id
     try:
-        overrides = {**task.overrides, **({} if task.plots else {"output.plots": False})}
-        req = session.request(config=task.base_config, variant=task.variant_path, overrides=overrides)
         with np.errstate(all="ignore"):
-            res = run_to_dir(task.dataset, req, out, overwrite=True, jobs=1)
+            res = work()
         rec.update(status="ok", error=None, metrics=res.metrics)
     except FusionEvalError as exc:
         rec.update(status="failed", error=str(exc), metrics=None)
     except Exception as exc:  # noqa: BLE001 - a bug in one run must not stop the sweep; its traceback is kept
         rec.update(status="failed", error=f"{type(exc).__name__}: {exc}", traceback=traceback.format_exc(), metrics=None)
-    rec["runtime_s"] = round(time.perf_counter() - t0, 3)
+    rec["runtime_s"] = round(time.perf_counter() - t0 + extra_s, 3)
     return rec
 
 
@@ -281,8 +291,7 @@ def run_batch(tasks: list[Task]) -> list[dict]:
     try:
         ds = session.dataset(tasks[0].dataset)
         for task in tasks:
-            overrides = {**task.overrides, **({} if task.plots else {"output.plots": False})}
-            reqs.append(session.request(config=task.base_config, variant=task.variant_path, overrides=overrides))
+            reqs.append(session.request(config=task.base_config, variant=task.variant_path, overrides=_overrides(task)))
             cfgs.append(session.resolve(reqs[-1], ds))
         pool = Inline()
         with np.errstate(all="ignore"):
@@ -291,21 +300,11 @@ def run_batch(tasks: list[Task]) -> list[dict]:
         return [run_task(t) for t in tasks]
     shared_s = (time.perf_counter() - t_load) / len(tasks)
     for task, req, cfg in zip(tasks, reqs, cfgs):
-        t0 = time.perf_counter()
-        rec = {"id": task.id, "dataset": task.dataset, "variant": task.variant, "setting": task.setting,
-               "overrides": task.overrides, "trial": task.trial}
-        try:
-            staged = StagedDir(Path(task.out_root) / "runs" / task.id, overwrite=True)
-            with staged as out, np.errstate(all="ignore"):
-                res = filter_and_evaluate(ds, cfg, sh, pool, dataset_path=task.dataset, config_source=req.source,
-                                          out=out)
-            rec.update(status="ok", error=None, metrics=res.metrics)
-        except FusionEvalError as exc:
-            rec.update(status="failed", error=str(exc), metrics=None)
-        except Exception as exc:  # noqa: BLE001 - as in run_task
-            rec.update(status="failed", error=f"{type(exc).__name__}: {exc}", traceback=traceback.format_exc(),
-                       metrics=None)
-        rec["runtime_s"] = round(time.perf_counter() - t0 + shared_s, 3)
+        def work():
+            with StagedDir(Path(task.out_root) / "runs" / task.id, overwrite=True) as out:
+                return filter_and_evaluate(ds, cfg, sh, pool, dataset_path=task.dataset, config_source=req.source,
+                                           out=out)
+        rec = _record(task, work, shared_s)
         rec["batch"] = task.batch
         write_record(Path(task.out_root), rec)
         recs.append(rec)

@@ -27,7 +27,7 @@ from ..errors import FilterDivergedError
 from .layout import CLONE
 from . import linalg
 from .linalg import joseph_update_into
-from .observations.base import M_MAX, N_MAX
+from .observations.base import M_MAX, N_MAX, matched_variance
 
 OK, BAD_RESIDUAL, BAD_CORRECTION, BAD_STATE = 0, 1, 2, 3
 MESSAGES = {BAD_RESIDUAL: "non-finite residual", BAD_CORRECTION: "non-finite correction",
@@ -89,22 +89,14 @@ def {name}(a, st, xc, clone_t, times, kinds, index, j0, j1, gates, clone_after, 
                     for b in range(nb):
                         lo, hi = ad_blocks[kind, b, 0], ad_blocks[kind, b, 1]
                         qb = block_nis(S, lo, hi, r, wm[2], dx) / (hi - lo)     # dx is free after the injection
-                        v = ad_var[kind, b] * (1.0 + ad_rate[kind] * (min(qb, 10.0) - 1.0))
-                        ad_var[kind, b] = min(max(v, 1e-3), 1e3)
+                        ad_var[kind, b] = matched_variance(ad_var[kind, b], qb, ad_rate[kind])
                     c = ad_count[kind]
                     ad_hist[kind, c, 0] = a.last[0]
                     ad_hist[kind, c, 1] = ad_var[kind, 0]
                     ad_hist[kind, c, 2] = ad_var[kind, 1]
                     ad_count[kind] = c + 1
-        if clone_after[kind]:     # stochastic cloning: the pose rows of the core copied into the clone block
-            mc = clone_rows.shape[0]
-            for p in range(mc):
-                for q in range(n_core):
-                    v = a.P[clone_rows[p], q]
-                    a.P[n_core + p, q] = v
-                    a.P[q, n_core + p] = v
-                for q in range(mc):
-                    a.P[n_core + p, n_core + q] = a.P[clone_rows[p], clone_rows[q]]
+        if clone_after[kind]:     # stochastic cloning
+            mc = clone_covariance(a.P, n_core, clone_rows)
             for d in range(3):
                 xc[{clone_p} + d] = a.x[xp + d]
             for d in range(9):
@@ -141,7 +133,7 @@ def compiled_loop(formulation):
     # file of the function itself); deeper helpers change with these files' other functions (README, Tests)
     digest = _source_digest(formulation._predict, formulation._step, formulation._inject_kernel, formulation._record_cov,
                             joseph_update_into, linalg.cholesky_into, linalg.whitened_norm2, linalg.block_nis,
-                            linalg.reset_attitude_block, *KERNELS)
+                            linalg.reset_attitude_block, linalg.clone_covariance, matched_variance, *KERNELS)
     name = f"_replay_{digest}"
     dispatch = "\n".join(f"        {'if' if c == 0 else 'elif'} kind == {c}:\n            m = _k{c}(a.x, xc, d{c}[i], H, r, Rm)"
                          for c in range(len(KERNELS)))
@@ -150,7 +142,8 @@ def compiled_loop(formulation):
                        st_n=ST_N, st_k=ST_K, st_cloned=ST_CLONED, clone_p=CLONE_P, clone_r=CLONE_R, ok=OK,
                        bad_residual=BAD_RESIDUAL, bad_correction=BAD_CORRECTION, bad_state=BAD_STATE)
     ns = {"np": np, "_predict": formulation._predict, "_inject": formulation._inject_kernel,
-          "_record_cov": formulation._record_cov, "joseph_update_into": joseph_update_into, "block_nis": linalg.block_nis, "__name__": mod.__name__}
+          "_record_cov": formulation._record_cov, "joseph_update_into": joseph_update_into, "block_nis": linalg.block_nis, "clone_covariance": linalg.clone_covariance,
+          "matched_variance": matched_variance, "__name__": mod.__name__}
     ns.update({f"_k{c}": k for c, k in enumerate(KERNELS)})
     exec(compile(src, mod.__file__, "exec"), ns)  # noqa: S102 - our own template
     fn = ns[name]

@@ -234,6 +234,21 @@ def joseph_update(P, n, H, r, Rm, gate):
 
 
 @njit(cache=True)
+def clone_covariance(P, n_core, rows):
+    """Stochastic cloning of ``P``: the core's ``rows`` (the pose) copied into the block after the core, with
+    their cross-covariances (``P_aug = J P J^T``, ``J`` selecting the rows); returns the clone's size."""
+    mc = rows.shape[0]
+    for p in range(mc):
+        for q in range(n_core):
+            v = P[rows[p], q]
+            P[n_core + p, q] = v
+            P[q, n_core + p] = v
+        for q in range(mc):
+            P[n_core + p, n_core + q] = P[rows[p], rows[q]]
+    return mc
+
+
+@njit(cache=True)
 def reset_attitude_block(P, n, b, dth):
     """``P <- G P G^T`` for ``G`` the identity but ``I - [dth/2]x`` on the 3x3 block at ``b`` (the error-state
     reset of one attitude, Sola eq. 287), as 3-row and 3-column operations: O(n) instead of O(n^3). A symmetric

@@ -292,14 +292,8 @@ class FilterBase:
         """Stochastic cloning: append a copy of the current pose to the state (replacing any clone)."""
         if self.recorder is not None:
             self.recorder.before_clone(self)
-        rows = self.layout.clone_rows()
         core = self.layout.n_core
-        m = rows.size
-        Pc = self.P[:core, :core]
-        self.P[core:core + m, :core] = Pc[rows]                  # J P with J selecting the pose rows
-        self.P[:core, core:core + m] = Pc[:, rows]
-        self.P[core:core + m, core:core + m] = Pc[np.ix_(rows, rows)]
-        self.n = core + m
+        self.n = core + linalg.clone_covariance(self.P, core, np.ascontiguousarray(self.layout.clone_rows(), np.int64))
         self.clone.set(self.x.p_w_m, self.x.R_wb)
         self.clone_t = self.t           # the stamp of the pose the clone holds (the batch smoother's between-factor)
         self.cloned = True

@@ -45,6 +45,15 @@ CLONE_P, CLONE_R = CLONE.start("p"), CLONE.start("R")
 M_MAX = 6           # not a state index: the most residual rows a kernel writes (H: M_MAX x N_MAX)
 
 
+@njit(cache=True)
+def matched_variance(var, q, rate):
+    """One step of the adaptive noise (covariance matching): the variance scale ``var`` moved toward
+    ``E[q] = 1`` for a block's normalised innovation ``q`` (NIS / dim), multiplicatively and bounded so one
+    wild innovation cannot swing it. The Python models and the compiled replay both take this step."""
+    v = var * (1.0 + rate * (min(q, 10.0) - 1.0))
+    return min(max(v, 1e-3), 1e3)
+
+
 @dataclass
 class Kernel:
     """An observation's compiled model bound to a run: the kernel and one data row per event.

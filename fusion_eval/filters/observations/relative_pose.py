@@ -34,7 +34,8 @@ from .. import linalg
 from ..layout import Layout
 from ..mech import log3
 from ...so3 import log_so3 as log3_many
-from .base import CLONE_P, CLONE_R, CP_ID, CTH_ID, P_ID, TH_ID, XP, XR, Bound, Kernel, Observation, kernel_model
+from .base import (CLONE_P, CLONE_R, CP_ID, CTH_ID, P_ID, TH_ID, XP, XR, Bound, Kernel, Observation, kernel_model,
+                   matched_variance)
 from .pose import POSE_RESIDUAL, RP, RTH, lidar_rows
 
 # data row of one lidar frame: 1 if it updates (0: the first frame, which only clones), the increment from the
@@ -183,9 +184,8 @@ class AdaptiveScale:
             return                       # a gated outlier says nothing about the noise of good matches
         L, y = np.zeros((3, 3)), np.zeros(3)
         for b, sl in enumerate(self.blocks):
-            q = linalg.block_nis(S, sl.start, sl.stop, r, L, y) / 3.0     # the compiled replay's arithmetic
-            # multiplicative step toward E[q] = 1, bounded so one wild increment cannot swing it
-            self.var[b] = float(np.clip(self.var[b] * (1.0 + self.rate * (min(q, 10.0) - 1.0)), 1e-3, 1e3))
+            q = linalg.block_nis(S, sl.start, sl.stop, r, L, y) / (sl.stop - sl.start)
+            self.var[b] = matched_variance(float(self.var[b]), q, self.rate)
         self.history.append((t, *self.var))
 
     def summary(self) -> dict:
