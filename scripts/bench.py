@@ -2,15 +2,16 @@
 """The speed figures of issue 13, each as a ratio to a reference measured in the same run (this shared
 machine's speed drifts by tens of per cent; a ratio taken in one run does not).
 
-    python scripts/bench.py [--runs 3] [--hour] [--samples 200000]
+    python scripts/bench.py [--runs 3] [--hour] [--sweep] [--all-drives] [--samples 200000]
 
 Prints, on this machine:
   1. the whole `fusion-eval -q run` on the default dataset (plots on, numba cache warm), against one
      `evo_ape tum groundtruth.tum fused.tum` call on the files it wrote: pairs timed in alternation, the
      median of the ratios (target <= 3);
-  2. the replay of kitti-00 (a lidar update at every IMU sample, a GNSS fix every 10): microseconds per IMU
-     sample in the compiled event loop (`filter.replay=auto`, target <= 5 us) against the same replay
-     stepped from Python (`filter.replay=python`, the previous path, kept as the tests' oracle);
+  2. the replay of kitti-00 (a lidar update at every IMU sample, a GNSS fix every 10; with --all-drives also the
+     four SiMpLE drives and the plain raw drives, IMU + GNSS): microseconds per IMU sample in the compiled event
+     loop (`filter.replay=auto`, target <= 5 us) against the same replay stepped from Python
+     (`filter.replay=python`, the previous path, kept as the tests' oracle);
   3. propagation (mechanization and covariance) per IMU sample, first order (target <= 1.0 us) and Van
      Loan, against the dense ``Phi P Phi^T + Q`` of the same step (the structured kernels' oracle);
   4. `fusion-eval --help` (target <= 0.3 s) against a bare `python -c pass`, and which of matplotlib,
@@ -99,26 +100,40 @@ def run_vs_evo(runs: int, tmp: Path) -> None:
 
 
 # ---- 2. the replay, compiled against Python ---------------------------------------------------------
-def replay_figures(repeats: int = 5) -> None:
-    ds = session.dataset(ROOT / "data" / "kitti-00")
+SHARED = ROOT.parent / "shared" / "data"
+# every drive with lidar odometry, and the plain raw drives (IMU + GNSS: no lidar to fuse)
+DRIVES = [("kitti-00", ROOT / "data" / "kitti-00", ())] + \
+    [(f"simple-{q}", ROOT / "configs" / "datasets" / f"simple-{q}.yaml", ()) for q in ("00", "05", "06", "07")] + \
+    [(d.name[:21].replace("_drive_", "/"), d, ("filter.lidar_update=none",))
+     for d in sorted(SHARED.glob("kitti-raw/*/*_sync"))]
 
-    def per_sample(mode: str, *sets: str) -> float:
-        c = session.resolve(session.request(sets=(f"filter.replay={mode}", *sets)), ds)
-        prep = prepare(ds, c)              # per configuration: prepare resolves its 'auto' values
-        s = settings_for(c, prep)
-        out = replay(prep, s)              # warm-up: compiles or loads the cache
-        best = np.inf
-        for _ in range(repeats):
-            t0 = time.perf_counter()
-            out = replay(prep, s, imu_only=out.imu_only)
-            best = min(best, time.perf_counter() - t0)
-        return best / out.n_imu_samples * 1e6
 
+def per_sample(path: Path, mode: str, *sets: str, repeats: int = 5) -> tuple[float, int]:
+    """Microseconds per IMU sample of one replay (the best of ``repeats``) and the number of samples."""
+    ds = session.dataset(path)
+    c = session.resolve(session.request(sets=(f"filter.replay={mode}", *sets)), ds)
+    prep = prepare(ds, c)                  # per configuration: prepare resolves its 'auto' values
+    s = settings_for(c, prep)
+    out = replay(prep, s)                  # warm-up: compiles or loads the cache
+    best = np.inf
+    for _ in range(repeats):
+        t0 = time.perf_counter()
+        out = replay(prep, s, imu_only=out.imu_only)
+        best = min(best, time.perf_counter() - t0)
+    return best / out.n_imu_samples * 1e6, out.n_imu_samples
+
+
+def replay_figures(all_drives: bool = False) -> None:
     for label, sets in (("default (Van Loan, adaptive lidar noise)", ()),
                         ("first-order propagation", ("filter.discretization=first_order",))):
-        c, p = per_sample("auto", *sets), per_sample("python", *sets)
-        print(f"2. replay of kitti-00, {label:40s} compiled {c:6.1f} us/sample   Python loop {p:6.1f} us/sample   "
-              f"ratio {c / p:.3f}   target <= 5 us")
+        drives = DRIVES if all_drives else DRIVES[:1]
+        for name, path, extra in drives:
+            if not Path(path).exists():
+                print(f"2. replay of {name}: skipped, {path} is absent")
+                continue
+            (c, n), (p, _) = per_sample(path, "auto", *sets, *extra), per_sample(path, "python", *sets, *extra)
+            print(f"2. replay of {name:12s} ({n:5d} samples), {label:40s} compiled {c:6.1f} us/sample   "
+                  f"Python loop {p:6.1f} us/sample   ratio {c / p:.3f}   target <= 5 us")
 
 
 # ---- 3. propagation against the dense product -------------------------------------------------------
@@ -212,11 +227,13 @@ def main() -> None:
     ap.add_argument("--samples", type=int, default=200_000, help="IMU samples of the propagation figure")
     ap.add_argument("--hour", action="store_true", help="also the 1 h, 200 Hz simulated drive (a few minutes)")
     ap.add_argument("--sweep", action="store_true", help="also the 65-run noise sweep, batched and run by run (a minute)")
+    ap.add_argument("--all-drives", action="store_true",
+                    help="the replay on every drive: kitti-00, the four SiMpLE drives, the plain raw drives of ../shared")
     a = ap.parse_args()
     with tempfile.TemporaryDirectory() as d:
         tmp = Path(d)
         run_vs_evo(a.runs, tmp)
-        replay_figures()
+        replay_figures(a.all_drives)
         propagation(a.samples)
         startup(a.runs, tmp)
         if a.hour:
