@@ -97,18 +97,18 @@ def run(dataset: Dataset | str | Path | None = None, overrides: dict | None = No
     return Result(execute(ds, cfg, config_source=req.source, progress=progress, jobs=jobs, trials=trials))
 
 
-def _as_series(x, times: str | Path | None, what: str) -> tuple[PoseSeries, str, dict]:
+def _as_series(x, times: str | Path | None, what: str, fmt: str = "auto") -> tuple:
+    """A pose series or an evo trajectory, its name, and where it came from."""
     from .datasets.trajectory_file import read_trajectory
     from .errors import ConfigError
-    from .evaluation.trajectory import from_evo
 
     if isinstance(x, PoseSeries):
         return x, x.source, {"stamps": "given"}
     if isinstance(x, (str, Path)):
-        s, how = read_trajectory(Path(x), times)
-        return s, Path(x).stem, {"file": str(x), "stamps": how}
+        f = read_trajectory(Path(x), times, fmt)
+        return f.traj, Path(x).stem, {"file": str(x), "format": f.format, "stamps": f.stamps}
     if hasattr(x, "positions_xyz") and hasattr(x, "timestamps"):
-        return from_evo(x), (x.meta.get("name") or what), {"stamps": "given"}
+        return x, (x.meta.get("name") or what), {"stamps": "given"}
     raise ConfigError(f"{what}: expected a PoseSeries, an evo PoseTrajectory3D or a trajectory file path, "
                       f"got {type(x).__name__}")
 
@@ -116,18 +116,22 @@ def _as_series(x, times: str | Path | None, what: str) -> tuple[PoseSeries, str,
 def evaluate(reference, estimate, alignment: str = "none", association: str = "nearest", t_max_diff_s: float = 0.01,
              rpe_delta_m: float = 100.0, segment_m: float = 100.0, segment_s: float | None = None,
              reference_times: str | Path | None = None, estimate_times: str | Path | None = None,
-             engine: str = "arrays") -> dict:
+             engine: str = "arrays", *, fmt: str = "auto", relations: tuple[str, ...] = ("trans_part", "angle_deg"),
+             up_axis: str = "auto", n_to_align: int = -1, t_offset_s: float = 0.0) -> dict:
     """evo's APE/RPE, the KITTI drift metric and the per-segment breakdown of ``estimate`` against
     ``reference`` (each a trajectory file, an evo ``PoseTrajectory3D`` or a :class:`PoseSeries`): the
-    ``metrics.json`` of ``fusion-eval evaluate``. ``engine``: ``arrays`` (evo's metrics on whole arrays) or
-    ``evo`` (evo's own per-pose loops); the numbers are the same."""
+    ``metrics.json`` of ``fusion-eval evaluate``, with the same options. ``engine``: ``arrays`` (evo's metrics
+    on whole arrays) or ``evo`` (evo's own per-pose loops); the numbers are the same."""
     from .evaluation.estimates import evaluate_series, validate_options
 
-    validate_options(association, alignment, t_max_diff_s, rpe_delta_m, segment_m, segment_s, engine)
-    ref, _, ref_about = _as_series(reference, reference_times, "reference")
-    est, name, about = _as_series(estimate, estimate_times, "estimate")
+    validate_options(association, alignment, t_max_diff_s, rpe_delta_m, segment_m, segment_s, engine, relations,
+                     up_axis, n_to_align)
+    ref, _, ref_about = _as_series(reference, reference_times, "reference", fmt)
+    est, name, about = _as_series(estimate, estimate_times, "estimate", fmt)
     if name in ("groundtruth", "reference"):
         name = "estimate"
     metrics, _ = evaluate_series(ref, {name: est}, association, alignment, t_max_diff_s, rpe_delta_m, segment_m,
-                                 segment_s, {name: about}, ref_stamps=ref_about["stamps"], engine=engine)
-    return {"reference": ref_about.get("file", ref.source), "reference_stamps": ref_about["stamps"], **metrics}
+                                 segment_s, {name: about}, ref_stamps=ref_about["stamps"], engine=engine,
+                                 relations=relations, up_axis=up_axis, n_to_align=n_to_align, t_offset_s=t_offset_s)
+    return {"reference": ref_about.get("file", getattr(ref, "source", "reference")), "reference_stamps": ref_about["stamps"],
+            **metrics}

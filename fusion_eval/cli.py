@@ -198,14 +198,26 @@ def sweep(ctx, datasets, sweep_file, out_dir, jobs, variant_dir, scheduler, dask
 
 
 @main.command()
-@click.argument("reference", type=click.Path(path_type=Path))
-@click.argument("estimates", nargs=-1, required=True, type=click.Path(path_type=Path))
+@click.argument("inputs", nargs=-1, required=True)
 @click.option("-o", "--out", "out_dir", required=True, type=click.Path(path_type=Path), help="Output directory.")
+@click.option("--format", "fmt", type=click.Choice(["auto", "tum", "kitti", "euroc"]), default="auto", show_default=True,
+              help="Trajectory file format (auto: told apart by the content).")
+@click.option("--bag", type=click.Path(path_type=Path), help="A ROS 1 .bag or ROS 2 bag: INPUTS are estimate topics.")
+@click.option("--ref", "ref_topic", help="The reference topic of --bag (or a TF id /tf:parent.child).")
 @click.option("--ref-times", type=click.Path(path_type=Path), help="Times file of a KITTI reference (one per pose).")
 @click.option("--times", type=click.Path(path_type=Path), help="Times file of KITTI estimates (one per pose).")
-@click.option("--association", type=click.Choice(["nearest", "interpolate"]), default="nearest", show_default=True)
-@click.option("--alignment", type=click.Choice(["none", "origin", "se3", "sim3", "4dof"]), default="none", show_default=True)
-@click.option("--t-max-diff", type=float, default=0.01, show_default=True, help="Max stamp difference (nearest), s.")
+@click.option("--association", type=click.Choice(["nearest", "interpolate"]), default="nearest", show_default=True,
+              help="evo's --sync_method: nearest_time, or interpolation (guarded by --t-max-diff).")
+@click.option("--alignment", type=click.Choice(["none", "origin", "se3", "sim3", "scale", "4dof"]), default="none",
+              show_default=True, help="evo's --align_origin, -a, -as, -s; or 4dof (about the gravity axis).")
+@click.option("--up-axis", type=click.Choice(["auto", "x", "y", "z"]), default="auto", show_default=True,
+              help="Gravity axis of the reference frame for --alignment 4dof (auto: detected).")
+@click.option("--n-to-align", type=int, default=-1, show_default=True, help="Poses used by the alignment fit (-1: all).")
+@click.option("-r", "--pose-relation", "relations", multiple=True,
+              type=click.Choice(["trans_part", "angle_deg", "angle_rad", "rot_part", "full", "point_distance"]),
+              help="evo's pose relations to report (repeatable; default trans_part and angle_deg).")
+@click.option("--t-max-diff", type=float, default=0.01, show_default=True, help="Max stamp difference, s.")
+@click.option("--t-offset", type=float, default=0.0, show_default=True, help="Added to the estimates' stamps for matching, s.")
 @click.option("--rpe-delta-m", type=float, default=100.0, show_default=True, help="RPE segment length, m.")
 @click.option("--segment-m", type=float, default=100.0, show_default=True, help="Per-segment window along the route, m.")
 @click.option("--segment-s", type=float, default=None, help="Per-segment window in time instead, s.")
@@ -214,14 +226,18 @@ def sweep(ctx, datasets, sweep_file, out_dir, jobs, variant_dir, scheduler, dask
 @click.option("--engine", type=click.Choice(["arrays", "evo"]), default="arrays", show_default=True,
               help="evo's metrics on whole arrays, or evo's own per-pose loops (same numbers, ~10x slower).")
 @click.pass_context
-def evaluate(ctx, reference, estimates, out_dir, ref_times, times, association, alignment, t_max_diff, rpe_delta_m,
-             segment_m, segment_s, overwrite, no_plots, engine):
-    """Evaluate existing trajectory files (TUM, or KITTI poses with or without times) against REFERENCE:
-    evo's APE/RPE, the KITTI drift metric and the per-segment breakdown."""
+def evaluate(ctx, inputs, out_dir, fmt, bag, ref_topic, ref_times, times, association, alignment, up_axis, n_to_align,
+             relations, t_max_diff, t_offset, rpe_delta_m, segment_m, segment_s, overwrite, no_plots, engine):
+    """Evaluate trajectories against a reference: REFERENCE ESTIMATE... (TUM, KITTI poses with or without times,
+    EuRoC CSV), or --bag FILE --ref REF_TOPIC EST_TOPIC...: evo's APE/RPE, the KITTI drift metric and the
+    per-segment breakdown."""
     from .commands.evaluate import run_evaluate
+    from .evaluation.keys import DEFAULT_RELATIONS
 
-    m = run_evaluate(reference, list(estimates), out_dir, ref_times, times, association, alignment, t_max_diff,
-                     rpe_delta_m, segment_m, segment_s, overwrite, not no_plots, engine)
+    m = run_evaluate(list(inputs), out_dir, ref_times, times, association, alignment, t_max_diff, rpe_delta_m,
+                     segment_m, segment_s, overwrite, not no_plots, engine, bag=bag, ref_topic=ref_topic, fmt=fmt,
+                     relations=tuple(relations) or DEFAULT_RELATIONS, up_axis=up_axis, n_to_align=n_to_align,
+                     t_offset_s=t_offset)
     if not ctx.obj["quiet"]:
         click.echo(f"{'estimate':<28} {'matched':>8} {'APE trans RMSE [m]':>19} {'KITTI t_err [%]':>16} {'r_err [deg/100m]':>17}")
         for k, d in m["estimates"].items():

@@ -29,7 +29,7 @@ def _line(lines: np.ndarray | None, i: int) -> int | None:
     return int(lines[min(i, len(lines) - 1)])
 
 
-def _check_times(t: np.ndarray, source: str, lines: np.ndarray | None, what: str) -> None:
+def _check_times(t: np.ndarray, source: str, lines: np.ndarray | None, what: str, allow_equal: bool = False) -> None:
     if t.ndim != 1:
         raise DataFormatError(source, None, f"{what} times must be a 1-D array, got shape {t.shape}")
     bad = np.flatnonzero(~np.isfinite(t))
@@ -37,12 +37,13 @@ def _check_times(t: np.ndarray, source: str, lines: np.ndarray | None, what: str
         raise DataFormatError(source, _line(lines, bad[0]), f"{what} timestamp must be a finite number")
     if t.size > 1:
         d = np.diff(t)
-        bad = np.flatnonzero(d <= 0.0)
+        bad = np.flatnonzero(d < 0.0 if allow_equal else d <= 0.0)
         if bad.size:
             i = bad[0] + 1
             kind = "duplicate" if d[bad[0]] == 0 else "decreasing"
+            must = "must not decrease" if allow_equal else "must strictly increase"
             raise DataFormatError(source, _line(lines, i),
-                                  f"{what} timestamps must strictly increase ({kind} timestamp {t[i]:.9f} after {t[i - 1]:.9f})")
+                                  f"{what} timestamps {must} ({kind} timestamp {t[i]:.9f} after {t[i - 1]:.9f})")
 
 
 def _check_rows(name: str, a: np.ndarray, n: int, cols: int, source: str, lines: np.ndarray | None, what: str) -> None:
@@ -136,7 +137,9 @@ class PoseSeries:
     """Poses of the body (IMU) frame in the world frame, optionally with world-frame velocity.
 
     ``has_orientation`` is False for position-only estimates (GNSS alone); their quaternions are
-    identity placeholders and no rotation metric is computed for them.
+    identity placeholders and no rotation metric is computed for them. ``repeated_stamps``: equal consecutive
+    stamps are accepted (a trajectory file to evaluate: evo accepts them, and its association copes); the
+    filter's inputs keep strictly increasing time.
     """
 
     t_s: np.ndarray
@@ -147,6 +150,7 @@ class PoseSeries:
     has_orientation: bool = True
     source: str = "<poses>"
     lines: np.ndarray | None = None
+    repeated_stamps: bool = False
 
     def __post_init__(self):
         t = _frozen(self.t_s)
@@ -155,7 +159,7 @@ class PoseSeries:
         q = np.array(self.q_wb_xyzw, dtype=float)
         if self.lines is not None:
             object.__setattr__(self, "lines", _frozen(self.lines, np.int64))
-        _check_times(t, self.source, self.lines, "pose")
+        _check_times(t, self.source, self.lines, "pose", allow_equal=self.repeated_stamps)
         _check_rows("position", np.asarray(self.p_w_m), t.size, 3, self.source, self.lines, "pose")
         _check_rows("quaternion", q, t.size, 4, self.source, self.lines, "pose")
         norms = np.linalg.norm(q, axis=1)

@@ -81,10 +81,9 @@ def test_evaluate_matches_evo_on_kitti_00(tmp_path):
     assert m["estimates"]["00_poses_kitti"]["ape"]["translation_m"]["rmse"] == pytest.approx(3.515636, abs=2e-6)
     # evo trajectories (or pose series) work as well as files
     from fusion_eval.datasets.trajectory_file import read_trajectory
-    from fusion_eval.evaluation import to_evo
-
-    ref = to_evo(read_trajectory(gt)[0], "gt")
-    traj = to_evo(read_trajectory(est)[0], "kiss-icp")
+    ref = read_trajectory(gt).traj
+    traj = read_trajectory(est).traj
+    ref.meta["name"], traj.meta["name"] = "gt", "kiss-icp"
     m2 = fe.evaluate(ref, traj, alignment="se3")
     assert m2["estimates"]["kiss-icp"]["ape"]["translation_m"]["rmse"] == pytest.approx(3.515636, abs=2e-6)
     with pytest.raises(ConfigError, match="--alignment must be one of"):

@@ -9,7 +9,6 @@ import pytest
 from click.testing import CliRunner
 
 from conftest import shared_path
-from fusion_eval.evaluation.alignment import apply_4dof, yaw_translation_fit
 from fusion_eval.cli import main
 from fusion_eval.evaluation.consistency import fraction_inside, nees
 from fusion_eval.datasets.kitti_poses import read_kitti_poses
@@ -86,10 +85,11 @@ def test_4dof_alignment_recovers_a_known_yaw_and_translation():
     q = matrix_to_quat_xyzw(exp_so3(rng.normal(size=(200, 3)) * 0.2))
     est = PoseSeries(t_s=np.arange(200.0), p_w_m=p, q_wb_xyzw=q)
     yaw, t = 0.7, np.array([12.0, -5.0, 1.5])
-    ref = apply_4dof(est, yaw, t)
-    yaw_fit, t_fit = yaw_translation_fit(est.p_w_m, ref.p_w_m)
-    assert yaw_fit == pytest.approx(yaw, abs=1e-12) and np.allclose(t_fit, t, atol=1e-10)
+    Rz = exp_so3(np.array([[0.0, 0.0, yaw]]))[0]
+    ref = PoseSeries(t_s=est.t_s, p_w_m=p @ Rz.T + t, q_wb_xyzw=matrix_to_quat_xyzw(Rz[None] @ est.R_wb()))
     ev = evaluate(ref, est, "x", 0.01, 100.0, alignment="4dof")
+    assert ev.alignment_params["up_axis"] == "z" and ev.alignment_params["yaw_deg"] == pytest.approx(np.degrees(yaw))
+    assert np.allclose(ev.alignment_params["translation_m"], t, atol=1e-10)
     assert ev.metrics["ape"]["translation_m"]["rmse"] < 1e-9 and ev.metrics["ape"]["rotation_deg"]["rmse"] < 1e-6
 
 
@@ -106,10 +106,13 @@ def test_interpolated_association_equals_nearest_when_stamps_coincide():
         for rel in ("translation_m", "rotation_deg"):
             for s in ("rmse", "max"):
                 assert a.metrics[g][rel][s] == pytest.approx(b.metrics[g][rel][s], abs=1e-9)
-    # off-grid estimate stamps: nearest finds none within 10 ms, interpolation matches them all
+    # off-grid estimate stamps: within 10 ms neither finds a pose (evo's interpolation matches stamps as nearest
+    # does, then interpolates); within 60 ms interpolation takes the reference between its poses
     est2 = PoseSeries(t_s=t[:-1] + 0.05, p_w_m=est.p_w_m[:-1], q_wb_xyzw=est.q_wb_xyzw[:-1])
     assert evaluate(ref, est2, "e", 0.01, 10.0, association="nearest").matched_poses == 0
-    assert evaluate(ref, est2, "e", 0.01, 10.0, association="interpolate").matched_poses == t.size - 1
+    assert evaluate(ref, est2, "e", 0.01, 10.0, association="interpolate").matched_poses == 0
+    ev = evaluate(ref, est2, "e", 0.06, 10.0, association="interpolate")
+    assert ev.matched_poses == t.size - 1 and ev.metrics["ape"]["translation_m"]["rmse"] > 0.1
 
 
 def test_default_report_carries_every_section(slice_run):
@@ -151,7 +154,7 @@ def test_evaluate_command_on_kitti_and_tum_files(tmp_path):
     # a bad file is a clean error
     (tmp_path / "bad.txt").write_text("1 2 3\n")
     r = CliRunner().invoke(main, ["-q", "evaluate", str(gt), str(tmp_path / "bad.txt"), "--out", str(tmp_path / "b")])
-    assert r.exit_code == 2 and "expected a TUM (8 values per line) or KITTI (12 values)" in r.stderr
+    assert r.exit_code == 2 and "expected a TUM (8 values per line" in r.stderr and "got 3 values" in r.stderr
 
 
 def test_segment_breakdown_equals_the_masked_form():

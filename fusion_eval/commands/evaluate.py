@@ -1,8 +1,9 @@
-"""``fusion-eval evaluate``: the full report for existing trajectory files (any localization system's output).
+"""``fusion-eval evaluate``: the full report for existing trajectory files (any localization system's output),
+or for trajectory topics of a ROS 1 / ROS 2 bag.
 
-Files are TUM (8 values per line) or KITTI poses (12 values per line), recognised by their column count.
-KITTI files take their stamps from a times file (``--ref-times``, ``--times``); without one, poses are
-matched by index (frame i gets the stamp i seconds).
+Files are TUM, KITTI poses or EuRoC CSV, told apart by their content (``--format`` forces one) and read by
+evo's readers (:mod:`fusion_eval.datasets.trajectory_file`). KITTI files take their stamps from a times file
+(``--ref-times``, ``--times``); without one, poses are matched by index (frame i gets the stamp i seconds).
 """
 
 from __future__ import annotations
@@ -10,38 +11,67 @@ from __future__ import annotations
 import json
 from pathlib import Path
 
-from ..datasets.trajectory_file import read_trajectory
+from ..datasets.trajectory_file import as_series, read_bag_trajectories, read_trajectory
+from ..errors import ConfigError
+from ..evaluation import keys
 from ..evaluation.estimates import evaluate_series, validate_options
 from ..outputs import StagedDir
 from ..report.markdown import drift_section, fmt_stat, segments_section
 from ..tables import markdown
 
 
-def run_evaluate(reference: Path, estimates: list[Path], out_dir: Path, ref_times: Path | None, times: Path | None,
-                 association: str, alignment: str, t_max_diff_s: float, rpe_delta_m: float, segment_m: float,
-                 segment_s: float | None, overwrite: bool, make_plots: bool, engine: str = "arrays") -> dict:
-    validate_options(association, alignment, t_max_diff_s, rpe_delta_m, segment_m, segment_s, engine)
+def read_inputs(inputs: list, bag: Path | None, ref_topic: str | None, fmt: str, ref_times: Path | None,
+                times: Path | None) -> tuple:
+    """The reference and the estimates (``TrajectoryFile``) of ``evaluate``'s arguments: files, or bag topics."""
+    if bag is not None:
+        if not ref_topic:
+            raise ConfigError("--bag needs --ref REF_TOPIC (the reference topic) and one or more estimate topics")
+        if ref_times or times or fmt != "auto":
+            raise ConfigError("--ref-times, --times and --format apply to trajectory files, not to bag topics")
+        tfs = read_bag_trajectories(bag, [ref_topic, *inputs])
+        return tfs[0], tfs[1:]
+    if ref_topic:
+        raise ConfigError("--ref names a topic: give the bag with --bag")
+    if len(inputs) < 2:
+        raise ConfigError("give a reference file and at least one estimate file (or --bag FILE --ref TOPIC TOPIC...)")
+    return read_trajectory(inputs[0], ref_times, fmt), [read_trajectory(p, times, fmt) for p in inputs[1:]]
+
+
+def run_evaluate(inputs: list, out_dir: Path, ref_times: Path | None = None, times: Path | None = None,
+                 association: str = "nearest", alignment: str = "none", t_max_diff_s: float = 0.01,
+                 rpe_delta_m: float = 100.0, segment_m: float = 100.0, segment_s: float | None = None,
+                 overwrite: bool = False, make_plots: bool = True, engine: str = "arrays", *, bag: Path | None = None,
+                 ref_topic: str | None = None, fmt: str = "auto", relations: tuple[str, ...] = keys.DEFAULT_RELATIONS,
+                 up_axis: str = "auto", n_to_align: int = -1, t_offset_s: float = 0.0) -> dict:
+    validate_options(association, alignment, t_max_diff_s, rpe_delta_m, segment_m, segment_s, engine, relations,
+                     up_axis, n_to_align)
     staged = StagedDir(out_dir, overwrite=overwrite)
     staged.check()
-    ref, ref_how = read_trajectory(reference, ref_times)
+    ref_f, est_fs = read_inputs(list(inputs), bag, ref_topic, fmt, ref_times, times)
     series, about = {}, {}
-    for p in estimates:
-        est, how = read_trajectory(p, times)
-        name = Path(p).stem
+    for f in est_fs:
+        name = Path(f.source).stem if f.format != "bag" else f.traj.meta["name"].strip("/").replace("/", "_")
         while name in series or name == "groundtruth":
             name += "_"
-        series[name] = est
-        about[name] = {"file": str(p), "stamps": how}
-    m, evals = evaluate_series(ref, series, association, alignment, t_max_diff_s, rpe_delta_m, segment_m, segment_s, about,
-                               ref_stamps=ref_how, engine=engine)
-    metrics = {"reference": str(reference), "reference_stamps": ref_how, **m}
+        series[name] = f.traj
+        about[name] = {"file": f.source, "format": f.format, "stamps": f.stamps,
+                       **({"repeated_stamps": f.repeated_stamps} if f.repeated_stamps else {})}
+    m, evals = evaluate_series(ref_f.traj, series, association, alignment, t_max_diff_s, rpe_delta_m, segment_m,
+                               segment_s, about, ref_stamps=ref_f.stamps, engine=engine, relations=relations,
+                               up_axis=up_axis, n_to_align=n_to_align, t_offset_s=t_offset_s)
+    metrics = {"reference": ref_f.source, "reference_format": ref_f.format, "reference_stamps": ref_f.stamps,
+               **({"reference_repeated_stamps": ref_f.repeated_stamps} if ref_f.repeated_stamps else {}), **m}
     with staged as out:
         out.write_text("metrics.json", json.dumps(metrics, indent=2) + "\n")
         written = []
         if make_plots:
+            from ..evaluation.alignment import detect_up_axis
             from ..report import plots
 
-            plots.plot_generic_trajectories(out.path("trajectories.png"), ref, series)
+            ref = as_series(ref_f)
+            up = up_axis if up_axis != "auto" else detect_up_axis(ref.p_w_m)[0] if len(ref) >= 3 else "z"
+            plots.plot_generic_trajectories(out.path("trajectories.png"), ref,
+                                            {k: as_series(f) for k, f in zip(series, est_fs)}, up_axis=up)
             plots.plot_ape_over_time(out.path("ape_over_time.png"), evals, float(ref.t_s[0]))
             written = ["trajectories.png", "ape_over_time.png"]
             if any(ev.drift for ev in evals.values()):

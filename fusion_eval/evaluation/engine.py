@@ -76,13 +76,21 @@ def relative(A: np.ndarray, B: np.ndarray) -> np.ndarray:
 
 
 # ---------------------------------------------------------------------------------------------- alignment
-def align_se3(est_T: np.ndarray, est_p: np.ndarray, ref_p: np.ndarray, with_scale: bool):
-    """``PosePath3D.align``: evo's Umeyama fit of the positions, applied as evo applies it (scale the
-    translations, then left-multiply by ``se3(r, t)``). Returns the moved stack and ``(r, t, s)``."""
-    r, t, s = geometry.umeyama_alignment(est_p.T, ref_p.T, with_scale)
+def align_se3(est_T: np.ndarray, est_p: np.ndarray, ref_p: np.ndarray, with_scale: bool, only_scale: bool = False,
+              n: int = -1):
+    """``PosePath3D.align``: evo's Umeyama fit of the positions (the first ``n``; -1: all), applied as evo applies
+    it (scale the translations, then left-multiply by ``se3(r, t)`` unless ``only_scale``). Returns the moved
+    stack and ``(r, t, s)``."""
+    with_scale = with_scale or only_scale
+    if n == -1:
+        r, t, s = geometry.umeyama_alignment(est_p.T, ref_p.T, with_scale)
+    else:
+        r, t, s = geometry.umeyama_alignment(est_p[:n, :].T, ref_p[:n, :].T, with_scale)
     moved = np.array(est_T)
     if with_scale:
         moved[:, :3, 3] *= s
+    if only_scale:
+        return moved, (r, t, s)
     A = np.eye(4)
     A[:3, :3], A[:3, 3] = r, t
     return A @ moved, (r, t, s)

@@ -14,6 +14,14 @@ STATS = ("rmse", "mean", "median", "std", "min", "max")
 APE = "ape"
 RPE_FRAME = "rpe_1frame"
 RELATIONS = {"translation_m": ("trans", "m"), "rotation_deg": ("rot", "deg")}
+# evo's pose relations (``evo_ape -r``), the key each has in metrics.json and the name of its result file
+RELATION_KEYS = {"trans_part": "translation_m", "angle_deg": "rotation_deg", "angle_rad": "rotation_rad",
+                 "rot_part": "rotation_part", "full": "full_transformation", "point_distance": "point_distance_m"}
+RESULT_NAMES = {"translation_m": "translation", "rotation_deg": "rotation", "rotation_rad": "rotation_rad",
+                "rotation_part": "rotation_part", "full_transformation": "full_transformation",
+                "point_distance_m": "point_distance"}
+POSITION_RELATIONS = ("trans_part", "point_distance")     # defined for position-only estimates
+DEFAULT_RELATIONS = ("trans_part", "angle_deg")
 DEFAULT_RPE_DELTA_M = 100.0
 
 
@@ -113,3 +121,18 @@ def flatten(metrics: dict) -> dict[str, float]:
                 if isinstance(d, dict) and _num(d.get(k)):
                     out[f"{section}.{kind}.{k}"] = float(d[k])
     return out
+
+
+class _EvoRelations(dict):
+    """``RELATION_KEYS``' names -> evo's ``PoseRelation`` (evo imported on first use: ``--help`` stays fast)."""
+
+    def __missing__(self, name: str):
+        from evo.core.metrics import PoseRelation as R
+
+        table = {"trans_part": R.translation_part, "angle_deg": R.rotation_angle_deg, "angle_rad": R.rotation_angle_rad,
+                 "rot_part": R.rotation_part, "full": R.full_transformation, "point_distance": R.point_distance}
+        self.update(table)
+        return table[name]
+
+
+EVO_RELATIONS = _EvoRelations()

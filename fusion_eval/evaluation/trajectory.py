@@ -20,11 +20,10 @@ from evo.core.trajectory import PoseTrajectory3D
 from evo.main_ape import ape as evo_ape
 from evo.main_rpe import rpe as evo_rpe
 
-from ..interp import interpolate_poses
 from ..so3 import wxyz_to_xyzw, xyzw_to_wxyz
 from ..types import PoseSeries
 from . import engine, keys
-from .alignment import apply_4dof, yaw_translation_fit
+from .alignment import detect_up_axis, fit_4dof
 from .drift import kitti_drift
 
 log = logging.getLogger(__name__)
@@ -40,10 +39,11 @@ def to_evo(poses: PoseSeries, name: str) -> PoseTrajectory3D:
     return traj
 
 
-def from_evo(traj: PoseTrajectory3D) -> PoseSeries:
+def from_evo(traj: PoseTrajectory3D, repeated_stamps: bool = False) -> PoseSeries:
     """A pose series of an evo trajectory (quaternions back to the package's (x, y, z, w) order)."""
     return PoseSeries(t_s=np.array(traj.timestamps), p_w_m=np.array(traj.positions_xyz),
-                      q_wb_xyzw=wxyz_to_xyzw(np.array(traj.orientations_quat_wxyz)), source=traj.meta.get("name", "<evo>"))
+                      q_wb_xyzw=wxyz_to_xyzw(np.array(traj.orientations_quat_wxyz)), source=traj.meta.get("name", "<evo>"),
+                      repeated_stamps=repeated_stamps)
 
 
 @dataclass
@@ -70,30 +70,43 @@ def _stats(res: Result) -> dict:
     return {k: float(res.stats[k]) for k in STATS}
 
 
-def associate(reference: PoseSeries, estimate: PoseSeries, method: str, t_max_diff_s: float):
-    """Pairs of evo trajectories: ``nearest`` stamp within ``t_max_diff_s`` (evo's), or ``interpolate``:
-    the reference interpolated at the estimate's stamps inside its span (linear position, SLERP)."""
+def as_evo(x, name: str) -> PoseTrajectory3D:
+    """An evo trajectory of a pose series, or an evo trajectory (read by evo's readers) as it is."""
+    return to_evo(x, name) if isinstance(x, PoseSeries) else x
+
+
+def associate(reference, estimate, method: str, t_max_diff_s: float, t_offset_s: float = 0.0):
+    """Pairs of evo trajectories, as ``evo_ape --sync_method`` makes them: ``nearest`` stamp within
+    ``t_max_diff_s`` (``nearest_time``), or ``interpolate``: the stamps matched the same way, then the trajectory
+    with more poses interpolated (linear position, SLERP) at the matched stamps of the other
+    (``evo.core.sync.associate_trajectories`` with ``SyncMethod.interpolation``): a gap in either is never
+    bridged. ``t_offset_s`` is added to the estimate's stamps for the matching only (evo's ``--t_offset``)."""
+    ref = as_evo(reference, "groundtruth")
+    est = as_evo(estimate, getattr(estimate, "source", None) or est_name(estimate))
     if method == "interpolate":
-        ref_i = interpolate_poses(reference, estimate.t_s)
-        keep = np.isin(estimate.t_s, ref_i.t_s)
-        est = estimate.select(keep)
-        if len(est) == 0:
-            raise sync.SyncException("no estimate stamp inside the reference's span")
-        return to_evo(ref_i, "groundtruth"), to_evo(est, estimate.source)
-    return associate_nearest(to_evo(reference, "groundtruth"), to_evo(estimate, estimate.source), t_max_diff_s)
+        from evo.core.sync_method import SyncMethod
+
+        return sync.associate_trajectories(ref, est, sync_method=SyncMethod.interpolation, max_diff=t_max_diff_s,
+                                           offset_2=t_offset_s)
+    return associate_nearest(ref, est, t_max_diff_s, t_offset_s)
 
 
-def associate_nearest(traj_1, traj_2, max_diff: float):
+def est_name(x) -> str:
+    return x.meta.get("name", "estimate") if hasattr(x, "meta") else "estimate"
+
+
+def associate_nearest(traj_1, traj_2, max_diff: float, offset_2: float = 0.0):
     """``evo.core.sync.associate_trajectories`` (nearest stamp, no offset) with the stamps matched on whole
     arrays (:func:`engine.matching_time_indices`) and the matched poses taken without deep copies: the same
     pair of trajectories (``tests/test_engine_parity.py``)."""
     second_longer = traj_2.num_poses > traj_1.num_poses
     short, long_ = (traj_1, traj_2) if second_longer else (traj_2, traj_1)
-    i_short, i_long = engine.matching_time_indices(short.timestamps, long_.timestamps, max_diff)
+    i_short, i_long = engine.matching_time_indices(short.timestamps, long_.timestamps, max_diff,
+                                                   offset_2 if second_longer else -offset_2)
     if i_short.size == 0:
         raise sync.SyncException(
             f"found no matching timestamps between {traj_1.name or 'first trajectory'} and "
-            f"{traj_2.name or 'second trajectory'} with max. time diff {max_diff} (s) and time offset 0.0 (s)")
+            f"{traj_2.name or 'second trajectory'} with max. time diff {max_diff} (s) and time offset {offset_2} (s)")
     short, long_ = _subset(short, i_short), _subset(long_, i_long)
     return (short, long_) if second_longer else (long_, short)
 
@@ -152,42 +165,68 @@ class _Arrays:
         return engine.rpe_result(self.ref_a, self.est_a, rel, err, ids, delta, unit)
 
 
-def _align(est_a, ref_a, alignment: str, arrays: bool):
-    """The estimate moved by evo's ``origin``/``se3``/``sim3`` alignment, and the alignment's parameters."""
+def _align(est_a, ref_a, alignment: str, arrays: bool, n_to_align: int = -1):
+    """The estimate moved by evo's ``origin``/``se3``/``sim3``/``scale`` alignment (``--align_origin``, ``-a``,
+    ``-as``, ``-s``), Umeyama's fit on the first ``n_to_align`` poses (-1: all), and the alignment's parameters."""
+    with_scale, only_scale = alignment in ("sim3", "scale"), alignment == "scale"
     if not arrays:
         est_a = copy.deepcopy(est_a)
         if alignment == "origin":
             return est_a, {"T": np.asarray(est_a.align_origin(ref_a)).tolist()}
-        r, t, s = est_a.align(ref_a, correct_scale=alignment == "sim3")
+        r, t, s = est_a.align(ref_a, correct_scale=with_scale, correct_only_scale=only_scale, n=n_to_align)
     else:
         est_T, ref_T = engine.traj_se3(est_a), engine.traj_se3(ref_a)
         if alignment == "origin":
             moved, T = engine.align_origin(est_T, ref_T)
             return engine.with_poses(est_a, moved), {"T": T.tolist()}
-        moved, (r, t, s) = engine.align_se3(est_T, est_a.positions_xyz, ref_a.positions_xyz, alignment == "sim3")
+        moved, (r, t, s) = engine.align_se3(est_T, est_a.positions_xyz, ref_a.positions_xyz, with_scale,
+                                            only_scale=only_scale, n=n_to_align)
         est_a = engine.with_poses(est_a, moved)
+    if only_scale:
+        return est_a, {"scale": float(s)}
     return est_a, {"rotation": np.asarray(r).tolist(), "translation_m": np.asarray(t).tolist(), "scale": float(s)}
 
 
-def evaluate(reference: PoseSeries, estimate: PoseSeries, name: str, t_max_diff_s: float,
+def _align_4dof(est_a, ref_a, up_axis: str, n_to_align: int = -1):
+    """The estimate rotated about the reference's gravity axis and translated (least squares on the positions)."""
+    p_e, p_r = est_a.positions_xyz, ref_a.positions_xyz
+    if n_to_align != -1:
+        p_e, p_r = p_e[:n_to_align], p_r[:n_to_align]
+    params: dict = {}
+    if up_axis == "auto":
+        up_axis, params["up_axis_detection"] = detect_up_axis(ref_a.positions_xyz)
+    R, t, yaw = fit_4dof(p_e, p_r, up_axis)
+    A = np.eye(4)
+    A[:3, :3], A[:3, 3] = R, t
+    params.update({"up_axis": up_axis, "yaw_deg": float(np.degrees(yaw)), "translation_m": t.tolist()})
+    return engine.with_poses(est_a, A @ engine.traj_se3(est_a)), params
+
+
+def evaluate(reference, estimate, name: str, t_max_diff_s: float,
              rpe_delta_m: float, association: str = "nearest", alignment: str = "none",
-             engine_name: str = "arrays") -> EstimateEvaluation:
-    """APE (translation, rotation), RPE (per frame, per ``rpe_delta_m`` metres) and the KITTI drift metric
-    of one estimate.
+             engine_name: str = "arrays", *, relations: tuple[str, ...] = keys.DEFAULT_RELATIONS, up_axis: str = "auto",
+             n_to_align: int = -1, t_offset_s: float = 0.0, has_orientation: bool | None = None) -> EstimateEvaluation:
+    """APE and RPE (per frame, per ``rpe_delta_m`` metres) under each pose relation, and the KITTI drift metric
+    of one estimate. ``reference`` and ``estimate``: pose series, or evo trajectories as evo's readers give them.
 
     Poses are associated by ``association`` (see :func:`associate`), then aligned by ``alignment``:
-    ``none``, ``origin``, ``se3`` or ``sim3`` (evo's), or ``4dof`` (yaw + translation, ours). For a
-    position-only estimate only the APE translation is computed: its rotations mean nothing.
+    ``none``, ``origin``, ``se3``, ``sim3`` or ``scale`` (evo's ``--align_origin``, ``-a``, ``-as``, ``-s``; the
+    Umeyama fit on the first ``n_to_align`` poses), or ``4dof`` (a rotation about ``up_axis`` and a translation,
+    ours). ``relations``: evo's pose relations (:data:`keys.RELATION_KEYS`); the translation is always computed.
+    For a position-only estimate only the translation relations are computed: its rotations mean nothing.
     ``engine_name``: ``arrays`` computes evo's metrics on whole arrays (:mod:`.engine`), ``evo`` runs evo's own
     per-pose loops; both give the same numbers and result files.
     """
     if engine_name not in ENGINES:
         raise ValueError(f"evaluation engine {engine_name!r}: expected one of {', '.join(ENGINES)}")
     arrays = engine_name == "arrays"
-    ev = EstimateEvaluation(name=name, poses=len(estimate), matched_poses=0)
+    if has_orientation is None:
+        has_orientation = getattr(estimate, "has_orientation", True)
+    n_est = len(estimate) if isinstance(estimate, PoseSeries) else estimate.num_poses
+    ev = EstimateEvaluation(name=name, poses=n_est, matched_poses=0)
     ev.association, ev.alignment = association, alignment
     try:
-        ref_a, est_a = associate(reference, estimate, association, t_max_diff_s)
+        ref_a, est_a = associate(reference, estimate, association, t_max_diff_s, t_offset_s)
     except sync.SyncException as exc:
         ev.note = f"no poses associated ({association}, max {t_max_diff_s} s: {exc})"
         return ev
@@ -196,32 +235,27 @@ def evaluate(reference: PoseSeries, estimate: PoseSeries, name: str, t_max_diff_
         ev.note = "fewer than 2 associated poses"
         return ev
     if alignment == "4dof":
-        yaw, t = yaw_translation_fit(est_a.positions_xyz, ref_a.positions_xyz)
-        moved = apply_4dof(PoseSeries(t_s=est_a.timestamps, p_w_m=est_a.positions_xyz,
-                                      q_wb_xyzw=wxyz_to_xyzw(est_a.orientations_quat_wxyz),
-                                      has_orientation=estimate.has_orientation), yaw, t)
-        est_a = to_evo(moved, name)
-        ev.alignment_params = {"yaw_deg": float(np.degrees(yaw)), "translation_m": t.tolist()}
-    elif alignment in ("se3", "sim3", "origin"):
-        est_a, ev.alignment_params = _align(est_a, ref_a, alignment, arrays)
+        est_a, ev.alignment_params = _align_4dof(est_a, ref_a, up_axis, n_to_align)
+    elif alignment in ("se3", "sim3", "scale", "origin"):
+        est_a, ev.alignment_params = _align(est_a, ref_a, alignment, arrays, n_to_align)
     calc = _Arrays(ref_a, est_a) if arrays else _EvoLoops(ref_a, est_a)
-    rels = [("translation_m", metrics.PoseRelation.translation_part)]
-    if estimate.has_orientation:
-        rels.append(("rotation_deg", metrics.PoseRelation.rotation_angle_deg))
+    wanted = ["trans_part", *[r for r in relations if r != "trans_part"]]
+    rels = [(keys.RELATION_KEYS[r], keys.EVO_RELATIONS[r]) for r in wanted
+            if has_orientation or r in keys.POSITION_RELATIONS]
 
     ev.metrics[keys.APE] = {}
     for key, rel in rels:
         res = calc.ape(rel)
         ev.metrics["ape"][key] = _stats(res)
-        ev.results[f"ape_{key.split('_')[0]}"] = res
+        ev.results[f"ape_{keys.RESULT_NAMES[key]}"] = res
         if key == "translation_m":
             ev.ape_t_s = np.array(est_a.timestamps)
             ev.ape_err_m = np.array(res.np_arrays["error_array"])
             ev.ref_p_m = np.array(ref_a.positions_xyz)
-    if estimate.has_orientation:
+    if has_orientation:
         d = kitti_drift(*calc.se3())
         ev.drift = None if d is None else d.as_dict()
-    if not estimate.has_orientation:
+    if not has_orientation:
         ev.note = "position only: no rotation or relative (RPE) metrics"
         return ev
     for label, delta, unit in ((keys.RPE_FRAME, 1.0, metrics.Unit.frames),
@@ -235,7 +269,7 @@ def evaluate(reference: PoseSeries, estimate: PoseSeries, name: str, t_max_diff_
                 ev.metrics[label][key] = None
                 continue
             ev.metrics[label][key] = _stats(res)
-            ev.results[f"{label}_{key.split('_')[0]}"] = res
+            ev.results[f"{label}_{keys.RESULT_NAMES[key]}"] = res
     return ev
 
 

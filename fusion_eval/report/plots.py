@@ -403,15 +403,17 @@ def plot_segment_map(path: Path, evals: dict, seg: dict) -> None:
     _save(fig, path)
 
 
-def plot_generic_trajectories(path: Path, ref, estimates: dict) -> None:
+def plot_generic_trajectories(path: Path, ref, estimates: dict, up_axis: str = "z") -> None:
+    """Top view: the plane across the reference's gravity axis (x-y for ENU, x-z for KITTI's cam0 poses)."""
+    i0, i1 = {"z": (0, 1), "y": (0, 2), "x": (1, 2)}[up_axis]
     fig, ax = plt.subplots(figsize=(8, 7))
-    ax.plot(ref.p_w_m[:, 0], ref.p_w_m[:, 1], "-", color="black", lw=1.6, label="reference")
+    ax.plot(ref.p_w_m[:, i0], ref.p_w_m[:, i1], "-", color="black", lw=1.6, label="reference")
     for i, (name, s) in enumerate(estimates.items()):
-        ax.plot(s.p_w_m[:, 0], s.p_w_m[:, 1], "-", lw=1.0, color=_VCOLORS[i % len(_VCOLORS)], label=name)
+        ax.plot(s.p_w_m[:, i0], s.p_w_m[:, i1], "-", lw=1.0, color=_VCOLORS[i % len(_VCOLORS)], label=name)
     ax.set_aspect("equal", adjustable="box")
-    ax.set_xlabel("x [m]")
-    ax.set_ylabel("y [m]")
-    ax.set_title("Trajectories (x-y plane of the files' frame)")
+    ax.set_xlabel(f"{'xyz'[i0]} [m]")
+    ax.set_ylabel(f"{'xyz'[i1]} [m]")
+    ax.set_title(f"Trajectories ({'xyz'[i0]}-{'xyz'[i1]} plane of the files' frame, as read; not aligned)")
     ax.grid(alpha=0.3)
     ax.legend(fontsize=8)
     _save(fig, path)

@@ -1,0 +1,209 @@
+"""``fusion-eval evaluate`` reproduces evo on every file of evo's own test data, with every alignment evo offers
+(none, ``--align_origin``, ``-a``, ``-as``, ``-s``), every APE pose relation (``-r``) and both sync methods,
+to 1e-6: the reference is evo's own pipeline (its file readers, ``sync_with``, ``main_ape.ape``), as ``evo_ape``
+runs it; two figures come from evo's command line itself (``evo_ape euroc V102 -a`` 0.091727 m, ``evo_ape bag
+ROS_example.bag groundtruth ORB-SLAM -as`` 5.404707 m).
+
+The whole matrix is ``slow``; one alignment per file runs in the quick suite.
+"""
+
+from __future__ import annotations
+
+import copy
+import subprocess
+import sys
+from pathlib import Path
+
+import numpy as np
+import pytest
+from conftest import shared_path
+
+from evo.core.sync_method import SyncMethod
+from evo.main_ape import ape as evo_ape
+from evo.tools import file_interface
+from fusion_eval.commands.evaluate import read_inputs, run_evaluate
+from fusion_eval.evaluation import keys
+from fusion_eval.evaluation.estimates import evaluate_series
+
+TOL = 1e-6
+ALL_RELATIONS = tuple(keys.RELATION_KEYS)
+# alignment -> evo_ape's flags (align, correct_scale, align_origin)
+EVO_ALIGN = {"none": (False, False, False), "origin": (False, False, True), "se3": (True, False, False),
+             "sim3": (True, True, False), "scale": (False, True, False)}
+# (id, evo sub-command, reference, estimate): files of ../shared/data/evo-test-data, or bag topics
+CASES = [("kitti-orb", "kitti", "KITTI_00_gt.txt", "KITTI_00_ORB.txt"),
+         ("kitti-sptam", "kitti", "KITTI_00_gt.txt", "KITTI_00_SPTAM.txt"),
+         ("fr1-rgbdslam", "tum", "freiburg1_xyz-groundtruth.txt", "freiburg1_xyz-rgbdslam.txt"),
+         ("fr1-drift", "tum", "freiburg1_xyz-groundtruth.txt", "freiburg1_xyz-rgbdslam_drift.txt"),
+         ("fr1-orb-mono", "tum", "freiburg1_xyz-groundtruth.txt", "freiburg1_xyz-ORB_kf_mono.txt"),
+         ("fr2-desk", "tum", "fr2_desk_groundtruth.txt", "fr2_desk_ORB.txt"),
+         ("fr2-desk-mono", "tum", "fr2_desk_groundtruth.txt", "fr2_desk_ORB_kf_mono.txt"),
+         ("euroc-v102", "euroc", "V102_groundtruth.csv", "V102.txt"),
+         ("bag1-orb", "bag", "ROS_example.bag:groundtruth", "ORB-SLAM"),
+         ("bag1-sptam", "bag", "ROS_example.bag:groundtruth", "S-PTAM")]
+QUICK = {"kitti-orb": "se3", "fr1-rgbdslam": "origin", "fr2-desk": "sim3", "euroc-v102": "se3", "bag1-orb": "sim3",
+         "fr1-orb-mono": "scale"}
+
+
+def _paths(sub, ref, est):
+    if sub in ("bag", "bag2"):
+        bag, ref_topic = ref.split(":", 1)
+        return shared_path("evo-test-data", bag), ref_topic, est
+    return None, shared_path("evo-test-data", ref), shared_path("evo-test-data", est)
+
+
+def _evo_load(sub, ref, est):
+    """Reference and estimate as ``evo_ape``'s ``load_trajectories`` reads them."""
+    bag, r, e = _paths(sub, ref, est)
+    if sub == "kitti":
+        return file_interface.read_kitti_poses_file(str(r)), file_interface.read_kitti_poses_file(str(e))
+    if sub == "tum":
+        return file_interface.read_tum_trajectory_file(str(r)), file_interface.read_tum_trajectory_file(str(e))
+    if sub == "euroc":
+        return file_interface.read_euroc_csv_trajectory(str(r)), file_interface.read_tum_trajectory_file(str(e))
+    if sub == "bag":
+        from rosbags.rosbag1 import Reader
+    else:
+        from rosbags.rosbag2 import Reader
+    with Reader(bag) as reader:
+        return (file_interface.read_bag_trajectory(reader, r, cache_tf_tree=True),
+                file_interface.read_bag_trajectory(reader, e, cache_tf_tree=True))
+
+
+def _evo_ape(loaded, sync_method, alignment, relation, t_max_diff=0.01):
+    ref, est = (copy.deepcopy(t) for t in loaded)
+    if hasattr(ref, "timestamps") and hasattr(est, "timestamps"):
+        ref, est = ref.sync_with(est, sync_method=sync_method, max_diff=t_max_diff)
+    align, scale, origin = EVO_ALIGN[alignment]
+    return evo_ape(ref, est, keys.EVO_RELATIONS[relation], align=align, correct_scale=scale, align_origin=origin)
+
+
+def _ours(sub, ref, est, association, alignment):
+    bag, r, e = _paths(sub, ref, est)
+    if bag is not None:
+        ref_f, ests = read_inputs([e], bag, r, "auto", None, None)
+    else:
+        ref_f, ests = read_inputs([r, e], None, None, "auto", None, None)
+    m, _ = evaluate_series(ref_f.traj, {"est": ests[0].traj}, association, alignment, relations=ALL_RELATIONS)
+    return m["estimates"]["est"]
+
+
+_LOADED: dict = {}
+
+
+def _check(case, association, alignment):
+    cid, sub, ref, est = case
+    if cid not in _LOADED:
+        _LOADED[cid] = _evo_load(sub, ref, est)
+    ours = _ours(sub, ref, est, association, alignment)
+    sync_method = SyncMethod.interpolation if association == "interpolate" else SyncMethod.nearest_time
+    for rel in ALL_RELATIONS:
+        res = _evo_ape(_LOADED[cid], sync_method, alignment, rel)
+        got = ours["ape"][keys.RELATION_KEYS[rel]]
+        for stat in keys.STATS:
+            assert got[stat] == pytest.approx(float(res.stats[stat]), rel=0, abs=TOL), (cid, association, alignment, rel, stat)
+        assert ours["matched_poses"] == len(res.np_arrays["error_array"])
+
+
+@pytest.mark.parametrize("case", [c for c in CASES if c[0] in QUICK], ids=lambda c: c[0])
+def test_one_alignment_per_file_equals_evo(case):
+    _check(case, "nearest", QUICK[case[0]])
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("alignment", list(EVO_ALIGN))
+@pytest.mark.parametrize("association", ["nearest", "interpolate"])
+@pytest.mark.parametrize("case", CASES, ids=lambda c: c[0])
+def test_every_file_alignment_relation_and_sync_equals_evo(case, association, alignment):
+    if case[1] == "kitti" and association == "interpolate":
+        pytest.skip("KITTI pose files have no stamps: evo does not synchronise them")
+    _check(case, association, alignment)
+
+
+def _evo_cli(tmp_path, *args) -> float:
+    """The APE RMSE that evo's own command line writes to its result file."""
+    exe = Path(sys.executable).with_name("evo_ape")
+    res = tmp_path / "res.zip"
+    subprocess.run([str(exe), *map(str, args), "--save_results", str(res), "--no_warnings"], check=True,
+                   capture_output=True, timeout=120)
+    return float(file_interface.load_res_file(str(res)).stats["rmse"])
+
+
+def test_reference_figures_from_evos_command_line(tmp_path):
+    D = shared_path("evo-test-data")
+    m = run_evaluate([D / "V102_groundtruth.csv", D / "V102.txt"], tmp_path / "a", alignment="se3", make_plots=False)
+    evo = _evo_cli(tmp_path, "euroc", D / "V102_groundtruth.csv", D / "V102.txt", "-a")
+    assert evo == pytest.approx(0.091727, abs=5e-7)
+    assert m["estimates"]["V102"]["ape"]["translation_m"]["rmse"] == pytest.approx(evo, abs=TOL)
+    assert m["estimates"]["V102"]["repeated_stamps"] == 4 and m["reference_format"] == "euroc"
+    m = run_evaluate(["ORB-SLAM"], tmp_path / "b", alignment="sim3", bag=D / "ROS_example.bag", ref_topic="groundtruth",
+                     make_plots=False)
+    evo = _evo_cli(tmp_path, "bag", D / "ROS_example.bag", "groundtruth", "ORB-SLAM", "-as")
+    assert evo == pytest.approx(5.404707, abs=5e-7)
+    assert m["estimates"]["ORB-SLAM"]["ape"]["translation_m"]["rmse"] == pytest.approx(evo, abs=TOL)
+
+
+def test_interpolation_does_not_bridge_a_gap_in_the_reference(tmp_path):
+    """fr2_desk's reference has a 12 s gap: evo's interpolation (and ours) only uses estimate stamps with a
+    reference pose within --t-max-diff; interpolating across the gap gave 0.1142 m instead of 0.0081 m."""
+    D = shared_path("evo-test-data")
+    m = run_evaluate([D / "fr2_desk_groundtruth.txt", D / "fr2_desk_ORB.txt"], tmp_path / "o", association="interpolate",
+                     alignment="se3", make_plots=False)
+    rmse = m["estimates"]["fr2_desk_ORB"]["ape"]["translation_m"]["rmse"]
+    assert rmse == pytest.approx(0.008099, abs=5e-7)
+
+
+def test_4dof_finds_the_gravity_axis_of_kitti_cam0_poses(tmp_path):
+    """KITTI's cam0 frame has y pointing down: the 4-DoF fit rotates about y, and can only be worse than
+    SE(3) (it has fewer degrees of freedom); fitting about z (the old assumption: 4.698 m) or x is worse."""
+    D = shared_path("evo-test-data")
+    files = [D / "KITTI_00_gt.txt", D / "KITTI_00_ORB.txt"]
+    m4 = run_evaluate(files, tmp_path / "a", alignment="4dof", make_plots=False)["estimates"]["KITTI_00_ORB"]
+    m6 = run_evaluate(files, tmp_path / "b", alignment="se3", make_plots=False)["estimates"]["KITTI_00_ORB"]
+    mz = run_evaluate(files, tmp_path / "c", alignment="4dof", up_axis="z", make_plots=False)["estimates"]["KITTI_00_ORB"]
+    mx = run_evaluate(files, tmp_path / "d", alignment="4dof", up_axis="x", make_plots=False)["estimates"]["KITTI_00_ORB"]
+    assert m4["alignment"]["up_axis"] == "y" and m4["alignment"]["up_axis_detection"]["angle_deg"] < 5
+    r4, r6, rz, rx = (x["ape"]["translation_m"]["rmse"] for x in (m4, m6, mz, mx))
+    assert r6 <= r4 < min(rz, rx) and rz > 4.5
+
+
+def test_4dof_recovers_a_rotation_about_any_axis():
+    from fusion_eval.evaluation.alignment import fit_4dof
+    from fusion_eval.so3 import exp_so3
+
+    rng = np.random.default_rng(4)
+    p = rng.normal(size=(300, 3)) * [40, 2, 40]        # flat in y, as a drive in cam0 coordinates
+    for axis, k in (("y", 1), ("z", 2), ("x", 0)):
+        w = np.zeros(3)
+        w[k] = 0.8
+        R, t = exp_so3(w[None])[0], np.array([3.0, -1.0, 7.0])
+        R_fit, t_fit, yaw = fit_4dof(p, p @ R.T + t, axis)
+        assert np.allclose(R_fit, R, atol=1e-12) and np.allclose(t_fit, t, atol=1e-10) and yaw == pytest.approx(0.8)
+
+
+def test_cli_reads_a_bag_and_names_a_missing_topic(tmp_path):
+    from click.testing import CliRunner
+    from fusion_eval.cli import main
+
+    D = shared_path("evo-test-data")
+    r = CliRunner().invoke(main, ["evaluate", "--bag", str(D / "ROS_example.bag"), "--ref", "groundtruth", "ORB-SLAM",
+                                  "S-PTAM", "-r", "full", "-r", "angle_rad", "--alignment", "se3", "-o", str(tmp_path / "o")])
+    assert r.exit_code == 0, r.output
+    out = (tmp_path / "o" / "report.md").read_text()
+    assert "ORB-SLAM" in out and "S-PTAM" in out
+    r = CliRunner().invoke(main, ["evaluate", "--bag", str(D / "ROS_example.bag"), "--ref", "groundtruth", "nope",
+                                  "-o", str(tmp_path / "p")])
+    assert r.exit_code != 0 and "'nope'" in r.output and "ORB-SLAM" in r.output and "Traceback" not in r.output
+    assert not (tmp_path / "p").exists()
+
+
+def test_a_euroc_csv_with_a_broken_row_names_the_line(tmp_path):
+    from fusion_eval.datasets.trajectory_file import read_trajectory
+    from fusion_eval.errors import DataFormatError
+
+    src = shared_path("evo-test-data", "V102_groundtruth.csv").read_text().splitlines()
+    src[5] = src[5].rsplit(",", 3)[0] + ",x,1,2"
+    f = tmp_path / "gt.csv"
+    f.write_text("\n".join(src) + "\n")
+    with pytest.raises(DataFormatError, match=r"gt.csv:6: .*expected a number, got 'x'"):
+        read_trajectory(f)
