@@ -64,3 +64,38 @@ def is_float(s: str) -> bool:
         return True
     except ValueError:
         return False
+
+
+def ns_to_s(ns) -> np.ndarray:
+    """Seconds of integer nanoseconds, correctly rounded (as Python's exact ``int / int``).
+
+    Every reader turns a stamp into seconds this way or by parsing its decimal text with a correctly rounded parse:
+    the same stamp gives the same float whichever file or bag carried it (a stamp off by one unit in the last place,
+    0.24 us at 1.3e9 s, moves an update by that much and its estimate by ~1e-6 m). Vectorised as ``sec + rem * 1e-9``,
+    which is correctly rounded from 2^21 s on (the decimal never lies within the product's 1e-16 s error of a
+    rounding midpoint there); smaller stamps take the exact division.
+    """
+    ns = np.asarray(ns, dtype=np.int64)
+    sec, rem = np.divmod(ns, 1_000_000_000)
+    t = sec.astype(float) + rem.astype(float) * 1e-9
+    small = np.abs(t) < 2.0 ** 21
+    if np.any(small):
+        t[small] = [n / 1_000_000_000 for n in ns[small].tolist()]
+    return t
+
+
+def s_to_ns(t_s) -> np.ndarray:
+    """Nearest integer nanoseconds of float seconds (``t - floor(t)`` is exact, so only the ns rounding errs). For
+    stamps of POSIX size (> 4.5e6 s, where floats are spaced by more than 1 ns), :func:`ns_to_s` gives back the
+    very same float."""
+    t = np.asarray(t_s, dtype=float)
+    sec = np.floor(t)
+    return sec.astype(np.int64) * 1_000_000_000 + np.round((t - sec) * 1e9).astype(np.int64)
+
+
+def exact_floats() -> dict:
+    """The ``pandas.read_csv`` argument for correctly rounded floats: pandas 3 parses so by default (and warns on
+    the argument); older versions need ``float_precision='round_trip'``."""
+    import pandas as pd
+
+    return {} if int(pd.__version__.split(".")[0]) >= 3 else {"float_precision": "round_trip"}

@@ -23,7 +23,7 @@ from ..errors import DataFormatError
 from ..geo import geodetic_to_enu
 from ..so3 import euler_rpy_to_matrix, matrix_to_quat_xyzw
 from ..types import GnssSeries, ImuSeries, PoseSeries, SpeedSeries
-from ._text import is_float, read_text
+from ._text import exact_floats, is_float, read_text
 
 N_FIELDS = 30
 FIELDS = ("lat", "lon", "alt", "roll", "pitch", "yaw", "vn", "ve", "vf", "vl", "vu", "ax", "ay", "az", "af", "al", "au",
@@ -67,7 +67,7 @@ def parse_kitti_stamp(s: str) -> float | None:
     except ValueError:
         return None
     ns = int((frac or "0").ljust(9, "0"))
-    return float(whole) + ns * 1e-9
+    return (int(whole) * 1_000_000_000 + ns) / 1_000_000_000     # correctly rounded (see _text.ns_to_s)
 
 
 CSV_NAME = "packets.csv"
@@ -142,7 +142,8 @@ def _read_packets_csv(path: Path) -> OxtsPackets:
     import pandas as pd
 
     try:
-        df = pd.read_csv(path, dtype=float, engine="c")
+        # round_trip: Python's correctly rounded parse (pandas' default fast parse can be off by one ulp)
+        df = pd.read_csv(path, dtype=float, engine="c", **exact_floats())
     except (ValueError, pd.errors.ParserError) as exc:
         raise DataFormatError(path, None, f"expected a CSV '{CSV_HEADER[:40]}...' of numbers ({exc})") from None
     if list(df.columns) != CSV_HEADER.split(","):

@@ -1,7 +1,10 @@
 """Dataset manifest (``dataset.yaml``): which file holds each stream, in which format, frame and clock.
 
 A plain KITTI raw drive folder (one holding ``oxts/``) needs no manifest: its OXTS packets give the
-IMU, the GNSS and the ground truth. See the README's "Dataset manifest" section for every key.
+IMU, the GNSS and the ground truth; nor does a plain EuRoC / TUM-VI folder (``mav0/imu0``): its IMU and ground
+truth. Formats beyond KITTI's own (EuRoC, generic CSV, ROS bags) are registered in :mod:`.formats`. A pose stream
+in any sensor frame gives ``frame: <name>`` and ``T_imu_<name>`` (the sensor frame's pose in the IMU frame). See
+the README's "Dataset manifest" and "Your own data" sections for every key.
 """
 
 from __future__ import annotations
@@ -16,6 +19,7 @@ from ..errors import ConfigError, DataFormatError, DataRangeError
 from ..so3 import make_T, matrix_to_quat_xyzw
 from ..types import Dataset, GnssSeries, PoseSeries
 from . import clock, gnss_csv, kitti_oxts, kitti_poses, speed, tum
+from .formats import for_stream
 from .streams import ReadContext, StreamSpec
 
 STREAMS = ("imu", "gnss", "lidar", "groundtruth", "odometer")
@@ -55,13 +59,19 @@ def load_dataset(path: str | Path, extra_streams: tuple[StreamSpec, ...] | None 
         return _from_manifest(path, extra)
     if (path / "dataset.yaml").exists():
         return _from_manifest(path / "dataset.yaml", extra)
+    from . import euroc
+
+    asl = euroc.implicit_streams(path)
+    if asl is not None:
+        return _from_manifest_dict({"name": path.name, "streams": asl}, path, path / "(implicit EuRoC manifest)", extra)
     if (path / "oxts").is_dir():
         streams = {s: {"format": "kitti_oxts", "path": "oxts"} for s in ("imu", "gnss", "groundtruth")}
         # the OXTS rates lag the packet clock: estimated, or the device figure (fusion_eval.timing)
         streams["imu"]["gyro_lag_s"] = "auto"
         streams.update({n: {"format": "kitti_oxts", "path": "oxts"} for n, spec in extra.items() if spec.implicit_kitti_raw})
         return _from_manifest_dict({"name": path.name, "streams": streams}, path, path / "(implicit manifest)", extra)
-    raise DataFormatError(path, None, "expected dataset.yaml or an oxts/ folder (KITTI raw drive) in this folder")
+    raise DataFormatError(path, None, "expected dataset.yaml, an oxts/ folder (KITTI raw drive) or mav0/imu0/data.csv "
+                                      "(EuRoC / TUM-VI) in this folder")
 
 
 def _from_manifest(manifest: Path, extra: dict) -> Dataset:
@@ -88,9 +98,12 @@ def _from_manifest_dict(body: dict, root: Path, manifest: Path, extra: dict | No
             raise ConfigError(f"{manifest}: unknown stream {name!r} (known: {', '.join([*STREAMS, *extra])})")
         if not isinstance(spec, dict):
             raise ConfigError(f"{manifest}: stream {name!r} must be a mapping with 'format' and 'path'")
+        registered = for_stream(name) if name in STREAMS else {}
         allowed = STREAM_KEYS[name] if name in STREAMS else extra[name].keys
-        formats = FORMATS[name] if name in STREAMS else tuple(extra[name].readers)
-        bad = set(spec) - allowed
+        formats = (FORMATS[name] + tuple(registered)) if name in STREAMS else tuple(extra[name].readers)
+        if spec.get("format") in registered:
+            allowed = allowed | registered[spec["format"]].keys
+        bad = {k for k in set(spec) - allowed if not (name in ("groundtruth", "lidar") and k.startswith("T_imu_"))}
         if bad:
             raise ConfigError(f"{manifest}: unknown key {sorted(bad)[0]!r} in stream {name!r} "
                               f"(known: {', '.join(sorted(allowed))})")
@@ -118,33 +131,49 @@ def _from_manifest_dict(body: dict, root: Path, manifest: Path, extra: dict | No
             oxts_cache[p] = kitti_oxts.read_oxts(p)
         return oxts_cache[p]
 
+    def ctx_with(origin_lla) -> ReadContext:
+        return ReadContext(root=root, manifest=manifest, origin=origin_lla, oxts=oxts)
+
     imu_spec = streams["imu"]
-    imu_pk = oxts(imu_spec)
-    imu = kitti_oxts.imu_from_oxts(imu_pk)
+    if imu_spec["format"] == "kitti_oxts":
+        imu_pk = oxts(imu_spec)
+        imu = kitti_oxts.imu_from_oxts(imu_pk)
+    else:
+        imu_pk = None
+        imu = for_stream("imu")[imu_spec["format"]].readers["imu"](imu_spec, ctx_with(None))
 
     origin = body.get("geodetic_origin", "first_fix")
     if origin == "first_fix":
         geo_src = next((streams[s] for s in ("gnss", "groundtruth", "imu") if s in streams and streams[s]["format"] == "kitti_oxts"), None)
         origin_t = kitti_oxts.first_valid_fix(oxts(geo_src)) if geo_src else None
+        g = streams.get("gnss")
+        if origin_t is None and g is not None and g["format"] in for_stream("gnss"):
+            ff = for_stream("gnss")[g["format"]].first_fix
+            origin_t = ff(g, ctx_with(None)) if ff else None
     elif isinstance(origin, (list, tuple)) and len(origin) == 3 and all(_is_num(v) for v in origin):
         origin_t = tuple(float(v) for v in origin)
     else:
         raise ConfigError(f"{manifest}: geodetic_origin must be 'first_fix' or [lat_deg, lon_deg, alt_m], got {origin!r}")
 
+    ctx = ctx_with(origin_t)
     gnss = gt = lidar = odo = None
     if "odometer" in streams:
-        if streams["odometer"]["format"] == "kitti_oxts":
-            odo = kitti_oxts.speed_from_oxts(oxts(streams["odometer"]))
+        o = streams["odometer"]
+        if o["format"] == "kitti_oxts":
+            odo = kitti_oxts.speed_from_oxts(oxts(o))
+        elif o["format"] == "speed_txt":
+            odo = speed.read_speed(root / o["path"])
         else:
-            odo = speed.read_speed(root / streams["odometer"]["path"])
+            odo = for_stream("odometer")[o["format"]].readers["odometer"](o, ctx)
     if "gnss" in streams:
-        gnss = _gnss(streams["gnss"], root, oxts, origin_t, manifest)
+        g = streams["gnss"]
+        gnss = (for_stream("gnss")[g["format"]].readers["gnss"](g, ctx) if g["format"] in for_stream("gnss")
+                else _gnss(g, root, oxts, origin_t, manifest))
     if "groundtruth" in streams:
-        gt = _poses(streams["groundtruth"], root, oxts, origin_t, manifest, imu_pk)
+        gt = _poses(streams["groundtruth"], root, oxts, origin_t, manifest, imu_pk, ctx=ctx, name="groundtruth")
     lidar_notes: dict = {}
     if "lidar" in streams:
-        lidar = _poses(streams["lidar"], root, oxts, origin_t, manifest, imu_pk, lidar_notes)
-    ctx = ReadContext(root=root, manifest=manifest, origin=origin_t, oxts=oxts)
+        lidar = _poses(streams["lidar"], root, oxts, origin_t, manifest, imu_pk, lidar_notes, ctx=ctx, name="lidar")
     extra_series = {name: extra[name].readers[streams[name]["format"]](streams[name], ctx)
                     for name in streams if name in extra}
 
@@ -217,17 +246,38 @@ def _transform(spec_value, root: Path, manifest: Path, what: str) -> np.ndarray:
 
 
 def _extrinsic(spec, root, manifest) -> np.ndarray:
-    """``T_cam0_imu`` (maps IMU coordinates into the pose file's sensor frame)."""
+    """``T_frame_imu`` (maps IMU coordinates into the pose stream's sensor frame), from ``T_imu_<frame>`` (the
+    sensor frame's pose in the IMU frame: 12 numbers, ``{file, key}`` or ``{tf_static: [imu_frame, frame]}`` read
+    from the stream's bag), or for ``cam0`` from KITTI's ``T_cam0_imu`` or ``T_cam0_velo`` and ``T_velo_imu``."""
     frame = spec.get("frame", "imu")
+    if not isinstance(frame, str) or not frame:
+        raise ConfigError(f"{manifest}: pose 'frame' must be a frame name ('imu', 'cam0' or one with T_imu_<frame>)")
     if frame == "imu":
         return np.eye(4)
-    if frame != "cam0":
-        raise ConfigError(f"{manifest}: pose 'frame' must be 'imu' or 'cam0', got {frame!r}")
-    if "T_cam0_imu" in spec:
-        return _transform(spec["T_cam0_imu"], root, manifest, "T_cam0_imu")
-    if "T_cam0_velo" in spec and "T_velo_imu" in spec:
-        return _transform(spec["T_cam0_velo"], root, manifest, "T_cam0_velo") @ _transform(spec["T_velo_imu"], root, manifest, "T_velo_imu")
-    raise ConfigError(f"{manifest}: frame 'cam0' needs T_cam0_imu, or T_cam0_velo and T_velo_imu")
+    key = f"T_imu_{frame}"
+    if key in spec:
+        v = spec[key]
+        if isinstance(v, dict) and "tf_static" in v:
+            pair = v["tf_static"]
+            if not (isinstance(pair, list) and len(pair) == 2 and all(isinstance(x, str) for x in pair)):
+                raise ConfigError(f"{manifest}: {key}: tf_static must be [imu_frame, {frame}_frame]")
+            from . import rosbag
+
+            bag = root / v.get("bag", spec["path"])
+            T = rosbag.static_transform(bag, pair[0], pair[1])
+            if T is None:
+                raise ConfigError(f"{manifest}: {key}: no /tf_static transform {pair[0]} -> {pair[1]} in {bag}")
+        else:
+            T = _transform(v, root, manifest, key)
+        return np.linalg.inv(T)
+    if frame == "cam0":
+        if "T_cam0_imu" in spec:
+            return _transform(spec["T_cam0_imu"], root, manifest, "T_cam0_imu")
+        if "T_cam0_velo" in spec and "T_velo_imu" in spec:
+            return _transform(spec["T_cam0_velo"], root, manifest, "T_cam0_velo") @ _transform(spec["T_velo_imu"], root, manifest, "T_velo_imu")
+        raise ConfigError(f"{manifest}: frame 'cam0' needs T_imu_cam0, T_cam0_imu, or T_cam0_velo and T_velo_imu")
+    raise ConfigError(f"{manifest}: frame {frame!r} needs {key} (the {frame} frame's pose in the IMU frame: 12 numbers "
+                      f"(3x4 row-major), {{file: ..., key: ...}} or {{tf_static: [imu_frame, {frame}_frame]}})")
 
 
 def _pose_times(spec, root, manifest, n_poses: int, pose_path: Path, raw: kitti_oxts.OxtsPackets,
@@ -235,6 +285,8 @@ def _pose_times(spec, root, manifest, n_poses: int, pose_path: Path, raw: kitti_
     times = spec.get("times")
     if not isinstance(times, dict):
         raise ConfigError(f"{manifest}: KITTI poses need 'times': {{file: times.txt}} and/or {{align_to: imu, index_offset: 0}}")
+    if times.get("align_to") == "imu" and raw is None:
+        raise ConfigError(f"{manifest}: times.align_to: imu needs the IMU as kitti_oxts packets; give times.file instead")
     offset = times.get("index_offset", 0)
     if isinstance(offset, bool) or not isinstance(offset, int):
         raise ConfigError(f"{manifest}: times.index_offset must be an integer, got {offset!r}")
@@ -274,11 +326,15 @@ def _pose_times(spec, root, manifest, n_poses: int, pose_path: Path, raw: kitti_
     raise ConfigError(f"{manifest}: 'times' needs 'file' or 'align_to: imu'")
 
 
-def _poses(spec, root, oxts, origin, manifest, imu_pk, notes: dict | None = None) -> PoseSeries:
+def _poses(spec, root, oxts, origin, manifest, imu_pk, notes: dict | None = None, ctx: ReadContext | None = None,
+           name: str = "groundtruth") -> PoseSeries:
     fmt = spec["format"]
     if fmt == "kitti_oxts":
         return kitti_oxts.poses_from_oxts(oxts(spec), origin)
-    if fmt == "tum":
+    if fmt in for_stream(name):
+        poses = for_stream(name)[fmt].readers[name](spec, ctx)
+        T = None
+    elif fmt == "tum":
         poses = tum.read_tum(root / spec["path"])
         T = None
     else:

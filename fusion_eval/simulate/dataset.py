@@ -33,8 +33,8 @@ from ..errors import ConfigError
 from ..fastfmt import format_table, table_text
 from ..geo import normal_gravity_mps2
 from ..outputs import StagedDir
-from ..so3 import exp_so3, inv_T, make_T, matrix_to_quat_xyzw
-from . import sensors
+from ..so3 import exp_so3, inv_T, make_T, matrix_to_quat_xyzw, quat_xyzw_to_matrix
+from . import layouts, sensors
 from .motion import PROFILES, profile_segments, sample_motion
 from .settings import GRADES, sim_schema
 
@@ -83,8 +83,11 @@ def _write_packet_range(args) -> None:
 
 
 def kitti_stamps(t_s: np.ndarray) -> str:
-    """KITTI ``YYYY-MM-DD HH:MM:SS.nnnnnnnnn`` lines for POSIX seconds (vectorised)."""
-    ns = np.round(np.asarray(t_s) * 1e9).astype("int64").astype("datetime64[ns]")
+    """KITTI ``YYYY-MM-DD HH:MM:SS.nnnnnnnnn`` lines for POSIX seconds (vectorised; to the nanosecond, so that the
+    reader gets back the very same floats)."""
+    from ..datasets._text import s_to_ns
+
+    ns = s_to_ns(t_s).astype("datetime64[ns]")
     return "\n".join(np.datetime_as_string(ns, unit="ns")).replace("T", " ") + "\n"
 
 
@@ -140,12 +143,14 @@ def simulate(out_dir: Path, profile: str, duration_s: float, seed: int, grade: s
         np.full(n, 4), np.full(n, 10), np.full(n, 5), np.full(n, 5), np.full(n, 6)])
 
     name = f"sim-{Path(profile).stem}-{grade}-s{seed}"
+    layout = c["output"]["layout"]
+    kitti_family = layout in ("kitti", "csv")
     with staged as out:
-        (out.staging / "oxts").mkdir()
-        if c["output"]["layout"] == "csv":
-            buf, _ = format_table(np.column_stack([t, packets]), [6] + PACKET_DECIMALS, sep=",")
-            out.write_bytes("oxts/packets.csv", (CSV_HEADER + "\n").encode() + buf.tobytes())
-        else:
+        if kitti_family:
+            (out.staging / "oxts").mkdir()
+        if layout == "csv":
+            out.write_text("oxts/packets.csv", CSV_HEADER + "\n" + _stamped(t, packets, PACKET_DECIMALS, sep=","))
+        elif layout == "kitti":
             out.write_text("oxts/timestamps.txt", kitti_stamps(t))
             folder = out.staging / "oxts" / "data"
             folder.mkdir(parents=True)
@@ -163,11 +168,12 @@ def simulate(out_dir: Path, profile: str, duration_s: float, seed: int, grade: s
             finally:
                 _SHARED.clear()
         glat, glon, galt = pymap3d.enu2geodetic(gps_p[:, 0], gps_p[:, 1], gps_p[:, 2], *origin)
-        out.write_text("gnss/gnss.csv", format_gnss_csv(gt_t, np.column_stack([glat, glon, galt]), gps_std))
-        out.write_text("odometer/speed.txt", "# t_s v_mps (forward wheel speed)\n" +
-                       table_text(np.column_stack([odo_t, odo_v]), [6, 6]))
-        out.write_text("calib_imu_to_velo.txt", "calib_time: simulated\nR: " + " ".join(f"{x:.6e}" for x in R_IMU_TO_VELO)
-                       + "\nT: " + " ".join(f"{x:.6e}" for x in T_IMU_TO_VELO) + "\n")
+        if kitti_family:
+            out.write_text("gnss/gnss.csv", format_gnss_csv(gt_t, np.column_stack([glat, glon, galt]), gps_std))
+            out.write_text("odometer/speed.txt", "# t_s v_mps (forward wheel speed)\n" +
+                           _stamped(odo_t, odo_v[:, None], [6]))
+            out.write_text("calib_imu_to_velo.txt", "calib_time: simulated\nR: " + " ".join(f"{x:.6e}" for x in R_IMU_TO_VELO)
+                           + "\nT: " + " ".join(f"{x:.6e}" for x in T_IMU_TO_VELO) + "\n")
         T_velo_imu = np.eye(4)
         T_velo_imu[:3, :3] = np.reshape(R_IMU_TO_VELO, (3, 3))
         T_velo_imu[:3, 3] = T_IMU_TO_VELO
@@ -179,20 +185,44 @@ def simulate(out_dir: Path, profile: str, duration_s: float, seed: int, grade: s
         E = make_T(exp_so3(np.asarray(lc["extrinsic_error_rpy_mrad"], float) * 1e-3), np.asarray(lc["extrinsic_error_m"], float))
         if lc["mode"] == "odometry":
             # the true mount differs from the calibration file by E: the tool reads E T E^-1 as IMU motion
-            T_c = (T_c_b @ E)[None] @ make_T(l_R, l_p) @ inv_T(T_c_b @ E)[None]
-            out.write_text("lidar/poses.txt", "\n".join(" ".join(f"{x:.12e}" for x in T[:3, :].ravel()) for T in T_c) + "\n")
-            out.write_text("lidar/times.txt", "\n".join(f"{x - t_l[0]:.9f}" for x in t_l) + "\n")
-            out.write_text("lidar/calib.txt", "Tr: " + " ".join(f"{x:.12e}" for x in TR_VELO_TO_CAM0) + "\n")
+            # (the mount is rigid: the calibration's 6-digit rotation, orthonormal only to ~1e-6, is projected onto
+            # SO(3), so that the poses written are rigid motions, whose rotation a quaternion holds as well as a matrix)
+            A = _rigid(T_c_b @ E)
+            T_c = A[None] @ make_T(l_R, l_p) @ inv_T(A)[None]
+            lidar_text = "\n".join(" ".join(f"{x:.12e}" for x in T[:3, :].ravel()) for T in T_c) + "\n"
+            # the stamps of the lidar clock, absolute (a relative times file plus t0 would round once more)
             lidar_stream = {"format": "kitti_poses", "path": "lidar/poses.txt", "frame": "cam0",
                             "T_cam0_velo": {"file": "lidar/calib.txt", "key": "Tr"},
                             "T_velo_imu": {"file": "calib_imu_to_velo.txt"},
-                            "times": {"file": "lidar/times.txt", "t0_s": float(t_l_stamp[0])}, "anchor": "groundtruth"}
+                            "times": {"file": "lidar/times.txt"}, "anchor": "groundtruth"}
+            if kitti_family:
+                out.write_text("lidar/poses.txt", lidar_text)
+                out.write_text("lidar/times.txt", "\n".join(f"{x:.9f}" for x in t_l_stamp) + "\n")
+                out.write_text("lidar/calib.txt", "Tr: " + " ".join(f"{x:.12e}" for x in TR_VELO_TO_CAM0) + "\n")
+            lidar_T = layouts.parse_rows(lidar_text).reshape(-1, 3, 4)
+            lidar_T = np.concatenate([lidar_T, np.tile([[[0.0, 0.0, 0.0, 1.0]]], (lidar_T.shape[0], 1, 1))], axis=1)
         else:
             T_m = make_T(l_R, l_p) @ inv_T(E)[None]        # the IMU pose the mis-calibrated chain reports
             q = matrix_to_quat_xyzw(T_m[:, :3, :3])
-            out.write_text("lidar/map_matching.tum", "# t x y z qx qy qz qw (world IMU poses, map matching)\n" +
-                           table_text(np.column_stack([t_l_stamp, T_m[:, :3, 3], q]), [6] + [9] * 7))
+            tum_text = _stamped(t_l_stamp, np.column_stack([T_m[:, :3, 3], q]), [9] * 7)
+            if kitti_family:
+                out.write_text("lidar/map_matching.tum", "# t x y z qx qy qz qw (world IMU poses, map matching)\n" + tum_text)
             lidar_stream = {"format": "tum", "path": "lidar/map_matching.tum", "frame": "imu", "anchor": "none"}
+            rows = layouts.parse_rows(tum_text)
+            lidar_T = make_T(quat_xyzw_to_matrix(rows[:, 4:8]).reshape(-1, 3, 3), rows[:, 1:4])
+        if not kitti_family:
+            streams = layouts.write(layout, out, layouts.SimStreams(
+                t_s=t, packets=layouts.as_written(packets, PACKET_DECIMALS), origin=origin, gnss_t_s=gt_t,
+                gnss_lla=layouts.as_written(np.column_stack([glat, glon, galt]), [10, 10, 4]),
+                gnss_std_m=layouts.as_written(gps_std, [4, 4, 4]), odo_t_s=odo_t, odo_v_mps=layouts.as_written(odo_v[:, None], [6])[:, 0],
+                lidar_t_s=t_l_stamp, lidar_T=lidar_T, lidar_mode=lc["mode"], T_cam0_imu=_calib_chain(),
+                bias_f_mps2=im.accel_bias, bias_w_rps=im.gyro_bias))
+        else:
+            streams = {"imu": {"format": "kitti_oxts", "path": "oxts"},
+                       "groundtruth": {"format": "kitti_oxts", "path": "oxts"},
+                       "gnss": {"format": "csv_lla", "path": "gnss/gnss.csv", "degrade": False},
+                       "odometer": {"format": "speed_txt", "path": "odometer/speed.txt"},
+                       "lidar": lidar_stream}
 
         out.write_text("truth/imu_biases.csv", "t_s,ba_x_mps2,ba_y_mps2,ba_z_mps2,bg_x_rps,bg_y_rps,bg_z_rps\n" +
                        table_text(np.column_stack([t, im.accel_bias, im.gyro_bias]), [6] + [12] * 6, sep=","))
@@ -216,11 +246,7 @@ def simulate(out_dir: Path, profile: str, duration_s: float, seed: int, grade: s
             "description": f"simulated by fusion-eval {__version__}: profile {profile}, grade {grade}, seed {seed}, "
                            f"{duration_s:g} s at {rate:g} Hz",
             "geodetic_origin": list(origin),
-            "streams": {"imu": {"format": "kitti_oxts", "path": "oxts"},
-                        "groundtruth": {"format": "kitti_oxts", "path": "oxts"},
-                        "gnss": {"format": "csv_lla", "path": "gnss/gnss.csv", "degrade": False},
-                        "odometer": {"format": "speed_txt", "path": "odometer/speed.txt"},
-                        "lidar": lidar_stream, **extra_streams},
+            "streams": {**streams, **extra_streams},
             "config": _merged(suggested_config(c), extra_config),
             "truth": {"imu_biases": "truth/imu_biases.csv", "poses": "truth/poses.tum", "sensors": "truth/sensors.yaml"},
         }
@@ -228,6 +254,30 @@ def simulate(out_dir: Path, profile: str, duration_s: float, seed: int, grade: s
                        yaml.safe_dump(manifest, sort_keys=False))
     return {"name": name, "samples": n, "distance_m": truth["distance_m"], "lidar_frames": int(l_idx.size),
             "gnss_fixes": int(gt_t.size)}
+
+
+def _rigid(T: np.ndarray) -> np.ndarray:
+    """The nearest rigid transform (the rotation block projected onto SO(3) by SVD)."""
+    U, _, Vt = np.linalg.svd(T[:3, :3])
+    out = np.array(T, float)
+    out[:3, :3] = U @ np.diag([1.0, 1.0, np.linalg.det(U @ Vt)]) @ Vt
+    return out
+
+
+def _stamped(t_s: np.ndarray, values: np.ndarray, decimals, sep: str = " ") -> str:
+    """Rows of ``stamp values...``: the stamps with 9 decimals (they read back as the same floats; the compiled
+    formatter's integers cannot hold 1e9 s in nanoseconds), the values by the compiled formatter."""
+    body = table_text(values, decimals, sep).splitlines()
+    return "".join(f"{ts}{sep}{row}\n" for ts, row in zip(layouts.s_text(t_s), body))
+
+
+def _calib_chain() -> np.ndarray:
+    """``T_cam0_imu`` as the manifest computes it from the calibration files the KITTI layout writes."""
+    Tr, T_vi = np.eye(4), np.eye(4)
+    Tr[:3, :] = np.reshape([float(f"{x:.12e}") for x in TR_VELO_TO_CAM0], (3, 4))
+    T_vi[:3, :3] = np.reshape([float(f"{x:.6e}") for x in R_IMU_TO_VELO], (3, 3))
+    T_vi[:3, 3] = [float(f"{x:.6e}") for x in T_IMU_TO_VELO]
+    return Tr @ T_vi
 
 
 def _lagged(m, ci: dict, segs, yaw0: float, t: np.ndarray, g: float, n_prefix: int):

@@ -53,8 +53,10 @@ SIM_SCHEMA: dict[str, Spec] = {
     "origin.alt_m": S(116.0, "ellipsoidal height, m"),
     "start.posix_s": S(1767225600.0, "time of the first sample, POSIX seconds, 0 to 4e9 (written as a KITTI local-clock stamp)",
                        nonneg=True),
-    "output.layout": S("kitti", "'kitti' (one file per OXTS packet, as KITTI raw) or 'csv' (all packets in oxts/packets.csv)",
-                       choices=("kitti", "csv")),
+    "output.layout": S("kitti", "'kitti' (one file per OXTS packet, as KITTI raw), 'csv' (all packets in oxts/packets.csv), "
+                                "'euroc' (an ASL folder), 'csv_log' (one generic CSV per stream), 'rosbag1' or 'rosbag2' "
+                                "(one bag with every stream)",
+                       choices=("kitti", "csv", "euroc", "csv_log", "rosbag1", "rosbag2")),
 }
 
 GRADES: dict[str, dict] = {

@@ -1,0 +1,188 @@
+"""Generic CSV streams: IMU, GNSS (geodetic or local), poses and wheel speed from a user's own log, with the
+columns, units, time unit and delimiter named in the manifest entry (``format: csv``)::
+
+    imu:
+      format: csv
+      path: logs/imu.csv
+      columns: [t, wx, wy, wz, ax, ay, az]     # one name per column of the file; '_' (or '_anything') skips one
+      time_unit: ns                            # s (default) | ms | us | ns
+      gyro_unit: rad/s                         # rad/s (default) | deg/s
+      accel_unit: m/s^2                        # m/s^2 (default) | g
+      delimiter: ","                           # default ','; ' ' for whitespace-separated text
+
+Column names per stream: IMU ``t ax ay az wx wy wz`` (body frame); GNSS ``t lat lon alt`` (degrees, metres) or
+``t x y z`` (local ENU metres), and ``std_e std_n std_u`` or ``std`` (1-sigma, m) or the entry's ``std_m``;
+poses (ground truth, lidar) ``t x y z qx qy qz qw`` and optionally ``vx vy vz`` (world frame); odometer ``t v``.
+Leading lines that are not numbers (a header) and ``#`` lines are skipped. Stamps are read exactly: integer
+nanoseconds (``time_unit: ns``) are converted with :func:`_text.ns_to_s`, decimal seconds with Python's parse, so
+the same stamp gives the same float in every layout.
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+
+from ..errors import ConfigError, DataFormatError
+from ..geo import geodetic_to_enu
+from ..types import GnssSeries, ImuSeries, PoseSeries, SpeedSeries
+from ._text import exact_floats, is_float, ns_to_s, parse_numeric_rows, read_text
+from .streams import ReadContext
+
+TIME_UNITS = {"s": None, "ms": 1_000_000, "us": 1_000, "ns": 1}     # nanoseconds per unit (None: decimal seconds)
+GYRO_UNITS = {"rad/s": 1.0, "deg/s": np.pi / 180.0}
+ACCEL_UNITS = {"m/s^2": 1.0, "g": 9.80665}
+NAMES = {
+    "imu": ({"t", "ax", "ay", "az", "wx", "wy", "wz"}, set()),
+    "gnss": ({"t"}, {"lat", "lon", "alt", "x", "y", "z", "std_e", "std_n", "std_u", "std"}),
+    "poses": ({"t", "x", "y", "z", "qx", "qy", "qz", "qw"}, {"vx", "vy", "vz"}),
+    "odometer": ({"t", "v"}, set()),
+}
+KEYS = frozenset({"columns", "time_unit", "gyro_unit", "accel_unit", "delimiter", "std_m"})
+
+
+def load_table(path: Path, what: str, ncols_min: int, delimiter: str | None = ",", int_first: bool = False):
+    """Numeric rows of a delimited text file, skipping a leading header and ``#`` lines.
+
+    Returns ``(rows (N, k) float, first column as int64 or None, 1-based line of each row)``. pandas' C parser
+    reads it (with Python's correctly rounded float parse); anything it cannot read as a clean numeric table is
+    re-read line by line to name the line and what was expected.
+    """
+    import pandas as pd
+
+    path = Path(path)
+    text = read_text(path, what)
+    lines = text.splitlines()
+    data = np.array([bool(ln.strip()) and not ln.lstrip().startswith("#") for ln in lines], bool)
+    first = int(np.argmax(data)) if data.any() else len(lines)
+    # a header: the first non-comment line when its first field is not a number
+    if first < len(lines) and not is_float((lines[first].split(delimiter) if delimiter else lines[first].split())[0].strip()):
+        data[first] = False
+    line_no = np.flatnonzero(data) + 1
+    if line_no.size == 0:
+        raise DataFormatError(path, None, f"no data rows (expected {what})")
+    sep = r"\s+" if delimiter in (None, " ") else delimiter
+    try:
+        kw = {"dtype": {0: np.int64}} if int_first else {}
+        df = pd.read_csv(path, header=None, sep=sep, skiprows=lambda i: not data[i] if i < data.size else False,
+                         engine="c", **exact_floats(),
+                         skip_blank_lines=True, **kw)
+        first_col = df.iloc[:, 0].to_numpy(np.int64) if int_first else None
+        rows = df.to_numpy(float)
+        ok = rows.shape == (line_no.size, rows.shape[1]) and rows.shape[1] >= ncols_min and np.isfinite(rows).all()
+    except (ValueError, TypeError, OverflowError, pd.errors.ParserError):
+        ok = False
+    if not ok:                               # name the line: the slow reader raises on the first bad row
+        body = "\n".join("#" if not d else ln for ln, d in zip(lines, data))
+        rows, ln = parse_numeric_rows(path, body, tuple(range(ncols_min, 64)), what, delimiter=None if sep == r"\s+" else sep)
+        if int_first:
+            bad = np.flatnonzero(rows[:, 0] != np.round(rows[:, 0]))
+            if bad.size:
+                raise DataFormatError(path, int(ln[bad[0]]), f"{what}: the stamp must be an integer number of nanoseconds")
+        raise DataFormatError(path, None, f"{what}: rows of unequal length or an empty field")
+    return rows, first_col, line_no
+
+
+def _columns(entry: dict, kind: str, ctx: ReadContext) -> dict[str, int]:
+    cols = entry.get("columns")
+    required, optional = NAMES[kind]
+    if not (isinstance(cols, list) and cols and all(isinstance(c, str) for c in cols)):
+        raise ConfigError(f"{ctx.manifest}: a csv stream needs 'columns': a list naming each column of the file "
+                          f"(needs {', '.join(sorted(required))})")
+    named = {c: i for i, c in enumerate(cols) if not c.startswith("_")}
+    unknown = set(named) - required - optional
+    if unknown or len(named) != sum(1 for c in cols if not c.startswith("_")):
+        bad = sorted(unknown)[0] if unknown else "a repeated name"
+        raise ConfigError(f"{ctx.manifest}: csv column {bad!r} is not a {kind} column (known: "
+                          f"{', '.join(sorted(required | optional))}; '_' skips a column)")
+    missing = required - set(named)
+    if missing:
+        raise ConfigError(f"{ctx.manifest}: csv {kind} stream needs the columns {', '.join(sorted(missing))}")
+    return named
+
+
+def _choice(entry: dict, key: str, table: dict, default: str, ctx: ReadContext):
+    v = entry.get(key, default)
+    if v not in table:
+        raise ConfigError(f"{ctx.manifest}: {key} must be one of {', '.join(table)}, got {v!r}")
+    return table[v]
+
+
+def _table(entry: dict, kind: str, ctx: ReadContext, what: str):
+    named = _columns(entry, kind, ctx)
+    per_ns = _choice(entry, "time_unit", TIME_UNITS, "s", ctx)
+    path = ctx.path(entry)
+    rows, first, lines = load_table(path, what, len(entry["columns"]), entry.get("delimiter", ","),
+                                    int_first=per_ns is not None and named["t"] == 0)
+    if rows.shape[1] != len(entry["columns"]):
+        raise DataFormatError(path, int(lines[0]), f"{what}: expected {len(entry['columns'])} columns (as 'columns' names), "
+                                                   f"got {rows.shape[1]}")
+    if per_ns is None:
+        t = rows[:, named["t"]]
+    else:
+        ns = first if first is not None else np.round(rows[:, named["t"]]).astype(np.int64)
+        t = ns_to_s(ns * per_ns)
+    return named, rows, t, lines, str(path)
+
+
+def read_imu(entry: dict, ctx: ReadContext) -> ImuSeries:
+    named, rows, t, lines, src = _table(entry, "imu", ctx, "IMU CSV (columns as the manifest names them)")
+    g = _choice(entry, "gyro_unit", GYRO_UNITS, "rad/s", ctx)
+    a = _choice(entry, "accel_unit", ACCEL_UNITS, "m/s^2", ctx)
+    f = rows[:, [named["ax"], named["ay"], named["az"]]] * a
+    w = rows[:, [named["wx"], named["wy"], named["wz"]]] * g
+    return ImuSeries(t_s=t, f_b_mps2=f, w_b_rps=w, source=src, lines=lines)
+
+
+def read_gnss(entry: dict, ctx: ReadContext) -> GnssSeries:
+    named, rows, t, lines, src = _table(entry, "gnss", ctx, "GNSS CSV (columns as the manifest names them)")
+    if {"lat", "lon", "alt"} <= set(named):
+        if ctx.origin is None:
+            raise ConfigError(f"{ctx.manifest}: GNSS in geodetic coordinates needs a geodetic_origin")
+        p = geodetic_to_enu(rows[:, named["lat"]], rows[:, named["lon"]], rows[:, named["alt"]], *ctx.origin)
+    elif {"x", "y", "z"} <= set(named):
+        p = rows[:, [named["x"], named["y"], named["z"]]]
+    else:
+        raise ConfigError(f"{ctx.manifest}: a csv GNSS stream needs columns lat, lon, alt (geodetic) or x, y, z (local ENU m)")
+    if {"std_e", "std_n", "std_u"} <= set(named):
+        std = rows[:, [named["std_e"], named["std_n"], named["std_u"]]]
+    elif "std" in named:
+        std = np.repeat(rows[:, [named["std"]]], 3, axis=1)
+    else:
+        std = np.tile(std_m(entry, ctx), (t.size, 1))
+    return GnssSeries(t_s=t, p_w_m=p, std_w_m=std, source=src, lines=lines)
+
+
+def first_fix(entry: dict, ctx: ReadContext):
+    """The first fix of a geodetic GNSS CSV (a geodetic origin), or None for local coordinates."""
+    named = _columns(entry, "gnss", ctx)
+    if not {"lat", "lon", "alt"} <= set(named):
+        return None
+    rows, _, _ = load_table(ctx.path(entry), "GNSS CSV", len(entry["columns"]), entry.get("delimiter", ","))
+    return tuple(float(rows[0, named[k]]) for k in ("lat", "lon", "alt"))
+
+
+def std_m(entry: dict, ctx: ReadContext) -> np.ndarray:
+    """The entry's ``std_m`` (a number or three, metres) as a (3,) array."""
+    std = entry.get("std_m")
+    if std is None:
+        raise ConfigError(f"{ctx.manifest}: the GNSS stream has no std columns: give 'std_m' (1-sigma, m)")
+    if isinstance(std, (int, float)) and not isinstance(std, bool):
+        std = [std] * 3
+    if not (isinstance(std, list) and len(std) == 3 and all(isinstance(v, (int, float)) and v > 0 for v in std)):
+        raise ConfigError(f"{ctx.manifest}: gnss 'std_m' must be a positive number or 3 positive numbers (m), got {entry.get('std_m')!r}")
+    return np.asarray(std, float)
+
+
+def read_poses(entry: dict, ctx: ReadContext) -> PoseSeries:
+    named, rows, t, lines, src = _table(entry, "poses", ctx, "pose CSV (columns as the manifest names them)")
+    v = rows[:, [named["vx"], named["vy"], named["vz"]]] if {"vx", "vy", "vz"} <= set(named) else None
+    return PoseSeries(t_s=t, p_w_m=rows[:, [named["x"], named["y"], named["z"]]],
+                      q_wb_xyzw=rows[:, [named["qx"], named["qy"], named["qz"], named["qw"]]], v_w_mps=v,
+                      source=src, lines=lines)
+
+
+def read_speed(entry: dict, ctx: ReadContext) -> SpeedSeries:
+    named, rows, t, lines, src = _table(entry, "odometer", ctx, "speed CSV (columns as the manifest names them)")
+    return SpeedSeries(t_s=t, v_mps=rows[:, named["v"]], source=src, lines=lines)

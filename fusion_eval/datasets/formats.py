@@ -1,0 +1,51 @@
+"""The registry of stream formats beyond KITTI's own (``kitti_oxts``, ``kitti_poses``, ``tum``, ``csv_lla``,
+``speed_txt``, read by the manifest itself): each is one module with a reader per stream it can carry.
+
+A format's reader takes the stream's manifest entry and a :class:`~fusion_eval.datasets.streams.ReadContext` and
+returns the stream's typed series; ``keys`` are the manifest keys it accepts besides ``format``, ``path`` and the
+common ones; ``first_fix`` (optional) gives a geodetic origin from a GNSS stream of that format. Adding a format is
+one module and one line in :data:`FORMATS`.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from typing import Callable
+
+
+@dataclass(frozen=True)
+class StreamFormat:
+    name: str
+    readers: dict                                       # stream name -> reader(entry, ctx) -> series
+    keys: frozenset = frozenset()
+    first_fix: Callable | None = None                   # (entry, ctx) -> (lat, lon, alt) | None
+    description: str = ""
+    notes: dict = field(default_factory=dict)
+
+
+def _formats() -> dict[str, StreamFormat]:
+    from . import csv_stream, euroc, rosbag_streams
+
+    fmts = [
+        StreamFormat("euroc", euroc.READERS, euroc.KEYS, description="EuRoC / TUM-VI ASL CSV"),
+        StreamFormat("csv", {"imu": csv_stream.read_imu, "gnss": csv_stream.read_gnss, "groundtruth": csv_stream.read_poses,
+                             "lidar": csv_stream.read_poses, "odometer": csv_stream.read_speed},
+                     csv_stream.KEYS, first_fix=csv_stream.first_fix, description="generic CSV with named columns"),
+        StreamFormat("rosbag", rosbag_streams.READERS, rosbag_streams.KEYS, first_fix=rosbag_streams.first_fix,
+                     description="ROS 1 / ROS 2 bag topic"),
+    ]
+    return {f.name: f for f in fmts}
+
+
+_CACHE: dict = {}
+
+
+def formats() -> dict[str, StreamFormat]:
+    if not _CACHE:
+        _CACHE.update(_formats())
+    return _CACHE
+
+
+def for_stream(stream: str) -> dict[str, StreamFormat]:
+    """The registered formats that can carry ``stream``."""
+    return {n: f for n, f in formats().items() if stream in f.readers}

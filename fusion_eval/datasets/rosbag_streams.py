@@ -1,0 +1,76 @@
+"""Manifest streams read from ROS 1 / ROS 2 bags (``format: rosbag``), through :mod:`fusion_eval.datasets.rosbag`::
+
+    imu:         {format: rosbag, path: drive.bag, topic: /imu/data}                 # sensor_msgs/Imu
+    gnss:        {format: rosbag, path: drive.bag, topic: /gps/fix}                  # sensor_msgs/NavSatFix
+    groundtruth: {format: rosbag, path: drive.bag, topic: /gt/odom}                  # nav_msgs/Odometry, PoseStamped, ...
+    lidar:       {format: rosbag, path: drive.bag, topic: /tf, child_frame: velodyne, frame: velodyne,
+                  T_imu_velodyne: {tf_static: [imu_link, velodyne]}}                 # a TF child frame, its extrinsic
+    odometer:    {format: rosbag, path: drive.bag, topic: /wheel/odom}               # Odometry: forward body speed
+
+``stamps: header`` (default) takes each message's header stamp, ``record`` the bag's record time. A NavSatFix
+without a covariance needs the entry's ``std_m``. The path is a ``.bag`` file, a ROS 2 bag folder, a ``.db3`` or an
+``.mcap`` file.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from ..errors import ConfigError
+from ..types import SpeedSeries
+from .streams import ReadContext
+
+KEYS = frozenset({"topic", "stamps", "std_m", "child_frame", "parent_frame"})
+
+
+def _topic(entry: dict, ctx: ReadContext) -> str:
+    t = entry.get("topic")
+    if not isinstance(t, str) or not t:
+        raise ConfigError(f"{ctx.manifest}: a rosbag stream needs 'topic' (the topic to read)")
+    stamps = entry.get("stamps", "header")
+    if stamps not in ("header", "record"):
+        raise ConfigError(f"{ctx.manifest}: 'stamps' must be 'header' or 'record', got {stamps!r}")
+    return t
+
+
+def read_imu(entry: dict, ctx: ReadContext):
+    from . import rosbag
+
+    return rosbag.read_imu(ctx.path(entry), _topic(entry, ctx), stamps=entry.get("stamps", "header"))
+
+
+def read_gnss(entry: dict, ctx: ReadContext):
+    from . import rosbag
+    from .csv_stream import std_m
+
+    topic = _topic(entry, ctx)
+    if ctx.origin is None:
+        raise ConfigError(f"{ctx.manifest}: NavSatFix fixes need a geodetic_origin ('first_fix' or [lat, lon, alt])")
+    default = std_m(entry, ctx) if "std_m" in entry else None
+    return rosbag.read_navsatfix(ctx.path(entry), topic, ctx.origin, stamps=entry.get("stamps", "header"),
+                                 default_std_m=default)
+
+
+def first_fix(entry: dict, ctx: ReadContext):
+    from . import rosbag
+
+    return tuple(float(v) for v in rosbag.first_fix(ctx.path(entry), _topic(entry, ctx)))
+
+
+def read_poses(entry: dict, ctx: ReadContext):
+    from . import rosbag
+
+    return rosbag.read_poses(ctx.path(entry), _topic(entry, ctx), stamps=entry.get("stamps", "header"),
+                             child_frame=entry.get("child_frame"), parent_frame=entry.get("parent_frame"))
+
+
+def read_speed(entry: dict, ctx: ReadContext) -> SpeedSeries:
+    """The forward speed of an Odometry topic: its twist (child frame) along the body x axis."""
+    poses = read_poses(entry, ctx)
+    if poses.v_w_mps is None:
+        raise ConfigError(f"{ctx.manifest}: odometer topic {entry['topic']!r} has no twist (expected nav_msgs/Odometry)")
+    v_b = np.einsum("nji,nj->ni", poses.R_wb(), poses.v_w_mps)
+    return SpeedSeries(t_s=poses.t_s, v_mps=v_b[:, 0], source=poses.source)
+
+
+READERS = {"imu": read_imu, "gnss": read_gnss, "groundtruth": read_poses, "lidar": read_poses, "odometer": read_speed}

@@ -1,0 +1,170 @@
+"""One simulated drive through every layout the simulator writes (KITTI raw, OXTS CSV, EuRoC, generic CSV, ROS 1 and
+ROS 2 bags) gives the same data and the same fused metrics (to 1e-9); the readers behind them (EuRoC folders without a
+manifest, generic CSV streams, frames with ``T_imu_<frame>``) and their one-line errors."""
+
+from __future__ import annotations
+
+import shutil
+
+import numpy as np
+import pytest
+import yaml
+
+import fusion_eval as fe
+from fusion_eval.datasets.manifest import load_dataset
+from fusion_eval.errors import ConfigError, DataFormatError
+from fusion_eval.simulate.dataset import simulate
+
+DURATION_S = 40.0
+LAYOUTS = ("csv", "euroc", "csv_log", "rosbag1", "rosbag2")
+
+
+@pytest.fixture(scope="module")
+def drives(tmp_path_factory):
+    root = tmp_path_factory.mktemp("layouts")
+    out = {}
+    for layout in ("kitti", *LAYOUTS):
+        simulate(root / layout, "urban", DURATION_S, seed=3, grade="automotive", sets=(f"output.layout={layout}",))
+        out[layout] = root / layout
+    return out
+
+
+@pytest.fixture(scope="module")
+def reference_metrics(drives):
+    return fe.run(drives["kitti"]).metrics
+
+
+def _stats(m: dict):
+    for est, d in m["estimates"].items():
+        for group, rels in d.items():
+            if not isinstance(rels, dict) or group not in ("ape", "rpe_1frame") and not group.startswith("rpe_"):
+                continue
+            for rel, st in rels.items():
+                for k, v in (st or {}).items():
+                    yield (est, group, rel, k), v
+
+
+@pytest.mark.parametrize("layout", LAYOUTS)
+def test_same_drive_same_data_and_metrics_through_every_layout(drives, reference_metrics, layout):
+    a, b = load_dataset(drives["kitti"]), load_dataset(drives[layout])
+    for name in ("imu", "groundtruth", "gnss", "lidar", "odometer"):
+        sa, sb = getattr(a, name), getattr(b, name)
+        assert np.array_equal(sa.t_s, sb.t_s), (layout, name)          # every stamp carried exactly
+        for f in ("f_b_mps2", "w_b_rps", "p_w_m", "std_w_m", "v_mps"):
+            if getattr(sa, f, None) is not None:
+                assert np.abs(getattr(sa, f) - getattr(sb, f)).max() <= 1e-12, (layout, name, f)
+    m = fe.run(drives[layout]).metrics
+    ref = dict(_stats(reference_metrics))
+    got = dict(_stats(m))
+    assert ref.keys() == got.keys() and len(ref) > 40
+    for k, v in ref.items():
+        assert got[k] == pytest.approx(v, abs=1e-9), (layout, k)
+
+
+def test_map_matching_lidar_through_a_bag_and_euroc(tmp_path):
+    ms = {}
+    for layout in ("kitti", "euroc", "rosbag2"):
+        simulate(tmp_path / layout, "urban", 20.0, seed=5, grade="automotive",
+                 sets=(f"output.layout={layout}", "lidar.mode=map_matching", "lidar.rate_hz=5"))
+        ms[layout] = dict(_stats(fe.run(tmp_path / layout).metrics))
+    for layout in ("euroc", "rosbag2"):
+        for k, v in ms["kitti"].items():
+            assert ms[layout][k] == pytest.approx(v, abs=1e-9), (layout, k)
+
+
+def test_the_lidar_extrinsic_from_tf_static(drives, tmp_path):
+    """The bag's /tf_static holds the IMU -> cam0 extrinsic; read from there it is the rigid version of the
+    calibration files' chain (whose 6-digit rotation is orthonormal only to ~1e-6)."""
+    man = yaml.safe_load((drives["rosbag1"] / "dataset.yaml").read_text())
+    lidar = dict(man["streams"]["lidar"])
+    lidar.pop("T_cam0_imu")
+    lidar["T_imu_cam0"] = {"tf_static": ["imu_link", "cam0"], "bag": str(drives["rosbag1"] / "drive.bag")}
+    man["streams"]["lidar"] = {**lidar, "path": str(drives["rosbag1"] / "drive.bag")}
+    for k in ("imu", "groundtruth"):
+        man["streams"][k]["path"] = str(drives["rosbag1"] / "drive.bag")
+    man["streams"] = {k: man["streams"][k] for k in ("imu", "groundtruth", "lidar")}
+    (tmp_path / "dataset.yaml").write_text(yaml.safe_dump(man))
+    a, b = load_dataset(drives["rosbag1"]), load_dataset(tmp_path / "dataset.yaml")
+    d = np.abs(a.lidar.p_w_m - b.lidar.p_w_m).max()
+    assert 1e-9 < d < 1e-5
+    lidar["T_imu_cam0"] = {"tf_static": ["imu_link", "nope"], "bag": str(drives["rosbag1"] / "drive.bag")}
+    man["streams"]["lidar"] = {**lidar, "path": str(drives["rosbag1"] / "drive.bag")}
+    (tmp_path / "dataset.yaml").write_text(yaml.safe_dump(man))
+    with pytest.raises(ConfigError, match="no /tf_static transform imu_link -> nope"):
+        load_dataset(tmp_path / "dataset.yaml")
+
+
+def test_a_plain_euroc_folder_needs_no_manifest(drives, tmp_path):
+    seq = tmp_path / "V1_sim"
+    shutil.copytree(drives["euroc"] / "mav0", seq / "mav0")
+    ds = load_dataset(seq)
+    ref = load_dataset(drives["euroc"])
+    assert np.array_equal(ds.imu.f_b_mps2, ref.imu.f_b_mps2) and np.array_equal(ds.groundtruth.p_w_m, ref.groundtruth.p_w_m)
+    assert ds.gnss is None and ds.lidar is None and "(implicit EuRoC manifest)" in ds.description["manifest"]
+    assert load_dataset(seq / "mav0").imu.t_s.size == ds.imu.t_s.size        # the mav0 folder itself works too
+
+
+def _manifest(root, streams: dict, **top) -> object:
+    body = {"name": "t", "streams": streams, **top}
+    (root / "dataset.yaml").write_text(yaml.safe_dump(body, sort_keys=False))
+    return root / "dataset.yaml"
+
+
+def test_csv_streams_units_time_units_and_frames(drives, tmp_path):
+    src = load_dataset(drives["csv_log"])
+    t_ns = np.round(src.imu.t_s * 1e9).astype(np.int64)
+    imu = np.column_stack([src.imu.w_b_rps * 180 / np.pi, src.imu.f_b_mps2 / 9.80665])
+    (tmp_path / "imu.txt").write_text("# my logger\nstamp gx gy gz ax ay az\n" + "\n".join(
+        f"{n} " + " ".join(f"{v:.17g}" for v in row) for n, row in zip(t_ns, imu)) + "\n")
+    gt = src.groundtruth
+    (tmp_path / "gt.csv").write_text("\n".join(",".join(f"{v:.17g}" for v in [t, *p, *q, 0.0]) for t, p, q in
+                                               zip(gt.t_s, gt.p_w_m, gt.q_wb_xyzw)) + "\n")
+    # the lidar stream in its own frame 'velo', given by its pose in the IMU frame
+    man = yaml.safe_load((drives["csv_log"] / "dataset.yaml").read_text())
+    T_c_b = np.eye(4)
+    T_c_b[:3, :] = np.reshape(man["streams"]["lidar"]["T_cam0_imu"], (3, 4))
+    T_imu_velo = np.linalg.inv(T_c_b)
+    shutil.copy(drives["csv_log"] / "lidar.csv", tmp_path / "lidar.csv")
+    p = _manifest(tmp_path, {
+        "imu": {"format": "csv", "path": "imu.txt", "delimiter": " ", "time_unit": "ns", "gyro_unit": "deg/s", "accel_unit": "g",
+                "columns": ["t", "wx", "wy", "wz", "ax", "ay", "az"]},
+        "groundtruth": {"format": "csv", "path": "gt.csv", "columns": ["t", "x", "y", "z", "qx", "qy", "qz", "qw", "_unused"]},
+        "lidar": {"format": "csv", "path": "lidar.csv", "columns": ["t", "x", "y", "z", "qx", "qy", "qz", "qw"],
+                  "frame": "velo", "T_imu_velo": [float(x) for x in T_imu_velo[:3, :].ravel()]}})
+    ds = load_dataset(p)
+    assert np.abs(ds.imu.t_s - src.imu.t_s).max() < 1e-6 and np.allclose(ds.imu.w_b_rps, src.imu.w_b_rps, atol=1e-15)
+    assert np.allclose(ds.imu.f_b_mps2, src.imu.f_b_mps2, atol=1e-14)
+    assert np.array_equal(ds.groundtruth.p_w_m, gt.p_w_m)
+    assert np.abs(ds.lidar.p_w_m - src.lidar.p_w_m).max() < 1e-9
+
+
+def test_csv_stream_errors_name_the_file_line_and_expectation(tmp_path):
+    (tmp_path / "imu.csv").write_text("t,ax,ay,az,wx,wy,wz\n1,0,0,9.8,0,0,0\n2,0,0,9.8,0,x,0\n")
+    imu = {"format": "csv", "path": "imu.csv", "columns": ["t", "ax", "ay", "az", "wx", "wy", "wz"]}
+    with pytest.raises(DataFormatError, match=r"imu.csv:3: .*expected a number, got 'x'"):
+        load_dataset(_manifest(tmp_path, {"imu": imu}))
+    with pytest.raises(ConfigError, match="'gyro' is not a imu column"):
+        load_dataset(_manifest(tmp_path, {"imu": {**imu, "columns": ["t", "ax", "ay", "az", "gyro", "wy", "wz"]}}))
+    with pytest.raises(ConfigError, match="needs the columns az"):
+        load_dataset(_manifest(tmp_path, {"imu": {**imu, "columns": ["t", "ax", "ay", "_", "wx", "wy", "wz"]}}))
+    with pytest.raises(ConfigError, match="time_unit must be one of"):
+        load_dataset(_manifest(tmp_path, {"imu": {**imu, "time_unit": "fortnights"}}))
+    with pytest.raises(ConfigError, match="unknown key 'colums'"):
+        load_dataset(_manifest(tmp_path, {"imu": {"format": "csv", "path": "imu.csv", "colums": []}}))
+    (tmp_path / "imu.csv").write_text("t,ax,ay,az,wx,wy,wz\n1,0,0,9.8,0,0,0\n2,0,0,9.8,0,0\n")
+    with pytest.raises(DataFormatError, match=r"imu.csv:3: .*must have 7 values per row, got 6"):
+        load_dataset(_manifest(tmp_path, {"imu": imu}))
+    with pytest.raises(ConfigError, match=r"frame 'velo' needs T_imu_velo"):
+        (tmp_path / "imu.csv").write_text("t,ax,ay,az,wx,wy,wz\n1,0,0,9.8,0,0,0\n2,0,0,9.8,0,0,0\n")
+        (tmp_path / "l.csv").write_text("1,0,0,0,0,0,0,1\n2,1,0,0,0,0,0,1\n")
+        load_dataset(_manifest(tmp_path, {"imu": imu, "lidar": {"format": "csv", "path": "l.csv", "frame": "velo",
+                                                                "columns": ["t", "x", "y", "z", "qx", "qy", "qz", "qw"]}}))
+
+
+def test_euroc_imu_with_a_broken_row(tmp_path):
+    d = tmp_path / "seq" / "mav0" / "imu0"
+    d.mkdir(parents=True)
+    (d / "data.csv").write_text("#timestamp [ns],w_RS_S_x,w_RS_S_y,w_RS_S_z,a_RS_S_x,a_RS_S_y,a_RS_S_z\n"
+                                "1403715273262142976,0.1,0.2,0.3,9.1,0.1,0.2\n1403715273267142912,0.1,0.2,0.3,9.1,0.1\n")
+    with pytest.raises(DataFormatError, match=r"data.csv:3: .*must have 7 values per row, got 6"):
+        load_dataset(tmp_path / "seq")
