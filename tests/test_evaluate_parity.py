@@ -207,3 +207,84 @@ def test_a_euroc_csv_with_a_broken_row_names_the_line(tmp_path):
     f.write_text("\n".join(src) + "\n")
     with pytest.raises(DataFormatError, match=r"gt.csv:6: .*expected a number, got 'x'"):
         read_trajectory(f)
+
+
+def _noisy_estimate(n=2000, seed=8):
+    from fusion_eval.so3 import exp_so3, matrix_to_quat_xyzw
+    from fusion_eval.types import PoseSeries
+
+    rng = np.random.default_rng(seed)
+    t = 1.7e9 + np.arange(n) * 0.1
+    p = np.cumsum(rng.normal(size=(n, 3)), axis=0)
+    R = exp_so3(np.cumsum(rng.normal(size=(n, 3)) * 0.05, axis=0))
+    std = np.array([0.3, 0.2, 0.5, 0.01, 0.02, 0.015])         # m, rad: ROS order, parent frame
+    R_est = exp_so3(rng.normal(size=(n, 3)) * std[3:]) @ R
+    ref = PoseSeries(t_s=t, p_w_m=p, q_wb_xyzw=matrix_to_quat_xyzw(R))
+    est = PoseSeries(t_s=t, p_w_m=p + rng.normal(size=(n, 3)) * std[:3], q_wb_xyzw=matrix_to_quat_xyzw(R_est))
+    return ref, est, std
+
+
+def test_nees_of_an_estimate_with_covariances_from_a_sidecar_and_a_bag(tmp_path):
+    """An estimate whose errors follow its stated covariance has a mean NEES of ~3 (3 dof), ~95 % inside the bounds;
+    one that claims 3x less sigma is flagged (~27). The same from a .cov sidecar and from PoseWithCovarianceStamped."""
+    from fusion_eval.datasets import rosbag
+    from fusion_eval.datasets.tum import format_tum
+
+    ref, est, std = _noisy_estimate()
+    (tmp_path / "ref.tum").write_text(format_tum(ref))
+    (tmp_path / "est.tum").write_text(format_tum(est))
+    C = np.diag(std ** 2).ravel()
+    (tmp_path / "est.cov").write_text("# t, 6x6 pose covariance\n" + "".join(
+        f"{t:.9f} " + " ".join(f"{c:.17g}" for c in C) + "\n" for t in est.t_s))
+    m = run_evaluate([tmp_path / "ref.tum", tmp_path / "est.tum"], tmp_path / "o", make_plots=False)
+    n = m["estimates"]["est"]["nees"]
+    assert 2.8 < n["position"]["mean"] < 3.2 and 2.8 < n["attitude"]["mean"] < 3.2
+    assert 0.93 < n["position"]["fraction_in_95"] < 0.97 and n["position"]["epochs"] == len(est)
+    assert "Consistency of the estimates' own covariances" in (tmp_path / "o" / "report.md").read_text()
+    # SE(3)-aligned: the alignment's rotation carries the covariance along (the estimate is already aligned here)
+    m = run_evaluate([tmp_path / "ref.tum", tmp_path / "est.tum"], tmp_path / "a", alignment="se3", make_plots=False)
+    assert 2.8 < m["estimates"]["est"]["nees"]["position"]["mean"] < 3.2
+    # the same poses in a bag, the covariance on the messages, stated 3x too small
+    bag = tmp_path / "run.bag"
+    rosbag.write_bag(bag, "rosbag1", [rosbag.BagStream("/gt", "pose", ref, "map"),
+                                      rosbag.BagStream("/est", "pose_cov", est, "map", std_m=std / 3)])
+    m = run_evaluate(["/est"], tmp_path / "b", bag=bag, ref_topic="/gt", make_plots=False)
+    n = m["estimates"]["est"]["nees"]
+    assert 24 < n["position"]["mean"] < 30 and n["position"]["fraction_in_95"] < 0.3
+
+
+@pytest.mark.parametrize("bag", ["tf_example.bag", "tf_example"])
+def test_tf_trajectories_without_ros_tf2(tmp_path, bag):
+    """``/tf:parent.child`` ids: evo's TF reading needs ROS's tf2_py; without it fusion-eval reads the edge
+    odom -> base_footprint, and odom -> base_link through the /tf_static edge base_footprint -> base_link."""
+    from fusion_eval.datasets import rosbag
+
+    path = shared_path("evo-test-data", bag)
+    m = run_evaluate(["/tf:odom.base_link"], tmp_path / "o", bag=path, ref_topic="/tf:odom.base_footprint",
+                     make_plots=False)
+    e = m["estimates"]["tf:odom.base_link"]
+    assert e["matched_poses"] == 517
+    T = rosbag.static_transform(path, "base_footprint", "base_link")
+    lever = float(np.linalg.norm(T[:3, 3]))
+    # a rigid offset between the two frames: the translation APE is the lever arm's length rotated with the robot
+    assert e["ape"]["translation_m"]["max"] == pytest.approx(lever, abs=1e-9)
+    if "reading" in e:
+        assert "tf2_py" in e["reading"]
+
+
+def test_tf_trajectory_through_a_static_edge(tmp_path):
+    """A synthetic bag whose static edge is not the identity: /tf:odom.base_link is odom -> base_footprint composed
+    with base_footprint -> base_link, so its positions differ from the footprint's by the rotated lever arm."""
+    from fusion_eval.datasets import rosbag
+    from fusion_eval.datasets.trajectory_file import read_bag_trajectories
+    from fusion_eval.so3 import exp_so3, make_T
+
+    ref, _, _ = _noisy_estimate(n=300)
+    T_fb = make_T(exp_so3(np.array([[0.1, -0.2, 0.3]]))[0], np.array([0.5, -0.1, 0.8]))
+    bag = tmp_path / "tf.bag"
+    rosbag.write_bag(bag, "rosbag1", [rosbag.BagStream("/tf", "tf", ref, "odom", child_frame_id="base_footprint")],
+                     tf_static=[("base_footprint", "base_link", T_fb)])
+    foot, link = read_bag_trajectories(bag, ["/tf:odom.base_footprint", "/tf:odom.base_link"])
+    expect = np.asarray(foot.traj.poses_se3) @ T_fb[None]
+    assert np.abs(np.asarray(link.traj.poses_se3) - expect).max() < 1e-12
+    assert np.abs(link.traj.positions_xyz - foot.traj.positions_xyz).max() > 0.5

@@ -48,17 +48,20 @@ def run_evaluate(inputs: list, out_dir: Path, ref_times: Path | None = None, tim
     staged = StagedDir(out_dir, overwrite=overwrite)
     staged.check()
     ref_f, est_fs = read_inputs(list(inputs), bag, ref_topic, fmt, ref_times, times)
-    series, about = {}, {}
+    series, about, covs = {}, {}, {}
     for f in est_fs:
         name = Path(f.source).stem if f.format != "bag" else f.traj.meta["name"].strip("/").replace("/", "_")
         while name in series or name == "groundtruth":
             name += "_"
         series[name] = f.traj
         about[name] = {"file": f.source, "format": f.format, "stamps": f.stamps,
-                       **({"repeated_stamps": f.repeated_stamps} if f.repeated_stamps else {})}
+                       **({"repeated_stamps": f.repeated_stamps} if f.repeated_stamps else {}),
+                       **({"reading": f.note} if f.note else {})}
+        if f.cov is not None:
+            covs[name] = (f.cov_t_s, f.cov)
     m, evals = evaluate_series(ref_f.traj, series, association, alignment, t_max_diff_s, rpe_delta_m, segment_m,
                                segment_s, about, ref_stamps=ref_f.stamps, engine=engine, relations=relations,
-                               up_axis=up_axis, n_to_align=n_to_align, t_offset_s=t_offset_s)
+                               up_axis=up_axis, n_to_align=n_to_align, t_offset_s=t_offset_s, covariances=covs)
     metrics = {"reference": ref_f.source, "reference_format": ref_f.format, "reference_stamps": ref_f.stamps,
                **({"reference_repeated_stamps": ref_f.repeated_stamps} if ref_f.repeated_stamps else {}), **m}
     with staged as out:
@@ -100,6 +103,15 @@ def _report(m: dict, plots: list[str]) -> str:
                      fmt_stat(rpe.get("rotation_deg"), nd=4)])
     L += markdown(["estimate", "stamps", "matched poses", "APE trans RMSE [m]", "APE trans mean / max [m]",
                    "APE rot RMSE [deg]", "RPE trans 1 frame RMSE [m]", "RPE rot 1 frame RMSE [deg]"], rows, align="llrrrrrr")
+    nees = [(k, d["nees"]) for k, d in m["estimates"].items() if d.get("nees")]
+    if nees:
+        L += ["", "## Consistency of the estimates' own covariances (NEES, 3 dof each)", ""]
+        L += markdown(["estimate", "epochs", "position NEES mean", "in 95 % bounds", "attitude NEES mean", "in 95 % bounds"],
+                      [[k, str(n["position"]["epochs"]), f"{n['position']['mean']:.2f}", f"{n['position']['fraction_in_95']:.1%}",
+                        f"{n['attitude']['mean']:.2f}", f"{n['attitude']['fraction_in_95']:.1%}"] for k, n in nees],
+                      align="lrrrrr")
+        L += ["", "A consistent estimate has a mean NEES of 3 and 95 % of its epochs inside the bounds; above: it "
+                  "claims more certainty than it has."]
     for k, d in m["estimates"].items():
         if d.get("note"):
             L.append(f"\n- {k}: {d['note']}.")

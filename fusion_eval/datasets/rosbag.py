@@ -16,8 +16,9 @@ Frames and conventions (written once, here):
 - Pose covariances keep ROS's order (x, y, z, rot_x, rot_y, rot_z), m^2 / rad^2.
 
 Stamps: a ``stamps="header"`` reader takes ``header.stamp``, ``stamps="record"`` the bag's record (receive)
-time; either is converted to float seconds as ``sec + nanosec * 1e-9`` (evo's conversion, so that stamps
-compare equal). Messages are returned sorted by the chosen stamp; messages whose stamp repeats an earlier one are
+time; either is converted to the correctly rounded float seconds of its integer nanoseconds
+(:func:`fusion_eval.datasets._text.ns_to_s`; for POSIX stamps the same float as evo's ``sec + nanosec * 1e-9``, and
+the same as a text file's 9-decimal stamp parses to). Messages are returned sorted by the chosen stamp; messages whose stamp repeats an earlier one are
 dropped (logged), since every series needs strictly increasing times. The writer splits a float stamp into integer
 seconds and nanoseconds exactly (``sec = floor(t)``, ``nanosec = round((t - sec) * 1e9)``; ``t - sec`` is exact in
 float64), i.e. it rounds to the nearest nanosecond. Measured: POSIX stamps (~1.7e9 s, float64 spacing 2.4e-7 s)
@@ -1010,7 +1011,7 @@ def read_poses(path: str | Path, topic: str, stamps: str = "header", child_frame
             pairs[key] = pairs.get(key, 0) + 1
             if (child is not None and key[1] is not None and key[1] != child) or (parent is not None and key[0] != parent):
                 continue
-            t_hdr.append(header.stamp.sec + header.stamp.nanosec * 1e-9)
+            t_hdr.append(int(header.stamp.sec) * 1_000_000_000 + int(header.stamp.nanosec))
             t_rec.append(rec)
             p.append((pos.x, pos.y, pos.z))
             q.append((rot.x, rot.y, rot.z, rot.w))
@@ -1026,7 +1027,7 @@ def read_poses(path: str | Path, topic: str, stamps: str = "header", child_frame
         if len(parents) > 1:
             raise DataFormatError(path, None, f"topic '{topic}': frame '{child}' has several parents "
                                               f"({', '.join(sorted(parents))}); give parent_frame")
-    t = np.array(t_hdr) if stamps == "header" else _ns_to_s(np.array(t_rec, dtype=np.int64))
+    t = _ns_to_s(np.array(t_hdr if stamps == "header" else t_rec, dtype=np.int64))
     keep = _order(t, path, topic)
     q_arr = np.array(q)[keep]
     v_w = None
@@ -1050,9 +1051,9 @@ def read_pose_covariances(path: str | Path, topic: str, stamps: str = "header") 
     t, cov = [], []
     for _, rec, msg in _messages(path, topic, (POSE_COV_STAMPED, ODOMETRY)):
         st = msg.header.stamp
-        t.append(st.sec + st.nanosec * 1e-9 if stamps == "header" else rec)
+        t.append(int(st.sec) * 1_000_000_000 + int(st.nanosec) if stamps == "header" else rec)
         cov.append(np.asarray(msg.pose.covariance, float).reshape(6, 6))
-    t_s = np.array(t) if stamps == "header" else _ns_to_s(np.array(t, dtype=np.int64))
+    t_s = _ns_to_s(np.array(t, dtype=np.int64))
     keep = _order(t_s, path, topic)
     return t_s[keep], np.array(cov)[keep]
 
@@ -1083,20 +1084,26 @@ def static_transform(path: str | Path, parent: str, child: str, topic: str = "/t
         the inverse of a child -> parent edge (the last one published wins). None when the bag has no such
         edge or no static TF topic. Chains of edges are not composed.
     """
-    table = topics(path)
-    if topic not in table:
-        return None
+    edges = static_edges(path, topic)
     parent, child = _strip(parent), _strip(child)
-    edges: dict[tuple[str, str], np.ndarray] = {}
-    for _, _, msg in _messages(path, topic, (TF_MESSAGE,)):
-        for tf in msg.transforms:
-            edges[(_strip(tf.header.frame_id), _strip(tf.child_frame_id))] = _T(tf.transform.translation,
-                                                                               tf.transform.rotation)
     if (parent, child) in edges:
         return edges[(parent, child)]
     if (child, parent) in edges:
         return inv_T(edges[(child, parent)])
     return None
+
+
+def static_edges(path: str | Path, topic: str = "/tf_static") -> dict[tuple[str, str], np.ndarray]:
+    """Every static edge of the bag: ``(parent, child) -> T_parent_child`` (4, 4) (the last one published wins;
+    empty when the bag has no static TF topic)."""
+    if topic not in topics(path):
+        return {}
+    edges: dict[tuple[str, str], np.ndarray] = {}
+    for _, _, msg in _messages(path, topic, (TF_MESSAGE,)):
+        for tf in msg.transforms:
+            edges[(_strip(tf.header.frame_id), _strip(tf.child_frame_id))] = _T(tf.transform.translation,
+                                                                               tf.transform.rotation)
+    return edges
 
 
 # ----------------------------------------------------------------------------------------------------------------

@@ -8,6 +8,11 @@ wrong one gets a message naming the line and what was expected (evo's readers sa
 row"); the poses are then read by evo's own ``file_interface`` readers, so that the numbers are evo's: a KITTI
 file's 3x4 matrices are kept as they are, not projected onto rotations.
 
+Covariances, for the NEES: a bag topic of ``PoseWithCovarianceStamped`` or ``nav_msgs/Odometry`` carries its own;
+a file gets them from a sidecar ``<file>.cov`` beside it: ``#`` comments, then one row per pose of ``t`` and the 36
+entries of the 6x6 pose covariance, row-major, in ROS's order and frames (x, y, z in the parent frame, m^2; then the
+rotation about the parent's x, y, z axes, rad^2) -- the ``pose.covariance`` of a ``PoseWithCovarianceStamped``.
+
 Stamps as evo takes them: equal consecutive stamps are accepted (evo accepts them; its nearest-stamp association
 picks one of the equal poses), and counted; decreasing stamps are refused, naming the line (evo would fall back
 to a linear search and match them silently).
@@ -42,6 +47,20 @@ class TrajectoryFile:
     repeated_stamps: int = 0      # consecutive equal stamps (accepted, as evo accepts them)
     source: str = ""
     frame_id: str | None = None   # a bag topic's header frame
+    cov_t_s: np.ndarray | None = None     # stamps of the pose covariances (bag topic or sidecar .cov file)
+    cov: np.ndarray | None = None         # (N, 6, 6) ROS order: position (parent frame, m^2), rotation (parent axes, rad^2)
+    note: str | None = None
+
+
+def read_covariances(path: Path) -> tuple[np.ndarray, np.ndarray]:
+    """A ``.cov`` sidecar: rows of ``t`` and 36 covariance entries (see the module docstring)."""
+    rows, lines = parse_numeric_rows(path, read_text(path, "pose covariances: t and 36 values per row"), 37,
+                                     "pose covariance file (t, then the 6x6 covariance row-major)")
+    cov = rows[:, 1:].reshape(-1, 6, 6)
+    bad = np.flatnonzero(np.abs(cov - np.swapaxes(cov, 1, 2)).max(axis=(1, 2)) > 1e-9 * np.abs(cov).max(axis=(1, 2)))
+    if bad.size:
+        raise DataFormatError(path, int(lines[bad[0]]), "a covariance must be symmetric")
+    return rows[:, 0], cov
 
 
 def detect_format(path: Path) -> str:
@@ -121,7 +140,11 @@ def read_trajectory(path: Path, times: Path | None = None, fmt: str = "auto") ->
     traj.meta["name"] = path.stem
     if repeated:
         log.warning("%s: %d repeated stamps (accepted, as evo accepts them)", path, repeated)
-    return TrajectoryFile(traj=traj, format=fmt, stamps=how, repeated_stamps=repeated, source=str(path))
+    out = TrajectoryFile(traj=traj, format=fmt, stamps=how, repeated_stamps=repeated, source=str(path))
+    sidecar = path.with_suffix(".cov")
+    if sidecar.exists():
+        out.cov_t_s, out.cov = read_covariances(sidecar)
+    return out
 
 
 def bag_kind(path: Path) -> str:
@@ -160,8 +183,14 @@ def read_bag_trajectories(bag: Path, topics: list[str]) -> list[TrajectoryFile]:
     try:
         known = file_interface.get_supported_topics(reader)
         for topic in topics:
+            note = None
             try:
-                traj = file_interface.read_bag_trajectory(reader, topic, cache_tf_tree=True)
+                if _is_tf_id(topic) and not _evo_reads_tf():
+                    traj, note = _tf_trajectory(bag, topic), "TF read by fusion-eval (evo's TF reading needs ROS's tf2_py)"
+                else:
+                    traj = file_interface.read_bag_trajectory(reader, topic, cache_tf_tree=True)
+            except DataFormatError:
+                raise
             except Exception as exc:      # noqa: BLE001 - evo's FileInterfaceException, or a TF lookup error
                 raise DataFormatError(bag, None, f"topic {topic!r}: {exc} (trajectory topics in the bag: "
                                                  f"{', '.join(known) or 'none'}; TF frames as /tf:parent.child)") from None
@@ -172,11 +201,61 @@ def read_bag_trajectories(bag: Path, topics: list[str]) -> list[TrajectoryFile]:
                 raise DataFormatError(bag, None, f"topic {topic!r}: header stamps must not decrease (message {i + 1}: "
                                                  f"{t[i]!r} after {t[i - 1]!r})")
             traj.meta["name"] = topic
-            out.append(TrajectoryFile(traj=traj, format="bag", stamps="header stamps", repeated_stamps=int(np.sum(d == 0)),
-                                      source=f"{bag}:{topic}", frame_id=traj.meta.get("frame_id")))
+            f = TrajectoryFile(traj=traj, format="bag", stamps="header stamps", repeated_stamps=int(np.sum(d == 0)),
+                               source=f"{bag}:{topic}", frame_id=traj.meta.get("frame_id"), note=note)
+            conn = reader.topics.get(topic)
+            if conn is not None and conn.msgtype in _COV_TYPES:
+                from . import rosbag
+
+                t_c, cov = rosbag.read_pose_covariances(bag, topic)
+                if np.any(cov != 0):                  # an Odometry without covariance holds zeros
+                    f.cov_t_s, f.cov = t_c, cov
+            out.append(f)
     finally:
         reader.close()
     return out
+
+
+_COV_TYPES = ("geometry_msgs/msg/PoseWithCovarianceStamped", "nav_msgs/msg/Odometry")
+
+
+def _is_tf_id(topic: str) -> bool:
+    from evo.tools import tf_id
+
+    return bool(tf_id.check_id(topic))
+
+
+def _evo_reads_tf() -> bool:
+    try:
+        import tf2_py  # noqa: F401 - evo's TF cache is built on ROS's tf2
+    except ImportError:
+        return False
+    return True
+
+
+def _tf_trajectory(bag: Path, identifier: str):
+    """A ``/tf:parent.child`` trajectory without ROS's tf2: the transforms of the direct edge parent -> child on the
+    TF topic, or of an edge parent -> x followed by a static edge x -> child from ``/tf_static``."""
+    from evo.core.trajectory import PoseTrajectory3D
+    from evo.tools import tf_id
+
+    from ..so3 import make_T, quat_xyzw_to_matrix, xyzw_to_wxyz
+    from . import rosbag
+
+    tf_topic, parent, child = tf_id.split_id(identifier)[:3]
+    try:
+        poses = rosbag.read_poses(bag, tf_topic, child_frame=child, parent_frame=parent)
+        T = None
+    except DataFormatError:
+        statics = rosbag.static_edges(bag)
+        via = next(((a, Tab) for (a, b), Tab in statics.items() if b == child.strip("/")), None)
+        if via is None:
+            raise
+        poses = rosbag.read_poses(bag, tf_topic, child_frame=via[0], parent_frame=parent)
+        T = make_T(quat_xyzw_to_matrix(poses.q_wb_xyzw).reshape(-1, 3, 3), poses.p_w_m) @ via[1][None]
+    if T is None:
+        return PoseTrajectory3D(np.array(poses.p_w_m), xyzw_to_wxyz(poses.q_wb_xyzw), np.array(poses.t_s))
+    return PoseTrajectory3D(poses_se3=list(T), timestamps=np.array(poses.t_s))
 
 
 def as_series(tf: TrajectoryFile, has_orientation: bool = True):

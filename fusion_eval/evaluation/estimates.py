@@ -50,7 +50,7 @@ def evaluate_series(ref, estimates: dict, association: str = "nearest",
                     about: dict | None = None, ref_stamps: str | None = None,
                     engine: str = "arrays", *, relations: tuple[str, ...] = keys.DEFAULT_RELATIONS,
                     up_axis: str = "auto", n_to_align: int = -1,
-                    t_offset_s: float = 0.0) -> tuple[dict, dict[str, EstimateEvaluation]]:
+                    t_offset_s: float = 0.0, covariances: dict | None = None) -> tuple[dict, dict[str, EstimateEvaluation]]:
     """evo's APE/RPE, the KITTI drift metric and the per-segment breakdown of each estimate against ``ref``:
     the ``metrics.json`` of ``fusion-eval evaluate`` and the evaluations behind it. ``about`` adds, per
     estimate, where it came from (``file``, ``stamps``: how its stamps were obtained); stamps and frame indices
@@ -61,8 +61,10 @@ def evaluate_series(ref, estimates: dict, association: str = "nearest",
             raise DataFormatError(a.get("file", name), None,
                                   "the reference and the estimates must both have stamps, or both be matched by index "
                                   "(give --times / --ref-times for KITTI pose files)")
+    covariances = covariances or {}
     evals = {name: evaluate(ref, est, name, t_max_diff_s, rpe_delta_m, association, alignment, engine,
-                            relations=relations, up_axis=up_axis, n_to_align=n_to_align, t_offset_s=t_offset_s)
+                            relations=relations, up_axis=up_axis, n_to_align=n_to_align, t_offset_s=t_offset_s,
+                            cov=covariances.get(name))
              for name, est in estimates.items()}
     if not isinstance(ref, PoseSeries):         # an evo trajectory as read: a series for the segment breakdown
         from .trajectory import from_evo

@@ -93,6 +93,8 @@ def estimate_metrics(ev: EstimateEvaluation) -> dict:
         out["kitti_drift"] = ev.drift
     if ev.alignment_params is not None:
         out["alignment"] = ev.alignment_params
+    if ev.nees is not None:
+        out["nees"] = ev.nees
     if ev.note:
         out["note"] = ev.note
     return out

@@ -64,6 +64,7 @@ class EstimateEvaluation:
     alignment_params: dict | None = None
     drift: dict | None = None                         # KITTI drift metric (kitti_drift.DriftResult.as_dict)
     ref_p_m: np.ndarray | None = None                 # associated reference positions, for segment maps
+    nees: dict | None = None                          # position / attitude NEES of an estimate with covariances
 
 
 def _stats(res: Result) -> dict:
@@ -198,14 +199,15 @@ def _align_4dof(est_a, ref_a, up_axis: str, n_to_align: int = -1):
     R, t, yaw = fit_4dof(p_e, p_r, up_axis)
     A = np.eye(4)
     A[:3, :3], A[:3, 3] = R, t
-    params.update({"up_axis": up_axis, "yaw_deg": float(np.degrees(yaw)), "translation_m": t.tolist()})
+    params.update({"up_axis": up_axis, "yaw_deg": float(np.degrees(yaw)), "rotation": R.tolist(), "translation_m": t.tolist()})
     return engine.with_poses(est_a, A @ engine.traj_se3(est_a)), params
 
 
 def evaluate(reference, estimate, name: str, t_max_diff_s: float,
              rpe_delta_m: float, association: str = "nearest", alignment: str = "none",
              engine_name: str = "arrays", *, relations: tuple[str, ...] = keys.DEFAULT_RELATIONS, up_axis: str = "auto",
-             n_to_align: int = -1, t_offset_s: float = 0.0, has_orientation: bool | None = None) -> EstimateEvaluation:
+             n_to_align: int = -1, t_offset_s: float = 0.0, has_orientation: bool | None = None,
+             cov: tuple[np.ndarray, np.ndarray] | None = None) -> EstimateEvaluation:
     """APE and RPE (per frame, per ``rpe_delta_m`` metres) under each pose relation, and the KITTI drift metric
     of one estimate. ``reference`` and ``estimate``: pose series, or evo trajectories as evo's readers give them.
 
@@ -215,7 +217,8 @@ def evaluate(reference, estimate, name: str, t_max_diff_s: float,
     ours). ``relations``: evo's pose relations (:data:`keys.RELATION_KEYS`); the translation is always computed.
     For a position-only estimate only the translation relations are computed: its rotations mean nothing.
     ``engine_name``: ``arrays`` computes evo's metrics on whole arrays (:mod:`.engine`), ``evo`` runs evo's own
-    per-pose loops; both give the same numbers and result files.
+    per-pose loops; both give the same numbers and result files. ``cov``: the estimate's pose covariances
+    ``(t_s, (N, 6, 6))`` in ROS's order and frames: the NEES of position and attitude (:func:`pose_nees_of`).
     """
     if engine_name not in ENGINES:
         raise ValueError(f"evaluation engine {engine_name!r}: expected one of {', '.join(ENGINES)}")
@@ -238,6 +241,8 @@ def evaluate(reference, estimate, name: str, t_max_diff_s: float,
         est_a, ev.alignment_params = _align_4dof(est_a, ref_a, up_axis, n_to_align)
     elif alignment in ("se3", "sim3", "scale", "origin"):
         est_a, ev.alignment_params = _align(est_a, ref_a, alignment, arrays, n_to_align)
+    if cov is not None:
+        ev.nees = pose_nees_of(ref_a, est_a, cov, ev.alignment_params, t_max_diff_s)
     calc = _Arrays(ref_a, est_a) if arrays else _EvoLoops(ref_a, est_a)
     wanted = ["trans_part", *[r for r in relations if r != "trans_part"]]
     rels = [(keys.RELATION_KEYS[r], keys.EVO_RELATIONS[r]) for r in wanted
@@ -271,6 +276,47 @@ def evaluate(reference, estimate, name: str, t_max_diff_s: float,
             ev.metrics[label][key] = _stats(res)
             ev.results[f"{label}_{keys.RESULT_NAMES[key]}"] = res
     return ev
+
+
+def _alignment_RA_s(params: dict | None) -> tuple[np.ndarray, float]:
+    """The rotation and scale an alignment applied to the estimate (identity and 1 when none)."""
+    if not params:
+        return np.eye(3), 1.0
+    if "T" in params:
+        return np.asarray(params["T"])[:3, :3], 1.0
+    return np.asarray(params.get("rotation", np.eye(3))), float(params.get("scale", 1.0))
+
+
+def pose_nees_of(ref_a, est_a, cov: tuple[np.ndarray, np.ndarray], alignment_params: dict | None,
+                 t_max_diff_s: float) -> dict | None:
+    """Position and attitude NEES (3 dof each) of the associated, aligned estimate against the reference.
+
+    ``cov``: ``(t_s, (N, 6, 6))`` in ROS's order: position in the parent frame (m^2), then rotation about the parent's
+    axes (rad^2), as ``PoseWithCovarianceStamped`` holds it. Each estimated pose takes the covariance of the nearest
+    stamp within ``t_max_diff_s``; an alignment's rotation ``R`` and scale ``s`` carry it along (``s^2 R P R^T``
+    for the position, ``R P R^T`` for the rotation), and the rotation block is expressed in the body frame for the
+    error ``R_ref = R_est Exp(e)`` (:func:`fusion_eval.evaluation.consistency.pose_nees`).
+    """
+    from .consistency import pose_nees, summary
+
+    t_c, C = cov
+    i_est, i_cov = engine.matching_time_indices(np.asarray(est_a.timestamps), np.asarray(t_c), t_max_diff_s)
+    if i_est.size == 0:
+        return None
+    R_A, s = _alignment_RA_s(alignment_params)
+    T_e, T_r = engine.traj_se3(est_a)[i_est], engine.traj_se3(ref_a)[i_est]
+    P = np.array(C[i_cov], float)
+    R_e = T_e[:, :3, :3]
+    P_pos = s * s * np.einsum("ij,njk,lk->nil", R_A, P[:, :3, :3], R_A)
+    P_rot_w = np.einsum("ij,njk,lk->nil", R_A, P[:, 3:, 3:], R_A)
+    P_rot_b = np.einsum("nji,njk,nkl->nil", R_e, P_rot_w, R_e)
+    P6 = np.zeros((len(P), 6, 6))
+    P6[:, :3, :3], P6[:, 3:, 3:] = P_pos, P_rot_b
+    ok = (np.linalg.eigvalsh(P_pos).min(axis=1) > 0) & (np.linalg.eigvalsh(P_rot_b).min(axis=1) > 0)
+    if not ok.any():
+        return None
+    n_p, n_a = pose_nees(T_e[ok, :3, 3], R_e[ok], T_r[ok, :3, 3], T_r[ok, :3, :3], P6[ok])
+    return {"position": summary(n_p, 3), "attitude": summary(n_a, 3)}
 
 
 def ratio(a: EstimateEvaluation | None, b: EstimateEvaluation | None) -> float | None:
