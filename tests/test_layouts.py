@@ -168,3 +168,28 @@ def test_euroc_imu_with_a_broken_row(tmp_path):
                                 "1403715273262142976,0.1,0.2,0.3,9.1,0.1,0.2\n1403715273267142912,0.1,0.2,0.3,9.1,0.1\n")
     with pytest.raises(DataFormatError, match=r"data.csv:3: .*must have 7 values per row, got 6"):
         load_dataset(tmp_path / "seq")
+
+
+@pytest.mark.slow
+def test_the_readmes_manifests(drives):
+    """The README's "Your own data" manifests, copied from it, run as written on the simulated drive of their layout
+    (with the default configuration: they carry no suggested settings), and fusion beats the lidar and the GNSS."""
+    import re
+    from pathlib import Path
+
+    readme = (Path(__file__).resolve().parents[1] / "README.md").read_text()
+    blocks = re.findall(r"```yaml\n# your-own-data: (\w+)\n(.*?)```", readme, re.S)
+    assert {b[0] for b in blocks} == {"euroc", "rosbag1", "csv_log"}
+    for layout, body in blocks:
+        path = drives[layout] / "readme.yaml"
+        path.write_text(body)
+        ds = load_dataset(path)
+        ref = load_dataset(drives[layout])
+        assert np.array_equal(ds.imu.t_s, ref.imu.t_s) and ds.gnss is not None
+        if ds.lidar is not None:
+            assert np.abs(ds.lidar.p_w_m - ref.lidar.p_w_m).max() < 1e-5        # the README's rounded extrinsic
+        r = fe.run(path).metrics
+        fused = r["estimates"]["fused"]["ape"]["translation_m"]["rmse"]
+        assert fused < r["estimates"]["gnss"]["ape"]["translation_m"]["rmse"], layout
+        if ds.lidar is not None:
+            assert fused < r["estimates"]["lidar"]["ape"]["translation_m"]["rmse"], layout

@@ -53,29 +53,45 @@ def load_table(path: Path, what: str, ncols_min: int, delimiter: str | None = ",
 
     path = Path(path)
     text = read_text(path, what)
-    lines = text.splitlines()
-    data = np.array([bool(ln.strip()) and not ln.lstrip().startswith("#") for ln in lines], bool)
-    first = int(np.argmax(data)) if data.any() else len(lines)
-    # a header: the first non-comment line when its first field is not a number
-    if first < len(lines) and not is_float((lines[first].split(delimiter) if delimiter else lines[first].split())[0].strip()):
-        data[first] = False
-    line_no = np.flatnonzero(data) + 1
+    # the leading header: '#' lines, blank lines, and one line whose first field is not a number
+    head, pos = 0, 0
+    while pos < len(text):
+        end = text.find("\n", pos)
+        end = len(text) if end < 0 else end
+        ln = text[pos:end]
+        fields = ln.split(delimiter) if delimiter not in (None, " ") else ln.split()
+        if ln.strip() and not ln.lstrip().startswith("#") and is_float(fields[0].strip()):
+            break
+        head, pos = head + 1, end + 1
+    body = text[pos:]
+    # the common case, one clean block of rows after the header: read by pandas from a row count; otherwise (comment
+    # or blank lines among the rows) each line is classified first
+    clean = "#" not in body and "\n\n" not in body and "\r" not in body
+    if clean:
+        n_rows = body.count("\n") + (0 if body.endswith("\n") or not body else 1)
+        line_no = np.arange(head + 1, head + 1 + n_rows)
+        skip = head
+    else:
+        lines = text.splitlines()
+        data = np.array([i >= head and bool(ln.strip()) and not ln.lstrip().startswith("#") for i, ln in enumerate(lines)], bool)
+        line_no = np.flatnonzero(data) + 1
+        skip = lambda i: not data[i] if i < data.size else False  # noqa: E731
     if line_no.size == 0:
         raise DataFormatError(path, None, f"no data rows (expected {what})")
     sep = r"\s+" if delimiter in (None, " ") else delimiter
     try:
         kw = {"dtype": {0: np.int64}} if int_first else {}
-        df = pd.read_csv(path, header=None, sep=sep, skiprows=lambda i: not data[i] if i < data.size else False,
-                         engine="c", **exact_floats(),
-                         skip_blank_lines=True, **kw)
+        df = pd.read_csv(path, header=None, sep=sep, skiprows=skip, engine="c", skip_blank_lines=True,
+                         **exact_floats(), **kw)
         first_col = df.iloc[:, 0].to_numpy(np.int64) if int_first else None
         rows = df.to_numpy(float)
         ok = rows.shape == (line_no.size, rows.shape[1]) and rows.shape[1] >= ncols_min and np.isfinite(rows).all()
     except (ValueError, TypeError, OverflowError, pd.errors.ParserError):
         ok = False
     if not ok:                               # name the line: the slow reader raises on the first bad row
-        body = "\n".join("#" if not d else ln for ln, d in zip(lines, data))
-        rows, ln = parse_numeric_rows(path, body, tuple(range(ncols_min, 64)), what, delimiter=None if sep == r"\s+" else sep)
+        lines = text.splitlines()
+        masked = "\n".join("#" if i < head else ln for i, ln in enumerate(lines))
+        rows, ln = parse_numeric_rows(path, masked, tuple(range(ncols_min, 64)), what, delimiter=None if sep == r"\s+" else sep)
         if int_first:
             bad = np.flatnonzero(rows[:, 0] != np.round(rows[:, 0]))
             if bad.size:

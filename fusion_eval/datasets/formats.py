@@ -4,7 +4,7 @@
 A format's reader takes the stream's manifest entry and a :class:`~fusion_eval.datasets.streams.ReadContext` and
 returns the stream's typed series; ``keys`` are the manifest keys it accepts besides ``format``, ``path`` and the
 common ones; ``first_fix`` (optional) gives a geodetic origin from a GNSS stream of that format. Adding a format is
-one module and one line in :data:`FORMATS`.
+one module and one line in the list of :func:`_formats`.
 """
 
 from __future__ import annotations
