@@ -197,6 +197,12 @@ def check_value(key: str, spec: Spec, value: Any, where: str) -> Any:
     return v
 
 
+# No setting of a navigation filter or simulator is a number beyond this (stamps are ~1e9 s; a correlation time of 1e15 s
+# stands for infinity; noise densities, lengths
+# and rates far below); 1e200 is a typo, and squared it overflows.
+MAX_MAGNITUDE = 1e15
+
+
 def _number(key, value, where, positive=False, nonneg=False) -> float:
     if isinstance(value, str):
         # YAML 1.1 reads '1e-05' (no point, or no sign in the exponent) as a string
@@ -206,6 +212,8 @@ def _number(key, value, where, positive=False, nonneg=False) -> float:
             pass
     if isinstance(value, bool) or not isinstance(value, (int, float)) or not np.isfinite(value):
         raise ConfigError(f"{where}: {key} must be a number, got {value!r}")
+    if abs(value) > MAX_MAGNITUDE:
+        raise ConfigError(f"{where}: {key} = {value!r} is beyond any plausible value of it (|value| <= {MAX_MAGNITUDE:.0e})")
     if positive and value <= 0:
         raise ConfigError(f"{where}: {key} must be > 0, got {value!r}")
     if nonneg and value < 0:
@@ -214,6 +222,11 @@ def _number(key, value, where, positive=False, nonneg=False) -> float:
 
 
 def _vec3(key, value, where, positive=False, nonneg=False) -> list[float]:
+    if isinstance(value, str):           # '2e0' or '1e300': floats in YAML 1.2, strings to PyYAML's YAML 1.1
+        try:
+            value = float(value)
+        except ValueError:
+            pass
     if isinstance(value, (int, float)) and not isinstance(value, bool):
         value = [value] * 3
     if not isinstance(value, (list, tuple)) or len(value) != 3:

@@ -10,9 +10,32 @@ import numpy as np
 import pymap3d
 
 
+# Plausible geodetic coordinates of a ground vehicle's (or drone's) fix: beyond them a value is a corruption, not
+# a place (an altitude of 1e12 m also stalls pymap3d's iteration).
+LAT_RANGE_DEG, LON_RANGE_DEG, ALT_RANGE_M = (-90.0, 90.0), (-180.0, 360.0), (-1000.0, 100_000.0)
+
+
+def check_geodetic(lat_deg, lon_deg, alt_m, source: str, lines=None, what: str = "fix") -> None:
+    """Refuse latitudes, longitudes and altitudes outside :data:`LAT_RANGE_DEG` etc., naming the line and value."""
+    from .errors import DataFormatError
+
+    for name, v, (lo, hi), unit in (("latitude", lat_deg, LAT_RANGE_DEG, "deg"), ("longitude", lon_deg, LON_RANGE_DEG, "deg"),
+                                    ("altitude", alt_m, ALT_RANGE_M, "m")):
+        v = np.atleast_1d(np.asarray(v, float))
+        bad = np.flatnonzero(~((v >= lo) & (v <= hi)))
+        if bad.size:
+            i = int(bad[0])
+            line = None if lines is None or len(lines) == 0 else int(np.atleast_1d(lines)[min(i, len(lines) - 1)])
+            raise DataFormatError(source, line, f"{what} {name} {float(v[i])!r} {unit} is outside [{lo:g}, {hi:g}] {unit}")
+
+
 def geodetic_to_enu(lat_deg: np.ndarray, lon_deg: np.ndarray, alt_m: np.ndarray,
-                    origin_lat_deg: float, origin_lon_deg: float, origin_alt_m: float) -> np.ndarray:
-    """East/North/Up metres ``(N, 3)`` of WGS84 points about an origin (exact, not a flat-earth approximation)."""
+                    origin_lat_deg: float, origin_lon_deg: float, origin_alt_m: float, source: str = "<geodetic>",
+                    lines=None) -> np.ndarray:
+    """East/North/Up metres ``(N, 3)`` of WGS84 points about an origin (exact, not a flat-earth approximation).
+    Points and origin outside the plausible ranges are refused (:func:`check_geodetic`), naming ``source``."""
+    check_geodetic(origin_lat_deg, origin_lon_deg, origin_alt_m, f"{source} (the geodetic origin)", what="origin")
+    check_geodetic(lat_deg, lon_deg, alt_m, source, lines)
     e, n, u = pymap3d.geodetic2enu(np.asarray(lat_deg), np.asarray(lon_deg), np.asarray(alt_m),
                                    origin_lat_deg, origin_lon_deg, origin_alt_m)
     return np.column_stack([e, n, u])

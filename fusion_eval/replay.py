@@ -95,10 +95,43 @@ def replay(prep: Prepared, s: Settings, progress: Callable[[float], None] | None
                   nis={k: {"t_s": np.asarray(v[0], float), "nis": np.asarray(v[1], float), "dof": dof[k],
                            "rejected": int(np.size(v[2]) - np.count_nonzero(v[2])),
                            **({"adapt": summaries[k]} if summaries.get(k) else {})} for k, v in nis.items() if len(v[0])})
+    check_divergence(out)
     if smoother is not None:
         sm, out.smoother_info = smoother.finish(kf, k0)
         out.smoothed = _output(kf, t_imu, k0, sm.rec_x, sm.rec_Pdiag, sm.rec_Ppt, "smoothed", imu_only, nis={})
     return out
+
+
+# An observation whose innovations run this many times their predicted covariance (median NIS over the last quarter
+# of its updates, per degree of freedom) means a filter that no longer follows the data: a 100-sigma error
+# sustained. A mistuned but working filter stays within tens.
+NIS_DIVERGED_PER_DOF = 1e4
+MIN_UPDATES_FOR_NIS = 20  # not a state index
+
+
+def check_divergence(out: FilterOutput) -> None:
+    """Raise :class:`FilterDivergedError` (exit 3) when the covariance went non-finite or negative, or when an
+    observation's NIS exploded: the state may still be finite while the filter has lost the data (process noise
+    and initial uncertainty far too small make it reject nothing and follow nothing)."""
+    from .errors import FilterDivergedError
+
+    P = out.P_pos_att
+    diag = np.diagonal(P, axis1=1, axis2=2) if P.size else np.zeros((0, 6))
+    bad = np.flatnonzero(~np.all(np.isfinite(P.reshape(len(P), -1)), axis=1) | np.any(diag < 0, axis=1)) if P.size else []
+    if len(bad):
+        raise FilterDivergedError(f"filter diverged at t={out.fused.t_s[bad[0]]:.3f} s: the position/attitude covariance is "
+                                  "non-finite or has a negative variance")
+    for name, d in out.nis.items():
+        nis = np.asarray(d["nis"], float)
+        if nis.size < MIN_UPDATES_FOR_NIS:
+            continue
+        tail = nis[-max(MIN_UPDATES_FOR_NIS, nis.size // 4):]
+        med = float(np.median(tail))
+        if not np.isfinite(med) or med > NIS_DIVERGED_PER_DOF * d["dof"]:
+            raise FilterDivergedError(
+                f"filter diverged: the {name} innovations are {med / d['dof']:.3g} times their predicted variance over the "
+                f"last {tail.size} updates (median NIS {med:.3g} for {d['dof']} dof, from t={d['t_s'][-tail.size]:.3f} s); "
+                "the filter trusts its prediction far more than the data (process noise or initial uncertainty too small?)")
 
 
 def _replay_python(kf, bound, times, which, index, order, smoother, it, tol, progress) -> dict:

@@ -46,6 +46,12 @@ def _check_times(t: np.ndarray, source: str, lines: np.ndarray | None, what: str
                                   f"{what} timestamps {must} ({kind} timestamp {t[i]:.9f} after {t[i - 1]:.9f})")
 
 
+# Beyond these no vehicle or drone IMU measures (gyros saturate at a few thousand deg/s, accelerometers at tens of
+# g): a value above is a corrupted sample or a unit error, refused with its line.
+IMU_MAX_RATE_RPS = 100.0
+IMU_MAX_SPECIFIC_FORCE_MPS2 = 1000.0
+
+
 def _check_rows(name: str, a: np.ndarray, n: int, cols: int, source: str, lines: np.ndarray | None, what: str) -> None:
     if a.shape != (n, cols):
         raise DataFormatError(source, None, f"{what} {name} must have shape ({n}, {cols}), got {a.shape}")
@@ -81,6 +87,13 @@ class ImuSeries:
         _check_times(t, self.source, self.lines, "IMU")
         _check_rows("specific force", self.f_b_mps2, t.size, 3, self.source, self.lines, "IMU")
         _check_rows("angular rate", self.w_b_rps, t.size, 3, self.source, self.lines, "IMU")
+        for name, a, lim, unit in (("angular rate", self.w_b_rps, IMU_MAX_RATE_RPS, "rad/s"),
+                                   ("specific force", self.f_b_mps2, IMU_MAX_SPECIFIC_FORCE_MPS2, "m/s^2")):
+            bad = np.flatnonzero(np.abs(a).max(axis=1) > lim) if t.size else []
+            if len(bad):
+                raise DataFormatError(self.source, _line(self.lines, bad[0]),
+                                      f"IMU {name} {a[bad[0]].tolist()} {unit} exceeds {lim:g} {unit} (no IMU measures that: "
+                                      "a corrupted sample, or deg/s or g given as rad/s or m/s^2?)")
 
     def __len__(self) -> int:
         return int(self.t_s.size)

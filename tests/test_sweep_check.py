@@ -65,15 +65,16 @@ def test_sweep_process_pool_and_dask_give_identical_metrics(small, tmp_path):
 
 
 @pytest.mark.slow
-def test_diverging_setting_is_recorded_as_failed_and_the_rest_finish(small, tmp_path):
-    sw = _sweep_file(tmp_path, "  boom: {init.vel_std_mps: 1.0e+200}\n")
+def test_diverging_setting_is_recorded_as_diverged_and_the_rest_finish(small, tmp_path):
+    sw = _sweep_file(tmp_path, "  boom: {init.vel_std_mps: 1.0e+11, init.pos_std_m: 1.0e+11}\n")
     out = tmp_path / "s"
     r = CliRunner().invoke(main, ["-q", "sweep", str(small), "--grid", str(sw), "--out", str(out), "--jobs", "1"])
     assert r.exit_code == 0, r.output
     rows = _rows(out)
-    assert rows["boom"]["status"] == "failed" and "diverged" in rows["boom"]["error"]
+    assert rows["boom"]["status"] == "diverged" and "diverged" in rows["boom"]["error"]
     assert sum(v["status"] == "ok" for v in rows.values()) == 6
-    assert "## Failed runs" in (out / "sweep.md").read_text()
+    md = (out / "sweep.md").read_text()
+    assert "## Diverged runs" in md and "1 diverged, 0 failed" in md
 
 
 @pytest.mark.slow
@@ -137,6 +138,21 @@ def test_check_exit_codes_and_rules(tmp_path):
         assert r.exit_code == 2, (rule, r.output)
     r = run(main, ["check", str(worse), "--baseline", str(tmp_path / "nb.json"), "--update-baseline"])
     assert r.exit_code == 0 and (tmp_path / "nb.json").read_text() == worse.read_text()
+
+
+@pytest.mark.parametrize("value,needle", [(None, "has no value for it"), (float("nan"), "holds nan there"),
+                                          ("fast", "holds 'fast' there")])
+def test_check_refuses_a_baseline_lacking_a_gated_metric(tmp_path, value, needle):
+    """A baseline without the gated estimate, or with NaN or a string there, would let anything pass: exit 2."""
+    cur = _metrics(tmp_path, "cur.json", 1.0)
+    body = json.loads(cur.read_text())
+    if value is None:
+        del body["estimates"]["fused"]
+    else:
+        body["estimates"]["fused"]["ape"]["translation_m"]["rmse"] = value
+    (tmp_path / "base.json").write_text(json.dumps(body))
+    r = CliRunner().invoke(main, ["check", str(cur), "--baseline", str(tmp_path / "base.json")])
+    assert r.exit_code == 2 and needle in r.stderr and "fused.ape" in r.stderr and "Traceback" not in r.output
 
 
 def test_check_accepts_a_sweep_csv(tmp_path):

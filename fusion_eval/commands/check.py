@@ -215,12 +215,33 @@ def check(metrics_path: Path, baseline: Path, rtol: float, atol: float, patterns
         raise ConfigError(f"{metrics_path} is a {kind} file but the baseline {baseline} is a {base_kind} file")
     pats = tuple(patterns) or default_patterns(kind, delta)
     rows = compare_metrics(current, base, pats, rtol, atol)
+    _refuse_incomplete_baseline(resources.find(baseline), [r.metric for r in rows if r.verdict == "new"])
     evaluated = [(r, *evaluate_rule(r, current)) for r in rules]
     ok = all(r.verdict not in ("REGRESSION", "MISSING") for r in rows) and all(h for _, h, _ in evaluated)
     atomic_write(summary_path or Path(metrics_path).with_name("check.md"), markdown(rows, evaluated, rtol, atol, ok))
     if junit_path:
         atomic_write(junit_path, junit(rows, evaluated))
     return CheckResult(rows, evaluated, ok)
+
+
+def _refuse_incomplete_baseline(path: Path, lacking: list[str]) -> None:
+    """A gated metric that the baseline lacks (or holds as NaN or a non-number) would pass unchecked: refuse it,
+    naming the key and what the baseline holds there."""
+    if not lacking:
+        return
+    raw: dict = {}
+    if Path(path).suffix != ".csv":
+        try:
+            raw = keys.flatten(json.loads(Path(path).read_text()), raw=True)
+        except (json.JSONDecodeError, OSError, AttributeError):
+            raw = {}
+    k = lacking[0]
+    held = raw.get(k, "__absent__")
+    what = ("has no value for it" if held == "__absent__" else
+            f"holds {held!r} there, not a finite number")
+    more = f" (and {len(lacking) - 1} more gated metrics)" if len(lacking) > 1 else ""
+    raise CheckUsageError(f"{path}: the baseline {what}: gated metric {k!r}{more}; rebuild the baseline with "
+                          "--update-baseline, or gate fewer metrics with --metric")
 
 
 def update_baseline(metrics_path: Path, baseline: Path) -> None:

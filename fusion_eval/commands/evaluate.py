@@ -12,7 +12,7 @@ import json
 from pathlib import Path
 
 from ..datasets.trajectory_file import as_series, read_bag_trajectories, read_trajectory
-from ..errors import ConfigError
+from ..errors import ConfigError, DataRangeError
 from ..evaluation import keys
 from ..evaluation.estimates import evaluate_series, validate_options
 from ..outputs import StagedDir
@@ -62,6 +62,7 @@ def run_evaluate(inputs: list, out_dir: Path, ref_times: Path | None = None, tim
     m, evals = evaluate_series(ref_f.traj, series, association, alignment, t_max_diff_s, rpe_delta_m, segment_m,
                                segment_s, about, ref_stamps=ref_f.stamps, engine=engine, relations=relations,
                                up_axis=up_axis, n_to_align=n_to_align, t_offset_s=t_offset_s, covariances=covs)
+    _refuse_unmatched(ref_f, est_fs, evals, association, t_max_diff_s)
     metrics = {"reference": ref_f.source, "reference_format": ref_f.format, "reference_stamps": ref_f.stamps,
                **({"reference_repeated_stamps": ref_f.repeated_stamps} if ref_f.repeated_stamps else {}), **m}
     with staged as out:
@@ -85,6 +86,21 @@ def run_evaluate(inputs: list, out_dir: Path, ref_times: Path | None = None, tim
                 written.append("segments_map.png")
         out.write_text("report.md", _report(metrics, written))
     return metrics
+
+
+def _span(f) -> str:
+    t = f.traj.timestamps
+    return f"{f.source} ({len(t)} poses, {t[0]:.3f} to {t[-1]:.3f} s)" if len(t) else f"{f.source} (no poses)"
+
+
+def _refuse_unmatched(ref_f, est_fs, evals: dict, association: str, t_max_diff_s: float) -> None:
+    """Fewer than 2 matched poses is no evaluation: exit 2 naming both files and their time spans (a report of
+    'n/a' with exit 0 would pass a CI gate that looks at the exit code)."""
+    for f, ev in zip(est_fs, evals.values()):
+        if ev.matched_poses < 2:
+            raise DataRangeError(f"{ev.matched_poses} poses of {_span(f)} match the reference {_span(ref_f)} "
+                                 f"({association}, within --t-max-diff {t_max_diff_s} s); at least 2 are needed "
+                                 "(a time offset between the files? --t-offset; KITTI files without times? --times)")
 
 
 def _report(m: dict, plots: list[str]) -> str:

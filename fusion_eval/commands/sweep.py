@@ -47,7 +47,7 @@ import numpy as np
 from .. import resources, session
 from .. import trials as mc
 from ..config import check_value, read_yaml, schema
-from ..errors import ConfigError, FusionEvalError
+from ..errors import ConfigError, FilterDivergedError, FusionEvalError
 from ..variants import resolve_variant
 
 log = logging.getLogger(__name__)
@@ -266,6 +266,8 @@ def _record(task: Task, work: Callable, extra_s: float = 0.0) -> dict:
         with np.errstate(all="ignore"):
             res = work()
         rec.update(status="ok", error=None, metrics=res.metrics)
+    except FilterDivergedError as exc:     # its own status: a setting that makes the filter diverge is a finding
+        rec.update(status="diverged", error=str(exc), metrics=None)
     except FusionEvalError as exc:
         rec.update(status="failed", error=str(exc), metrics=None)
     except Exception as exc:  # noqa: BLE001 - a bug in one run must not stop the sweep; its traceback is kept
@@ -378,7 +380,7 @@ def execute(tasks: list[Task], out_dir: Path, jobs: int | None, scheduler: str |
             n_ok += 1
         else:
             n_fail += 1
-            log.warning("run %s (%s, %s) failed: %s", rec["id"], rec["dataset"], rec["setting"], rec["error"])
+            log.warning("run %s (%s, %s) %s: %s", rec["id"], rec["dataset"], rec["setting"], rec["status"], rec["error"])
         if progress:
             progress(n_ok, n_fail, total - n_ok - n_fail, skipped)
 

@@ -79,7 +79,7 @@ def _over_trials(rows: list[dict], keys: list[str]) -> list[dict]:
     out = []
     for group in groups.values():
         ok = [r for r in group if r["status"] == "ok" and r.get(METRIC) is not None]
-        n_failed = sum(r["status"] == "failed" for r in group)
+        n_failed = sum(r["status"] in ("failed", "diverged") for r in group)
         if not ok:
             out.append({**group[0], "trials": 0, "failed_trials": n_failed})
             continue
@@ -128,8 +128,8 @@ def write_summary(tasks: list[Task], out_dir: Path, keys: list[str], plots: bool
 
     ok = [r for r in rows if r["status"] == "ok" and r.get(METRIC) is not None]
     L = ["# fusion-eval sweep", "",
-         f"{len(rows)} runs: {sum(r['status'] == 'ok' for r in rows)} finished, {sum(r['status'] == 'failed' for r in rows)} "
-         f"failed, {sum(r['status'] == 'pending' for r in rows)} pending. Ranked by fused APE translation RMSE (lower is better).", ""]
+         f"{len(rows)} runs: {sum(r['status'] == 'ok' for r in rows)} finished, {sum(r['status'] == 'diverged' for r in rows)} "
+         f"diverged, {sum(r['status'] == 'failed' for r in rows)} failed, {sum(r['status'] == 'pending' for r in rows)} pending. Ranked by fused APE translation RMSE (lower is better).", ""]
     if n_trials > 1:
         L[2] = (f"{len(rows)} settings x {n_trials} Monte-Carlo trials (the seeds of every random element); the figures are "
                 f"means over each setting's finished trials (std of the APE RMSE in its own column; every trial in "
@@ -157,12 +157,14 @@ def write_summary(tasks: list[Task], out_dir: Path, keys: list[str], plots: bool
             ["rank", "variant", "setting", "mean APE trans RMSE [m]"],
             [[i, v, s, m] for i, ((v, s), m) in enumerate(ranked, 1)], align="rllr")
         L.append("")
-    failed = [r for r in rows if r["status"] == "failed"]
-    if failed:
-        L += ["## Failed runs", ""] + markdown(["dataset", "variant", "setting", "error"],
-                                              [[r["dataset"], r["variant"], r["setting"], r["error"]] for r in failed],
-                                              align="llll")
-        L.append("")
+    for status, title in (("diverged", "Diverged runs (exit 3 for run: the settings make the filter lose the data)"),
+                          ("failed", "Failed runs")):
+        bad = [r for r in rows if r["status"] == status]
+        if bad:
+            L += [f"## {title}", ""] + markdown(["dataset", "variant", "setting", "error"],
+                                               [[r["dataset"], r["variant"], r["setting"], r["error"]] for r in bad],
+                                               align="llll")
+            L.append("")
     best = None
     if ranked:
         (bv, bs), bm = ranked[0]

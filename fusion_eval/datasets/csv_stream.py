@@ -42,7 +42,8 @@ NAMES = {
 KEYS = frozenset({"columns", "time_unit", "gyro_unit", "accel_unit", "delimiter", "std_m"})
 
 
-def load_table(path: Path, what: str, ncols_min: int, delimiter: str | None = ",", int_first: bool = False):
+def load_table(path: Path, what: str, ncols_min: int, delimiter: str | None = ",", int_first: bool = False,
+               ncols_exact: int | None = None):
     """Numeric rows of a delimited text file, skipping a leading header and ``#`` lines.
 
     Returns ``(rows (N, k) float, first column as int64 or None, 1-based line of each row)``. pandas' C parser
@@ -53,15 +54,18 @@ def load_table(path: Path, what: str, ncols_min: int, delimiter: str | None = ",
 
     path = Path(path)
     text = read_text(path, what)
-    # the leading header: '#' lines, blank lines, and one line whose first field is not a number
-    head, pos = 0, 0
+    # the leading header: '#' lines, blank lines, and at most one line whose first field is not a number (a
+    # second such line is data the reader must refuse with its line, not skip: ISO dates, a wrong delimiter)
+    head, pos, named = 0, 0, False
     while pos < len(text):
         end = text.find("\n", pos)
         end = len(text) if end < 0 else end
         ln = text[pos:end]
         fields = ln.split(delimiter) if delimiter not in (None, " ") else ln.split()
-        if ln.strip() and not ln.lstrip().startswith("#") and is_float(fields[0].strip()):
-            break
+        if ln.strip() and not ln.lstrip().startswith("#"):
+            if named or is_float(fields[0].strip()):
+                break
+            named = True
         head, pos = head + 1, end + 1
     body = text[pos:]
     # the common case, one clean block of rows after the header: read by pandas from a row count; otherwise (comment
@@ -91,7 +95,8 @@ def load_table(path: Path, what: str, ncols_min: int, delimiter: str | None = ",
     if not ok:                               # name the line: the slow reader raises on the first bad row
         lines = text.splitlines()
         masked = "\n".join("#" if i < head else ln for i, ln in enumerate(lines))
-        rows, ln = parse_numeric_rows(path, masked, tuple(range(ncols_min, 64)), what, delimiter=None if sep == r"\s+" else sep)
+        rows, ln = parse_numeric_rows(path, masked, ncols_exact or tuple(range(ncols_min, 64)), what,
+                                      delimiter=None if sep == r"\s+" else sep)
         if int_first:
             bad = np.flatnonzero(rows[:, 0] != np.round(rows[:, 0]))
             if bad.size:
@@ -129,8 +134,9 @@ def _table(entry: dict, kind: str, ctx: ReadContext, what: str):
     named = _columns(entry, kind, ctx)
     per_ns = _choice(entry, "time_unit", TIME_UNITS, "s", ctx)
     path = ctx.path(entry)
-    rows, first, lines = load_table(path, what, len(entry["columns"]), entry.get("delimiter", ","),
-                                    int_first=per_ns is not None and named["t"] == 0)
+    rows, first, lines = load_table(path, f"{what[:-1]}: {' '.join(entry['columns'])})", len(entry["columns"]),
+                                    entry.get("delimiter", ","), int_first=per_ns is not None and named["t"] == 0,
+                                    ncols_exact=len(entry["columns"]))
     if rows.shape[1] != len(entry["columns"]):
         raise DataFormatError(path, int(lines[0]), f"{what}: expected {len(entry['columns'])} columns (as 'columns' names), "
                                                    f"got {rows.shape[1]}")
@@ -143,7 +149,7 @@ def _table(entry: dict, kind: str, ctx: ReadContext, what: str):
 
 
 def read_imu(entry: dict, ctx: ReadContext) -> ImuSeries:
-    named, rows, t, lines, src = _table(entry, "imu", ctx, "IMU CSV (columns as the manifest names them)")
+    named, rows, t, lines, src = _table(entry, "imu", ctx, "IMU CSV (columns)")
     g = _choice(entry, "gyro_unit", GYRO_UNITS, "rad/s", ctx)
     a = _choice(entry, "accel_unit", ACCEL_UNITS, "m/s^2", ctx)
     f = rows[:, [named["ax"], named["ay"], named["az"]]] * a
@@ -152,11 +158,12 @@ def read_imu(entry: dict, ctx: ReadContext) -> ImuSeries:
 
 
 def read_gnss(entry: dict, ctx: ReadContext) -> GnssSeries:
-    named, rows, t, lines, src = _table(entry, "gnss", ctx, "GNSS CSV (columns as the manifest names them)")
+    named, rows, t, lines, src = _table(entry, "gnss", ctx, "GNSS CSV (columns)")
     if {"lat", "lon", "alt"} <= set(named):
         if ctx.origin is None:
             raise ConfigError(f"{ctx.manifest}: GNSS in geodetic coordinates needs a geodetic_origin")
-        p = geodetic_to_enu(rows[:, named["lat"]], rows[:, named["lon"]], rows[:, named["alt"]], *ctx.origin)
+        p = geodetic_to_enu(rows[:, named["lat"]], rows[:, named["lon"]], rows[:, named["alt"]], *ctx.origin,
+                            source=src, lines=lines)
     elif {"x", "y", "z"} <= set(named):
         p = rows[:, [named["x"], named["y"], named["z"]]]
     else:
@@ -192,7 +199,7 @@ def std_m(entry: dict, ctx: ReadContext) -> np.ndarray:
 
 
 def read_poses(entry: dict, ctx: ReadContext) -> PoseSeries:
-    named, rows, t, lines, src = _table(entry, "poses", ctx, "pose CSV (columns as the manifest names them)")
+    named, rows, t, lines, src = _table(entry, "poses", ctx, "pose CSV (columns)")
     v = rows[:, [named["vx"], named["vy"], named["vz"]]] if {"vx", "vy", "vz"} <= set(named) else None
     return PoseSeries(t_s=t, p_w_m=rows[:, [named["x"], named["y"], named["z"]]],
                       q_wb_xyzw=rows[:, [named["qx"], named["qy"], named["qz"], named["qw"]]], v_w_mps=v,
@@ -200,5 +207,5 @@ def read_poses(entry: dict, ctx: ReadContext) -> PoseSeries:
 
 
 def read_speed(entry: dict, ctx: ReadContext) -> SpeedSeries:
-    named, rows, t, lines, src = _table(entry, "odometer", ctx, "speed CSV (columns as the manifest names them)")
+    named, rows, t, lines, src = _table(entry, "odometer", ctx, "speed CSV (columns)")
     return SpeedSeries(t_s=t, v_mps=rows[:, named["v"]], source=src, lines=lines)

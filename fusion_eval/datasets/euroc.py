@@ -50,14 +50,14 @@ def implicit_streams(folder: Path) -> dict | None:
     return streams
 
 
-def _rows(path: Path, what: str, ncols: int):
-    rows, ns, lines = load_table(path, what, ncols, ",", int_first=True)
+def _rows(path: Path, what: str, ncols: int, exact: bool = False):
+    rows, ns, lines = load_table(path, what, ncols, ",", int_first=True, ncols_exact=ncols if exact else None)
     return rows, ns_to_s(ns), lines
 
 
 def read_imu(entry: dict, ctx: ReadContext) -> ImuSeries:
     path = ctx.path(entry)
-    rows, t, lines = _rows(path, "EuRoC IMU CSV (#timestamp [ns],w_x,w_y,w_z [rad/s],a_x,a_y,a_z [m/s^2])", 7)
+    rows, t, lines = _rows(path, "EuRoC IMU CSV (#timestamp [ns],w_x,w_y,w_z [rad/s],a_x,a_y,a_z [m/s^2])", 7, exact=True)
     if rows.shape[1] != 7:
         raise DataFormatError(path, int(lines[0]), f"EuRoC IMU CSV: expected 7 values per row, got {rows.shape[1]}")
     return ImuSeries(t_s=t, f_b_mps2=rows[:, 4:7], w_b_rps=rows[:, 1:4], source=str(path), lines=lines)
@@ -73,7 +73,7 @@ def read_poses(entry: dict, ctx: ReadContext) -> PoseSeries:
 def read_positions(entry: dict, ctx: ReadContext) -> GnssSeries:
     """A position stream (``leica0``: #timestamp [ns], p_x, p_y, p_z) as local fixes with the entry's ``std_m``."""
     path = ctx.path(entry)
-    rows, t, lines = _rows(path, "EuRoC position CSV (#timestamp [ns],p_x,p_y,p_z [m])", 4)
+    rows, t, lines = _rows(path, "EuRoC position CSV (#timestamp [ns],p_x,p_y,p_z [m])", 4, exact=True)
     return GnssSeries(t_s=t, p_w_m=rows[:, 1:4], std_w_m=np.tile(std_m(entry, ctx), (t.size, 1)), source=str(path), lines=lines)
 
 

@@ -25,7 +25,7 @@ def read_gnss_csv(path: Path, origin: tuple[float, float, float]) -> GnssSeries:
     if lines and lines[0].strip().startswith("t_s"):
         lines[0] = "#" + lines[0]   # the header: skipped, line numbers kept
     rows, ln = parse_numeric_rows(path, "\n".join(lines), 7, f"GNSS CSV ({HEADER})", delimiter=",")
-    return GnssSeries(t_s=rows[:, 0], p_w_m=geodetic_to_enu(rows[:, 1], rows[:, 2], rows[:, 3], *origin),
+    return GnssSeries(t_s=rows[:, 0], p_w_m=geodetic_to_enu(rows[:, 1], rows[:, 2], rows[:, 3], *origin, source=str(path), lines=ln),
                       std_w_m=rows[:, 4:7], source=str(path), lines=ln)
 
 

@@ -133,6 +133,7 @@ def read_oxts(path: Path) -> OxtsPackets:
         values[i] = row
         # KITTI's filled packets print the integer status fields as floats and set the modes to -1.
         filled[i] = any("." in x for x in parts[25:]) or min(row[POSMODE:ORIMODE + 1]) < 0
+    _check_plausible(values, lambda i: (packet_paths[i], 1))
     return OxtsPackets(t_s=t, values=values, filled=filled, stamps_path=stamps_path, packet_paths=packet_paths)
 
 
@@ -159,7 +160,29 @@ def _read_packets_csv(path: Path) -> OxtsPackets:
         raise DataFormatError(path, i + 2, "timestamps must strictly increase")
     vals = a[:, 1:]
     filled = vals[:, POSMODE:ORIMODE + 1].min(axis=1) < 0
+    _check_plausible(vals, lambda i: (path, i + 2))
     return OxtsPackets(t_s=t, values=vals, filled=filled, stamps_path=path, packet_paths=(path,))
+
+
+def _check_plausible(values: np.ndarray, locate) -> None:
+    """Refuse packets whose position or IMU values no vehicle produces (a corrupted packet would otherwise become a
+    plausible-looking estimate); ``locate(i)`` gives the file and line of packet ``i``."""
+    from ..geo import check_geodetic
+    from ..types import IMU_MAX_RATE_RPS, IMU_MAX_SPECIFIC_FORCE_MPS2
+
+    try:
+        check_geodetic(values[:, LAT], values[:, LON], values[:, ALT], "<packets>", np.arange(values.shape[0]), "OXTS")
+    except DataFormatError as exc:
+        f, ln = locate(exc.line)
+        raise DataFormatError(f, ln, exc.expected) from None
+    for name, cols, lim, unit in (("angular rate", slice(WX, WZ + 1), IMU_MAX_RATE_RPS, "rad/s"),
+                                  ("acceleration", slice(AX, AZ + 1), IMU_MAX_SPECIFIC_FORCE_MPS2, "m/s^2")):
+        bad = np.flatnonzero(np.abs(values[:, cols]).max(axis=1) > lim)
+        if bad.size:
+            f, ln = locate(int(bad[0]))
+            v = values[bad[0], cols]
+            raise DataFormatError(f, ln, f"OXTS {name} {v.tolist()} {unit} exceeds {lim:g} {unit} (no vehicle IMU measures "
+                                         "that: a corrupted packet)")
 
 
 def imu_from_oxts(pk: OxtsPackets) -> ImuSeries:

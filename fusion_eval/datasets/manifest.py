@@ -9,6 +9,7 @@ the README's "Dataset manifest" and "Your own data" sections for every key.
 
 from __future__ import annotations
 
+import logging
 from pathlib import Path
 from typing import Any
 
@@ -21,6 +22,8 @@ from ..types import Dataset, GnssSeries, PoseSeries
 from . import clock, gnss_csv, kitti_oxts, kitti_poses, speed, tum
 from .formats import for_stream
 from .streams import ReadContext, StreamSpec
+
+log = logging.getLogger(__name__)
 
 STREAMS = ("imu", "gnss", "lidar", "groundtruth", "odometer")
 FORMATS = {
@@ -54,7 +57,8 @@ def load_dataset(path: str | Path, extra_streams: tuple[StreamSpec, ...] | None 
     path = Path(path)
     extra = {s.name: s for s in extra_streams}
     if not path.exists():
-        raise DataFormatError(path, None, "dataset not found (expected a folder with dataset.yaml, a dataset.yaml, or a KITTI raw drive folder)")
+        raise DataFormatError(path, None, "dataset not found (expected a folder with dataset.yaml, a dataset.yaml, a KITTI raw "
+                                          "drive folder or a EuRoC / TUM-VI folder)")
     if path.is_file():
         return _from_manifest(path, extra)
     if (path / "dataset.yaml").exists():
@@ -63,7 +67,11 @@ def load_dataset(path: str | Path, extra_streams: tuple[StreamSpec, ...] | None 
 
     asl = euroc.implicit_streams(path)
     if asl is not None:
-        return _from_manifest_dict({"name": path.name, "streams": asl}, path, path / "(implicit EuRoC manifest)", extra)
+        # an ASL folder has no aiding sensor of its own: without a manifest naming one, the run is dead reckoning
+        log.warning("%s: a EuRoC / TUM-VI folder without a manifest: IMU and ground truth only, so the fused estimate is "
+                    "dead reckoning; name a pose or position stream in a dataset.yaml to fuse it", path)
+        body = {"name": path.name, "streams": asl, "config": {"filter": {"lidar_update": "none", "use_gnss": False}}}
+        return _from_manifest_dict(body, path, path / "(implicit EuRoC manifest)", extra)
     if (path / "oxts").is_dir():
         streams = {s: {"format": "kitti_oxts", "path": "oxts"} for s in ("imu", "gnss", "groundtruth")}
         # the OXTS rates lag the packet clock: estimated, or the device figure (fusion_eval.timing)
@@ -103,13 +111,18 @@ def _from_manifest_dict(body: dict, root: Path, manifest: Path, extra: dict | No
         formats = (FORMATS[name] + tuple(registered)) if name in STREAMS else tuple(extra[name].readers)
         if spec.get("format") in registered:
             allowed = allowed | registered[spec["format"]].keys
+        fmt = spec.get("format")
+        if fmt not in formats:
+            raise ConfigError(f"{manifest}: stream {name!r} has unknown format {fmt!r} (known for {name}: {', '.join(formats)})")
         bad = {k for k in set(spec) - allowed if not (name in ("groundtruth", "lidar") and k.startswith("T_imu_"))}
         if bad:
             raise ConfigError(f"{manifest}: unknown key {sorted(bad)[0]!r} in stream {name!r} "
                               f"(known: {', '.join(sorted(allowed))})")
-        fmt = spec.get("format")
-        if fmt not in formats:
-            raise ConfigError(f"{manifest}: stream {name!r} has unknown format {fmt!r} (known for {name}: {', '.join(formats)})")
+        extr = [k for k in spec if k.startswith("T_imu_")]
+        if extr and extr != [f"T_imu_{spec.get('frame', 'imu')}"]:
+            # an extrinsic for another frame than the stream's would be ignored, and the poses taken as the IMU's
+            raise ConfigError(f"{manifest}: stream {name!r} gives {extr[0]} but its frame is {spec.get('frame', 'imu')!r}: "
+                              f"set frame: {extr[0][6:]} (the poses are of that sensor)")
         if not isinstance(spec.get("path"), str) or not spec["path"]:
             raise ConfigError(f"{manifest}: stream {name!r} needs a 'path' (a file or folder name)")
         if fmt != "kitti_poses" and "times" in spec:
@@ -154,6 +167,13 @@ def _from_manifest_dict(body: dict, root: Path, manifest: Path, extra: dict | No
         origin_t = tuple(float(v) for v in origin)
     else:
         raise ConfigError(f"{manifest}: geodetic_origin must be 'first_fix' or [lat_deg, lon_deg, alt_m], got {origin!r}")
+    if origin_t is not None:
+        from ..geo import check_geodetic
+
+        try:
+            check_geodetic(*origin_t, str(manifest), what="geodetic_origin")
+        except DataFormatError as exc:
+            raise ConfigError(f"{manifest}: {exc.expected}") from None
 
     ctx = ctx_with(origin_t)
     gnss = gt = lidar = odo = None

@@ -65,7 +65,7 @@ from ..errors import ConfigError, DataFormatError, OutputError
 from ..geo import geodetic_to_enu
 from ..so3 import inv_T, quat_xyzw_to_matrix
 from ..types import ImuSeries, GnssSeries, PoseSeries
-from ._text import ns_to_s
+from ._text import ns_to_s, s_to_ns
 
 log = logging.getLogger(__name__)
 
@@ -87,7 +87,7 @@ _SQL_WINDOW = 2_000_000       # message ids per SQL aggregate: keeps each result
 # opening a bag
 
 
-def _resolve(path: str | Path) -> tuple[str, Path]:
+def resolve(path: str | Path) -> tuple[str, Path]:
     """("rosbag1" | "rosbag2", the path to give AnyReader), or a DataFormatError for anything else."""
     p = Path(path)
     if not p.exists():
@@ -143,7 +143,7 @@ def open_reader(path: str | Path) -> Iterator[AnyReader]:
     DataFormatError
         The path is missing, is not a bag, or the bag cannot be opened.
     """
-    kind, target = _resolve(path)
+    kind, target = resolve(path)
     reader = AnyReader([target], default_typestore=_typestore(kind == "rosbag1"))
     try:
         reader.open()
@@ -175,7 +175,7 @@ def topics(path: str | Path) -> dict[str, tuple[str, int]]:
         topic -> (message type in ROS 2 spelling, e.g. ``sensor_msgs/msg/Imu``, message count). A topic whose
         connections disagree on the type has type None.
     """
-    kind, target = _resolve(path)
+    kind, target = resolve(path)
     store = _storage(kind, target)
     if store is not None:
         try:
@@ -723,7 +723,7 @@ def _fixed_fields(path: str | Path, topic: str, msgtype: str, need_record: bool 
     "deserialize" to force a route (tests). The result holds the fields of :data:`_READ_FIELDS`, ``rec_ns``
     (record time, int ns; absent when the sqlite route was not asked for it) and ``method``, the route taken.
     """
-    kind, target = _resolve(path)
+    kind, target = resolve(path)
     store = _storage(kind, target) if method == "auto" else None
     table = None
     if store is not None:
@@ -786,11 +786,6 @@ def _check_stamps(stamps: str) -> None:
         raise ConfigError(f"stamps must be 'header' or 'record', got {stamps!r}")
 
 
-def _ns_to_s(ns: np.ndarray) -> np.ndarray:
-    """Float seconds of integer nanoseconds, correctly rounded (the same float a decimal stamp parses to)."""
-    return ns_to_s(ns)
-
-
 def _stamp_s(sec: np.ndarray, nsec: np.ndarray) -> np.ndarray:
     return ns_to_s(np.asarray(sec, dtype=np.int64) * 1_000_000_000 + np.asarray(nsec, dtype=np.int64))
 
@@ -818,7 +813,7 @@ def _source(path, topic: str) -> str:
 def _times(fields: dict, stamps: str) -> np.ndarray:
     if stamps == "header":
         return _stamp_s(fields["sec"], fields["nsec"])
-    return _ns_to_s(fields["rec_ns"])
+    return ns_to_s(fields["rec_ns"])
 
 
 def read_imu(path: str | Path, topic: str, stamps: str = "header") -> ImuSeries:
@@ -914,7 +909,8 @@ def read_navsatfix(path: str | Path, topic: str, origin_lla: Sequence[float], st
                                   f"topic '{topic}': {int(np.sum(~known))} of {known.size} fixes have no covariance "
                                   "(position_covariance_type 0); the manifest must give std_m")
         std[~known] = np.broadcast_to(np.asarray(default_std_m, float), (3,))
-    p = geodetic_to_enu(lla[:, 0], lla[:, 1], lla[:, 2], *[float(x) for x in origin_lla])
+    p = geodetic_to_enu(lla[:, 0], lla[:, 1], lla[:, 2], *[float(x) for x in origin_lla], source=_source(path, topic),
+                        lines=idx + 1)        # the message's number in the topic, for the message
     return GnssSeries(t_s=t[idx], p_w_m=p, std_w_m=std, source=_source(path, topic))
 
 
@@ -1027,7 +1023,7 @@ def read_poses(path: str | Path, topic: str, stamps: str = "header", child_frame
         if len(parents) > 1:
             raise DataFormatError(path, None, f"topic '{topic}': frame '{child}' has several parents "
                                               f"({', '.join(sorted(parents))}); give parent_frame")
-    t = _ns_to_s(np.array(t_hdr if stamps == "header" else t_rec, dtype=np.int64))
+    t = ns_to_s(np.array(t_hdr if stamps == "header" else t_rec, dtype=np.int64))
     keep = _order(t, path, topic)
     q_arr = np.array(q)[keep]
     v_w = None
@@ -1053,7 +1049,7 @@ def read_pose_covariances(path: str | Path, topic: str, stamps: str = "header") 
         st = msg.header.stamp
         t.append(int(st.sec) * 1_000_000_000 + int(st.nanosec) if stamps == "header" else rec)
         cov.append(np.asarray(msg.pose.covariance, float).reshape(6, 6))
-    t_s = _ns_to_s(np.array(t, dtype=np.int64))
+    t_s = ns_to_s(np.array(t, dtype=np.int64))
     keep = _order(t_s, path, topic)
     return t_s[keep], np.array(cov)[keep]
 
@@ -1169,12 +1165,12 @@ _KIND_TYPES = {"imu": IMU, "navsatfix": NAVSATFIX, "odometry": ODOMETRY, "pose":
 
 
 def _to_ns(t_s: np.ndarray, what: str) -> np.ndarray:
-    """Nearest integer nanoseconds of float seconds (``t - floor(t)`` is exact, so only the ns rounding errs)."""
+    """Nearest integer nanoseconds of float seconds (:func:`fusion_eval.datasets._text.s_to_ns`), refusing what ROS
+    time cannot hold."""
     t = np.asarray(t_s, dtype=float)
     if t.size and (not np.all(np.isfinite(t)) or t.min() < 0 or t.max() >= 2.0 ** 31):
         raise DataFormatError(what, None, "stamps must be finite and in [0, 2^31) s to be written as ROS time")
-    sec = np.floor(t)
-    return sec.astype(np.int64) * 1_000_000_000 + np.round((t - sec) * 1e9).astype(np.int64)
+    return s_to_ns(t)
 
 
 class _Builder:
@@ -1414,7 +1410,7 @@ def write_bag(path: str | Path, version: str, streams: Sequence[BagStream],
         os.replace(target, path)
     finally:
         shutil.rmtree(tmpdir, ignore_errors=True)
-    log.info("wrote %s (%s, %d messages)", path, version, rec.size)
+    log.debug("wrote %s (%s, %d messages)", path, version, rec.size)
     return path
 
 

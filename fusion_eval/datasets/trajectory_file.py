@@ -65,14 +65,21 @@ def read_covariances(path: Path) -> tuple[np.ndarray, np.ndarray]:
 
 def detect_format(path: Path) -> str:
     """``tum``, ``kitti`` or ``euroc`` from the first data line (comment lines skipped)."""
-    first = next((ln for ln in read_text(path, "a TUM, KITTI or EuRoC trajectory").splitlines()
-                  if ln.strip() and not ln.lstrip().startswith("#")), "")
+    lines = read_text(path, "a TUM, KITTI or EuRoC trajectory").splitlines()
+    at = next((i for i, ln in enumerate(lines) if ln.strip() and not ln.lstrip().startswith("#")), None)
+    first = "" if at is None else lines[at]
     if "," in first:
-        n = len(first.split(","))
-        if n >= 8:
+        fields = first.split(",")
+        header = any(ln.lstrip().startswith("#timestamp") for ln in lines[:at])
+        # a EuRoC stamp is an integer count of nanoseconds (~1e18 for POSIX time); anything else read as one would
+        # divide seconds by 1e9 and take x, y, z, w as w, x, y, z: plausible-looking and wrong
+        ns = fields[0].strip().isdigit() and len(fields[0].strip()) >= 13
+        if len(fields) >= 8 and (header or ns):
             return "euroc"
-        raise DataFormatError(path, None, f"a comma-separated trajectory must be a EuRoC CSV (#timestamp [ns], p_x, p_y, "
-                                          f"p_z, q_w, q_x, q_y, q_z, ...: at least 8 values per row), got {n} values")
+        raise DataFormatError(path, at + 1, f"a comma-separated trajectory must be a EuRoC CSV ('#timestamp [ns]' header or "
+                                            f"integer nanosecond stamps, then p_x, p_y, p_z, q_w, q_x, q_y, q_z, ...: 8 or more "
+                                            f"values), got {len(fields)} values starting {fields[0].strip()!r} (a TUM file is "
+                                            "space-separated; --format forces one)")
     n = len(first.split())
     if n == 8:
         return "tum"
@@ -87,7 +94,7 @@ def _stamps_checked(path: Path, t: np.ndarray, lines: np.ndarray) -> int:
     bad = np.flatnonzero(d < 0)
     if bad.size:
         i = int(bad[0]) + 1
-        raise DataFormatError(path, int(lines[i]), f"timestamps must not decrease ({t[i]!r} after {t[i - 1]!r})")
+        raise DataFormatError(path, int(lines[i]), f"timestamps must not decrease ({t[i]:.9f} after {t[i - 1]:.9f})")
     return int(np.count_nonzero(d == 0))
 
 
@@ -147,33 +154,20 @@ def read_trajectory(path: Path, times: Path | None = None, fmt: str = "auto") ->
     return out
 
 
-def bag_kind(path: Path) -> str:
-    """``rosbag1`` for a ``.bag`` file, ``rosbag2`` for a ROS 2 bag folder (``metadata.yaml``), a ``.db3`` or an
-    ``.mcap`` file."""
-    path = Path(path)
-    if not path.exists():
-        raise DataFormatError(path, None, "bag not found (expected a ROS 1 .bag file or a ROS 2 bag folder)")
-    if path.is_file() and path.suffix == ".bag":
-        return "rosbag1"
-    if (path.is_dir() and (path / "metadata.yaml").exists()) or path.suffix in (".db3", ".mcap"):
-        return "rosbag2"
-    raise DataFormatError(path, None, "expected a ROS 1 .bag file, or a ROS 2 bag (a folder with metadata.yaml, "
-                                      "a .db3 or an .mcap file)")
-
-
 def read_bag_trajectories(bag: Path, topics: list[str]) -> list[TrajectoryFile]:
     """The trajectories of ``topics`` in a ROS 1 or ROS 2 bag, read by evo's ``read_bag_trajectory`` (PoseStamped,
     PoseWithCovarianceStamped, Odometry, TransformStamped, PointStamped topics, or ``/tf:parent.child`` TF ids),
     with the header stamps."""
     from evo.tools import file_interface
 
+    from .rosbag import resolve
+
     bag = Path(bag)
-    kind = bag_kind(bag)
-    if kind == "rosbag1":
+    kind, target = resolve(bag)
+    if kind == "rosbag1":       # evo reads with rosbags' own readers (not AnyReader)
         from rosbags.rosbag1 import Reader
     else:
         from rosbags.rosbag2 import Reader
-    target = bag if kind == "rosbag1" or bag.is_dir() else bag.parent
     out = []
     try:
         reader = Reader(target)
@@ -195,13 +189,12 @@ def read_bag_trajectories(bag: Path, topics: list[str]) -> list[TrajectoryFile]:
                 raise DataFormatError(bag, None, f"topic {topic!r}: {exc} (trajectory topics in the bag: "
                                                  f"{', '.join(known) or 'none'}; TF frames as /tf:parent.child)") from None
             t = np.asarray(traj.timestamps)
-            d = np.diff(t)
-            if np.any(d < 0):
-                i = int(np.flatnonzero(d < 0)[0]) + 1
-                raise DataFormatError(bag, None, f"topic {topic!r}: header stamps must not decrease (message {i + 1}: "
-                                                 f"{t[i]!r} after {t[i - 1]!r})")
+            try:
+                repeated = _stamps_checked(bag, t, np.arange(1, t.size + 1))
+            except DataFormatError as exc:
+                raise DataFormatError(bag, None, f"topic {topic!r}, message {exc.line}: header stamps {exc.expected[11:]}") from None
             traj.meta["name"] = topic
-            f = TrajectoryFile(traj=traj, format="bag", stamps="header stamps", repeated_stamps=int(np.sum(d == 0)),
+            f = TrajectoryFile(traj=traj, format="bag", stamps="header stamps", repeated_stamps=repeated,
                                source=f"{bag}:{topic}", frame_id=traj.meta.get("frame_id"), note=note)
             conn = reader.topics.get(topic)
             if conn is not None and conn.msgtype in _COV_TYPES:
@@ -239,7 +232,7 @@ def _tf_trajectory(bag: Path, identifier: str):
     from evo.core.trajectory import PoseTrajectory3D
     from evo.tools import tf_id
 
-    from ..so3 import make_T, quat_xyzw_to_matrix, xyzw_to_wxyz
+    from ..so3 import make_T, xyzw_to_wxyz
     from . import rosbag
 
     tf_topic, parent, child = tf_id.split_id(identifier)[:3]
@@ -252,7 +245,7 @@ def _tf_trajectory(bag: Path, identifier: str):
         if via is None:
             raise
         poses = rosbag.read_poses(bag, tf_topic, child_frame=via[0], parent_frame=parent)
-        T = make_T(quat_xyzw_to_matrix(poses.q_wb_xyzw).reshape(-1, 3, 3), poses.p_w_m) @ via[1][None]
+        T = make_T(poses.R_wb(), poses.p_w_m) @ via[1][None]
     if T is None:
         return PoseTrajectory3D(np.array(poses.p_w_m), xyzw_to_wxyz(poses.q_wb_xyzw), np.array(poses.t_s))
     return PoseTrajectory3D(poses_se3=list(T), timestamps=np.array(poses.t_s))

@@ -94,32 +94,38 @@ def _num(v) -> bool:
     return isinstance(v, (int, float)) and not isinstance(v, bool) and math.isfinite(v)
 
 
-def flatten(metrics: dict) -> dict[str, float]:
+def flatten(metrics: dict, raw: bool = False) -> dict[str, float]:
     """A ``metrics.json`` as ``{check path: value}``: ``<estimate>.<group>.<relation>.<stat>`` (and the translation
     part also as ``<estimate>.<group>.<stat>``), ``<estimate>.kitti_drift.<stat>``, ``ratios.<name>``,
-    ``nis.<observation>.mean|fraction_in_95`` and ``nees.<position|attitude>.mean|fraction_in_95`` (``nees_smoothed.`` for the smoother's)."""
-    out: dict[str, float] = {}
+    ``nis.<observation>.mean|fraction_in_95`` and ``nees.<position|attitude>.mean|fraction_in_95`` (``nees_smoothed.`` for the smoother's).
+    Only finite numbers are kept, unless ``raw`` (every scalar at those paths as it is: NaN, strings, None), which
+    ``check`` uses to say what is wrong with a baseline's value."""
+    keep = (lambda v: not isinstance(v, (dict, list))) if raw else _num
+    conv = (lambda v: v) if raw else float
+    out: dict = {}
     for est, d in (metrics.get("estimates") or {}).items():
+        if not isinstance(d, dict):
+            continue
         for group, rels in d.items():
             if not isinstance(rels, dict):
                 continue
             for rel, stats in rels.items():
                 if isinstance(stats, dict):
                     for stat, v in stats.items():
-                        if _num(v):
-                            out[f"{est}.{group}.{rel}.{stat}"] = float(v)
+                        if keep(v):
+                            out[f"{est}.{group}.{rel}.{stat}"] = conv(v)
                             if rel == "translation_m":
-                                out[f"{est}.{group}.{stat}"] = float(v)
-                elif _num(stats) and group == "kitti_drift":
-                    out[f"{est}.{group}.{rel}"] = float(stats)
+                                out[f"{est}.{group}.{stat}"] = conv(v)
+                elif keep(stats) and group == "kitti_drift":
+                    out[f"{est}.{group}.{rel}"] = conv(stats)
     for k, v in (metrics.get("ratios") or {}).items():
-        if _num(v):
-            out[f"ratios.{k}"] = float(v)
+        if keep(v):
+            out[f"ratios.{k}"] = conv(v)
     for section in ("nis", "nees", "nees_smoothed"):
         for kind, d in (metrics.get(section) or {}).items():
             for k in ("mean", "fraction_in_95"):
-                if isinstance(d, dict) and _num(d.get(k)):
-                    out[f"{section}.{kind}.{k}"] = float(d[k])
+                if isinstance(d, dict) and k in d and keep(d.get(k)):
+                    out[f"{section}.{kind}.{k}"] = conv(d[k])
     return out
 
 

@@ -13,6 +13,9 @@ def route_distance(gt: PoseSeries) -> np.ndarray:
     return np.concatenate([[0.0], np.cumsum(np.linalg.norm(np.diff(gt.p_w_m, axis=0), axis=1))])
 
 
+MAX_SEGMENTS = 100_000       # a finer breakdown is a mistaken unit, not a report (and would take hours)
+
+
 def breakdown(gt: PoseSeries, errors: dict[str, tuple[np.ndarray, np.ndarray]], segment_m: float,
               segment_s: float | None = None, worst: int = 5, primary: str = "fused", secondary: str | None = "lidar") -> dict:
     """Windows along the route with each estimate's APE RMSE inside.
@@ -30,6 +33,13 @@ def breakdown(gt: PoseSeries, errors: dict[str, tuple[np.ndarray, np.ndarray]], 
         return np.floor((t - t0) / L) if by_time else np.floor(np.interp(t, gt.t_s, d_gt) / L)
 
     n_seg = int(key(np.array([gt.t_s[-1]]))[0]) + 1
+    if n_seg > MAX_SEGMENTS:
+        from ..errors import ConfigError
+
+        span = f"{gt.t_s[-1] - t0:.1f} s" if by_time else f"{d_gt[-1]:.1f} m"
+        raise ConfigError(f"a segment of {L:g} {'s' if by_time else 'm'} cuts the route ({span}) into {n_seg:,} windows "
+                          f"(at most {MAX_SEGMENTS:,}): give a segment length of at least "
+                          f"{(gt.t_s[-1] - t0 if by_time else d_gt[-1]) / MAX_SEGMENTS:.3g} {'s' if by_time else 'm'}")
     # each estimate's poses grouped by window once (a stable sort keeps their order inside a window, so each
     # window's RMSE sums the same values in the same order as a mask would)
     groups = {}

@@ -302,6 +302,7 @@ def pose_nees_of(ref_a, est_a, cov: tuple[np.ndarray, np.ndarray], alignment_par
     t_c, C = cov
     i_est, i_cov = engine.matching_time_indices(np.asarray(est_a.timestamps), np.asarray(t_c), t_max_diff_s)
     if i_est.size == 0:
+        log.warning("%s: no covariance stamp within %g s of an associated pose: no NEES", est_name(est_a), t_max_diff_s)
         return None
     R_A, s = _alignment_RA_s(alignment_params)
     T_e, T_r = engine.traj_se3(est_a)[i_est], engine.traj_se3(ref_a)[i_est]
@@ -313,10 +314,14 @@ def pose_nees_of(ref_a, est_a, cov: tuple[np.ndarray, np.ndarray], alignment_par
     P6 = np.zeros((len(P), 6, 6))
     P6[:, :3, :3], P6[:, 3:, 3:] = P_pos, P_rot_b
     ok = (np.linalg.eigvalsh(P_pos).min(axis=1) > 0) & (np.linalg.eigvalsh(P_rot_b).min(axis=1) > 0)
+    skipped = int(np.count_nonzero(~ok))
+    if skipped:
+        log.warning("%s: %d of %d covariances are not positive definite: left out of the NEES", est_name(est_a), skipped, ok.size)
     if not ok.any():
         return None
     n_p, n_a = pose_nees(T_e[ok, :3, 3], R_e[ok], T_r[ok, :3, 3], T_r[ok, :3, :3], P6[ok])
-    return {"position": summary(n_p, 3), "attitude": summary(n_a, 3)}
+    return {"position": summary(n_p, 3), "attitude": summary(n_a, 3), "poses_without_covariance": int(est_a.num_poses - i_est.size),
+            "covariances_not_positive_definite": skipped}
 
 
 def ratio(a: EstimateEvaluation | None, b: EstimateEvaluation | None) -> float | None:
