@@ -96,6 +96,9 @@ def needed_streams(cfg: dict) -> dict[str, tuple[str, str]]:
     return need
 
 
+MAX_LAG_S = 1.0        # an IMU channel's latency: beyond a second it is a clock offset (or a typo), not a lag
+
+
 def prepare(ds: Dataset, cfg: dict) -> Prepared:
     check_combination(cfg)
     need = needed_streams(cfg)
@@ -107,6 +110,11 @@ def prepare(ds: Dataset, cfg: dict) -> Prepared:
         if ds.stream(st) is None:
             raise ConfigError(f"dataset {ds.name!r} has no {st} stream, which {key} needs; set {off}")
 
+    for key in ("gyro_lag_s", "accel_lag_s"):
+        lag = cfg["imu"].get(key)
+        if isinstance(lag, (int, float)) and abs(lag) > MAX_LAG_S:
+            raise ConfigError(f"imu.{key} = {lag:g} s: a channel lag is a latency of milliseconds (KITTI's OXTS: 0.06 s), at "
+                              f"most {MAX_LAG_S:g} s here; a clock offset between streams goes in time_offset_s")
     applied: dict = {"time_offset_s": {}}
     # --- IMU: offset, drop filled packets, gyro lag
     imu = ds.imu
@@ -174,6 +182,9 @@ def prepare(ds: Dataset, cfg: dict) -> Prepared:
         applied["time_offset_s"]["gnss"] = off
         g = replace(ds.gnss, t_s=ds.gnss.t_s + off)
         g = g.select(~g.filled)
+        if len(g) and (g.t_s[-1] < t0 or g.t_s[0] > imu.t_s[-1]):
+            raise DataRangeError(f"GNSS ({ds.gnss.source}, {g.t_s[0]:.3f}..{g.t_s[-1]:.3f} s after its time_offset_s of "
+                                 f"{off:g} s) and IMU ({ds.imu.source}, {t0:.3f}..{imu.t_s[-1]:.3f} s) do not overlap in time")
         g = g.select((g.t_s >= t0) & (g.t_s <= imu.t_s[-1]))
         c = cfg["gnss"]
         if ds.description.get("gnss_degrade", True):

@@ -6,6 +6,7 @@ import subprocess
 import sys
 from pathlib import Path
 
+import numpy as np
 import pytest
 from click.testing import CliRunner
 
@@ -166,7 +167,8 @@ def test_bad_manifest_values(ds, tmp_path, old, new, needle):
 
 def test_gnss_outside_the_run_is_an_error_not_silence(ds, tmp_path):
     r, out = _run(ds, tmp_path, "--set", "gnss.time_offset_s=1.0e+6")
-    _assert_clean_error(r, out, "no GNSS fix")
+    # the message names the GNSS file and the offset that moved it away
+    _assert_clean_error(r, out, "GNSS (", "after its time_offset_s of 1e+06 s", "do not overlap in time")
 
 
 @pytest.mark.parametrize("sets", [
@@ -249,3 +251,60 @@ def test_evaluate_refuses_fewer_than_two_matched_poses(tmp_path):
         out = tmp_path / f"o{n}"
         r = CliRunner().invoke(main, ["evaluate", str(ref), str(est), "-o", str(out)])
         _assert_clean_error(r, out, f"{n} poses of {est}", f"match the reference {ref}", "100.000 to 104.900 s")
+
+
+def test_a_one_hour_jump_in_the_imu_stamps(ds, tmp_path):
+    p = ds / "oxts" / "timestamps.txt"
+    lines = p.read_text().splitlines()
+    date, hms = lines[60].split()
+    lines[60:] = [ln.replace(ln.split()[1][:2], f"{int(ln.split()[1][:2]) + 1:02d}", 1) for ln in lines[60:]]
+    p.write_text("\n".join(lines) + "\n")
+    r, out = _run(ds, tmp_path)
+    _assert_clean_error(r, out, "timestamps.txt:61:", "the IMU stamps jump by 3600.", "split the drive there")
+
+
+def test_lidar_times_in_milliseconds(ds, tmp_path):
+    p = ds / "lidar" / "times.txt"
+    p.write_text("".join(f"{float(x) * 1000:.3f}\n" for x in p.read_text().split()))
+    r, out = _run(ds, tmp_path)
+    _assert_clean_error(r, out, "lidar (", "spans", "milliseconds?")
+
+
+def test_a_lidar_pose_far_away(ds, tmp_path):
+    p = ds / "lidar" / "poses.txt"
+    rows = p.read_text().splitlines()
+    v = rows[20].split()
+    v[3] = "1e9"
+    rows[20] = " ".join(v)
+    p.write_text("\n".join(rows) + "\n")
+    r, out = _run(ds, tmp_path)
+    _assert_clean_error(r, out, "poses.txt:21:", "from its frame's origin")
+
+
+def test_a_reflection_in_a_lidar_pose(ds, tmp_path):
+    p = ds / "lidar" / "poses.txt"
+    rows = p.read_text().splitlines()
+    v = [float(x) for x in rows[7].split()]
+    v[0], v[1], v[2] = -v[0], -v[1], -v[2]                 # first row negated: det -1
+    rows[7] = " ".join(f"{x:.12e}" for x in v)
+    p.write_text("\n".join(rows) + "\n")
+    r, out = _run(ds, tmp_path)
+    _assert_clean_error(r, out, "poses.txt:8:", "reflection")
+
+
+@pytest.mark.parametrize("setting", ["imu.gyro_lag_s=600", "imu.accel_lag_s=-2"])
+def test_a_lag_longer_than_a_latency(ds, tmp_path, setting):
+    r, out = _run(ds, tmp_path, "--set", setting)
+    _assert_clean_error(r, out, "a channel lag is a latency")
+
+
+@pytest.mark.parametrize("what", ["manifest", "config"])
+def test_random_bytes_as_a_manifest_or_config(ds, tmp_path, what):
+    junk = tmp_path / "junk.yaml"
+    junk.write_bytes(np.random.default_rng(3).integers(0, 256, 3000, dtype=np.uint8).tobytes())
+    out = tmp_path / "out"
+    args = ["-q", "run", str(junk) if what == "manifest" else str(ds), "--out", str(out), "--no-plots"]
+    if what == "config":
+        args += ["--config", str(junk)]
+    r = CliRunner().invoke(main, args)
+    _assert_clean_error(r, out, "junk.yaml")

@@ -47,8 +47,10 @@ def load_metrics(path: Path, trial_stat: str | None = "mean") -> tuple[dict[str,
         raise DataFormatError(path, None, "file not found (expected a metrics.json of fusion-eval run or a sweep.csv)")
     if path.suffix == ".csv":
         return _flat_csv(path), "csv", keys.DEFAULT_RPE_DELTA_M
+    from ..datasets._text import read_text
+
     try:
-        body = json.loads(path.read_text())
+        body = json.loads(read_text(path, "a metrics.json of fusion-eval run or a sweep.csv"))
     except json.JSONDecodeError as exc:
         raise DataFormatError(path, exc.lineno, f"not valid JSON ({exc.msg})") from None
     if not isinstance(body, dict) or not isinstance(body.get("estimates"), dict):
@@ -65,8 +67,10 @@ def load_metrics(path: Path, trial_stat: str | None = "mean") -> tuple[dict[str,
 
 def _flat_csv(path: Path) -> dict[str, float]:
     out = {}
+    from ..datasets._text import read_text
+
     try:
-        rows = list(csv.DictReader(path.read_text().splitlines()))
+        rows = list(csv.DictReader(read_text(path, "a sweep.csv").splitlines()))
     except csv.Error as exc:
         raise DataFormatError(path, None, f"not a valid CSV ({exc})") from None
     if not rows or "dataset" not in rows[0] or "setting" not in rows[0]:

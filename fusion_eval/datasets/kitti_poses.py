@@ -15,6 +15,10 @@ from ..errors import DataFormatError
 from ._text import parse_numeric_rows, read_text
 
 
+# KITTI's files hold rotations to ~1e-6 (the calibration's 6 digits); beyond 1e-3 a block is not a rotation
+ROTATION_TOL = 1e-3
+
+
 def read_kitti_poses(path: Path) -> tuple[np.ndarray, np.ndarray]:
     """Poses ``(N, 4, 4)`` and the 1-based line of each, from a KITTI pose file."""
     path = Path(path)
@@ -23,9 +27,15 @@ def read_kitti_poses(path: Path) -> tuple[np.ndarray, np.ndarray]:
     T[:, :3, :] = rows.reshape(-1, 3, 4)
     R = T[:, :3, :3]
     err = np.abs(np.einsum("nji,njk->nik", R, R) - np.eye(3)).max(axis=(1, 2))
-    bad = np.flatnonzero(err > 1e-3)
+    bad = np.flatnonzero(err > ROTATION_TOL)
     if bad.size:
-        raise DataFormatError(path, int(lines[bad[0]]), f"the 3x3 block of a KITTI pose must be a rotation (R^T R = I), off by {err[bad[0]]:.3g}")
+        raise DataFormatError(path, int(lines[bad[0]]), f"the 3x3 block of a KITTI pose must be a rotation (R^T R = I to "
+                                                        f"{ROTATION_TOL:g}), off by {err[bad[0]]:.3g}")
+    det = np.linalg.det(R)
+    bad = np.flatnonzero(det < 0)
+    if bad.size:
+        raise DataFormatError(path, int(lines[bad[0]]), f"the 3x3 block of a KITTI pose must be a rotation (det +1), got a "
+                                                        f"reflection (det {det[bad[0]]:.3f})")
     return T, lines
 
 
@@ -83,6 +93,7 @@ def calib_transform(path: Path, key: str | None = None) -> np.ndarray:
         T[:3, :3] = entries["R"].reshape(3, 3)
         T[:3, 3] = entries["T"]
     R = T[:3, :3]
-    if np.abs(R.T @ R - np.eye(3)).max() > 1e-3:
-        raise DataFormatError(path, None, f"calibration {key or 'R'} is not a rotation (R^T R != I)")
+    if np.abs(R.T @ R - np.eye(3)).max() > ROTATION_TOL or np.linalg.det(R) < 0:
+        raise DataFormatError(path, None, f"calibration {key or 'R'} is not a rotation (R^T R = I to {ROTATION_TOL:g} and "
+                                          f"det +1; det is {np.linalg.det(R):.3f})")
     return T

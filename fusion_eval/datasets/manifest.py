@@ -19,7 +19,7 @@ import yaml
 from ..errors import ConfigError, DataFormatError, DataRangeError
 from ..so3 import make_T, matrix_to_quat_xyzw
 from ..types import Dataset, GnssSeries, PoseSeries
-from . import clock, gnss_csv, kitti_oxts, kitti_poses, speed, tum
+from . import clock, gnss_csv, kitti_oxts, kitti_poses, plausible, speed, tum
 from .formats import for_stream
 from .streams import ReadContext, StreamSpec
 
@@ -83,13 +83,19 @@ def load_dataset(path: str | Path, extra_streams: tuple[StreamSpec, ...] | None 
 
 
 def _from_manifest(manifest: Path, extra: dict) -> Dataset:
+    from ._text import read_text
+
     try:
-        body = yaml.safe_load(manifest.read_text())
+        body = yaml.safe_load(read_text(manifest, "a YAML dataset manifest"))
     except yaml.YAMLError as exc:
         mark = getattr(exc, "problem_mark", None)
         raise DataFormatError(manifest, None if mark is None else mark.line + 1, f"not valid YAML ({getattr(exc, 'problem', exc)})") from None
     if not isinstance(body, dict):
-        raise DataFormatError(manifest, None, "a manifest must be a mapping with 'streams'")
+        hint = ""
+        if isinstance(body, (str, int, float)) or manifest.suffix not in (".yaml", ".yml"):
+            hint = (" (this looks like a data file: give the dataset folder, its dataset.yaml, a KITTI raw drive folder or "
+                    "a EuRoC folder; to evaluate a trajectory file use fusion-eval evaluate)")
+        raise DataFormatError(manifest, None, f"a manifest must be a YAML mapping with 'streams'{hint}")
     return _from_manifest_dict(body, manifest.parent, manifest, extra)
 
 
@@ -133,6 +139,9 @@ def _from_manifest_dict(body: dict, root: Path, manifest: Path, extra: dict | No
             may_be_auto = key != "time_offset_s" or name == "lidar"     # estimated by fusion_eval.timing
             if not (v == "auto" and may_be_auto) and not _is_num(v):
                 raise ConfigError(f"{manifest}: {key} of stream {name!r} must be a number of seconds, got {v!r}")
+            if key != "time_offset_s" and _is_num(v) and abs(v) > 1.0:
+                raise ConfigError(f"{manifest}: {key} of stream {name!r} is {v:g} s: a channel lag is a latency of "
+                                  "milliseconds (at most 1 s here); a clock offset goes in time_offset_s")
         if "degrade" in spec and not isinstance(spec["degrade"], bool):
             raise ConfigError(f"{manifest}: 'degrade' of stream {name!r} must be true or false, got {spec['degrade']!r}")
 
@@ -196,6 +205,7 @@ def _from_manifest_dict(body: dict, root: Path, manifest: Path, extra: dict | No
         lidar = _poses(streams["lidar"], root, oxts, origin_t, manifest, imu_pk, lidar_notes, ctx=ctx, name="lidar")
     extra_series = {name: extra[name].readers[streams[name]["format"]](streams[name], ctx)
                     for name in streams if name in extra}
+    plausible.check_dataset(imu, {"groundtruth": gt, "gnss": gnss, "lidar": lidar, "odometer": odo, **extra_series})
 
     description: dict[str, Any] = {
         "manifest": str(manifest),

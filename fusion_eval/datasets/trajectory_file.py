@@ -80,13 +80,16 @@ def detect_format(path: Path) -> str:
                                             f"integer nanosecond stamps, then p_x, p_y, p_z, q_w, q_x, q_y, q_z, ...: 8 or more "
                                             f"values), got {len(fields)} values starting {fields[0].strip()!r} (a TUM file is "
                                             "space-separated; --format forces one)")
+    if at is None:
+        raise DataFormatError(path, None, "no poses (an empty file, or only comments): expected a TUM, KITTI or EuRoC "
+                                          "trajectory")
     n = len(first.split())
     if n == 8:
         return "tum"
     if n == 12:
         return "kitti"
-    raise DataFormatError(path, None, "expected a TUM (8 values per line: t x y z qx qy qz qw), KITTI (12 values: a 3x4 "
-                                      f"pose matrix) or EuRoC CSV trajectory (comma-separated), got {n} values")
+    raise DataFormatError(path, at + 1, "expected a TUM (8 values per line: t x y z qx qy qz qw), KITTI (12 values: a 3x4 "
+                                        f"pose matrix) or EuRoC CSV trajectory (comma-separated), got {n} values")
 
 
 def _stamps_checked(path: Path, t: np.ndarray, lines: np.ndarray) -> int:

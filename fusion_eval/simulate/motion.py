@@ -92,7 +92,7 @@ def from_waypoints_yaml(path: Path) -> tuple[list[Segment], float, int]:
     heading (rad) and the number of segments before the part that repeats."""
     try:
         body = yaml.safe_load(Path(path).read_text())
-    except (OSError, yaml.YAMLError) as exc:
+    except (OSError, UnicodeDecodeError, yaml.YAMLError) as exc:
         raise ConfigError(f"{path}: cannot read the waypoint profile ({exc})") from None
     if not isinstance(body, dict) or "waypoints" not in body:
         raise ConfigError(f"{path}: a waypoint profile needs 'waypoints: [[east_m, north_m], ...]'")

@@ -64,8 +64,9 @@ def read_measurements(path: Path) -> Measurements:
             raise DataFormatError(path, lineno, "a measurement or ground-truth value above 1e7 (m, rad, m/s) is not plausible")
         z = vals[:n_meas]
         t = vals[n_meas]
-        if t != int(t) or t < 0:
-            raise DataFormatError(path, lineno, f"timestamp must be a non-negative integer of microseconds, got {parts[n_meas + 1]!r}")
+        if t != int(t) or t < 0 or t > MAX_T_US:
+            raise DataFormatError(path, lineno, f"timestamp must be a non-negative integer of microseconds (at most "
+                                                f"{MAX_T_US:.0e}, the year 2286), got {parts[n_meas + 1]!r}")
         t = int(t)
         if prev_t is not None and t < prev_t:
             raise DataFormatError(path, lineno, f"timestamps must not decrease ({t} us after {prev_t} us)")
@@ -81,6 +82,9 @@ def read_measurements(path: Path) -> Measurements:
         raise DataFormatError(path, None, "no measurement lines")
     return Measurements(kind=np.array(kinds), z=np.array(zs), t_us=np.array(ts, dtype=np.int64), gt=np.array(gts),
                         lines=np.array(lines), source=str(path))
+
+
+MAX_T_US = 1e16     # POSIX microseconds until 2286; beyond, a corrupted stamp (and int64 overflows at 9.2e18)
 
 
 def format_line(kind: str, z, t_us: int, gt, yaw: float, yawrate: float) -> str:
