@@ -4,7 +4,9 @@
 from __future__ import annotations
 
 import logging
+import signal
 import sys
+import threading
 import time
 from pathlib import Path
 
@@ -41,15 +43,29 @@ class Group(click.Group):
         except FusionEvalError as exc:
             click.echo(f"error: {exc}", err=True)
             sys.exit(exc.exit_code)
-        except KeyboardInterrupt:
-            click.echo("\ninterrupted: no output directory was written", err=True)
-            sys.exit(130)
+        except KeyboardInterrupt as exc:
+            _interrupted(exc)
         except SystemError as exc:
             # Ctrl-C inside a compiled (numba) kernel surfaces as a SystemError around the KeyboardInterrupt
-            if isinstance(exc.__cause__ or exc.__context__, KeyboardInterrupt):
-                click.echo("\ninterrupted: no output directory was written", err=True)
-                sys.exit(130)
+            cause = exc.__cause__ or exc.__context__
+            if isinstance(cause, KeyboardInterrupt):
+                _interrupted(cause)
             raise
+
+
+class Terminated(KeyboardInterrupt):
+    """SIGTERM, raised in the main thread like Ctrl-C, so that the same clean-up runs (staging folders removed,
+    workers killed, finished sweep runs recorded)."""
+
+
+def _on_sigterm(signum, frame):
+    raise Terminated()
+
+
+def _interrupted(exc: BaseException) -> None:
+    what = "terminated (SIGTERM)" if isinstance(exc, Terminated) else "interrupted"
+    click.echo(f"\n{what}: {exc.args[0] if exc.args else 'no output directory was written'}", err=True)
+    sys.exit(143 if isinstance(exc, Terminated) else 130)
 
 
 @click.group(cls=Group, context_settings={"help_option_names": ["-h", "--help"]})
@@ -60,6 +76,8 @@ class Group(click.Group):
 def main(ctx, verbose, quiet):
     """Fuse IMU, GNSS and lidar odometry with Kalman filters and evaluate them with evo."""
     _setup_logging(verbose, quiet)
+    if threading.current_thread() is threading.main_thread():
+        signal.signal(signal.SIGTERM, _on_sigterm)
     ctx.obj = {"quiet": quiet > 0}
 
 

@@ -11,6 +11,16 @@ from pathlib import Path
 from .errors import OutputError
 
 
+def _alive(pid: int) -> bool:
+    try:
+        os.kill(pid, 0)
+    except ProcessLookupError:
+        return False
+    except PermissionError:
+        return True
+    return True
+
+
 class StagedDir:
     def __init__(self, final: Path, overwrite: bool = False):
         self.final = Path(final)
@@ -31,6 +41,12 @@ class StagedDir:
             # remember which parent folders this run creates, to remove them again if it fails
             self._made = [p for p in [self.final.parent, *self.final.parent.parents] if not p.exists()]
             self.final.parent.mkdir(parents=True, exist_ok=True)
+            self._lock()
+            try:
+                self.check()          # another process may have finished this directory while we worked
+            except OutputError:
+                self._unlock()
+                raise
             self.staging = self.final.parent / f".{self.final.name}.partial-{os.getpid()}"
             if self.staging.exists():
                 shutil.rmtree(self.staging)
@@ -54,20 +70,60 @@ class StagedDir:
         os.replace(tmp, target)
         return target
 
-    def __exit__(self, exc_type, exc, tb) -> bool:
-        if exc_type is not None:
-            shutil.rmtree(self.staging, ignore_errors=True)
-            for p in self._made:   # deepest first
+    def _lock(self) -> None:
+        """Take ``.<name>.lock`` beside the target (created exclusively, holding our pid): a second process writing
+        the same directory at the same time is refused instead of silently replacing the first one's results. A
+        lock whose process is gone (killed) is taken over."""
+        self._lock_path = self.final.parent / f".{self.final.name}.lock"
+        for _ in range(2):
+            try:
+                fd = os.open(self._lock_path, os.O_CREAT | os.O_EXCL | os.O_WRONLY, 0o644)
+            except FileExistsError:
                 try:
-                    p.rmdir()
-                except OSError:
-                    break
+                    pid = int(self._lock_path.read_text().strip() or 0)
+                except (OSError, ValueError):
+                    pid = 0
+                if pid and pid != os.getpid() and _alive(pid):
+                    self._lock_path = None
+                    raise OutputError(f"{self.final}: another fusion-eval (pid {pid}) is writing this output directory; "
+                                      "wait for it, or choose another --out") from None
+                try:
+                    self._lock_path.unlink()          # stale: its process was killed
+                except FileNotFoundError:
+                    pass
+                continue
+            with os.fdopen(fd, "w") as f:
+                f.write(str(os.getpid()))
+            return
+        raise OutputError(f"{self.final}: cannot take the lock {self._lock_path.name}")
+
+    def _unlock(self) -> None:
+        if getattr(self, "_lock_path", None) is not None:
+            try:
+                self._lock_path.unlink()
+            except FileNotFoundError:
+                pass
+            self._lock_path = None
+
+    def __exit__(self, exc_type, exc, tb) -> bool:
+        try:
+            if exc_type is not None:
+                if self.staging is not None:
+                    shutil.rmtree(self.staging, ignore_errors=True)
+                self._unlock()
+                for p in self._made:   # deepest first
+                    try:
+                        p.rmdir()
+                    except OSError:
+                        break
+                return False
+            old = None
+            if self.final.exists():
+                old = self.final.parent / f".{self.final.name}.old-{os.getpid()}"
+                os.replace(self.final, old)
+            os.replace(self.staging, self.final)
+            if old is not None:
+                shutil.rmtree(old, ignore_errors=True)
             return False
-        old = None
-        if self.final.exists():
-            old = self.final.parent / f".{self.final.name}.old-{os.getpid()}"
-            os.replace(self.final, old)
-        os.replace(self.staging, self.final)
-        if old is not None:
-            shutil.rmtree(old, ignore_errors=True)
-        return False
+        finally:
+            self._unlock()

@@ -17,7 +17,7 @@ import numpy as np
 
 from . import report, session
 from . import trials as mc
-from .errors import FusionEvalError
+from .errors import DataRangeError, FusionEvalError
 from .evaluation import span
 from .evaluation.run_metrics import (ESTIMATES, consistency, fused_error, ratio_metrics, run_metrics, segments,
                                      smoother_section)
@@ -99,7 +99,10 @@ def share(ds: Dataset, cfg: dict, pool) -> Shared:
     # the fused estimate and dead reckoning cover the IMU samples from the start on
     spans = {n: span.coverage(series[n]) for n in ("lidar", "gnss") if n in series}
     spans["fused"] = (float(prep.imu.t_s[prep.k_start]), float(prep.imu.t_s[-1]))
-    sp = span.span_for(ev_cfg["span"], gt, spans)
+    try:
+        sp = span.span_for(ev_cfg["span"], gt, spans)
+    except DataRangeError as exc:
+        raise DataRangeError(f"{exc} {_offsets_note(prep)}".rstrip()) from None
     ref = span.crop(gt, sp)              # as evo's --t_start/--t_end: the reference reduced to the span
     futures = {n: pool.submit(evaluate_estimate, ref, series[n], n, ev_cfg) for n in ("lidar", "gnss") if n in series}
     series["imu_only"] = dead_reckoning(prep, settings_for(cfg, prep))
@@ -122,6 +125,13 @@ def execute(ds: Dataset, cfg: dict, *, dataset_path: str | Path | None = None, c
     with executor(jobs) as pool:
         return filter_and_evaluate(ds, cfg, share(ds, cfg, pool), pool, dataset_path=dataset_path,
                                    config_source=config_source, progress=progress, out=out, trials=trials)
+
+
+def _offsets_note(prep: Prepared) -> str:
+    """The time offsets a run applied, for a message about streams that do not meet."""
+    offs = [f"{k}.time_offset_s = {v:g} s" for k, v in prep.applied.get("time_offset_s", {}).items()
+            if isinstance(v, (int, float)) and v]
+    return f"(applied: {', '.join(offs)}; a wrong time offset?)" if offs else "(a stream's time offset, or the tolerance?)"
 
 
 def filter_and_evaluate(ds: Dataset, cfg: dict, sh: Shared, pool, *, dataset_path: str | Path | None = None,
@@ -167,6 +177,13 @@ def filter_and_evaluate(ds: Dataset, cfg: dict, sh: Shared, pool, *, dataset_pat
     first = report.write_filter_outputs(out, series, filt, err, cfg["output"]["plots"], pool) if out is not None else []
     evals = {n: futures[n].result() for n in ESTIMATES if n in futures}
     timings["evaluate"] = time.perf_counter() - t
+    if evals["fused"].matched_poses < 2:
+        # a run whose estimate meets no ground truth has no result: say why instead of reporting 'n/a' with exit 0
+        f = series["fused"]
+        raise DataRangeError(f"the fused estimate ({len(f)} poses, {f.t_s[0]:.3f}..{f.t_s[-1]:.3f} s) matches "
+                             f"{evals['fused'].matched_poses} ground-truth poses ({gt.source}: {len(gt)} poses, "
+                             f"{gt.t_s[0]:.3f}..{gt.t_s[-1]:.3f} s) within evaluation.t_max_diff_s = {ev_cfg['t_max_diff_s']} s "
+                             f"{_offsets_note(prep)}".rstrip())
     ratios = ratio_metrics(evals)
     cons = consistency(gt, filt)
     seg = segments(gt, evals, ev_cfg)

@@ -8,6 +8,8 @@ from __future__ import annotations
 
 import multiprocessing as mp
 import os
+import signal
+import sys
 from concurrent.futures import Future, ProcessPoolExecutor
 
 
@@ -29,10 +31,52 @@ class Inline:
         return fut
 
 
+def worker_init() -> None:
+    """In each worker: Ctrl-C is the parent's to handle (a Ctrl-C to the process group must not print a traceback
+    from every worker), SIGTERM ends the worker at once, and the worker dies with its parent (Linux), so that no
+    worker outlives the command that started it, whatever signal ends it."""
+    signal.signal(signal.SIGINT, signal.SIG_IGN)
+    signal.signal(signal.SIGTERM, signal.SIG_DFL)
+    if sys.platform.startswith("linux"):
+        try:
+            import ctypes
+
+            ctypes.CDLL("libc.so.6", use_errno=True).prctl(1, signal.SIGKILL)      # PR_SET_PDEATHSIG
+        except (OSError, AttributeError):
+            pass
+
+
+class Pool(ProcessPoolExecutor):
+    """A process pool that, when the block it serves ends by an exception (Ctrl-C, SIGTERM, an error), cancels
+    what has not started and kills its workers instead of waiting for them (a run's workers write into its staging
+    folder: they must be gone before it is removed)."""
+
+    def __init__(self, max_workers: int, mp_context):
+        super().__init__(max_workers=max_workers, mp_context=mp_context, initializer=worker_init)
+
+    def __exit__(self, exc_type, exc, tb):
+        if exc_type is not None:
+            self.terminate()
+            return False
+        return super().__exit__(exc_type, exc, tb)
+
+    def terminate(self) -> None:
+        procs = list((getattr(self, "_processes", None) or {}).values())
+        self.shutdown(wait=False, cancel_futures=True)
+        for p in procs:
+            if p.is_alive():
+                p.terminate()
+        for p in procs:
+            p.join(timeout=1.0)
+            if p.is_alive():
+                p.kill()
+                p.join(timeout=1.0)
+
+
 def executor(jobs: int | None = None):
     """A process pool of ``jobs`` workers (default: the cores, at most 4), or :class:`Inline` for one job."""
     jobs = (os.cpu_count() or 1) if jobs is None else jobs
     if jobs <= 1:
         return Inline()
     # fork: the workers inherit the imported modules and the data, so they start in milliseconds
-    return ProcessPoolExecutor(max_workers=min(jobs, 4), mp_context=mp.get_context("fork"))
+    return Pool(max_workers=min(jobs, 4), mp_context=mp.get_context("fork"))

@@ -96,6 +96,12 @@ def needed_streams(cfg: dict) -> dict[str, tuple[str, str]]:
     return need
 
 
+def _offs(applied: dict) -> str:
+    offs = [f"{k}.time_offset_s = {v:g} s" for k, v in applied.get("time_offset_s", {}).items()
+            if isinstance(v, (int, float)) and v]
+    return f"(applied: {', '.join(offs)})" if offs else "(no time offset applied)"
+
+
 MAX_LAG_S = 1.0        # an IMU channel's latency: beyond a second it is a clock offset (or a typo), not a lag
 
 
@@ -138,8 +144,10 @@ def prepare(ds: Dataset, cfg: dict) -> Prepared:
     gt = replace(gt, t_s=gt.t_s + float(ds.description.get("time_offset_s", {}).get("groundtruth", 0.0)))
     gt = gt.select(~gt.filled)
     if len(gt) < 2 or gt.t_s[-1] <= imu.t_s[0] or gt.t_s[0] >= imu.t_s[-1]:
-        raise DataRangeError(f"IMU ({imu.t_s[0]:.3f}..{imu.t_s[-1]:.3f} s) and ground truth "
-                             f"({gt.t_s[0] if len(gt) else float('nan'):.3f}..{gt.t_s[-1] if len(gt) else float('nan'):.3f} s) do not overlap in time")
+        raise DataRangeError(f"IMU ({ds.imu.source}, {imu.t_s[0]:.3f}..{imu.t_s[-1]:.3f} s after imu.time_offset_s = "
+                             f"{applied['time_offset_s']['imu']:g} s) and ground truth ({gt.source}, "
+                             f"{gt.t_s[0] if len(gt) else float('nan'):.3f}..{gt.t_s[-1] if len(gt) else float('nan'):.3f} s) "
+                             "do not overlap in time")
 
     # --- lidar: offset, anchor in the world frame, resample on the IMU stamps
     lidar = None
@@ -161,7 +169,7 @@ def prepare(ds: Dataset, cfg: dict) -> Prepared:
             lid = snap_to_stamps(lid, imu.t_s)
         lidar = lid
         if use_lidar and (len(lidar) < 2 or lidar.t_s[-1] <= imu.t_s[0] or lidar.t_s[0] >= imu.t_s[-1]):
-            raise DataRangeError(f"lidar ({ds.lidar.source}) and IMU ({ds.imu.source}) do not overlap in time")
+            raise DataRangeError(f"lidar ({ds.lidar.source}) and IMU ({ds.imu.source}) do not overlap in time {_offs(applied)}")
 
     # --- start: first IMU sample covered by the ground truth (and the lidar, when it is fused)
     t_min = gt.t_s[0]
@@ -171,7 +179,8 @@ def prepare(ds: Dataset, cfg: dict) -> Prepared:
         t_min = max(t_min, lidar.t_s[0])
     ks = np.flatnonzero((imu.t_s >= t_min - 1e-9) & (imu.t_s <= gt.t_s[-1]))
     if ks.size < 2:
-        raise DataRangeError("fewer than 2 IMU samples lie where ground truth (and lidar) are available")
+        raise DataRangeError(f"fewer than 2 IMU samples ({ds.imu.source}) lie where ground truth ({gt.source}) and lidar are "
+                             f"available {_offs(applied)}")
     k0 = int(ks[0])
     t0 = float(imu.t_s[k0])
 
@@ -209,7 +218,8 @@ def prepare(ds: Dataset, cfg: dict) -> Prepared:
             odo = replace(odo, v_mps=odo.v_mps + rng.standard_normal(len(odo)) * cfg["odometer"]["added_noise_std_mps"])
             applied["odometer_added_noise_std_mps"] = cfg["odometer"]["added_noise_std_mps"]
         if needs_odo and (odo.t_s[-1] <= imu.t_s[k0] or odo.t_s[0] >= imu.t_s[-1]):
-            raise DataRangeError(f"odometer ({ds.odometer.source}) and IMU do not overlap in time")
+            raise DataRangeError(f"odometer ({ds.odometer.source}) and IMU ({ds.imu.source}) do not overlap in time "
+                                 f"{_offs(applied)}")
 
     # --- IMU white noise: given, or from the stream's own second differences (no ground truth), estimated
     #     once the streams are known to overlap

@@ -7,6 +7,16 @@ from pathlib import Path
 
 import pytest
 
+try:        # the fuzz suite's example budgets: 'ci' by default (bounded, derandomized), --hypothesis-profile=long for more
+    from hypothesis import HealthCheck, settings
+
+    _checks = [HealthCheck.function_scoped_fixture, HealthCheck.too_slow]
+    settings.register_profile("ci", max_examples=20, deadline=None, derandomize=True, suppress_health_check=_checks)
+    settings.register_profile("long", max_examples=200, deadline=None, derandomize=False, suppress_health_check=_checks)
+    settings.load_profile("ci")
+except ImportError:
+    pass
+
 ROOT = Path(__file__).resolve().parent.parent
 KITTI00 = ROOT / "data" / "kitti-00"
 SHARED = ROOT.parent / "shared" / "data"

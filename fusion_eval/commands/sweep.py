@@ -405,18 +405,38 @@ def execute(tasks: list[Task], out_dir: Path, jobs: int | None, scheduler: str |
             if cluster is not None:
                 cluster.close()
     elif jobs == 1:
-        for w in work:
-            for rec in run_batch(w):
-                finished(rec)
+        try:
+            for w in work:
+                for rec in run_batch(w):
+                    finished(rec)
+        except KeyboardInterrupt as exc:
+            left = total - n_ok - n_fail
+            raise type(exc)(f"{n_ok + n_fail + skipped} of {total + skipped} runs are recorded in {out_dir}/records; "
+                            f"run the same command again to do the {left} left (finished runs are not redone)") from None
     else:
         import multiprocessing as mp
-        from concurrent.futures import ProcessPoolExecutor, as_completed as cf_completed
+        from concurrent.futures import as_completed as cf_completed
 
-        with ProcessPoolExecutor(max_workers=jobs, mp_context=mp.get_context("spawn")) as pool:
+        from ..pool import Pool
+
+        consumed: set = set()
+        with Pool(max_workers=jobs, mp_context=mp.get_context("spawn")) as pool:
             futs = [pool.submit(run_batch, w) for w in work]
-            for f in cf_completed(futs):
-                for rec in f.result():
-                    finished(rec)
+            try:
+                for f in cf_completed(futs):
+                    consumed.add(f)
+                    for rec in f.result():
+                        finished(rec)
+            except KeyboardInterrupt as exc:
+                # every run that finished is kept: the batches done but not yet collected are recorded now (their
+                # workers wrote the records too); the rest are cancelled and their workers killed by the pool
+                for f in futs:
+                    if f not in consumed and f.done() and not f.cancelled() and f.exception() is None:
+                        for rec in f.result():
+                            finished(rec)
+                left = total - n_ok - n_fail
+                raise type(exc)(f"{n_ok + n_fail + skipped} of {total + skipped} runs are recorded in {out_dir}/records; "
+                                f"run the same command again to do the {left} left (finished runs are not redone)") from None
     return {"run": n_ok, "failed": n_fail, "skipped": skipped}
 
 
