@@ -6,6 +6,8 @@ from __future__ import annotations
 
 import os
 import shutil
+import socket
+import time
 from pathlib import Path
 
 from .errors import OutputError
@@ -22,9 +24,12 @@ def _alive(pid: int) -> bool:
 
 
 class StagedDir:
-    def __init__(self, final: Path, overwrite: bool = False):
+    def __init__(self, final: Path, overwrite: bool = False, wait_lock_s: float = 0.0):
         self.final = Path(final)
         self.overwrite = overwrite
+        # a sweep's run may be retried on another worker while the first (lost to the scheduler, not yet dead)
+        # still writes it: the retry waits for that writer instead of failing
+        self.wait_lock_s = wait_lock_s
         self.staging: Path | None = None
         self._made: list[Path] = []
 
@@ -75,15 +80,22 @@ class StagedDir:
         the same directory at the same time is refused instead of silently replacing the first one's results. A
         lock whose process is gone (killed) is taken over."""
         self._lock_path = self.final.parent / f".{self.final.name}.lock"
-        for _ in range(2):
+        t_end = time.monotonic() + self.wait_lock_s
+        while True:
             try:
                 fd = os.open(self._lock_path, os.O_CREAT | os.O_EXCL | os.O_WRONLY, 0o644)
             except FileExistsError:
                 try:
-                    pid = int(self._lock_path.read_text().strip() or 0)
+                    host, _, pid_s = self._lock_path.read_text().strip().rpartition(" ")
+                    pid = int(pid_s or 0)
                 except (OSError, ValueError):
-                    pid = 0
-                if pid and pid != os.getpid() and _alive(pid):
+                    host, pid = "", 0
+                # a holder on another host (a cluster's shared filesystem) cannot be probed: it is taken as alive
+                mine = host in ("", socket.gethostname())
+                if pid and (not mine or (pid != os.getpid() and _alive(pid))):
+                    if time.monotonic() < t_end:
+                        time.sleep(0.2)
+                        continue
                     self._lock_path = None
                     raise OutputError(f"{self.final}: another fusion-eval (pid {pid}) is writing this output directory; "
                                       "wait for it, or choose another --out") from None
@@ -93,9 +105,8 @@ class StagedDir:
                     pass
                 continue
             with os.fdopen(fd, "w") as f:
-                f.write(str(os.getpid()))
+                f.write(f"{socket.gethostname()} {os.getpid()}")
             return
-        raise OutputError(f"{self.final}: cannot take the lock {self._lock_path.name}")
 
     def _unlock(self) -> None:
         if getattr(self, "_lock_path", None) is not None:

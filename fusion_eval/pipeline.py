@@ -210,10 +210,11 @@ def filter_and_evaluate(ds: Dataset, cfg: dict, sh: Shared, pool, *, dataset_pat
 
 
 def run_to_dir(dataset_path: str | Path, req: session.ConfigRequest, out_dir: Path, overwrite: bool = False,
-               progress: Callable[[float], None] | None = None, jobs: int | None = None, trials: int = 1) -> RunResult:
+               progress: Callable[[float], None] | None = None, jobs: int | None = None, trials: int = 1,
+               wait_lock_s: float = 0.0) -> RunResult:
     """Load the dataset, resolve the configuration, run, evaluate and write every output atomically into
     ``out_dir`` (nothing is left behind when it fails)."""
-    staged = StagedDir(out_dir, overwrite=overwrite)
+    staged = StagedDir(out_dir, overwrite=overwrite, wait_lock_s=wait_lock_s)
     staged.check()
     t = time.perf_counter()
     ds = session.dataset(dataset_path)

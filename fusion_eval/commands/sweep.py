@@ -248,8 +248,13 @@ def run_task(task: Task) -> dict:
 
     def work():
         req = session.request(config=task.base_config, variant=task.variant_path, overrides=_overrides(task))
-        return run_to_dir(task.dataset, req, Path(task.out_root) / "runs" / task.id, overwrite=True, jobs=1)
-    return _record(task, work)
+        return run_to_dir(task.dataset, req, Path(task.out_root) / "runs" / task.id, overwrite=True, jobs=1,
+                          wait_lock_s=RUN_LOCK_WAIT_S)
+    rec = _record(task, work)
+    # written here too (the submitting process writes it again, the same bytes): a sweep killed between this run's
+    # end and the collection of its result keeps it
+    write_record(Path(task.out_root), rec)
+    return rec
 
 
 def _overrides(task: Task) -> dict:
@@ -274,6 +279,9 @@ def _record(task: Task, work: Callable, extra_s: float = 0.0) -> dict:
         rec.update(status="failed", error=f"{type(exc).__name__}: {exc}", traceback=traceback.format_exc(), metrics=None)
     rec["runtime_s"] = round(time.perf_counter() - t0 + extra_s, 3)
     return rec
+
+
+RUN_LOCK_WAIT_S = 600.0     # a retried run waits this long for a lost worker still writing it
 
 
 def run_batch(tasks: list[Task]) -> list[dict]:
@@ -303,7 +311,7 @@ def run_batch(tasks: list[Task]) -> list[dict]:
     shared_s = (time.perf_counter() - t_load) / len(tasks)
     for task, req, cfg in zip(tasks, reqs, cfgs):
         def work():
-            with StagedDir(Path(task.out_root) / "runs" / task.id, overwrite=True) as out:
+            with StagedDir(Path(task.out_root) / "runs" / task.id, overwrite=True, wait_lock_s=RUN_LOCK_WAIT_S) as out:
                 return filter_and_evaluate(ds, cfg, sh, pool, dataset_path=task.dataset, config_source=req.source,
                                            out=out)
         rec = _record(task, work, shared_s)
