@@ -22,6 +22,18 @@ KITTI00 = ROOT / "data" / "kitti-00"
 SHARED = ROOT.parent / "shared" / "data"
 
 
+def wait_for(pred, timeout_s: float, step_s: float = 0.05) -> bool:
+    """Poll ``pred`` until it holds (True) or ``timeout_s`` passes (False): for tests that watch another process."""
+    import time
+
+    t_end = time.time() + timeout_s
+    while time.time() < t_end:
+        if pred():
+            return True
+        time.sleep(step_s)
+    return False
+
+
 def shared_path(*parts: str) -> Path:
     """A file of ../shared/data, or skip the test with the reason when it is absent."""
     p = SHARED.joinpath(*parts)

@@ -9,23 +9,13 @@ import os
 import signal
 import subprocess
 import sys
-import time
 from pathlib import Path
 
 import pytest
 
-from conftest import make_slice
+from conftest import make_slice, wait_for
 
 DASK = Path(sys.executable).with_name("dask")
-
-
-def _wait(pred, timeout_s: float) -> bool:
-    t_end = time.time() + timeout_s
-    while time.time() < t_end:
-        if pred():
-            return True
-        time.sleep(0.2)
-    return False
 
 
 @pytest.mark.slow
@@ -44,7 +34,7 @@ def test_sweep_on_a_real_cluster_survives_a_killed_worker(tmp_path):
                                "--scheduler-file", str(sched_file)], cwd=elsewhere, env=env,
                               stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL, start_new_session=True)]
     try:
-        assert _wait(sched_file.exists, 60)
+        assert wait_for(sched_file.exists, 60)
         address = json.loads(sched_file.read_text())["address"]
         for _ in range(2):
             procs.append(subprocess.Popen([str(DASK), "worker", address, "--nthreads", "1", "--nworkers", "1",
@@ -54,7 +44,7 @@ def test_sweep_on_a_real_cluster_survives_a_killed_worker(tmp_path):
                                   "--out", "sw", "--scheduler", address, "--no-batch"], cwd=here, env=env,
                                  stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
         # kill one worker once the first runs are recorded (its running task goes to the other worker)
-        assert _wait(lambda: len(list((here / "sw" / "records").glob("*.json"))) >= 2 or sweep.poll() is not None, 600)
+        assert wait_for(lambda: len(list((here / "sw" / "records").glob("*.json"))) >= 2 or sweep.poll() is not None, 600)
         os.killpg(procs[1].pid, signal.SIGKILL)
         out, err = sweep.communicate(timeout=900)
         assert sweep.returncode == 0, err

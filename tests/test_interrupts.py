@@ -16,7 +16,7 @@ from pathlib import Path
 
 import pytest
 
-from conftest import make_slice
+from conftest import make_slice, wait_for
 
 CLI = [sys.executable, "-m", "fusion_eval"]
 
@@ -38,15 +38,6 @@ def _group_gone(pgid: int, within_s: float = 3.0) -> bool:
     return False
 
 
-def _wait_for(pred, timeout_s: float) -> bool:
-    t_end = time.time() + timeout_s
-    while time.time() < t_end:
-        if pred():
-            return True
-        time.sleep(0.05)
-    return False
-
-
 @pytest.mark.slow
 @pytest.mark.parametrize("sig,code", [(signal.SIGINT, 130), (signal.SIGTERM, 143)])
 def test_a_signal_ends_run_within_2_s_and_leaves_nothing(slice_run, tmp_path, sig, code):
@@ -54,7 +45,7 @@ def test_a_signal_ends_run_within_2_s_and_leaves_nothing(slice_run, tmp_path, si
     out = tmp_path / "out"
     p = _start(["run", "--out", str(out)], tmp_path)              # the embedded kitti-00: ~10 s
     # wait until the run is writing (its staging folder exists), then signal it
-    assert _wait_for(lambda: any(tmp_path.glob(".out.partial-*")), 60), p.communicate()
+    assert wait_for(lambda: any(tmp_path.glob(".out.partial-*")), 60), p.communicate()
     time.sleep(0.5)
     t0 = time.time()
     os.kill(p.pid, sig)
@@ -71,7 +62,7 @@ def test_a_signal_ends_run_within_2_s_and_leaves_nothing(slice_run, tmp_path, si
 def test_ctrl_c_to_the_whole_group_prints_no_worker_traceback(slice_run, tmp_path):
     out = tmp_path / "out"
     p = _start(["run", "--out", str(out)], tmp_path)
-    assert _wait_for(lambda: any(tmp_path.glob(".out.partial-*")), 60)
+    assert wait_for(lambda: any(tmp_path.glob(".out.partial-*")), 60)
     time.sleep(1.0)
     os.killpg(p.pid, signal.SIGINT)                                # as a terminal's Ctrl-C does
     _, err = p.communicate(timeout=30)
@@ -100,7 +91,7 @@ def test_ctrl_c_on_a_sweep_records_every_finished_run_and_says_how_to_resume(sli
     out = tmp_path / "sw"
     args = ["sweep", str(ds), "--grid", str(grid), "--out", str(out), "--jobs", "2", "--no-batch"]
     p = _start(args, tmp_path)
-    assert _wait_for(lambda: len(list((out / "records").glob("*.json"))) >= 2, 300), p.communicate()
+    assert wait_for(lambda: len(list((out / "records").glob("*.json"))) >= 2, 300), p.communicate()
     t0 = time.time()
     os.kill(p.pid, signal.SIGINT)
     _, err = p.communicate(timeout=60)
