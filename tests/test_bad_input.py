@@ -308,3 +308,9 @@ def test_random_bytes_as_a_manifest_or_config(ds, tmp_path, what):
         args += ["--config", str(junk)]
     r = CliRunner().invoke(main, args)
     _assert_clean_error(r, out, "junk.yaml")
+
+
+def test_a_missing_oxts_packet_is_named(ds, tmp_path):
+    (ds / "oxts" / "data" / "0000000017.txt").unlink()
+    r, out = _run(ds, tmp_path)
+    _assert_clean_error(r, out, "expected 120 packet files", "0000000017.txt is missing")

@@ -114,7 +114,11 @@ def read_oxts(path: Path) -> OxtsPackets:
         raise DataFormatError(data_dir, None, "folder not found (expected one OXTS packet file per timestamp)")
     packet_paths = tuple(sorted(data_dir.glob("*.txt")))
     if len(packet_paths) != t.size:
-        raise DataFormatError(data_dir, None, f"expected {t.size} packet files (one per line of timestamps.txt), found {len(packet_paths)}")
+        have = {p.name for p in packet_paths}
+        missing = next((f"{i:010d}.txt" for i in range(t.size) if f"{i:010d}.txt" not in have), None)
+        what = f": {missing} is missing" if missing else f": {len(packet_paths) - t.size} more than the stamps"
+        raise DataFormatError(data_dir, None, f"expected {t.size} packet files (one per line of timestamps.txt), found "
+                                              f"{len(packet_paths)}{what}")
     values = np.empty((t.size, N_FIELDS))
     filled = np.zeros(t.size, bool)
     for i, p in enumerate(packet_paths):
