@@ -11,7 +11,7 @@ try:        # the fuzz suite's example budgets: 'ci' by default (bounded, derand
     from hypothesis import HealthCheck, settings
 
     _checks = [HealthCheck.function_scoped_fixture, HealthCheck.too_slow]
-    settings.register_profile("ci", max_examples=20, deadline=None, derandomize=True, suppress_health_check=_checks)
+    settings.register_profile("ci", max_examples=16, deadline=None, derandomize=True, suppress_health_check=_checks)
     settings.register_profile("long", max_examples=200, deadline=None, derandomize=False, suppress_health_check=_checks)
     settings.load_profile("ci")
 except ImportError:
