@@ -38,6 +38,7 @@ import os
 import shutil
 import time
 import traceback
+import dataclasses
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Callable
@@ -68,6 +69,7 @@ class Task:
     out_root: str                 # absolute
     trial: int = 0                # Monte-Carlo trial: the seeds of every random element plus this
     batch: str = ""               # runs with one batch key share their data preparation (batch_key)
+    ship: bool = False            # a cluster worker: write the run in a local folder and send its files back
 
 
 # Keys that only the filter reads: not the data preparation, not the evaluation (checked: prepare, timing,
@@ -246,14 +248,35 @@ def run_task(task: Task) -> dict:
     """Run one sweep entry; never raises for a failed run (the failure is the record)."""
     from ..pipeline import run_to_dir
 
+    root = _run_root(task)
+
     def work():
         req = session.request(config=task.base_config, variant=task.variant_path, overrides=_overrides(task))
-        return run_to_dir(task.dataset, req, Path(task.out_root) / "runs" / task.id, overwrite=True, jobs=1,
+        return run_to_dir(task.dataset, req, root / "runs" / task.id, overwrite=True, jobs=1,
                           wait_lock_s=RUN_LOCK_WAIT_S)
-    rec = _record(task, work)
-    # written here too (the submitting process writes it again, the same bytes): a sweep killed between this run's
-    # end and the collection of its result keeps it
-    write_record(Path(task.out_root), rec)
+    return _finish(task, _record(task, work), root)
+
+
+def _run_root(task: Task) -> Path:
+    """Where a run writes its folder: the sweep's own (a local pool, or a cluster on a shared filesystem) or, on a
+    cluster worker (``ship``), a local temporary folder whose files go back to the client with the record."""
+    import tempfile
+
+    return Path(tempfile.mkdtemp(prefix="fusion-eval-run-")) if task.ship else Path(task.out_root)
+
+
+def _finish(task: Task, rec: dict, root: Path) -> dict:
+    if task.ship:
+        import shutil
+
+        folder = root / "runs" / task.id
+        rec["files"] = ({str(f.relative_to(folder)): f.read_bytes() for f in sorted(folder.rglob("*")) if f.is_file()}
+                        if folder.is_dir() else {})
+        shutil.rmtree(root, ignore_errors=True)
+    else:
+        # written here too (the submitting process writes it again, the same bytes): a sweep killed between this
+        # run's end and the collection of its result keeps it
+        write_record(Path(task.out_root), rec)
     return rec
 
 
@@ -310,14 +333,15 @@ def run_batch(tasks: list[Task]) -> list[dict]:
         return [run_task(t) for t in tasks]
     shared_s = (time.perf_counter() - t_load) / len(tasks)
     for task, req, cfg in zip(tasks, reqs, cfgs):
+        root = _run_root(task)
+
         def work():
-            with StagedDir(Path(task.out_root) / "runs" / task.id, overwrite=True, wait_lock_s=RUN_LOCK_WAIT_S) as out:
+            with StagedDir(root / "runs" / task.id, overwrite=True, wait_lock_s=RUN_LOCK_WAIT_S) as out:
                 return filter_and_evaluate(ds, cfg, sh, pool, dataset_path=task.dataset, config_source=req.source,
                                            out=out)
         rec = _record(task, work, shared_s)
         rec["batch"] = task.batch
-        write_record(Path(task.out_root), rec)
-        recs.append(rec)
+        recs.append(_finish(task, rec, root))
     return recs
 
 
@@ -383,6 +407,13 @@ def execute(tasks: list[Task], out_dir: Path, jobs: int | None, scheduler: str |
 
     def finished(rec):
         nonlocal n_ok, n_fail
+        files = rec.pop("files", None)
+        if files is not None:            # a cluster worker's run folder, sent back: written here, atomically
+            from ..outputs import StagedDir
+
+            with StagedDir(out_dir / "runs" / rec["id"], overwrite=True) as out:
+                for name, data in files.items():
+                    out.write_bytes(name, data)
         write_record(out_dir, rec)
         if rec["status"] == "ok":
             n_ok += 1
@@ -403,6 +434,9 @@ def execute(tasks: list[Task], out_dir: Path, jobs: int | None, scheduler: str |
         cluster = LocalCluster(n_workers=jobs, threads_per_worker=1, processes=True, dashboard_address=None) \
             if dask_local else None
         client = Client(cluster if cluster is not None else scheduler)
+        if scheduler:
+            # remote workers may not share this filesystem: each writes its run locally and sends the files back
+            work = [[dataclasses.replace(t, ship=True) for t in w] for w in work]
         try:
             futures = [client.submit(run_batch, w, key=f"fusion-eval-{w[0].id}-{len(w)}", pure=False) for w in work]
             for fut in as_completed(futures):
