@@ -314,3 +314,17 @@ def test_a_missing_oxts_packet_is_named(ds, tmp_path):
     (ds / "oxts" / "data" / "0000000017.txt").unlink()
     r, out = _run(ds, tmp_path)
     _assert_clean_error(r, out, "expected 120 packet files", "0000000017.txt is missing")
+
+
+def test_a_calibration_lever_arm_of_100_km_is_blamed_on_the_calibration(ds, tmp_path):
+    """Found by the long fuzz profile: a 100 km translation in calib_imu_to_velo.txt was reported as an implausible
+    lidar speed in poses.txt."""
+    p = ds / "calib_imu_to_velo.txt"
+    lines = p.read_text().splitlines()
+    i = next(k for k, ln in enumerate(lines) if ln.startswith("T:"))
+    v = lines[i].split()
+    v[2] = "100486.0"
+    lines[i] = " ".join(v)
+    p.write_text("\n".join(lines) + "\n")
+    r, out = _run(ds, tmp_path)
+    _assert_clean_error(r, out, "calib_imu_to_velo.txt", "sensors of one vehicle are at most 1000 m apart")

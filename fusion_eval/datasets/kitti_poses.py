@@ -96,4 +96,17 @@ def calib_transform(path: Path, key: str | None = None) -> np.ndarray:
     if np.abs(R.T @ R - np.eye(3)).max() > ROTATION_TOL or np.linalg.det(R) < 0:
         raise DataFormatError(path, None, f"calibration {key or 'R'} is not a rotation (R^T R = I to {ROTATION_TOL:g} and "
                                           f"det +1; det is {np.linalg.det(R):.3f})")
+    check_lever_arm(T, path, key or "T")
     return T
+
+
+# Two sensors of one vehicle are metres apart: a calibration's translation beyond this is a corrupted value (blamed
+# otherwise on the poses it moves, as an implausible speed)
+MAX_LEVER_ARM_M = 1000.0
+
+
+def check_lever_arm(T: np.ndarray, where, what: str) -> None:
+    d = float(np.linalg.norm(T[:3, 3]))
+    if not d <= MAX_LEVER_ARM_M:
+        raise DataFormatError(where, None, f"calibration {what} translates by {d:.6g} m: sensors of one vehicle are at most "
+                                           f"{MAX_LEVER_ARM_M:g} m apart")

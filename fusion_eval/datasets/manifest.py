@@ -271,6 +271,10 @@ def _transform(spec_value, root: Path, manifest: Path, what: str) -> np.ndarray:
         R = T[:3, :3]
         if np.abs(R.T @ R - np.eye(3)).max() > 1e-3 or np.linalg.det(R) < 0:
             raise ConfigError(f"{manifest}: {what}: the 3x3 block must be a rotation (R^T R = I, det +1)")
+        try:
+            kitti_poses.check_lever_arm(T, manifest, what)
+        except DataFormatError as exc:
+            raise ConfigError(str(exc)) from None
         return T
     raise ConfigError(f"{manifest}: {what} must be {{file: ..., key: ...}} or a list of 12 numbers (3x4 row-major)")
 
