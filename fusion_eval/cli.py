@@ -38,6 +38,10 @@ class Group(click.Group):
     """Maps known errors to a one-line message and their exit code."""
 
     def invoke(self, ctx):
+        # SIGTERM as Ctrl-C for the command's duration (the same clean-up runs); the caller's handler is restored
+        # after, so that invoking the CLI in-process (tests, notebooks) leaves the process as it was
+        main_thread = threading.current_thread() is threading.main_thread()
+        old = signal.signal(signal.SIGTERM, _on_sigterm) if main_thread else None
         try:
             return super().invoke(ctx)
         except FusionEvalError as exc:
@@ -51,6 +55,9 @@ class Group(click.Group):
             if isinstance(cause, KeyboardInterrupt):
                 _interrupted(cause)
             raise
+        finally:
+            if main_thread:
+                signal.signal(signal.SIGTERM, old)
 
 
 class Terminated(KeyboardInterrupt):
@@ -76,8 +83,6 @@ def _interrupted(exc: BaseException) -> None:
 def main(ctx, verbose, quiet):
     """Fuse IMU, GNSS and lidar odometry with Kalman filters and evaluate them with evo."""
     _setup_logging(verbose, quiet)
-    if threading.current_thread() is threading.main_thread():
-        signal.signal(signal.SIGTERM, _on_sigterm)
     ctx.obj = {"quiet": quiet > 0}
 
 

@@ -62,6 +62,7 @@ class Pool(ProcessPoolExecutor):
 
     def terminate(self) -> None:
         procs = list((getattr(self, "_processes", None) or {}).values())
+        queue = getattr(self, "_result_queue", None)          # shutdown() forgets it
         self.shutdown(wait=False, cancel_futures=True)
         for p in procs:
             if p.is_alive():
@@ -71,6 +72,12 @@ class Pool(ProcessPoolExecutor):
             if p.is_alive():
                 p.kill()
                 p.join(timeout=1.0)
+        # A worker killed while it sent a result leaves half a message in the result pipe, and the executor's manager
+        # thread blocked reading the rest: it would never end, and the interpreter joins it at exit (a hang after
+        # the command is done). Closing our own end for writing gives that read an end of file: the thread sees a
+        # broken pool and ends.
+        if queue is not None:
+            queue._writer.close()                               # noqa: SLF001 - see above
 
 
 def executor(jobs: int | None = None):

@@ -201,3 +201,35 @@ def test_overwrite_with_a_failing_run_keeps_the_old_output(tmp_path):
                                   "--set", "gnss.time_offset_s=1.0e+6"])
     assert r.exit_code == 2
     assert {p.name: p.read_bytes() for p in out.iterdir()} == before
+
+
+def test_a_pool_killed_while_a_worker_sends_its_result_lets_the_process_exit(tmp_path):
+    """Found while reviewing: a worker killed in the middle of sending a large result left the executor's manager
+    thread blocked on the rest of the message, and the interpreter hung at exit joining it."""
+    script = tmp_path / "t.py"
+    script.write_text(
+        "import time\n"
+        "from fusion_eval.pool import executor\n"
+        "def big(n):\n    return b'x' * n\n"
+        "p = executor(2)\n"
+        "try:\n"
+        "    with p:\n"
+        "        p.submit(big, 300_000_000)\n"
+        "        time.sleep(1.0)              # the worker is sending its 300 MB\n"
+        "        raise RuntimeError('boom')\n"
+        "except RuntimeError:\n"
+        "    pass\n"
+        "print('done')\n")
+    r = subprocess.run([sys.executable, str(script)], capture_output=True, text=True, timeout=60)
+    assert r.returncode == 0 and r.stdout.strip() == "done", r.stderr
+
+
+def test_the_cli_restores_the_callers_sigterm_handler():
+    from click.testing import CliRunner
+
+    from fusion_eval.cli import main
+
+    before = signal.getsignal(signal.SIGTERM)
+    CliRunner().invoke(main, ["--help"])
+    CliRunner().invoke(main, ["check", "nope.json", "--baseline", "nope.json"])
+    assert signal.getsignal(signal.SIGTERM) is before
