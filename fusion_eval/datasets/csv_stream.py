@@ -186,9 +186,9 @@ def first_fix(entry: dict, ctx: ReadContext):
     return tuple(float(rows[0, named[k]]) for k in ("lat", "lon", "alt"))
 
 
-def std_m(entry: dict, ctx: ReadContext) -> np.ndarray:
-    """The entry's ``std_m`` (a number or three, metres) as a (3,) array."""
-    std = entry.get("std_m")
+def std_m(entry: dict, ctx: ReadContext, default: float | None = None) -> np.ndarray:
+    """The entry's ``std_m`` (a number or three, metres; ``default`` when absent) as a (3,) array."""
+    std = entry.get("std_m", default)
     if std is None:
         raise ConfigError(f"{ctx.manifest}: the GNSS stream has no std columns: give 'std_m' (1-sigma, m)")
     if isinstance(std, (int, float)) and not isinstance(std, bool):

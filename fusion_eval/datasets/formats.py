@@ -1,5 +1,6 @@
-"""The registry of stream formats beyond KITTI's own (``kitti_oxts``, ``kitti_poses``, ``tum``, ``csv_lla``,
-``speed_txt``, read by the manifest itself): each is one module with a reader per stream it can carry.
+"""The registry of stream formats: KITTI's family (``kitti_oxts``, ``kitti_poses``, ``tum``, ``csv_lla``,
+``speed_txt``), EuRoC, generic CSV and ROS bags, each one module with a reader per stream it can carry; the
+manifest validates an entry and calls its format's reader, whatever the format.
 
 A format's reader takes the stream's manifest entry and a :class:`~fusion_eval.datasets.streams.ReadContext` and
 returns the stream's typed series; ``keys`` are the manifest keys it accepts besides ``format``, ``path`` and the
@@ -24,9 +25,9 @@ class StreamFormat:
 
 
 def _formats() -> dict[str, StreamFormat]:
-    from . import csv_stream, euroc, rosbag_streams
+    from . import csv_stream, euroc, kitti_formats, rosbag_streams
 
-    fmts = [
+    fmts = [*(StreamFormat(name, readers, description="KITTI family") for name, readers in kitti_formats.READERS.items()),
         StreamFormat("euroc", euroc.READERS, euroc.KEYS, description="EuRoC / TUM-VI ASL CSV"),
         StreamFormat("csv", {"imu": csv_stream.read_imu, "gnss": csv_stream.read_gnss, "groundtruth": csv_stream.read_poses,
                              "lidar": csv_stream.read_poses, "odometer": csv_stream.read_speed},

@@ -16,23 +16,16 @@ from typing import Any
 import numpy as np
 import yaml
 
-from ..errors import ConfigError, DataFormatError, DataRangeError
+from ..errors import ConfigError, DataFormatError
 from ..so3 import make_T, matrix_to_quat_xyzw
-from ..types import Dataset, GnssSeries, PoseSeries
-from . import clock, gnss_csv, kitti_oxts, kitti_poses, plausible, speed, tum
+from ..types import Dataset, PoseSeries
+from . import kitti_oxts, kitti_poses, plausible
 from .formats import for_stream
 from .streams import ReadContext, StreamSpec
 
 log = logging.getLogger(__name__)
 
-STREAMS = ("imu", "gnss", "lidar", "groundtruth", "odometer")
-FORMATS = {
-    "imu": ("kitti_oxts",),
-    "gnss": ("kitti_oxts", "csv_lla", "tum"),
-    "odometer": ("speed_txt", "kitti_oxts"),
-    "groundtruth": ("kitti_oxts", "tum", "kitti_poses"),
-    "lidar": ("kitti_poses", "tum"),
-}
+STREAMS = ("imu", "gnss", "lidar", "groundtruth", "odometer")      # their formats: the registry (.formats)
 _POSE_KEYS = {"frame", "T_cam0_imu", "T_cam0_velo", "T_velo_imu", "times"}
 STREAM_KEYS = {
     "imu": {"format", "path", "time_offset_s", "gyro_lag_s", "accel_lag_s"},
@@ -114,7 +107,7 @@ def _from_manifest_dict(body: dict, root: Path, manifest: Path, extra: dict | No
             raise ConfigError(f"{manifest}: stream {name!r} must be a mapping with 'format' and 'path'")
         registered = for_stream(name) if name in STREAMS else {}
         allowed = STREAM_KEYS[name] if name in STREAMS else extra[name].keys
-        formats = (FORMATS[name] + tuple(registered)) if name in STREAMS else tuple(extra[name].readers)
+        formats = tuple(registered) if name in STREAMS else tuple(extra[name].readers)
         if spec.get("format") in registered:
             allowed = allowed | registered[spec["format"]].keys
         fmt = spec.get("format")
@@ -139,9 +132,8 @@ def _from_manifest_dict(body: dict, root: Path, manifest: Path, extra: dict | No
             may_be_auto = key != "time_offset_s" or name == "lidar"     # estimated by fusion_eval.timing
             if not (v == "auto" and may_be_auto) and not _is_num(v):
                 raise ConfigError(f"{manifest}: {key} of stream {name!r} must be a number of seconds, got {v!r}")
-            if key != "time_offset_s" and _is_num(v) and abs(v) > 1.0:
-                raise ConfigError(f"{manifest}: {key} of stream {name!r} is {v:g} s: a channel lag is a latency of "
-                                  "milliseconds (at most 1 s here); a clock offset goes in time_offset_s")
+            if key != "time_offset_s" and _is_num(v) and abs(v) > plausible.MAX_LAG_S:
+                raise ConfigError(f"{manifest}: {key} of stream {name!r} is {v:g} s: {plausible.LAG_NOTE}")
         if "degrade" in spec and not isinstance(spec["degrade"], bool):
             raise ConfigError(f"{manifest}: 'degrade' of stream {name!r} must be true or false, got {spec['degrade']!r}")
 
@@ -153,23 +145,25 @@ def _from_manifest_dict(body: dict, root: Path, manifest: Path, extra: dict | No
             oxts_cache[p] = kitti_oxts.read_oxts(p)
         return oxts_cache[p]
 
-    def ctx_with(origin_lla) -> ReadContext:
-        return ReadContext(root=root, manifest=manifest, origin=origin_lla, oxts=oxts)
-
     imu_spec = streams["imu"]
-    if imu_spec["format"] == "kitti_oxts":
-        imu_pk = oxts(imu_spec)
-        imu = kitti_oxts.imu_from_oxts(imu_pk)
-    else:
-        imu_pk = None
-        imu = for_stream("imu")[imu_spec["format"]].readers["imu"](imu_spec, ctx_with(None))
+    imu_pk = oxts(imu_spec) if imu_spec["format"] == "kitti_oxts" else None      # a KITTI pose file's clock
+
+    def ctx_with(origin_lla) -> ReadContext:
+        return ReadContext(root=root, manifest=manifest, origin=origin_lla, oxts=oxts, imu_packets=imu_pk)
+
+    def read(name: str, origin_lla):
+        """Stream ``name`` through its format's reader, and what the reader noted."""
+        ctx = ctx_with(origin_lla)
+        return for_stream(name)[streams[name]["format"]].readers[name](streams[name], ctx), ctx.notes
+
+    imu, _ = read("imu", None)
 
     origin = body.get("geodetic_origin", "first_fix")
     if origin == "first_fix":
         geo_src = next((streams[s] for s in ("gnss", "groundtruth", "imu") if s in streams and streams[s]["format"] == "kitti_oxts"), None)
         origin_t = kitti_oxts.first_valid_fix(oxts(geo_src)) if geo_src else None
         g = streams.get("gnss")
-        if origin_t is None and g is not None and g["format"] in for_stream("gnss"):
+        if origin_t is None and g is not None:
             ff = for_stream("gnss")[g["format"]].first_fix
             origin_t = ff(g, ctx_with(None)) if ff else None
     elif isinstance(origin, (list, tuple)) and len(origin) == 3 and all(_is_num(v) for v in origin):
@@ -185,24 +179,10 @@ def _from_manifest_dict(body: dict, root: Path, manifest: Path, extra: dict | No
             raise ConfigError(f"{manifest}: {exc.expected}") from None
 
     ctx = ctx_with(origin_t)
-    gnss = gt = lidar = odo = None
-    if "odometer" in streams:
-        o = streams["odometer"]
-        if o["format"] == "kitti_oxts":
-            odo = kitti_oxts.speed_from_oxts(oxts(o))
-        elif o["format"] == "speed_txt":
-            odo = speed.read_speed(root / o["path"])
-        else:
-            odo = for_stream("odometer")[o["format"]].readers["odometer"](o, ctx)
-    if "gnss" in streams:
-        g = streams["gnss"]
-        gnss = (for_stream("gnss")[g["format"]].readers["gnss"](g, ctx) if g["format"] in for_stream("gnss")
-                else _gnss(g, root, oxts, origin_t, manifest))
-    if "groundtruth" in streams:
-        gt = _poses(streams["groundtruth"], root, oxts, origin_t, manifest, imu_pk, ctx=ctx, name="groundtruth")
-    lidar_notes: dict = {}
-    if "lidar" in streams:
-        lidar = _poses(streams["lidar"], root, oxts, origin_t, manifest, imu_pk, lidar_notes, ctx=ctx, name="lidar")
+    got = {name: read(name, origin_t) for name in ("odometer", "gnss", "groundtruth", "lidar") if name in streams}
+    odo, gnss = (got[n][0] if n in got else None for n in ("odometer", "gnss"))
+    gt, lidar = (_in_imu_frame(got[n][0], streams[n], root, manifest) if n in got else None for n in ("groundtruth", "lidar"))
+    lidar_notes = got["lidar"][1] if "lidar" in got else {}
     extra_series = {name: extra[name].readers[streams[name]["format"]](streams[name], ctx)
                     for name in streams if name in extra}
     plausible.check_dataset(imu, {"groundtruth": gt, "gnss": gnss, "lidar": lidar, "odometer": odo, **extra_series})
@@ -236,26 +216,6 @@ def _from_manifest_dict(body: dict, root: Path, manifest: Path, extra: dict | No
         raise ConfigError(f"{manifest}: lidar 'anchor' must be 'groundtruth' or 'none', got {description['lidar_anchor']!r}")
     return Dataset(name=str(body.get("name", root.name)), imu=imu, groundtruth=gt, gnss=gnss, lidar=lidar, odometer=odo,
                    geodetic_origin=origin_t, description=description, extra=extra_series)
-
-
-def _gnss(spec, root, oxts, origin, manifest) -> GnssSeries:
-    if spec["format"] == "kitti_oxts":
-        if origin is None:
-            raise ConfigError(f"{manifest}: GNSS from OXTS needs a geodetic origin")
-        return kitti_oxts.gnss_from_oxts(oxts(spec), origin)
-    if spec["format"] == "csv_lla":
-        if origin is None:
-            raise ConfigError(f"{manifest}: GNSS in geodetic coordinates needs a geodetic_origin")
-        return gnss_csv.read_gnss_csv(root / spec["path"], origin)
-    poses = tum.read_tum(root / spec["path"])
-    std = spec.get("std_m", 1.0)
-    if isinstance(std, (int, float)) and not isinstance(std, bool):
-        std = [std] * 3
-    if not (isinstance(std, list) and len(std) == 3 and all(_is_num(v) and v > 0 for v in std)):
-        raise ConfigError(f"{manifest}: gnss 'std_m' must be a positive number or 3 positive numbers (m), got {spec.get('std_m')!r}")
-    std = np.asarray(std, float)
-    return GnssSeries(t_s=poses.t_s, p_w_m=poses.p_w_m, std_w_m=np.tile(std, (len(poses), 1)),
-                      source=poses.source, lines=poses.lines)
 
 
 def _is_num(v) -> bool:
@@ -314,77 +274,13 @@ def _extrinsic(spec, root, manifest) -> np.ndarray:
                       f"(3x4 row-major), {{file: ..., key: ...}} or {{tf_static: [imu_frame, {frame}_frame]}})")
 
 
-def _pose_times(spec, root, manifest, n_poses: int, pose_path: Path, raw: kitti_oxts.OxtsPackets,
-                notes: dict) -> np.ndarray:
-    times = spec.get("times")
-    if not isinstance(times, dict):
-        raise ConfigError(f"{manifest}: KITTI poses need 'times': {{file: times.txt}} and/or {{align_to: imu, index_offset: 0}}")
-    if times.get("align_to") == "imu" and raw is None:
-        raise ConfigError(f"{manifest}: times.align_to: imu needs the IMU as kitti_oxts packets; give times.file instead")
-    offset = times.get("index_offset", 0)
-    if isinstance(offset, bool) or not isinstance(offset, int):
-        raise ConfigError(f"{manifest}: times.index_offset must be an integer, got {offset!r}")
-    if "t0_s" in times and not _is_num(times["t0_s"]):
-        raise ConfigError(f"{manifest}: times.t0_s must be a number of seconds, got {times['t0_s']!r}")
-    if "file" in times and not isinstance(times["file"], str):
-        raise ConfigError(f"{manifest}: times.file must be a file name, got {times['file']!r}")
-    if "file" in times:
-        tpath = root / times["file"]
-        t, _ = kitti_poses.read_times(tpath)
-        if t.size != n_poses:
-            raise DataFormatError(tpath, None, f"expected {n_poses} times (one per pose in {pose_path.name}), got {t.size}")
-        if times.get("align_to") == "imu":
-            # The times file counts from its own zero; put it on the raw clock with the median offset
-            # of the frames whose raw packet is a real (not filled-in) one.
-            j = np.arange(n_poses) + offset
-            ok = (j >= 0) & (j < raw.t_s.size)
-            ok[ok] &= ~raw.filled[j[ok]]
-            if not ok.any():
-                raise DataRangeError(f"{manifest}: no lidar frame maps onto a valid IMU packet (index_offset {offset})")
-            t = t + float(np.median(raw.t_s[j[ok]] - t[ok]))
-        elif "t0_s" in times:
-            t = t + float(times["t0_s"])
-        return t
-    if times.get("align_to") == "imu":
-        j = np.arange(n_poses) + offset
-        if j[0] < 0 or j[-1] >= raw.t_s.size:
-            raise DataRangeError(f"{manifest}: lidar frames 0..{n_poses - 1} with index_offset {offset} map outside the "
-                                 f"{raw.t_s.size} IMU packets; give a times file or another index_offset")
-        smooth = times.get("smooth_s")
-        if smooth is None:
-            return raw.t_s[j].copy()
-        if not _is_num(smooth) or smooth <= 0:
-            raise ConfigError(f"{manifest}: times.smooth_s must be a positive number of seconds, got {smooth!r}")
-        t, notes["clock"] = clock.smooth_frame_times(raw.t_s[j], ~raw.filled[j], float(smooth))
-        return t
-    raise ConfigError(f"{manifest}: 'times' needs 'file' or 'align_to: imu'")
-
-
-def _poses(spec, root, oxts, origin, manifest, imu_pk, notes: dict | None = None, ctx: ReadContext | None = None,
-           name: str = "groundtruth") -> PoseSeries:
-    fmt = spec["format"]
-    if fmt == "kitti_oxts":
-        return kitti_oxts.poses_from_oxts(oxts(spec), origin)
-    if fmt in for_stream(name):
-        poses = for_stream(name)[fmt].readers[name](spec, ctx)
-        T = None
-    elif fmt == "tum":
-        poses = tum.read_tum(root / spec["path"])
-        T = None
-    else:
-        ppath = root / spec["path"]
-        T_c0_ci, lines = kitti_poses.read_kitti_poses(ppath)
-        t = _pose_times(spec, root, manifest, T_c0_ci.shape[0], ppath, imu_pk, {} if notes is None else notes)
-        T = T_c0_ci
-        poses = None
+def _in_imu_frame(poses: PoseSeries, spec: dict, root: Path, manifest: Path) -> PoseSeries:
+    """A pose stream's poses of its sensor frame ``c`` as poses of the IMU: ``T_x_bi = T_x_ci T_c_b``, where x is the
+    stream's reference frame (the world when anchor is 'none'; the sensor's first frame otherwise, and anchoring
+    removes that constant)."""
     T_c_b = _extrinsic(spec, root, manifest)
-    if T is None:
-        if np.allclose(T_c_b, np.eye(4)):
-            return poses
-        T = make_T(poses.R_wb(), poses.p_w_m)
-        t, lines = poses.t_s, poses.lines
-    # IMU poses: T_x_bi = T_x_ci T_c_b, where x is the pose file's reference frame (the world when
-    # anchor is 'none'; the sensor's first frame otherwise, and anchoring removes that constant)
-    T_b = T @ T_c_b[None]
-    return PoseSeries(t_s=t, p_w_m=T_b[:, :3, 3], q_wb_xyzw=matrix_to_quat_xyzw(T_b[:, :3, :3]),
-                      source=str(root / spec["path"]), lines=lines)
+    if np.allclose(T_c_b, np.eye(4)):
+        return poses
+    T_b = make_T(poses.R_wb(), poses.p_w_m) @ T_c_b[None]
+    return PoseSeries(t_s=poses.t_s, p_w_m=T_b[:, :3, 3], q_wb_xyzw=matrix_to_quat_xyzw(T_b[:, :3, :3]),
+                      source=poses.source, lines=poses.lines)

@@ -21,6 +21,8 @@ class ReadContext:
     manifest: Path
     origin: tuple[float, float, float] | None   # the geodetic origin of the local ENU world frame
     oxts: Callable[[dict], Any]                 # the (cached) KITTI OXTS packets of an entry's path
+    imu_packets: Any = None                     # the IMU's OXTS packets (kitti_oxts IMU): a pose file's clock
+    notes: dict = field(default_factory=dict)   # what a reader found out (a recovered frame clock), for the run
 
     def path(self, entry: dict) -> Path:
         return self.root / entry["path"]
