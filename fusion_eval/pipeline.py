@@ -24,7 +24,7 @@ from .evaluation.run_metrics import (ESTIMATES, consistency, fused_error, ratio_
 from .evaluation.trajectory import EstimateEvaluation, evaluate
 from .outputs import StagedDir
 from .pool import executor
-from .prepare import Prepared, prepare, settings_for
+from .prepare import Prepared, offsets_note, prepare, settings_for
 from .replay import FilterOutput, dead_reckoning, replay
 from .types import Dataset, PoseSeries
 
@@ -102,7 +102,7 @@ def share(ds: Dataset, cfg: dict, pool) -> Shared:
     try:
         sp = span.span_for(ev_cfg["span"], gt, spans)
     except DataRangeError as exc:
-        raise DataRangeError(f"{exc} {_offsets_note(prep)}".rstrip()) from None
+        raise DataRangeError(f"{exc} {offsets_note(prep.applied)}".rstrip()) from None
     ref = span.crop(gt, sp)              # as evo's --t_start/--t_end: the reference reduced to the span
     futures = {n: pool.submit(evaluate_estimate, ref, series[n], n, ev_cfg) for n in ("lidar", "gnss") if n in series}
     series["imu_only"] = dead_reckoning(prep, settings_for(cfg, prep))
@@ -125,13 +125,6 @@ def execute(ds: Dataset, cfg: dict, *, dataset_path: str | Path | None = None, c
     with executor(jobs) as pool:
         return filter_and_evaluate(ds, cfg, share(ds, cfg, pool), pool, dataset_path=dataset_path,
                                    config_source=config_source, progress=progress, out=out, trials=trials)
-
-
-def _offsets_note(prep: Prepared) -> str:
-    """The time offsets a run applied, for a message about streams that do not meet."""
-    offs = [f"{k}.time_offset_s = {v:g} s" for k, v in prep.applied.get("time_offset_s", {}).items()
-            if isinstance(v, (int, float)) and v]
-    return f"(applied: {', '.join(offs)}; a wrong time offset?)" if offs else "(a stream's time offset, or the tolerance?)"
 
 
 def filter_and_evaluate(ds: Dataset, cfg: dict, sh: Shared, pool, *, dataset_path: str | Path | None = None,
@@ -183,7 +176,7 @@ def filter_and_evaluate(ds: Dataset, cfg: dict, sh: Shared, pool, *, dataset_pat
         raise DataRangeError(f"the fused estimate ({len(f)} poses, {f.t_s[0]:.3f}..{f.t_s[-1]:.3f} s) matches "
                              f"{evals['fused'].matched_poses} ground-truth poses ({gt.source}: {len(gt)} poses, "
                              f"{gt.t_s[0]:.3f}..{gt.t_s[-1]:.3f} s) within evaluation.t_max_diff_s = {ev_cfg['t_max_diff_s']} s "
-                             f"{_offsets_note(prep)}".rstrip())
+                             f"{offsets_note(prep.applied)}".rstrip())
     ratios = ratio_metrics(evals)
     cons = consistency(gt, filt)
     seg = segments(gt, evals, ev_cfg)

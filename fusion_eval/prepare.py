@@ -14,6 +14,7 @@ from dataclasses import dataclass, field, replace
 import numpy as np
 
 from . import timing
+from .datasets import plausible
 from .calibration import imu_noise
 from .config import Settings
 from .calibration.extrinsic import apply_rotation, estimate_rotation
@@ -96,13 +97,11 @@ def needed_streams(cfg: dict) -> dict[str, tuple[str, str]]:
     return need
 
 
-def _offs(applied: dict) -> str:
+def offsets_note(applied: dict) -> str:
+    """The time offsets a run applied, for a message about streams that do not meet."""
     offs = [f"{k}.time_offset_s = {v:g} s" for k, v in applied.get("time_offset_s", {}).items()
             if isinstance(v, (int, float)) and v]
-    return f"(applied: {', '.join(offs)})" if offs else "(no time offset applied)"
-
-
-MAX_LAG_S = 1.0        # an IMU channel's latency: beyond a second it is a clock offset (or a typo), not a lag
+    return f"(applied: {', '.join(offs)}; a wrong time offset?)" if offs else "(no time offset applied)"
 
 
 def prepare(ds: Dataset, cfg: dict) -> Prepared:
@@ -118,9 +117,8 @@ def prepare(ds: Dataset, cfg: dict) -> Prepared:
 
     for key in ("gyro_lag_s", "accel_lag_s"):
         lag = cfg["imu"].get(key)
-        if isinstance(lag, (int, float)) and abs(lag) > MAX_LAG_S:
-            raise ConfigError(f"imu.{key} = {lag:g} s: a channel lag is a latency of milliseconds (KITTI's OXTS: 0.06 s), at "
-                              f"most {MAX_LAG_S:g} s here; a clock offset between streams goes in time_offset_s")
+        if isinstance(lag, (int, float)) and abs(lag) > plausible.MAX_LAG_S:
+            raise ConfigError(f"imu.{key} = {lag:g} s: {plausible.LAG_NOTE}")
     applied: dict = {"time_offset_s": {}}
     # --- IMU: offset, drop filled packets, gyro lag
     imu = ds.imu
@@ -169,7 +167,7 @@ def prepare(ds: Dataset, cfg: dict) -> Prepared:
             lid = snap_to_stamps(lid, imu.t_s)
         lidar = lid
         if use_lidar and (len(lidar) < 2 or lidar.t_s[-1] <= imu.t_s[0] or lidar.t_s[0] >= imu.t_s[-1]):
-            raise DataRangeError(f"lidar ({ds.lidar.source}) and IMU ({ds.imu.source}) do not overlap in time {_offs(applied)}")
+            raise DataRangeError(f"lidar ({ds.lidar.source}) and IMU ({ds.imu.source}) do not overlap in time {offsets_note(applied)}")
 
     # --- start: first IMU sample covered by the ground truth (and the lidar, when it is fused)
     t_min = gt.t_s[0]
@@ -180,7 +178,7 @@ def prepare(ds: Dataset, cfg: dict) -> Prepared:
     ks = np.flatnonzero((imu.t_s >= t_min - 1e-9) & (imu.t_s <= gt.t_s[-1]))
     if ks.size < 2:
         raise DataRangeError(f"fewer than 2 IMU samples ({ds.imu.source}) lie where ground truth ({gt.source}) and lidar are "
-                             f"available {_offs(applied)}")
+                             f"available {offsets_note(applied)}")
     k0 = int(ks[0])
     t0 = float(imu.t_s[k0])
 
@@ -219,7 +217,7 @@ def prepare(ds: Dataset, cfg: dict) -> Prepared:
             applied["odometer_added_noise_std_mps"] = cfg["odometer"]["added_noise_std_mps"]
         if needs_odo and (odo.t_s[-1] <= imu.t_s[k0] or odo.t_s[0] >= imu.t_s[-1]):
             raise DataRangeError(f"odometer ({ds.odometer.source}) and IMU ({ds.imu.source}) do not overlap in time "
-                                 f"{_offs(applied)}")
+                                 f"{offsets_note(applied)}")
 
     # --- IMU white noise: given, or from the stream's own second differences (no ground truth), estimated
     #     once the streams are known to overlap

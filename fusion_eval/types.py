@@ -23,18 +23,21 @@ def _frozen(a: Any, dtype=float) -> np.ndarray:
     return arr
 
 
-def _line(lines: np.ndarray | None, i: int) -> int | None:
+def line_of(lines: np.ndarray | None, i: int) -> int | None:
+    """The 1-based file line of row ``i`` (None when the series knows no lines)."""
     if lines is None or len(lines) == 0:
         return None
     return int(lines[min(i, len(lines) - 1)])
 
 
-def _check_times(t: np.ndarray, source: str, lines: np.ndarray | None, what: str, allow_equal: bool = False) -> None:
+def check_times(t: np.ndarray, source: str, lines: np.ndarray | None, what: str, allow_equal: bool = False) -> None:
+    """Finite, increasing stamps (equal consecutive ones allowed with ``allow_equal``), or a one-line error naming the
+    line of the first that is not."""
     if t.ndim != 1:
         raise DataFormatError(source, None, f"{what} times must be a 1-D array, got shape {t.shape}")
     bad = np.flatnonzero(~np.isfinite(t))
     if bad.size:
-        raise DataFormatError(source, _line(lines, bad[0]), f"{what} timestamp must be a finite number")
+        raise DataFormatError(source, line_of(lines, bad[0]), f"{what} timestamp must be a finite number")
     if t.size > 1:
         d = np.diff(t)
         bad = np.flatnonzero(d < 0.0 if allow_equal else d <= 0.0)
@@ -42,7 +45,7 @@ def _check_times(t: np.ndarray, source: str, lines: np.ndarray | None, what: str
             i = bad[0] + 1
             kind = "duplicate" if d[bad[0]] == 0 else "decreasing"
             must = "must not decrease" if allow_equal else "must strictly increase"
-            raise DataFormatError(source, _line(lines, i),
+            raise DataFormatError(source, line_of(lines, i),
                                   f"{what} timestamps {must} ({kind} timestamp {t[i]:.9f} after {t[i - 1]:.9f})")
 
 
@@ -57,7 +60,7 @@ def _check_rows(name: str, a: np.ndarray, n: int, cols: int, source: str, lines:
         raise DataFormatError(source, None, f"{what} {name} must have shape ({n}, {cols}), got {a.shape}")
     bad = np.flatnonzero(~np.all(np.isfinite(a), axis=1))
     if bad.size:
-        raise DataFormatError(source, _line(lines, bad[0]), f"{what} {name} must be finite numbers (found NaN or inf)")
+        raise DataFormatError(source, line_of(lines, bad[0]), f"{what} {name} must be finite numbers (found NaN or inf)")
 
 
 @dataclass(frozen=True)
@@ -84,14 +87,14 @@ class ImuSeries:
         object.__setattr__(self, "filled", _frozen(filled, bool))
         if self.lines is not None:
             object.__setattr__(self, "lines", _frozen(self.lines, np.int64))
-        _check_times(t, self.source, self.lines, "IMU")
+        check_times(t, self.source, self.lines, "IMU")
         _check_rows("specific force", self.f_b_mps2, t.size, 3, self.source, self.lines, "IMU")
         _check_rows("angular rate", self.w_b_rps, t.size, 3, self.source, self.lines, "IMU")
         for name, a, lim, unit in (("angular rate", self.w_b_rps, IMU_MAX_RATE_RPS, "rad/s"),
                                    ("specific force", self.f_b_mps2, IMU_MAX_SPECIFIC_FORCE_MPS2, "m/s^2")):
             bad = np.flatnonzero(np.abs(a).max(axis=1) > lim) if t.size else []
             if len(bad):
-                raise DataFormatError(self.source, _line(self.lines, bad[0]),
+                raise DataFormatError(self.source, line_of(self.lines, bad[0]),
                                       f"IMU {name} {a[bad[0]].tolist()} {unit} exceeds {lim:g} {unit} (no IMU measures that: "
                                       "a corrupted sample, or deg/s or g given as rad/s or m/s^2?)")
 
@@ -124,12 +127,12 @@ class GnssSeries:
         object.__setattr__(self, "filled", _frozen(filled, bool))
         if self.lines is not None:
             object.__setattr__(self, "lines", _frozen(self.lines, np.int64))
-        _check_times(t, self.source, self.lines, "GNSS")
+        check_times(t, self.source, self.lines, "GNSS")
         _check_rows("position", self.p_w_m, t.size, 3, self.source, self.lines, "GNSS")
         _check_rows("std", self.std_w_m, t.size, 3, self.source, self.lines, "GNSS")
         if np.any(self.std_w_m <= 0):
             i = int(np.flatnonzero(np.any(self.std_w_m <= 0, axis=1))[0])
-            raise DataFormatError(self.source, _line(self.lines, i), "GNSS position std must be > 0")
+            raise DataFormatError(self.source, line_of(self.lines, i), "GNSS position std must be > 0")
 
     def __len__(self) -> int:
         return int(self.t_s.size)
@@ -172,13 +175,13 @@ class PoseSeries:
         q = np.array(self.q_wb_xyzw, dtype=float)
         if self.lines is not None:
             object.__setattr__(self, "lines", _frozen(self.lines, np.int64))
-        _check_times(t, self.source, self.lines, "pose", allow_equal=self.repeated_stamps)
+        check_times(t, self.source, self.lines, "pose", allow_equal=self.repeated_stamps)
         _check_rows("position", np.asarray(self.p_w_m), t.size, 3, self.source, self.lines, "pose")
         _check_rows("quaternion", q, t.size, 4, self.source, self.lines, "pose")
         norms = np.linalg.norm(q, axis=1)
         bad = np.flatnonzero(np.abs(norms - 1.0) > 1e-2)
         if bad.size:
-            raise DataFormatError(self.source, _line(self.lines, bad[0]),
+            raise DataFormatError(self.source, line_of(self.lines, bad[0]),
                                   f"pose quaternion must have unit norm, got norm {norms[bad[0]]:.4f}")
         object.__setattr__(self, "q_wb_xyzw", _frozen(q / norms[:, None]))
         if self.v_w_mps is not None:
@@ -218,7 +221,7 @@ class SpeedSeries:
         object.__setattr__(self, "v_mps", _frozen(self.v_mps))
         if self.lines is not None:
             object.__setattr__(self, "lines", _frozen(self.lines, np.int64))
-        _check_times(t, self.source, self.lines, "odometer")
+        check_times(t, self.source, self.lines, "odometer")
         _check_rows("speed", self.v_mps.reshape(-1, 1), t.size, 1, self.source, self.lines, "odometer")
 
     def __len__(self) -> int:
@@ -250,12 +253,12 @@ class VectorSeries:
         object.__setattr__(self, "filled", _frozen(filled, bool))
         if self.lines is not None:
             object.__setattr__(self, "lines", _frozen(self.lines, np.int64))
-        _check_times(t, self.source, self.lines, self.what)
+        check_times(t, self.source, self.lines, self.what)
         _check_rows("values", self.values, t.size, v.shape[1], self.source, self.lines, self.what)
         _check_rows("std", self.std, t.size, v.shape[1], self.source, self.lines, self.what)
         if np.any(self.std <= 0):
             i = int(np.flatnonzero(np.any(self.std <= 0, axis=1))[0])
-            raise DataFormatError(self.source, _line(self.lines, i), f"{self.what} std must be > 0")
+            raise DataFormatError(self.source, line_of(self.lines, i), f"{self.what} std must be > 0")
 
     def __len__(self) -> int:
         return int(self.t_s.size)

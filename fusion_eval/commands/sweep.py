@@ -423,6 +423,11 @@ def execute(tasks: list[Task], out_dir: Path, jobs: int | None, scheduler: str |
         if progress:
             progress(n_ok, n_fail, total - n_ok - n_fail, skipped)
 
+    def interrupted(exc: KeyboardInterrupt) -> KeyboardInterrupt:
+        """The same interrupt (Ctrl-C or SIGTERM), saying what is kept and how to resume."""
+        return type(exc)(f"{n_ok + n_fail + skipped} of {total + skipped} runs are recorded in {out_dir}/records; run the "
+                         f"same command again to do the {total - n_ok - n_fail} left (finished runs are not redone)")
+
     work = batches(todo, jobs) if batch else [[t] for t in todo]
     shared = [w for w in work if len(w) > 1]
     if shared:
@@ -452,9 +457,7 @@ def execute(tasks: list[Task], out_dir: Path, jobs: int | None, scheduler: str |
                 for rec in run_batch(w):
                     finished(rec)
         except KeyboardInterrupt as exc:
-            left = total - n_ok - n_fail
-            raise type(exc)(f"{n_ok + n_fail + skipped} of {total + skipped} runs are recorded in {out_dir}/records; "
-                            f"run the same command again to do the {left} left (finished runs are not redone)") from None
+            raise interrupted(exc) from None
     else:
         import multiprocessing as mp
         from concurrent.futures import as_completed as cf_completed
@@ -476,9 +479,7 @@ def execute(tasks: list[Task], out_dir: Path, jobs: int | None, scheduler: str |
                     if f not in consumed and f.done() and not f.cancelled() and f.exception() is None:
                         for rec in f.result():
                             finished(rec)
-                left = total - n_ok - n_fail
-                raise type(exc)(f"{n_ok + n_fail + skipped} of {total + skipped} runs are recorded in {out_dir}/records; "
-                                f"run the same command again to do the {left} left (finished runs are not redone)") from None
+                raise interrupted(exc) from None
     return {"run": n_ok, "failed": n_fail, "skipped": skipped}
 
 

@@ -12,16 +12,15 @@ from __future__ import annotations
 import numpy as np
 
 from ..errors import DataFormatError, DataRangeError
+from ..types import line_of
 
+MAX_LAG_S = 1.0          # an IMU channel's latency: beyond a second it is a clock offset (or a typo), not a lag
+LAG_NOTE = (f"a channel lag is a latency of milliseconds (KITTI's OXTS: 0.06 s), at most {MAX_LAG_S:g} s here; a clock "
+            "offset between streams goes in time_offset_s")
 MAX_IMU_GAP_S = 60.0
 MAX_SPAN_RATIO = 50.0
 MAX_POSITION_M = 1e7
 MAX_SPEED_MPS = 1e4
-
-
-def _line(series, i: int):
-    lines = getattr(series, "lines", None)
-    return None if lines is None or len(lines) == 0 else int(lines[min(i, len(lines) - 1)])
 
 
 def check_imu(imu) -> None:
@@ -33,7 +32,7 @@ def check_imu(imu) -> None:
     bad = np.flatnonzero(d > max(MAX_IMU_GAP_S, 1000.0 * med))
     if bad.size:
         i = int(bad[0]) + 1
-        raise DataFormatError(imu.source, _line(imu, i), f"the IMU stamps jump by {d[i - 1]:.3f} s (median step {med:.4g} s) "
+        raise DataFormatError(imu.source, line_of(imu.lines, i), f"the IMU stamps jump by {d[i - 1]:.3f} s (median step {med:.4g} s) "
                                                          f"to {t[i]:.6f}: a corrupted stamp, or recordings run together "
                                                          f"(a gap of over {MAX_IMU_GAP_S:g} s); split the drive there")
 
@@ -59,7 +58,7 @@ def check_poses(name: str, poses) -> None:
     bad = np.flatnonzero(r > MAX_POSITION_M)
     if bad.size:
         i = int(bad[0])
-        raise DataFormatError(poses.source, _line(poses, i), f"{name} position {p[i].tolist()} m is {r[i]:.3g} m from its "
+        raise DataFormatError(poses.source, line_of(poses.lines, i), f"{name} position {p[i].tolist()} m is {r[i]:.3g} m from its "
                                                              f"frame's origin (more than {MAX_POSITION_M:.0e} m): a corrupted pose")
     if p.shape[0] > 1:
         dt = np.diff(np.asarray(poses.t_s))
@@ -67,7 +66,7 @@ def check_poses(name: str, poses) -> None:
         bad = np.flatnonzero(v > MAX_SPEED_MPS)
         if bad.size:
             i = int(bad[0]) + 1
-            raise DataFormatError(poses.source, _line(poses, i), f"{name} pose moves {v[i - 1]:.3g} m/s from the previous one "
+            raise DataFormatError(poses.source, line_of(poses.lines, i), f"{name} pose moves {v[i - 1]:.3g} m/s from the previous one "
                                                                  f"(more than {MAX_SPEED_MPS:.0e} m/s): a corrupted pose or stamp")
 
 

@@ -63,7 +63,7 @@ from rosbags.typesys.msg import normalize_msgtype
 
 from ..errors import ConfigError, DataFormatError, OutputError
 from ..geo import geodetic_to_enu
-from ..so3 import inv_T, quat_xyzw_to_matrix
+from ..so3 import inv_T, make_T, matrix_to_quat_xyzw, quat_xyzw_to_matrix
 from ..types import ImuSeries, GnssSeries, PoseSeries
 from ._text import ns_to_s, s_to_ns
 
@@ -291,8 +291,6 @@ def _fields_of(msg: Any, msgtype: str) -> dict:
 
 
 def _stack(rows: list[dict], msgtype: str) -> dict:
-    if not rows:
-        return {name: np.zeros((0,)) for name in _READ_FIELDS[msgtype]}
     return {name: np.array([r[name] for r in rows]) for name in _READ_FIELDS[msgtype]}
 
 
@@ -333,7 +331,6 @@ class _Bag1:
     """The index of a ROS 1 bag (format 2.0), read directly: connections, chunk infos, per-chunk index records."""
 
     def __init__(self, path: Path):
-        self.path = path
         self.mm = np.memmap(path, dtype=np.uint8, mode="r")
         if bytes(self.mm[:13]) != b"#ROSBAG V2.0\n":
             raise _NoFastPath("not a ROS bag 2.0 file")
@@ -813,7 +810,7 @@ def _source(path, topic: str) -> str:
 def _times(fields: dict, stamps: str) -> np.ndarray:
     if stamps == "header":
         return _stamp_s(fields["sec"], fields["nsec"])
-    return ns_to_s(fields["rec_ns"])
+    return ns_to_s(np.asarray(fields["rec_ns"], dtype=np.int64))
 
 
 def read_imu(path: str | Path, topic: str, stamps: str = "header") -> ImuSeries:
@@ -1007,7 +1004,7 @@ def read_poses(path: str | Path, topic: str, stamps: str = "header", child_frame
             pairs[key] = pairs.get(key, 0) + 1
             if (child is not None and key[1] is not None and key[1] != child) or (parent is not None and key[0] != parent):
                 continue
-            t_hdr.append(int(header.stamp.sec) * 1_000_000_000 + int(header.stamp.nanosec))
+            t_hdr.append((header.stamp.sec, header.stamp.nanosec))
             t_rec.append(rec)
             p.append((pos.x, pos.y, pos.z))
             q.append((rot.x, rot.y, rot.z, rot.w))
@@ -1023,7 +1020,8 @@ def read_poses(path: str | Path, topic: str, stamps: str = "header", child_frame
         if len(parents) > 1:
             raise DataFormatError(path, None, f"topic '{topic}': frame '{child}' has several parents "
                                               f"({', '.join(sorted(parents))}); give parent_frame")
-    t = ns_to_s(np.array(t_hdr if stamps == "header" else t_rec, dtype=np.int64))
+    sec_nsec = np.array(t_hdr, dtype=np.int64).reshape(-1, 2)
+    t = _times({"sec": sec_nsec[:, 0], "nsec": sec_nsec[:, 1], "rec_ns": t_rec}, stamps)
     keep = _order(t, path, topic)
     q_arr = np.array(q)[keep]
     v_w = None
@@ -1044,21 +1042,15 @@ def read_pose_covariances(path: str | Path, topic: str, stamps: str = "header") 
         ``pose.covariance`` in ROS order (x, y, z, rot_x, rot_y, rot_z), m^2, m*rad, rad^2.
     """
     _check_stamps(stamps)
-    t, cov = [], []
+    sec, nsec, rec_ns, cov = [], [], [], []
     for _, rec, msg in _messages(path, topic, (POSE_COV_STAMPED, ODOMETRY)):
-        st = msg.header.stamp
-        t.append(int(st.sec) * 1_000_000_000 + int(st.nanosec) if stamps == "header" else rec)
-        cov.append(np.asarray(msg.pose.covariance, float).reshape(6, 6))
-    t_s = ns_to_s(np.array(t, dtype=np.int64))
+        sec.append(msg.header.stamp.sec)
+        nsec.append(msg.header.stamp.nanosec)
+        rec_ns.append(rec)
+        cov.append(msg.pose.covariance)
+    t_s = _times({"sec": sec, "nsec": nsec, "rec_ns": rec_ns}, stamps)
     keep = _order(t_s, path, topic)
-    return t_s[keep], np.array(cov)[keep]
-
-
-def _T(translation: Any, rotation: Any) -> np.ndarray:
-    T = np.eye(4)
-    T[:3, :3] = quat_xyzw_to_matrix([rotation.x, rotation.y, rotation.z, rotation.w]).reshape(3, 3)
-    T[:3, 3] = (translation.x, translation.y, translation.z)
-    return T
+    return t_s[keep], np.array(cov, float).reshape(-1, 6, 6)[keep]
 
 
 def static_transform(path: str | Path, parent: str, child: str, topic: str = "/tf_static") -> np.ndarray | None:
@@ -1094,12 +1086,17 @@ def static_edges(path: str | Path, topic: str = "/tf_static") -> dict[tuple[str,
     empty when the bag has no static TF topic)."""
     if topic not in topics(path):
         return {}
-    edges: dict[tuple[str, str], np.ndarray] = {}
+    keys, p, q = [], [], []
     for _, _, msg in _messages(path, topic, (TF_MESSAGE,)):
         for tf in msg.transforms:
-            edges[(_strip(tf.header.frame_id), _strip(tf.child_frame_id))] = _T(tf.transform.translation,
-                                                                               tf.transform.rotation)
-    return edges
+            tr, rot = tf.transform.translation, tf.transform.rotation
+            keys.append((_strip(tf.header.frame_id), _strip(tf.child_frame_id)))
+            p.append((tr.x, tr.y, tr.z))
+            q.append((rot.x, rot.y, rot.z, rot.w))
+    if not keys:
+        return {}
+    T = make_T(quat_xyzw_to_matrix(np.array(q)).reshape(-1, 3, 3), np.array(p))
+    return dict(zip(keys, T))          # the last one published wins
 
 
 # ----------------------------------------------------------------------------------------------------------------
@@ -1415,6 +1412,4 @@ def write_bag(path: str | Path, version: str, streams: Sequence[BagStream],
 
 
 def _quat_of(T: np.ndarray) -> np.ndarray:
-    from ..so3 import matrix_to_quat_xyzw
-
     return matrix_to_quat_xyzw(np.asarray(T, float)[:3, :3].reshape(1, 3, 3))[0]

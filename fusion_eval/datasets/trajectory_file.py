@@ -27,6 +27,7 @@ from pathlib import Path
 import numpy as np
 
 from ..errors import DataFormatError
+from ..types import check_times
 from . import kitti_poses
 from ._text import parse_numeric_rows, read_text
 
@@ -63,9 +64,10 @@ def read_covariances(path: Path) -> tuple[np.ndarray, np.ndarray]:
     return rows[:, 0], cov
 
 
-def detect_format(path: Path) -> str:
-    """``tum``, ``kitti`` or ``euroc`` from the first data line (comment lines skipped)."""
-    lines = read_text(path, "a TUM, KITTI or EuRoC trajectory").splitlines()
+def detect_format(path: Path, text: str | None = None) -> str:
+    """``tum``, ``kitti`` or ``euroc`` from the first data line (comment lines skipped) of ``path`` (or of its
+    ``text``, when already read)."""
+    lines = (read_text(path, "a TUM, KITTI or EuRoC trajectory") if text is None else text).splitlines()
     at = next((i for i, ln in enumerate(lines) if ln.strip() and not ln.lstrip().startswith("#")), None)
     first = "" if at is None else lines[at]
     if "," in first:
@@ -93,12 +95,9 @@ def detect_format(path: Path) -> str:
 
 
 def _stamps_checked(path: Path, t: np.ndarray, lines: np.ndarray) -> int:
-    d = np.diff(t)
-    bad = np.flatnonzero(d < 0)
-    if bad.size:
-        i = int(bad[0]) + 1
-        raise DataFormatError(path, int(lines[i]), f"timestamps must not decrease ({t[i]:.9f} after {t[i - 1]:.9f})")
-    return int(np.count_nonzero(d == 0))
+    """Refuse decreasing stamps (naming the line); return how many repeat the previous one (accepted, as by evo)."""
+    check_times(np.asarray(t, float), str(path), lines, "trajectory", allow_equal=True)
+    return int(np.count_nonzero(np.diff(t) == 0))
 
 
 def read_trajectory(path: Path, times: Path | None = None, fmt: str = "auto") -> TrajectoryFile:
@@ -113,12 +112,12 @@ def read_trajectory(path: Path, times: Path | None = None, fmt: str = "auto") ->
     path = Path(path)
     if fmt not in FORMATS:
         raise DataFormatError(path, None, f"unknown trajectory format {fmt!r} (known: {', '.join(FORMATS)})")
+    text = read_text(path, "a TUM, KITTI or EuRoC trajectory" if fmt == "auto" else f"a {fmt} trajectory")
     if fmt == "auto":
-        fmt = detect_format(path)
+        fmt = detect_format(path, text)
     if fmt != "kitti" and times is not None:
         raise DataFormatError(times, None, f"a times file applies to KITTI pose files only ({path.name} is {fmt}: "
                                            "its rows carry their stamps)")
-    text = read_text(path, f"a {fmt} trajectory")
     if fmt == "tum":
         rows, lines = parse_numeric_rows(path, text, 8, "TUM trajectory file (timestamp tx ty tz qx qy qz qw)")
         repeated = _stamps_checked(path, rows[:, 0], lines)
@@ -192,10 +191,8 @@ def read_bag_trajectories(bag: Path, topics: list[str]) -> list[TrajectoryFile]:
                 raise DataFormatError(bag, None, f"topic {topic!r}: {exc} (trajectory topics in the bag: "
                                                  f"{', '.join(known) or 'none'}; TF frames as /tf:parent.child)") from None
             t = np.asarray(traj.timestamps)
-            try:
-                repeated = _stamps_checked(bag, t, np.arange(1, t.size + 1))
-            except DataFormatError as exc:
-                raise DataFormatError(bag, None, f"topic {topic!r}, message {exc.line}: header stamps {exc.expected[11:]}") from None
+            # the 'line' of a bag topic is the message's number in it
+            repeated = _stamps_checked(f"{bag} (topic {topic}, message)", t, np.arange(1, t.size + 1))
             traj.meta["name"] = topic
             f = TrajectoryFile(traj=traj, format="bag", stamps="header stamps", repeated_stamps=repeated,
                                source=f"{bag}:{topic}", frame_id=traj.meta.get("frame_id"), note=note)

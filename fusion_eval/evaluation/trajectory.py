@@ -168,24 +168,27 @@ class _Arrays:
 
 def _align(est_a, ref_a, alignment: str, arrays: bool, n_to_align: int = -1):
     """The estimate moved by evo's ``origin``/``se3``/``sim3``/``scale`` alignment (``--align_origin``, ``-a``,
-    ``-as``, ``-s``), Umeyama's fit on the first ``n_to_align`` poses (-1: all), and the alignment's parameters."""
+    ``-as``, ``-s``), Umeyama's fit on the first ``n_to_align`` poses (-1: all), the alignment's parameters, and the
+    rotation and scale it applied ``(R, s)`` (what carries a covariance along)."""
     with_scale, only_scale = alignment in ("sim3", "scale"), alignment == "scale"
     if not arrays:
         est_a = copy.deepcopy(est_a)
         if alignment == "origin":
-            return est_a, {"T": np.asarray(est_a.align_origin(ref_a)).tolist()}
+            T = np.asarray(est_a.align_origin(ref_a))
+            return est_a, {"T": T.tolist()}, (T[:3, :3], 1.0)
         r, t, s = est_a.align(ref_a, correct_scale=with_scale, correct_only_scale=only_scale, n=n_to_align)
     else:
         est_T, ref_T = engine.traj_se3(est_a), engine.traj_se3(ref_a)
         if alignment == "origin":
             moved, T = engine.align_origin(est_T, ref_T)
-            return engine.with_poses(est_a, moved), {"T": T.tolist()}
+            return engine.with_poses(est_a, moved), {"T": T.tolist()}, (T[:3, :3], 1.0)
         moved, (r, t, s) = engine.align_se3(est_T, est_a.positions_xyz, ref_a.positions_xyz, with_scale,
                                             only_scale=only_scale, n=n_to_align)
         est_a = engine.with_poses(est_a, moved)
     if only_scale:
-        return est_a, {"scale": float(s)}
-    return est_a, {"rotation": np.asarray(r).tolist(), "translation_m": np.asarray(t).tolist(), "scale": float(s)}
+        return est_a, {"scale": float(s)}, (np.eye(3), float(s))
+    return (est_a, {"rotation": np.asarray(r).tolist(), "translation_m": np.asarray(t).tolist(), "scale": float(s)},
+            (np.asarray(r), float(s)))
 
 
 def _align_4dof(est_a, ref_a, up_axis: str, n_to_align: int = -1):
@@ -200,7 +203,7 @@ def _align_4dof(est_a, ref_a, up_axis: str, n_to_align: int = -1):
     A = np.eye(4)
     A[:3, :3], A[:3, 3] = R, t
     params.update({"up_axis": up_axis, "yaw_deg": float(np.degrees(yaw)), "rotation": R.tolist(), "translation_m": t.tolist()})
-    return engine.with_poses(est_a, A @ engine.traj_se3(est_a)), params
+    return engine.with_poses(est_a, A @ engine.traj_se3(est_a)), params, (R, 1.0)
 
 
 def evaluate(reference, estimate, name: str, t_max_diff_s: float,
@@ -237,12 +240,13 @@ def evaluate(reference, estimate, name: str, t_max_diff_s: float,
     if ev.matched_poses < 2:
         ev.note = "fewer than 2 associated poses"
         return ev
+    applied = (np.eye(3), 1.0)             # the rotation and scale the alignment applied (none: identity)
     if alignment == "4dof":
-        est_a, ev.alignment_params = _align_4dof(est_a, ref_a, up_axis, n_to_align)
+        est_a, ev.alignment_params, applied = _align_4dof(est_a, ref_a, up_axis, n_to_align)
     elif alignment in ("se3", "sim3", "scale", "origin"):
-        est_a, ev.alignment_params = _align(est_a, ref_a, alignment, arrays, n_to_align)
+        est_a, ev.alignment_params, applied = _align(est_a, ref_a, alignment, arrays, n_to_align)
     if cov is not None:
-        ev.nees = pose_nees_of(ref_a, est_a, cov, ev.alignment_params, t_max_diff_s)
+        ev.nees = pose_nees_of(ref_a, est_a, cov, applied, t_max_diff_s)
     calc = _Arrays(ref_a, est_a) if arrays else _EvoLoops(ref_a, est_a)
     wanted = ["trans_part", *[r for r in relations if r != "trans_part"]]
     rels = [(keys.RELATION_KEYS[r], keys.EVO_RELATIONS[r]) for r in wanted
@@ -278,16 +282,7 @@ def evaluate(reference, estimate, name: str, t_max_diff_s: float,
     return ev
 
 
-def _alignment_RA_s(params: dict | None) -> tuple[np.ndarray, float]:
-    """The rotation and scale an alignment applied to the estimate (identity and 1 when none)."""
-    if not params:
-        return np.eye(3), 1.0
-    if "T" in params:
-        return np.asarray(params["T"])[:3, :3], 1.0
-    return np.asarray(params.get("rotation", np.eye(3))), float(params.get("scale", 1.0))
-
-
-def pose_nees_of(ref_a, est_a, cov: tuple[np.ndarray, np.ndarray], alignment_params: dict | None,
+def pose_nees_of(ref_a, est_a, cov: tuple[np.ndarray, np.ndarray], applied: tuple[np.ndarray, float],
                  t_max_diff_s: float) -> dict | None:
     """Position and attitude NEES (3 dof each) of the associated, aligned estimate against the reference.
 
@@ -304,7 +299,7 @@ def pose_nees_of(ref_a, est_a, cov: tuple[np.ndarray, np.ndarray], alignment_par
     if i_est.size == 0:
         log.warning("%s: no covariance stamp within %g s of an associated pose: no NEES", est_name(est_a), t_max_diff_s)
         return None
-    R_A, s = _alignment_RA_s(alignment_params)
+    R_A, s = applied
     T_e, T_r = engine.traj_se3(est_a)[i_est], engine.traj_se3(ref_a)[i_est]
     P = np.array(C[i_cov], float)
     R_e = T_e[:, :3, :3]

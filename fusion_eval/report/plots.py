@@ -258,7 +258,11 @@ def plot_sweep(out_dir: Path, rows: list[dict], keys: list[str], metric: str, ta
                 if pts:
                     x, y = zip(*pts)
                     ax.plot(x, y, "o", ms=4, color=_VCOLORS[i % len(_VCOLORS)], label=Path(ds).name)
-            ax.set_xscale("log")
+            # Noise settings span decades, but a swept lag or offset may be zero or negative:
+            # a log axis only where every value is positive.
+            values = [r[k] for r in ok if isinstance(r.get(k), (int, float))]
+            if values and min(values) > 0:
+                ax.set_xscale("log")
             ax.set_xlabel(k)
             ax.set_ylabel("fused APE translation RMSE [m]")
             ax.grid(alpha=0.3, which="both")

@@ -66,28 +66,30 @@ def as_written(a: np.ndarray, decimals) -> np.ndarray:
 
 
 def s_text(t_s: np.ndarray) -> np.ndarray:
-    """Stamps as 9-decimal text: parsed back they give the same floats (a float stamp of ~1e9 s is on a 0.24 us
-    grid, finer than nothing the nanosecond rounding can move it off)."""
+    """Stamps as 9-decimal text: parsed back they give the same floats (floats near 1e9 s are 0.24 us apart, so
+    rounding to the nanosecond cannot move a stamp to another float)."""
     return np.array([f"{t:.9f}" for t in np.asarray(t_s, float)])
 
 
-def _rows(columns: list[np.ndarray], fmts: list[str], sep: str = ",") -> str:
-    cols = [c if c.dtype.kind in "US" else np.char.mod(f, c) for c, f in zip(columns, fmts)]
-    return "\n".join(sep.join(r) for r in zip(*cols)) + "\n"
+def _rows(columns: list[np.ndarray], sep: str = ",") -> str:
+    """Text rows of columns already formatted (strings)."""
+    return "\n".join(sep.join(r) for r in zip(*columns)) + "\n"
 
 
 def _g17(a: np.ndarray) -> np.ndarray:
     return np.char.mod("%.17g", np.asarray(a, float))
 
 
+def _packets(s: SimStreams) -> OxtsPackets:
+    return OxtsPackets(t_s=s.t_s, values=s.packets, filled=np.zeros(s.t_s.size, bool), stamps_path=None, packet_paths=())
+
+
 def _ground_truth(s: SimStreams) -> PoseSeries:
-    pk = OxtsPackets(t_s=s.t_s, values=s.packets, filled=np.zeros(s.t_s.size, bool), stamps_path=None, packet_paths=())
-    return poses_from_oxts(pk, s.origin)
+    return poses_from_oxts(_packets(s), s.origin)
 
 
 def _imu(s: SimStreams):
-    pk = OxtsPackets(t_s=s.t_s, values=s.packets, filled=np.zeros(s.t_s.size, bool), stamps_path=None, packet_paths=())
-    return imu_from_oxts(pk)
+    return imu_from_oxts(_packets(s))
 
 
 def _lidar_quat(s: SimStreams) -> tuple[np.ndarray, np.ndarray]:
@@ -104,12 +106,12 @@ def _lidar_entry(s: SimStreams, base: dict) -> dict:
 
 def _gnss_csv(out, name: str, s: SimStreams) -> dict:
     out.write_text(name, "t_s,lat_deg,lon_deg,alt_m,std_e_m,std_n_m,std_u_m\n" + _rows(
-        [s_text(s.gnss_t_s), *_g17(s.gnss_lla).T, *_g17(s.gnss_std_m).T], [""] * 7))
+        [s_text(s.gnss_t_s), *_g17(s.gnss_lla).T, *_g17(s.gnss_std_m).T]))
     return {"format": "csv", "path": name, "columns": ["t", "lat", "lon", "alt", "std_e", "std_n", "std_u"], "degrade": False}
 
 
 def _odometer_csv(out, name: str, s: SimStreams) -> dict:
-    out.write_text(name, "t_s,v_mps\n" + _rows([s_text(s.odo_t_s), _g17(s.odo_v_mps)], ["", ""]))
+    out.write_text(name, "t_s,v_mps\n" + _rows([s_text(s.odo_t_s), _g17(s.odo_v_mps)]))
     return {"format": "csv", "path": name, "columns": ["t", "v"]}
 
 
@@ -120,7 +122,7 @@ def _write_euroc(out, s: SimStreams) -> dict:
     ns = s_to_ns(s.t_s).astype(str)
     out.write_text("mav0/imu0/data.csv", "#timestamp [ns],w_RS_S_x [rad s^-1],w_RS_S_y [rad s^-1],w_RS_S_z [rad s^-1],"
                    "a_RS_S_x [m s^-2],a_RS_S_y [m s^-2],a_RS_S_z [m s^-2]\n"
-                   + _rows([ns, *_g17(imu.w_b_rps).T, *_g17(imu.f_b_mps2).T], [""] * 7))
+                   + _rows([ns, *_g17(imu.w_b_rps).T, *_g17(imu.f_b_mps2).T]))
     gt = _ground_truth(s)
     q = gt.q_wb_xyzw
     out.write_text("mav0/state_groundtruth_estimate0/data.csv",
@@ -128,10 +130,10 @@ def _write_euroc(out, s: SimStreams) -> dict:
                    "v_RS_R_x [m s^-1],v_RS_R_y [m s^-1],v_RS_R_z [m s^-1],b_w_RS_S_x [rad s^-1],b_w_RS_S_y [rad s^-1],"
                    "b_w_RS_S_z [rad s^-1],b_a_RS_S_x [m s^-2],b_a_RS_S_y [m s^-2],b_a_RS_S_z [m s^-2]\n"
                    + _rows([ns, *_g17(gt.p_w_m).T, *_g17(q[:, [3, 0, 1, 2]]).T, *_g17(gt.v_w_mps).T,
-                            *_g17(s.bias_w_rps).T, *_g17(s.bias_f_mps2).T], [""] * 17))
+                            *_g17(s.bias_w_rps).T, *_g17(s.bias_f_mps2).T]))
     p, ql = _lidar_quat(s)
     out.write_text("mav0/lidar0/data.csv", "#timestamp [ns],p_x [m],p_y [m],p_z [m],q_w [],q_x [],q_y [],q_z []\n"
-                   + _rows([s_to_ns(s.lidar_t_s).astype(str), *_g17(p).T, *_g17(ql[:, [3, 0, 1, 2]]).T], [""] * 8))
+                   + _rows([s_to_ns(s.lidar_t_s).astype(str), *_g17(p).T, *_g17(ql[:, [3, 0, 1, 2]]).T]))
     return {"imu": {"format": "euroc", "path": "mav0/imu0/data.csv"},
             "groundtruth": {"format": "euroc", "path": "mav0/state_groundtruth_estimate0/data.csv"},
             "gnss": _gnss_csv(out, "gnss/data.csv", s),
@@ -143,12 +145,12 @@ def _write_csv_log(out, s: SimStreams) -> dict:
     imu = _imu(s)
     t = s_text(s.t_s)
     out.write_text("imu.csv", "t_s,ax,ay,az,wx_dps,wy_dps,wz_dps\n"
-                   + _rows([t, *_g17(imu.f_b_mps2).T, *_g17(np.degrees(imu.w_b_rps)).T], [""] * 7))
+                   + _rows([t, *_g17(imu.f_b_mps2).T, *_g17(np.degrees(imu.w_b_rps)).T]))
     gt = _ground_truth(s)
     out.write_text("groundtruth.csv", "t_s,x,y,z,qx,qy,qz,qw,vx,vy,vz\n"
-                   + _rows([t, *_g17(gt.p_w_m).T, *_g17(gt.q_wb_xyzw).T, *_g17(gt.v_w_mps).T], [""] * 11))
+                   + _rows([t, *_g17(gt.p_w_m).T, *_g17(gt.q_wb_xyzw).T, *_g17(gt.v_w_mps).T]))
     p, ql = _lidar_quat(s)
-    out.write_text("lidar.csv", "t_s,x,y,z,qx,qy,qz,qw\n" + _rows([s_text(s.lidar_t_s), *_g17(p).T, *_g17(ql).T], [""] * 8))
+    out.write_text("lidar.csv", "t_s,x,y,z,qx,qy,qz,qw\n" + _rows([s_text(s.lidar_t_s), *_g17(p).T, *_g17(ql).T]))
     pose_cols = ["t", "x", "y", "z", "qx", "qy", "qz", "qw"]
     return {"imu": {"format": "csv", "path": "imu.csv", "columns": ["t", "ax", "ay", "az", "wx", "wy", "wz"],
                     "gyro_unit": "deg/s"},
