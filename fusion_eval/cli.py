@@ -6,13 +6,12 @@ from __future__ import annotations
 import logging
 import signal
 import sys
-import threading
 import time
 from pathlib import Path
 
 import click
 
-from . import __version__
+from . import __version__, interrupts
 from .errors import FusionEvalError
 
 log = logging.getLogger("fusion_eval")
@@ -38,41 +37,29 @@ class Group(click.Group):
     """Maps known errors to a one-line message and their exit code."""
 
     def invoke(self, ctx):
-        # SIGTERM as Ctrl-C for the command's duration (the same clean-up runs); the caller's handler is restored
-        # after, so that invoking the CLI in-process (tests, notebooks) leaves the process as it was
-        main_thread = threading.current_thread() is threading.main_thread()
-        old = signal.signal(signal.SIGTERM, _on_sigterm) if main_thread else None
+        # SIGINT and SIGTERM raise KeyboardInterrupt / Terminated (the same clean-up runs), deferred while numba
+        # calls into llvmlite (see interrupts.py); the caller's handlers are restored after
         try:
-            return super().invoke(ctx)
-        except FusionEvalError as exc:
-            click.echo(f"error: {exc}", err=True)
-            sys.exit(exc.exit_code)
+            with interrupts.handled():
+                return super().invoke(ctx)
         except KeyboardInterrupt as exc:
             _interrupted(exc)
-        except SystemError as exc:
-            # Ctrl-C inside a compiled (numba) kernel surfaces as a SystemError around the KeyboardInterrupt
-            cause = exc.__cause__ or exc.__context__
-            if isinstance(cause, KeyboardInterrupt):
-                _interrupted(cause)
+        except Exception as exc:
+            # a signal raised inside numba (its compiler, or a compiled kernel's callback) may come out as another
+            # error (a SystemError around the KeyboardInterrupt, a typing error): it is still the interruption
+            signum = interrupts.received()
+            if signum is not None:
+                _interrupted(interrupts.Terminated() if signum == signal.SIGTERM else KeyboardInterrupt())
+            if isinstance(exc, FusionEvalError):
+                click.echo(f"error: {exc}", err=True)
+                sys.exit(exc.exit_code)
             raise
-        finally:
-            if main_thread:
-                signal.signal(signal.SIGTERM, old)
-
-
-class Terminated(KeyboardInterrupt):
-    """SIGTERM, raised in the main thread like Ctrl-C, so that the same clean-up runs (staging folders removed,
-    workers killed, finished sweep runs recorded)."""
-
-
-def _on_sigterm(signum, frame):
-    raise Terminated()
 
 
 def _interrupted(exc: BaseException) -> None:
-    what = "terminated (SIGTERM)" if isinstance(exc, Terminated) else "interrupted"
+    what = "terminated (SIGTERM)" if isinstance(exc, interrupts.Terminated) else "interrupted"
     click.echo(f"\n{what}: {exc.args[0] if exc.args else 'no output directory was written'}", err=True)
-    sys.exit(143 if isinstance(exc, Terminated) else 130)
+    sys.exit(143 if isinstance(exc, interrupts.Terminated) else 130)
 
 
 @click.group(cls=Group, context_settings={"help_option_names": ["-h", "--help"]})

@@ -2,12 +2,14 @@
 """Issue 15's interrupt figures: how long ``run`` and ``sweep`` take to exit after SIGINT / SIGTERM, and what they
 leave behind.
 
-    python scripts/bench_interrupts.py [--repeats 3]
+    python scripts/bench_interrupts.py [--repeats 3] [--cold 10]
 
 For each case it starts the command, waits until it is writing (``run``: its staging folder exists; ``sweep``: two
 runs are recorded), sends the signal, and prints the seconds to exit (min / median / max over the repeats; target
 <= 2 s), the exit code, whether a staging folder or a process of the command's group is left, and for the sweep how
-many runs were recorded and whether the rerun redid none of them.
+many runs were recorded and whether the rerun redid none of them. ``--cold N`` adds N runs with an empty numba cache
+(a fresh install's first run, which compiles for about a minute), each sent SIGINT at another moment of the
+compilation: how many exit 130 (none lost, none with a traceback) and how long after the signal.
 """
 
 from __future__ import annotations
@@ -30,9 +32,23 @@ from conftest import make_slice, wait_for  # noqa: E402
 CLI = [sys.executable, "-m", "fusion_eval"]
 
 
-def _start(args, cwd):
+def _default_sigint() -> None:
+    signal.signal(signal.SIGINT, signal.SIG_DFL)     # as a terminal's foreground command, even from a background job
+
+
+def _start(args, cwd, env=None):
     return subprocess.Popen(CLI + args, cwd=cwd, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
-                            start_new_session=True, stdin=subprocess.DEVNULL)
+                            start_new_session=True, stdin=subprocess.DEVNULL, env=env, preexec_fn=_default_sigint)
+
+
+def cold_case(delay_s: float, tmp: Path) -> tuple[float, int, bool]:
+    env = dict(os.environ, NUMBA_CACHE_DIR=str(tmp / "numba-cache"))
+    p = _start(["run", "--out", str(tmp / "out")], tmp, env=env)
+    time.sleep(delay_s)
+    t0 = time.time()
+    os.kill(p.pid, signal.SIGINT)
+    _, err = p.communicate(timeout=300)
+    return time.time() - t0, p.returncode, "Traceback" in err or "Exception ignored" in err
 
 
 def _group_alive(pgid: int) -> bool:
@@ -77,7 +93,17 @@ def sweep_case(sig: int, tmp: Path) -> tuple[float, int, int, bool]:
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--repeats", type=int, default=3)
+    ap.add_argument("--cold", type=int, default=0, metavar="N", help="N runs signalled during numba's compilation")
     a = ap.parse_args()
+    if a.cold:
+        res = []
+        for i in range(a.cold):                          # moments spread over the ~60 s of compilation
+            with tempfile.TemporaryDirectory() as tmp:
+                res.append(cold_case(1.0 + 40.0 * i / max(a.cold - 1, 1), Path(tmp)))
+        dts = sorted(r[0] for r in res)
+        print(f"run   SIGINT during compilation ({a.cold} moments, 1-41 s after start): exit 130 in "
+              f"{sum(r[1] == 130 for r in res)}, lost (exit 0) {sum(r[1] == 0 for r in res)}, traceback "
+              f"{sum(r[2] for r in res)}; exit after {dts[0]:.2f} / {statistics.median(dts):.2f} / {dts[-1]:.2f} s")
     with tempfile.TemporaryDirectory() as warm:        # numba's cache compiled once, as on a user's second run
         subprocess.run(CLI + ["-q", "run", "--out", str(Path(warm) / "w"), "--no-plots"], check=True)
     for name, sig in (("SIGINT", signal.SIGINT), ("SIGTERM", signal.SIGTERM)):
