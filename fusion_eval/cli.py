@@ -395,6 +395,55 @@ def _num_or_na(x, nd: int) -> str:
     return "n/a" if x is None or x is False else f"{x:.{nd}f}"
 
 
+@main.command()
+@click.argument("datasets", nargs=-1, type=click.Path(path_type=Path))
+@click.option("--space", default="noise", show_default=True, metavar="SPACE",
+              help="Search space: a YAML file of config keys with ranges, or a shipped space's name (noise).")
+@click.option("--objective", "objectives", multiple=True, metavar="OBJ",
+              help="nll or nis (no ground truth needed), a metric key (fused.ape.rmse, fused.rpe_100m.rmse, ...) or a "
+                   "weighted sum (0.5*fused.ape.rmse+0.5*fused.rpe_100m.rmse); twice for a multi-objective study.")
+@click.option("--trials", "n_trials", type=click.IntRange(min=1), default=100, show_default=True,
+              help="Trials in the study (a resumed study goes on up to this many).")
+@click.option("--test", "test", multiple=True, type=click.Path(path_type=Path),
+              help="A held-out drive (repeatable): scored with the default and the tuned config, never trained on.")
+@click.option("-o", "--out", "out_dir", required=True, type=click.Path(path_type=Path),
+              help="Study directory; the same command resumes the study stored there.")
+@click.option("--sampler", type=click.Choice(["tpe", "cmaes"]), default="tpe", show_default=True)
+@click.option("--seed", type=int, default=0, show_default=True, help="Seed of the sampler.")
+@click.option("--seeds", type=click.IntRange(min=1), default=1, show_default=True,
+              help="Monte-Carlo seeds per drive (GNSS degradation and other random elements); the objective is their mean.")
+@click.option("-c", "--config", "config_path", type=click.Path(path_type=Path), help="Base configuration of every trial.")
+@click.option("-s", "--set", "sets", multiple=True, metavar="KEY=VALUE",
+              help="Override a key in every trial and in the default it is compared with (repeatable).")
+@click.option("-j", "--jobs", type=int, default=None, help="Trials scored at once (default: the cores, at most 4).")
+@click.option("--scheduler", default=None, metavar="ADDRESS", help="Score trials on an existing Dask cluster.")
+@click.option("--dask", "dask_mode", type=click.Choice(["local"]), default=None, help="Start a Dask LocalCluster.")
+@click.option("--no-prune", is_flag=True, help="Score every trial on every drive and seed.")
+@click.option("--no-plots", is_flag=True, help="Skip the plots.")
+@click.pass_context
+def tune(ctx, datasets, space, objectives, n_trials, test, out_dir, sampler, seed, seeds, config_path, sets, jobs, scheduler,
+         dask_mode, no_prune, no_plots):
+    """Tune the filter's noise settings on DATASET(s) (default: the embedded kitti-00) with Optuna."""
+    from .commands.tune import run_tune
+
+    bar = None if ctx.obj["quiet"] else _Progress("tuning")
+
+    def progress(done, total, best):
+        if bar is not None:
+            bar(done / total)
+
+    try:
+        res = run_tune(list(datasets), list(test), space, list(objectives), n_trials, out_dir, sampler=sampler,
+                       seed=seed, seeds=seeds, config_path=config_path, sets=sets, jobs=jobs, scheduler=scheduler,
+                       dask_local=dask_mode == "local", prune=not no_prune, plots=not no_plots, progress=progress)
+    finally:
+        if bar is not None:
+            bar.close()
+    if not ctx.obj["quiet"]:
+        click.echo((res["setup"].out_dir / "tune.md").read_text())
+        click.echo(f"wrote {res['setup'].out_dir}/ ({res['runtime_s']:.1f} s)")
+
+
 class _Progress:
     """A progress bar on stderr that appears only once the work it measures has started."""
 

@@ -93,7 +93,7 @@ def replay(prep: Prepared, s: Settings, progress: Callable[[float], None] | None
     a = kf.arrays
     out = _output(kf, t_imu, k0, a.rec_x, a.rec_Pdiag, a.rec_Ppt, "fused", imu_only,
                   nis={k: {"t_s": np.asarray(v[0], float), "nis": np.asarray(v[1], float), "dof": dof[k],
-                           "rejected": int(np.size(v[2]) - np.count_nonzero(v[2])),
+                           "rejected": int(np.size(v[2]) - np.count_nonzero(v[2])), "logdet_S": np.asarray(v[3], float),
                            **({"adapt": summaries[k]} if summaries.get(k) else {})} for k, v in nis.items() if len(v[0])})
     check_divergence(out)
     if smoother is not None:
@@ -136,7 +136,7 @@ def check_divergence(out: FilterOutput) -> None:
 
 def _replay_python(kf, bound, times, which, index, order, smoother, it, tol, progress) -> dict:
     """The event loop stepped from Python (any formulation, observation, smoother, iterated update)."""
-    nis: dict[str, tuple[list, list, list]] = {b.name: ([], [], []) for b in bound}
+    nis: dict[str, tuple[list, list, list, list]] = {b.name: ([], [], [], []) for b in bound}
     n_ev = order.size
     step = max(1, n_ev // 100)
     for j, e in enumerate(order):
@@ -144,6 +144,7 @@ def _replay_python(kf, bound, times, which, index, order, smoother, it, tol, pro
         kf.predict_to(max(t, kf.t))
         if smoother is not None:
             smoother.before_update(kf, b, int(index[e]))
+        kf.last_S = None
         res = b.apply(kf, int(index[e]), it, tol)
         if smoother is not None:
             smoother.after_update(kf, res)
@@ -153,6 +154,9 @@ def _replay_python(kf, bound, times, which, index, order, smoother, it, tol, pro
             rec[0].append(t)
             rec[1].append(res[0])
             rec[2].append(res[1])
+            # log det S where the update left its innovation covariance (the plain compiled update; NaN otherwise)
+            S = kf.last_S
+            rec[3].append(float(np.linalg.slogdet(S)[1]) if S is not None else np.nan)
         if progress is not None and j % step == 0:
             progress(j / n_ev)
     return nis
@@ -160,12 +164,12 @@ def _replay_python(kf, bound, times, which, index, order, smoother, it, tol, pro
 
 def _replay_compiled(kf, bound, times, which, index, order, progress) -> dict:
     """The event loop in compiled chunks (:mod:`fusion_eval.filters.compiled_replay`); the same record."""
-    nis_ev, ok_ev = compiled_replay.run(kf, bound, times, which, index, order, progress)
+    nis_ev, ok_ev, ld_ev = compiled_replay.run(kf, bound, times, which, index, order, progress)
     ts, pos = times[order], which[order]
     out = {}
     for c, b in enumerate(bound):
         sel = (pos == c) & np.isfinite(nis_ev)        # NaN: the event updated nothing (a first lidar frame)
-        out[b.name] = (ts[sel], nis_ev[sel], ok_ev[sel])
+        out[b.name] = (ts[sel], nis_ev[sel], ok_ev[sel], ld_ev[sel])
     return out
 
 

@@ -97,7 +97,7 @@ def _num(v) -> bool:
 def flatten(metrics: dict, raw: bool = False) -> dict[str, float]:
     """A ``metrics.json`` as ``{check path: value}``: ``<estimate>.<group>.<relation>.<stat>`` (and the translation
     part also as ``<estimate>.<group>.<stat>``), ``<estimate>.kitti_drift.<stat>``, ``ratios.<name>``,
-    ``nis.<observation>.mean|fraction_in_95`` and ``nees.<position|attitude>.mean|fraction_in_95`` (``nees_smoothed.`` for the smoother's).
+    ``innovations.nll_per_update|nis_calibration`` (no ground truth needed), ``nis.<observation>.mean|fraction_in_95|nll_mean`` and ``nees.<position|attitude>.mean|fraction_in_95`` (``nees_smoothed.`` for the smoother's).
     Only finite numbers are kept, unless ``raw`` (every scalar at those paths as it is: NaN, strings, None), which
     ``check`` uses to say what is wrong with a baseline's value."""
     keep = (lambda v: not isinstance(v, (dict, list))) if raw else _num
@@ -121,9 +121,12 @@ def flatten(metrics: dict, raw: bool = False) -> dict[str, float]:
     for k, v in (metrics.get("ratios") or {}).items():
         if keep(v):
             out[f"ratios.{k}"] = conv(v)
+    for k, v in (metrics.get("innovations") or {}).items():
+        if k != "updates" and keep(v):
+            out[f"innovations.{k}"] = conv(v)
     for section in ("nis", "nees", "nees_smoothed"):
         for kind, d in (metrics.get(section) or {}).items():
-            for k in ("mean", "fraction_in_95"):
+            for k in ("mean", "fraction_in_95", "nll_mean"):
                 if isinstance(d, dict) and k in d and keep(d.get(k)):
                     out[f"{section}.{kind}.{k}"] = conv(d[k])
     return out

@@ -12,7 +12,7 @@ from ..filters.layout import CANONICAL
 from ..interp import interpolate_poses
 from ..types import PoseSeries
 from . import keys
-from .consistency import pose_nees, summary
+from .consistency import innovation_nll, innovation_summary, pose_nees, summary
 from .segments import breakdown
 from .trajectory import EstimateEvaluation
 
@@ -57,7 +57,8 @@ def consistency(gt: PoseSeries, filt) -> dict:
     """NIS per observation (from the filter's innovations) and NEES of position and attitude (the filter's
     covariance against its error from the ground truth), each with its 95 % chi-square summary and the
     series (``t_s``, ``values``) for plots."""
-    out: dict = {"nis": {k: {**summary(d["nis"], d["dof"]), "rejected": d.get("rejected", 0), "t_s": d["t_s"],
+    out: dict = {"nis": {k: {**summary(d["nis"], d["dof"]), "rejected": d.get("rejected", 0),
+                             "nll_mean": innovation_nll(d["nis"], d.get("logdet_S", []), d["dof"]), "t_s": d["t_s"],
                              "values": d["nis"], **({"adapt": d["adapt"]} if "adapt" in d else {})}
                          for k, d in filt.nis.items()}}
     out["nees"] = nees(gt, filt)
@@ -115,6 +116,8 @@ def run_metrics(dataset: str, evals: dict[str, EstimateEvaluation], ratios: dict
             "nis": {k: _strip_arrays(v) for k, v in cons.get("nis", {}).items()},
             "nees": {k: _strip_arrays(v) for k, v in cons.get("nees", {}).items()},
             "segments": seg, "gnss_degradation": gnss_info, "preprocessing": applied}
+    if out["nis"]:
+        out["innovations"] = innovation_summary(out["nis"])
     if smoother is not None:
         out["smoother"] = smoother
         out["nees_smoothed"] = {k: _strip_arrays(v) for k, v in cons.get("nees_smoothed", {}).items()}

@@ -39,7 +39,7 @@ CLONE_P, CLONE_R = CLONE.start("p"), CLONE.start("R")
 
 _LOOP = '''
 def {name}(a, st, xc, clone_t, times, kinds, index, j0, j1, gates, clone_after, n_core, clone_rows, xp, xr,
-           ad_nb, ad_blocks, ad_rate, ad_var, ad_hist, ad_count, nis_out, ok_out, H, r, Rm, wn, wm, dx, cols, {datas}):
+           ad_nb, ad_blocks, ad_rate, ad_var, ad_hist, ad_count, nis_out, ok_out, ld_out, H, r, Rm, wn, wm, dx, cols, {datas}):
     for j in range(j0, j1):
         t = times[j]
         kind = kinds[j]
@@ -68,6 +68,10 @@ def {name}(a, st, xc, clone_t, times, kinds, index, j0, j1, gates, clone_after, 
                     return {bad_correction}, j
             nis_out[j] = nis
             ok_out[j] = ok
+            ld = 0.0                # log det S from its Cholesky factor (left in wm[1]): the innovation likelihood
+            for p in range(m):
+                ld += 2.0 * np.log(wm[1][p, p])
+            ld_out[j] = ld
             if ok:
                 _inject(a.x, xc, a.P, n, dx[:n])
                 good = True
@@ -189,7 +193,7 @@ def run(kf, bound, times: np.ndarray, which: np.ndarray, index: np.ndarray, orde
         datas[c] = np.ascontiguousarray(b.kernel.data, float)
     ad_hist = np.zeros((nk, max((b.t_s.size for b in bound), default=0), 3))
     ad_count = np.zeros(nk, np.int64)
-    nis_out, ok_out = np.full(n_ev, np.nan), np.zeros(n_ev, np.bool_)
+    nis_out, ok_out, ld_out = np.full(n_ev, np.nan), np.zeros(n_ev, np.bool_), np.full(n_ev, np.nan)
     H, r, Rm = np.zeros((M_MAX, N_MAX)), np.zeros(M_MAX), np.zeros((M_MAX, M_MAX))
     wn, wm, dx, cols = linalg.workspace(N_MAX, M_MAX)
     clone_rows = np.ascontiguousarray(kf.layout.clone_rows(), np.int64)
@@ -200,7 +204,7 @@ def run(kf, bound, times: np.ndarray, which: np.ndarray, index: np.ndarray, orde
         while j < n_ev:
             status, j_stop = loop(kf.arrays, st, kf.clone.vec, clone_t, ts, kinds, idx, j, min(n_ev, j + chunk), gates,
                                   clone_after, kf.layout.n_core, clone_rows, NOMINAL.start("p"), NOMINAL.start("R"),
-                                  ad_nb, ad_blocks, ad_rate, ad_var, ad_hist, ad_count, nis_out, ok_out, H, r, Rm,
+                                  ad_nb, ad_blocks, ad_rate, ad_var, ad_hist, ad_count, nis_out, ok_out, ld_out, H, r, Rm,
                                   wn, wm, dx, cols, *datas)
             _sync(kf, st, clone_t)
             if status != OK:
@@ -217,7 +221,7 @@ def run(kf, bound, times: np.ndarray, which: np.ndarray, index: np.ndarray, orde
             b.adapt.var[:] = ad_var[c]
             if ad_count[c]:                 # one (k, 3) block; none when no update was accepted
                 b.adapt.history.append(ad_hist[c, :ad_count[c]].copy())
-    return nis_out, ok_out
+    return nis_out, ok_out, ld_out
 
 
 def _sync(kf, st, clone_t) -> None:

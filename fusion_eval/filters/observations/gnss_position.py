@@ -58,6 +58,8 @@ class GnssPosition(Observation):
         "filter.use_gnss": S(True, "fuse GNSS position fixes"),
         "gnss.std_m": S("auto", "GNSS std given to the filter per axis, m; 'auto' = sqrt(reported accuracy^2 + added noise^2)",
                         "vec3", positive=True, auto=True),
+        "gnss.std_scale": S(1.0, "factor on the GNSS std given to the filter (after gnss.std_m): one number to tune "
+                                 "that keeps the per-fix accuracy the receiver reports", positive=True),
         "gnss.lever_arm_b_m": S([0.0, 0.0, 0.0], "antenna position in the body frame, m"),
         "gnss.gate_prob": S(None, "reject a fix whose NIS lies beyond this chi-square probability (e.g. 0.999); "
                                   "null = no gating", "float", positive=True, nullable=True, below_one=True),
@@ -69,7 +71,8 @@ class GnssPosition(Observation):
         rows = rows_inside(g.t_s, float(t[run.k_start]), float(t[-1]))
         lever = np.asarray(s.gnss.lever_arm_b_m, float)
 
-        data = ROW.columns(p=g.p_w_m[rows], std=g.std_w_m[rows], lever=np.tile(lever, (rows.size, 1)))
+        data = ROW.columns(p=g.p_w_m[rows], std=g.std_w_m[rows] * float(s.gnss.std_scale),
+                           lever=np.tile(lever, (rows.size, 1)))
 
         def model(j):
             return partial(kernel_model, gnss_position_kernel, row=data[j])

@@ -1,0 +1,70 @@
+"""``fusion-eval tune``: automatic noise tuning with Optuna (:mod:`fusion_eval.tuning`)."""
+
+from __future__ import annotations
+
+import os
+import time
+from pathlib import Path
+from typing import Callable
+
+from .. import resources
+from ..errors import ConfigError
+from ..tuning import objectives as obj
+from ..tuning.report import write
+from ..tuning.space import load_space
+from ..tuning.study import Setup, run_study
+
+TUNE_SPACES = "configs/tune"
+
+
+def space_file(name: str) -> Path:
+    """A space file: a path, else a shipped space by name (``noise`` -> ``configs/tune/noise.yaml``)."""
+    p = resources.find(name)
+    if p.exists():
+        return p
+    q = resources.find(Path(TUNE_SPACES) / (name if name.endswith((".yaml", ".yml")) else f"{name}.yaml"))
+    if not q.exists():
+        raise ConfigError(f"{name}: tune space not found (neither a file nor a shipped space such as 'noise')")
+    return q
+
+
+def run_tune(train: list[str], test: list[str], space: str, objectives: list[str], n_trials: int, out_dir: Path,
+             sampler: str = "tpe", seed: int = 0, seeds: int = 1, config_path: Path | None = None, sets: tuple[str, ...] = (),
+             jobs: int | None = None, scheduler: str | None = None, dask_local: bool = False, prune: bool = True,
+             plots: bool = True, progress: Callable | None = None) -> dict:
+    from .. import session
+    from ..config import read_yaml
+
+    if not objectives:
+        raise ConfigError("give an --objective: nll or nis (no ground truth), or a metric key such as fused.ape.rmse")
+    if scheduler and dask_local:
+        raise ConfigError("give either --scheduler or --dask local, not both")
+    if jobs is not None and jobs < 1:
+        raise ConfigError("--jobs must be >= 1")
+    train_paths = [str(resources.find(d).resolve()) for d in (train or [resources.DEFAULT_DATASET])]
+    test_paths = [str(resources.find(d).resolve()) for d in test]
+    for p in train_paths + test_paths:
+        if not Path(p).exists():
+            raise ConfigError(f"{p}: dataset not found")
+    overlap = set(train_paths) & set(test_paths)
+    if overlap:
+        raise ConfigError(f"{sorted(overlap)[0]} is both a training and a held-out drive")
+    s = Setup(space=load_space(space_file(space)), objectives=tuple(obj.parse(o) for o in objectives),
+              train=tuple(train_paths), test=tuple(test_paths), n_trials=n_trials, out_dir=Path(out_dir).resolve(),
+              sampler=sampler, seed=seed, seeds=seeds,
+              base_config=_base(config_path, read_yaml), sets=tuple(sets),
+              jobs=jobs or min(os.cpu_count() or 1, 4), scheduler=scheduler, dask_local=dask_local, prune=prune)
+    session.request(sets=s.sets)         # a bad --set is refused before any work
+    t0 = time.perf_counter()
+    res = run_study(s, progress=progress)
+    files = write(s, res, time.perf_counter() - t0, with_plots=plots)
+    return {"setup": s, "result": res, "files": files, "runtime_s": time.perf_counter() - t0}
+
+
+def _base(path: Path | None, read_yaml) -> dict | None:
+    if path is None:
+        return None
+    body = read_yaml(Path(path), "tune base config") or {}
+    if not isinstance(body, dict):
+        raise ConfigError(f"{path}: the base configuration must be a mapping of sections")
+    return body

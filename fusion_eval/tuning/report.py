@@ -1,0 +1,211 @@
+"""The outputs of ``fusion-eval tune``: ``best.yaml`` (a config for ``-c``), ``trials.csv``, ``tune.md`` and the
+plots (optimization history, parameter importances, parallel coordinates; Optuna's matplotlib figures)."""
+
+from __future__ import annotations
+
+import csv
+import io
+import math
+import os
+from pathlib import Path
+
+import yaml
+
+from .study import Setup, write_json
+
+FUSED_APE = "fused.ape.rmse"
+
+
+def _atomic_text(path: Path, text: str) -> None:
+    tmp = path.with_name(f".{path.name}.tmp-{os.getpid()}")
+    tmp.write_text(text)
+    os.replace(tmp, path)
+
+
+def best_yaml(s: Setup, best: dict) -> str:
+    nested: dict = {}
+    for key, v in best["overrides"].items():
+        sect, k = key.split(".", 1)
+        nested.setdefault(sect, {})[k] = v
+    head = (f"# fusion-eval tune: trial {best['number']} of {s.out_dir}, objective "
+            f"{', '.join(o.name for o in s.objectives)} = {', '.join(f'{v:.6g}' for v in best['values'])} on "
+            f"{', '.join(Path(d).name for d in s.train)}\n# use: fusion-eval run DATASET -c best.yaml\n")
+    return head + yaml.safe_dump(nested, sort_keys=True)
+
+
+def trials_csv(study, s: Setup) -> str:
+    keys = [p.key for p in s.space.params]
+    buf = io.StringIO()
+    w = csv.writer(buf, lineterminator="\n")
+    w.writerow(["number", "state", "status", *[o.name for o in s.objectives], *keys, "duration_s"])
+    for t in study.get_trials(deepcopy=False):
+        vals = list(t.values) if t.values is not None else [""] * len(s.objectives)
+        dur = t.duration.total_seconds() if t.duration is not None else ""
+        w.writerow([t.number, t.state.name, t.user_attrs.get("status", ""), *vals,
+                    *[t.params.get(k, "") for k in keys], dur])
+    return buf.getvalue()
+
+
+def _mean(rec: dict | None, key: str) -> float:
+    if not rec or rec.get("status") != "ok":
+        return math.nan
+    vals = [st["metrics"].get(key, math.nan) for st in rec["steps"]]
+    return sum(vals) / len(vals) if vals else math.nan
+
+
+def _per_drive(rec: dict | None, key: str) -> dict[str, float]:
+    out: dict = {}
+    for st in (rec or {}).get("steps", []):
+        if st["status"] == "ok":
+            out.setdefault(Path(st["dataset"]).name, []).append(st["metrics"].get(key, math.nan))
+    return {k: sum(v) / len(v) for k, v in out.items()}
+
+
+def _v(v) -> str:
+    if isinstance(v, float):
+        return f"{v:.4g}"
+    if isinstance(v, list):
+        return "[" + ", ".join(_v(x) for x in v) + "]"
+    return str(v)
+
+
+def _f(v) -> str:
+    return "n/a" if v is None or (isinstance(v, float) and not math.isfinite(v)) else f"{v:.4g}"
+
+
+def markdown(s: Setup, res: dict, runtime_s: float) -> str:
+    import optuna
+
+    study, default, best = res["study"], res["default"], res["best"]
+    S = optuna.trial.TrialState
+    states = [t.state for t in study.get_trials(deepcopy=False)]
+    status = [t.user_attrs.get("status") for t in study.get_trials(deepcopy=False)]
+    L = [f"# fusion-eval tune: {', '.join(o.name for o in s.objectives)}", "",
+         f"Space `{s.space.path}`, sampler {s.sampler} (seed {s.seed}); training drives "
+         f"{', '.join(Path(d).name for d in s.train)}; held-out drives "
+         f"{', '.join(Path(d).name for d in s.test) or 'none'}; {s.seeds} Monte-Carlo seed(s) per drive.", "",
+         f"Trials: {states.count(S.COMPLETE)} complete, {states.count(S.PRUNED)} pruned, "
+         f"{status.count('diverged')} diverged, {status.count('failed')} failed "
+         f"({runtime_s:.0f} s in this session).", ""]
+    if best is None:
+        return "\n".join(L + ["No trial completed: nothing is tuned.", ""])
+    L += ["## Tuned values", "", "| key | default | tuned |", "|---|---:|---:|"]
+    resolved = ((default["train"]["steps"][0].get("resolved") or {}).get("imu_noise") or {})
+    from ..config import schema
+
+    base = {k: spec.default for k, spec in schema().items()}      # the built-in defaults (a manifest may suggest others)
+    for key, v in best["overrides"].items():
+        d = base.get(key)
+        if d == "auto" and key.split(".", 1)[1] in resolved:
+            d = f"auto ({resolved[key.split('.', 1)[1]]:.4g} from the data)"
+        fixed = " (fixed)" if key in s.space.fixed else ""
+        L.append(f"| {key}{fixed} | {_v(d)} | {_v(v)} |")
+    L += ["", "## Objective and fused APE, default against tuned", "",
+          "| drives | objective (default) | objective (tuned) | fused APE RMSE m (default) | fused APE RMSE m (tuned) |",
+          "|---|---:|---:|---:|---:|"]
+    gaps = []
+    for part, d_rec, t_rec in (("training", default["train"], best["train"]),
+                               ("held-out", default.get("test"), best.get("test"))):
+        if d_rec is None:
+            continue
+        o = s.objectives[0]
+        d_obj, t_obj = _obj(d_rec, 0), _obj(t_rec, 0)
+        gaps.append((part, d_obj, t_obj))
+        L.append(f"| {part} (mean) | {_f(d_obj)} | {_f(t_obj)} | {_f(_mean(d_rec, FUSED_APE))} | "
+                 f"{_f(_mean(t_rec, FUSED_APE))} |")
+        da, ta = _per_drive(d_rec, FUSED_APE), _per_drive(t_rec, FUSED_APE)
+        do, to = _per_drive_obj(d_rec), _per_drive_obj(t_rec)
+        for name in da:
+            L.append(f"| {part}: {name} | {_f(do.get(name))} | {_f(to.get(name))} | {_f(da[name])} | "
+                     f"{_f(ta.get(name))} |")
+        del o
+    L += ["", _generalisation(gaps), ""]
+    if len(s.objectives) > 1:
+        L += ["## Pareto front", "", "| trial | " + " | ".join(o.name for o in s.objectives) + " |",
+              "|---|" + "---:|" * len(s.objectives)]
+        L += [f"| {f['number']} | " + " | ".join(_f(v) for v in f["values"]) + " |" for f in best["front"]]
+        L.append("")
+    L += ["Files: `best.yaml` (use with `fusion-eval run -c best.yaml`), `trials.csv`, `trials/<n>.json` (every "
+          "trial's metrics per drive), `default.json`, `study.journal` (Optuna's; the same command resumes it), plots "
+          "`history.png`, `importance.png`, `parallel.png`.", ""]
+    return "\n".join(L)
+
+
+def _obj(rec: dict | None, k: int) -> float:
+    if not rec or rec.get("status") != "ok":
+        return math.nan
+    return rec["values"][k] if rec.get("values") else math.nan
+
+
+def _per_drive_obj(rec: dict | None) -> dict[str, float]:
+    out: dict = {}
+    for st in (rec or {}).get("steps", []):
+        if st["status"] == "ok":
+            out.setdefault(Path(st["dataset"]).name, []).append(st["values"][0])
+    return {k: sum(v) / len(v) for k, v in out.items()}
+
+
+def _generalisation(gaps) -> str:
+    """Whether the gain on the training drives holds on the held-out ones (overfitting shows as a gap)."""
+    if len(gaps) < 2 or not all(math.isfinite(x) for _, a, b in gaps for x in (a, b)):
+        return "No held-out drives: whether the tuned values generalise is not measured (give --test)."
+    (_, d_tr, t_tr), (_, d_te, t_te) = gaps
+    g_tr, g_te = d_tr - t_tr, d_te - t_te
+    if g_tr <= 0:
+        return (f"The tuned values are no better than the default on the training drives ({-g_tr:.4g} worse); on the "
+                f"held-out drives they are {abs(g_te):.4g} {'better' if g_te > 0 else 'worse'}.")
+    if g_te < 0:
+        return (f"Overfitting: the tuned values improve the objective on the training drives by {g_tr:.4g} but make it "
+                f"worse on the held-out drives by {-g_te:.4g}.")
+    if g_tr > 0 and g_te < 0.5 * g_tr:
+        return (f"Partly overfitted: the gain on the held-out drives ({g_te:.4g}) is less than half the gain on the "
+                f"training drives ({g_tr:.4g}).")
+    return f"The gain holds on the held-out drives: {g_te:.4g} there against {g_tr:.4g} on the training drives."
+
+
+def plots(study, s: Setup) -> list[str]:
+    import warnings
+
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+    import optuna.visualization.matplotlib as ovm
+
+    written = []
+    target = (lambda t: t.values[0]) if len(s.objectives) > 1 else None
+    name = s.objectives[0].name
+    figs = [("history.png", lambda: ovm.plot_optimization_history(study, target=target, target_name=name)),
+            ("importance.png", lambda: ovm.plot_param_importances(study, target=target, target_name=name)),
+            ("parallel.png", lambda: ovm.plot_parallel_coordinate(study, target=target, target_name=name))]
+    for fname, make in figs:
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore")
+            try:
+                ax = make()
+            except (ValueError, RuntimeError, ZeroDivisionError):      # too few complete trials for this plot
+                continue
+        fig = ax.figure if hasattr(ax, "figure") else ax.flat[0].figure
+        fig.set_size_inches(9, 5)
+        fig.tight_layout()
+        tmp = s.out_dir / f".{fname}.tmp.png"
+        fig.savefig(tmp, dpi=100)
+        plt.close(fig)
+        os.replace(tmp, s.out_dir / fname)
+        written.append(fname)
+    return written
+
+
+def write(s: Setup, res: dict, runtime_s: float, with_plots: bool = True) -> list[str]:
+    out = s.out_dir
+    files = []
+    if res["best"] is not None:
+        _atomic_text(out / "best.yaml", best_yaml(s, res["best"]))
+        write_json(out / "best.json", res["best"])
+        files += ["best.yaml", "best.json"]
+    _atomic_text(out / "trials.csv", trials_csv(res["study"], s))
+    _atomic_text(out / "tune.md", markdown(s, res, runtime_s))
+    files += ["trials.csv", "tune.md"]
+    if with_plots and res["best"] is not None:
+        files += plots(res["study"], s)
+    return files

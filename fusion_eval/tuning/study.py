@@ -1,0 +1,358 @@
+"""The study loop of ``fusion-eval tune``: Optuna asks, the workers score, Optuna is told.
+
+Trials run in generations of ``jobs``: every trial of a generation is asked, scored in parallel (the process pool or
+a Dask cluster, the executors of ``sweep``) and told in trial order, so a seeded study is the same on any executor
+and any number of workers of one generation size. The study lives in an Optuna journal file
+(``<out>/study.journal``): a tune that is interrupted (Ctrl-C, SIGTERM, SIGKILL) resumes where it stopped when the
+same command runs again (trials that were running are enqueued again with their values), and two ``tune``
+processes pointed at one ``--out`` share the study.
+"""
+
+from __future__ import annotations
+
+import json
+import logging
+import os
+import socket
+import statistics
+import time
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Callable
+
+from .. import resources
+from ..errors import ConfigError
+from .objectives import Objective
+from .space import Space
+from .worker import Job, score
+
+log = logging.getLogger(__name__)
+
+STUDY = "fusion-eval-tune"
+MIN_FOR_PRUNING = 5          # finished trials before the median rule prunes (Optuna's MedianPruner default)
+
+
+@dataclass
+class Setup:
+    space: Space
+    objectives: tuple[Objective, ...]
+    train: tuple[str, ...]
+    test: tuple[str, ...]
+    n_trials: int
+    out_dir: Path
+    sampler: str = "tpe"
+    seed: int = 0
+    seeds: int = 1
+    base_config: dict | None = None
+    sets: tuple[str, ...] = ()
+    jobs: int = 1
+    scheduler: str | None = None
+    dask_local: bool = False
+    prune: bool = True
+    meta: dict = field(default_factory=dict)
+
+    def job(self, number: int, overrides: dict, datasets, prune_above=()) -> Job:
+        return Job(number, overrides, self.base_config, self.sets, tuple(datasets), self.seeds, self.objectives, tuple(prune_above))
+
+
+def _optuna():
+    import warnings
+
+    import optuna
+
+    optuna.logging.set_verbosity(optuna.logging.WARNING)
+    warnings.filterwarnings("ignore", category=optuna.exceptions.ExperimentalWarning)
+    return optuna
+
+
+def _sampler(s: Setup):
+    optuna = _optuna()
+    if s.sampler == "cmaes":
+        if len(s.objectives) > 1:
+            raise ConfigError("--sampler cmaes optimises one objective; give one --objective or use tpe")
+        return optuna.samplers.CmaEsSampler(seed=s.seed, warn_independent_sampling=False)
+    # multivariate TPE models the noise keys jointly (they trade off against each other); constant_liar keeps the
+    # trials of one generation apart
+    return optuna.samplers.TPESampler(seed=s.seed, multivariate=True, constant_liar=True,
+                                      n_startup_trials=min(10, max(2, s.n_trials // 5)))
+
+
+def open_study(s: Setup):
+    """The study in ``<out>/study.journal``, created or resumed; refuses one made for another space or objectives."""
+    optuna = _optuna()
+    from optuna.storages import JournalStorage
+    from optuna.storages.journal import JournalFileBackend
+
+    s.out_dir.mkdir(parents=True, exist_ok=True)
+    journal = s.out_dir / "study.journal"
+    storage = JournalStorage(JournalFileBackend(str(journal), lock_obj=_flock(journal)))
+    directions = ["minimize"] * len(s.objectives)
+    study = optuna.create_study(study_name=STUDY, storage=storage, sampler=_sampler(s), directions=directions,
+                                load_if_exists=True)
+    ident = {"space": s.space.digest(), "objectives": [o.name for o in s.objectives], "train": list(s.train),
+             "seeds": s.seeds, "base_config": s.base_config, "sets": list(s.sets)}
+    old = study.user_attrs.get("ident")
+    if old is None:
+        study.set_user_attr("ident", ident)
+    elif old != ident:
+        diff = next(k for k in ident if ident[k] != old.get(k))
+        raise ConfigError(f"{s.out_dir}: holds a study of another {diff.replace('_', ' ')} ({old.get(diff)!r}); "
+                          "give another --out or the same settings to resume it")
+    return study
+
+
+def _flock(journal: Path):
+    """A lock that the kernel releases when its holder dies: Optuna's default (a symlink) outlives a SIGKILL, and
+    the next ``tune`` would wait its 30 s grace period for it. None (Optuna's default) where ``fcntl`` is missing."""
+    try:
+        import fcntl
+    except ImportError:                     # not POSIX
+        return None
+    from optuna.storages.journal._file import BaseJournalFileLock      # public in no release yet
+
+    class FlockLock(BaseJournalFileLock):
+        def __init__(self, path: str):
+            self.path, self.fd = path, None
+
+        def acquire(self) -> bool:
+            fd = os.open(self.path, os.O_CREAT | os.O_RDWR, 0o644)
+            fcntl.flock(fd, fcntl.LOCK_EX)
+            self.fd = fd
+            return True
+
+        def release(self) -> None:
+            if self.fd is not None:
+                fcntl.flock(self.fd, fcntl.LOCK_UN)
+                os.close(self.fd)
+                self.fd = None
+
+    return FlockLock(str(journal.with_name(journal.name + ".lock")))
+
+
+def _requeue_stale(study) -> int:
+    """Trials left running by a process of this host that is gone (killed): failed, and enqueued again."""
+    optuna = _optuna()
+    host, n = socket.gethostname(), 0
+    for t in study.get_trials(deepcopy=False, states=(optuna.trial.TrialState.RUNNING,)):
+        owner = t.system_attrs.get("fusion_eval_owner") or t.user_attrs.get("owner")
+        if not owner or owner[0] != host or _alive(owner[1]):
+            continue
+        study._storage.set_trial_user_attr(t._trial_id, "interrupted", True)            # noqa: SLF001
+        study._storage.set_trial_state_values(t._trial_id, optuna.trial.TrialState.FAIL)  # noqa: SLF001
+        study.enqueue_trial(t.params, skip_if_exists=False)
+        n += 1
+    return n
+
+
+def _alive(pid: int) -> bool:
+    try:
+        os.kill(pid, 0)
+        return True
+    except ProcessLookupError:
+        return False
+    except PermissionError:
+        return True
+
+
+def counted(study) -> int:
+    """Trials that count toward ``--trials``: finished (complete, pruned, failed but not interrupted) or running."""
+    optuna = _optuna()
+    S = optuna.trial.TrialState
+    return sum(1 for t in study.get_trials(deepcopy=False)
+               if t.state in (S.COMPLETE, S.PRUNED, S.RUNNING) or (t.state == S.FAIL and not t.user_attrs.get("interrupted")))
+
+
+def prune_thresholds(study, n_steps: int) -> tuple[float, ...]:
+    """Per step, the median of the finished trials' running mean of objective 0 (the median rule)."""
+    optuna = _optuna()
+    done = [t for t in study.get_trials(deepcopy=False, states=(optuna.trial.TrialState.COMPLETE,))
+            if len(t.intermediate_values) >= n_steps]
+    if len(done) < MIN_FOR_PRUNING or n_steps < 2:
+        return ()
+    return tuple(statistics.median(t.intermediate_values[i] for t in done) for i in range(n_steps - 1))
+
+
+class Executor:
+    """``map`` of :func:`score` over a generation, in order: this process, the pool or Dask."""
+
+    def __init__(self, s: Setup):
+        self.s, self._pool, self._client, self._cluster = s, None, None, None
+
+    def __enter__(self):
+        s = self.s
+        if s.scheduler or s.dask_local:
+            from dask.distributed import Client, LocalCluster
+
+            if s.dask_local:
+                self._cluster = LocalCluster(n_workers=s.jobs, threads_per_worker=1, processes=True,
+                                             dashboard_address=None)
+            self._client = Client(self._cluster if self._cluster is not None else s.scheduler)
+        elif s.jobs > 1:
+            import multiprocessing as mp
+
+            from ..pool import Pool
+
+            self._pool = Pool(max_workers=s.jobs, mp_context=mp.get_context("spawn")).__enter__()
+        return self
+
+    def __exit__(self, exc_type, exc, tb):
+        if self._pool is not None:
+            self._pool.__exit__(exc_type, exc, tb)
+        if self._client is not None:
+            self._client.close()
+        if self._cluster is not None:
+            self._cluster.close()
+        return False
+
+    def map(self, jobs: list[Job]) -> list[dict]:
+        if self._client is not None:
+            futs = self._client.map(score, jobs, pure=False)
+            return self._client.gather(futs)
+        if self._pool is not None:
+            return [f.result() for f in [self._pool.submit(score, j) for j in jobs]]
+        return [score(j) for j in jobs]
+
+
+def write_json(path: Path, body) -> None:
+    tmp = path.with_name(f".{path.name}.tmp-{os.getpid()}")
+    tmp.write_text(json.dumps(body, indent=1, default=_jsonable))
+    os.replace(tmp, path)
+
+
+def _jsonable(v):
+    try:
+        return float(v)
+    except (TypeError, ValueError):
+        return str(v)
+
+
+def run_study(s: Setup, progress: Callable[[int, int, float | None], None] | None = None) -> dict:
+    """Open or resume the study, score the default configuration once, run trials until ``n_trials`` count, and
+    return what the report needs."""
+    optuna = _optuna()
+    study = open_study(s)
+    rec_dir = s.out_dir / "trials"
+    rec_dir.mkdir(exist_ok=True)
+    stale = _requeue_stale(study)
+    if stale:
+        log.info("%d trials interrupted by a killed tune are run again", stale)
+    with Executor(s) as ex:
+        default = _default(s, ex)
+        if not study.trials:
+            start = _default_point(s, default)
+            if start:       # the first trial is the default configuration (as far as the space holds it)
+                study.enqueue_trial(start)
+        n_steps = len(s.train) * s.seeds
+        host, pid = socket.gethostname(), os.getpid()
+        asked: list = []
+        try:
+            while True:
+                left = s.n_trials - counted(study)
+                if progress:
+                    progress(min(counted(study), s.n_trials), s.n_trials, _best_value(study))
+                if left <= 0:
+                    break
+                thresholds = prune_thresholds(study, n_steps) if s.prune and len(s.objectives) == 1 else ()
+                asked = []
+                for _ in range(min(s.jobs, left)):
+                    t = study.ask()
+                    t.set_user_attr("owner", [host, pid])
+                    asked.append((t, s.space.overrides({p.key: p.suggest(t) for p in s.space.params})))
+                results = ex.map([s.job(t.number, ov, s.train, thresholds) for t, ov in asked])
+                for (t, ov), rec in zip(asked, results):
+                    _tell(study, t, ov, rec, rec_dir)
+                asked = []
+        except KeyboardInterrupt as exc:
+            for t, _ in asked:        # not scored: enqueued again for the next run of the command
+                t.set_user_attr("interrupted", True)
+                study.tell(t, state=optuna.trial.TrialState.FAIL)
+                study.enqueue_trial(t.params, skip_if_exists=False)
+            raise type(exc)(f"{counted(study)} of {s.n_trials} trials are kept in {s.out_dir}/study.journal; run the "
+                            "same command again to go on") from None
+        best = _best(study, s)
+        if best is not None and s.test:
+            best["test"] = ex.map([s.job(best["number"], best["overrides"], s.test)])[0]
+    return {"study": study, "default": default, "best": best}
+
+
+def _default(s: Setup, ex: Executor) -> dict:
+    """The default configuration scored on the training and held-out drives, once per study (``default.json``);
+    it also checks that every objective names a metric the runs have."""
+    path = s.out_dir / "default.json"
+    if path.exists():
+        return json.loads(path.read_text())
+    recs = ex.map([s.job(-1, {}, s.train)] + ([s.job(-1, {}, s.test)] if s.test else []))
+    train, test = recs[0], (recs[1] if s.test else None)
+    for part, rec in (("training", train), ("held-out", test)):
+        if rec is None:
+            continue
+        first = rec["steps"][0]
+        if first["status"] == "ok":          # an objective the runs have no metric for: named, with close ones
+            for o in s.objectives:
+                o.check(first["metrics"], first["dataset"])
+        if rec["status"] != "ok":
+            raise ConfigError(f"the default configuration {rec['status']} on a {part} drive: {rec['error']}")
+    body = {"train": train, "test": test}
+    write_json(path, body)
+    return body
+
+
+def _default_point(s: Setup, default: dict) -> dict:
+    """The default configuration's value of every tuned key inside its range: the built-in value, or for an 'auto'
+    IMU noise the value the run estimated from the data. Keys without one are sampled."""
+    from ..config import schema
+
+    known = schema()
+    resolved = (default["train"]["steps"][0].get("resolved") or {}).get("imu_noise") or {}
+    out = {}
+    for p in s.space.params:
+        v = (s.base_config or {}).get(p.key.split(".")[0], {}).get(p.key.split(".", 1)[1], known[p.key].default)
+        if v == "auto":
+            v = resolved.get(p.key.split(".", 1)[1])
+        if p.choices is not None:
+            if v in p.choices:
+                out[p.key] = v
+        elif p.shape is None and isinstance(v, (int, float)) and p.low <= v <= p.high:
+            out[p.key] = float(v)
+    return out
+
+
+def _tell(study, t, overrides: dict, rec: dict, rec_dir: Path) -> None:
+    optuna = _optuna()
+    if len(study.directions) == 1:        # the running mean over (drive, seed) steps: what the median rule compares
+        ok = [st["values"][0] for st in rec["steps"] if st["status"] == "ok"]
+        for i in range(len(ok)):
+            t.report(float(sum(ok[:i + 1]) / (i + 1)), i)
+    t.set_user_attr("status", rec["status"])
+    t.set_user_attr("overrides", overrides)
+    if rec["error"]:
+        t.set_user_attr("error", rec["error"])
+    write_json(rec_dir / f"{t.number:05d}.json", {**rec, "overrides": overrides, "params": t.params})
+    if rec["status"] == "ok":
+        study.tell(t, rec["values"] if len(rec["values"]) > 1 else rec["values"][0])
+    elif rec["status"] == "pruned":
+        study.tell(t, state=optuna.trial.TrialState.PRUNED)
+    else:
+        study.tell(t, state=optuna.trial.TrialState.FAIL)
+
+
+def _best_value(study) -> float | None:
+    try:
+        return study.best_value if len(study.directions) == 1 else None
+    except ValueError:
+        return None
+
+
+def _best(study, s: Setup) -> dict | None:
+    """The tuned trial: the best one (one objective), or the Pareto trial best in the first objective."""
+    try:
+        front = study.best_trials
+    except ValueError:
+        return None
+    if not front:
+        return None
+    t = min(front, key=lambda t: (t.values[0], t.number))
+    rec = json.loads((s.out_dir / "trials" / f"{t.number:05d}.json").read_text())
+    return {"number": t.number, "values": list(t.values), "params": t.params, "overrides": t.user_attrs["overrides"],
+            "train": rec, "front": [{"number": f.number, "values": list(f.values), "params": f.params}
+                                    for f in sorted(front, key=lambda f: f.values[0])]}

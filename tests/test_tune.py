@@ -1,0 +1,202 @@
+"""fusion-eval tune (issue 16): the space and objectives are checked, a study runs end to end and writes its outputs,
+resumes after SIGKILL, gives the same study on the pool and on Dask, recovers a simulated drive's noise without ground
+truth, and beats the default with it."""
+
+from __future__ import annotations
+
+import csv
+import json
+import os
+import signal
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+import pytest
+import yaml
+from click.testing import CliRunner
+
+from conftest import make_slice, wait_for
+from fusion_eval.cli import main
+from fusion_eval.errors import ConfigError
+from fusion_eval.tuning import objectives
+from fusion_eval.tuning.space import load_space
+
+CLI = [sys.executable, "-m", "fusion_eval"]
+
+
+def _space(tmp_path: Path, body: str) -> Path:
+    p = tmp_path / "space.yaml"
+    p.write_text(body)
+    return p
+
+
+def test_the_space_refuses_keys_that_change_the_data_and_bad_ranges(tmp_path):
+    ok = load_space(_space(tmp_path, "params:\n  imu.gyro_noise_dps_sqrthz: {low: 0.01, high: 0.1, log: true}\n"
+                                     "  gnss.std_m: {low: 0.5, high: 5, log: true, shape: [1, 1, 2]}\n"
+                                     "fixed:\n  lidar.noise_adapt: none\n"))
+    assert ok.overrides({"gnss.std_m": 2.0, "imu.gyro_noise_dps_sqrthz": 0.05}) == {
+        "lidar.noise_adapt": "none", "gnss.std_m": [2.0, 2.0, 4.0], "imu.gyro_noise_dps_sqrthz": 0.05}
+    for body, words in [
+        ("params:\n  gnss.noise_std_m: {low: 0.1, high: 1}\n", "changes the data"),
+        ("params:\n  evaluation.t_max_diff_s: {low: 0.01, high: 0.1}\n", "changes the data"),
+        ("params:\n  imu.nope: {low: 0.1, high: 1}\n", "unknown configuration key 'imu.nope'"),
+        ("params:\n  imu.gyro_noise_dps_sqrthz: {low: 0.0, high: 1, log: true}\n", "low > 0"),
+        ("params:\n  imu.gyro_noise_dps_sqrthz: {low: 1, high: 0.1}\n", "low < high"),
+        ("params:\n  imu.gyro_noise_dps_sqrthz: {low: 0.1, high: 1, step: 2}\n", "unknown field 'step'"),
+        ("params:\n  filter.discretization: {choices: [first_order, bogus]}\n", "discretization"),
+        ("params: {}\n", "'params'"),
+        ("params:\n  imu.gyro_noise_dps_sqrthz: {low: 0.1, high: 1}\nfixed:\n  imu.gyro_noise_dps_sqrthz: 0.2\n",
+         "both tuned and fixed"),
+    ]:
+        with pytest.raises(ConfigError, match=words.replace("(", r"\(")):
+            load_space(_space(tmp_path, body))
+
+
+def test_objectives_parse_aliases_and_weighted_sums_and_name_missing_keys():
+    o = objectives.parse("0.5*fused.ape.rmse+0.5*fused.rpe_100m.rmse")
+    assert o.terms == ((0.5, "fused.ape.rmse"), (0.5, "fused.rpe_100m.rmse")) and o.needs_truth
+    assert o.value({"fused.ape.rmse": 1.0, "fused.rpe_100m.rmse": 3.0}) == 2.0
+    n = objectives.parse("nll")
+    assert n.terms == ((1.0, "innovations.nll_per_update"),) and not n.needs_truth
+    with pytest.raises(ConfigError, match="did you mean fused.ape.rmse"):
+        objectives.parse("fused.ape.rmsee").check({"fused.ape.rmse": 1.0}, "drive")
+    with pytest.raises(ConfigError, match="weighted sum"):
+        objectives.parse("2*")
+
+
+def _tune(args, tmp_path, **kw):
+    return CliRunner().invoke(main, ["-q", "tune", *args], catch_exceptions=False, **kw)
+
+
+def test_a_tune_writes_a_usable_best_config_and_every_trial(tmp_path):
+    ds = make_slice(tmp_path / "ds", 400)
+    test = make_slice(tmp_path / "held", 300, first=600)
+    out = tmp_path / "tune"
+    r = _tune([str(ds), "--test", str(test), "--objective", "fused.ape.rmse", "--trials", "6", "-j", "1",
+               "-o", str(out), "--no-plots"], tmp_path)
+    assert r.exit_code == 0, r.output
+    rows = list(csv.DictReader((out / "trials.csv").open()))
+    assert len(rows) == 6 and all(r["state"] == "COMPLETE" for r in rows)
+    assert len(list((out / "trials").glob("*.json"))) == 6
+    md = (out / "tune.md").read_text()
+    assert "| held-out (mean) |" in md and "## Tuned values" in md
+    best = json.loads((out / "best.json").read_text())
+    assert best["values"][0] == min(float(r["fused.ape.rmse"]) for r in rows)
+    assert best["test"]["status"] == "ok"
+    cfg = yaml.safe_load((out / "best.yaml").read_text())
+    assert cfg["gnss"]["std_scale"] > 0 and set(cfg["imu"]) == {k.split(".")[1] for k in best["params"] if k.startswith("imu.")}
+    # the tuned config reproduces its trial's figure in a plain run
+    run = CliRunner().invoke(main, ["-q", "run", str(ds), "-c", str(out / "best.yaml"), "--out", str(tmp_path / "r"),
+                                    "--no-plots"], catch_exceptions=False)
+    assert run.exit_code == 0, run.output
+    m = json.loads((tmp_path / "r" / "metrics.json").read_text())
+    assert m["estimates"]["fused"]["ape"]["translation_m"]["rmse"] == pytest.approx(best["values"][0], rel=1e-12)
+    # the same command again: nothing left to do, the same best
+    r2 = _tune([str(ds), "--test", str(test), "--objective", "fused.ape.rmse", "--trials", "6", "-j", "1",
+                "-o", str(out), "--no-plots"], tmp_path)
+    assert r2.exit_code == 0 and json.loads((out / "best.json").read_text())["number"] == best["number"]
+
+
+def test_a_study_is_not_resumed_with_another_space_or_objective(tmp_path):
+    ds = make_slice(tmp_path / "ds", 300)
+    out = tmp_path / "tune"
+    assert _tune([str(ds), "--objective", "nll", "--trials", "2", "-j", "1", "-o", str(out), "--no-plots"],
+                 tmp_path).exit_code == 0
+    r = CliRunner().invoke(main, ["tune", str(ds), "--objective", "nis", "--trials", "2", "-j", "1", "-o", str(out)])
+    assert r.exit_code == 2 and "another objectives" in r.output, r.output
+
+
+def test_an_objective_the_runs_do_not_have_is_refused_naming_it(tmp_path):
+    ds = make_slice(tmp_path / "ds", 300)
+    r = CliRunner().invoke(main, ["tune", str(ds), "--objective", "fused.ape.rmsx", "--trials", "2", "-j", "1",
+                                  "-o", str(tmp_path / "t")])
+    assert r.exit_code == 2 and "fused.ape.rmsx" in r.output and "did you mean" in r.output, r.output
+
+
+def _trials(out: Path) -> list[dict]:
+    return list(csv.DictReader((out / "trials.csv").open()))
+
+
+@pytest.mark.slow
+def test_a_tune_killed_at_random_moments_resumes_and_counts_every_trial_once(tmp_path):
+    import random
+
+    ds = make_slice(tmp_path / "ds", 400)
+    out = tmp_path / "tune"
+    args = CLI + ["-q", "tune", str(ds), "--objective", "nll", "--trials", "24", "-j", "2", "-o", str(out), "--no-plots"]
+    rng = random.Random(3)
+    for _ in range(3):
+        p = subprocess.Popen(args, stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, start_new_session=True)
+        wait_for(lambda: (out / "trials").is_dir() and len(list((out / "trials").glob("*.json"))) >= 2, 120)
+        time.sleep(rng.uniform(0.2, 3.0))
+        os.killpg(p.pid, signal.SIGKILL)
+        p.wait()
+    r = subprocess.run(args, capture_output=True, text=True, timeout=600)
+    assert r.returncode == 0, r.stderr
+    rows = _trials(out)
+    done = [r for r in rows if r["state"] in ("COMPLETE", "PRUNED")]
+    assert len(done) == 24, [(r["number"], r["state"]) for r in rows]
+    assert all(r["state"] in ("COMPLETE", "PRUNED", "FAIL") for r in rows)      # nothing left running
+    assert {int(r["number"]) for r in done} <= {int(f.stem) for f in (out / "trials").glob("*.json")}
+
+
+@pytest.mark.slow
+def test_the_pool_and_dask_give_the_same_study_with_a_fixed_seed(tmp_path):
+    ds = make_slice(tmp_path / "ds", 300)
+    outs = []
+    for name, extra in (("pool", []), ("dask", ["--dask", "local"])):
+        out = tmp_path / name
+        r = subprocess.run(CLI + ["-q", "tune", str(ds), "--objective", "fused.ape.rmse", "--trials", "8", "-j", "2",
+                                  "--seed", "5", "-o", str(out), "--no-plots", *extra],
+                           capture_output=True, text=True, timeout=600)
+        assert r.returncode == 0, r.stderr
+        outs.append([{k: v for k, v in row.items() if k != "duration_s"} for row in _trials(out)])
+    assert outs[0] == outs[1]
+    assert len({row["fused.ape.rmse"] for row in outs[0]}) > 1
+
+
+@pytest.fixture(scope="module")
+def sim_drive(tmp_path_factory) -> Path:
+    out = tmp_path_factory.mktemp("sim") / "drive"
+    r = subprocess.run(CLI + ["-q", "simulate", str(out), "-d", "180", "--grade", "consumer", "--seed", "2"],
+                       capture_output=True, text=True, timeout=300)
+    assert r.returncode == 0, r.stderr
+    return out
+
+
+# the simulator's consumer grade: what the no-truth objective must find. The accelerometer's white noise is tuned
+# too but not asserted: with lidar increments at 10 Hz it does not show in the data (the NLL per update moves by
+# 3e-5 between 0.0006 and 0.006 m/s^2/sqrt(Hz), against 0.01-0.2 for a factor 3 in the gyro or GNSS noise).
+TRUE = {"imu.gyro_noise_dps_sqrthz": 0.015, "gnss.std_m": 2.0}
+
+
+@pytest.mark.slow
+def test_the_no_truth_objective_recovers_the_simulated_noise_within_a_factor_of_1_5(sim_drive, tmp_path):
+    space = _space(tmp_path, "params:\n"
+                   "  imu.accel_noise_mps2_sqrthz: {low: 0.0003, high: 0.03, log: true}\n"
+                   "  imu.gyro_noise_dps_sqrthz: {low: 0.0015, high: 0.15, log: true}\n"
+                   "  gnss.std_m: {low: 0.2, high: 20, log: true, shape: [1, 1, 2]}\n")
+    out = tmp_path / "tune"
+    r = subprocess.run(CLI + ["-q", "tune", str(sim_drive), "--space", str(space), "--objective", "nll", "--trials",
+                              "60", "-j", "2", "-o", str(out), "--no-plots"], capture_output=True, text=True, timeout=900)
+    assert r.returncode == 0, r.stderr
+    best = json.loads((out / "best.json").read_text())["params"]
+    for key, true in TRUE.items():
+        assert true / 1.5 <= best[key] <= true * 1.5, (key, best[key], true)
+
+
+@pytest.mark.slow
+def test_the_truth_objective_beats_the_default_config(sim_drive, tmp_path):
+    # the built-in (KITTI) noise instead of the manifest's true values: a default to beat
+    base = tmp_path / "base.yaml"
+    base.write_text("imu: {accel_noise_mps2_sqrthz: auto, gyro_noise_dps_sqrthz: auto}\n")
+    out = tmp_path / "tune"
+    r = subprocess.run(CLI + ["-q", "tune", str(sim_drive), "-c", str(base), "--objective", "fused.ape.rmse",
+                              "--trials", "30", "-j", "2", "-o", str(out), "--no-plots"],
+                       capture_output=True, text=True, timeout=900)
+    assert r.returncode == 0, r.stderr
+    default = json.loads((out / "default.json").read_text())["train"]["values"][0]
+    best = json.loads((out / "best.json").read_text())["values"][0]
+    assert best < 0.95 * default, (best, default)
