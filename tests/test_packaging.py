@@ -58,6 +58,7 @@ def wheel_site(tmp_path_factory) -> Path:
         assert "fusion_eval/_shipped/data/kitti-00/dataset.yaml" in names
         assert "fusion_eval/_shipped/configs/sweeps/noise5.yaml" in names
         assert "fusion_eval/_shipped/configs/variants/nominal.yaml" in names
+        assert "fusion_eval/_shipped/configs/tune/noise.yaml" in names
         tracked = {f"fusion_eval/{p.relative_to(ROOT / 'fusion_eval')}" for p in (ROOT / "fusion_eval").rglob("*.py")}
         assert {n for n in names if n.startswith("fusion_eval/") and n.endswith(".py")} <= tracked
         z.extractall(site)
@@ -84,6 +85,9 @@ def test_the_wheel_works_from_any_directory(wheel_site, tmp_path):
     assert r.returncode == 0, r.stderr
     rows = (cwd / "S" / "sweep.csv").read_text().splitlines()
     assert len(rows) == 7 and all(",ok," in row for row in rows[1:]), rows
+    r = _run(wheel_site, cwd, "-q", "tune", "--space", "noise", "--objective", "nll", "--trials", "2", "-j", "1",
+             "--out", "T", "--no-plots")
+    assert r.returncode == 0 and (cwd / "T" / "best.yaml").exists(), r.stderr
     r = _run(wheel_site, cwd, code=_api_example())
     assert r.returncode == 0, r.stderr
     assert (cwd / "out" / "metrics.json").exists() and len(r.stdout.split()) == 2

@@ -125,7 +125,7 @@ def test_a_tune_killed_at_random_moments_resumes_and_counts_every_trial_once(tmp
 
     ds = make_slice(tmp_path / "ds", 400)
     out = tmp_path / "tune"
-    args = CLI + ["-q", "tune", str(ds), "--objective", "nll", "--trials", "24", "-j", "2", "-o", str(out), "--no-plots"]
+    args = CLI + ["-q", "tune", str(ds), "--objective", "nll", "--trials", "16", "-j", "2", "-o", str(out), "--no-plots"]
     rng = random.Random(3)
     for _ in range(3):
         p = subprocess.Popen(args, stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, start_new_session=True)
@@ -137,7 +137,7 @@ def test_a_tune_killed_at_random_moments_resumes_and_counts_every_trial_once(tmp
     assert r.returncode == 0, r.stderr
     rows = _trials(out)
     done = [r for r in rows if r["state"] in ("COMPLETE", "PRUNED")]
-    assert len(done) == 24, [(r["number"], r["state"]) for r in rows]
+    assert len(done) == 16, [(r["number"], r["state"]) for r in rows]
     assert all(r["state"] in ("COMPLETE", "PRUNED", "FAIL") for r in rows)      # nothing left running
     assert {int(r["number"]) for r in done} <= {int(f.stem) for f in (out / "trials").glob("*.json")}
 
@@ -194,7 +194,7 @@ def test_the_truth_objective_beats_the_default_config(sim_drive, tmp_path):
     base.write_text("imu: {accel_noise_mps2_sqrthz: auto, gyro_noise_dps_sqrthz: auto}\n")
     out = tmp_path / "tune"
     r = subprocess.run(CLI + ["-q", "tune", str(sim_drive), "-c", str(base), "--objective", "fused.ape.rmse",
-                              "--trials", "30", "-j", "2", "-o", str(out), "--no-plots"],
+                              "--trials", "20", "-j", "2", "-o", str(out), "--no-plots"],
                        capture_output=True, text=True, timeout=900)
     assert r.returncode == 0, r.stderr
     default = json.loads((out / "default.json").read_text())["train"]["values"][0]

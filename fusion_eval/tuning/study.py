@@ -83,11 +83,12 @@ def open_study(s: Setup):
     from optuna.storages import JournalStorage
     from optuna.storages.journal import JournalFileBackend
 
+    sampler = _sampler(s)                   # a bad sampler choice is refused before the folder is made
     s.out_dir.mkdir(parents=True, exist_ok=True)
     journal = s.out_dir / "study.journal"
     storage = JournalStorage(JournalFileBackend(str(journal), lock_obj=_flock(journal)))
     directions = ["minimize"] * len(s.objectives)
-    study = optuna.create_study(study_name=STUDY, storage=storage, sampler=_sampler(s), directions=directions,
+    study = optuna.create_study(study_name=STUDY, storage=storage, sampler=sampler, directions=directions,
                                 load_if_exists=True)
     ident = {"space": s.space.digest(), "objectives": [o.name for o in s.objectives], "train": list(s.train),
              "seeds": s.seeds, "base_config": s.base_config, "sets": list(s.sets)}
