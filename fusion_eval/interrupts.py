@@ -10,6 +10,13 @@ llvmlite (its ctypes callbacks and thin wrappers) it only records the signal, an
 raises, and the CLI reports any error that follows a received signal as the interruption it is
 (:func:`received`), whatever numba made of the exception.
 
+A compilation step can hold the main thread in one LLVM call for seconds, where no Python handler runs. So a signal
+still pending after :data:`ABORT_AFTER_S` ends the command from the watcher thread: the clean-ups registered with
+:func:`on_abort` run (the pool's workers killed, then the staging folder and its lock removed; the most recent
+first), one line is printed, and the process exits with the signal's code. Nothing is written in that time (the main
+thread is inside the compiler), so nothing half-written is left; a sweep's finished runs are already recorded by
+their workers, and a tune's cut-off trials are enqueued again by the next run.
+
 A SIGINT that the process inherited as ignored (a background job of a non-interactive shell) stays ignored, as POSIX
 tools do; SIGTERM is always handled.
 """
@@ -25,6 +32,7 @@ import time
 from contextlib import contextmanager
 
 _POLL_S = 0.02
+ABORT_AFTER_S = 1.0          # a signal held this long inside llvmlite ends the command from the watcher
 
 
 class Terminated(KeyboardInterrupt):
@@ -32,8 +40,35 @@ class Terminated(KeyboardInterrupt):
     workers killed, finished sweep runs recorded)."""
 
 
-_pending: int | None = None                  # a signal received inside the compiler, not yet delivered
-_watcher: threading.Thread | None = None
+_pending: int | None = None                  # a signal received inside llvmlite, not yet delivered
+_raised = 0                                  # signals raised as exceptions so far
+_on_abort: dict[int, object] = {}             # token -> clean-up, run (newest first) when the watcher ends the command
+_tokens = iter(range(1, 1 << 62))
+
+
+def on_abort(cleanup) -> int:
+    """Register ``cleanup()`` to run if a signal has to end the command from the watcher thread; returns a token for
+    :func:`forget`. Clean-ups must be quick and must not need the main thread."""
+    token = next(_tokens)
+    _on_abort[token] = cleanup
+    return token
+
+
+def forget(token: int | None) -> None:
+    if token is not None:
+        _on_abort.pop(token, None)
+
+
+def _abort(signum: int) -> None:
+    for token in sorted(_on_abort, reverse=True):
+        try:
+            _on_abort[token]()
+        except Exception:  # noqa: BLE001 - the others must still run, and the process must still end
+            pass
+    what = "terminated (SIGTERM)" if signum == signal.SIGTERM else "interrupted"
+    os.write(2, f"\n{what} during numba's compilation: nothing half-written is left (finished sweep runs and tune "
+                f"trials are kept; run the same command again)\n".encode())
+    os._exit(143 if signum == signal.SIGTERM else 130)
 
 
 _received: int | None = None                 # the last signal raised in this block
@@ -57,30 +92,51 @@ def _in_llvmlite(frame) -> bool:
     return False
 
 
-def _watch(main_ident: int) -> None:
-    while _pending is not None:
-        time.sleep(_POLL_S)
-        signum = _pending
-        frame = sys._current_frames().get(main_ident)           # noqa: SLF001 - the documented way to see a stack
-        if frame is None:
-            return                                              # the main thread has ended
-        if signum is not None and not _in_llvmlite(frame):
-            _thread.interrupt_main(signum)                      # the handler runs again, at the next bytecode
-            time.sleep(5 * _POLL_S)
+def _watch(rfd: int, main_ident: int) -> None:
+    """The watcher: woken by every signal (Python's C-level handler writes its number to ``rfd`` at once, even while
+    the main thread is inside a C call), it follows the signal until the handler has raised it: re-delivers a
+    deferred one once the main thread has left llvmlite, and ends the command if the main thread stays inside
+    llvmlite for :data:`ABORT_AFTER_S` (one long LLVM call, where the handler cannot run)."""
+    try:
+        _follow(rfd, main_ident)
+    finally:
+        os.close(rfd)
+
+
+def _follow(rfd: int, main_ident: int) -> None:
+    while True:
+        try:
+            data = os.read(rfd, 64)
+        except OSError:
+            return
+        if not data:
+            return                                              # the block ended: the write end is closed
+        sigs = [b for b in data if b in (signal.SIGINT, signal.SIGTERM)]
+        if not sigs:
+            continue
+        seen, t_arrived = _raised, time.monotonic()
+        while _raised == seen:
+            time.sleep(_POLL_S)
+            frame = sys._current_frames().get(main_ident)       # noqa: SLF001 - the documented way to see a stack
+            if frame is None:
+                return                                          # the main thread has ended
+            inside = _in_llvmlite(frame)
+            pending = _pending
+            if pending is not None and not inside:
+                _thread.interrupt_main(pending)                 # the handler runs again, at the next bytecode
+                time.sleep(5 * _POLL_S)
+            elif inside and time.monotonic() - t_arrived > ABORT_AFTER_S:
+                _abort(pending if pending is not None else sigs[-1])
 
 
 def _handler(signum, frame) -> None:
-    global _pending, _watcher, _received
+    global _pending, _received, _raised
     if _in_llvmlite(frame):
-        first = _pending is None
-        _pending = signum
-        if first and (_watcher is None or not _watcher.is_alive()):
-            _watcher = threading.Thread(target=_watch, args=(threading.main_thread().ident,), daemon=True,
-                                        name="fusion-eval-interrupt")
-            _watcher.start()
+        _pending = signum                                       # the watcher delivers it again
         return
     _pending = None
     _received = signum
+    _raised += 1
     raise Terminated() if signum == signal.SIGTERM else KeyboardInterrupt()
 
 
@@ -98,10 +154,17 @@ def handled():
         if not (s == signal.SIGINT and h == signal.SIG_IGN):
             signal.signal(s, _handler)
     _received = None
+    rfd, wfd = os.pipe()
+    os.set_blocking(wfd, False)
+    old_fd = signal.set_wakeup_fd(wfd, warn_on_full_buffer=False)
+    threading.Thread(target=_watch, args=(rfd, threading.main_thread().ident), daemon=True,
+                     name="fusion-eval-interrupt").start()
     try:
         yield
     finally:
         _pending = None
+        signal.set_wakeup_fd(old_fd)
+        os.close(wfd)                                           # the watcher reads an end of file and ends
         for s, h in old.items():
             if h is not None:                                   # None: set from C, cannot be restored from Python
                 signal.signal(s, h)

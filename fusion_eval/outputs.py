@@ -10,6 +10,7 @@ import socket
 import time
 from pathlib import Path
 
+from . import interrupts
 from .errors import OutputError
 
 
@@ -56,6 +57,7 @@ class StagedDir:
             if self.staging.exists():
                 shutil.rmtree(self.staging)
             self.staging.mkdir()
+            self._abort_token = interrupts.on_abort(self._abandon)
         except OSError as exc:
             raise OutputError(f"{self.final}: cannot create output directory ({exc.strerror})") from None
         return self
@@ -137,4 +139,17 @@ class StagedDir:
                 shutil.rmtree(old, ignore_errors=True)
             return False
         finally:
+            interrupts.forget(getattr(self, "_abort_token", None))
             self._unlock()
+
+    def _abandon(self) -> None:
+        """What a failed run's exit does, for a signal that ends the command from another thread
+        (:func:`fusion_eval.interrupts.on_abort`)."""
+        if self.staging is not None:
+            shutil.rmtree(self.staging, ignore_errors=True)
+        self._unlock()
+        for p in self._made:
+            try:
+                p.rmdir()
+            except OSError:
+                break

@@ -52,9 +52,15 @@ class Pool(ProcessPoolExecutor):
     folder: they must be gone before it is removed)."""
 
     def __init__(self, max_workers: int, mp_context):
+        from . import interrupts
+
         super().__init__(max_workers=max_workers, mp_context=mp_context, initializer=worker_init)
+        self._abort_token = interrupts.on_abort(self.terminate)
 
     def __exit__(self, exc_type, exc, tb):
+        from . import interrupts
+
+        interrupts.forget(self._abort_token)
         if exc_type is not None:
             self.terminate()
             return False
