@@ -10,7 +10,8 @@ import json
 # Runs of one dataset whose configurations differ only in these are one batch: the data is loaded and
 # prepared once, the unfiltered estimates evaluated once, and each run replays and evaluates its own filter.
 FILTER_ONLY_KEYS = (
-    "imu.accel_noise_mps2_sqrthz", "imu.gyro_noise_dps_sqrthz", "imu.accel_bias_rw_mps3_sqrthz",
+    "imu.accel_noise_mps2_sqrthz", "imu.gyro_noise_dps_sqrthz", "imu.accel_noise_scale", "imu.gyro_noise_scale",
+    "imu.accel_bias_rw_mps3_sqrthz",
     "imu.gyro_bias_rw_dps2_sqrthz", "imu.gap_noise_scale", "imu.accel_bias_corr_time_s", "imu.gyro_bias_corr_time_s",
     "lidar.relative_pos_std_m", "lidar.relative_pos_std_frac", "lidar.relative_att_std_deg",
     "lidar.relative_att_std_frac", "lidar.gate_prob", "lidar.noise_adapt", "lidar.adapt_rate",

@@ -68,6 +68,9 @@ CORE: dict[str, Spec] = {
                                           "'auto' = from the stream's second differences", "float", nonneg=True, auto=True),
     "imu.gyro_noise_dps_sqrthz": S("auto", "gyroscope white noise density (angle random walk), deg/s/sqrt(Hz); 'auto' = from "
                                         "the stream's second differences", "float", nonneg=True, auto=True),
+    "imu.accel_noise_scale": S(1.0, "factor on the accelerometer white noise (given or estimated): a tuned value that "
+                                    "carries over to drives whose noise is estimated from their own data", positive=True),
+    "imu.gyro_noise_scale": S(1.0, "factor on the gyroscope white noise (given or estimated)", positive=True),
     "imu.accel_bias_rw_mps3_sqrthz": S(1e-4, "accelerometer bias random walk, m/s^3/sqrt(Hz)", nonneg=True),
     "imu.gyro_bias_rw_dps2_sqrthz": S(1e-5, "gyroscope bias random walk, deg/s^2/sqrt(Hz)", nonneg=True),
     "imu.gap_factor": S(1.5, "an IMU interval longer than gap_factor x the median interval is a gap", positive=True),

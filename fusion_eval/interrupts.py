@@ -41,7 +41,8 @@ class Terminated(KeyboardInterrupt):
 
 
 _pending: int | None = None                  # a signal received inside llvmlite, not yet delivered
-_raised = 0                                  # signals raised as exceptions so far
+_handler_calls = 0                           # calls of the handler so far (deferring or raising)
+_generation = 0                              # handled() blocks ended so far: a watcher of an ended block stops
 _on_abort: dict[int, object] = {}             # token -> clean-up, run (newest first) when the watcher ends the command
 _tokens = iter(range(1, 1 << 62))
 
@@ -98,24 +99,29 @@ def _watch(rfd: int, main_ident: int) -> None:
     deferred one once the main thread has left llvmlite, and ends the command if the main thread stays inside
     llvmlite for :data:`ABORT_AFTER_S` (one long LLVM call, where the handler cannot run)."""
     try:
-        _follow(rfd, main_ident)
+        _follow(rfd, main_ident, _generation)
     finally:
         os.close(rfd)
 
 
-def _follow(rfd: int, main_ident: int) -> None:
+def _follow(rfd: int, main_ident: int, generation: int) -> None:
+    seen_calls = _handler_calls
     while True:
         try:
             data = os.read(rfd, 64)
         except OSError:
             return
-        if not data:
+        if not data or generation != _generation:
             return                                              # the block ended: the write end is closed
         sigs = [b for b in data if b in (signal.SIGINT, signal.SIGTERM)]
         if not sigs:
             continue
-        seen, t_arrived = _raised, time.monotonic()
-        while _raised == seen:
+        t_arrived = time.monotonic()
+        # done once the handler has run since we last looked and left nothing deferred (it may have run before this
+        # read: the byte is written first, the handler runs at the next bytecode)
+        while not (_handler_calls > seen_calls and _pending is None):
+            if generation != _generation:
+                return
             time.sleep(_POLL_S)
             frame = sys._current_frames().get(main_ident)       # noqa: SLF001 - the documented way to see a stack
             if frame is None:
@@ -127,16 +133,17 @@ def _follow(rfd: int, main_ident: int) -> None:
                 time.sleep(5 * _POLL_S)
             elif inside and time.monotonic() - t_arrived > ABORT_AFTER_S:
                 _abort(pending if pending is not None else sigs[-1])
+        seen_calls = _handler_calls
 
 
 def _handler(signum, frame) -> None:
-    global _pending, _received, _raised
+    global _pending, _received, _handler_calls
+    _handler_calls += 1
     if _in_llvmlite(frame):
         _pending = signum                                       # the watcher delivers it again
         return
     _pending = None
     _received = signum
-    _raised += 1
     raise Terminated() if signum == signal.SIGTERM else KeyboardInterrupt()
 
 
@@ -145,7 +152,7 @@ def handled():
     """SIGINT and SIGTERM raise ``KeyboardInterrupt`` / :class:`Terminated` in the main thread inside the block, as
     soon as the code is outside llvmlite; the caller's handlers are restored after (so that invoking the CLI
     in-process, in tests or notebooks, leaves the process as it was). Outside the main thread: no change."""
-    global _pending, _received
+    global _pending, _received, _generation
     if threading.current_thread() is not threading.main_thread():
         yield
         return
@@ -163,6 +170,7 @@ def handled():
         yield
     finally:
         _pending = None
+        _generation += 1
         signal.set_wakeup_fd(old_fd)
         os.close(wfd)                                           # the watcher reads an end of file and ends
         for s, h in old.items():

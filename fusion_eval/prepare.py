@@ -50,11 +50,14 @@ class Prepared:
 
 def settings_for(cfg: dict, prep: Prepared) -> Settings:
     """The SI settings of the run: the configuration with what :func:`prepare` estimated in place of 'auto'."""
-    if not prep.resolved:
-        return Settings(cfg)
     c = {sect: dict(body) for sect, body in cfg.items()}
     for sect, body in prep.resolved.items():
         c[sect].update(body)
+    imu = c["imu"]
+    for key, scale in (("accel_noise_mps2_sqrthz", "accel_noise_scale"), ("gyro_noise_dps_sqrthz", "gyro_noise_scale")):
+        f = float(imu.get(scale, 1.0))
+        if f != 1.0 and isinstance(imu.get(key), (int, float)):     # the filter's value; the report keeps the estimate
+            imu[key] = imu[key] * f
     return Settings(c)
 
 

@@ -298,6 +298,32 @@ def test_a_signal_held_in_a_long_llvmlite_call_ends_the_process_after_the_clean_
     assert marker.read_text().split() == ["pool", "staging"]
 
 
+def test_a_signal_already_raised_is_not_acted_on_again_by_the_watcher(tmp_path):
+    """The handler can run before the watcher reads the signal's byte: a signal raised and handled must not end the
+    command later, when the code spends a second in llvmlite (a numba compilation after a caught interrupt)."""
+    import llvmlite
+
+    fake = os.path.join(os.path.dirname(llvmlite.__file__), "_fake_compile.py")
+    script = tmp_path / "handled.py"
+    script.write_text(
+        "import signal, time\n"
+        "import llvmlite  # numba imports it: only an imported llvmlite can be on the stack\n"
+        "from fusion_eval import interrupts\n"
+        "src = 'def inside():\\n    time.sleep(2.0)\\n'\n"
+        "ns = {'time': time}\n"
+        f"exec(compile(src, {fake!r}, 'exec'), ns)\n"
+        "with interrupts.handled():\n"
+        "    try:\n"
+        "        signal.raise_signal(signal.SIGTERM)\n"
+        "        time.sleep(5)\n"
+        "    except interrupts.Terminated:\n"
+        "        pass\n"
+        "    ns['inside']()\n"
+        "print('finished')\n")
+    r = subprocess.run([sys.executable, str(script)], capture_output=True, text=True, timeout=60)
+    assert r.returncode == 0 and r.stdout.strip() == "finished", (r.returncode, r.stdout, r.stderr)
+
+
 def test_a_signal_outside_llvmlite_raises_at_once_and_is_remembered():
     from fusion_eval import interrupts
 

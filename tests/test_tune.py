@@ -200,3 +200,24 @@ def test_the_truth_objective_beats_the_default_config(sim_drive, tmp_path):
     default = json.loads((out / "default.json").read_text())["train"]["values"][0]
     best = json.loads((out / "best.json").read_text())["values"][0]
     assert best < 0.95 * default, (best, default)
+
+
+def test_noise_scales_multiply_the_density_the_filter_uses_and_leave_the_estimate():
+    from types import SimpleNamespace
+
+    import numpy as np
+
+    from fusion_eval.batch import batch_key
+    from fusion_eval.config import default_config
+    from fusion_eval.prepare import settings_for
+
+    cfg = default_config()
+    cfg["imu"].update(accel_noise_scale=2.0, gyro_noise_scale=0.5)
+    prep = SimpleNamespace(resolved={"imu": {"accel_noise_mps2_sqrthz": 0.05, "gyro_noise_dps_sqrthz": 0.1}})
+    s = settings_for(cfg, prep)
+    assert s.imu.accel_noise_mps2_sqrthz == pytest.approx(0.1)
+    assert s.imu.gyro_noise_rps_sqrthz == pytest.approx(np.radians(0.05))
+    assert prep.resolved["imu"]["accel_noise_mps2_sqrthz"] == 0.05 and cfg["imu"]["accel_noise_mps2_sqrthz"] == "auto"
+    # only the filter reads them: runs that differ in them share one preparation
+    plain = default_config()
+    assert batch_key("d", cfg) == batch_key("d", plain)
