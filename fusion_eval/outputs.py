@@ -14,7 +14,19 @@ from . import interrupts
 from .errors import OutputError
 
 
-def _alive(pid: int) -> bool:
+def atomic_write(path: Path, text: str) -> None:
+    """Write ``text`` to ``path`` through a temporary file beside it (with this process's id, so that two processes
+    writing one file, such as two ``tune`` runs sharing a study, do not share it): a reader sees the old or the new
+    file, never half of one."""
+    path = Path(path)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    tmp = path.with_name(f".{path.name}.tmp-{os.getpid()}")
+    tmp.write_text(text)
+    os.replace(tmp, path)
+
+
+def alive(pid: int) -> bool:
+    """Whether process ``pid`` of this host exists (a lock's or a study trial's owner)."""
     try:
         os.kill(pid, 0)
     except ProcessLookupError:
@@ -94,7 +106,7 @@ class StagedDir:
                     host, pid = "", 0
                 # a holder on another host (a cluster's shared filesystem) cannot be probed: it is taken as alive
                 mine = host in ("", socket.gethostname())
-                if pid and (not mine or (pid != os.getpid() and _alive(pid))):
+                if pid and (not mine or (pid != os.getpid() and alive(pid))):
                     if time.monotonic() < t_end:
                         time.sleep(0.2)
                         continue

@@ -268,30 +268,34 @@ def test_a_signal_inside_llvmlite_is_delivered_once_the_code_has_left_it():
     assert t_left is not None and time.time() - t_left < 1.0
 
 
+def _run_with_fake_llvmlite(tmp_path: Path, inside_body: str, main: str) -> subprocess.CompletedProcess:
+    """Run a script in which ``inside()`` (``inside_body``) has its code in llvmlite's folder, as numba's compiler
+    calls do, and ``main`` (which may call ``inside()``) runs; with SIGINT's default disposition."""
+    import llvmlite
+
+    fake = os.path.join(os.path.dirname(llvmlite.__file__), "_fake_compile.py")
+    src = "def inside():\n" + "".join(f"    {line}\n" for line in inside_body.splitlines())
+    script = tmp_path / "fake_llvmlite.py"
+    script.write_text("import signal, time\n"
+                      "import llvmlite  # numba imports it: only an imported llvmlite can be on the stack\n"
+                      "from fusion_eval import interrupts\n"
+                      f"exec(compile({src!r}, {fake!r}, 'exec'), globals())\n" + main)
+    return subprocess.run([sys.executable, str(script)], capture_output=True, text=True, timeout=60,
+                          preexec_fn=_default_sigint)
+
+
 def test_a_signal_held_in_a_long_llvmlite_call_ends_the_process_after_the_clean_ups(tmp_path):
     """A compilation step can keep the main thread in one LLVM call for seconds: after ABORT_AFTER_S the watcher runs
     the registered clean-ups (newest first) and exits with the signal's code."""
-    import llvmlite
-
     marker = tmp_path / "order.txt"
-    fake = os.path.join(os.path.dirname(llvmlite.__file__), "_fake_long_call.py")
-    script = tmp_path / "long.py"
-    script.write_text(
-        "import os, signal, time\n"
-        "import llvmlite  # numba imports it: only an imported llvmlite can be on the stack\n"
-        "from fusion_eval import interrupts\n"
-        f"marker = {str(marker)!r}\n"
-        "interrupts.on_abort(lambda: open(marker, 'a').write('staging\\n'))\n"
-        "interrupts.on_abort(lambda: open(marker, 'a').write('pool\\n'))\n"
-        "src = 'def inside():\\n    signal.raise_signal(signal.SIGINT)\\n    time.sleep(30)\\n'\n"
-        f"ns = {{'signal': signal, 'time': time}}\n"
-        f"exec(compile(src, {fake!r}, 'exec'), ns)\n"
-        "with interrupts.handled():\n"
-        "    ns['inside']()\n"
-        "print('not interrupted')\n")
     t0 = time.time()
-    r = subprocess.run([sys.executable, str(script)], capture_output=True, text=True, timeout=60,
-                       preexec_fn=_default_sigint)
+    r = _run_with_fake_llvmlite(tmp_path, "signal.raise_signal(signal.SIGINT)\ntime.sleep(30)",
+                                f"marker = {str(marker)!r}\n"
+                                "interrupts.on_abort(lambda: open(marker, 'a').write('staging\\n'))\n"
+                                "interrupts.on_abort(lambda: open(marker, 'a').write('pool\\n'))\n"
+                                "with interrupts.handled():\n"
+                                "    inside()\n"
+                                "print('not interrupted')\n")
     dt = time.time() - t0
     assert r.returncode == 130 and "not interrupted" not in r.stdout, (r.returncode, r.stdout, r.stderr)
     assert "interrupted during numba's compilation" in r.stderr and dt < 10.0, (dt, r.stderr)
@@ -301,26 +305,15 @@ def test_a_signal_held_in_a_long_llvmlite_call_ends_the_process_after_the_clean_
 def test_a_signal_already_raised_is_not_acted_on_again_by_the_watcher(tmp_path):
     """The handler can run before the watcher reads the signal's byte: a signal raised and handled must not end the
     command later, when the code spends a second in llvmlite (a numba compilation after a caught interrupt)."""
-    import llvmlite
-
-    fake = os.path.join(os.path.dirname(llvmlite.__file__), "_fake_compile.py")
-    script = tmp_path / "handled.py"
-    script.write_text(
-        "import signal, time\n"
-        "import llvmlite  # numba imports it: only an imported llvmlite can be on the stack\n"
-        "from fusion_eval import interrupts\n"
-        "src = 'def inside():\\n    time.sleep(2.0)\\n'\n"
-        "ns = {'time': time}\n"
-        f"exec(compile(src, {fake!r}, 'exec'), ns)\n"
-        "with interrupts.handled():\n"
-        "    try:\n"
-        "        signal.raise_signal(signal.SIGTERM)\n"
-        "        time.sleep(5)\n"
-        "    except interrupts.Terminated:\n"
-        "        pass\n"
-        "    ns['inside']()\n"
-        "print('finished')\n")
-    r = subprocess.run([sys.executable, str(script)], capture_output=True, text=True, timeout=60)
+    r = _run_with_fake_llvmlite(tmp_path, "time.sleep(2.0)",
+                                "with interrupts.handled():\n"
+                                "    try:\n"
+                                "        signal.raise_signal(signal.SIGTERM)\n"
+                                "        time.sleep(5)\n"
+                                "    except interrupts.Terminated:\n"
+                                "        pass\n"
+                                "    inside()\n"
+                                "print('finished')\n")
     assert r.returncode == 0 and r.stdout.strip() == "finished", (r.returncode, r.stdout, r.stderr)
 
 

@@ -23,6 +23,7 @@ from pathlib import Path
 from xml.sax.saxutils import quoteattr
 
 from ..errors import DataFormatError, FusionEvalError
+from ..outputs import atomic_write
 from ..evaluation import keys
 from ..tables import markdown as md_table
 
@@ -186,13 +187,6 @@ def junit(rows: list[Row], rules: list[tuple[str, bool, str]]) -> str:
     return (f'<?xml version="1.0" encoding="utf-8"?>\n<testsuite name="fusion-eval check" tests="{len(cases)}" '
             f'failures="{fails}" errors="0">\n' + "\n".join(cases) + "\n</testsuite>\n")
 
-
-def atomic_write(path: Path, text: str) -> None:
-    path = Path(path)
-    path.parent.mkdir(parents=True, exist_ok=True)
-    tmp = path.with_name(f".{path.name}.tmp")
-    tmp.write_text(text)
-    os.replace(tmp, path)
 
 
 

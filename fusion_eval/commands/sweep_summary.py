@@ -12,6 +12,7 @@ from pathlib import Path
 import numpy as np
 import yaml
 
+from ..outputs import atomic_write
 from ..evaluation import keys as mk
 from ..tables import cell, csv_text, markdown
 from .sweep import Task, read_records
@@ -105,12 +106,6 @@ def _span_note(rows: list[dict]) -> str:
             "truth's first pose): their figures are not over exactly the same stretch.")
 
 
-def _atomic(path: Path, text: str) -> None:
-    tmp = path.with_name(f".{path.name}.tmp")
-    tmp.write_text(text)
-    os.replace(tmp, path)
-
-
 def write_summary(tasks: list[Task], out_dir: Path, keys: list[str], plots: bool = True,
                   grid_keys: list[str] | None = None) -> dict:
     out_dir = Path(out_dir)
@@ -121,10 +116,10 @@ def write_summary(tasks: list[Task], out_dir: Path, keys: list[str], plots: bool
     n_trials = 1 + max((t.trial for t in tasks), default=0)
     if n_trials > 1:
         # every trial in sweep_trials.csv; everything below is over the means of each setting's trials
-        _atomic(out_dir / "sweep_trials.csv", csv_text(["trial", *cols], rows, float_format="{:.6g}"))
+        atomic_write(out_dir / "sweep_trials.csv", csv_text(["trial", *cols], rows, float_format="{:.6g}"))
         rows = _over_trials(rows, keys)
         cols = [*cols[:-2], "trials", f"{METRIC}_std", "failed_trials", "status", "error"]
-    _atomic(out_dir / "sweep.csv", csv_text(cols, rows, float_format="{:.6g}"))
+    atomic_write(out_dir / "sweep.csv", csv_text(cols, rows, float_format="{:.6g}"))
 
     ok = [r for r in rows if r["status"] == "ok" and r.get(METRIC) is not None]
     L = ["# fusion-eval sweep", "",
@@ -176,7 +171,7 @@ def write_summary(tasks: list[Task], out_dir: Path, keys: list[str], plots: bool
                       _nest(bt.overrides)):
             for sect, body in layer.items():
                 cfg.setdefault(sect, {}).update(body)
-        _atomic(out_dir / "best.yaml", f"# best of the sweep: variant {bv}, setting {bs}\n"
+        atomic_write(out_dir / "best.yaml", f"# best of the sweep: variant {bv}, setting {bs}\n"
                 f"# mean fused APE translation RMSE across datasets: {bm:.6f} m\n"
                 "# use it as: fusion-eval run -c best.yaml\n" + yaml.safe_dump(cfg, sort_keys=False))
         L += [f"Best: variant `{bv}`, setting `{bs}` (mean fused APE RMSE {cell(bm)} m); see `best.yaml`.", ""]
@@ -186,7 +181,7 @@ def write_summary(tasks: list[Task], out_dir: Path, keys: list[str], plots: bool
 
         written = P.plot_sweep(out_dir, rows, keys, METRIC, tasks, best, grid_keys or [])
         L += [f"![{p}]({p})" for p in written]
-    _atomic(out_dir / "sweep.md", "\n".join(L) + "\n")
+    atomic_write(out_dir / "sweep.md", "\n".join(L) + "\n")
     return {"rows": rows, "best": best, "plots": written}
 
 

@@ -11,15 +11,10 @@ from pathlib import Path
 
 import yaml
 
+from ..outputs import atomic_write
 from .study import Setup, write_json
 
 FUSED_APE = "fused.ape.rmse"
-
-
-def _atomic_text(path: Path, text: str) -> None:
-    tmp = path.with_name(f".{path.name}.tmp-{os.getpid()}")
-    tmp.write_text(text)
-    os.replace(tmp, path)
 
 
 def best_yaml(s: Setup, best: dict) -> str:
@@ -108,7 +103,6 @@ def markdown(s: Setup, res: dict, runtime_s: float) -> str:
                                ("held-out", default.get("test"), best.get("test"))):
         if d_rec is None:
             continue
-        o = s.objectives[0]
         d_obj, t_obj = _obj(d_rec, 0), _obj(t_rec, 0)
         gaps.append((part, d_obj, t_obj))
         L.append(f"| {part} (mean) | {_f(d_obj)} | {_f(t_obj)} | {_f(_mean(d_rec, FUSED_APE))} | "
@@ -118,7 +112,6 @@ def markdown(s: Setup, res: dict, runtime_s: float) -> str:
         for name in da:
             L.append(f"| {part}: {name} | {_f(do.get(name))} | {_f(to.get(name))} | {_f(da[name])} | "
                      f"{_f(ta.get(name))} |")
-        del o
     L += ["", _generalisation(gaps), ""]
     if len(s.objectives) > 1:
         L += ["## Pareto front", "", "| trial | " + " | ".join(o.name for o in s.objectives) + " |",
@@ -200,11 +193,11 @@ def write(s: Setup, res: dict, runtime_s: float, with_plots: bool = True) -> lis
     out = s.out_dir
     files = []
     if res["best"] is not None:
-        _atomic_text(out / "best.yaml", best_yaml(s, res["best"]))
+        atomic_write(out / "best.yaml", best_yaml(s, res["best"]))
         write_json(out / "best.json", res["best"])
         files += ["best.yaml", "best.json"]
-    _atomic_text(out / "trials.csv", trials_csv(res["study"], s))
-    _atomic_text(out / "tune.md", markdown(s, res, runtime_s))
+    atomic_write(out / "trials.csv", trials_csv(res["study"], s))
+    atomic_write(out / "tune.md", markdown(s, res, runtime_s))
     files += ["trials.csv", "tune.md"]
     if with_plots and res["best"] is not None:
         files += plots(res["study"], s)

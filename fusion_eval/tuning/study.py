@@ -20,8 +20,8 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Callable
 
-from .. import resources
 from ..errors import ConfigError
+from ..outputs import alive, atomic_write
 from .objectives import Objective
 from .space import Space
 from .worker import Job, score
@@ -136,23 +136,13 @@ def _requeue_stale(study) -> int:
     host, n = socket.gethostname(), 0
     for t in study.get_trials(deepcopy=False, states=(optuna.trial.TrialState.RUNNING,)):
         owner = t.system_attrs.get("fusion_eval_owner") or t.user_attrs.get("owner")
-        if not owner or owner[0] != host or _alive(owner[1]):
+        if not owner or owner[0] != host or alive(owner[1]):
             continue
         study._storage.set_trial_user_attr(t._trial_id, "interrupted", True)            # noqa: SLF001
         study._storage.set_trial_state_values(t._trial_id, optuna.trial.TrialState.FAIL)  # noqa: SLF001
         study.enqueue_trial(t.params, skip_if_exists=False)
         n += 1
     return n
-
-
-def _alive(pid: int) -> bool:
-    try:
-        os.kill(pid, 0)
-        return True
-    except ProcessLookupError:
-        return False
-    except PermissionError:
-        return True
 
 
 def counted(study) -> int:
@@ -215,9 +205,7 @@ class Executor:
 
 
 def write_json(path: Path, body) -> None:
-    tmp = path.with_name(f".{path.name}.tmp-{os.getpid()}")
-    tmp.write_text(json.dumps(body, indent=1, default=_jsonable))
-    os.replace(tmp, path)
+    atomic_write(path, json.dumps(body, indent=1, default=_jsonable))
 
 
 def _jsonable(v):
