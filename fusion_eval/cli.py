@@ -3,6 +3,7 @@
 
 from __future__ import annotations
 
+import contextlib
 import logging
 import signal
 import sys
@@ -17,19 +18,37 @@ from .errors import FusionEvalError
 log = logging.getLogger("fusion_eval")
 
 
+# libraries whose INFO lines are theirs, not the user's: shown from -vv on. A filter on the handler, not logger
+# levels, because distributed sets its loggers' levels itself when it is imported (after this setup)
+_CHATTY = ("distributed", "dask", "numba", "matplotlib", "evo", "PIL", "optuna", "bokeh", "tornado")
+
+
 class _Handler(logging.Handler):
+    def __init__(self, verbose: int = 0):
+        super().__init__()
+        self.verbose = verbose
+
+    def filter(self, record):
+        if self.verbose < 2 and record.levelno < logging.WARNING and record.name.split(".")[0] in _CHATTY:
+            return False
+        return super().filter(record)
+
     def emit(self, record):
-        click.echo(f"{record.levelname.lower()}: {record.getMessage()}" if record.levelno >= logging.WARNING
-                   else record.getMessage(), err=True)
+        msg = (f"{record.levelname.lower()}: {record.getMessage()}" if record.levelno >= logging.WARNING
+               else record.getMessage())
+        if "tqdm" in sys.modules:       # a progress bar may be drawn: tqdm moves it below the message
+            sys.modules["tqdm"].tqdm.write(msg, file=sys.stderr)
+        else:
+            click.echo(msg, err=True)
 
 
 def _setup_logging(verbose: int, quiet: int) -> None:
     level = logging.INFO - 10 * verbose + 10 * quiet
     root = logging.getLogger()
-    root.handlers[:] = [_Handler()]
+    root.handlers[:] = [_Handler(verbose)]
     root.setLevel(logging.WARNING)
     log.setLevel(max(logging.DEBUG, level))
-    for noisy in ("numba", "matplotlib", "evo", "PIL"):
+    for noisy in _CHATTY:
         logging.getLogger(noisy).setLevel(logging.WARNING if verbose < 2 else logging.INFO)
 
 
@@ -65,7 +84,8 @@ def _interrupted(exc: BaseException) -> None:
 @click.group(cls=Group, context_settings={"help_option_names": ["-h", "--help"]})
 @click.version_option(__version__, prog_name="fusion-eval")
 @click.option("-v", "--verbose", count=True, help="More log output (-vv for debug).")
-@click.option("-q", "--quiet", count=True, help="Less log output (-q: warnings only, no progress bar).")
+@click.option("-q", "--quiet", count=True, help="Quiet: no progress, no tables, no log below errors; the command prints "
+                                                "one line, its output path, on stdout (for scripts).")
 @click.pass_context
 def main(ctx, verbose, quiet):
     """Fuse IMU, GNSS and lidar odometry with Kalman filters and evaluate them with evo."""
@@ -100,17 +120,15 @@ def run(ctx, dataset, config_path, sets, out_dir, overwrite, no_plots, trials):
     sets = tuple(sets) + (("output.plots=false",) if no_plots else ())
     quiet = ctx.obj["quiet"]
     t0 = time.perf_counter()
-    progress = None if quiet else _Progress("filtering")
-    try:
+    with _display(quiet) as progress:
         res = run_command(dataset, config_path, sets, out_dir, overwrite=overwrite, progress=progress, trials=trials)
-    finally:
-        if progress is not None:
-            progress.close()
     wall = time.perf_counter() - t0
     log.debug("timings: %s", {k: round(v, 3) for k, v in res.timings_s.items()})
-    if not quiet:
-        click.echo(summary_table(res.metrics))
-        click.echo(f"wrote {res.out_dir}/ ({wall:.1f} s)")
+    if quiet:
+        click.echo(res.out_dir)
+        return
+    click.echo(summary_table(res.metrics))
+    click.echo(f"wrote {res.out_dir}/ ({wall:.1f} s; open report.html)")
 
 
 @main.command()
@@ -132,15 +150,13 @@ def compare(ctx, dataset, variants, variant_dir, config_path, sets, out_dir, ove
     from .commands.compare import compare as run_compare
 
     names = [v.strip() for v in variants.split(",") if v.strip()]
-    progress = None if ctx.obj["quiet"] else _Progress("variants")
     t0 = time.perf_counter()
-    try:
+    with _display(ctx.obj["quiet"]) as progress:
         res = run_compare(dataset, names, variant_dir, config_path, tuple(sets), out_dir, overwrite=overwrite,
                           make_plots=not no_plots, progress=progress, trials=trials)
-    finally:
-        if progress is not None:
-            progress.close()
-    if not ctx.obj["quiet"]:
+    if ctx.obj["quiet"]:
+        click.echo(res["out_dir"])
+    else:
         click.echo(f"{'variant':<26} {'estimate':<9} {'APE trans RMSE [m]':>19} {'APE rot RMSE [deg]':>19}")
         for r in res["rows"]:
             rot = r.get("ape_rot_rmse_deg")
@@ -192,7 +208,9 @@ def sweep(ctx, datasets, sweep_file, out_dir, jobs, variant_dir, scheduler, dask
     finally:
         for bar in bars:
             bar.close()
-    if not ctx.obj["quiet"]:
+    if ctx.obj["quiet"]:
+        click.echo(out_dir)
+    else:
         best, counts = res["summary"]["best"], res["counts"]
         if summarize_only:
             st = [r["status"] for r in res["summary"]["rows"]]
@@ -204,7 +222,7 @@ def sweep(ctx, datasets, sweep_file, out_dir, jobs, variant_dir, scheduler, dask
         if best:
             click.echo(f"best: variant {best['variant']}, setting {best['setting']}: mean fused APE RMSE "
                        f"{best['mean_fused_ape_trans_rmse_m']:.3f} m")
-        click.echo(f"wrote {out_dir}/sweep.csv, sweep.md, best.yaml")
+        click.echo(f"wrote {out_dir}/sweep.csv, sweep.md, report.html, best.yaml")
 
 
 @main.command()
@@ -248,7 +266,9 @@ def evaluate(ctx, inputs, out_dir, fmt, bag, ref_topic, ref_times, times, associ
                      segment_m, segment_s, overwrite, not no_plots, engine, bag=bag, ref_topic=ref_topic, fmt=fmt,
                      relations=tuple(relations) or DEFAULT_RELATIONS, up_axis=up_axis, n_to_align=n_to_align,
                      t_offset_s=t_offset)
-    if not ctx.obj["quiet"]:
+    if ctx.obj["quiet"]:
+        click.echo(out_dir)
+    else:
         click.echo(f"{'estimate':<28} {'matched':>8} {'APE trans RMSE [m]':>19} {'KITTI t_err [%]':>16} {'r_err [deg/100m]':>17}")
         for k, d in m["estimates"].items():
             ape = (d.get("ape") or {}).get("translation_m")
@@ -278,7 +298,9 @@ def track(ctx, input_path, out_dir, sensors, noise_ax, noise_ay, lidar_var, rada
 
     metrics = run_track(input_path, out_dir, sensors, noise_ax, noise_ay, lidar_var, radar_var, overwrite, not no_plots,
                         smooth)
-    if not ctx.obj["quiet"]:
+    if ctx.obj["quiet"]:
+        click.echo(out_dir)
+    else:
         r = metrics["rmse"]
         click.echo(f"RMSE [px, py, vx, vy] = [{r['px']:.4f}, {r['py']:.4f}, {r['vx']:.4f}, {r['vy']:.4f}] "
                    f"({metrics['estimates']} estimates, sensors: {sensors})")
@@ -315,7 +337,7 @@ def simulate_track_cmd(out_file, duration_s, interval_s, seed, start, heading_de
 @click.option("--atol", type=float, default=0.0, show_default=True, help="Absolute tolerance of a metric's increase.")
 @click.option("-m", "--metric", "patterns", multiple=True, metavar="PATTERN",
               help="Metric paths to compare (glob, repeatable; default: RMSE of APE/RPE and the ratios).")
-@click.option("-r", "--require", "rules", multiple=True, metavar="EXPR",
+@click.option("--require", "rules", multiple=True, metavar="EXPR",
               help="A rule that must hold, e.g. 'fused.ape.rmse < lidar.ape.rmse' (repeatable).")
 @click.option("--junit", "junit_path", type=click.Path(path_type=Path), help="Also write JUnit XML here.")
 @click.option("--summary", "summary_path", type=click.Path(path_type=Path),
@@ -350,24 +372,19 @@ def check(ctx, metrics_path, baseline, rtol, atol, patterns, rules, junit_path, 
 
 
 class _SweepProgress:
-    """Runs done, failed, remaining and the ETA, on stderr."""
+    """Runs done, failed, remaining and the ETA, on stderr (:class:`fusion_eval.progress.Counter`)."""
 
     def __init__(self, total: int):
-        self.total, self.bar, self.shown, self.t0 = total, None, 0, time.perf_counter()
+        from .progress import Counter
+
+        self.counter, self.skipped = Counter("sweep"), None
 
     def update(self, ok: int, failed: int, remaining: int, skipped: int) -> None:
-        if self.bar is None:
-            self.bar = click.progressbar(length=max(1, ok + failed + remaining), file=sys.stderr, show_eta=True,
-                                         label=f"sweep ({skipped} already recorded)",
-                                         item_show_func=lambda s: s)
-            self.bar.__enter__()
-        done = ok + failed
-        self.bar.update(done - self.shown, f"done {ok}, failed {failed}, remaining {remaining}")
-        self.shown = done
+        self.counter.update(ok + failed, failed, ok + failed + remaining,
+                            f"{skipped} already recorded" if skipped else "")
 
     def close(self) -> None:
-        if self.bar is not None:
-            self.bar.__exit__(None, None, None)
+        self.counter.close()
 
 
 @main.command()
@@ -376,12 +393,13 @@ class _SweepProgress:
               help="Motion profile: urban, figure8, highway, or a waypoint YAML file.")
 @click.option("-d", "--duration", "duration_s", type=float, default=300.0, show_default=True, help="Seconds to simulate.")
 @click.option("--seed", type=int, default=0, show_default=True, help="Seed of every random draw (same seed, same bytes).")
-@click.option("-g", "--grade", default="automotive", show_default=True,
+@click.option("--grade", default="automotive", show_default=True,
               help="Sensor grade preset: consumer, automotive, tactical, oxts-rt3003, ideal.")
 @click.option("-s", "--set", "sets", multiple=True, metavar="KEY=VALUE",
               help="Override a simulator setting, e.g. --set imu.rate_hz=200 (repeatable; see README).")
 @click.option("--overwrite", is_flag=True, help="Replace an existing OUT_DIR once the new dataset is complete.")
-def simulate(out_dir, profile, duration_s, seed, grade, sets, overwrite):
+@click.pass_context
+def simulate(ctx, out_dir, profile, duration_s, seed, grade, sets, overwrite):
     """Write a synthetic KITTI-style drive with known truth to OUT_DIR."""
     from .commands.simulate import simulate as run_sim
 
@@ -389,6 +407,8 @@ def simulate(out_dir, profile, duration_s, seed, grade, sets, overwrite):
     s = run_sim(out_dir, profile, duration_s, seed, grade, tuple(sets), overwrite=overwrite)
     log.info("wrote %s/ (%s: %d IMU samples, %.0f m, %d lidar frames, %d GNSS fixes) in %.1f s", out_dir, s["name"],
              s["samples"], s["distance_m"], s["lidar_frames"], s["gnss_fixes"], time.perf_counter() - t0)
+    if ctx.obj["quiet"]:
+        click.echo(out_dir)
 
 
 def _num_or_na(x, nd: int) -> str:
@@ -426,11 +446,13 @@ def tune(ctx, datasets, space, objectives, n_trials, test, out_dir, sampler, see
     """Tune the filter's noise settings on DATASET(s) (default: the embedded kitti-00) with Optuna."""
     from .commands.tune import run_tune
 
-    bar = None if ctx.obj["quiet"] else _Progress("tuning")
+    from .progress import Counter
 
-    def progress(done, total, best):
+    bar = None if ctx.obj["quiet"] else Counter("tune")
+
+    def progress(done, total, best, failed=0):
         if bar is not None:
-            bar(done / total)
+            bar.update(done, failed, total, "" if best is None else f"best {best:.4g}")
 
     try:
         res = run_tune(list(datasets), list(test), space, list(objectives), n_trials, out_dir, sampler=sampler,
@@ -439,29 +461,26 @@ def tune(ctx, datasets, space, objectives, n_trials, test, out_dir, sampler, see
     finally:
         if bar is not None:
             bar.close()
-    if not ctx.obj["quiet"]:
+    if ctx.obj["quiet"]:
+        click.echo(res["setup"].out_dir)
+    else:
         click.echo((res["setup"].out_dir / "tune.md").read_text())
         click.echo(f"wrote {res['setup'].out_dir}/ ({res['runtime_s']:.1f} s)")
 
 
-class _Progress:
-    """A progress bar on stderr that appears only once the work it measures has started."""
+@contextlib.contextmanager
+def _display(quiet: bool):
+    """The stages of a run drawn on stderr (:class:`fusion_eval.progress.Display`), or nothing with -q."""
+    if quiet:
+        yield None
+        return
+    from .progress import Display
 
-    def __init__(self, label: str):
-        self.label, self.bar, self.done = label, None, 0
-
-    def __call__(self, frac: float) -> None:
-        if self.bar is None:
-            self.bar = click.progressbar(length=1000, label=self.label, file=sys.stderr, show_eta=True)
-            self.bar.__enter__()
-        n = int(frac * 1000)
-        self.bar.update(n - self.done)
-        self.done = n
-
-    def close(self) -> None:
-        if self.bar is not None:
-            self.bar.__exit__(None, None, None)
-            self.bar = None
+    d = Display()
+    try:
+        yield d
+    finally:
+        d.close()
 
 
 if __name__ == "__main__":  # pragma: no cover

@@ -17,6 +17,7 @@ import numpy as np
 
 from . import report, session
 from . import trials as mc
+from .datasets.truth import truth_imu_biases
 from .errors import DataRangeError, FusionEvalError
 from .evaluation import span
 from .evaluation.run_metrics import (ESTIMATES, consistency, fused_error, ratio_metrics, run_metrics, segments,
@@ -24,6 +25,7 @@ from .evaluation.run_metrics import (ESTIMATES, consistency, fused_error, ratio_
 from .evaluation.trajectory import EstimateEvaluation, evaluate
 from .outputs import StagedDir
 from .pool import executor
+from .progress import as_stages
 from .prepare import Prepared, offsets_note, prepare, settings_for
 from .replay import FilterOutput, dead_reckoning, replay
 from .types import Dataset, PoseSeries
@@ -50,6 +52,7 @@ class RunResult:
     resolved_extra: dict                     # informational sections of config.resolved.yaml
     timings_s: dict = field(default_factory=dict)
     out_dir: Path | None = None              # where it was written (run_to_dir)
+    truth_biases: object = None              # a simulated drive's true IMU biases (datasets.truth.TruthBiases)
 
 
 def evaluate_estimate(reference: PoseSeries, estimate: PoseSeries, name: str, ev_cfg: dict) -> EstimateEvaluation:
@@ -122,9 +125,11 @@ def execute(ds: Dataset, cfg: dict, *, dataset_path: str | Path | None = None, c
     With ``trials`` > 1 the run is trial 0 of that many Monte-Carlo trials (:mod:`fusion_eval.trials`): the
     others run on the same pool, and ``metrics["trials"]`` summarises every metric over all of them.
     """
+    stages = as_stages(progress)
     with executor(jobs) as pool:
+        stages.start("prepare")
         return filter_and_evaluate(ds, cfg, share(ds, cfg, pool), pool, dataset_path=dataset_path,
-                                   config_source=config_source, progress=progress, out=out, trials=trials)
+                                   config_source=config_source, progress=stages, out=out, trials=trials)
 
 
 def filter_and_evaluate(ds: Dataset, cfg: dict, sh: Shared, pool, *, dataset_path: str | Path | None = None,
@@ -138,21 +143,13 @@ def filter_and_evaluate(ds: Dataset, cfg: dict, sh: Shared, pool, *, dataset_pat
     s = settings_for(cfg, prep)
     series = dict(sh.series)
     n_trials = mc.check_count(trials)
-    done = [0]
-
-    def finished(_f):
-        done[0] += 1
-        if progress is not None:
-            progress(done[0] / n_trials)
-    trial_futs = []
-    for i in range(1, n_trials):
-        trial_futs.append(pool.submit(trial_metrics, ds, mc.apply(cfg, i)))
-        trial_futs[-1].add_done_callback(finished)
+    stages = as_stages(progress)
+    trial_futs = [pool.submit(trial_metrics, ds, mc.apply(cfg, i)) for i in range(1, n_trials)]
     t = time.perf_counter()
+    stages.start("filter")
     # overflow in absurd settings is reported as divergence (exit 3), not as numpy warnings
     with np.errstate(over="ignore", invalid="ignore"):
-        filt = replay(prep, s, progress=None if progress is None or n_trials > 1 else progress,
-                      imu_only=series["imu_only"])
+        filt = replay(prep, s, progress=None if progress is None else stages, imu_only=series["imu_only"])
     timings["filter"] = time.perf_counter() - t
     t = time.perf_counter()
     series["fused"] = filt.fused
@@ -167,8 +164,16 @@ def filter_and_evaluate(ds: Dataset, cfg: dict, sh: Shared, pool, *, dataset_pat
                                                                    "imu_only", ev_cfg)
     err = fused_error(gt, filt)
     # the TUM files and the filter's plots, each a job of its own, alongside the evaluations
-    first = report.write_filter_outputs(out, series, filt, err, cfg["output"]["plots"], pool) if out is not None else []
-    evals = {n: futures[n].result() for n in ESTIMATES if n in futures}
+    # a simulated drive's true biases, for the bias plot (None for real data)
+    truth_b = truth_imu_biases(ds.description, prep.applied["time_offset_s"]["imu"]) if cfg["output"]["plots"] else None
+    first = report.write_filter_outputs(out, series, filt, err, cfg["output"]["plots"], pool,
+                                        truth_biases=truth_b) if out is not None else []
+    names = [n for n in ESTIMATES if n in futures]
+    stages.start("evaluate", len(names))
+    evals = {}
+    for n in names:
+        evals[n] = futures[n].result()
+        stages.advance()
     timings["evaluate"] = time.perf_counter() - t
     if evals["fused"].matched_poses < 2:
         # a run whose estimate meets no ground truth has no result: say why instead of reporting 'n/a' with exit 0
@@ -183,8 +188,13 @@ def filter_and_evaluate(ds: Dataset, cfg: dict, sh: Shared, pool, *, dataset_pat
     metrics = run_metrics(ds.name, evals, ratios, ev_cfg, prep.applied, prep.gnss_info, cons, seg, sh.span,
                           smoother=smoother_section(filt))
     if n_trials > 1:
-        finished(None)
-        metrics["trials"] = mc.section(cfg, [metrics] + [f.result() for f in trial_futs])
+        stages.start("trials", n_trials)
+        stages.advance()                      # trial 0: this run
+        per_trial = [metrics]
+        for f in trial_futs:
+            per_trial.append(f.result())
+            stages.advance()
+        metrics["trials"] = mc.section(cfg, per_trial)
     dataset_path = ds.description.get("path") if dataset_path is None else dataset_path
     resolved_extra = {"dataset": {"path": None if dataset_path is None else str(dataset_path), "name": ds.name,
                                   "manifest": ds.description.get("manifest"),
@@ -192,12 +202,14 @@ def filter_and_evaluate(ds: Dataset, cfg: dict, sh: Shared, pool, *, dataset_pat
                                   "streams": ds.description.get("streams")},
                       "applied": prep.applied, "config_source": config_source}
     res = RunResult(ds.name, cfg, config_source, prep, filt, series, evals, ratios, cons, seg, err, metrics,
-                    resolved_extra, timings)
+                    resolved_extra, timings, truth_biases=truth_b)
     if out is not None:
         t = time.perf_counter()
+        stages.start("write")
         for f in first:
             f.result()
-        report.write_evaluation(out, res, report.filter_plots(cfg["output"]["plots"]), pool)
+            stages.advance()
+        report.write_evaluation(out, res, report.filter_plots(cfg["output"]["plots"]), pool, advance=stages.advance)
         timings["write"] = time.perf_counter() - t
     return res
 
@@ -209,6 +221,8 @@ def run_to_dir(dataset_path: str | Path, req: session.ConfigRequest, out_dir: Pa
     ``out_dir`` (nothing is left behind when it fails)."""
     staged = StagedDir(out_dir, overwrite=overwrite, wait_lock_s=wait_lock_s)
     staged.check()
+    stages = as_stages(progress)
+    stages.start("load")
     t = time.perf_counter()
     ds = session.dataset(dataset_path)
     cfg = session.resolve(req, ds)
@@ -216,7 +230,7 @@ def run_to_dir(dataset_path: str | Path, req: session.ConfigRequest, out_dir: Pa
     log.debug("loaded %s: %d IMU samples, %s GNSS fixes, %s lidar poses, %s ground-truth poses", ds.name, len(ds.imu),
               len(ds.gnss) if ds.gnss else 0, len(ds.lidar) if ds.lidar else 0, len(ds.groundtruth) if ds.groundtruth else 0)
     with staged as out:
-        res = execute(ds, cfg, dataset_path=dataset_path, config_source=req.source, progress=progress, jobs=jobs, out=out,
+        res = execute(ds, cfg, dataset_path=dataset_path, config_source=req.source, progress=stages, jobs=jobs, out=out,
                       trials=trials)
     res.timings_s["load"] = load_s
     res.out_dir = Path(out_dir)

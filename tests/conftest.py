@@ -100,3 +100,12 @@ def white_sim(tmp_path_factory):
             runs[key] = fe.run(ds, overrides={"filter.formulation": formulation, "smoother.method": method})
         return runs[key]
     return run
+
+
+def without_provenance(text: bytes) -> bytes:
+    """A report with its provenance header (the minute and the command line, which differ between two runs of the
+    same inputs) replaced by a placeholder."""
+    import re
+
+    text = re.sub(rb"fusion-eval \S+, [^\n]* UTC: `[^\n]*`", b"<header>", text)
+    return re.sub(rb'<div class="meta">[^\n]*</div>', b"<header>", text)

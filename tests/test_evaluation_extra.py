@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import re
 import json
 
 import numpy as np
@@ -140,6 +141,9 @@ def test_evaluate_command_on_kitti_and_tum_files(tmp_path):
     assert e["ape"]["translation_m"]["rmse"] == pytest.approx(3.515636, abs=1e-5)
     assert round(e["kitti_drift"]["t_err_pct"], 3) == 0.527
     assert "frame index" in e["stamps"] and (out / "report.md").exists() and (out / "segments_map.png").exists()
+    assert "3.516" in (out / "metrics.tex").read_text() and "\\bottomrule" in (out / "metrics.tex").read_text()
+    page = (out / "report.html").read_text()
+    assert "data:image/png;base64," in page and re.search(r"<td>reference</td>|reference</td>", page)
     out2 = tmp_path / "ev2"
     r = CliRunner().invoke(main, ["-q", "evaluate", str(gt), str(est), "--ref-times", str(times), "--times", str(times),
                                   "--association", "interpolate", "--alignment", "4dof", "--no-plots", "--out", str(out2)])

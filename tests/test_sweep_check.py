@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import re
 import csv
 import json
 import os
@@ -58,7 +59,8 @@ def test_sweep_process_pool_and_dask_give_identical_metrics(small, tmp_path):
         assert ra[k]["fused_ape_trans_rmse_m"] == rb[k]["fused_ape_trans_rmse_m"] != ""
         assert ra[k]["id"] == rb[k]["id"]
     md = (a / "sweep.md").read_text()
-    assert "| 1 |" in md and "Best:" in md and (a / "best.yaml").exists() and (a / "sweep_params.png").exists()
+    assert re.search(r"\|\s*1\s*\|", md) and "Best:" in md and (a / "best.yaml").exists() and (a / "sweep_params.png").exists()
+    assert "data:image/png;base64," in (a / "report.html").read_text()
     # the runs' outputs are those of `fusion-eval run`
     rid = ra["a"]["id"]
     assert (a / "runs" / rid / "metrics.json").exists() and (a / "runs" / rid / "fused.tum").exists()

@@ -60,10 +60,10 @@ def test_run_with_trials_summarises_every_metric_and_check_gates_on_the_mean(kit
     base = tmp_path / "base.json"
     base.write_text(json.dumps({**m, "trials": None}))
     mean_rule = f"fused.ape.rmse == {s['mean']!r}"
-    r = CliRunner().invoke(main, ["check", str(out / "metrics.json"), "-b", str(base), "-m", "fused.ape.*", "-r", mean_rule,
+    r = CliRunner().invoke(main, ["check", str(out / "metrics.json"), "-b", str(base), "-m", "fused.ape.*", "--require", mean_rule,
                                   "--rtol", "1"])
     assert r.exit_code == 0 and "holds" in r.output, r.output
-    r = CliRunner().invoke(main, ["check", str(out / "metrics.json"), "-b", str(base), "-m", "fused.ape.*", "-r", mean_rule,
+    r = CliRunner().invoke(main, ["check", str(out / "metrics.json"), "-b", str(base), "-m", "fused.ape.*", "--require", mean_rule,
                                   "--trial-stat", "none", "--rtol", "1"])
     assert r.exit_code == 1 and "FAILS" in r.output
 

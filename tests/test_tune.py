@@ -4,6 +4,7 @@ truth, and beats the default with it."""
 
 from __future__ import annotations
 
+import re
 import csv
 import json
 import os
@@ -81,7 +82,8 @@ def test_a_tune_writes_a_usable_best_config_and_every_trial(tmp_path):
     assert len(rows) == 6 and all(r["state"] == "COMPLETE" for r in rows)
     assert len(list((out / "trials").glob("*.json"))) == 6
     md = (out / "tune.md").read_text()
-    assert "| held-out (mean) |" in md and "## Tuned values" in md
+    assert re.search(r"\| held-out \(mean\) +\|", md) and "## Tuned values" in md
+    assert "Tuned values" in (out / "report.html").read_text()
     best = json.loads((out / "best.json").read_text())
     assert best["values"][0] == min(float(r["fused.ape.rmse"]) for r in rows)
     assert best["test"]["status"] == "ok"

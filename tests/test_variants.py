@@ -178,6 +178,10 @@ def test_compare_command_writes_table_and_plots(kitti_slice, tmp_path):
     for p in ("ape_over_time.png", "biases.png", "body_velocity.png"):
         assert (out / p).read_bytes()[:4] == b"\x89PNG"
     assert (out / "variants" / "nominal" / "fused.tum").exists()
+    tex = (out / "compare.tex").read_text()
+    assert "\\toprule" in tex and "odometer-nhc" in tex and tex.count("\\\\") >= 1 + 6     # header + 6 rows
+    page = (out / "report.html").read_text()
+    assert page.count("data:image/png;base64,") == 3 and "fusion-eval compare" in page
     r = CliRunner().invoke(main, ["-q", "compare", str(kitti_slice), "--variants", "eskf,nope", "--out", str(tmp_path / "x")])
     assert r.exit_code == 2 and "unknown variant 'nope'" in r.stderr
 

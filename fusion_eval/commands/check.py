@@ -20,7 +20,7 @@ import os
 import re
 from dataclasses import dataclass
 from pathlib import Path
-from xml.sax.saxutils import quoteattr
+import xml.etree.ElementTree as ET
 
 from ..errors import DataFormatError, FusionEvalError
 from ..outputs import atomic_write
@@ -173,21 +173,25 @@ def _v(x):
 
 
 def junit(rows: list[Row], rules: list[tuple[str, bool, str]]) -> str:
-    cases = []
+    """JUnit XML (one test case per compared metric and per rule; a regression or a failing rule is a failure),
+    built with :mod:`xml.etree` so that any metric name or message is escaped as XML requires."""
+    suite = ET.Element("testsuite", name="fusion-eval check")
     fails = 0
     for r in rows:
-        bad = r.verdict in ("REGRESSION", "MISSING")
-        fails += bad
-        body = f"<failure message={quoteattr(f'{r.verdict}: baseline {_v(r.baseline)}, current {_v(r.current)} ({r.change})')}/>" if bad else ""
-        cases.append(f'  <testcase classname="fusion-eval.metrics" name={quoteattr(r.metric)}>{body}</testcase>')
+        case = ET.SubElement(suite, "testcase", classname="fusion-eval.metrics", name=r.metric)
+        if r.verdict in ("REGRESSION", "MISSING"):
+            fails += 1
+            ET.SubElement(case, "failure", message=f"{r.verdict}: baseline {_v(r.baseline)}, current {_v(r.current)} ({r.change})")
     for rule, holds, txt in rules:
-        fails += not holds
-        body = "" if holds else f"<failure message={quoteattr('rule fails: ' + txt)}/>"
-        cases.append(f'  <testcase classname="fusion-eval.rules" name={quoteattr(rule)}>{body}</testcase>')
-    return (f'<?xml version="1.0" encoding="utf-8"?>\n<testsuite name="fusion-eval check" tests="{len(cases)}" '
-            f'failures="{fails}" errors="0">\n' + "\n".join(cases) + "\n</testsuite>\n")
-
-
+        case = ET.SubElement(suite, "testcase", classname="fusion-eval.rules", name=rule)
+        if not holds:
+            fails += 1
+            ET.SubElement(case, "failure", message="rule fails: " + txt)
+    suite.set("tests", str(len(rows) + len(rules)))
+    suite.set("failures", str(fails))
+    suite.set("errors", "0")
+    ET.indent(suite)
+    return ET.tostring(suite, encoding="unicode", xml_declaration=True) + "\n"
 
 
 @dataclass

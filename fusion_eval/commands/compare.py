@@ -32,7 +32,10 @@ from ..prepare import prepare, settings_for
 from ..replay import replay
 from ..report.files import versions
 from ..report.markdown import segments_section
-from ..tables import cell, csv_text, markdown
+from ..progress import as_stages
+from ..provenance import header_line, input_files
+from ..report import html
+from ..tables import cell, csv_text, latex, latex_document, markdown
 from ..types import PoseSeries
 from ..variants import folder_name, resolve_variant
 
@@ -58,7 +61,7 @@ def _rms_lateral_vertical(vb: np.ndarray) -> dict:
     return {"lateral": float(np.sqrt(np.mean(vb[:, 1] ** 2))), "vertical": float(np.sqrt(np.mean(vb[:, 2] ** 2)))}
 
 
-def _replay_all(ds, variants: list[str], cfgs: list[dict], progress=None, frac: float = 1.0) -> tuple[list[VariantRun], object]:
+def _replay_all(ds, variants: list[str], cfgs: list[dict], advance=None) -> tuple[list[VariantRun], object]:
     """Every variant's filter over the same dataset (dead reckoning once, from the first variant's streams)."""
     runs: list[VariantRun] = []
     base_prep = None
@@ -70,8 +73,8 @@ def _replay_all(ds, variants: list[str], cfgs: list[dict], progress=None, frac: 
             filt = replay(prep, settings_for(cfg, prep), imu_only=runs[0].filt.imu_only if runs else None)
         runs.append(VariantRun(name, cfg, filt, None, time.perf_counter() - t0))
         log.info("variant %s: filtered in %.2f s", name, runs[-1].runtime_s)
-        if progress:
-            progress(frac * (i + 1) / (len(variants) + 1))
+        if advance:
+            advance()
     return runs, base_prep
 
 
@@ -138,24 +141,29 @@ def compare(dataset_path: Path | None, variants: list[str], variant_dir: Path | 
         raise ConfigError("--variants needs one or more distinct names")
     paths = [resolve_variant(v, variant_dir) for v in variants]
     reqs = [session.request(config=base_config, variant=p, sets=sets) for p in paths]   # all validated before any work
+    stages = as_stages(progress)
+    stages.start("load")
     ds = session.dataset(dataset_path)
     cfgs = [session.resolve(r, ds) for r in reqs]
 
     with executor(None) as pool:
         # trials 1.. on the pool (each one a whole comparison) while this process does trial 0 and its files
         trial_futs = [pool.submit(trial_table, ds, variants, [mc.apply(c, i) for c in cfgs]) for i in range(1, n_trials)]
-        runs, base_prep = _replay_all(ds, variants, cfgs, progress, 1.0 / n_trials)
+        stages.start("variants", len(variants))
+        runs, base_prep = _replay_all(ds, variants, cfgs, stages.advance)
         gt = base_prep.groundtruth
         ev_cfg = cfgs[0]["evaluation"]
+        stages.start("evaluate")
         unfiltered, evs_u, sp = _evaluate_all(runs, base_prep, ev_cfg, pool)
         table = _table(runs, evs_u, gt, ev_cfg)
         tables = [table]
-        for i, f in enumerate(trial_futs, 2):
+        if trial_futs:
+            stages.start("trials", n_trials)
+            stages.advance()
+        for f in trial_futs:
             tables.append(f.result())
-            if progress:
-                progress(i / n_trials)
-    if progress:
-        progress(1.0)
+            stages.advance()
+    stages.start("write")
     trials_info = None
     if n_trials > 1:
         trials_info = {"n": n_trials, "seeds": [mc.trial_overrides(cfgs[0], i) for i in range(n_trials)],
@@ -178,8 +186,10 @@ def compare(dataset_path: Path | None, variants: list[str], variant_dir: Path | 
             result["trials"] = trials_info
         out.write_text("compare.json", json.dumps(result, indent=2) + "\n")
         out.write_text("compare.csv", csv_text(CSV_COLUMNS + (["trials", "ape_trans_rmse_m_std"] if trials_info else []), table))
-        out.write_text("compare.md", _markdown(ds.name, table, truth_body, make_plots, sp, n_trials)
-                       + "\n".join(segments_section({"segments": seg})) + "\n")
+        md = (_markdown(ds.name, table, truth_body, make_plots, sp, n_trials)
+              + "\n".join(segments_section({"segments": seg})) + "\n")
+        out.write_text("compare.md", md)
+        out.write_text("compare.tex", _latex(ds.name, table, n_trials))
         taken: set = set()
         for r in runs:
             folder = folder_name(r.name, taken)
@@ -196,6 +206,7 @@ def compare(dataset_path: Path | None, variants: list[str], variant_dir: Path | 
             plots.plot_compare_biases(out.path("biases.png"), runs)
             plots.plot_compare_body_velocity(out.path("body_velocity.png"), runs, [body_velocity(r.filt.fused) for r in runs],
                                              gt, gt_vb)
+        out.write_text("report.html", html.page(md, out.path("."), inputs=input_files(ds.description)))
     return {**result, "out_dir": str(out_dir)}
 
 
@@ -229,6 +240,20 @@ def _pct(x) -> str:
     return "" if x is None else f"{x * 100:.1f} %"
 
 
+def _latex(name: str, rows: list[dict], n_trials: int) -> str:
+    """``compare.tex``: the accuracy columns of the comparison, booktabs, for a paper."""
+    header = ["variant", "estimate", "APE trans RMSE [m]", "APE rot RMSE [deg]", "RPE trans 1 frame [m]",
+              "estimate/lidar", "estimate/GNSS"]
+    body = [[r["variant"], r["estimate"],
+             cell(r["ape_trans_rmse_m"]) + (f" ± {cell(r['ape_trans_rmse_m_std'])}" if "ape_trans_rmse_m_std" in r else ""),
+             r.get("ape_rot_rmse_deg"), cell(r.get("rpe_1frame_trans_rmse_m"), 4), r.get("fused_over_lidar"),
+             r.get("fused_over_gnss")] for r in rows]
+    mean = f", mean over {n_trials} Monte-Carlo trials" if n_trials > 1 else ""
+    return latex_document([latex(header, body, align="llrrrrr", caption=f"{name}: filter variants against ground truth "
+                                 f"(evo, no alignment{mean}).", label=f"tab:{name.replace('/', '-')}-compare")],
+                          f"fusion-eval compare: {name}")
+
+
 def _markdown(name: str, rows: list[dict], truth_body, plots: bool, sp: dict | None = None, n_trials: int = 1) -> str:
     order = [o.name for o in observations.REGISTRY]
     header = ["variant", "estimate", "APE trans RMSE [m]", "APE rot RMSE [deg]", "RPE trans 1 frame [m]", "estimate/lidar",
@@ -246,7 +271,7 @@ def _markdown(name: str, rows: list[dict], truth_body, plots: bool, sp: dict | N
                      ", ".join(f"{b:.1f}" for b in r.get("final_gyro_bias_dph", [])),
                      ", ".join(f"{k} {nis[k]:.2f}" for k in sorted(nis, key=lambda k: order.index(k) if k in order else 99)),
                      cell(r.get("runtime_s"), 2)])
-    L = [f"# fusion-eval compare: {name}", "", f"Span: {span.describe(sp)}.", ""]
+    L = [f"# fusion-eval compare: {name}", "", header_line(), "", f"Span: {span.describe(sp)}.", ""]
     if n_trials > 1:
         L += [f"Means over {n_trials} Monte-Carlo trials (the seeds of every random element; APE: mean +/- std); the "
               "plots and trajectories are trial 0's, every trial's table is in compare.json.", ""]

@@ -17,7 +17,10 @@ from ..evaluation import keys
 from ..evaluation.estimates import evaluate_series, validate_options
 from ..outputs import StagedDir
 from ..report.markdown import drift_section, fmt_stat, segments_section
-from ..tables import markdown
+from .. import provenance
+from ..provenance import header_line
+from ..report import html
+from ..tables import latex, latex_document, markdown
 
 
 def read_inputs(inputs: list, bag: Path | None, ref_topic: str | None, fmt: str, ref_times: Path | None,
@@ -84,7 +87,13 @@ def run_evaluate(inputs: list, out_dir: Path, ref_times: Path | None = None, tim
             if metrics["segments"]:
                 plots.plot_segment_map(out.path("segments_map.png"), evals, metrics["segments"])
                 written.append("segments_map.png")
-        out.write_text("report.md", _report(metrics, written))
+        md = _report(metrics, written)
+        out.write_text("report.md", md)
+        out.write_text("metrics.tex", _latex(metrics))
+        named = [("bag", bag)] if bag is not None else \
+            [("reference", inputs[0]), *[("estimate", p) for p in inputs[1:]]] + \
+            [(role, p) for role, p in (("reference times", ref_times), ("estimate times", times)) if p is not None]
+        out.write_text("report.html", html.page(md, out.path("."), inputs=provenance.files(named)))
     return metrics
 
 
@@ -103,12 +112,8 @@ def _refuse_unmatched(ref_f, est_fs, evals: dict, association: str, t_max_diff_s
                                  "(a time offset between the files? --t-offset; KITTI files without times? --times)")
 
 
-def _report(m: dict, plots: list[str]) -> str:
-    e = m["evaluation"]
-    L = [f"# fusion-eval evaluate: {Path(m['reference']).name}", "",
-         f"Reference stamps: {m['reference_stamps']}. Association: **{e['association']}**"
-         + (f" (within {e['t_max_diff_s']} s)" if e["association"] == "nearest" else " (reference interpolated at the estimate's stamps)")
-         + f"; alignment: **{e['alignment']}**.", ""]
+def _summary_table(m: dict) -> tuple[list[str], list[list], str]:
+    """evo's APE and RPE per estimate: header, rows, alignment (report.md and metrics.tex)."""
     rows = []
     for k, d in m["estimates"].items():
         ape = d.get("ape") or {}
@@ -117,8 +122,24 @@ def _report(m: dict, plots: list[str]) -> str:
                      f"{fmt_stat(ape.get('translation_m'), 'mean')} / {fmt_stat(ape.get('translation_m'), 'max')}",
                      fmt_stat(ape.get("rotation_deg")), fmt_stat(rpe.get("translation_m"), nd=4),
                      fmt_stat(rpe.get("rotation_deg"), nd=4)])
-    L += markdown(["estimate", "stamps", "matched poses", "APE trans RMSE [m]", "APE trans mean / max [m]",
-                   "APE rot RMSE [deg]", "RPE trans 1 frame RMSE [m]", "RPE rot 1 frame RMSE [deg]"], rows, align="llrrrrrr")
+    return (["estimate", "stamps", "matched poses", "APE trans RMSE [m]", "APE trans mean / max [m]",
+             "APE rot RMSE [deg]", "RPE trans 1 frame RMSE [m]", "RPE rot 1 frame RMSE [deg]"], rows, "llrrrrrr")
+
+
+def _latex(m: dict) -> str:
+    e, ref = m["evaluation"], Path(m["reference"]).name
+    return latex_document([latex(*_summary_table(m), caption=f"APE and RPE against {ref} (evo; association "
+                                 f"{e['association']}, alignment {e['alignment']}).", label="tab:evaluate")],
+                          f"fusion-eval evaluate: {ref}")
+
+
+def _report(m: dict, plots: list[str]) -> str:
+    e = m["evaluation"]
+    L = [f"# fusion-eval evaluate: {Path(m['reference']).name}", "", header_line(), "",
+         f"Reference stamps: {m['reference_stamps']}. Association: **{e['association']}**"
+         + (f" (within {e['t_max_diff_s']} s)" if e["association"] == "nearest" else " (reference interpolated at the estimate's stamps)")
+         + f"; alignment: **{e['alignment']}**.", ""]
+    L += markdown(*_summary_table(m))
     nees = [(k, d["nees"]) for k, d in m["estimates"].items() if d.get("nees")]
     if nees:
         L += ["", "## Consistency of the estimates' own covariances (NEES, 3 dof each)", ""]

@@ -14,6 +14,8 @@ import yaml
 
 from ..outputs import atomic_write
 from ..evaluation import keys as mk
+from ..provenance import dataset_files, header_line
+from ..report import html
 from ..tables import cell, csv_text, markdown
 from .sweep import Task, read_records
 
@@ -122,7 +124,7 @@ def write_summary(tasks: list[Task], out_dir: Path, keys: list[str], plots: bool
     atomic_write(out_dir / "sweep.csv", csv_text(cols, rows, float_format="{:.6g}"))
 
     ok = [r for r in rows if r["status"] == "ok" and r.get(METRIC) is not None]
-    L = ["# fusion-eval sweep", "",
+    L = ["# fusion-eval sweep", "", header_line(), "",
          f"{len(rows)} runs: {sum(r['status'] == 'ok' for r in rows)} finished, {sum(r['status'] == 'diverged' for r in rows)} "
          f"diverged, {sum(r['status'] == 'failed' for r in rows)} failed, {sum(r['status'] == 'pending' for r in rows)} pending. Ranked by fused APE translation RMSE (lower is better).", ""]
     if n_trials > 1:
@@ -179,10 +181,43 @@ def write_summary(tasks: list[Task], out_dir: Path, keys: list[str], plots: bool
     if plots and ok:
         from ..report import plots as P
 
-        written = P.plot_sweep(out_dir, rows, keys, METRIC, tasks, best, grid_keys or [])
+        written = P.plot_sweep(out_dir, rows, keys, METRIC, tasks, best, grid_keys or [],
+                               defaults=default_values(tasks, out_dir, keys))
         L += [f"![{p}]({p})" for p in written]
-    atomic_write(out_dir / "sweep.md", "\n".join(L) + "\n")
+    md = "\n".join(L) + "\n"
+    atomic_write(out_dir / "sweep.md", md)
+    atomic_write(out_dir / "report.html", html.page(md, out_dir, inputs=dataset_files(t.dataset for t in tasks)))
     return {"rows": rows, "best": best, "plots": written}
+
+
+def default_values(tasks: list[Task], out_dir: Path, keys: list[str]) -> dict[tuple[str, str], dict]:
+    """The value each swept key took in the 'default' setting's run, per (dataset, variant): where the plots put
+    the default. The setting has no overrides, so its values are those the run resolved (defaults < dataset
+    manifest < sweep config < variant) as its ``config.resolved.yaml`` records them, an 'auto' one as the
+    estimate the run applied (``applied.imu_noise``). A key the run did not record (no run folder, a failed
+    run) is left out."""
+    out: dict[tuple[str, str], dict] = {}
+    for t in tasks:
+        if t.setting != "default" or t.trial != 0 or (t.dataset, t.variant) in out:
+            continue
+        f = Path(out_dir) / "runs" / t.id / "config.resolved.yaml"
+        try:
+            cfg = yaml.safe_load(f.read_text()) if f.is_file() else None
+        except (OSError, yaml.YAMLError):
+            cfg = None
+        if not isinstance(cfg, dict):
+            continue
+        applied = cfg.get("applied") or {}
+        vals = {}
+        for k in keys:
+            sect, _, name = k.partition(".")
+            v = (cfg.get(sect) or {}).get(name)
+            if v == "auto":
+                v = (applied.get(f"{sect}_noise") or {}).get(name, applied.get(name))
+            if isinstance(v, (int, float)) and not isinstance(v, bool):
+                vals[k] = float(v)
+        out[(t.dataset, t.variant)] = vals
+    return out
 
 
 def _nest(ov: dict) -> dict:

@@ -69,12 +69,63 @@ def consistency(gt: PoseSeries, filt) -> dict:
 
 def fused_error(gt: PoseSeries, filt) -> dict:
     """The fused position error per ENU axis at the fused stamps inside the ground truth, with the filter's
-    1-sigma of each axis (for the error-against-3-sigma plot)."""
+    1-sigma of each axis (for the error-against-3-sigma plot); under ``att_vel``, the attitude and velocity
+    errors of :func:`fused_att_vel_error` at the same stamps."""
     gi, sel = _truth_at_fused(gt, filt)
     out = {"t_s": gi.t_s, "err_w_m": filt.fused.p_w_m[sel] - gi.p_w_m, "sigma_w_m": filt.sigma[sel][:, CANONICAL.sl("P")]}
     if filt.smoothed is not None:      # the same stamps: the smoother records where the filter does
         out["smoothed"] = (filt.smoothed.fused.p_w_m[sel] - gi.p_w_m, filt.smoothed.sigma[sel][:, CANONICAL.sl("P")])
+    out["att_vel"] = _att_vel_error(gt, gi, sel, filt)
     return out
+
+
+VEL_FROM_POSITIONS = "central differences of the ground-truth positions"
+
+
+def truth_velocity_w(gt: PoseSeries) -> tuple[np.ndarray, str]:
+    """The ground truth's world-frame velocity ``(N, 3)`` m/s at its stamps and where it comes from: the series'
+    own (a GPS/INS solution, a simulator), else central differences of its positions (second order on uneven
+    stamps, one-sided at the ends)."""
+    if gt.v_w_mps is not None:
+        return np.asarray(gt.v_w_mps), "the ground truth's own velocity"
+    return np.column_stack([np.gradient(gt.p_w_m[:, i], gt.t_s) for i in range(3)]), VEL_FROM_POSITIONS
+
+
+def fused_att_vel_error(gt: PoseSeries, filt) -> dict:
+    """The fused attitude and velocity errors against the ground truth at the fused stamps inside it, each with
+    the filter's 1-sigma (for the error-against-3-sigma plot).
+
+    Returns ``t_s`` (M,), ``att_err_b_rad`` (M, 3): the rotation vector ``Log(R_gt^T R_fused)`` (fused minus
+    truth as a right perturbation, so in the body frame: about body x, y, z, roll, pitch and yaw for a
+    forward-left-up IMU), ``att_sigma_b_rad`` (M, 3): the filter's sigma of its attitude error state (the
+    canonical ``TH`` block, a right perturbation too; its sign is the opposite, ``R_gt = R_fused Exp(dtheta)``,
+    which a sigma does not see), ``vel_err_w_mps`` and ``vel_sigma_w_mps`` (M, 3): fused minus true world-frame
+    (ENU) velocity and the ``V`` block's sigma (None when the estimate carries no velocity), ``vel_truth``: where
+    the true velocity comes from (:func:`truth_velocity_w`), and ``smoothed``: the smoother's four arrays at the
+    same stamps, or None.
+    """
+    gi, sel = _truth_at_fused(gt, filt)
+    return _att_vel_error(gt, gi, sel, filt)
+
+
+def _att_vel_error(gt: PoseSeries, gi: PoseSeries, sel: np.ndarray, filt) -> dict:
+    from scipy.spatial.transform import Rotation
+
+    v_w, vel_truth = truth_velocity_w(gt)
+    v_true = np.column_stack([np.interp(gi.t_s, gt.t_s, v_w[:, i]) for i in range(3)])
+    r_true_inv = Rotation.from_quat(gi.q_wb_xyzw).inv()
+
+    def errors(f) -> tuple:
+        att = (r_true_inv * Rotation.from_quat(f.fused.q_wb_xyzw[sel])).as_rotvec().reshape(-1, 3)
+        sg = f.sigma[sel]
+        v = f.fused.v_w_mps
+        vel = None if v is None else v[sel] - v_true
+        return att, sg[:, CANONICAL.sl("TH")], vel, None if v is None else sg[:, CANONICAL.sl("V")]
+
+    att, att_sg, vel, vel_sg = errors(filt)
+    return {"t_s": gi.t_s, "att_err_b_rad": att, "att_sigma_b_rad": att_sg, "vel_err_w_mps": vel,
+            "vel_sigma_w_mps": vel_sg, "vel_truth": vel_truth,
+            "smoothed": errors(filt.smoothed) if filt.smoothed is not None else None}
 
 
 def segments(gt: PoseSeries, evals: dict[str, EstimateEvaluation], ev_cfg: dict, primary: str = "fused",

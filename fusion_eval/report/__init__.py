@@ -1,4 +1,5 @@
-"""The report layer: it only writes. Files (:mod:`.files`), Markdown (:mod:`.markdown`), plots (:mod:`.plots`).
+"""The report layer: it only writes. Files (:mod:`.files`), Markdown (:mod:`.markdown`), plots (:mod:`.plots`),
+the self-contained page (:mod:`.html`).
 
 A run is written in two phases so that a run can start the first while evo still evaluates the estimates
 in other processes: :func:`write_filter_outputs` needs only the filter's output (TUM files and the plots of
@@ -10,26 +11,32 @@ the metrics, the report). :func:`write_run` does both. Every file goes through
 from __future__ import annotations
 
 from ..outputs import StagedDir
-from . import files
-from .markdown import report_md
+from ..provenance import input_files
+from . import files, html
+from .markdown import metrics_tex, report_md
 
-FILTER_PLOTS = ["trajectories.png", "ape_over_time.png", "biases.png", "fused_error_3sigma.png"]
+FILTER_PLOTS = ["trajectories.png", "ape_over_time.png", "biases.png", "fused_error_3sigma.png",
+                "fused_error_att_vel_3sigma.png"]
 
 
-def write_filter_outputs(out: StagedDir, series: dict, filt, fused_err: dict, make_plots: bool, pool=None) -> list:
+def write_filter_outputs(out: StagedDir, series: dict, filt, fused_err: dict, make_plots: bool, pool=None,
+                         truth_biases=None) -> list:
     """TUM files and the plots that need no evaluation, each a job of its own on ``pool`` when given (so that
     they spread over the workers). Returns the futures to wait for (or nothing: done here); the plots the
     report lists are :func:`filter_plots` (``ape_over_time.png`` is drawn with the metrics, in
-    :func:`write_evaluation`)."""
+    :func:`write_evaluation`). ``fused_err``: :func:`fusion_eval.evaluation.run_metrics.fused_error`;
+    ``truth_biases``: the true IMU biases on the filter's clock where the dataset knows them (a simulated drive,
+    :func:`fusion_eval.datasets.truth.truth_imu_biases`), drawn over the estimated ones."""
     jobs = [(_write_tums, out, series)]
     if make_plots:
         from . import plots
 
         jobs += [(plots.plot_trajectories, out.path("trajectories.png"), series),
                  (plots.plot_biases, out.path("biases.png"), filt.fused.t_s, filt.accel_bias_b, filt.gyro_bias_b,
-                  filt.sigma),
+                  filt.sigma, truth_biases),
                  (plots.plot_error_sigma, out.path("fused_error_3sigma.png"), fused_err["t_s"], fused_err["err_w_m"],
-                  fused_err["sigma_w_m"], fused_err.get("smoothed"))]
+                  fused_err["sigma_w_m"], fused_err.get("smoothed")),
+                 (plots.plot_att_vel_error_sigma, out.path("fused_error_att_vel_3sigma.png"), fused_err["att_vel"])]
     if pool is None:
         for j in jobs:
             j[0](*j[1:])
@@ -49,20 +56,24 @@ def _write_tums(out: StagedDir, series: dict) -> None:
             out.write_text(fname, files.tum_text(name, s))
 
 
-def write_evaluation(out: StagedDir, res, plots_written: list[str], pool=None) -> None:
-    """Result zips, metrics (JSON, CSV), the resolved configuration, the plots that need the metrics (on
-    ``pool`` when given, while this process writes the rest), and the report."""
+def write_evaluation(out: StagedDir, res, plots_written: list[str], pool=None, advance=None) -> None:
+    """Result zips, metrics (JSON, CSV, LaTeX), the resolved configuration, the plots that need the metrics (on
+    ``pool`` when given, while this process writes the rest), and the reports (Markdown, HTML). ``advance()`` is
+    called as each file group and plot is done (progress)."""
+    advance = advance or (lambda n=1: None)
     for ev in res.evals.values():
         for name, data in ev.zips.items():
             out.write_bytes(name, data)
     out.write_text("metrics.json", files.metrics_json(res.metrics))
     out.write_text("metrics.csv", files.metrics_csv(res.evals, res.ratios))
+    out.write_text("metrics.tex", metrics_tex(res.dataset, res.evals, res.cfg, res.metrics))
     if res.metrics.get("trials"):
         from ..tables import csv_text
         from ..trials import csv_rows
 
         out.write_text("trials.csv", csv_text(*csv_rows(res.metrics["trials"]), float_format="{:.6g}"))
     out.write_text("config.resolved.yaml", files.resolved_config(res.cfg, res.resolved_extra))
+    advance()
     jobs = []
     plots_written = list(plots_written)
     if plots_written:
@@ -82,17 +93,27 @@ def write_evaluation(out: StagedDir, res, plots_written: list[str], pool=None) -
         if res.segments and "fused" in res.evals:
             jobs.append((plots.plot_segment_map, out.path("segments_map.png"), res.evals, res.segments))
             plots_written.append("segments_map.png")
-    futures = [pool.submit(*j) for j in jobs] if pool is not None else [j[0](*j[1:]) for j in jobs]
-    out.write_text("report.md", report_md(res.dataset, res.config_source, res.evals, res.ratios, res.cfg,
-                                          res.prep.applied, res.prep.gnss_info, res.metrics, plots_written))
+    if pool is not None:
+        futures = [pool.submit(*j) for j in jobs]
+        for f in futures:
+            f.add_done_callback(lambda _f: advance())
+    else:
+        futures = [j[0](*j[1:]) or advance() for j in jobs]
+    md = report_md(res.dataset, res.config_source, res.evals, res.ratios, res.cfg, res.prep.applied, res.prep.gnss_info,
+                   res.metrics, plots_written)
+    out.write_text("report.md", md)
+    inputs = input_files(res.resolved_extra.get("dataset") or {})
+    advance()
     if pool is not None:
         for f in futures:
             f.result()
+    out.write_text("report.html", html.page(md, out.path("."), inputs=inputs))   # embeds the plots: they are done
+    advance()
 
 
 def write_run(out: StagedDir, res, pool=None) -> None:
     """Every output of ``fusion-eval run`` for an evaluated run."""
     make_plots = res.cfg["output"]["plots"]
-    for f in write_filter_outputs(out, res.series, res.filt, res.fused_error, make_plots, pool):
+    for f in write_filter_outputs(out, res.series, res.filt, res.fused_error, make_plots, pool, res.truth_biases):
         f.result()
     write_evaluation(out, res, filter_plots(make_plots), pool)

@@ -10,28 +10,36 @@ import yaml
 from ..evaluation.keys import rpe_distance_group
 from ..evaluation.run_metrics import ESTIMATES
 from ..evaluation.span import describe as describe_span
+from ..provenance import header_line
+from ..tables import markdown
+
+
+def drift_table(m: dict) -> tuple[list[str], list[list], str] | None:
+    """The KITTI drift metric per estimate: header, rows, alignment (Markdown and LaTeX)."""
+    rows = [[k, d["t_err_pct"], d["r_err_deg_per_100m"], d["segments"]] for k, v in m["estimates"].items()
+            if (d := v.get("kitti_drift"))]
+    if not rows:
+        return None
+    return ["estimate", "translational error [%]", "rotational error [deg/100 m]", "segments"], rows, "lrrr"
 
 
 def drift_section(m: dict) -> list[str]:
-    rows = [(k, v["kitti_drift"]) for k, v in m["estimates"].items() if v.get("kitti_drift")]
-    if not rows:
+    t = drift_table(m)
+    if t is None:
         return []
-    L = ["", "## KITTI drift metric", "",
-         "Averaged over all segments of 100, 200, ..., 800 m starting every 10 frames (the KITTI odometry devkit's definition).", "",
-         "| estimate | translational error [%] | rotational error [deg/100 m] | segments |", "|---|---:|---:|---:|"]
-    L += [f"| {k} | {d['t_err_pct']:.3f} | {d['r_err_deg_per_100m']:.4f} | {d['segments']} |" for k, d in rows]
-    return L
+    return ["", "## KITTI drift metric", "",
+            "Averaged over all segments of 100, 200, ..., 800 m starting every 10 frames (the KITTI odometry devkit's "
+            "definition).", ""] + markdown(*t, decimals=[0, 3, 4, 0])
 
 
 def consistency_section(m: dict) -> list[str]:
-    L = ["", "## Filter consistency", "",
-         "| quantity | epochs | dof | mean | 95 % interval | fraction inside |", "|---|---:|---:|---:|---|---:|"]
-    for label, group in (("NEES", m.get("nees") or {}), ("NEES smoothed", m.get("nees_smoothed") or {}),
-                         ("NIS", m.get("nis") or {})):
-        for k, d in group.items():
-            lo, hi = d["bounds_95"]
-            L.append(f"| {label} {k} | {d['epochs']} | {d['dof']} | {d['mean']:.2f} | [{lo:.2f}, {hi:.2f}] | "
-                     f"{d['fraction_in_95'] * 100:.1f} % |")
+    rows = [[f"{label} {k}", d["epochs"], d["dof"], d["mean"], f"[{d['bounds_95'][0]:.2f}, {d['bounds_95'][1]:.2f}]",
+             f"{d['fraction_in_95'] * 100:.1f} %"]
+            for label, group in (("NEES", m.get("nees") or {}), ("NEES smoothed", m.get("nees_smoothed") or {}),
+                                 ("NIS", m.get("nis") or {}))
+            for k, d in group.items()]
+    L = ["", "## Filter consistency", ""] + markdown(
+        ["quantity", "epochs", "dof", "mean", "95 % interval", "fraction inside"], rows, align="lrrrlr", decimals=2)
     for k, d in (m.get("nis") or {}).items():
         if d.get("rejected"):
             L.append(f"\n{d['rejected']} {k} update(s) rejected by the chi-square gate (not in the NIS above).")
@@ -53,16 +61,15 @@ def segments_section(m: dict) -> list[str]:
     names = [k for k in seg["segments"][0]["rmse_m"] if k not in skip and any(s["rmse_m"].get(k) is not None for s in seg["segments"])]
     a, b = seg.get("primary", "fused"), seg.get("secondary")
     unit = "m" if seg["by"] == "distance" else "s"
-    L = ["", f"## Per-segment breakdown (every {seg['length']:g} {unit} along the route)", "",
-         "| segment | route [m] | time [s] | " + " | ".join(f"{n} APE RMSE [m]" for n in names)
-         + (f" | {a} - {b} [m] |" if b else " |"), "|---|---|---|" + "---:|" * (len(names) + bool(b))]
+    header = ["segment", "route [m]", "time [s]"] + [f"{n} APE RMSE [m]" for n in names] + ([f"{a} - {b} [m]"] if b else [])
+    rows = []
     for s in seg["segments"]:
         r = s["rmse_m"]
-        cells = " | ".join("n/a" if r.get(n) is None else f"{r[n]:.3f}" for n in names)
-        diff = ""
-        if b:
-            diff = " | " + ("n/a" if r.get(a) is None or r.get(b) is None else f"{r[a] - r[b]:+.3f}")
-        L.append(f"| {s['index']} | {s['start_m']:.0f}-{s['end_m']:.0f} | {s['start_s']:.0f}-{s['end_s']:.0f} | {cells}{diff} |")
+        diff = [] if not b else ["n/a" if r.get(a) is None or r.get(b) is None else f"{r[a] - r[b]:+.3f}"]
+        rows.append([s["index"], f"{s['start_m']:.0f}-{s['end_m']:.0f}", f"{s['start_s']:.0f}-{s['end_s']:.0f}",
+                     *[r.get(n) for n in names], *diff])
+    L = ["", f"## Per-segment breakdown (every {seg['length']:g} {unit} along the route)", ""] + markdown(
+        header, rows, align="lll" + "r" * (len(header) - 3))
     by_i = {s["index"]: s for s in seg["segments"]}
     L += ["", f"Worst segments for {a}: " + ", ".join(
         f"{i} ({by_i[i]['start_m']:.0f}-{by_i[i]['end_m']:.0f} m, {by_i[i]['rmse_m'][a]:.3f} m)" for i in seg["worst"]) + ".", ""]
@@ -98,9 +105,24 @@ def _stream_info(name: str, info: dict) -> str:
         return f"Stream `{name}`: used as it is, {info['fixes_used']} measurements; std given to the filter: {given}."
     rate = "every measurement kept" if info["rate_hz"] is None else f"decimated to {info['rate_hz']:g} Hz"
     return (f"Stream `{name}` (a GPS/INS solution, degraded): {rate} ({info['fixes_in']} -> {info['fixes_after_decimation']}), "
-            f"white noise with std {info.get(f'noise_std_{unit}')} {_UNITS.get(unit, unit)} (seed {info.get('seed')}), outages "
-            f"{info['outages_s'] or 'none'} ({info['fixes_in_outages']} removed); {info['fixes_used']} used. "
+            f"white noise with std {info.get(f'noise_std_{unit}')} {_UNITS.get(unit, unit)} (seed {info.get('seed')}), "
+            f"{_outages(info['outages_s'], info['fixes_in_outages'], 'measurements')}; {info['fixes_used']} used. "
             f"Std given to the filter: {given}.")
+
+
+def _outages(outages_s, removed: int, what: str) -> str:
+    """'no outages' or 'outages 10-40 s, 300-330 s after the start (600 fixes removed)'."""
+    if not outages_s:
+        return "no outages"
+    spans = ", ".join(f"{a:g}-{b:g} s" for a, b in outages_s)
+    return f"outage{'s' if len(outages_s) > 1 else ''} {spans} after the start ({removed} {what} removed)"
+
+
+def _offsets(offsets_s: dict) -> str:
+    nonzero = {k: v for k, v in offsets_s.items() if v}
+    if not nonzero:
+        return f"none (all {len(offsets_s)} streams on the IMU clock as stamped)"
+    return ", ".join(f"{k} {v * 1000:+.1f} ms" for k, v in nonzero.items()) + "; the other streams none"
 
 
 def fmt_stat(d, key="rmse", nd=3):
@@ -109,27 +131,46 @@ def fmt_stat(d, key="rmse", nd=3):
     return f"{d[key]:.{nd}f}"
 
 
-def report_md(dataset: str, config_name: str, evals: dict, ratios: dict, cfg: dict, applied: dict,
-              gnss_info: dict | None, metrics: dict, plots_written: list[str]) -> str:
-    L = [f"# fusion-eval run: {dataset}", "", f"Configuration: `{config_name}`; lidar update: "
-         f"**{cfg['filter']['lidar_update']}**, GNSS fused: **{'yes' if cfg['filter']['use_gnss'] else 'no'}**, "
-         f"bias model: **{cfg['filter']['bias_model']}**.", "",
-         "## Summary against ground truth (evo, no alignment)", "",
-         "| estimate | matched poses | APE trans RMSE [m] | APE trans mean / max [m] | APE rot RMSE [deg] | "
-         f"RPE trans 1 frame RMSE [m] | RPE rot 1 frame RMSE [deg] | RPE trans {cfg['evaluation']['rpe_delta_m']:g} m RMSE [m] |",
-         "|---|---:|---:|---:|---:|---:|---:|---:|"]
-    dm = rpe_distance_group(cfg['evaluation']['rpe_delta_m'])
+def summary_table(evals: dict, cfg: dict) -> tuple[list[str], list[list], str]:
+    """evo's APE and RPE of every estimate: header, rows, alignment (report.md, report.html, metrics.tex)."""
+    dm = rpe_distance_group(cfg["evaluation"]["rpe_delta_m"])
+    header = ["estimate", "matched poses", "APE trans RMSE [m]", "APE trans mean / max [m]", "APE rot RMSE [deg]",
+              "RPE trans 1 frame RMSE [m]", "RPE rot 1 frame RMSE [deg]",
+              f"RPE trans {cfg['evaluation']['rpe_delta_m']:g} m RMSE [m]"]
+    rows = []
     for name in ESTIMATES:
         ev = evals.get(name)
         if ev is None:
             continue
         m = ev.metrics
         ape_t = (m.get("ape") or {}).get("translation_m")
-        L.append(f"| {name} | {ev.matched_poses}/{ev.poses} | {fmt_stat(ape_t)} | "
-                 f"{fmt_stat(ape_t, 'mean')} / {fmt_stat(ape_t, 'max')} | {fmt_stat((m.get('ape') or {}).get('rotation_deg'))} | "
-                 f"{fmt_stat((m.get('rpe_1frame') or {}).get('translation_m'), nd=4)} | "
-                 f"{fmt_stat((m.get('rpe_1frame') or {}).get('rotation_deg'), nd=4)} | "
-                 f"{fmt_stat((m.get(dm) or {}).get('translation_m'))} |")
+        rows.append([name, f"{ev.matched_poses}/{ev.poses}", fmt_stat(ape_t),
+                     f"{fmt_stat(ape_t, 'mean')} / {fmt_stat(ape_t, 'max')}", fmt_stat((m.get("ape") or {}).get("rotation_deg")),
+                     fmt_stat((m.get("rpe_1frame") or {}).get("translation_m"), nd=4),
+                     fmt_stat((m.get("rpe_1frame") or {}).get("rotation_deg"), nd=4),
+                     fmt_stat((m.get(dm) or {}).get("translation_m"))])
+    return header, rows, "lrrrrrrr"
+
+
+def metrics_tex(dataset: str, evals: dict, cfg: dict, metrics: dict) -> str:
+    """``metrics.tex``: the summary table (and the KITTI drift table where there is one) for a paper."""
+    from ..tables import latex, latex_document
+
+    name = dataset.replace("/", "-")
+    tabs = [latex(*summary_table(evals, cfg), caption=f"{dataset}: APE and RPE against ground truth (evo, no alignment).",
+                  label=f"tab:{name}-metrics")]
+    d = drift_table(metrics)
+    if d is not None:
+        tabs.append(latex(*d, decimals=[0, 3, 4, 0], caption=f"{dataset}: KITTI drift metric.", label=f"tab:{name}-drift"))
+    return latex_document(tabs, f"fusion-eval run: {dataset}")
+
+
+def report_md(dataset: str, config_name: str, evals: dict, ratios: dict, cfg: dict, applied: dict,
+              gnss_info: dict | None, metrics: dict, plots_written: list[str]) -> str:
+    L = [f"# fusion-eval run: {dataset}", "", header_line(), "", f"Configuration: `{config_name}`; lidar update: "
+         f"**{cfg['filter']['lidar_update']}**, GNSS fused: **{'yes' if cfg['filter']['use_gnss'] else 'no'}**, "
+         f"bias model: **{cfg['filter']['bias_model']}**.", "",
+         "## Summary against ground truth (evo, no alignment)", ""] + markdown(*summary_table(evals, cfg))
     L.append("")
     for k, v in ratios.items():
         if v is None:
@@ -174,8 +215,8 @@ def report_md(dataset: str, config_name: str, evals: dict, ratios: dict, cfg: di
         rate = "every fix kept" if gnss_info["rate_hz"] is None else f"decimated to {gnss_info['rate_hz']:g} Hz"
         L.append(f"KITTI's OXTS position is the GPS/INS solution that is also the ground truth, so it was degraded: "
                  f"{rate} ({gnss_info['fixes_in']} -> {gnss_info['fixes_after_decimation']} fixes), white noise with std "
-                 f"{gnss_info['noise_std_m']} m (E, N, U; seed {gnss_info['seed']}), outages {gnss_info['outages_s'] or 'none'} s "
-                 f"({gnss_info['fixes_in_outages']} fixes removed); {gnss_info['fixes_used']} fixes used. "
+                 f"{gnss_info['noise_std_m']} m (E, N, U; seed {gnss_info['seed']}), "
+                 f"{_outages(gnss_info['outages_s'], gnss_info['fixes_in_outages'], 'fixes')}; {gnss_info['fixes_used']} fixes used. "
                  f"Std given to the filter: {gnss_info['std_given_to_filter_m']}.")
     for name, info in applied.items():   # the enabled observations' own streams (e.g. gnss_velocity)
         if isinstance(info, dict) and "degraded" in info:
@@ -189,7 +230,7 @@ def report_md(dataset: str, config_name: str, evals: dict, ratios: dict, cfg: di
           f"- IMU channel lags corrected: gyro {applied['gyro_lag_s'] * 1000:.1f} ms, accelerometer "
           f"{applied.get('accel_lag_s', 0.0) * 1000:.1f} ms.",
           *_estimates(applied),
-          f"- Time offsets [s]: {applied['time_offset_s']}.",
+          f"- Time offsets added to each stream's stamps: {_offsets(applied['time_offset_s'])}.",
           f"- Gravity: {applied['gravity_mps2']:.5f} m/s^2."]
     if applied.get("discretization"):
         L.append(f"- Error-state discretisation chosen from the IMU rate (filter.discretization = auto): "

@@ -116,57 +116,162 @@ def plot_ape_over_time(path: Path, evals: dict, t0: float) -> None:
     _save(fig, path)
 
 
-def plot_biases(path: Path, t_s: np.ndarray, ba: np.ndarray, bg: np.ndarray, sigma: np.ndarray) -> None:
-    """Estimated IMU biases with their +/-3 sigma."""
+MG_MPS2 = 9.80665e-3                  # 1 mg (thousandth of standard gravity) in m/s^2
+DEG_H_RPS = np.pi / 180 / 3600        # 1 deg/h in rad/s
+
+
+def _bias_limits(b: np.ndarray, s3: np.ndarray, extra: list[np.ndarray]) -> tuple[float, float]:
+    """y-limits that show the estimate (and the truth) whole and the +/-3 sigma where it is informative: the
+    first sigma, the prior's, is often ten times the bias and would squash the estimate into a line."""
+    core = np.concatenate([b, *extra])
+    core = core[np.isfinite(core)]
+    if core.size == 0:
+        return -1.0, 1.0
+    lo, hi = float(core.min()), float(core.max())
+    band = s3[np.isfinite(s3)]
+    if band.size:
+        half = float(np.percentile(band, 50))      # the sigma of the settled filter, not of its prior
+        lo, hi = min(lo, float(np.median(b)) - half), max(hi, float(np.median(b)) + half)
+    pad = 0.08 * (hi - lo) if hi > lo else max(abs(hi), 1e-6)
+    return lo - pad, hi + pad
+
+
+def biases_figure(t_s: np.ndarray, ba: np.ndarray, bg: np.ndarray, sigma: np.ndarray, truth=None):
+    """The figure of :func:`plot_biases`: a 2 x 3 grid, accelerometer x/y/z [mg] over gyro x/y/z [deg/h], each
+    axis with its own +/-3 sigma band and limits; ``truth`` (``t_s``, ``accel_b_mps2``, ``gyro_b_rps`` on the
+    filter's clock, :class:`fusion_eval.datasets.truth.TruthBiases`) overlaid where given."""
     k = _every(t_s.size)
     t_s, ba, bg, sigma = t_s[k], ba[k], bg[k], sigma[k]
-    t = t_s - t_s[0]
-    fig, axes = plt.subplots(2, 1, figsize=(10, 6), sharex=True)
-    for ax, b, sl, unit, scale, title in ((axes[0], ba, BA_ID, "m/s^2", 1.0, "accelerometer bias"),
-                                          (axes[1], bg, BG_ID, "deg/s", 180 / np.pi, "gyroscope bias")):
+    t0 = float(t_s[0])
+    t = t_s - t0
+    tt = tk = None
+    if truth is not None:
+        inside = (truth.t_s >= t_s[0]) & (truth.t_s <= t_s[-1])
+        tk = np.flatnonzero(inside)[_every(int(inside.sum()))]
+        tt = truth.t_s[tk] - t0
+    fig, axes = plt.subplots(2, 3, figsize=(13, 6.5), sharex=True)
+    rows = ((ba, BA_ID, MG_MPS2, "mg", "accelerometer", None if truth is None else truth.accel_b_mps2),
+            (bg, BG_ID, DEG_H_RPS, "deg/h", "gyro", None if truth is None else truth.gyro_b_rps))
+    for r, (b_all, sl, unit_si, unit, what, tb) in enumerate(rows):
         for i, (axis, c) in enumerate(zip("xyz", ("tab:red", "tab:green", "tab:blue"))):
-            ax.plot(t, b[:, i] * scale, color=c, lw=1.0, label=f"{axis}")
-            ax.fill_between(t, (b[:, i] - 3 * sigma[:, sl + i]) * scale, (b[:, i] + 3 * sigma[:, sl + i]) * scale,
-                            color=c, alpha=0.12, lw=0)
-        ax.set_ylabel(f"{title} [{unit}]")
+            ax = axes[r, i]
+            b, s3 = b_all[:, i] / unit_si, 3 * sigma[:, sl + i] / unit_si
+            ax.fill_between(t, b - s3, b + s3, color=c, alpha=0.12, lw=0)
+            ax.plot(t, b + s3, color=c, lw=0.5, ls="--", label="estimate +/- 3 sigma")
+            ax.plot(t, b - s3, color=c, lw=0.5, ls="--")
+            ax.plot(t, b, color=c, lw=1.2, label="estimate")
+            extra = []
+            title = f"{what} {axis}: final {b[-1]:.3g} +/- {s3[-1]:.2g} {unit} (3 sigma)"
+            if tb is not None and tk.size:
+                bt = tb[tk, i] / unit_si
+                ax.plot(tt, bt, color="black", lw=1.0, ls=(0, (4, 2)), label="true bias (simulator)")
+                extra.append(bt)
+                title += f", true {bt[-1]:.3g}"
+            ax.set_ylim(*_bias_limits(b, s3, extra))
+            ax.set_title(title, fontsize=8, loc="left")
+            ax.set_ylabel(f"{what} bias {axis} [{unit}]", fontsize=9)
+            ax.grid(alpha=0.3)
+    for ax in axes[1]:
+        ax.set_xlabel("time since start [s]")
+    fig.legend(*axes[0, 0].get_legend_handles_labels(), loc="lower center", ncol=3, fontsize=8, frameon=False)
+    fig.suptitle("Estimated IMU biases (body frame) with their +/-3 sigma (dashed; the first seconds' prior runs off "
+                 f"the scale)\n1 mg = {MG_MPS2:g} m/s^2; 1 deg/h = {DEG_H_RPS:.3g} rad/s", fontsize=10)
+    fig.subplots_adjust(left=0.06, right=0.99, top=0.89, bottom=0.13, hspace=0.3, wspace=0.28)
+    return fig
+
+
+def plot_biases(path: Path, t_s: np.ndarray, ba: np.ndarray, bg: np.ndarray, sigma: np.ndarray, truth=None) -> None:
+    """Estimated IMU biases with their +/-3 sigma, one panel per axis, and the true biases where known
+    (``truth``: a simulated drive's, :func:`fusion_eval.datasets.truth.truth_imu_biases`)."""
+    _save(biases_figure(t_s, ba, bg, sigma, truth), path)
+
+
+def _inside_3sigma_pct(e: np.ndarray, sg: np.ndarray) -> list[float]:
+    """Per column, the percentage of epochs whose error is inside its +/-3 sigma (NaN: no sigma for that state)."""
+    return [float(np.mean(np.abs(e[:, i]) <= 3 * sg[:, i]) * 100) if np.isfinite(sg[:, i]).any() else float("nan")
+            for i in range(e.shape[1])]
+
+
+def _error_sigma_panels(axes, t_s: np.ndarray, err: np.ndarray, sigma: np.ndarray, names, unit: str,
+                        scale: float = 1.0, smoothed: tuple[np.ndarray, np.ndarray] | None = None,
+                        titles=None) -> None:
+    """One axis per column of ``err`` (N, 3): the filter's +/-3 sigma as a grey band, the error over it, the
+    smoother's error and sigma where given, and the share of epochs inside 3 sigma in the title. ``scale``:
+    SI to the unit shown; ``names`` label the y axes, ``titles`` (default: the names) open the titles."""
+    inside_f = _inside_3sigma_pct(err, sigma)
+    inside_s = _inside_3sigma_pct(*smoothed) if smoothed is not None else None
+    k = _every(t_s.size)
+    t = t_s[k] - t_s[0]
+    for i, (ax, name, what) in enumerate(zip(axes, names, titles or names)):
+        s3 = 3 * sigma[k, i] * scale
+        ax.fill_between(t, -s3, s3, color="tab:gray", alpha=0.3, lw=0, label="+/-3 sigma (filter)")
+        ax.plot(t, err[k, i] * scale, color=COLORS["fused"], lw=0.9, label="fused - ground truth")
+        title = (f"{what}: {inside_f[i]:.1f} % of epochs inside 3 sigma" if np.isfinite(inside_f[i])
+                 else f"{what}: the filter has no sigma for this state")
+        if smoothed is not None:
+            e, sg = smoothed[0][k, i] * scale, 3 * smoothed[1][k, i] * scale
+            ax.plot(t, sg, color=COLORS["smoothed"], lw=0.6, ls="--", label="+/-3 sigma (smoothed)")
+            ax.plot(t, -sg, color=COLORS["smoothed"], lw=0.6, ls="--")
+            ax.plot(t, e, color=COLORS["smoothed"], lw=0.9, label="smoothed - ground truth")
+            title += f" (smoothed: {inside_s[i]:.1f} %)"
+        # limits from the errors and the band's common width: a sigma spike at a gap in the data (or the prior's
+        # first seconds) would otherwise flatten the errors into a line
+        shown = np.abs(err[k, i] * scale) if smoothed is None else np.abs(np.r_[err[k, i], smoothed[0][k, i]] * scale)
+        lim = max(float(np.nanmax(shown, initial=0.0)), float(np.nanpercentile(s3, 98)) if np.isfinite(s3).any() else 0.0)
+        if lim > 0:
+            ax.set_ylim(-1.08 * lim, 1.08 * lim)
+        ax.set_ylabel(f"{name} [{unit}]")
+        ax.set_title(title, fontsize=9, loc="left")
         ax.grid(alpha=0.3)
-        ax.legend(loc="upper right", fontsize=8, ncol=3)
-    axes[0].set_title("Estimated IMU biases (body frame), shaded: +/-3 sigma")
-    axes[1].set_xlabel("time since start [s]")
-    _save(fig, path)
 
 
 def plot_error_sigma(path: Path, t_s: np.ndarray, err_w: np.ndarray, sigma: np.ndarray,
                      smoothed: tuple[np.ndarray, np.ndarray] | None = None) -> None:
     """Fused position error per ENU axis with the filter's own +/-3 sigma (``sigma``: (N, 3) per axis): is
     the covariance honest? ``smoothed``: the smoother's error and sigma at the same stamps, drawn over it."""
-    def inside(e, sg):
-        return [np.mean(np.abs(e[:, i]) <= 3 * sg[:, i]) * 100 for i in range(3)]
-
-    inside_f = inside(err_w, sigma)
-    inside_s = inside(*smoothed) if smoothed is not None else None
-    k = _every(t_s.size)
-    t = t_s[k] - t_s[0]
     fig, axes = plt.subplots(3, 1, figsize=(10, 7), sharex=True)
-    for i, (ax, axis) in enumerate(zip(axes, ("East", "North", "Up"))):
-        s3 = 3 * sigma[k, i]
-        ax.fill_between(t, -s3, s3, color="tab:gray", alpha=0.3, lw=0, label="+/-3 sigma (filter)")
-        ax.plot(t, err_w[k, i], color=COLORS["fused"], lw=0.9, label="fused - ground truth")
-        title = f"{axis}: {inside_f[i]:.1f} % of epochs inside 3 sigma"
-        if smoothed is not None:
-            e, sg = smoothed[0][k, i], 3 * smoothed[1][k, i]
-            ax.plot(t, sg, color=COLORS["smoothed"], lw=0.6, ls="--", label="+/-3 sigma (smoothed)")
-            ax.plot(t, -sg, color=COLORS["smoothed"], lw=0.6, ls="--")
-            ax.plot(t, e, color=COLORS["smoothed"], lw=0.9, label="smoothed - ground truth")
-            title += f" (smoothed: {inside_s[i]:.1f} %)"
-        ax.set_ylabel(f"{axis} [m]")
-        ax.set_title(title, fontsize=9, loc="left")
-        ax.grid(alpha=0.3)
+    _error_sigma_panels(axes, t_s, err_w, sigma, ("East", "North", "Up"), "m", smoothed=smoothed)
     axes[0].legend(loc="upper right", fontsize=8, ncol=2 if smoothed is not None else 1)
     axes[-1].set_xlabel("time since start [s]")
     fig.suptitle("Position error with its own +/-3 sigma" + (" (filter and smoother)" if smoothed is not None else ""))
     fig.subplots_adjust(left=0.08, right=0.98, top=0.9, bottom=0.08, hspace=0.35)
     _save(fig, path)
+
+
+ATT_NAMES = ("roll", "pitch", "yaw")
+ATT_TITLES = ("roll error (about body x)", "pitch error (about body y)", "yaw error (about body z)")
+VEL_NAMES = ("East", "North", "Up")
+VEL_TITLES = ("East velocity error", "North velocity error", "Up velocity error")
+
+
+def att_vel_error_figure(av: dict):
+    """The figure of :func:`plot_att_vel_error_sigma`: attitude error (left column, deg) and velocity error
+    (right column, m/s; absent when the estimate has no velocity) with the filter's +/-3 sigma."""
+    has_vel = av.get("vel_err_w_mps") is not None
+    fig, axes = plt.subplots(3, 2 if has_vel else 1, figsize=(14 if has_vel else 9, 7.5), sharex=True, squeeze=False)
+    sm = av.get("smoothed")
+    _error_sigma_panels(axes[:, 0], av["t_s"], av["att_err_b_rad"], av["att_sigma_b_rad"], ATT_NAMES, "deg",
+                        scale=180 / np.pi, smoothed=None if sm is None else (sm[0], sm[1]), titles=ATT_TITLES)
+    title = ("Attitude error Log(R_gt^T R_fused), body frame (x, y, z = roll, pitch, yaw for a forward-left-up IMU), "
+             "with the filter's +/-3 sigma")
+    if has_vel:
+        sm_v = None if sm is None or sm[2] is None else (sm[2], sm[3])
+        _error_sigma_panels(axes[:, 1], av["t_s"], av["vel_err_w_mps"], av["vel_sigma_w_mps"], VEL_NAMES, "m/s",
+                            smoothed=sm_v, titles=VEL_TITLES)
+        title += f"\nvelocity error: fused minus true ENU velocity; true velocity: {av['vel_truth']}"
+    for ax in axes[-1]:
+        ax.set_xlabel("time since start [s]")
+    axes[0, 0].legend(loc="upper right", fontsize=7, ncol=2 if sm is not None else 1)
+    fig.suptitle(title, fontsize=10)
+    fig.subplots_adjust(left=0.07, right=0.99, top=0.89, bottom=0.07, hspace=0.35, wspace=0.18)
+    return fig
+
+
+def plot_att_vel_error_sigma(path: Path, av: dict) -> None:
+    """Fused attitude and velocity errors against the ground truth with the filter's own +/-3 sigma (``av``:
+    :func:`fusion_eval.evaluation.run_metrics.fused_att_vel_error`): the position plot's question for the other
+    two blocks of the state."""
+    _save(att_vel_error_figure(av), path)
 
 
 def plot_compare_ape(path: Path, runs, evs_unfiltered: dict, t0: float) -> None:
@@ -232,9 +337,162 @@ def plot_compare_body_velocity(path: Path, runs, body_v: list, gt, gt_vb) -> Non
     _save(fig, path)
 
 
-def plot_sweep(out_dir: Path, rows: list[dict], keys: list[str], metric: str, tasks, best, grid_keys=()) -> list[str]:
-    """Metric against each swept parameter, a heatmap for a 2-D grid, and the best run's APE over time
-    against the default's. Returns the file names written."""
+def _isnum(v) -> bool:
+    return isinstance(v, (int, float)) and not isinstance(v, bool) and np.isfinite(v)
+
+
+def _value_axis(ax, values, axis: str = "x", at_values: bool = True) -> None:
+    """A readable axis for swept values: logarithmic where they are all positive and span a decade or more (noise
+    densities; a swept lag or offset may be zero or negative), ticks at the values themselves (``at_values``)
+    when few enough to stand apart (else matplotlib's, fewer), plain numbers of 3 digits, no minor labels,
+    slanted labels."""
+    from matplotlib.ticker import FixedLocator, FuncFormatter, LogLocator, MaxNLocator, NullFormatter
+
+    vals = sorted({float(v) for v in values if _isnum(v)})
+    if not vals:
+        return
+    log = vals[0] > 0 and vals[-1] / vals[0] >= 10
+    a = ax.xaxis if axis == "x" else ax.yaxis
+    (ax.set_xscale if axis == "x" else ax.set_yscale)("log" if log else "linear")
+    u = np.log10(vals) if log else np.asarray(vals)
+    span = float(u[-1] - u[0]) or 1.0
+    keep = [0]
+    for i in range(1, len(vals)):
+        if u[i] - u[keep[-1]] >= 0.08 * span:           # closer labels would overlap
+            keep.append(i)
+    if at_values and len(keep) <= 8:
+        a.set_major_locator(FixedLocator([vals[i] for i in keep]))
+    else:
+        a.set_major_locator(LogLocator(numticks=6) if log else MaxNLocator(6))
+    a.set_major_formatter(FuncFormatter(lambda v, _pos: f"{v:.3g}"))
+    a.set_minor_formatter(NullFormatter())
+    if axis == "x":
+        ax.margins(x=0.1)
+        for lab in ax.get_xticklabels():
+            lab.set_rotation(30)
+            lab.set_horizontalalignment("right")
+
+
+def _setting_label(name: str) -> str:
+    """A grid setting's name is ``key=value,key=value``: its values alone (the keys go in the axis label)."""
+    return " / ".join(kv.split("=", 1)[1] for kv in name.split(",")) if "=" in name else name
+
+
+def _grid_keys_of(names) -> list[str]:
+    """The keys of the grid settings among ``names`` (``key=value,...``), in their order."""
+    first = next((nm for nm in names if "=" in nm), None)
+    return [] if first is None else [kv.split("=", 1)[0] for kv in first.split(",")]
+
+
+OVERVIEW_MAX_SETTINGS = 40     # not a state index: beyond, the names of every setting would not fit one panel (a big grid: the heatmap)
+
+
+def sweep_params_figure(rows: list[dict], keys: list[str], metric: str, defaults: dict | None = None):
+    """The figure of ``sweep_params.png`` (None when no swept key is numeric): a first panel with every setting
+    ranked by ``metric`` (up to :data:`OVERVIEW_MAX_SETTINGS`), then, for each numeric swept key, ``metric``
+    against the key's value over the settings that set it, and the default configuration as a star at its own
+    value of the key (``defaults[(dataset, variant)][key]``, :func:`fusion_eval.commands.sweep_summary.default_values`)
+    and as a dotted line at its metric. Artists carry ``gid`` "settings" and "default" (one marker per run)."""
+    from matplotlib.lines import Line2D
+
+    defaults = defaults or {}
+    ok = [r for r in rows if r["status"] == "ok" and _isnum(r.get(metric))]
+    numeric = [k for k in keys if any(_isnum(r.get(k)) and r["setting"] != "default" for r in ok)]
+    if not numeric:
+        return None
+    series = sorted({(r["dataset"], r["variant"]) for r in ok})
+    several_variants = len({v for _, v in series}) > 1
+    names = sorted({r["setting"] for r in ok})
+    overview = len(names) <= OVERVIEW_MAX_SETTINGS
+    n = len(numeric) + overview
+    ncols = min(3, n)
+    nrows = -(-n // ncols)
+    height = max(4.3 * nrows, (0.24 * len(names) + 1.8) if overview else 0.0) + 0.7
+    fig, axes = plt.subplots(nrows, ncols, figsize=(5.4 * ncols, height), squeeze=False)
+    flat = list(axes.ravel())
+    for ax in flat[n:]:
+        ax.set_visible(False)
+
+    def label_of(ds, v):
+        return Path(ds).name + (f" / {v}" if several_variants else "")
+
+    def default_row(ds, v):
+        return next((r for r in ok if r["dataset"] == ds and r["variant"] == v and r["setting"] == "default"), None)
+
+    if overview:
+        ax = flat.pop(0)
+        mean = {nm: np.mean([r[metric] for r in ok if r["setting"] == nm]) for nm in names}
+        order = sorted(names, key=lambda nm: (-mean[nm], nm))        # the best at the top
+        ypos = {nm: i for i, nm in enumerate(order)}
+        for j, (ds, v) in enumerate(series):
+            c = _VCOLORS[j % len(_VCOLORS)]
+            sub = [r for r in ok if r["dataset"] == ds and r["variant"] == v]
+            off = (j - (len(series) - 1) / 2) * 0.12
+            st = [r for r in sub if r["setting"] != "default"]
+            ax.plot([r[metric] for r in st], [ypos[r["setting"]] + off for r in st], "o", ms=5, color=c, gid="settings")
+            d = default_row(ds, v)
+            if d is not None:
+                ax.plot([d[metric]], [ypos["default"] + off], "*", ms=13, mfc=c, mec="black", mew=0.8, gid="default")
+                ax.axvline(d[metric], color=c, ls=":", lw=1.0)
+        ax.set_yticks(range(len(order)), [_setting_label(nm) for nm in order], fontsize=8)
+        for lab in ax.get_yticklabels():
+            if lab.get_text() == "default":
+                lab.set_fontweight("bold")
+        _value_axis(ax, [r[metric] for r in ok], axis="x", at_values=False)
+        ax.set_xlabel("fused APE translation RMSE [m]")
+        gk = _grid_keys_of(names)
+        if gk:
+            ax.set_ylabel("grid settings: " + " / ".join(gk), fontsize=8)
+        ax.set_title("Every setting, best at the top", fontsize=9)
+        ax.grid(alpha=0.3, which="major")
+    for ax, k in zip(flat, numeric):
+        xs, notes = [], []
+        for j, (ds, v) in enumerate(series):
+            c = _VCOLORS[j % len(_VCOLORS)]
+            pts = sorted((r[k], r[metric], r["setting"]) for r in ok if r["dataset"] == ds and r["variant"] == v
+                         and r["setting"] != "default" and _isnum(r.get(k)))
+            d = default_row(ds, v)
+            dx = defaults.get((ds, v), {}).get(k)
+            both = pts + ([(dx, d[metric], "default")] if d is not None and _isnum(dx) else [])
+            both.sort()
+            if len(both) > 1 and len({p[0] for p in both}) == len(both):     # one run per value: a curve
+                ax.plot([p[0] for p in both], [p[1] for p in both], "-", lw=0.8, color=c, alpha=0.6)
+            if pts:
+                ax.plot([p[0] for p in pts], [p[1] for p in pts], "o", ms=5, color=c, gid="settings")
+            if d is not None:
+                ax.axhline(d[metric], color=c, ls=":", lw=1.0)
+                if _isnum(dx):
+                    ax.plot([dx], [d[metric]], "*", ms=13, mfc=c, mec="black", mew=0.8, gid="default")
+                    notes.append((dx, d[metric], "default"))
+            if len(pts) <= 12:
+                notes += [(x, y, nm) for x, y, nm in pts if "=" not in nm and not nm.startswith("random-")]
+            xs += [p[0] for p in both]
+        _value_axis(ax, xs)
+        ax.autoscale_view()
+        for x, y, nm in notes:       # a grid's or a sample's name is its x: only named settings are labelled
+            right = ax.transAxes.inverted().transform(ax.transData.transform((x, y)))[0] > 0.7
+            ax.annotate(nm, (x, y), xytext=(-5 if right else 5, 4), textcoords="offset points", fontsize=7,
+                        color="dimgray", ha="right" if right else "left")
+        ax.set_xlabel(k, fontsize=9)
+        ax.set_ylabel("fused APE translation RMSE [m]", fontsize=8)
+        ax.grid(alpha=0.3, which="major")
+    handles = [Line2D([], [], ls="", marker="o", color="gray", label="a setting of the sweep"),
+               Line2D([], [], ls="", marker="*", ms=12, mfc="gray", mec="black", label="the default configuration"),
+               Line2D([], [], ls=":", color="gray", label="the default's APE RMSE")]
+    if len(series) > 1:
+        handles += [Line2D([], [], ls="", marker="s", color=_VCOLORS[j % len(_VCOLORS)], label=label_of(*sv))
+                    for j, sv in enumerate(series)]
+    fig.legend(handles=handles, loc="lower center", ncol=min(len(handles), 4), fontsize=8, frameon=False)
+    fig.suptitle("Fused APE against the sweep's settings" + ("" if len(series) > 1 else f" ({label_of(*series[0])})"))
+    fig.tight_layout(rect=(0, 0.55 / height * (1 + (len(handles) > 4)), 1, 1 - 0.35 / height))
+    return fig
+
+
+def plot_sweep(out_dir: Path, rows: list[dict], keys: list[str], metric: str, tasks, best, grid_keys=(),
+               defaults: dict | None = None) -> list[str]:
+    """Metric against each swept parameter (:func:`sweep_params_figure`; ``defaults``: the default run's value of
+    each swept key per (dataset, variant)), a heatmap for a 2-D grid, and the best run's APE over time against
+    the default's. Returns the file names written."""
     import os
 
     from evo.tools import file_interface
@@ -248,27 +506,9 @@ def plot_sweep(out_dir: Path, rows: list[dict], keys: list[str], metric: str, ta
 
     written: list[str] = []
     ok = [r for r in rows if r["status"] == "ok"]
-    datasets = sorted({r["dataset"] for r in ok})
-    numeric = [k for k in keys if any(isinstance(r.get(k), (int, float)) and not isinstance(r.get(k), bool) for r in ok)]
-    if numeric:
-        fig, axes = plt.subplots(1, len(numeric), figsize=(5 * len(numeric), 4), squeeze=False)
-        for ax, k in zip(axes[0], numeric):
-            for i, ds in enumerate(datasets):
-                pts = sorted((r[k], r[metric]) for r in ok if r["dataset"] == ds and isinstance(r.get(k), (int, float)))
-                if pts:
-                    x, y = zip(*pts)
-                    ax.plot(x, y, "o", ms=4, color=_VCOLORS[i % len(_VCOLORS)], label=Path(ds).name)
-            # Noise settings span decades, but a swept lag or offset may be zero or negative:
-            # a log axis only where every value is positive.
-            values = [r[k] for r in ok if isinstance(r.get(k), (int, float))]
-            if values and min(values) > 0:
-                ax.set_xscale("log")
-            ax.set_xlabel(k)
-            ax.set_ylabel("fused APE translation RMSE [m]")
-            ax.grid(alpha=0.3, which="both")
-        axes[0][0].legend(fontsize=8)
-        fig.suptitle("Fused APE against each swept setting")
-        fig.tight_layout()
+    fig = sweep_params_figure(rows, keys, metric, defaults)
+    numeric = [k for k in keys if any(_isnum(r.get(k)) for r in ok)]
+    if fig is not None:
         save(fig, "sweep_params.png")
     if len(grid_keys) == 2 and all(k in numeric for k in grid_keys):
         kx, ky = grid_keys
@@ -343,22 +583,24 @@ def plot_drift(path: Path, evals: dict) -> None:
     _save(fig, path)
 
 
-def plot_consistency(path: Path, cons: dict, t0: float) -> None:
-    """NEES (position, attitude) and NIS per observation type over time, with the 95 % chi-square bounds."""
+def consistency_figure(cons: dict, t0: float):
+    """The figure of :func:`plot_consistency`, one axis per NEES / NIS series, and a legend for its lines."""
     items = [("NEES " + k, d) for k, d in cons.get("nees", {}).items()]
     items += [("NEES smoothed " + k, d) for k, d in cons.get("nees_smoothed", {}).items()]
     items += [("NIS " + k, d) for k, d in cons.get("nis", {}).items()]
-    fig, axes = plt.subplots(len(items), 1, figsize=(10, 2.2 * len(items)), sharex=True, squeeze=False)
+    height = 2.2 * len(items) + 0.5
+    fig, axes = plt.subplots(len(items), 1, figsize=(10, height), sharex=True, squeeze=False)
     for ax, (label, d) in zip(axes[:, 0], items):
         lo, hi = d["bounds_95"]
         # NEES is a continuous series (a line); NIS values are separate innovations (pixel markers, cheap to draw)
         style = "-" if label.startswith("NEES") else ","
         v = np.asarray(d["values"])
         k = _envelope(v)
-        ax.plot(np.asarray(d["t_s"])[k] - t0, np.maximum(v[k], 1e-4), style, lw=0.7, color="tab:blue")
-        ax.axhline(lo, color="tab:red", lw=0.8, ls="--")
+        ax.plot(np.asarray(d["t_s"])[k] - t0, np.maximum(v[k], 1e-4), style, lw=0.7, color="tab:blue",
+                label="NEES (line) / NIS (dots)")
+        ax.axhline(lo, color="tab:red", lw=0.8, ls="--", label="95 % chi-square bounds of one epoch")
         ax.axhline(hi, color="tab:red", lw=0.8, ls="--")
-        ax.axhline(d["dof"], color="black", lw=0.6)
+        ax.axhline(d["dof"], color="black", lw=0.6, label="dof: the mean of a consistent filter")
         ax.set_yscale("log")
         _no_minor_labels(ax)
         ax.set_ylabel(label, fontsize=8)
@@ -366,18 +608,26 @@ def plot_consistency(path: Path, cons: dict, t0: float) -> None:
                      fontsize=8, loc="left")
         ax.grid(alpha=0.3)
     axes[-1, 0].set_xlabel("time since start [s]")
-    fig.subplots_adjust(left=0.08, right=0.98, top=0.96, bottom=0.07, hspace=0.45)
-    _save(fig, path)
+    # one legend for every axis (the same three lines in each), above the first, off the data
+    handles, labels = axes[0, 0].get_legend_handles_labels()
+    fig.legend(handles, labels, loc="upper center", ncol=3, fontsize=8, frameon=False)
+    fig.subplots_adjust(left=0.08, right=0.98, top=1 - 0.45 / height, bottom=0.5 / height, hspace=0.45)
+    return fig
 
 
-def plot_segment_map(path: Path, evals: dict, seg: dict) -> None:
-    """Top view colored by the primary estimate's error, and by its error minus the secondary's (for a
-    run: fused minus lidar, where fusion helps or hurts)."""
+def plot_consistency(path: Path, cons: dict, t0: float) -> None:
+    """NEES (position, attitude) and NIS per observation type over time, with the 95 % chi-square bounds."""
+    _save(consistency_figure(cons, t0), path)
+
+
+def segment_map_figure(evals: dict, seg: dict):
+    """The figure of :func:`plot_segment_map`, with the worst segments labelled and a caption saying what the
+    labels are."""
     a, b = seg.get("primary", "fused"), seg.get("secondary")
     f = evals[a]
     lid = evals.get(b) if b else None
     panels = 2 if lid is not None and lid.ape_err_m is not None else 1
-    fig, axes = plt.subplots(1, panels, figsize=(7 * panels, 6), squeeze=False)
+    fig, axes = plt.subplots(1, panels, figsize=(7 * panels, 6.6), squeeze=False)
     p = f.ref_p_m
     k = _every(len(p))
     sc = axes[0, 0].scatter(p[k, 0], p[k, 1], c=f.ape_err_m[k], s=3, cmap="viridis")
@@ -390,21 +640,43 @@ def plot_segment_map(path: Path, evals: dict, seg: dict) -> None:
         fig.colorbar(sc, ax=axes[0, 1], label=f"{a} APE - {b} APE [m] (blue: {a} better)")
         axes[0, 1].set_title(f"Where {a} is better (blue) or worse (red) than {b}")
     d = np.concatenate([[0.0], np.cumsum(np.linalg.norm(np.diff(p, axis=0), axis=1))])
-    for i in seg.get("worst", [])[:5]:  # not a state index
+    worst = seg.get("worst", [])[:5]  # not a state index
+    xy = p[:, :2]  # not a state index: east, north of the route
+    span = float(np.ptp(xy, axis=0).max()) or 1.0
+    placed: list[np.ndarray] = []
+    for i in worst:
         s = next(x for x in seg["segments"] if x["index"] == i)
         if seg["by"] == "distance":
             k = int(np.searchsorted(d, 0.5 * (s["start_m"] + s["end_m"])))
         else:
             k = int(np.searchsorted(f.ape_t_s - f.ape_t_s[0], 0.5 * (s["start_s"] + s["end_s"])))
         k = min(k, len(p) - 1)
-        axes[0, 0].annotate(f"#{i}", p[k, :2], fontsize=8, color="red")
+        axes[0, 0].plot(*xy[k], "o", ms=5, mfc="none", mec="red", mew=1.2)
+        rmse = s["rmse_m"].get(a)
+        # a route that passes a place twice puts two worst segments side by side: step their labels down
+        near = sum(np.linalg.norm(q - xy[k]) < 0.04 * span for q in placed)
+        placed.append(xy[k])
+        axes[0, 0].annotate(f"#{i}" + (f" ({rmse:.2f} m)" if rmse is not None else ""), xy[k],
+                            xytext=(5, 4 - 11 * near), textcoords="offset points", fontsize=8, color="red")
     for ax in axes[0]:
         ax.set_aspect("equal", adjustable="box")
         ax.set_xlabel("East [m]")
         ax.set_ylabel("North [m]")
         ax.grid(alpha=0.3)
-    fig.subplots_adjust(left=0.06, right=0.97, top=0.93, bottom=0.08, wspace=0.25)
-    _save(fig, path)
+    if worst:
+        unit = "s" if seg["by"] == "time" else "m"
+        what = "of time" if seg["by"] == "time" else "along the reference (ground-truth) route"
+        fig.text(0.06, 0.015, f"Red circles, #k (RMSE): segment k, the k-th window of {seg['length']:g} {unit} {what} "
+                 f"(counted from 0); the {len(worst)} segments with the largest {a} APE translation RMSE, marked at "
+                 "their middle.", fontsize=8, color="dimgray")
+    fig.subplots_adjust(left=0.06, right=0.97, top=0.94, bottom=0.12, wspace=0.25)
+    return fig
+
+
+def plot_segment_map(path: Path, evals: dict, seg: dict) -> None:
+    """Top view colored by the primary estimate's error, and by its error minus the secondary's (for a
+    run: fused minus lidar, where fusion helps or hurts), with the worst segments labelled."""
+    _save(segment_map_figure(evals, seg), path)
 
 
 def plot_generic_trajectories(path: Path, ref, estimates: dict, up_axis: str = "z") -> None:
@@ -423,33 +695,65 @@ def plot_generic_trajectories(path: Path, ref, estimates: dict, up_axis: str = "
     _save(fig, path)
 
 
-def plot_trials(path: Path, sec: dict) -> None:
-    """Monte-Carlo trials: each trial's APE translation RMSE per estimate and its fused/sensor ratios, with the
-    mean and the 95 % confidence interval of the mean."""
+TRIAL_METRICS = (("fused.ape.translation_m.rmse", "fused", "fused APE translation RMSE [m]"),
+                 ("smoothed.ape.translation_m.rmse", "smoothed", "smoothed APE translation RMSE [m]"),
+                 ("lidar.ape.translation_m.rmse", "lidar", "lidar odometry APE translation RMSE [m]"),
+                 ("gnss.ape.translation_m.rmse", "gnss", "GNSS APE translation RMSE [m]"),
+                 ("fused.ape.rotation_deg.rmse", "fused", "fused APE rotation RMSE [deg]"),
+                 ("ratios.fused_over_lidar", "lidar", "fused / lidar APE RMSE"),
+                 ("ratios.fused_over_gnss", "gnss", "fused / GNSS APE RMSE"))
+
+
+def trials_figure(sec: dict):
+    """The figure of :func:`plot_trials`: one panel per metric, each on its own scale (the sensors' errors are
+    ten times the fused one: on a shared axis the fused spread was a flat row of dots)."""
+    from matplotlib.lines import Line2D
+    from matplotlib.patches import Patch
+
     rows = [r for r in sec["per_trial"] if "failed" not in r]
-    fig, axes = plt.subplots(1, 2, figsize=(11, 4))
-    panels = [(axes[0], [(n, f"{n}.ape.translation_m.rmse") for n in ("fused", "lidar", "gnss")], "APE translation RMSE [m]"),
-              (axes[1], [(n, f"ratios.fused_over_{n}") for n in ("lidar", "gnss")], "fused APE RMSE / sensor alone")]
-    for ax, items, ylabel in panels:
-        shown = 0
-        for x, (name, key) in enumerate(items):
-            v = np.array([r[key] for r in rows if r.get(key) is not None], float)
-            if v.size == 0:
-                continue
-            st = sec["stats"].get(key, {})
-            jitter = (np.arange(v.size) - (v.size - 1) / 2) * (0.3 / max(v.size, 1))
-            c = COLORS.get(name, "tab:gray") if not key.startswith("ratios") else COLORS.get(name)
-            ax.plot(x + jitter, v, "o", color=c, alpha=0.6, ms=4)
-            lo, hi = st.get("ci95_mean", [np.nan, np.nan])
-            ax.errorbar([x + 0.3], [st["mean"]], yerr=[[st["mean"] - lo], [hi - st["mean"]]] if np.isfinite(lo) else None,
-                        fmt="s", color="black", capsize=4, ms=5)
-            shown += 1
-        ax.set_xticks(range(len(items)))
-        ax.set_xticklabels([LABELS.get(n, n) if not k.startswith("ratios") else f"fused / {n}" for n, k in items])
-        ax.set_ylabel(ylabel)
+    shown = []
+    for key, name, label in TRIAL_METRICS:
+        v = np.array([r[key] for r in rows if r.get(key) is not None], float)
+        v = v[np.isfinite(v)]
+        if v.size:
+            shown.append((key, name, label, v))
+    nrows = -(-max(len(shown), 1) // 4)
+    ncols = -(-max(len(shown), 1) // nrows)       # at most 4 a row, the rows as full as they can be
+    fig, axes = plt.subplots(nrows, ncols, figsize=(3.6 * ncols, 3.6 * nrows + 1.2), squeeze=False)
+    for ax, (key, name, label, v) in zip(axes.ravel(), shown):
+        c = COLORS.get(name, "tab:gray")
+        st = sec["stats"].get(key, {})
+        mean, std = st.get("mean", float(np.mean(v))), st.get("std", float(np.std(v)))
+        ax.axhspan(mean - std, mean + std, color=c, alpha=0.15, lw=0)
+        ax.boxplot([v], positions=[0], widths=0.5, whis=(0, 100), showfliers=False,
+                   medianprops={"color": "black"}, boxprops={"color": c}, whiskerprops={"color": c},
+                   capprops={"color": c})
+        # the trials spread over the box's width in trial order: equal values stay apart, the same bytes each time
+        jitter = (np.arange(v.size) - (v.size - 1) / 2) * (0.4 / max(v.size, 1))
+        ax.plot(jitter, v, "o", color=c, alpha=0.7, ms=4)
+        lo, hi = st.get("ci95_mean", [np.nan, np.nan])
+        ax.errorbar([0.5], [mean], yerr=[[mean - lo], [hi - mean]] if np.isfinite(lo) else None, fmt="s",
+                    color="black", capsize=4, ms=5)
+        if key.startswith("ratios") and v.max() > 0.8:
+            ax.axhline(1.0, color="gray", lw=0.8, ls="--")      # above 1: fusion worse than the sensor alone
+        ax.set_xlim(-0.6, 0.9)
+        ax.set_xticks([])
+        ax.set_title(f"{label}\n{mean:.3g} +/- {std:.2g} (std), {v.min():.3g} .. {v.max():.3g}", fontsize=8)
         ax.grid(alpha=0.3, axis="y")
-        if items[0][1].startswith("ratios"):
-            ax.axhline(1.0, color="gray", lw=0.8, ls="--")
-    fig.suptitle(f"{sec['n']} Monte-Carlo trials (dots), mean with its 95 % confidence interval (squares)")
-    fig.subplots_adjust(left=0.08, right=0.98, top=0.88, bottom=0.1, wspace=0.25)
-    _save(fig, path)
+    for ax in axes.ravel()[len(shown):]:
+        ax.set_visible(False)
+    handles = [Line2D([], [], ls="", marker="o", color="gray", alpha=0.7, label="one trial"),
+               Patch(facecolor="white", edgecolor="gray", label="box: quartiles and median, whiskers: min .. max"),
+               Patch(facecolor="gray", alpha=0.3, label="mean +/- 1 std"),
+               Line2D([], [], ls="-", marker="s", color="black", label="mean with the 95 % CI of the mean")]
+    fig.legend(handles=handles, loc="lower center", ncol=4, fontsize=8, frameon=False)
+    fig.suptitle(f"{sec['n']} Monte-Carlo trials: the spread of each metric")
+    h = 3.6 * nrows + 1.2
+    fig.subplots_adjust(left=0.07, right=0.98, top=1 - 1.0 / h, bottom=0.45 / h, wspace=0.35, hspace=0.5)
+    return fig
+
+
+def plot_trials(path: Path, sec: dict) -> None:
+    """Monte-Carlo trials: the spread of each trial's APE RMSE per estimate and of its fused/sensor ratios (box,
+    mean +/- std band, each trial), with the mean and the 95 % confidence interval of the mean."""
+    _save(trials_figure(sec), path)

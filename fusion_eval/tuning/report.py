@@ -12,6 +12,9 @@ from pathlib import Path
 import yaml
 
 from ..outputs import atomic_write
+from ..provenance import dataset_files, header_line
+from ..report import html
+from ..tables import markdown as markdown_table
 from .study import Setup, write_json
 
 FUSED_APE = "fused.ape.rmse"
@@ -75,7 +78,7 @@ def markdown(s: Setup, res: dict, runtime_s: float) -> str:
     S = optuna.trial.TrialState
     states = [t.state for t in study.get_trials(deepcopy=False)]
     status = [t.user_attrs.get("status") for t in study.get_trials(deepcopy=False)]
-    L = [f"# fusion-eval tune: {', '.join(o.name for o in s.objectives)}", "",
+    L = [f"# fusion-eval tune: {', '.join(o.name for o in s.objectives)}", "",  header_line(), "",
          f"Space `{s.space.path}`, sampler {s.sampler} (seed {s.seed}); training drives "
          f"{', '.join(Path(d).name for d in s.train)}; held-out drives "
          f"{', '.join(Path(d).name for d in s.test) or 'none'}; {s.seeds} Monte-Carlo seed(s) per drive.", "",
@@ -84,7 +87,7 @@ def markdown(s: Setup, res: dict, runtime_s: float) -> str:
          f"({runtime_s:.0f} s in this session).", ""]
     if best is None:
         return "\n".join(L + ["No trial completed: nothing is tuned.", ""])
-    L += ["## Tuned values", "", "| key | default | tuned |", "|---|---:|---:|"]
+    rows = []
     resolved = ((default["train"]["steps"][0].get("resolved") or {}).get("imu_noise") or {})
     from ..config import schema
 
@@ -94,29 +97,26 @@ def markdown(s: Setup, res: dict, runtime_s: float) -> str:
         if d == "auto" and key.split(".", 1)[1] in resolved:
             d = f"auto ({resolved[key.split('.', 1)[1]]:.4g} from the data)"
         fixed = " (fixed)" if key in s.space.fixed else ""
-        L.append(f"| {key}{fixed} | {_v(d)} | {_v(v)} |")
-    L += ["", "## Objective and fused APE, default against tuned", "",
-          "| drives | objective (default) | objective (tuned) | fused APE RMSE m (default) | fused APE RMSE m (tuned) |",
-          "|---|---:|---:|---:|---:|"]
-    gaps = []
+        rows.append([f"{key}{fixed}", _v(d), _v(v)])
+    L += ["## Tuned values", ""] + markdown_table(["key", "default", "tuned"], rows) + [""]
+    rows, gaps = [], []
     for part, d_rec, t_rec in (("training", default["train"], best["train"]),
                                ("held-out", default.get("test"), best.get("test"))):
         if d_rec is None:
             continue
         d_obj, t_obj = _obj(d_rec, 0), _obj(t_rec, 0)
         gaps.append((part, d_obj, t_obj))
-        L.append(f"| {part} (mean) | {_f(d_obj)} | {_f(t_obj)} | {_f(_mean(d_rec, FUSED_APE))} | "
-                 f"{_f(_mean(t_rec, FUSED_APE))} |")
+        rows.append([f"{part} (mean)", _f(d_obj), _f(t_obj), _f(_mean(d_rec, FUSED_APE)), _f(_mean(t_rec, FUSED_APE))])
         da, ta = _per_drive(d_rec, FUSED_APE), _per_drive(t_rec, FUSED_APE)
         do, to = _per_drive_obj(d_rec), _per_drive_obj(t_rec)
         for name in da:
-            L.append(f"| {part}: {name} | {_f(do.get(name))} | {_f(to.get(name))} | {_f(da[name])} | "
-                     f"{_f(ta.get(name))} |")
+            rows.append([f"{part}: {name}", _f(do.get(name)), _f(to.get(name)), _f(da[name]), _f(ta.get(name))])
+    L += ["## Objective and fused APE, default against tuned", ""] + markdown_table(
+        ["drives", "objective (default)", "objective (tuned)", "fused APE RMSE m (default)", "fused APE RMSE m (tuned)"], rows)
     L += ["", _generalisation(gaps), ""]
     if len(s.objectives) > 1:
-        L += ["## Pareto front", "", "| trial | " + " | ".join(o.name for o in s.objectives) + " |",
-              "|---|" + "---:|" * len(s.objectives)]
-        L += [f"| {f['number']} | " + " | ".join(_f(v) for v in f["values"]) + " |" for f in best["front"]]
+        L += ["## Pareto front", ""] + markdown_table(["trial"] + [o.name for o in s.objectives],
+                                                [[f["number"]] + [_f(v) for v in f["values"]] for f in best["front"]])
         L.append("")
     L += ["Files: `best.yaml` (use with `fusion-eval run -c best.yaml`), `trials.csv`, `trials/<n>.json` (every "
           "trial's metrics per drive), `default.json`, `study.journal` (Optuna's; the same command resumes it), plots "
@@ -197,8 +197,11 @@ def write(s: Setup, res: dict, runtime_s: float, with_plots: bool = True) -> lis
         write_json(out / "best.json", res["best"])
         files += ["best.yaml", "best.json"]
     atomic_write(out / "trials.csv", trials_csv(res["study"], s))
-    atomic_write(out / "tune.md", markdown(s, res, runtime_s))
+    md = markdown(s, res, runtime_s)
+    atomic_write(out / "tune.md", md)
     files += ["trials.csv", "tune.md"]
     if with_plots and res["best"] is not None:
         files += plots(res["study"], s)
-    return files
+    atomic_write(out / "report.html", html.page(md, out, [f for f in files if f.endswith(".png")],
+                                                inputs=dataset_files([*s.train, *s.test])))
+    return files + ["report.html"]

@@ -1,0 +1,112 @@
+"""Where a report's numbers come from: the version, the date, the command line and the input files with checksums.
+
+The date honours ``SOURCE_DATE_EPOCH`` (the reproducible-builds convention): with it set, two runs on the same
+inputs write the same bytes, reports included. Input files are those the dataset manifest names (stream paths and
+the calibration files they refer to); a folder (KITTI's ``oxts/``) gets one digest over its files' names and
+contents, so that a changed packet changes it.
+"""
+
+from __future__ import annotations
+
+import datetime as _dt
+import hashlib
+import os
+import shlex
+import sys
+from functools import lru_cache
+from pathlib import Path
+
+from . import __version__
+
+
+def date_utc() -> str:
+    epoch = os.environ.get("SOURCE_DATE_EPOCH")
+    t = _dt.datetime.fromtimestamp(int(epoch), _dt.timezone.utc) if epoch and epoch.isdigit() else \
+        _dt.datetime.now(_dt.timezone.utc)
+    return t.strftime("%Y-%m-%d %H:%M UTC")
+
+
+def command_line() -> str:
+    """The command as typed (``fusion-eval`` for the entry point's path), or the Python process's arguments."""
+    argv = list(sys.argv) or ["python"]
+    if Path(argv[0]).name in ("fusion-eval", "__main__.py"):
+        argv[0] = "fusion-eval"
+    return shlex.join(argv)
+
+
+def header() -> dict:
+    return {"version": __version__, "date": date_utc(), "command": command_line()}
+
+
+def header_line() -> str:
+    """The one line a Markdown report starts with, under its title."""
+    h = header()
+    return f"fusion-eval {h['version']}, {h['date']}: `{h['command']}`"
+
+
+@lru_cache(maxsize=256)
+def _digest(path: str, mtime_ns: int, size: int) -> tuple[str, int, int]:
+    """sha256 of a file, or of a folder's files (relative names and contents, in name order); (hex, bytes, files)."""
+    p = Path(path)
+    h = hashlib.sha256()
+    files = sorted(f for f in p.rglob("*") if f.is_file()) if p.is_dir() else [p]
+    total = 0
+    for f in files:
+        if p.is_dir():
+            h.update(str(f.relative_to(p)).encode() + b"\0")
+        with open(f, "rb") as fh:
+            for chunk in iter(lambda: fh.read(1 << 20), b""):
+                h.update(chunk)
+                total += len(chunk)
+    return h.hexdigest(), total, len(files)
+
+
+def _paths(entry, base: Path):
+    """The file paths a manifest stream entry names: its ``path`` and any nested ``file``."""
+    if isinstance(entry, dict):
+        for k, v in entry.items():
+            if k in ("path", "file") and isinstance(v, str):
+                yield base / v
+            else:
+                yield from _paths(v, base)
+
+
+def files(named: list[tuple[str, str | Path]]) -> list[dict]:
+    """(role, path) pairs as rows: streams (the roles of one path), path, sha256, bytes, files (1 for a file).
+    Unreadable ones are listed with ``sha256`` None (a report is not refused for a checksum)."""
+    seen: dict[str, dict] = {}
+    for role, p in named:
+        key = str(p)
+        if key in seen:
+            seen[key]["streams"].append(role)
+            continue
+        row = {"streams": [role], "path": key, "sha256": None, "bytes": None, "files": None}
+        try:
+            st = Path(p).stat()
+            row["sha256"], row["bytes"], row["files"] = _digest(str(Path(p).resolve()), st.st_mtime_ns, st.st_size)
+        except OSError:
+            pass
+        seen[key] = row
+    return list(seen.values())
+
+
+def input_files(description: dict) -> list[dict]:
+    """The input files a dataset's manifest names (its ``streams``, relative to its ``path``), as :func:`files`."""
+    base = Path(description.get("path") or ".")
+    base = base.parent if base.is_file() else base
+    return files([(stream, p) for stream, entry in (description.get("streams") or {}).items() for p in _paths(entry, base)])
+
+
+def dataset_files(paths) -> list[dict]:
+    """Rows for the datasets a sweep or a tune ran on: each one's manifest hashed (its data files are in each run's
+    own report); a folder without a manifest (a plain KITTI or EuRoC folder) listed unhashed, as its data may be
+    gigabytes of images the runs never read."""
+    rows = []
+    for p in dict.fromkeys(str(x) for x in paths):
+        path = Path(p)
+        manifest = path if path.is_file() else path / "dataset.yaml"
+        if manifest.is_file():
+            rows += files([("dataset manifest", manifest)])
+        else:
+            rows.append({"streams": ["dataset folder"], "path": p, "sha256": None, "bytes": None, "files": None})
+    return rows

@@ -1,0 +1,278 @@
+"""The run and sweep plots: what each figure must show (built by the ``*_figure`` helpers and inspected as
+matplotlib objects), the attitude / velocity error it draws, and the true biases of a simulated drive on the
+filter's clock."""
+
+from __future__ import annotations
+
+from pathlib import Path
+from types import SimpleNamespace
+
+import matplotlib
+import numpy as np
+import pytest
+import yaml
+
+from fusion_eval.commands.sweep import Task
+from fusion_eval.commands.sweep_summary import default_values
+from fusion_eval.datasets.truth import TruthBiases, read_imu_biases, truth_imu_biases
+from fusion_eval.errors import DataFormatError
+from fusion_eval.evaluation.run_metrics import VEL_FROM_POSITIONS, fused_att_vel_error, fused_error
+from fusion_eval.filters.layout import CANONICAL
+from fusion_eval.report import filter_plots, plots
+from fusion_eval.so3 import exp_so3, matrix_to_quat_xyzw
+from fusion_eval.types import PoseSeries
+
+matplotlib.use("Agg")
+import matplotlib.pyplot as plt  # noqa: E402
+
+METRIC = "fused_ape_trans_rmse_m"
+
+
+@pytest.fixture(autouse=True)
+def _close_figures():
+    yield
+    plt.close("all")
+
+
+def _circle(n: int = 400, dt_s: float = 0.1, with_velocity: bool = True) -> PoseSeries:
+    """A car on a circle of 50 m at 5 m/s, heading along the path, with a slow roll and pitch: ENU poses."""
+    t = 1000.0 + dt_s * np.arange(n)
+    w = 0.1
+    p = np.column_stack([50 * np.cos(w * (t - t[0])), 50 * np.sin(w * (t - t[0])), 0.5 * np.sin(0.3 * (t - t[0]))])
+    v = np.column_stack([-5 * np.sin(w * (t - t[0])), 5 * np.cos(w * (t - t[0])), 0.15 * np.cos(0.3 * (t - t[0]))])
+    from fusion_eval.so3 import euler_rpy_to_matrix
+
+    R = euler_rpy_to_matrix(0.02 * np.sin(t), 0.01 * np.cos(t), w * (t - t[0]) + np.pi / 2)
+    return PoseSeries(t_s=t, p_w_m=p, q_wb_xyzw=matrix_to_quat_xyzw(R), v_w_mps=v if with_velocity else None)
+
+
+def _filter_output(poses: PoseSeries, rng: np.random.Generator) -> SimpleNamespace:
+    """What the error functions read of a :class:`fusion_eval.replay.FilterOutput`."""
+    sigma = np.abs(rng.normal(0.1, 0.01, (len(poses), CANONICAL.n_core)))
+    return SimpleNamespace(fused=poses, sigma=sigma, smoothed=None)
+
+
+# --- attitude and velocity error (evaluation/run_metrics.py)
+
+def test_att_vel_error_is_zero_for_an_estimate_equal_to_the_truth():
+    gt = _circle()
+    filt = _filter_output(gt, np.random.default_rng(0))
+    av = fused_att_vel_error(gt, filt)
+    m = len(gt)
+    assert av["t_s"].shape == (m,)
+    for key in ("att_err_b_rad", "att_sigma_b_rad", "vel_err_w_mps", "vel_sigma_w_mps"):
+        assert av[key].shape == (m, 3), key
+    assert np.abs(av["att_err_b_rad"]).max() < 1e-7 and np.abs(av["vel_err_w_mps"]).max() < 1e-12
+    # the sigma columns are the layout's attitude and velocity blocks, not the position's
+    assert np.array_equal(av["att_sigma_b_rad"], filt.sigma[:, CANONICAL.sl("TH")])
+    assert np.array_equal(av["vel_sigma_w_mps"], filt.sigma[:, CANONICAL.sl("V")])
+    assert av["smoothed"] is None and av["vel_truth"] != VEL_FROM_POSITIONS
+    assert fused_error(gt, filt)["att_vel"]["att_err_b_rad"].shape == (m, 3)     # what the run's plot job gets
+
+
+def test_att_error_is_the_body_frame_rotation_of_a_known_perturbation():
+    gt = _circle()
+    phi_b = np.array([0.01, -0.02, 0.03])               # rad, fused = truth * Exp(phi) (right: body frame)
+    R_f = gt.R_wb() @ exp_so3(phi_b)
+    est = PoseSeries(t_s=gt.t_s, p_w_m=gt.p_w_m, q_wb_xyzw=matrix_to_quat_xyzw(R_f), v_w_mps=gt.v_w_mps + [0.1, 0, -0.2])
+    av = fused_att_vel_error(gt, _filter_output(est, np.random.default_rng(1)))
+    assert np.allclose(av["att_err_b_rad"], phi_b, atol=1e-9)
+    assert np.allclose(av["vel_err_w_mps"], [0.1, 0.0, -0.2], atol=1e-12)
+
+
+def test_truth_velocity_from_central_differences_when_the_truth_has_none():
+    gt = _circle(with_velocity=False)
+    exact = _circle().v_w_mps
+    est = PoseSeries(t_s=gt.t_s, p_w_m=gt.p_w_m, q_wb_xyzw=gt.q_wb_xyzw, v_w_mps=exact)
+    av = fused_att_vel_error(gt, _filter_output(est, np.random.default_rng(2)))
+    assert av["vel_truth"] == VEL_FROM_POSITIONS
+    # second-order differences: O(dt^2 v w^2) inside, first order at the two ends
+    assert np.abs(av["vel_err_w_mps"][1:-1]).max() < 1e-3 and np.abs(av["vel_err_w_mps"]).max() < 0.05
+    fig = plots.att_vel_error_figure(av)
+    assert len(fig.axes) == 6 and "central differences" in fig._suptitle.get_text()
+
+
+def test_att_vel_figure_without_velocity_has_the_attitude_column_only():
+    gt = _circle()
+    av = fused_att_vel_error(gt, _filter_output(gt, np.random.default_rng(3)))
+    av = {**av, "vel_err_w_mps": None, "vel_sigma_w_mps": None}
+    fig = plots.att_vel_error_figure(av)
+    assert len(fig.axes) == 3 and fig.axes[0].get_ylabel() == "roll [deg]"
+    assert "fused_error_att_vel_3sigma.png" in filter_plots(True)
+
+
+# --- biases
+
+def _bias_run(n: int = 600):
+    t = 2000.0 + 0.1 * np.arange(n)
+    ba = np.column_stack([0.01 + 0.001 * np.sin(0.05 * t), np.full(n, -0.004), np.full(n, 0.002)])
+    bg = np.column_stack([np.full(n, 1e-4), np.full(n, -2e-4), np.full(n, 3e-4)])
+    sigma = np.full((n, CANONICAL.n_core), 1e-3)
+    sigma[:, CANONICAL.sl("BG")] = 2e-5
+    sigma[:20, CANONICAL.sl("BA")] = 0.5                  # the prior: 50 times the bias
+    return t, ba, bg, sigma
+
+
+def test_biases_figure_has_one_panel_per_axis_and_limits_from_the_estimate():
+    t, ba, bg, sigma = _bias_run()
+    fig = plots.biases_figure(t, ba, bg, sigma)
+    assert len(fig.axes) == 6
+    labels = [ax.get_ylabel() for ax in fig.axes]
+    assert labels[0] == "accelerometer bias x [mg]" and labels[3] == "gyro bias x [deg/h]"
+    lo, hi = fig.axes[0].get_ylim()
+    b_mg = ba[:, 0] / plots.MG_MPS2
+    assert lo <= b_mg.min() and hi >= b_mg.max()
+    assert hi - lo < 0.2 * 3 * 0.5 / plots.MG_MPS2           # not stretched to the prior's band
+    lo, hi = fig.axes[3].get_ylim()
+    assert lo < 1e-4 / plots.DEG_H_RPS < hi
+    assert not any(line.get_label() == "true bias (simulator)" for ax in fig.axes for line in ax.lines)
+
+
+def test_biases_figure_overlays_the_true_biases():
+    t, ba, bg, sigma = _bias_run()
+    t_true = np.arange(t[0] - 5.0, t[-1] + 5.0 + 1e-9, 0.05)         # beyond the filter's span at both ends
+    ba_true = np.column_stack([np.interp(t_true, t, ba[:, i]) + 1e-3 for i in range(3)])
+    truth = TruthBiases(t_s=t_true, accel_b_mps2=ba_true, gyro_b_rps=np.tile(bg[0] * 1.1, (t_true.size, 1)))
+    fig = plots.biases_figure(t, ba, bg, sigma, truth)
+    for i, ax in enumerate(fig.axes):
+        true = [line for line in ax.lines if line.get_label() == "true bias (simulator)"]
+        assert len(true) == 1, i
+        x = true[0].get_xdata()
+        # the filter's span (to one truth step), on the same clock
+        assert x.min() == pytest.approx(0.0, abs=0.051) and x.max() == pytest.approx(t[-1] - t[0], abs=0.051)
+        want = (truth.accel_b_mps2[:, i] / plots.MG_MPS2) if i < 3 else (truth.gyro_b_rps[:, i - 3] / plots.DEG_H_RPS)
+        assert true[0].get_ydata()[-1] == pytest.approx(want[-1])
+    assert "true bias (simulator)" in [tx.get_text() for tx in fig.legends[0].get_texts()]
+
+
+def test_truth_biases_read_from_the_manifest_entry(tmp_path):
+    (tmp_path / "truth").mkdir()
+    rows = "\n".join(f"{100 + 0.01 * i:.6f},0.01,0.02,0.03,0.001,0.002,0.003" for i in range(5))
+    (tmp_path / "truth" / "imu_biases.csv").write_text("t_s,ba_x_mps2,ba_y_mps2,ba_z_mps2,bg_x_rps,bg_y_rps,bg_z_rps\n"
+                                                        + rows + "\n")
+    desc = {"manifest": str(tmp_path / "dataset.yaml"), "truth": {"imu_biases": "truth/imu_biases.csv"}}
+    tb = truth_imu_biases(desc, imu_time_offset_s=0.25)
+    assert tb.t_s[0] == pytest.approx(100.25) and tb.accel_b_mps2.shape == (5, 3)
+    assert np.allclose(tb.gyro_b_rps[-1], [0.001, 0.002, 0.003])
+    assert truth_imu_biases({"manifest": desc["manifest"], "truth": None}) is None
+    (tmp_path / "bad.csv").write_text("t,bx,by,bz,gx,gy,gz\n" + rows + "\n")
+    with pytest.raises(DataFormatError, match="header"):
+        read_imu_biases(tmp_path / "bad.csv")
+
+
+def test_simulated_truth_biases_are_on_the_imu_clock(tmp_path):
+    from fusion_eval.datasets.manifest import load_dataset
+    from fusion_eval.simulate.dataset import simulate
+
+    simulate(tmp_path / "sim", "urban", 5.0, 3, "automotive")
+    ds = load_dataset(tmp_path / "sim")
+    tb = truth_imu_biases(ds.description, 0.0)
+    # the same stamps as the IMU stream the filter runs on (the file keeps microseconds)
+    assert tb is not None and tb.t_s.shape == ds.imu.t_s.shape
+    assert np.abs(tb.t_s - ds.imu.t_s).max() < 1e-6
+
+
+# --- consistency, segments, trials
+
+def _series(dof: int, n: int = 200) -> dict:
+    rng = np.random.default_rng(dof)
+    v = rng.chisquare(dof, n)
+    return {"t_s": 10.0 + np.arange(n) * 0.1, "values": v, "dof": dof, "bounds_95": [0.2, 9.3], "mean": float(v.mean()),
+            "fraction_in_95": 0.95}
+
+
+def test_consistency_figure_explains_bounds_and_dof():
+    cons = {"nees": {"position": _series(3), "attitude": _series(3)}, "nis": {"lidar": _series(6)}}
+    fig = plots.consistency_figure(cons, 10.0)
+    assert len(fig.axes) == 3
+    texts = [t.get_text() for t in fig.legends[0].get_texts()]
+    assert any("95 %" in t and "bounds" in t for t in texts) and any(t.startswith("dof") for t in texts)
+    for ax in fig.axes:                           # the legend's lines are the ones drawn in every axis
+        assert {ln.get_label() for ln in ax.lines} >= set(texts)
+
+
+def test_segment_map_labels_are_explained():
+    n = 300
+    p = np.column_stack([np.linspace(0, 299, n), np.zeros(n), np.zeros(n)])
+    err = np.where((p[:, 0] >= 100) & (p[:, 0] < 200), 2.0, 0.5)
+    ev = SimpleNamespace(ref_p_m=p, ape_err_m=err, ape_t_s=np.arange(n) * 0.1)
+    segs = [{"index": k, "start_m": 100.0 * k, "end_m": 100.0 * k + 99, "start_s": 10.0 * k, "end_s": 10.0 * k + 9.9,
+             "rmse_m": {"fused": float(np.sqrt(np.mean(err[100 * k:100 * k + 100] ** 2)))}} for k in range(3)]
+    seg = {"by": "distance", "length": 100.0, "segments": segs, "worst": [1, 0], "primary": "fused", "secondary": None}
+    fig = plots.segment_map_figure({"fused": ev}, seg)
+    notes = [t.get_text() for t in fig.axes[0].texts]
+    assert notes[0] == "#1 (2.00 m)" and len(notes) == 2
+    caption = " ".join(t.get_text() for t in fig.texts)
+    assert "segment k" in caption and "100 m" in caption and "largest fused APE translation RMSE" in caption
+
+
+def test_trials_figure_shows_the_spread_of_each_metric():
+    rng = np.random.default_rng(4)
+    per = [{"trial": i, "fused.ape.translation_m.rmse": 0.7 + 0.05 * rng.normal(), "gnss.ape.translation_m.rmse":
+            2.4 + 0.1 * rng.normal(), "ratios.fused_over_gnss": 0.3 + 0.02 * rng.normal()} for i in range(8)]
+    stats = {}
+    for key in per[0]:
+        if key != "trial":
+            v = np.array([r[key] for r in per])
+            stats[key] = {"mean": v.mean(), "std": v.std(ddof=1), "ci95_mean": [v.mean() - 0.01, v.mean() + 0.01]}
+    fig = plots.trials_figure({"n": 8, "per_trial": per + [{"trial": 8, "failed": "diverged"}], "stats": stats})
+    shown = [ax for ax in fig.axes if ax.get_visible()]
+    assert len(shown) == 3                          # one panel, one scale, per metric present
+    for ax, key in zip(shown, ("fused.ape.translation_m.rmse", "gnss.ape.translation_m.rmse", "ratios.fused_over_gnss")):
+        dots = [ln for ln in ax.lines if ln.get_marker() == "o"]
+        assert len(dots) == 1 and len(dots[0].get_ydata()) == 8
+        band = ax.patches[0]                             # the mean +/- std band
+        st = stats[key]
+        assert band.get_y() == pytest.approx(st["mean"] - st["std"])
+        assert band.get_y() + band.get_height() == pytest.approx(st["mean"] + st["std"])
+
+
+# --- sweep
+
+def _sweep_rows(values=(0.01, 0.1, 1.0), key="imu.gyro_noise_dps_sqrthz"):
+    base = {"dataset": "/d/kitti-00", "variant": "eskf", "status": "ok"}
+    rows = [{**base, "setting": "default", key: "", METRIC: 0.72}]
+    rows += [{**base, "setting": f"{key}={v}", key: v, METRIC: 0.7 + v} for v in values]
+    rows.append({**base, "setting": "other", key: "", "gnss.std_m": [0.5, 0.5, 1.0], METRIC: 0.8})
+    return rows
+
+
+def _markers(ax, gid: str) -> int:
+    return sum(len(ln.get_xdata()) for ln in ax.lines if ln.get_gid() == gid)
+
+
+def test_sweep_panel_shows_every_setting_and_the_default():
+    key = "imu.gyro_noise_dps_sqrthz"
+    rows = _sweep_rows()
+    fig = plots.sweep_params_figure(rows, [key, "gnss.std_m"], METRIC, {("/d/kitti-00", "eskf"): {key: 0.134}})
+    overview, panel = fig.axes[0], fig.axes[1]
+    assert _markers(overview, "settings") + _markers(overview, "default") == len(rows)     # every setting
+    assert _markers(panel, "settings") == 3 and _markers(panel, "default") == 1             # the key's, and the default
+    star = next(ln for ln in panel.lines if ln.get_gid() == "default")
+    assert star.get_xdata()[0] == 0.134 and star.get_ydata()[0] == 0.72
+    assert panel.get_xscale() == "log"                                   # 0.01 .. 1: two decades
+    ticks = [float(x) for x in panel.get_xticks()]
+    assert ticks == [0.01, 0.1, 0.134, 1.0] or ticks == [0.01, 0.1, 1.0]    # at the values, none overlapping
+    assert "default" in [t.get_text() for t in overview.get_yticklabels()]
+    assert "the default configuration" in [t.get_text() for t in fig.legends[0].get_texts()]
+
+
+def test_sweep_panel_without_the_default_value_keeps_its_line():
+    key = "lidar.time_offset_s"
+    rows = _sweep_rows(values=(-0.05, 0.0, 0.05), key=key)
+    fig = plots.sweep_params_figure(rows, [key], METRIC, None)
+    panel = fig.axes[1]
+    assert _markers(panel, "default") == 0 and panel.get_xscale() == "linear"     # zero and negative values
+    assert any(ln.get_linestyle() == ":" and ln.get_ydata()[0] == 0.72 for ln in panel.lines)
+
+
+def test_default_values_read_from_the_default_run(tmp_path):
+    key_auto, key_set = "imu.gyro_noise_dps_sqrthz", "lidar.relative_pos_std_frac"
+    tasks = [Task(i, "/d/x", "eskf", None, s, {}, None, False, str(tmp_path)) for i, s in (("a1", "default"), ("b2", "s1"))]
+    (tmp_path / "runs" / "a1").mkdir(parents=True)
+    cfg = {"imu": {"gyro_noise_dps_sqrthz": "auto"}, "lidar": {"relative_pos_std_frac": 0.01},
+           "applied": {"imu_noise": {"gyro_noise_dps_sqrthz": 0.134}}}
+    (tmp_path / "runs" / "a1" / "config.resolved.yaml").write_text(yaml.safe_dump(cfg))
+    got = default_values(tasks, tmp_path, [key_auto, key_set, "gnss.std_m"])
+    assert got == {("/d/x", "eskf"): {key_auto: 0.134, key_set: 0.01}}
+    assert default_values(tasks, tmp_path / "elsewhere", [key_set]) == {}

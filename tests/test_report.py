@@ -1,0 +1,173 @@
+"""The report layer's formats: tables (Markdown, LaTeX), JUnit XML, provenance, report.md's wording, report.html
+(self-contained; rendered in headless Chromium where it is installed)."""
+
+from __future__ import annotations
+
+import base64
+import os
+import re
+import shutil
+import subprocess
+import xml.etree.ElementTree as ET
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from fusion_eval import provenance, tables
+from fusion_eval.commands.check import Row, junit
+from fusion_eval.report import html
+
+
+def test_markdown_table_aligns_escapes_and_formats():
+    lines = tables.markdown(["name", "value [m]"], [["a|b", 1.23456], ["c", None]], decimals=2)
+    assert lines[1].startswith("|:") and lines[1].endswith(":|")          # left, then right aligned
+    assert re.search(r"\| a\\\|b +\| +1\.23 \|", lines[2])                 # '|' escaped, 2 decimals
+    assert re.search(r"\| +n/a \|$", lines[3])
+    with pytest.raises(ValueError):
+        tables.markdown(["a", "b"], [[1, 2]], align="lrl")
+
+
+def test_latex_table_is_booktabs_and_escaped():
+    tex = tables.latex(["estimate", "error [%]"], [["`fused_x`", 0.5], ["a&b", None]], caption="APE of 95 % `x_y`",
+                       label="tab:t")
+    assert "\\toprule" in tex and "\\midrule" in tex and "\\bottomrule" in tex and "{lr}" in tex
+    assert "fused\\_x" in tex and "a\\&b" in tex and "error [\\%]" in tex and "`" not in tex
+    assert "\\caption{APE of 95 \\% x\\_y}" in tex and "\\label{tab:t}" in tex
+    assert tex.count("\\begin{table}") == 1 and tex.count("\\end{table}") == 1
+
+
+def test_junit_is_valid_xml_for_any_metric_name():
+    xml = junit([Row("a<b&\"c\"", 1.0, 2.0, "REGRESSION"), Row("fused.ape.rmse", 1.0, 1.0, "ok")],
+                [("x < y", False, "x (1) < y (0)"), ("y > 0", True, "y (1) > 0")])
+    root = ET.fromstring(xml.encode())
+    assert root.tag == "testsuite" and root.get("tests") == "4" and root.get("failures") == "2"
+    cases = root.findall("testcase")
+    assert cases[0].get("name") == 'a<b&"c"' and cases[0].find("failure") is not None
+    assert cases[1].find("failure") is None and cases[3].find("failure") is None
+    assert "rule fails" in cases[2].find("failure").get("message")
+
+
+def test_provenance_date_honours_source_date_epoch(monkeypatch):
+    monkeypatch.setenv("SOURCE_DATE_EPOCH", "1700000000")
+    assert provenance.date_utc() == "2023-11-14 22:13 UTC"
+    monkeypatch.setenv("SOURCE_DATE_EPOCH", "not-a-number")       # ignored, not an error
+    assert provenance.date_utc().endswith(" UTC")
+
+
+def test_input_checksums_follow_the_content(tmp_path):
+    (tmp_path / "d").mkdir()
+    (tmp_path / "d" / "a.txt").write_text("1 2 3\n")
+    (tmp_path / "b.txt").write_text("x\n")
+    desc = {"path": str(tmp_path), "streams": {"imu": {"path": "d"}, "lidar": {"path": "b.txt", "times": {"file": "b.txt"}},
+                                               "gnss": {"path": "missing.txt"}}}
+    rows = {Path(r["path"]).name: r for r in provenance.input_files(desc)}
+    assert rows["d"]["files"] == 2 - 1 and rows["b.txt"]["streams"] == ["lidar", "lidar"]
+    assert rows["missing.txt"]["sha256"] is None
+    import hashlib
+    assert rows["b.txt"]["sha256"] == hashlib.sha256(b"x\n").hexdigest()
+    before = rows["d"]["sha256"]
+    (tmp_path / "d" / "a.txt").write_text("1 2 4\n")
+    os.utime(tmp_path / "d", ns=(1, 1))      # a folder's digest is keyed on its own stat too: force a new key
+    assert {Path(r["path"]).name: r for r in provenance.input_files(desc)}["d"]["sha256"] != before
+
+
+def _png(path: Path, seed: int) -> None:
+    import matplotlib
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    fig, ax = plt.subplots(figsize=(3, 2))
+    ax.plot(np.random.default_rng(seed).normal(size=20))
+    fig.savefig(path)
+    plt.close(fig)
+
+
+def test_html_page_is_self_contained(tmp_path):
+    _png(tmp_path / "a.png", 0)
+    _png(tmp_path / "b.png", 1)
+    md = "# fusion-eval run: x\n\nfusion-eval 0.1.0, 2026-01-01 00:00 UTC: `fusion-eval run`\n\n## Summary\n\n" + \
+        "\n".join(tables.markdown(["estimate", "APE [m]"], [["fused", 0.7]])) + "\n\n![a](a.png)\n![gone](gone.png)\n"
+    page = html.page(md, tmp_path, images=["a.png", "b.png"], inputs=[{"streams": ["imu"], "path": "oxts", "sha256": "ab" * 32,
+                                                                       "bytes": 1234, "files": 3}])
+    assert "<title>fusion-eval run: x</title>" in page and "<table>" in page and "APE [m]" in page
+    srcs = re.findall(r'src="([^"]+)"', page)
+    assert len(srcs) == 2 and all(s.startswith("data:image/png;base64,") for s in srcs)      # a.png once, b.png added
+    assert base64.b64decode(srcs[0].split(",", 1)[1]) == (tmp_path / "a.png").read_bytes()
+    assert "figure gone.png was not written" in page
+    assert not re.search(r"(src|href)=\"(https?:)?//", page)          # nothing fetched from a network
+    assert "ab" * 32 in page and "1,234" in page and 'id="provenance"' in page
+    assert page.count("2026-01-01 00:00 UTC") == 0                       # the body's header line is the page's header
+
+
+def test_run_writes_report_html_tex_and_plain_wording(slice_run):
+    md = (slice_run / "report.md").read_text()
+    assert md.splitlines()[2].startswith("fusion-eval ") and " UTC: `" in md.splitlines()[2]
+    assert "outages none" not in md and "{'" not in md and "no outages" in md
+    assert "Time offsets added to each stream's stamps: none" in md
+    tex = (slice_run / "metrics.tex").read_text()
+    assert "\\toprule" in tex and "imu\\_only" in tex
+    page = (slice_run / "report.html").read_text()
+    assert page.startswith("<!DOCTYPE html>") and "Summary against ground truth" in page
+    n_png = len([p for p in slice_run.iterdir() if p.suffix == ".png"])
+    assert n_png > 0 and page.count("data:image/png;base64,") == n_png
+    assert "oxts" in page and re.search(r"<code>[0-9a-f]{64}</code>", page)
+
+
+def _console(stderr: str) -> list[str]:
+    """The page's console messages in Chromium's log (``--enable-logging=stderr``: ``INFO:CONSOLE(...)`` lines)."""
+    return [ln for ln in stderr.splitlines() if ":CONSOLE" in ln or "Uncaught" in ln]
+
+
+def _chromium() -> str | None:
+    return next((c for c in ("chromium", "chromium-browser", "google-chrome") if shutil.which(c)), None)
+
+
+@pytest.mark.slow
+@pytest.mark.skipif(_chromium() is None, reason="no headless Chromium here (Debian: apt-get install chromium; .ci/run "
+                                                 "installs it where it can)")
+def test_report_html_renders_in_chromium_without_console_errors(slice_run, tmp_path):
+    """Render the run's page in headless Chromium: no console errors, the table and every figure laid out and
+    decoded (the page's own DOM, dumped after load), and a screenshot that is not blank."""
+    exe = _chromium()
+    url = (slice_run / "report.html").resolve().as_uri()
+    common = [exe, "--headless", "--no-sandbox", "--disable-gpu", "--hide-scrollbars", "--no-first-run",
+              "--disable-extensions", f"--user-data-dir={tmp_path / 'profile'}", "--virtual-time-budget=5000"]
+    # a probe appended to a copy of the page: it writes what it found into the DOM that --dump-dom prints
+    probe = tmp_path / "probe.html"
+    probe.write_text((slice_run / "report.html").read_text().replace("</body>", """<script>
+window.addEventListener('load', function () {
+  var imgs = Array.from(document.images), t = document.querySelector('main table');
+  var r = t ? t.getBoundingClientRect() : null;
+  var out = document.createElement('pre'); out.id = 'probe';
+  out.textContent = JSON.stringify({images: imgs.length,
+    decoded: imgs.filter(function (i) { return i.complete && i.naturalWidth > 0 && i.getBoundingClientRect().width > 50; }).length,
+    table_w: r ? r.width : 0, table_h: r ? r.height : 0});
+  document.body.appendChild(out);
+});
+</script></body>"""))
+    dom = subprocess.run(common + ["--dump-dom", probe.as_uri()], capture_output=True, text=True, timeout=120)
+    import json
+    found = json.loads(re.search(r'<pre id="probe">(.*?)</pre>', dom.stdout).group(1).replace("&quot;", '"'))
+    assert found["images"] >= 3 and found["decoded"] == found["images"], found
+    assert found["table_w"] > 300 and found["table_h"] > 60, found
+
+    shot = tmp_path / "shot.png"
+    r = subprocess.run(common + ["--enable-logging=stderr", "--v=0", "--window-size=1400,2000", f"--screenshot={shot}", url],
+                       capture_output=True, text=True, timeout=120)
+    assert not _console(r.stderr), _console(r.stderr)
+    # the same detector on a page with an error does see it (the check can fail)
+    bad = tmp_path / "bad.html"
+    bad.write_text("<html><body><p>x</p><script>undefinedFunction();</script></body></html>")
+    r_bad = subprocess.run(common + ["--enable-logging=stderr", "--v=0", f"--screenshot={tmp_path / 'bad.png'}", bad.as_uri()],
+                           capture_output=True, text=True, timeout=120)
+    assert any("undefinedFunction" in ln for ln in _console(r_bad.stderr)), r_bad.stderr[-2000:]
+    import matplotlib.image as mpimg
+
+    img = mpimg.imread(shot)
+    assert img.shape[0] == 2000 and img.shape[1] == 1400
+    assert img[..., :3].std() > 0.05          # not a blank page: text, tables and plots
+    keep = os.environ.get("FUSION_EVAL_SCREENSHOT_DIR")       # CI or a reviewer may keep the screenshot to look at
+    if keep:
+        Path(keep).mkdir(parents=True, exist_ok=True)
+        shutil.copy(shot, Path(keep) / "report_html.png")
