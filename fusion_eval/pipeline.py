@@ -134,10 +134,10 @@ def execute(ds: Dataset, cfg: dict, *, dataset_path: str | Path | None = None, c
 
 def filter_and_evaluate(ds: Dataset, cfg: dict, sh: Shared, pool, *, dataset_path: str | Path | None = None,
                         config_source: str = "default", progress: Callable[[float], None] | None = None,
-                        out: StagedDir | None = None, trials: int = 1) -> RunResult:
+                        out: StagedDir | None = None, trials: int = 1, monitor=None) -> RunResult:
     """The filter's part of a run on prepared data (:func:`share`): replay, evaluate, summarise, write. ``cfg``
     may differ from the one ``sh`` was prepared with only in what the filter alone reads (a sweep's noise
-    settings, :func:`fusion_eval.commands.sweep.batch_key`)."""
+    settings, :func:`fusion_eval.commands.sweep.batch_key`). ``monitor``: see :func:`fusion_eval.replay.replay`."""
     prep, gt, ref, ev_cfg = sh.prep, sh.prep.groundtruth, sh.ref, cfg["evaluation"]
     timings = dict(sh.timings)
     s = settings_for(cfg, prep)
@@ -149,7 +149,8 @@ def filter_and_evaluate(ds: Dataset, cfg: dict, sh: Shared, pool, *, dataset_pat
     stages.start("filter")
     # overflow in absurd settings is reported as divergence (exit 3), not as numpy warnings
     with np.errstate(over="ignore", invalid="ignore"):
-        filt = replay(prep, s, progress=None if progress is None else stages, imu_only=series["imu_only"])
+        filt = replay(prep, s, progress=None if progress is None else stages, imu_only=series["imu_only"],
+                      monitor=monitor)
     timings["filter"] = time.perf_counter() - t
     t = time.perf_counter()
     series["fused"] = filt.fused

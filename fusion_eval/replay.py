@@ -57,9 +57,11 @@ def dead_reckoning(prep: Prepared, s: Settings) -> PoseSeries:
 
 
 def replay(prep: Prepared, s: Settings, progress: Callable[[float], None] | None = None,
-           imu_only: PoseSeries | None = None) -> FilterOutput:
+           imu_only: PoseSeries | None = None, monitor=None) -> FilterOutput:
     """Replay every enabled observation through the configured filter; ``imu_only`` (dead reckoning) is
-    computed here unless given (the pipeline computes it first, to evaluate it while the filter runs)."""
+    computed here unless given (the pipeline computes it first, to evaluate it while the filter runs).
+    ``monitor``: watches the innovations during a compiled replay and may stop it by raising
+    (:func:`fusion_eval.filters.compiled_replay.run`); the Python loop does not call it."""
     t_imu = np.ascontiguousarray(prep.imu.t_s)
     k0 = prep.k_start
     t_end = float(t_imu[-1])
@@ -77,7 +79,7 @@ def replay(prep: Prepared, s: Settings, progress: Callable[[float], None] | None
 
     it, tol = s.filter.iterations, s.filter.iteration_tol
     if compiled_replay.usable(kf, bound, smoother, it, s.filter.replay):
-        nis = _replay_compiled(kf, bound, times, which, index, order, progress)
+        nis = _replay_compiled(kf, bound, times, which, index, order, progress, monitor)
     else:
         nis = _replay_python(kf, bound, times, which, index, order, smoother, it, tol, progress)
     kf.predict_to(t_end)
@@ -162,9 +164,9 @@ def _replay_python(kf, bound, times, which, index, order, smoother, it, tol, pro
     return nis
 
 
-def _replay_compiled(kf, bound, times, which, index, order, progress) -> dict:
+def _replay_compiled(kf, bound, times, which, index, order, progress, monitor=None) -> dict:
     """The event loop in compiled chunks (:mod:`fusion_eval.filters.compiled_replay`); the same record."""
-    nis_ev, ok_ev, ld_ev = compiled_replay.run(kf, bound, times, which, index, order, progress)
+    nis_ev, ok_ev, ld_ev = compiled_replay.run(kf, bound, times, which, index, order, progress, monitor)
     ts, pos = times[order], which[order]
     out = {}
     for c, b in enumerate(bound):

@@ -12,6 +12,7 @@ drives of ../shared/data/kitti-raw/2011_09_30/ held out. Prints the fused APE RM
 from __future__ import annotations
 
 import argparse
+import csv
 import json
 import subprocess
 import sys
@@ -49,8 +50,14 @@ def main() -> None:
         one = sorted(runs)[1]
         t_tune = timed(["tune", "--objective", "nll", "--trials", str(a.trials), "-j", "2", "-o", str(tmp / "t"),
                         "--no-plots"])
+        t_full = timed(["tune", "--objective", "nll", "--trials", str(a.trials), "-j", "2", "-o", str(tmp / "t-full"),
+                        "--no-plots", "--no-prune"])
+        states = [r["state"] for r in csv.DictReader((tmp / "t" / "trials.csv").open())]
+        best = {k: json.loads((tmp / k / "best.json").read_text())["values"][0] for k in ("t", "t-full")}
         print(f"one default run {one:.2f} s (median of 3); tune, {a.trials} trials, nll, -j 2: {t_tune:.1f} s = "
-              f"{t_tune / one:.1f}x one run (target <= 20x)")
+              f"{t_tune / one:.1f}x one run (target <= 20x); {states.count('PRUNED')} trials pruned (inside the "
+              f"replay: nll); without pruning {t_full:.1f} s = {t_full / one:.1f}x, pruned/unpruned "
+              f"{t_tune / t_full:.2f}; best nll {best['t']:.5f} pruned, {best['t-full']:.5f} unpruned")
         if a.skip_quality:
             return
         held = [str(RAW / d) for d in sorted(p.name for p in RAW.glob("*_sync"))] if RAW.is_dir() else []

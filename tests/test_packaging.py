@@ -90,4 +90,4 @@ def test_the_wheel_works_from_any_directory(wheel_site, tmp_path):
     assert r.returncode == 0 and (cwd / "T" / "best.yaml").exists(), r.stderr
     r = _run(wheel_site, cwd, code=_api_example())
     assert r.returncode == 0, r.stderr
-    assert (cwd / "out" / "metrics.json").exists() and len(r.stdout.split()) == 2
+    assert (cwd / "results" / "api-run" / "metrics.json").exists() and len(r.stdout.split()) == 2

@@ -223,3 +223,54 @@ def test_noise_scales_multiply_the_density_the_filter_uses_and_leave_the_estimat
     # only the filter reads them: runs that differ in them share one preparation
     plain = default_config()
     assert batch_key("d", cfg) == batch_key("d", plain)
+
+
+def test_the_replay_monitor_sees_the_nll_the_metrics_report(tmp_path):
+    """Over all of a replay's events, the NLL the pruning watch computes is innovations.nll_per_update."""
+    from fusion_eval import session
+    from fusion_eval.pipeline import filter_and_evaluate, share
+    from fusion_eval.pool import Inline
+    from fusion_eval.tuning.worker import nll_so_far
+
+    ds_path = make_slice(tmp_path / "ds", 400)
+    ds = session.dataset(ds_path)
+    cfg = session.resolve(session.request(overrides={"output.plots": False}), ds)
+    seen = []
+    res = filter_and_evaluate(ds, cfg, share(ds, cfg, Inline()), Inline(),
+                              monitor=lambda j, nis, ld, dof: seen.append((j, nll_so_far(nis, ld, dof[:j]), dof.size)))
+    assert len(seen) > 10 and [s[0] for s in seen] == sorted(s[0] for s in seen) and seen[-1][0] == seen[-1][2]
+    assert seen[-1][1] == pytest.approx(res.metrics["innovations"]["nll_per_update"], rel=1e-12)
+
+
+def test_a_hopeless_trial_is_pruned_inside_the_replay(tmp_path):
+    """With thresholds below any trial's NLL, the watch stops the replay at its first checkpoint: the step is
+    pruned with one report and no metrics (no evaluation ran); without thresholds the same trial completes."""
+    from fusion_eval.tuning import objectives as O
+    from fusion_eval.tuning.worker import CHECKPOINTS, REPORTS, Job, score
+
+    ds = str(make_slice(tmp_path / "ds", 400))
+    obj = (O.parse("nll"),)
+    low = tuple((i, -1e9) for i in range(REPORTS))
+    pruned = score(Job(0, {}, None, (), (ds,), 1, obj, low))
+    assert pruned["status"] == "pruned" and pruned["values"] is None
+    st = pruned["steps"][0]
+    assert st["status"] == "pruned" and len(st["checkpoints"]) == 1 and "metrics" not in st
+    done = score(Job(1, {}, None, (), (ds,), 1, obj, ()))
+    assert done["status"] == "ok" and len(done["steps"][0]["checkpoints"]) == len(CHECKPOINTS)
+    assert done["steps"][0]["checkpoints"][0] == pytest.approx(st["checkpoints"][0], rel=1e-12)
+    # a truth objective has no report inside the replay (its value needs the evaluation)
+    truth = score(Job(2, {}, None, (), (ds,), 1, (O.parse("fused.ape.rmse"),), low))
+    assert truth["status"] == "ok" and "checkpoints" not in truth["steps"][0]
+
+
+def test_prune_thresholds_are_medians_per_report_index():
+    from types import SimpleNamespace
+
+    from fusion_eval.tuning import study as S
+    from fusion_eval.tuning.worker import REPORTS
+
+    trials = [SimpleNamespace(intermediate_values={0: float(k), REPORTS - 1: 10.0 + k}) for k in range(5)]
+    fake = SimpleNamespace(get_trials=lambda deepcopy=False, states=None: trials)
+    th = dict(S.prune_thresholds(fake, 2))
+    assert th == {0: 2.0, REPORTS - 1: 12.0}
+    assert S.prune_thresholds(SimpleNamespace(get_trials=lambda deepcopy=False, states=None: trials[:4]), 2) == ()

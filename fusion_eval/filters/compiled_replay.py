@@ -165,10 +165,12 @@ def usable(kf, bound, smoother, iterations: int, mode: str) -> bool:
             and all(b.kernel is not None and b.kernel.fn in KERNELS for b in bound))
 
 
-def run(kf, bound, times: np.ndarray, which: np.ndarray, index: np.ndarray, order: np.ndarray, progress=None):
+def run(kf, bound, times: np.ndarray, which: np.ndarray, index: np.ndarray, order: np.ndarray, progress=None,
+        monitor=None):
     """Replay the events through ``kf`` in compiled chunks, in the order ``order``; returns each event's NIS
     and acceptance in that order (NIS NaN where an event updated nothing), and writes the adapted noise
-    back to each observation's state."""
+    back to each observation's state. ``monitor(j, nis, logdet_S, dof)``, called after each chunk with the first
+    ``j`` events' records (views) and every event's dof, may raise to stop the replay (a tune's pruning)."""
     from .layout import NOMINAL
     from .observations import KERNELS
 
@@ -198,7 +200,12 @@ def run(kf, bound, times: np.ndarray, which: np.ndarray, index: np.ndarray, orde
     wn, wm, dx, cols = linalg.workspace(N_MAX, M_MAX)
     clone_rows = np.ascontiguousarray(kf.layout.clone_rows(), np.int64)
     # chunks of events: progress, and a Ctrl-C that numba's loop cannot see is taken between them
-    chunk = max(1, min(CHUNK_EVENTS, n_ev // 50 if progress is not None else CHUNK_EVENTS))
+    chunk = max(1, min(CHUNK_EVENTS, n_ev // 50 if progress is not None or monitor is not None else CHUNK_EVENTS))
+    if monitor is not None:
+        dof_slot = np.zeros(nk)
+        for b, c in zip(bound, slot):
+            dof_slot[c] = b.dof
+        dof_ev = dof_slot[kinds]
     j = 0
     try:
         while j < n_ev:
@@ -212,6 +219,8 @@ def run(kf, bound, times: np.ndarray, which: np.ndarray, index: np.ndarray, orde
             j = j_stop
             if progress is not None:
                 progress(j / n_ev)
+            if monitor is not None:
+                monitor(j, nis_out[:j], ld_out[:j], dof_ev)
     except np.linalg.LinAlgError as exc:
         _sync(kf, st, clone_t)
         raise FilterDivergedError(f"filter diverged at t={kf.t:.3f} s: innovation covariance not invertible ({exc})") \

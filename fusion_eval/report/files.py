@@ -31,7 +31,8 @@ def versions() -> dict:
     from importlib.metadata import PackageNotFoundError, version
 
     out = {"fusion-eval": __version__, "python": platform.python_version()}
-    for pkg in ("numpy", "scipy", "evo", "numba", "pymap3d", "matplotlib", "pandas", "pyyaml", "click"):
+    for pkg in ("numpy", "scipy", "evo", "numba", "pymap3d", "matplotlib", "pandas", "pyyaml", "click", "optuna", "dask",
+                "tabulate", "markdown", "tqdm"):
         try:
             out[pkg] = version(pkg)
         except PackageNotFoundError:

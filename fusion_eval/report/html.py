@@ -23,6 +23,7 @@ import markdown as md_lib
 from .. import provenance
 from .files import versions
 
+WIDE_PX = 1400          # figures this wide (several panels) start at the page's width, the others two side by side
 _IMG = re.compile(r'<img alt="([^"]*)" src="([^"]+)"\s*/?>')
 
 _CSS = """
@@ -77,8 +78,16 @@ def _figure(folder: Path, alt: str, src: str) -> str:
     except OSError:
         return f'<p class="missing">figure {name} was not written</p>'
     mime = "image/svg+xml" if src.endswith(".svg") else "image/png"
-    return (f'<figure><img alt="{alt}" src="data:{mime};base64,{data}" title="{name}: click to widen">'
+    wide = ' class="wide"' if _png_width(p) >= WIDE_PX else ""
+    return (f'<figure{wide}><img alt="{alt}" src="data:{mime};base64,{data}" title="{name}: click to widen or narrow">'
             f"<figcaption>{name}</figcaption></figure>")
+
+
+def _png_width(path: Path) -> int:
+    """A PNG's width in pixels from its IHDR chunk (0 for anything else)."""
+    with open(path, "rb") as fh:
+        head = fh.read(24)
+    return int.from_bytes(head[16:20], "big") if head[:8] == b"\x89PNG\r\n\x1a\n" else 0
 
 
 def _int(v) -> str:

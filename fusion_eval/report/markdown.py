@@ -200,6 +200,8 @@ def report_md(dataset: str, config_name: str, evals: dict, ratios: dict, cfg: di
              " (reference interpolated at the estimate's stamps: linear position, SLERP rotation)")
           + f"; alignment: **{ev0.get('alignment', 'none')}**. Matched poses are in the table above.",
           "", "Span: " + describe_span(ev0.get("span") if (ev0.get("span") or {}).get("mode") == "common" else None) + "."]
+    if plots_written:       # right after the summary: what a reader looks at first
+        L += ["", "## Plots", ""] + [f"![{p}]({p})" for p in plots_written]
     if metrics.get("trials"):
         from ..trials import markdown as trials_md
 
@@ -243,7 +245,5 @@ def report_md(dataset: str, config_name: str, evals: dict, ratios: dict, cfg: di
     if "lidar_anchor_t_s" in applied:
         L.append(f"- Lidar odometry anchored at the ground-truth pose at t = {applied['lidar_anchor_t_s']:.6f} s; "
                  f"{'resampled on the IMU stamps' if cfg['lidar']['interpolate_to_imu'] else 'at its own stamps'}.")
-    if plots_written:
-        L += ["", "## Plots", ""] + [f"![{p}]({p})" for p in plots_written]
     L += ["", "## Configuration", "", "```yaml", yaml.safe_dump(cfg, sort_keys=False).rstrip(), "```", ""]
     return "\n".join(L)

@@ -24,7 +24,7 @@ from ..errors import ConfigError
 from ..outputs import alive, atomic_write
 from .objectives import Objective
 from .space import Space
-from .worker import Job, score
+from .worker import REPORTS, Job, score
 
 log = logging.getLogger(__name__)
 
@@ -91,7 +91,7 @@ def open_study(s: Setup):
     study = optuna.create_study(study_name=STUDY, storage=storage, sampler=sampler, directions=directions,
                                 load_if_exists=True)
     ident = {"space": s.space.digest(), "objectives": [o.name for o in s.objectives], "train": list(s.train),
-             "seeds": s.seeds, "base_config": s.base_config, "sets": list(s.sets)}
+             "seeds": s.seeds, "base_config": s.base_config, "sets": list(s.sets), "pruning_reports": REPORTS}
     old = study.user_attrs.get("ident")
     if old is None:
         study.set_user_attr("ident", ident)
@@ -153,14 +153,17 @@ def counted(study) -> int:
                if t.state in (S.COMPLETE, S.PRUNED, S.RUNNING) or (t.state == S.FAIL and not t.user_attrs.get("interrupted")))
 
 
-def prune_thresholds(study, n_steps: int) -> tuple[float, ...]:
-    """Per step, the median of the finished trials' running mean of objective 0 (the median rule)."""
+def prune_thresholds(study, n_steps: int) -> tuple[tuple[int, float], ...]:
+    """(report index, the median of the finished trials' reports there) for every report before the last step's
+    end that at least :data:`MIN_FOR_PRUNING` finished trials made (the median rule, at each report)."""
     optuna = _optuna()
-    done = [t for t in study.get_trials(deepcopy=False, states=(optuna.trial.TrialState.COMPLETE,))
-            if len(t.intermediate_values) >= n_steps]
-    if len(done) < MIN_FOR_PRUNING or n_steps < 2:
-        return ()
-    return tuple(statistics.median(t.intermediate_values[i] for t in done) for i in range(n_steps - 1))
+    done = [t for t in study.get_trials(deepcopy=False, states=(optuna.trial.TrialState.COMPLETE,))]
+    out = []
+    for idx in range(n_steps * REPORTS - 1):
+        vals = [t.intermediate_values[idx] for t in done if idx in t.intermediate_values]
+        if len(vals) >= MIN_FOR_PRUNING:
+            out.append((idx, float(statistics.median(vals))))
+    return tuple(out)
 
 
 class Executor:
@@ -309,10 +312,16 @@ def _default_point(s: Setup, default: dict) -> dict:
 
 def _tell(study, t, overrides: dict, rec: dict, rec_dir: Path) -> None:
     optuna = _optuna()
-    if len(study.directions) == 1:        # the running mean over (drive, seed) steps: what the median rule compares
-        ok = [st["values"][0] for st in rec["steps"] if st["status"] == "ok"]
-        for i in range(len(ok)):
-            t.report(float(sum(ok[:i + 1]) / (i + 1)), i)
+    if len(study.directions) == 1:        # what the median rule compares: see worker.REPORTS
+        ok = []
+        for i, st in enumerate(rec["steps"]):
+            for c, v in enumerate(st.get("checkpoints") or []):
+                if v == v:                    # not NaN
+                    t.report(float(v), i * REPORTS + c)
+            if st["status"] != "ok":
+                break
+            ok.append(st["values"][0])
+            t.report(float(sum(ok) / len(ok)), i * REPORTS + REPORTS - 1)
     t.set_user_attr("status", rec["status"])
     t.set_user_attr("overrides", overrides)
     if rec["error"]:

@@ -17,6 +17,12 @@ import numpy as np
 
 from .objectives import Objective, flatten
 
+# Pruning reports. Each (drive, seed) step reports the objective's running mean at its end; where the objective is
+# the innovation NLL alone, also at these fractions of the replay's events (the NLL per update over the events so
+# far, in the running mean with the steps before): a hopeless trial stops inside the replay, before its evaluation.
+CHECKPOINTS = (0.25, 0.5, 0.75)
+REPORTS = len(CHECKPOINTS) + 1      # reports per step; step i's are indices i * REPORTS + 0 .. REPORTS - 1 (its end)
+
 _DATASETS: "OrderedDict[str, object]" = OrderedDict()
 _SHARED: "OrderedDict[str, object]" = OrderedDict()
 _KEEP = 8          # preparations kept per worker (a few drives x a few GNSS settings; each holds the drive's arrays)
@@ -31,7 +37,7 @@ class Job:
     datasets: tuple[str, ...]                # absolute paths
     seeds: int                               # Monte-Carlo seeds per drive (trials.apply)
     objectives: tuple[Objective, ...]
-    prune_above: tuple[float, ...] = ()      # step i: stop when the running mean of objective 0 exceeds it
+    prune_above: tuple[tuple[int, float], ...] = ()   # (report index, threshold): stop when report > threshold
 
 
 def _dataset(path: str):
@@ -58,7 +64,45 @@ def _shared(ds, path: str, cfg: dict, pool):
     return _SHARED[key]
 
 
-def _step(job: Job, path: str, seed: int) -> dict:
+class _Pruned(Exception):
+    """Raised by :class:`_NllWatch` inside the replay: the trial is pruned."""
+
+
+def _nll_weight(job: Job) -> float | None:
+    """The objective 0 as a multiple of the innovation NLL (its weight), or None if it is anything else."""
+    terms = job.objectives[0].terms
+    return sum(w for w, _ in terms) if all(k == "innovations.nll_per_update" for _, k in terms) else None
+
+
+class _NllWatch:
+    """The NLL per update of the replay's first events at each checkpoint: the same quantity as
+    ``innovations.nll_per_update`` (``0.5 (NIS + ln det S + m ln 2 pi)`` over every update, rejected ones included),
+    over the events so far. Records each checkpoint's report; raises :class:`_Pruned` above its threshold."""
+
+    def __init__(self, weight: float, before: list[float], step: int, thresholds: dict[int, float]):
+        self.weight, self.before, self.step, self.thresholds = weight, before, step, thresholds
+        self.reports: list[float] = []
+
+    def __call__(self, j: int, nis: np.ndarray, logdet_S: np.ndarray, dof: np.ndarray) -> None:
+        while len(self.reports) < len(CHECKPOINTS) and j >= CHECKPOINTS[len(self.reports)] * dof.size:
+            k = int(CHECKPOINTS[len(self.reports)] * dof.size)
+            value = (sum(self.before) + self.weight * nll_so_far(nis[:k], logdet_S[:k], dof[:k])) / (len(self.before) + 1)
+            self.reports.append(value)
+            thr = self.thresholds.get(self.step * REPORTS + len(self.reports) - 1)
+            if thr is not None and math.isfinite(value) and value > thr:     # NaN (no update yet): never pruned on
+                raise _Pruned
+
+
+def nll_so_far(nis: np.ndarray, logdet_S: np.ndarray, dof: np.ndarray) -> float:
+    """The innovations' NLL per update over a replay's events (NaN NIS: an event that updated nothing); over all of
+    them it is ``innovations.nll_per_update`` (tested)."""
+    sel = np.isfinite(nis)
+    if not sel.any():
+        return math.nan
+    return float(np.mean(0.5 * (nis[sel] + logdet_S[sel] + dof[sel] * np.log(2.0 * np.pi))))
+
+
+def _step(job: Job, path: str, seed: int, watch: _NllWatch | None = None) -> dict:
     from .. import session
     from .. import trials as mc
     from ..errors import FilterDivergedError, FusionEvalError
@@ -67,16 +111,20 @@ def _step(job: Job, path: str, seed: int) -> dict:
 
     rec = {"dataset": path, "seed": seed}
     try:
+        if watch is not None:
+            rec["checkpoints"] = watch.reports          # filled during the replay
         ds = _dataset(path)
         req = session.request(config=job.base_config, sets=job.sets, overrides={**job.overrides, "output.plots": False})
         cfg = mc.apply(session.resolve(req, ds), seed)
         pool = Inline()
         sh = _shared(ds, path, cfg, pool)
         with np.errstate(all="ignore"):
-            res = filter_and_evaluate(ds, cfg, sh, pool, dataset_path=path, config_source=req.source)
+            res = filter_and_evaluate(ds, cfg, sh, pool, dataset_path=path, config_source=req.source, monitor=watch)
         flat = flatten(res.metrics)
         rec.update(status="ok", values=[o.value(flat) for o in job.objectives], metrics=flat,
                    resolved={k: _resolved(res.metrics, k) for k in ("imu_noise",)})
+    except _Pruned:
+        rec.update(status="pruned", error=None)
     except FilterDivergedError as exc:
         rec.update(status="diverged", error=str(exc))
     except FusionEvalError as exc:
@@ -92,17 +140,22 @@ def _resolved(metrics: dict, key: str):
 
 def score(job: Job) -> dict:
     """The trial's record: every (drive, seed) step with its metrics, the objectives' means over the steps, and a
-    status: ok, pruned (its running mean of objective 0 went above the median of the finished trials at that step),
-    diverged or failed (the first step that did, with its message)."""
+    status: ok, pruned (a report of objective 0, inside a replay or at a step's end, went above the median of the
+    finished trials' reports at that point), diverged or failed (the first step that did, with its message)."""
     steps = []
     pairs = [(p, s) for p in job.datasets for s in range(job.seeds)]
+    thresholds = dict(job.prune_above)
+    weight = _nll_weight(job)
     for i, (path, seed) in enumerate(pairs):
-        st = _step(job, path, seed)
+        before = [s["values"][0] for s in steps]
+        watch = _NllWatch(weight, before, i, thresholds) if weight is not None else None
+        st = _step(job, path, seed, watch)
         steps.append(st)
         if st["status"] != "ok":
             return {"number": job.number, "status": st["status"], "error": st["error"], "steps": steps, "values": None}
         running = float(np.mean([s["values"][0] for s in steps]))
-        if i < len(job.prune_above) and i < len(pairs) - 1 and running > job.prune_above[i]:
+        thr = thresholds.get(i * REPORTS + REPORTS - 1)
+        if thr is not None and i < len(pairs) - 1 and running > thr:
             return {"number": job.number, "status": "pruned", "error": None, "steps": steps, "values": None}
     values = [float(np.mean([s["values"][k] for s in steps])) for k in range(len(job.objectives))]
     bad = [o.name for o, v in zip(job.objectives, values) if not math.isfinite(v)]
