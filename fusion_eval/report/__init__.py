@@ -61,6 +61,9 @@ def write_evaluation(out: StagedDir, res, plots_written: list[str], pool=None, a
     ``pool`` when given, while this process writes the rest), and the reports (Markdown, HTML). ``advance()`` is
     called as each file group and plot is done (progress)."""
     advance = advance or (lambda n=1: None)
+    # the input files' checksums (0.14 s on kitti-00's 4546 OXTS files) on a worker, while this process writes
+    dataset = res.resolved_extra.get("dataset") or {}
+    inputs = pool.submit(input_files, dataset) if pool is not None else None
     for ev in res.evals.values():
         for name, data in ev.zips.items():
             out.write_bytes(name, data)
@@ -102,7 +105,7 @@ def write_evaluation(out: StagedDir, res, plots_written: list[str], pool=None, a
     md = report_md(res.dataset, res.config_source, res.evals, res.ratios, res.cfg, res.prep.applied, res.prep.gnss_info,
                    res.metrics, plots_written)
     out.write_text("report.md", md)
-    inputs = input_files(res.resolved_extra.get("dataset") or {})
+    inputs = inputs.result() if inputs is not None else input_files(dataset)
     advance()
     if pool is not None:
         for f in futures:

@@ -47,7 +47,8 @@ h3 { font-size: 16px; }
 table { border-collapse: collapse; margin: 12px 0; font-size: 13px; font-variant-numeric: tabular-nums; display: block;
         overflow-x: auto; max-width: 100%; }
 th, td { padding: 4px 10px; border-bottom: 1px solid var(--line); white-space: nowrap; }
-th { background: var(--bg-alt); position: sticky; top: 0; text-align: left; }
+th { background: var(--bg-alt); position: sticky; top: 0; text-align: left; white-space: normal; max-width: 150px;
+     vertical-align: bottom; }
 tbody tr:nth-child(even) { background: #fafbfc; }
 tbody tr:hover { background: #eef3fb; }
 td:first-child { font-weight: 600; }
