@@ -98,6 +98,7 @@ def _batch(x0, P0, q, nodes, u_nodes, gnss, rel):
     return (cov @ eta).reshape(m, 6), cov
 
 
+@pytest.mark.slow
 def test_rts_equals_the_batch_least_squares_solution_on_a_linear_gaussian_model():
     """Position fixes and relative-position increments through a stochastic clone, some at sample stamps and some
     between them (partial intervals), one at the very first stamp: every smoothed mean and variance at the samples
@@ -196,6 +197,7 @@ def test_the_recomputed_intervals_are_the_filters_own(kitti_slice, monkeypatch, 
     assert checked > 50
 
 
+@pytest.mark.slow
 def test_a_run_writes_and_reports_the_smoothed_estimate(kitti_slice, tmp_path):
     from click.testing import CliRunner
 
