@@ -42,6 +42,9 @@ def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--trials", type=int, default=100)
     ap.add_argument("--skip-quality", action="store_true")
+    ap.add_argument("--seeds", type=int, default=3, help="Monte-Carlo seeds per drive of the quality studies (the "
+                    "objective's mean over them; the held-out figures are means over as many)")
+    ap.add_argument("--study-seeds", type=int, default=1, help="repeat each quality study with sampler seeds 0..N-1")
     a = ap.parse_args()
     with tempfile.TemporaryDirectory() as tmp:
         tmp = Path(tmp)
@@ -64,18 +67,19 @@ def main() -> None:
         cases = [("IMU+lidar+GNSS", "noise", (), "nll", []), ("IMU+lidar+GNSS", "noise", (), "fused.ape.rmse", []),
                  ("IMU+GNSS", "imu-gnss", ("-s", "filter.lidar_update=none"), "nll", held),
                  ("IMU+GNSS", "imu-gnss", ("-s", "filter.lidar_update=none"), "fused.ape.rmse", held)]
-        for i, (what, space, sets, obj, test) in enumerate(cases):
-            out = tmp / f"q{i}"
+        for i, (what, space, sets, obj, test), sd in ((i, c, sd) for i, c in enumerate(cases) for sd in range(a.study_seeds)):
+            out = tmp / f"q{i}-{sd}"
             args = ["tune", "--space", space, *sets, "--objective", obj, "--trials", str(a.trials), "-j", "2",
-                    "-o", str(out), "--no-plots"] + [x for d in test for x in ("--test", d)]
+                    "--seeds", str(a.seeds), "--seed", str(sd), "-o", str(out), "--no-plots"] + \
+                [x for d in test for x in ("--test", d)]
             dt = timed(args)
             d = json.loads((out / "default.json").read_text())
             b = json.loads((out / "best.json").read_text())
             dflt = {**ape(d["train"]), **ape(d.get("test"))}
             tuned = {**ape(b["train"]), **ape(b.get("test"))}
             cells = ", ".join(f"{k}: {dflt[k]:.3f} -> {tuned.get(k, float('nan')):.3f}" for k in dflt)
-            print(f"{what}, objective {obj} ({dt:.0f} s): fused APE RMSE m, default -> tuned: {cells}")
-
+            print(f"{what}, objective {obj}, sampler seed {sd}, {a.seeds} MC seeds ({dt:.0f} s): fused APE RMSE m, "
+                  f"default -> tuned: {cells}", flush=True)
 
 if __name__ == "__main__":
     main()
