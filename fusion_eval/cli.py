@@ -358,6 +358,9 @@ def check(ctx, metrics_path, baseline, rtol, atol, patterns, rules, junit_path, 
         return
     res = run_check(metrics_path, baseline, rtol, atol, tuple(patterns), tuple(rules), junit_path, summary_path,
                     None if trial_stat == "none" else trial_stat)
+    if ctx.obj["quiet"]:            # one line for scripts: the verdict (the exit code says it too)
+        click.echo("check: PASS" if res.ok else "check: FAIL (regression or failed rule)")
+        sys.exit(0 if res.ok else 1)
     w = max(len(r.metric) for r in res.rows)
     click.echo(f"{'metric':<{w}}  {'baseline':>12}  {'current':>12}  {'change':>10}  verdict")
     for r in res.rows:
@@ -462,7 +465,7 @@ def tune(ctx, datasets, space, objectives, n_trials, test, out_dir, sampler, see
         if bar is not None:
             bar.close()
     if ctx.obj["quiet"]:
-        click.echo(res["setup"].out_dir)
+        click.echo(out_dir)
     else:
         click.echo((res["setup"].out_dir / "tune.md").read_text())
         click.echo(f"wrote {res['setup'].out_dir}/ ({res['runtime_s']:.1f} s)")

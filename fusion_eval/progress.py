@@ -135,7 +135,9 @@ class Display(Stages):
             self._end_stage()
             self.name = None
             if not self.tty and self.times:
-                self.stream.write("stage times: " + ", ".join(f"{n} {t:.1f} s" for n, t in self.times) + "\n")
+                # wall time spent in each stage (work of one stage that overlaps another, such as the evaluations
+                # that run alongside the filter, counts where it was waited for)
+                self.stream.write("stage times (wall): " + ", ".join(f"{n} {t:.1f} s" for n, t in self.times) + "\n")
                 self.stream.flush()
             self.times = []
 
@@ -159,7 +161,7 @@ class Counter:
             if self.bar is None:
                 self.bar = tqdm(total=max(total, 1), desc=self.label, file=self.stream, **_size(),
                                 bar_format="{desc}: {percentage:3.0f}%|{bar:30}| {n_fmt}/{total_fmt} "
-                                           "[{elapsed}<{remaining}] {postfix}")
+                                           "[{elapsed}<{remaining}]{postfix}")
             self.bar.total = max(total, 1)
             self.bar.set_postfix_str(f"failed {failed}" + (f", {note}" if note else ""), refresh=False)
             self.bar.update(done - self.bar.n)

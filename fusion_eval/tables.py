@@ -67,12 +67,15 @@ def latex(header: Sequence[str], rows: Iterable[Sequence[Any]], align: str | Non
         return tab + "\n"
     esc = "".join(_LATEX_ESCAPES.get(ch, ch) for ch in strip.sub(r"\1", caption))
     lab = f"\\label{{{label}}}\n" if label else ""
+    # wide tables (a run's eight columns) are scaled down to the text width, never up
+    tab = f"\\resizebox{{\\ifdim\\width>\\linewidth\\linewidth\\else\\width\\fi}}{{!}}{{%\n{tab}}}"
     return f"\\begin{{table}}[t]\n\\centering\n\\caption{{{esc}}}\n{lab}{tab}\n\\end{{table}}\n"
 
 
 def latex_document(tables: Sequence[str], title: str) -> str:
     """Tables as a ``.tex`` file to ``\\input`` into a paper: a comment naming what it holds and the packages it needs."""
-    return (f"% {title}\n% written by fusion-eval; needs \\usepackage{{booktabs}}; \\input{{}} this file into a document\n\n"
+    return (f"% {title}\n% written by fusion-eval; needs \\usepackage{{booktabs}} and \\usepackage{{graphicx}}; "
+            "\\input{} this file into a document\n\n"
             + "\n".join(tables))
 
 

@@ -67,7 +67,7 @@ def test_display_off_a_terminal_writes_one_line_per_stage():
     d.close()
     lines = buf.getvalue().splitlines()
     assert lines[:3] == ["load ...", "evaluate (4) ...", "write ..."]
-    assert len(lines) == 4 and lines[3].startswith("stage times: load ") and "write" in lines[3]
+    assert len(lines) == 4 and lines[3].startswith("stage times (wall): load ") and "write" in lines[3]
 
 
 def test_display_on_a_terminal_draws_bars():
@@ -111,7 +111,7 @@ def test_non_tty_run_shows_its_stages_on_stderr(kitti_slice, tmp_path):
     assert r.returncode == 0, r.stderr
     stages = [ln for ln in r.stderr.splitlines() if ln.endswith(" ...")]
     assert stages == ["load ...", "prepare ...", "filter ...", "evaluate (4) ...", "write ..."], r.stderr
-    assert "stage times:" in r.stderr and r.stdout.rstrip().endswith("open report.html)")
+    assert "stage times (wall):" in r.stderr and r.stdout.rstrip().endswith("open report.html)")
 
 
 def test_library_chatter_is_hidden_below_minus_vv():

@@ -171,3 +171,15 @@ window.addEventListener('load', function () {
     if keep:
         Path(keep).mkdir(parents=True, exist_ok=True)
         shutil.copy(shot, Path(keep) / "report_html.png")
+
+
+@pytest.mark.skipif(shutil.which("pdflatex") is None, reason="no pdflatex here (Debian: texlive-latex-recommended)")
+def test_metrics_tex_compiles_and_fits_the_page(slice_run, tmp_path):
+    doc = tmp_path / "d.tex"
+    doc.write_text("\\documentclass{article}\\usepackage{booktabs}\\usepackage{graphicx}\\begin{document}"
+                   f"\\input{{{slice_run / 'metrics.tex'}}}\\end{{document}}\n")
+    r = subprocess.run(["pdflatex", "-interaction=nonstopmode", "-halt-on-error", doc.name], cwd=tmp_path,
+                       capture_output=True, text=True, timeout=120)
+    assert r.returncode == 0, r.stdout[-2000:]
+    log = (tmp_path / "d.log").read_text(errors="replace")
+    assert "Overfull \\hbox" not in log and (tmp_path / "d.pdf").stat().st_size > 1000

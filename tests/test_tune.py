@@ -115,6 +115,10 @@ def test_an_objective_the_runs_do_not_have_is_refused_naming_it(tmp_path):
     r = CliRunner().invoke(main, ["tune", str(ds), "--objective", "fused.ape.rmsx", "--trials", "2", "-j", "1",
                                   "-o", str(tmp_path / "t")])
     assert r.exit_code == 2 and "fused.ape.rmsx" in r.output and "did you mean" in r.output, r.output
+    assert not (tmp_path / "t").exists()          # refused before any trial: no folder left behind
+    r = CliRunner().invoke(main, ["tune", str(ds), "--objective", "foo.bar", "--trials", "2", "-j", "1",
+                                  "-o", str(tmp_path / "t2")])
+    assert r.exit_code == 2 and "e.g. nll, nis, fused.ape.rmse" in r.output and not (tmp_path / "t2").exists(), r.output
 
 
 def _trials(out: Path) -> list[dict]:

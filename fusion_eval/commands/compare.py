@@ -275,9 +275,10 @@ def _markdown(name: str, rows: list[dict], truth_body, plots: bool, sp: dict | N
     if n_trials > 1:
         L += [f"Means over {n_trials} Monte-Carlo trials (the seeds of every random element; APE: mean +/- std); the "
               "plots and trajectories are trial 0's, every trial's table is in compare.json.", ""]
-    L += markdown(header, body, align="llrrrrrlllllr")
+    L += ["## Summary against ground truth", ""] + markdown(header, body, align="llrrrrrlllllr")
     if truth_body:
         L += ["", f"Ground truth body velocity RMS: lateral {truth_body['lateral']:.3f} m/s, vertical {truth_body['vertical']:.3f} m/s."]
     if plots:
-        L += ["", "![APE over time](ape_over_time.png)", "![biases](biases.png)", "![body velocity](body_velocity.png)"]
+        L += ["", "## Plots", "", "![APE over time](ape_over_time.png)", "![biases](biases.png)",
+              "![body velocity](body_velocity.png)"]
     return "\n".join(L) + "\n"

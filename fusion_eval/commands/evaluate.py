@@ -85,7 +85,7 @@ def run_evaluate(inputs: list, out_dir: Path, ref_times: Path | None = None, tim
                 plots.plot_drift(out.path("kitti_drift.png"), evals)
                 written.append("kitti_drift.png")
             if metrics["segments"]:
-                plots.plot_segment_map(out.path("segments_map.png"), evals, metrics["segments"])
+                plots.plot_segment_map(out.path("segments_map.png"), evals, metrics["segments"], up_axis=up)
                 written.append("segments_map.png")
         md = _report(metrics, written)
         out.write_text("report.md", md)
@@ -128,9 +128,32 @@ def _summary_table(m: dict) -> tuple[list[str], list[list], str]:
 
 def _latex(m: dict) -> str:
     e, ref = m["evaluation"], Path(m["reference"]).name
+    label = "tab:evaluate-" + "".join(c if c.isalnum() else "-" for c in Path(m["reference"]).stem)
     return latex_document([latex(*_summary_table(m), caption=f"APE and RPE against {ref} (evo; association "
-                                 f"{e['association']}, alignment {e['alignment']}).", label="tab:evaluate")],
+                                 f"{e['association']}, alignment {e['alignment']}).", label=label)],
                           f"fusion-eval evaluate: {ref}")
+
+
+def _alignment(a: dict) -> str:
+    """The fitted alignment in words: its rotation as an angle about an axis, the translation, the scale (the full
+    numbers are in metrics.json)."""
+    import numpy as np
+    from scipy.spatial.transform import Rotation
+
+    out = []
+    if a.get("rotation") is not None:
+        rv = Rotation.from_matrix(np.asarray(a["rotation"], float)).as_rotvec()
+        ang = float(np.linalg.norm(rv))
+        axis = ", ".join(f"{v:+.3f}" for v in (rv / ang if ang > 0 else rv))
+        out.append(f"rotation {np.degrees(ang):.3f} deg about ({axis})")
+    if a.get("translation_m") is not None:
+        out.append("translation (" + ", ".join(f"{v:.3f}" for v in a["translation_m"]) + ") m")
+    if a.get("scale") is not None:
+        out.append(f"scale {a['scale']:.6f}")
+    rest = {k: v for k, v in a.items() if k not in ("rotation", "translation_m", "scale")}
+    if rest:
+        out.append(json.dumps(rest))
+    return ", ".join(out) or json.dumps(a)
 
 
 def _report(m: dict, plots: list[str]) -> str:
@@ -153,7 +176,7 @@ def _report(m: dict, plots: list[str]) -> str:
         if d.get("note"):
             L.append(f"\n- {k}: {d['note']}.")
         if d.get("alignment"):
-            L.append(f"\n- {k}: alignment {json.dumps(d['alignment'])}.")
+            L.append(f"\n- {k}: alignment {_alignment(d['alignment'])}.")
     L += drift_section(m) + segments_section(m)
     if plots:
         L += ["", "## Plots", ""] + [f"![{p}]({p})" for p in plots]

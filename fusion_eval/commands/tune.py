@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import os
+import shutil
 import time
 from pathlib import Path
 from typing import Callable
@@ -56,7 +57,15 @@ def run_tune(train: list[str], test: list[str], space: str, objectives: list[str
               jobs=jobs or min(os.cpu_count() or 1, 4), scheduler=scheduler, dask_local=dask_local, prune=prune)
     session.request(sets=s.sets)         # a bad --set is refused before any work
     t0 = time.perf_counter()
-    res = run_study(s, progress=progress)
+    new_dir = not s.out_dir.exists()
+    try:
+        res = run_study(s, progress=progress)
+    except ConfigError:
+        # refused before any trial (an objective the runs have no metric for, the default configuration failing):
+        # a folder this call made holds nothing worth keeping
+        if new_dir and not any((s.out_dir / "trials").glob("*.json")):
+            shutil.rmtree(s.out_dir, ignore_errors=True)
+        raise
     files = write(s, res, time.perf_counter() - t0, with_plots=plots)
     return {"setup": s, "result": res, "files": files, "runtime_s": time.perf_counter() - t0}
 

@@ -5,7 +5,7 @@ tables, fenced code), so the text, the tables and the figures are those of ``rep
 copy to drift). Around it: a header (what ran, version, date, command line), a table of contents, the plots
 embedded as ``data:`` URIs (base64 PNG), and a provenance section (versions, input files with sha256).
 
-Static images, not an interactive plotting library: the default run's page is about 1.3 MB with every plot, opens
+Static images, not an interactive plotting library: the default run's page is about 1.8 MB with every plot, opens
 without a network or a JavaScript engine, prints to PDF as it looks, and shows the very figures ``report.md``
 links. Plotly's offline bundle alone is 3.6 MB (the budget is 5 MB). A click on a figure widens it to the page
 width (a few lines of script; without script the page is the same, only the click does nothing).
@@ -44,9 +44,11 @@ nav a:hover { color: var(--accent); }
 main { flex: 1; min-width: 0; padding: 8px 32px 48px; max-width: 1400px; }
 h2 { margin-top: 32px; padding-bottom: 4px; border-bottom: 1px solid var(--line); font-size: 19px; }
 h3 { font-size: 16px; }
-table { border-collapse: collapse; margin: 12px 0; font-size: 13px; font-variant-numeric: tabular-nums; display: block;
-        overflow-x: auto; max-width: 100%; }
-th, td { padding: 4px 10px; border-bottom: 1px solid var(--line); white-space: nowrap; }
+table { border-collapse: collapse; margin: 12px 0; font-size: 13px; font-variant-numeric: tabular-nums; }
+@media screen { table { display: block; overflow-x: auto; max-width: 100%; } }
+th, td { padding: 4px 10px; border-bottom: 1px solid var(--line); }
+td { white-space: nowrap; }
+td code { white-space: normal; word-break: break-all; }
 th { background: var(--bg-alt); position: sticky; top: 0; text-align: left; white-space: normal; max-width: 150px;
      vertical-align: bottom; }
 tbody tr:nth-child(even) { background: #fafbfc; }
@@ -61,7 +63,8 @@ pre { background: var(--bg-alt); padding: 10px 12px; overflow-x: auto; font-size
 code { font-family: ui-monospace, SFMono-Regular, Menlo, Consolas, monospace; }
 .missing { color: #b00020; }
 @media (max-width: 900px) { nav { display: none; } figure { width: 100%; } main { padding: 8px 12px; } }
-@media print { nav { display: none; } figure { width: 100%; page-break-inside: avoid; } }
+@media print { nav { display: none; } figure { width: 100%; page-break-inside: avoid; } table { font-size: 9px; }
+  td { white-space: normal; } }
 """
 
 # widen a figure on click; nothing else runs
@@ -105,8 +108,8 @@ def _provenance(inputs: list[dict] | None) -> str:
             f"<td>{'' if r['files'] is None else r['files']}</td>"
             f"<td>{_int(r['bytes'])}</td>"
             f"<td><code>{r['sha256'] or 'not hashed'}</code></td></tr>" for r in inputs)
-        out += ["<h3>Input files</h3>", "<p>sha256 of each file the dataset manifest names; of a folder, over its files' "
-                "relative names and contents in name order.</p>",
+        out += ["<h3>Input files</h3>", "<p>sha256 of each input file; of a folder, over its files' relative names and "
+                "contents in name order.</p>",
                 "<table><thead><tr><th>path</th><th>streams</th><th>files</th><th>bytes</th><th>sha256</th></tr></thead>"
                 f"<tbody>{body}</tbody></table>"]
     return "\n".join(out)

@@ -620,9 +620,15 @@ def plot_consistency(path: Path, cons: dict, t0: float) -> None:
     _save(consistency_figure(cons, t0), path)
 
 
-def segment_map_figure(evals: dict, seg: dict):
+_PLANE = {"z": ((0, 1), ("East [m]", "North [m]")), "y": ((0, 2), ("x [m]", "z [m]")),   # not a state index
+          "x": ((1, 2), ("y [m]", "z [m]"))}                                                   # not a state index
+
+
+def segment_map_figure(evals: dict, seg: dict, up_axis: str = "z"):
     """The figure of :func:`plot_segment_map`, with the worst segments labelled and a caption saying what the
-    labels are."""
+    labels are. ``up_axis``: the reference frame's vertical axis; the map is the plane across it (ENU: East-North;
+    KITTI camera poses, y down: x-z)."""
+    (i0, i1), (xlabel, ylabel) = _PLANE[up_axis]
     a, b = seg.get("primary", "fused"), seg.get("secondary")
     f = evals[a]
     lid = evals.get(b) if b else None
@@ -630,18 +636,18 @@ def segment_map_figure(evals: dict, seg: dict):
     fig, axes = plt.subplots(1, panels, figsize=(7 * panels, 6.6), squeeze=False)
     p = f.ref_p_m
     k = _every(len(p))
-    sc = axes[0, 0].scatter(p[k, 0], p[k, 1], c=f.ape_err_m[k], s=3, cmap="viridis")
+    sc = axes[0, 0].scatter(p[k, i0], p[k, i1], c=f.ape_err_m[k], s=3, cmap="viridis")
     fig.colorbar(sc, ax=axes[0, 0], label=f"{a} APE [m]")
     axes[0, 0].set_title(f"{a} error along the route")
     if panels == 2:
         diff = f.ape_err_m - np.interp(f.ape_t_s, lid.ape_t_s, lid.ape_err_m)
         lim = float(np.percentile(np.abs(diff), 98)) or 1.0
-        sc = axes[0, 1].scatter(p[k, 0], p[k, 1], c=diff[k], s=3, cmap="coolwarm", vmin=-lim, vmax=lim)
+        sc = axes[0, 1].scatter(p[k, i0], p[k, i1], c=diff[k], s=3, cmap="coolwarm", vmin=-lim, vmax=lim)
         fig.colorbar(sc, ax=axes[0, 1], label=f"{a} APE - {b} APE [m] (blue: {a} better)")
         axes[0, 1].set_title(f"Where {a} is better (blue) or worse (red) than {b}")
     d = np.concatenate([[0.0], np.cumsum(np.linalg.norm(np.diff(p, axis=0), axis=1))])
     worst = seg.get("worst", [])[:5]  # not a state index
-    xy = p[:, :2]  # not a state index: east, north of the route
+    xy = p[:, [i0, i1]]        # the map's two coordinates of the route
     span = float(np.ptp(xy, axis=0).max()) or 1.0
     placed: list[np.ndarray] = []
     for i in worst:
@@ -654,29 +660,32 @@ def segment_map_figure(evals: dict, seg: dict):
         axes[0, 0].plot(*xy[k], "o", ms=5, mfc="none", mec="red", mew=1.2)
         rmse = s["rmse_m"].get(a)
         # a route that passes a place twice puts two worst segments side by side: step their labels down
-        near = sum(np.linalg.norm(q - xy[k]) < 0.04 * span for q in placed)
+        near = sum(np.linalg.norm(q - xy[k]) < 0.15 * span for q in placed)   # a label is ~0.15 of the map wide
         placed.append(xy[k])
         axes[0, 0].annotate(f"#{i}" + (f" ({rmse:.2f} m)" if rmse is not None else ""), xy[k],
                             xytext=(5, 4 - 11 * near), textcoords="offset points", fontsize=8, color="red")
     for ax in axes[0]:
         ax.set_aspect("equal", adjustable="box")
-        ax.set_xlabel("East [m]")
-        ax.set_ylabel("North [m]")
+        ax.set_xlabel(xlabel)
+        ax.set_ylabel(ylabel)
         ax.grid(alpha=0.3)
     if worst:
         unit = "s" if seg["by"] == "time" else "m"
         what = "of time" if seg["by"] == "time" else "along the reference (ground-truth) route"
-        fig.text(0.06, 0.015, f"Red circles, #k (RMSE): segment k, the k-th window of {seg['length']:g} {unit} {what} "
-                 f"(counted from 0); the {len(worst)} segments with the largest {a} APE translation RMSE, marked at "
-                 "their middle.", fontsize=8, color="dimgray")
-    fig.subplots_adjust(left=0.06, right=0.97, top=0.94, bottom=0.12, wspace=0.25)
+        import textwrap
+
+        caption = (f"Red circles, #k (RMSE): segment k, the k-th window of {seg['length']:g} {unit} {what} "
+                   f"(counted from 0); the {len(worst)} segments with the largest {a} APE translation RMSE, marked at "
+                   "their middle.")
+        fig.text(0.06, 0.015, textwrap.fill(caption, 95 * panels), fontsize=8, color="dimgray")
+    fig.subplots_adjust(left=0.1 if panels == 1 else 0.06, right=0.97, top=0.94, bottom=0.14, wspace=0.25)
     return fig
 
 
-def plot_segment_map(path: Path, evals: dict, seg: dict) -> None:
+def plot_segment_map(path: Path, evals: dict, seg: dict, up_axis: str = "z") -> None:
     """Top view colored by the primary estimate's error, and by its error minus the secondary's (for a
     run: fused minus lidar, where fusion helps or hurts), with the worst segments labelled."""
-    _save(segment_map_figure(evals, seg), path)
+    _save(segment_map_figure(evals, seg, up_axis), path)
 
 
 def plot_generic_trajectories(path: Path, ref, estimates: dict, up_axis: str = "z") -> None:

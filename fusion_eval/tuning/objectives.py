@@ -52,8 +52,11 @@ class Objective:
         for _, k in self.terms:
             if k not in flat:
                 close = difflib.get_close_matches(k, list(flat), n=3)
-                hint = f" (did you mean {', '.join(close)}?)" if close else \
-                    " (ground-truth metrics need a dataset with ground truth)" if k not in NO_TRUTH else ""
+                truth = any(key.startswith("fused.ape.") for key in flat)
+                hint = (f" (did you mean {', '.join(close)}?)" if close else
+                        " (ground-truth metrics need a dataset with ground truth)" if k not in NO_TRUTH and not truth else
+                        " (e.g. nll, nis, fused.ape.rmse, fused.rpe_100m.rmse, fused.kitti_drift.t_err_pct; "
+                        "`fusion-eval check --help` names the keys)")
                 raise ConfigError(f"objective {self.name!r}: {where} has no metric {k!r}{hint}")
 
 

@@ -99,6 +99,9 @@ def markdown(s: Setup, res: dict, runtime_s: float) -> str:
         fixed = " (fixed)" if key in s.space.fixed else ""
         rows.append([f"{key}{fixed}", _v(d), _v(v)])
     L += ["## Tuned values", ""] + markdown_table(["key", "default", "tuned"], rows) + [""]
+    if best["number"] == 0:         # trial 0 is the default configuration (study.py enqueues it first)
+        L += ["**No trial beat the first one, the default configuration**: the tuned values are the default's. "
+              "More trials, or a wider space, may find better ones.", ""]
     rows, gaps = [], []
     for part, d_rec, t_rec in (("training", default["train"], best["train"]),
                                ("held-out", default.get("test"), best.get("test"))):
