@@ -223,3 +223,18 @@ def test_plot_envelope_skips_gaps():
     y[12_345] = 100.0
     k = _envelope(y)
     assert 12_345 in k and np.nanmin(y[k]) == np.nanmin(y)
+
+
+def test_evaluate_names_same_named_files_by_their_folder(slice_run, tmp_path):
+    import shutil
+
+    from click.testing import CliRunner
+    from fusion_eval.cli import main
+
+    for d, src in (("a", "fused.tum"), ("b", "lidar.tum")):
+        (tmp_path / d).mkdir()
+        shutil.copy(slice_run / src, tmp_path / d / "fused.tum")
+    r = CliRunner().invoke(main, ["-q", "evaluate", str(slice_run / "groundtruth.tum"), str(tmp_path / "a" / "fused.tum"),
+                                  str(tmp_path / "b" / "fused.tum"), "--no-plots", "--out", str(tmp_path / "o")])
+    assert r.exit_code == 0, r.output
+    assert set(json.loads((tmp_path / "o" / "metrics.json").read_text())["estimates"]) == {"a-fused", "b-fused"}

@@ -52,8 +52,11 @@ def run_evaluate(inputs: list, out_dir: Path, ref_times: Path | None = None, tim
     staged.check()
     ref_f, est_fs = read_inputs(list(inputs), bag, ref_topic, fmt, ref_times, times)
     series, about, covs = {}, {}, {}
-    for f in est_fs:
-        name = Path(f.source).stem if f.format != "bag" else f.traj.meta["name"].strip("/").replace("/", "_")
+    names = [Path(f.source).stem if f.format != "bag" else f.traj.meta["name"].strip("/").replace("/", "_") for f in est_fs]
+    # files of one name in different folders (run1/fused.tum, run2/fused.tum) are told apart by their folder
+    names = [f"{Path(f.source).parent.name}-{n}" if f.format != "bag" and names.count(n) > 1 and Path(f.source).parent.name
+             else n for f, n in zip(est_fs, names)]
+    for f, name in zip(est_fs, names):
         while name in series or name == "groundtruth":
             name += "_"
         series[name] = f.traj

@@ -171,6 +171,9 @@ def report_md(dataset: str, config_name: str, evals: dict, ratios: dict, cfg: di
          f"**{cfg['filter']['lidar_update']}**, GNSS fused: **{'yes' if cfg['filter']['use_gnss'] else 'no'}**, "
          f"bias model: **{cfg['filter']['bias_model']}**.", "",
          "## Summary against ground truth (evo, no alignment)", ""] + markdown(*summary_table(evals, cfg))
+    L += ["", f"RPE over one frame pairs each estimate's consecutive poses at its own rate (the fused estimate and "
+          f"dead reckoning at the IMU's, the lidar at its frames'): across estimates of different rates it is not "
+          f"like for like; RPE over {cfg['evaluation']['rpe_delta_m']:g} m is."]
     L.append("")
     for k, v in ratios.items():
         if v is None:
