@@ -83,7 +83,8 @@ def _interrupted(exc: BaseException) -> None:
 
 @click.group(cls=Group, context_settings={"help_option_names": ["-h", "--help"]})
 @click.version_option(__version__, prog_name="fusion-eval")
-@click.option("-v", "--verbose", count=True, help="More log output (-vv for debug).")
+@click.option("-v", "--verbose", count=True, help="More log output: -v debug lines (stage timings), -vv also the "
+                                                  "libraries' own logs (Dask, numba, evo, Optuna).")
 @click.option("-q", "--quiet", count=True, help="Quiet: no progress, no tables, no log below errors; the command prints "
                                                 "one line, its output path, on stdout (for scripts).")
 @click.pass_context
@@ -199,8 +200,12 @@ def sweep(ctx, datasets, sweep_file, out_dir, jobs, variant_dir, scheduler, dask
     def progress_for(total: int):
         if ctx.obj["quiet"]:
             return None
-        bars.append(_SweepProgress(total))
-        return bars[-1].update
+        from .progress import Counter
+
+        bars.append(Counter("sweep"))
+        bar = bars[-1]
+        return lambda ok, failed, remaining, skipped: bar.update(
+            ok + failed, failed, ok + failed + remaining, f"{skipped} already recorded" if skipped else "")
 
     try:
         res = run_sweep(sweep_file, [str(d) for d in datasets], out_dir, jobs, variant_dir, scheduler, dask_mode == "local",
@@ -372,22 +377,6 @@ def check(ctx, metrics_path, baseline, rtol, atol, patterns, rules, junit_path, 
     click.echo("check: PASS" if res.ok else "check: FAIL (regression or failed rule)")
     if not res.ok:
         sys.exit(1)
-
-
-class _SweepProgress:
-    """Runs done, failed, remaining and the ETA, on stderr (:class:`fusion_eval.progress.Counter`)."""
-
-    def __init__(self, total: int):
-        from .progress import Counter
-
-        self.counter, self.skipped = Counter("sweep"), None
-
-    def update(self, ok: int, failed: int, remaining: int, skipped: int) -> None:
-        self.counter.update(ok + failed, failed, ok + failed + remaining,
-                            f"{skipped} already recorded" if skipped else "")
-
-    def close(self) -> None:
-        self.counter.close()
 
 
 @main.command()

@@ -163,7 +163,7 @@ def filter_and_evaluate(ds: Dataset, cfg: dict, sh: Shared, pool, *, dataset_pat
     if "imu_only" not in futures:       # evaluated once per preparation (later runs of a batch reuse it)
         futures["imu_only"] = sh.futures["imu_only"] = pool.submit(evaluate_estimate, ref, series["imu_only"],
                                                                    "imu_only", ev_cfg)
-    err = fused_error(gt, filt)
+    err = fused_error(gt, filt, att_vel=cfg["output"]["plots"])
     # the TUM files and the filter's plots, each a job of its own, alongside the evaluations
     # a simulated drive's true biases, for the bias plot (None for real data)
     truth_b = truth_imu_biases(ds.description, prep.applied["time_offset_s"]["imu"]) if cfg["output"]["plots"] else None

@@ -71,10 +71,9 @@ class Display(Stages):
         self.lock = threading.Lock()
         self.bar = None
         self.name: str | None = None
-        self.t_stage = self.t0 = time.perf_counter()
+        self.t_stage = time.perf_counter()
         self.times: list[tuple[str, float]] = []
         self.total: float | None = None
-        self.last_fraction = 0.0
         self._stop = threading.Event()
         self._ticker = None
         if self.tty:
@@ -101,7 +100,7 @@ class Display(Stages):
 
         with self.lock:
             self._end_stage()
-            self.name, self.total, self.t_stage, self.last_fraction = name, total, time.perf_counter(), 0.0
+            self.name, self.total, self.t_stage = name, total, time.perf_counter()
             if not self.tty:
                 self.stream.write(f"{name}{'' if total is None else f' ({total:g})'} ...\n")
                 self.stream.flush()
@@ -150,11 +149,9 @@ class Counter:
         self.label, self.stream = label, stream or sys.stderr
         self.tty = self.stream.isatty() if tty is None else tty
         self.bar, self.every_s, self.t_line, self.t0 = None, every_s, 0.0, time.perf_counter()
-        self.state = (0, 0, 0)
 
     def update(self, done: int, failed: int, total: int, note: str = "") -> None:
         """``done`` finished (failed included) of ``total``, ``failed`` of them failed."""
-        self.state = (done, failed, total)
         if self.tty:
             from tqdm import tqdm
 

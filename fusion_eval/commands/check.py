@@ -18,9 +18,9 @@ import json
 import math
 import os
 import re
+import xml.etree.ElementTree as ET
 from dataclasses import dataclass
 from pathlib import Path
-import xml.etree.ElementTree as ET
 
 from ..errors import DataFormatError, FusionEvalError
 from ..outputs import atomic_write
@@ -60,7 +60,7 @@ def load_metrics(path: Path, trial_stat: str | None = "mean") -> tuple[dict[str,
     if trial_stat is not None and body.get("trials"):
         # a Monte-Carlo run: every metric is replaced by that statistic over its trials
         stats = body["trials"]["stats"]
-        out = {k: float(stats[k][trial_stat]) for k in out if k in stats and _is_num(stats[k].get(trial_stat))}
+        out = {k: float(stats[k][trial_stat]) for k in out if k in stats and keys.is_number(stats[k].get(trial_stat))}
     if not out:
         raise DataFormatError(path, None, "no numeric metrics found")
     return out, "json", keys.rpe_delta_of(body)
@@ -90,10 +90,6 @@ def _flat_csv(path: Path) -> dict[str, float]:
     if not out:
         raise DataFormatError(path, None, "no finished runs with numeric metrics")
     return out
-
-
-def _is_num(v) -> bool:
-    return isinstance(v, (int, float)) and not isinstance(v, bool) and math.isfinite(v)
 
 
 @dataclass

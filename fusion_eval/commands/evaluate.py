@@ -141,11 +141,12 @@ def _alignment(a: dict) -> str:
     """The fitted alignment in words: its rotation as an angle about an axis, the translation, the scale (the full
     numbers are in metrics.json)."""
     import numpy as np
-    from scipy.spatial.transform import Rotation
+
+    from ..so3 import log_so3
 
     out = []
     if a.get("rotation") is not None:
-        rv = Rotation.from_matrix(np.asarray(a["rotation"], float)).as_rotvec()
+        rv = log_so3(np.asarray(a["rotation"], float))
         ang = float(np.linalg.norm(rv))
         axis = ", ".join(f"{v:+.3f}" for v in (rv / ang if ang > 0 else rv))
         out.append(f"rotation {np.degrees(ang):.3f} deg about ({axis})")

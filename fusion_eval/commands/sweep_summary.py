@@ -214,7 +214,7 @@ def default_values(tasks: list[Task], out_dir: Path, keys: list[str]) -> dict[tu
             v = (cfg.get(sect) or {}).get(name)
             if v == "auto":
                 v = (applied.get(f"{sect}_noise") or {}).get(name, applied.get(name))
-            if isinstance(v, (int, float)) and not isinstance(v, bool):
+            if mk.is_number(v):
                 vals[k] = float(v)
         out[(t.dataset, t.variant)] = vals
     return out

@@ -17,7 +17,6 @@ from pathlib import Path
 import numpy as np
 
 from ..errors import DataFormatError
-from ._text import read_text
 from .csv_stream import load_table
 
 BIAS_COLUMNS = ("t_s", "ba_x_mps2", "ba_y_mps2", "ba_z_mps2", "bg_x_rps", "bg_y_rps", "bg_z_rps")
@@ -36,10 +35,11 @@ class TruthBiases:
 def read_imu_biases(path: str | Path) -> TruthBiases:
     """A ``truth/imu_biases.csv`` as the simulator writes it (header :data:`BIAS_COLUMNS`, one row per IMU sample)."""
     what = "true IMU biases (" + ",".join(BIAS_COLUMNS) + ")"
-    header = read_text(Path(path), what).split("\n", 1)[0].strip()
+    rows, _, _ = load_table(Path(path), what, len(BIAS_COLUMNS), ncols_exact=len(BIAS_COLUMNS))   # names bad lines
+    with open(path, encoding="utf-8", errors="replace") as fh:     # the columns' order, from the header line
+        header = fh.readline().strip()
     if [c.strip() for c in header.split(",")] != list(BIAS_COLUMNS):
         raise DataFormatError(path, 1, f"expected the header {','.join(BIAS_COLUMNS)}, got {header[:80]!r}")
-    rows, _, _ = load_table(Path(path), what, len(BIAS_COLUMNS), ncols_exact=len(BIAS_COLUMNS))
     return TruthBiases(t_s=rows[:, 0], accel_b_mps2=rows[:, 1:4], gyro_b_rps=rows[:, 4:7], source=str(path))
 
 

@@ -39,10 +39,10 @@ def summary(values: np.ndarray, dof: int, prob: float = 0.95) -> dict:
             "fraction_in_95": frac}
 
 
-def innovation_nll(nis: np.ndarray, logdet_S: np.ndarray, dof: int) -> float:
+def innovation_nll(nis: np.ndarray, logdet_S: np.ndarray, dof: int | np.ndarray) -> float:
     """The mean negative log-likelihood of the innovations, ``0.5 (r^T S^-1 r + ln det S + m ln 2 pi)`` per update
     (rejected ones included: a gate must not hide what the model failed to predict); NaN where the replay did not
-    record ``ln det S`` (an iterated update stepped from Python)."""
+    record ``ln det S`` (an iterated update stepped from Python). ``dof``: one for all updates, or per update."""
     ld = np.asarray(logdet_S, float)
     if ld.size == 0 or ld.size != np.size(nis) or not np.all(np.isfinite(ld)):
         return float("nan")

@@ -88,7 +88,8 @@ def csv_check_patterns() -> tuple[str, ...]:
             f"*.{column('fused', 'rpe_*m', 'translation_m', 'rmse')}")
 
 
-def _num(v) -> bool:
+def is_number(v) -> bool:
+    """A finite int or float (not a bool): a value a metric, a table or a plot can use."""
     import math
 
     return isinstance(v, (int, float)) and not isinstance(v, bool) and math.isfinite(v)
@@ -100,7 +101,7 @@ def flatten(metrics: dict, raw: bool = False) -> dict[str, float]:
     ``innovations.nll_per_update|nis_calibration`` (no ground truth needed), ``nis.<observation>.mean|fraction_in_95|nll_mean`` and ``nees.<position|attitude>.mean|fraction_in_95`` (``nees_smoothed.`` for the smoother's).
     Only finite numbers are kept, unless ``raw`` (every scalar at those paths as it is: NaN, strings, None), which
     ``check`` uses to say what is wrong with a baseline's value."""
-    keep = (lambda v: not isinstance(v, (dict, list))) if raw else _num
+    keep = (lambda v: not isinstance(v, (dict, list))) if raw else is_number
     conv = (lambda v: v) if raw else float
     out: dict = {}
     for est, d in (metrics.get("estimates") or {}).items():

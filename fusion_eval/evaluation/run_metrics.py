@@ -10,6 +10,7 @@ import numpy as np
 
 from ..filters.layout import CANONICAL
 from ..interp import interpolate_poses
+from ..so3 import log_so3, quat_xyzw_to_matrix
 from ..types import PoseSeries
 from . import keys
 from .consistency import innovation_nll, innovation_summary, pose_nees, summary
@@ -67,15 +68,16 @@ def consistency(gt: PoseSeries, filt) -> dict:
     return out
 
 
-def fused_error(gt: PoseSeries, filt) -> dict:
+def fused_error(gt: PoseSeries, filt, att_vel: bool = True) -> dict:
     """The fused position error per ENU axis at the fused stamps inside the ground truth, with the filter's
-    1-sigma of each axis (for the error-against-3-sigma plot); under ``att_vel``, the attitude and velocity
-    errors of :func:`fused_att_vel_error` at the same stamps."""
+    1-sigma of each axis (for the error-against-3-sigma plot); under ``att_vel`` (when asked: only the plots read
+    it), the attitude and velocity errors of :func:`fused_att_vel_error` at the same stamps."""
     gi, sel = _truth_at_fused(gt, filt)
     out = {"t_s": gi.t_s, "err_w_m": filt.fused.p_w_m[sel] - gi.p_w_m, "sigma_w_m": filt.sigma[sel][:, CANONICAL.sl("P")]}
     if filt.smoothed is not None:      # the same stamps: the smoother records where the filter does
         out["smoothed"] = (filt.smoothed.fused.p_w_m[sel] - gi.p_w_m, filt.smoothed.sigma[sel][:, CANONICAL.sl("P")])
-    out["att_vel"] = _att_vel_error(gt, gi, sel, filt)
+    if att_vel:
+        out["att_vel"] = _att_vel_error(gt, gi, sel, filt)
     return out
 
 
@@ -109,14 +111,12 @@ def fused_att_vel_error(gt: PoseSeries, filt) -> dict:
 
 
 def _att_vel_error(gt: PoseSeries, gi: PoseSeries, sel: np.ndarray, filt) -> dict:
-    from scipy.spatial.transform import Rotation
-
     v_w, vel_truth = truth_velocity_w(gt)
     v_true = np.column_stack([np.interp(gi.t_s, gt.t_s, v_w[:, i]) for i in range(3)])
-    r_true_inv = Rotation.from_quat(gi.q_wb_xyzw).inv()
+    R_true = quat_xyzw_to_matrix(gi.q_wb_xyzw)
 
     def errors(f) -> tuple:
-        att = (r_true_inv * Rotation.from_quat(f.fused.q_wb_xyzw[sel])).as_rotvec().reshape(-1, 3)
+        att = log_so3(np.einsum("nji,njk->nik", R_true, quat_xyzw_to_matrix(f.fused.q_wb_xyzw[sel]))).reshape(-1, 3)
         sg = f.sigma[sel]
         v = f.fused.v_w_mps
         vel = None if v is None else v[sel] - v_true

@@ -96,20 +96,21 @@ def write_evaluation(out: StagedDir, res, plots_written: list[str], pool=None, a
         if res.segments and "fused" in res.evals:
             jobs.append((plots.plot_segment_map, out.path("segments_map.png"), res.evals, res.segments))
             plots_written.append("segments_map.png")
-    if pool is not None:
-        futures = [pool.submit(*j) for j in jobs]
-        for f in futures:
-            f.add_done_callback(lambda _f: advance())
-    else:
-        futures = [j[0](*j[1:]) or advance() for j in jobs]
+    futures = []
+    for j in jobs:
+        if pool is None:
+            j[0](*j[1:])
+            advance()
+        else:
+            futures.append(pool.submit(*j))
+            futures[-1].add_done_callback(lambda _f: advance())
     md = report_md(res.dataset, res.config_source, res.evals, res.ratios, res.cfg, res.prep.applied, res.prep.gnss_info,
                    res.metrics, plots_written)
     out.write_text("report.md", md)
     inputs = inputs.result() if inputs is not None else input_files(dataset)
     advance()
-    if pool is not None:
-        for f in futures:
-            f.result()
+    for f in futures:
+        f.result()
     out.write_text("report.html", html.page(md, out.path("."), inputs=inputs))   # embeds the plots: they are done
     advance()
 

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import textwrap
 from pathlib import Path
 
 import matplotlib
@@ -14,6 +15,7 @@ import numpy as np  # noqa: E402
 # over them (none of these plots has ticks on top), which was a third of the drawing time.
 matplotlib.rcParams["axes.titley"] = 1.0
 
+from ..evaluation.keys import is_number  # noqa: E402
 from ..filters.layout import CANONICAL  # noqa: E402
 
 BA_ID, BG_ID = (CANONICAL.start(b) for b in ("BA", "BG"))
@@ -337,10 +339,6 @@ def plot_compare_body_velocity(path: Path, runs, body_v: list, gt, gt_vb) -> Non
     _save(fig, path)
 
 
-def _isnum(v) -> bool:
-    return isinstance(v, (int, float)) and not isinstance(v, bool) and np.isfinite(v)
-
-
 def _value_axis(ax, values, axis: str = "x", at_values: bool = True) -> None:
     """A readable axis for swept values: logarithmic where they are all positive and span a decade or more (noise
     densities; a swept lag or offset may be zero or negative), ticks at the values themselves (``at_values``)
@@ -348,7 +346,7 @@ def _value_axis(ax, values, axis: str = "x", at_values: bool = True) -> None:
     slanted labels."""
     from matplotlib.ticker import FixedLocator, FuncFormatter, LogLocator, MaxNLocator, NullFormatter
 
-    vals = sorted({float(v) for v in values if _isnum(v)})
+    vals = sorted({float(v) for v in values if is_number(v)})
     if not vals:
         return
     log = vals[0] > 0 and vals[-1] / vals[0] >= 10
@@ -396,8 +394,8 @@ def sweep_params_figure(rows: list[dict], keys: list[str], metric: str, defaults
     from matplotlib.lines import Line2D
 
     defaults = defaults or {}
-    ok = [r for r in rows if r["status"] == "ok" and _isnum(r.get(metric))]
-    numeric = [k for k in keys if any(_isnum(r.get(k)) and r["setting"] != "default" for r in ok)]
+    ok = [r for r in rows if r["status"] == "ok" and is_number(r.get(metric))]
+    numeric = [k for k in keys if any(is_number(r.get(k)) and r["setting"] != "default" for r in ok)]
     if not numeric:
         return None
     series = sorted({(r["dataset"], r["variant"]) for r in ok})
@@ -450,10 +448,10 @@ def sweep_params_figure(rows: list[dict], keys: list[str], metric: str, defaults
         for j, (ds, v) in enumerate(series):
             c = _VCOLORS[j % len(_VCOLORS)]
             pts = sorted((r[k], r[metric], r["setting"]) for r in ok if r["dataset"] == ds and r["variant"] == v
-                         and r["setting"] != "default" and _isnum(r.get(k)))
+                         and r["setting"] != "default" and is_number(r.get(k)))
             d = default_row(ds, v)
             dx = defaults.get((ds, v), {}).get(k)
-            both = pts + ([(dx, d[metric], "default")] if d is not None and _isnum(dx) else [])
+            both = pts + ([(dx, d[metric], "default")] if d is not None and is_number(dx) else [])
             both.sort()
             if len(both) > 1 and len({p[0] for p in both}) == len(both):     # one run per value: a curve
                 ax.plot([p[0] for p in both], [p[1] for p in both], "-", lw=0.8, color=c, alpha=0.6)
@@ -461,7 +459,7 @@ def sweep_params_figure(rows: list[dict], keys: list[str], metric: str, defaults
                 ax.plot([p[0] for p in pts], [p[1] for p in pts], "o", ms=5, color=c, gid="settings")
             if d is not None:
                 ax.axhline(d[metric], color=c, ls=":", lw=1.0)
-                if _isnum(dx):
+                if is_number(dx):
                     ax.plot([dx], [d[metric]], "*", ms=13, mfc=c, mec="black", mew=0.8, gid="default")
                     notes.append((dx, d[metric], "default"))
             if len(pts) <= 12:
@@ -507,7 +505,7 @@ def plot_sweep(out_dir: Path, rows: list[dict], keys: list[str], metric: str, ta
     written: list[str] = []
     ok = [r for r in rows if r["status"] == "ok"]
     fig = sweep_params_figure(rows, keys, metric, defaults)
-    numeric = [k for k in keys if any(_isnum(r.get(k)) for r in ok)]
+    numeric = [k for k in keys if any(is_number(r.get(k)) for r in ok)]
     if fig is not None:
         save(fig, "sweep_params.png")
     if len(grid_keys) == 2 and all(k in numeric for k in grid_keys):
@@ -672,8 +670,6 @@ def segment_map_figure(evals: dict, seg: dict, up_axis: str = "z"):
     if worst:
         unit = "s" if seg["by"] == "time" else "m"
         what = "of time" if seg["by"] == "time" else "along the reference (ground-truth) route"
-        import textwrap
-
         caption = (f"Red circles, #k (RMSE): segment k, the k-th window of {seg['length']:g} {unit} {what} "
                    f"(counted from 0); the {len(worst)} segments with the largest {a} APE translation RMSE, marked at "
                    "their middle.")

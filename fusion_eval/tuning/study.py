@@ -242,7 +242,8 @@ def run_study(s: Setup, progress: Callable[[int, int, float | None], None] | Non
                 left = s.n_trials - counted(study)
                 if progress:
                     progress(min(counted(study), s.n_trials), s.n_trials, _best_value(study),
-                             failed=sum(t.user_attrs.get("status") in ("failed", "diverged") for t in study.trials))
+                             failed=sum(t.user_attrs.get("status") in ("failed", "diverged")
+                                        for t in study.get_trials(deepcopy=False)))
                 if left <= 0:
                     break
                 thresholds = prune_thresholds(study, n_steps) if s.prune and len(s.objectives) == 1 else ()

@@ -94,12 +94,13 @@ class _NllWatch:
 
 
 def nll_so_far(nis: np.ndarray, logdet_S: np.ndarray, dof: np.ndarray) -> float:
-    """The innovations' NLL per update over a replay's events (NaN NIS: an event that updated nothing); over all of
-    them it is ``innovations.nll_per_update`` (tested)."""
+    """The innovations' NLL per update over a replay's events (NaN NIS: an event that updated nothing), by the
+    formula of the metric (:func:`fusion_eval.evaluation.consistency.innovation_nll`); over all of them it is
+    ``innovations.nll_per_update`` (tested)."""
+    from ..evaluation.consistency import innovation_nll
+
     sel = np.isfinite(nis)
-    if not sel.any():
-        return math.nan
-    return float(np.mean(0.5 * (nis[sel] + logdet_S[sel] + dof[sel] * np.log(2.0 * np.pi))))
+    return innovation_nll(nis[sel], logdet_S[sel], dof[sel]) if sel.any() else math.nan
 
 
 def _step(job: Job, path: str, seed: int, watch: _NllWatch | None = None) -> dict:
