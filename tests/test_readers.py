@@ -84,6 +84,17 @@ def test_plain_kitti_raw_folder_needs_no_manifest():
     drive = shared_path("kitti-raw", "2011_09_30", "2011_09_30_drive_0020_sync")
     ds = load_dataset(drive)
     assert len(ds.imu) == 1104 and ds.lidar is None and ds.gnss is not None and ds.groundtruth is not None
+    # no lidar odometry: the implicit manifest suggests the filter without it; a request for lidar still wins
+    from fusion_eval import session
+    from fusion_eval.errors import FusionEvalError
+
+    assert session.resolve(session.request(), ds)["filter"]["lidar_update"] == "none"
+    cfg = session.resolve(session.request(sets=("filter.lidar_update=relative",)), ds)
+    assert cfg["filter"]["lidar_update"] == "relative"
+    with pytest.raises(FusionEvalError, match="no lidar stream"):
+        from fusion_eval.prepare import prepare
+
+        prepare(ds, cfg)
 
 
 @pytest.mark.parametrize("drive", ["2011_09_30_drive_0018_sync", "2011_09_30_drive_0027_sync"])

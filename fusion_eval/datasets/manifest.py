@@ -70,7 +70,10 @@ def load_dataset(path: str | Path, extra_streams: tuple[StreamSpec, ...] | None 
         # the OXTS rates lag the packet clock: estimated, or the device figure (fusion_eval.timing)
         streams["imu"]["gyro_lag_s"] = "auto"
         streams.update({n: {"format": "kitti_oxts", "path": "oxts"} for n, spec in extra.items() if spec.implicit_kitti_raw})
-        return _from_manifest_dict({"name": path.name, "streams": streams}, path, path / "(implicit manifest)", extra)
+        # a raw drive has no lidar odometry: like a EuRoC folder's, its implicit manifest suggests the filter without
+        # it (a configuration or --set that asks for lidar updates still overrides it, and is refused)
+        body = {"name": path.name, "streams": streams, "config": {"filter": {"lidar_update": "none"}}}
+        return _from_manifest_dict(body, path, path / "(implicit manifest)", extra)
     raise DataFormatError(path, None, "expected dataset.yaml, an oxts/ folder (KITTI raw drive) or mav0/imu0/data.csv "
                                       "(EuRoC / TUM-VI) in this folder")
 
