@@ -194,8 +194,8 @@ def test_relative_pose_binds_with_fewer_than_two_frames(n_frames):
 
     run = NS(lidar=Lidar(), imu=NS(t_s=np.linspace(0, 10, 101)), k_start=0)
     s = NS(lidar=NS(relative_pos_std_m=0.02, relative_pos_std_frac=0.01, relative_att_std_rad=1e-3,
-                    relative_att_std_frac=0.0, noise_adapt="none", adapt_rate=0.02, gate_prob=None),
+                    relative_att_std_frac=0.0, relative_frame="body", noise_adapt="none", adapt_rate=0.02, gate_prob=None),
            filter=NS(use_gnss=True))
     b = OBSERVATION.bind(run, s)
-    assert b.t_s.size == n_frames and b.kernel.data.shape == (n_frames, 15)
+    assert b.t_s.size == n_frames and b.kernel.data.shape == (n_frames, 16)
     assert not b.kernel.data[:, 0].any()          # a lone frame only starts the chain of clones

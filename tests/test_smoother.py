@@ -283,6 +283,8 @@ def test_the_batch_estimate_names_the_missing_extra(kitti_slice, monkeypatch):
 def test_the_batch_estimate_refuses_what_it_cannot_express(kitti_slice):
     with pytest.raises(ConfigError, match="filter.bias_model=gauss_markov is not supported"):
         fe.run(fe.load_dataset(kitti_slice), overrides={"smoother.method": "batch", "filter.bias_model": "gauss_markov"})
+    with pytest.raises(ConfigError, match="lidar.relative_frame=world is not supported"):
+        fe.run(fe.load_dataset(kitti_slice), overrides={"smoother.method": "batch", "lidar.relative_frame": "world"})
 
 
 @pytest.mark.slow

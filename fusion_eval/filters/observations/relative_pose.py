@@ -40,8 +40,8 @@ from .pose import POSE_RESIDUAL, RP, RTH, lidar_rows
 
 # data row of one lidar frame: 1 if it updates (0: the first frame, which only clones), the increment from the
 # previous frame in its body frame, the rotation increment row-major, position std, rotation std
-ROW = Layout("relative pose data row", [("update", 1), ("dp", 3), ("dR", 9), ("std_p", 1), ("std_th", 1)])
-UPD, DP, DR, STD_P, STD_TH = (ROW.start(b) for b in ("update", "dp", "dR", "std_p", "std_th"))
+ROW = Layout("relative pose data row", [("update", 1), ("dp", 3), ("dR", 9), ("std_p", 1), ("std_th", 1), ("world", 1)])
+UPD, DP, DR, STD_P, STD_TH, WORLD = (ROW.start(b) for b in ("update", "dp", "dR", "std_p", "std_th", "world"))
 NRES = POSE_RESIDUAL.n
 
 
@@ -69,14 +69,23 @@ def relative_pose_kernel(x, xc, row, H, r, Rm):
     th = log3(E)
     for i in range(3):
         for k in range(3):
-            H[i, P_ID + k] = xc[CLONE_R + 3 * k + i]          # R_c^T
-            H[i, CP_ID + k] = -xc[CLONE_R + 3 * k + i]
             H[3 + i, CTH_ID + k] = -dR[k, i]                  # -dR^T
         H[3 + i, TH_ID + i] = 1.0
-        r[i] = row[DP + i] - dp[i]
         r[3 + i] = th[i]
         Rm[i, i] = row[STD_P] * row[STD_P]
         Rm[3 + i, 3 + i] = row[STD_TH] * row[STD_TH]
+    if row[WORLD] != 0.0:
+        # the increment in the odometry's world frame: r_p = dp_w - (p - p_c), no attitude in it
+        for i in range(3):
+            H[i, P_ID + i] = 1.0
+            H[i, CP_ID + i] = -1.0
+            r[i] = row[DP + i] - dpw[i]
+        return NRES
+    for i in range(3):
+        for k in range(3):
+            H[i, P_ID + k] = xc[CLONE_R + 3 * k + i]          # R_c^T
+            H[i, CP_ID + k] = -xc[CLONE_R + 3 * k + i]
+        r[i] = row[DP + i] - dp[i]
     # [dp]x on the clone's attitude error
     H[0, CTH_ID + 1], H[0, CTH_ID + 2] = -dp[2], dp[1]
     H[1, CTH_ID], H[1, CTH_ID + 2] = dp[2], -dp[0]
@@ -85,9 +94,11 @@ def relative_pose_kernel(x, xc, row, H, r, Rm):
 
 
 def relative_pose(x, clone_p_w: np.ndarray, clone_R_wb: np.ndarray, *, dp_obs_c: np.ndarray, dR_obs: np.ndarray,
-                  pos_std_m: float, att_std_rad: float):
-    """Odometry increment between the cloned pose (previous lidar frame) and the current pose."""
-    row = ROW.pack(update=1.0, dp=dp_obs_c, dR=np.asarray(dR_obs, float).ravel(), std_p=pos_std_m, std_th=att_std_rad)
+                  pos_std_m: float, att_std_rad: float, world: bool = False):
+    """Odometry increment between the cloned pose (previous lidar frame) and the current pose; ``world``: the
+    position increment ``dp_obs_c`` is in the world frame instead of the clone's body frame."""
+    row = ROW.pack(update=1.0, dp=dp_obs_c, dR=np.asarray(dR_obs, float).ravel(), std_p=pos_std_m, std_th=att_std_rad,
+                   world=float(world))
     return kernel_model(relative_pose_kernel, x, clone_p_w, clone_R_wb, row)
 
 
@@ -106,6 +117,9 @@ class RelativePose(Observation):
         "lidar.relative_att_std_deg": S(0.05, "relative update: rotation increment std, constant part, deg", positive=True),
         "lidar.relative_att_std_frac": S(0.0, "relative update: rotation increment std per radian turned (0.02 = 2 %: "
                                               "an odometry that under- or over-rotates turns)", nonneg=True),
+        "lidar.relative_frame": S("body", "frame of the position increment: 'body' (the previous frame's, rotated by the "
+                                          "filter's attitude) or 'world' (the odometry's own map frame)",
+                                  choices=("body", "world")),
         "lidar.gate_prob": S(None, "reject a relative increment whose NIS is beyond this chi-square probability "
                                    "(6 dof), e.g. 0.9999; null = no gate", "float", positive=True, below=1.0, nullable=True),
         "lidar.noise_adapt": S("auto", "'nis' = scale the position and rotation noise online so that each block's "
@@ -128,6 +142,7 @@ class RelativePose(Observation):
         # every increment at once: from frame j-1 to frame j, in frame j-1's body frame
         prev, cur = slice(None, -1), slice(1, None)          # consecutive frames (rows, not state indices)
         dp_c = np.einsum("nji,nj->ni", R[prev], p[cur] - p[prev])
+        world = c.relative_frame == "world"
         dR = np.einsum("nji,njk->nik", R[prev], R[cur])
         pos_std = np.hypot(c.relative_pos_std_m, c.relative_pos_std_frac * np.linalg.norm(dp_c, axis=1))
         att_std = np.hypot(c.relative_att_std_rad, c.relative_att_std_frac * np.linalg.norm(log3_many(dR), axis=1))
@@ -137,8 +152,9 @@ class RelativePose(Observation):
         # row j: the increment into frame j (the first frame only starts the chain of clones)
         data = np.zeros((rows.size, ROW.n))
         if rows.size > 1:
-            data[cur] = ROW.columns(update=np.ones(rows.size - 1), dp=dp_c, dR=dR.reshape(-1, 9), std_p=pos_std,
-                                    std_th=att_std)
+            data[cur] = ROW.columns(update=np.ones(rows.size - 1), dp=(p[cur] - p[prev]) if world else dp_c,
+                                    dR=dR.reshape(-1, 9), std_p=pos_std, std_th=att_std,
+                                    world=np.full(rows.size - 1, float(world)))
 
         def model(j):
             if j == 0:
