@@ -3,8 +3,7 @@
 from __future__ import annotations
 
 import numpy as np
-from scipy.spatial.transform import Rotation, Slerp
-
+from .so3 import slerp_xyzw
 from .types import PoseSeries
 
 
@@ -14,7 +13,7 @@ def interpolate_poses(poses: PoseSeries, t_query_s: np.ndarray) -> PoseSeries:
     tq = np.asarray(t_query_s, float)
     tq = tq[(tq >= t[0]) & (tq <= t[-1])]
     p = np.column_stack([np.interp(tq, t, poses.p_w_m[:, i]) for i in range(3)])
-    q = Slerp(t, Rotation.from_quat(poses.q_wb_xyzw))(tq).as_quat() if len(t) > 1 else np.tile(poses.q_wb_xyzw[0], (tq.size, 1))
+    q = slerp_xyzw(t, poses.q_wb_xyzw, tq) if len(t) > 1 else np.tile(poses.q_wb_xyzw[0], (tq.size, 1))
     v = None
     if poses.v_w_mps is not None:
         v = np.column_stack([np.interp(tq, t, poses.v_w_mps[:, i]) for i in range(3)])

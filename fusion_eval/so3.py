@@ -10,12 +10,17 @@ Conventions, written once here:
 * Euler angles of KITTI OXTS are ``R_wb = Rz(yaw) @ Ry(pitch) @ Rx(roll)`` (the devkit's convention).
 
 The numba kernels in :mod:`fusion_eval.filters.mech` carry their own scalar versions of ``skew``/``Exp``;
-the vectorised numpy versions here are what the rest of the package and the tests use.
+the vectorised versions here are what the rest of the package and the tests use. The conversions that run on
+every pose of a long drive (matrix <-> quaternion, ``Log``, SLERP) are compiled loops that follow scipy's
+formulas step for step (equal to scipy's to 1e-15, tested): scipy 1.17's array-API ``Rotation`` spends most of
+its time in validation and temporaries, 0.2-0.5 s per call on 720,000 poses. Inputs scipy would repair or refuse
+(a matrix that is not orthogonal to 1e-12, a non-positive determinant) are handed to scipy.
 """
 
 from __future__ import annotations
 
 import numpy as np
+from numba import njit
 from scipy.spatial.transform import Rotation
 
 
@@ -30,9 +35,153 @@ def exp_so3(phi: np.ndarray) -> np.ndarray:
     return Rotation.from_rotvec(np.asarray(phi, dtype=float)).as_matrix()
 
 
+@njit(cache=True)
+def _quats_of_matrices(R, q, bad):
+    """scipy's ``from_matrix`` on orthogonal matrices (the largest of trace and diagonal picks the formula),
+    normalised; ``bad[n]`` where scipy would orthogonalise or refuse the matrix (left to scipy)."""
+    for n in range(R.shape[0]):
+        M = R[n]
+        ok = True
+        for i in range(3):
+            for j in range(3):
+                g = M[i, 0] * M[j, 0] + M[i, 1] * M[j, 1] + M[i, 2] * M[j, 2]
+                e = 1.0 if i == j else 0.0
+                if not abs(g - e) <= 1e-12 + 1e-5 * abs(e):
+                    ok = False
+        det = (M[0, 0] * (M[1, 1] * M[2, 2] - M[1, 2] * M[2, 1]) - M[0, 1] * (M[1, 0] * M[2, 2] - M[1, 2] * M[2, 0])
+               + M[0, 2] * (M[1, 0] * M[2, 1] - M[1, 1] * M[2, 0]))
+        if not ok or not det > 0.0:
+            bad[n] = True
+            continue
+        tr = M[0, 0] + M[1, 1] + M[2, 2]
+        c, best = 3, tr
+        for i in range(3):
+            if M[i, i] > best:          # argmax: the first of equal values
+                c, best = i, M[i, i]
+        if c == 3:
+            q[n, 0] = M[2, 1] - M[1, 2]
+            q[n, 1] = M[0, 2] - M[2, 0]
+            q[n, 2] = M[1, 0] - M[0, 1]
+            q[n, 3] = 1.0 + tr
+        else:
+            i = c
+            j = (i + 1) % 3
+            k = (j + 1) % 3
+            q[n, i] = 1.0 - tr + 2.0 * M[i, i]
+            q[n, j] = M[j, i] + M[i, j]
+            q[n, k] = M[k, i] + M[i, k]
+            q[n, 3] = M[k, j] - M[j, k]
+        s = np.sqrt(q[n, 0] ** 2 + q[n, 1] ** 2 + q[n, 2] ** 2 + q[n, 3] ** 2)
+        for i in range(4):
+            q[n, i] /= s
+
+
+@njit(cache=True)
+def _rotvec_of_quat(x, y, z, w, out, n):
+    """scipy's ``as_rotvec``: the canonical quaternion (w >= 0), angle by atan2, Taylor series below 1e-3 rad."""
+    if w < 0 or (w == 0 and (x < 0 or (x == 0 and (y < 0 or (y == 0 and z < 0))))):
+        x, y, z, w = -x, -y, -z, -w
+    angle = 2.0 * np.arctan2(np.sqrt(x * x + y * y + z * z), w)
+    if angle <= 1e-3:
+        a2 = angle * angle
+        scale = 2.0 + a2 / 12.0 + 7.0 * a2 * a2 / 2880.0
+    else:
+        scale = angle / np.sin(angle / 2.0)
+    out[n, 0], out[n, 1], out[n, 2] = scale * x, scale * y, scale * z
+
+
+@njit(cache=True)
+def _rotvecs_of_quats(q, out):
+    for n in range(q.shape[0]):
+        _rotvec_of_quat(q[n, 0], q[n, 1], q[n, 2], q[n, 3], out, n)
+
+
+@njit(cache=True)
+def _matrices_of_quats(q, R):
+    """scipy's ``from_quat(q).as_matrix()``: normalised, then the standard formula."""
+    for n in range(q.shape[0]):
+        s = np.sqrt(q[n, 0] ** 2 + q[n, 1] ** 2 + q[n, 2] ** 2 + q[n, 3] ** 2)
+        x, y, z, w = q[n, 0] / s, q[n, 1] / s, q[n, 2] / s, q[n, 3] / s
+        x2, y2, z2, w2 = x * x, y * y, z * z, w * w
+        R[n, 0, 0] = x2 - y2 - z2 + w2
+        R[n, 0, 1] = 2 * (x * y - z * w)
+        R[n, 0, 2] = 2 * (x * z + y * w)
+        R[n, 1, 0] = 2 * (x * y + z * w)
+        R[n, 1, 1] = -x2 + y2 - z2 + w2
+        R[n, 1, 2] = 2 * (y * z - x * w)
+        R[n, 2, 0] = 2 * (x * z - y * w)
+        R[n, 2, 1] = 2 * (y * z + x * w)
+        R[n, 2, 2] = -x2 - y2 + z2 + w2
+
+
+@njit(cache=True)
+def _compose(p, q):
+    """Quaternion product ``p q`` (x, y, z, w), normalised (scipy's ``__mul__``)."""
+    cx = p[1] * q[2] - p[2] * q[1]
+    cy = p[2] * q[0] - p[0] * q[2]
+    cz = p[0] * q[1] - p[1] * q[0]
+    r = np.empty(4)
+    r[0] = p[3] * q[0] + q[3] * p[0] + cx
+    r[1] = p[3] * q[1] + q[3] * p[1] + cy
+    r[2] = p[3] * q[2] + q[3] * p[2] + cz
+    r[3] = p[3] * q[3] - p[0] * q[0] - p[1] * q[1] - p[2] * q[2]
+    s = np.sqrt(r[0] ** 2 + r[1] ** 2 + r[2] ** 2 + r[3] ** 2)
+    return r / s
+
+
+@njit(cache=True)
+def _slerp(t, q, tq, out):
+    """scipy's ``Slerp(t, Rotation.from_quat(q))(tq).as_quat()`` for normalised ``q`` and ``tq`` inside
+    ``[t[0], t[-1]]``: ``q_i Exp(alpha Log(q_i^-1 q_{i+1}))`` on the interval holding each query."""
+    rv = np.empty((1, 3))
+    for m in range(tq.size):
+        i = np.searchsorted(t, tq[m]) - 1
+        if tq[m] == t[0]:
+            i = 0
+        alpha = (tq[m] - t[i]) / (t[i + 1] - t[i])
+        pinv = np.array([-q[i, 0], -q[i, 1], -q[i, 2], q[i, 3]])
+        d = _compose(pinv, q[i + 1])
+        _rotvec_of_quat(d[0], d[1], d[2], d[3], rv, 0)
+        v0, v1, v2 = rv[0, 0] * alpha, rv[0, 1] * alpha, rv[0, 2] * alpha
+        angle = np.sqrt(v0 * v0 + v1 * v1 + v2 * v2)
+        if angle <= 1e-3:
+            a2 = angle * angle
+            scale = 0.5 - a2 / 48.0 + a2 * a2 / 3840.0
+        else:
+            scale = np.sin(angle / 2.0) / angle
+        e = np.array([v0 * scale, v1 * scale, v2 * scale, np.cos(angle / 2.0)])
+        out[m] = _compose(q[i], e)
+
+
+def slerp_xyzw(t_s: np.ndarray, q_xyzw: np.ndarray, tq_s: np.ndarray) -> np.ndarray:
+    """Quaternions (x, y, z, w) at ``tq_s`` (inside ``[t_s[0], t_s[-1]]``) by SLERP between the normalised
+    ``q_xyzw`` at the strictly increasing ``t_s`` (scipy's ``Slerp``, compiled)."""
+    q = np.asarray(q_xyzw, dtype=float)
+    q = np.ascontiguousarray(q / np.linalg.norm(q, axis=1)[:, None])
+    out = np.empty((np.size(tq_s), 4))
+    _slerp(np.ascontiguousarray(t_s, float), q, np.ascontiguousarray(tq_s, float), out)
+    return out
+
+
+def _quats(R: np.ndarray) -> np.ndarray:
+    """Quaternions (x, y, z, w) of rotation matrices ``(..., 3, 3)`` exactly as scipy's ``from_matrix``."""
+    R = np.asarray(R, dtype=float)
+    flat = np.ascontiguousarray(R.reshape(-1, 3, 3))
+    q = np.empty((flat.shape[0], 4))
+    bad = np.zeros(flat.shape[0], bool)
+    _quats_of_matrices(flat, q, bad)
+    if bad.any():
+        q[bad] = np.atleast_2d(Rotation.from_matrix(flat[bad]).as_quat())    # repaired, or refused with its error
+    return q.reshape(R.shape[:-2] + (4,))
+
+
 def log_so3(R: np.ndarray) -> np.ndarray:
     """Rotation vector (rad) of a rotation matrix; inverse of :func:`exp_so3`."""
-    return Rotation.from_matrix(np.asarray(R, dtype=float)).as_rotvec()
+    R = np.asarray(R, dtype=float)
+    q = _quats(R).reshape(-1, 4)
+    out = np.empty((q.shape[0], 3))
+    _rotvecs_of_quats(q, out)
+    return out.reshape(R.shape[:-2] + (3,))
 
 
 def euler_rpy_to_matrix(roll: np.ndarray, pitch: np.ndarray, yaw: np.ndarray) -> np.ndarray:
@@ -43,15 +192,20 @@ def euler_rpy_to_matrix(roll: np.ndarray, pitch: np.ndarray, yaw: np.ndarray) ->
 
 def matrix_to_quat_xyzw(R: np.ndarray) -> np.ndarray:
     """Unit quaternions ``(x, y, z, w)`` with ``w >= 0`` of rotation matrices ``(N, 3, 3)``."""
-    q = Rotation.from_matrix(np.asarray(R, dtype=float)).as_quat()
-    q = np.atleast_2d(q)
+    q = np.atleast_2d(_quats(R))
     q[q[:, 3] < 0] *= -1.0  # one hemisphere, so equal rotations print equal
     return q
 
 
 def quat_xyzw_to_matrix(q_xyzw: np.ndarray) -> np.ndarray:
     """Rotation matrices ``(N, 3, 3)`` of quaternions ``(x, y, z, w)`` (normalised first)."""
-    return Rotation.from_quat(np.asarray(q_xyzw, dtype=float)).as_matrix()
+    q = np.asarray(q_xyzw, dtype=float)
+    flat = np.ascontiguousarray(q.reshape(-1, 4))
+    if not np.all(np.isfinite(flat)) or np.any(np.einsum("ij,ij->i", flat, flat) == 0.0):
+        return Rotation.from_quat(q).as_matrix()          # scipy's error for a zero or non-finite quaternion
+    R = np.empty((flat.shape[0], 3, 3))
+    _matrices_of_quats(flat, R)
+    return R.reshape(q.shape[:-1] + (3, 3))
 
 
 def xyzw_to_wxyz(q_xyzw: np.ndarray) -> np.ndarray:

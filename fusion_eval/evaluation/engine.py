@@ -70,9 +70,44 @@ def inverse(T: np.ndarray) -> np.ndarray:
     return out
 
 
+# The stacks of a long drive are large (720,000 poses: 92 MB each), and every temporary of that size is fresh
+# memory the kernel must clear; the error poses are therefore formed pose by pose into one output array.
+@njit(cache=True)
+def _inv_mul_into(A, B, out):
+    """``out = se3_inverse(A) @ B`` for one pair of 4x4 poses (the inverse as ``[R^T, -R^T t]``)."""
+    ti = np.empty(3)
+    for i in range(3):
+        ti[i] = -(A[0, i] * A[0, 3] + A[1, i] * A[1, 3] + A[2, i] * A[2, 3])
+    for i in range(3):
+        for j in range(4):
+            out[i, j] = A[0, i] * B[0, j] + A[1, i] * B[1, j] + A[2, i] * B[2, j] + ti[i] * B[3, j]
+    for j in range(4):
+        out[3, j] = B[3, j]
+
+
+@njit(cache=True)
+def _relative_stack(A, B, out):
+    for n in range(A.shape[0]):
+        _inv_mul_into(A[n], B[n], out[n])
+
+
+@njit(cache=True)
+def _rpe_poses(ref_T, est_T, i, j, out):
+    """``(Q_i^-1 Q_j)^-1 (P_i^-1 P_j)`` of every pair, with no stack-sized temporaries."""
+    Q = np.empty((4, 4))
+    P = np.empty((4, 4))
+    for m in range(i.size):
+        _inv_mul_into(ref_T[i[m]], ref_T[j[m]], Q)
+        _inv_mul_into(est_T[i[m]], est_T[j[m]], P)
+        _inv_mul_into(Q, P, out[m])
+
+
 def relative(A: np.ndarray, B: np.ndarray) -> np.ndarray:
     """``relative_se3(A_i, B_i) = A_i^-1 B_i`` of every pair."""
-    return inverse(A) @ B
+    A, B = np.ascontiguousarray(A, float), np.ascontiguousarray(B, float)
+    out = np.empty(np.broadcast_shapes(A.shape, B.shape))
+    _relative_stack(A, B, out)
+    return out
 
 
 # ---------------------------------------------------------------------------------------------- alignment
@@ -103,17 +138,35 @@ def align_origin(est_T: np.ndarray, ref_T: np.ndarray):
 
 
 # ---------------------------------------------------------------------------------------------- errors
+@njit(cache=True)
+def _all_so3(R):
+    """evo's ``is_so3`` on every matrix: ``isclose(det, 1)`` and ``isclose(R^T R, I)`` (atol 1e-6, rtol 1e-5)."""
+    for n in range(R.shape[0]):
+        M = R[n]
+        det = (M[0, 0] * (M[1, 1] * M[2, 2] - M[1, 2] * M[2, 1]) - M[0, 1] * (M[1, 0] * M[2, 2] - M[1, 2] * M[2, 0])
+               + M[0, 2] * (M[1, 0] * M[2, 1] - M[1, 1] * M[2, 0]))
+        if not abs(det - 1.0) <= 1e-6 + 1e-5:
+            return False
+        for i in range(3):
+            for j in range(3):
+                g = M[0, i] * M[0, j] + M[1, i] * M[1, j] + M[2, i] * M[2, j]
+                e = 1.0 if i == j else 0.0
+                if not abs(g - e) <= 1e-6 + 1e-5 * e:
+                    return False
+    return True
+
+
 def _check_so3(R: np.ndarray) -> None:
     """evo's ``is_so3`` on every matrix (``so3_log`` refuses anything else)."""
-    det_ok = np.isclose(np.linalg.det(R), 1.0, atol=1e-6)
-    inv_ok = np.isclose(np.swapaxes(R, 1, 2) @ R, np.eye(3), atol=1e-6).all(axis=(1, 2))
-    if not (det_ok.all() and inv_ok.all()):
+    if not _all_so3(np.ascontiguousarray(R, float)):
         raise LieAlgebraException("matrix is not a valid SO(3) group element")
 
 
 def _angle_rad(R: np.ndarray) -> np.ndarray:
+    from ..so3 import log_so3          # scipy's Rotation, compiled (equal to it, tests/test_so3.py)
+
     _check_so3(R)
-    return np.linalg.norm(Rotation.from_matrix(R).as_rotvec(), axis=1)
+    return np.linalg.norm(log_so3(R), axis=1)
 
 
 def pose_error(E: np.ndarray, relation: Rel) -> np.ndarray:
@@ -223,7 +276,9 @@ def rpe_error(ref_T: np.ndarray, est_T: np.ndarray, relation: Rel, pairs: np.nda
             delta_ids = delta_ids[nz]
             err = np.divide(err[nz], d_ref[nz]) * 100
         return err, delta_ids
-    E = relative(relative(ref_T[i], ref_T[j]), relative(est_T[i], est_T[j]))
+    E = np.empty((i.size, 4, 4))
+    _rpe_poses(np.ascontiguousarray(ref_T, float), np.ascontiguousarray(est_T, float), np.ascontiguousarray(i),
+               np.ascontiguousarray(j), E)
     return pose_error(E, relation), delta_ids
 
 
