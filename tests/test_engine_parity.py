@@ -128,7 +128,8 @@ def _same_result(a, b):
     assert a.info == b.info
     assert a.stats.keys() == b.stats.keys()
     for k in a.stats:
-        assert abs(a.stats[k] - b.stats[k]) <= TOL, k
+        # 1e-9, relative above 1: an SSE of 1e7 m^2 (dead reckoning) has a float spacing of 1.9e-9 by itself
+        assert abs(a.stats[k] - b.stats[k]) <= TOL * max(1.0, abs(b.stats[k])), k
     assert a.np_arrays.keys() == b.np_arrays.keys()
     for k in a.np_arrays:
         assert a.np_arrays[k].shape == b.np_arrays[k].shape, k

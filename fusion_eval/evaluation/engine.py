@@ -31,25 +31,39 @@ _EPS_QUAT = np.finfo(float).eps * 4.0     # evo.core.transformations._EPS: below
 def se3_of(positions_xyz: np.ndarray, quat_wxyz: np.ndarray) -> np.ndarray:
     """(N, 4, 4) poses as evo's ``PoseCache.poses_se3`` builds them (``quaternion_matrix`` normalises each
     quaternion; a near-zero one gives the identity)."""
-    q = np.array(quat_wxyz, dtype=float)
-    n = np.einsum("ij,ij->i", q, q)
-    small = n < _EPS_QUAT
-    q *= np.sqrt(2.0 / np.where(small, 1.0, n))[:, None]
-    o = q[:, :, None] * q[:, None, :]
-    T = np.zeros((len(q), 4, 4))
-    T[:, 0, 0] = 1.0 - o[:, 2, 2] - o[:, 3, 3]
-    T[:, 0, 1] = o[:, 1, 2] - o[:, 3, 0]
-    T[:, 0, 2] = o[:, 1, 3] + o[:, 2, 0]
-    T[:, 1, 0] = o[:, 1, 2] + o[:, 3, 0]
-    T[:, 1, 1] = 1.0 - o[:, 1, 1] - o[:, 3, 3]
-    T[:, 1, 2] = o[:, 2, 3] - o[:, 1, 0]
-    T[:, 2, 0] = o[:, 1, 3] - o[:, 2, 0]
-    T[:, 2, 1] = o[:, 2, 3] + o[:, 1, 0]
-    T[:, 2, 2] = 1.0 - o[:, 1, 1] - o[:, 2, 2]
-    T[small, :3, :3] = np.eye(3)
-    T[:, :3, 3] = positions_xyz
-    T[:, 3, 3] = 1.0
+    q = np.ascontiguousarray(quat_wxyz, dtype=float)
+    T = np.empty((len(q), 4, 4))
+    _se3_into(np.ascontiguousarray(positions_xyz, dtype=float), q, T)
     return T
+
+
+@njit(cache=True)
+def _se3_into(p, q, T):
+    """evo's ``quaternion_matrix`` (q scaled by sqrt(2 / |q|^2), then ``1 - q_j q_j - q_k q_k`` and the like) with
+    the position, pose by pose."""
+    for i in range(q.shape[0]):
+        n = q[i, 0] * q[i, 0] + q[i, 1] * q[i, 1] + q[i, 2] * q[i, 2] + q[i, 3] * q[i, 3]
+        M = T[i]
+        if n < _EPS_QUAT:
+            for a in range(3):
+                for b in range(3):
+                    M[a, b] = 1.0 if a == b else 0.0
+        else:
+            f = np.sqrt(2.0 / n)
+            w, x, y, z = q[i, 0] * f, q[i, 1] * f, q[i, 2] * f, q[i, 3] * f
+            M[0, 0] = 1.0 - y * y - z * z
+            M[0, 1] = x * y - z * w
+            M[0, 2] = x * z + y * w
+            M[1, 0] = x * y + z * w
+            M[1, 1] = 1.0 - x * x - z * z
+            M[1, 2] = y * z - x * w
+            M[2, 0] = x * z - y * w
+            M[2, 1] = y * z + x * w
+            M[2, 2] = 1.0 - x * x - y * y
+        for a in range(3):
+            M[a, 3] = p[i, a]
+            M[3, a] = 0.0
+        M[3, 3] = 1.0
 
 
 def traj_se3(traj) -> np.ndarray:
