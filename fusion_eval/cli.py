@@ -52,8 +52,26 @@ def _setup_logging(verbose: int, quiet: int) -> None:
         logging.getLogger(noisy).setLevel(logging.WARNING if verbose < 2 else logging.INFO)
 
 
+def _usage_error(exc: click.UsageError) -> None:
+    """click's own usage errors (an option's value out of range, an unknown option or command) as one line, like
+    every other error of the tool, instead of click's usage block: the command, what is wrong, where help is."""
+    if type(exc).__name__ == "NoArgsIsHelpError":   # `fusion-eval` alone: click shows the help, as it should
+        exc.show()
+        sys.exit(exc.exit_code)
+    where = exc.ctx.command_path if exc.ctx is not None else "fusion-eval"
+    msg = " ".join(exc.format_message().split())
+    click.echo(f"error: {where}: {msg} (see {where} --help)", err=True)
+    sys.exit(exc.exit_code)
+
+
 class Group(click.Group):
     """Maps known errors to a one-line message and their exit code."""
+
+    def parse_args(self, ctx, args):
+        try:
+            return super().parse_args(ctx, args)
+        except click.UsageError as exc:          # the group's own options
+            _usage_error(exc)
 
     def invoke(self, ctx):
         # SIGINT and SIGTERM raise KeyboardInterrupt / Terminated (the same clean-up runs), deferred while numba
@@ -72,6 +90,8 @@ class Group(click.Group):
             if isinstance(exc, FusionEvalError):
                 click.echo(f"error: {exc}", err=True)
                 sys.exit(exc.exit_code)
+            if isinstance(exc, click.UsageError):   # a command's options, an unknown command
+                _usage_error(exc)
             raise
 
 

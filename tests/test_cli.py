@@ -81,6 +81,21 @@ def test_same_inputs_give_the_same_bytes(kitti_slice, slice_run, tmp_path):
         assert a == b, f
 
 
+def test_usage_errors_are_one_line_naming_the_command():
+    cases = {("run", "--trials", "0"): "fusion-eval run: Invalid value for '--trials'",
+             ("run", "--bogus"): "fusion-eval run: No such option '--bogus'",
+             ("runn",): "fusion-eval: No such command 'runn'. Did you mean 'run'?",
+             ("--bogus",): "fusion-eval: No such option '--bogus'",
+             ("check",): "fusion-eval check: Missing argument 'METRICS'"}
+    for args, needle in cases.items():
+        r = CliRunner().invoke(main, list(args), prog_name="fusion-eval")
+        err = r.stderr.strip()
+        assert r.exit_code == 2 and err.startswith("error: ") and needle in err and "\n" not in err, (args, r.output)
+        assert err.endswith("--help)") and "Traceback" not in r.output
+    r = CliRunner().invoke(main, [], prog_name="fusion-eval")          # no command at all: click's help, as before
+    assert "Usage: fusion-eval" in r.output and "Commands:" in r.output
+
+
 def test_existing_output_directory_is_kept_unless_overwrite(kitti_slice, slice_run):
     before = (slice_run / "metrics.json").read_bytes()
     r = CliRunner().invoke(main, ["-q", "run", str(kitti_slice), "--out", str(slice_run)])
