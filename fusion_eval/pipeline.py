@@ -66,12 +66,18 @@ def evaluate_estimate(reference: PoseSeries, estimate: PoseSeries, name: str, ev
 
 
 def trial_metrics(ds: Dataset, cfg: dict) -> dict:
-    """One Monte-Carlo trial's metrics (in a worker: nothing written, nothing else sent back)."""
+    """One Monte-Carlo trial's metrics (in a worker: nothing written, nothing else sent back). Its informational
+    log lines (the estimated gyro lag, ...) repeat the main run's, once per trial: only warnings are let through."""
+    pkg = logging.getLogger(__package__)
+    level = pkg.level
+    pkg.setLevel(max(level, logging.WARNING))
     try:
         with np.errstate(over="ignore", invalid="ignore"):
             return execute(ds, cfg, jobs=1).metrics
     except FusionEvalError as exc:          # a diverged trial is a result, counted in the summary
         return {"failed": str(exc)}
+    finally:
+        pkg.setLevel(level)
 
 
 @dataclass

@@ -94,3 +94,22 @@ def test_compare_and_sweep_with_trials_report_means(kitti_slice, tmp_path):
         vals = [float(p["fused_ape_trans_rmse_m"]) for p in per if p["setting"] == row["setting"]]
         assert float(row["fused_ape_trans_rmse_m"]) == pytest.approx(np.mean(vals), rel=1e-5)
         assert row["trials"] == "2"
+
+
+def test_a_trial_keeps_its_informational_log_lines_to_itself(kitti_slice, caplog):
+    """A trial repeats the main run's preparation: its INFO lines (the estimated gyro lag, ...) would print once per
+    trial; only its warnings pass, and the package's level is restored after it."""
+    import logging
+
+    from fusion_eval import session
+    from fusion_eval.pipeline import trial_metrics
+
+    ds = session.dataset(kitti_slice)
+    cfg = session.resolve(session.request(sets=("imu.gyro_lag_s=auto",)), ds)
+    pkg = logging.getLogger("fusion_eval")
+    pkg.setLevel(logging.INFO)
+    with caplog.at_level(logging.INFO, logger="fusion_eval"):
+        m = trial_metrics(ds, cfg)
+    assert "failed" not in m and m["estimates"]["fused"]["ape"]["translation_m"]["rmse"] > 0
+    assert not [r for r in caplog.records if r.levelno < logging.WARNING and r.name.startswith("fusion_eval")]
+    assert pkg.level == logging.INFO
