@@ -54,10 +54,12 @@ def _quats_of_matrices(R, q, bad):
             bad[n] = True
             continue
         tr = M[0, 0] + M[1, 1] + M[2, 2]
-        c, best = 3, tr
-        for i in range(3):
-            if M[i, i] > best:          # argmax: the first of equal values
+        c, best = 0, M[0, 0]            # argmax over (M00, M11, M22, trace): the first of equal values, as scipy's
+        for i in range(1, 3):
+            if M[i, i] > best:
                 c, best = i, M[i, i]
+        if tr > best:
+            c = 3
         if c == 3:
             q[n, 0] = M[2, 1] - M[1, 2]
             q[n, 1] = M[0, 2] - M[2, 0]
@@ -156,6 +158,11 @@ def _slerp(t, q, tq, out):
 def slerp_xyzw(t_s: np.ndarray, q_xyzw: np.ndarray, tq_s: np.ndarray) -> np.ndarray:
     """Quaternions (x, y, z, w) at ``tq_s`` (inside ``[t_s[0], t_s[-1]]``) by SLERP between the normalised
     ``q_xyzw`` at the strictly increasing ``t_s`` (scipy's ``Slerp``, compiled)."""
+    t, tq = np.asarray(t_s, float), np.asarray(tq_s, float)
+    if t.size < 2 or not np.all(np.diff(t) > 0):
+        raise ValueError("SLERP needs at least 2 rotations at strictly increasing times")
+    if tq.size and (tq.min() < t[0] or tq.max() > t[-1]):
+        raise ValueError(f"Interpolation times must be within the range [{t[0]}, {t[-1]}], both inclusive.")
     q = np.asarray(q_xyzw, dtype=float)
     q = np.ascontiguousarray(q / np.linalg.norm(q, axis=1)[:, None])
     out = np.empty((np.size(tq_s), 4))
@@ -170,8 +177,8 @@ def _quats(R: np.ndarray) -> np.ndarray:
     q = np.empty((flat.shape[0], 4))
     bad = np.zeros(flat.shape[0], bool)
     _quats_of_matrices(flat, q, bad)
-    if bad.any():
-        q[bad] = np.atleast_2d(Rotation.from_matrix(flat[bad]).as_quat())    # repaired, or refused with its error
+    if bad.any():       # repaired, or refused with scipy's error (naming the matrix's index in the whole stack)
+        q[bad] = np.atleast_2d(Rotation.from_matrix(flat).as_quat())[bad]
     return q.reshape(R.shape[:-2] + (4,))
 
 

@@ -57,6 +57,19 @@ def test_compiled_conversions_equal_scipys():
     tq = np.r_[t[0], np.sort(rng.uniform(t[0], t[-1], 3000)), t[10], t[-1]]
     assert np.abs(slerp_xyzw(t, q, tq) - Slerp(t, Rotation.from_quat(q))(tq).as_quat()).max() < 1e-15
     assert log_so3(np.eye(3)).shape == (3,) and quat_xyzw_to_matrix(np.array([0, 0, 0, 1.0])).shape == (3, 3)
+    # ties of the trace with a diagonal entry (quarter turns): scipy's argmax order, the same sign
+    from fusion_eval.so3 import _quats
+
+    Q = Rotation.from_rotvec(np.pi / 2 * np.eye(3)).as_matrix()
+    assert np.array_equal(_quats(Q), Rotation.from_matrix(Q).as_quat())
+    stack = np.stack([np.eye(3)] * 5)
+    stack[3] = -np.eye(3)
+    with pytest.raises(ValueError, match="determinant .* matrix 3"):
+        log_so3(stack)
+    with pytest.raises(ValueError, match="strictly increasing"):
+        slerp_xyzw(np.array([0.0, 1.0, 1.0]), np.tile([0, 0, 0, 1.0], (3, 1)), np.array([0.5]))
+    with pytest.raises(ValueError, match="within the range"):
+        slerp_xyzw(np.array([0.0, 1.0, 2.0]), np.tile([0, 0, 0, 1.0], (3, 1)), np.array([-0.5]))
     with pytest.raises(ValueError, match="determinant"):
         log_so3(-np.eye(3))
     with pytest.raises(ValueError, match="zero norm"):

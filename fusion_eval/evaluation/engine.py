@@ -118,8 +118,9 @@ def _rpe_poses(ref_T, est_T, i, j, out):
 
 def relative(A: np.ndarray, B: np.ndarray) -> np.ndarray:
     """``relative_se3(A_i, B_i) = A_i^-1 B_i`` of every pair."""
-    A, B = np.ascontiguousarray(A, float), np.ascontiguousarray(B, float)
-    out = np.empty(np.broadcast_shapes(A.shape, B.shape))
+    A, B = np.broadcast_arrays(*(np.asarray(x, float).reshape(-1, 4, 4) for x in (A, B)))   # a single pose pairs with all
+    A, B = np.ascontiguousarray(A), np.ascontiguousarray(B)
+    out = np.empty(A.shape)
     _relative_stack(A, B, out)
     return out
 
