@@ -55,13 +55,21 @@ class RunResult:
     truth_biases: object = None              # a simulated drive's true IMU biases (datasets.truth.TruthBiases)
 
 
-def evaluate_estimate(reference: PoseSeries, estimate: PoseSeries, name: str, ev_cfg: dict) -> EstimateEvaluation:
+def evaluate_estimate(reference: PoseSeries, estimate: PoseSeries, name: str, ev_cfg: dict,
+                      zip_dir: Path | None = None) -> EstimateEvaluation:
     """evo's metrics of one estimate and its evo result files (in a worker: the files travel back as bytes,
-    smaller than the result objects they are made of)."""
+    smaller than the result objects they are made of). With ``zip_dir`` (the run's staging folder) the worker
+    writes them there itself: on a long drive they are hundreds of MB that the main process need not hold."""
     ev = evaluate(reference, estimate, name, ev_cfg["t_max_diff_s"], ev_cfg["rpe_delta_m"], ev_cfg["association"],
                   ev_cfg["alignment"], ev_cfg["engine"])
     ev.zips = report.files.evo_zips(ev)
     ev.results = {}
+    if zip_dir is not None:
+        for fname, data in ev.zips.items():
+            tmp = Path(zip_dir) / f".{fname}.tmp"
+            tmp.write_bytes(data)
+            tmp.replace(Path(zip_dir) / fname)
+        ev.zips = {}
     return ev
 
 
@@ -91,6 +99,7 @@ class Shared:
     ref: PoseSeries                          # the reference cropped to the common span
     futures: dict                            # name -> future of an unfiltered estimate's evaluation
     timings: dict
+    private: bool = False                    # one run only (not a batch's): its evaluations may write its files
 
 
 def share(ds: Dataset, cfg: dict, pool) -> Shared:
@@ -134,7 +143,9 @@ def execute(ds: Dataset, cfg: dict, *, dataset_path: str | Path | None = None, c
     stages = as_stages(progress)
     with executor(jobs) as pool:
         stages.start("prepare")
-        return filter_and_evaluate(ds, cfg, share(ds, cfg, pool), pool, dataset_path=dataset_path,
+        sh = share(ds, cfg, pool)
+        sh.private = True
+        return filter_and_evaluate(ds, cfg, sh, pool, dataset_path=dataset_path,
                                    config_source=config_source, progress=stages, out=out, trials=trials)
 
 
@@ -164,11 +175,14 @@ def filter_and_evaluate(ds: Dataset, cfg: dict, sh: Shared, pool, *, dataset_pat
         series["smoothed"] = filt.smoothed.fused
         timings["smoother"] = filt.smoother_info["backward_s"]
     futures = dict(sh.futures)
-    futures.update({n: pool.submit(evaluate_estimate, ref, series[n], n, ev_cfg) for n in ("fused", "smoothed")
+    # this run's own estimates write their result files into its folder from the worker; shared ones (a batch
+    # writes them into every run's folder) come back as bytes
+    zip_dir = out.path(".") if out is not None else None
+    futures.update({n: pool.submit(evaluate_estimate, ref, series[n], n, ev_cfg, zip_dir) for n in ("fused", "smoothed")
                     if n in series})
     if "imu_only" not in futures:       # evaluated once per preparation (later runs of a batch reuse it)
         futures["imu_only"] = sh.futures["imu_only"] = pool.submit(evaluate_estimate, ref, series["imu_only"],
-                                                                   "imu_only", ev_cfg)
+                                                                   "imu_only", ev_cfg, zip_dir if sh.private else None)
     err = fused_error(gt, filt, att_vel=cfg["output"]["plots"])
     # the TUM files and the filter's plots, each a job of its own, alongside the evaluations
     # a simulated drive's true biases, for the bias plot (None for real data)
