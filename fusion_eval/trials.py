@@ -117,6 +117,16 @@ def csv_rows(sec: dict) -> tuple[list[str], list[dict]]:
     return cols, rows
 
 
+def _row_format(*values: float):
+    """One number format for a whole row: four significant digits of its largest value, the same decimals for
+    every column (so that 0.7631 and 0.7890 line up, instead of 0.7631 and 0.789)."""
+    big = max((abs(v) for v in values if math.isfinite(v)), default=0.0)
+    nd = max(0, 3 - math.floor(math.log10(big))) if big > 0 else 3
+    if nd > 8:                                   # a tiny quantity: exponents say more than a row of zeros
+        return lambda v: f"{v:.3e}"
+    return lambda v: f"{v:.{nd}f}"
+
+
 def markdown(sec: dict) -> list[str]:
     """The report's table of the headline metrics over the trials."""
     from .tables import markdown as md
@@ -127,8 +137,9 @@ def markdown(sec: dict) -> list[str]:
         if not s or not s.get("n"):
             continue
         lo, hi = s["ci95_mean"]
-        rows.append([p, f"{s['mean']:.4g}", f"{s['std']:.3g}", f"{s['min']:.4g}", f"{s['max']:.4g}",
-                     f"{s['p2.5']:.4g} .. {s['p97.5']:.4g}", "" if math.isnan(lo) else f"{lo:.4g} .. {hi:.4g}"])
+        f = _row_format(s["mean"], s["min"], s["max"])
+        rows.append([p, f(s["mean"]), f(s["std"]), f(s["min"]), f(s["max"]), f"{f(s['p2.5'])} .. {f(s['p97.5'])}",
+                     "" if math.isnan(lo) else f"{f(lo)} .. {f(hi)}"])
     seeds = sec["seeds"]
     L = ["## Monte-Carlo trials", "",
          f"{sec['n']} trials over the seeds of every random element (trial i adds i to "

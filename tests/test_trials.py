@@ -113,3 +113,12 @@ def test_a_trial_keeps_its_informational_log_lines_to_itself(kitti_slice, caplog
     assert "failed" not in m and m["estimates"]["fused"]["ape"]["translation_m"]["rmse"] > 0
     assert not [r for r in caplog.records if r.levelno < logging.WARNING and r.name.startswith("fusion_eval")]
     assert pkg.level == logging.INFO
+
+
+def test_the_trials_table_gives_each_row_one_number_format():
+    from fusion_eval.trials import _row_format
+
+    f = _row_format(0.7631, 0.7211, 0.789)
+    assert [f(v) for v in (0.7631, 0.0367, 0.789)] == ["0.7631", "0.0367", "0.7890"]
+    assert _row_format(13258.3, 13258.3, 13258.3)(0.0) == "0"
+    assert _row_format(2e-9, 1e-9, 3e-9)(1.5e-9) == "1.500e-09"
