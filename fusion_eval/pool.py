@@ -46,6 +46,39 @@ def worker_init() -> None:
             pass
 
 
+# A worker forked at the moment the run is interrupted would run the parent's Python signal handler inside
+# CPython's own after-fork code (threading._after_fork) and print "Exception ignored ... Terminated" before
+# worker_init could set its dispositions (seen once in CI: SIGINT during the first run's compilation, the pool
+# terminated while a worker was being forked). So SIGINT and SIGTERM are blocked in the forking thread across the
+# fork; the child sets the worker's dispositions first and only then unblocks, so a signal already sent to it is
+# taken by those (SIGTERM ends it, SIGINT is ignored), never by the parent's handler.
+_FORK_SIGNALS = {signal.SIGINT, signal.SIGTERM}
+_fork_mask: list = []
+
+
+def _before_fork() -> None:
+    _fork_mask.append(signal.pthread_sigmask(signal.SIG_BLOCK, _FORK_SIGNALS))
+
+
+def _after_fork_in_parent() -> None:
+    if _fork_mask:
+        signal.pthread_sigmask(signal.SIG_SETMASK, _fork_mask.pop())
+
+
+def _after_fork_in_child() -> None:
+    try:
+        signal.signal(signal.SIGINT, signal.SIG_IGN)
+        signal.signal(signal.SIGTERM, signal.SIG_DFL)
+    finally:
+        if _fork_mask:
+            signal.pthread_sigmask(signal.SIG_SETMASK, _fork_mask.pop())
+
+
+if hasattr(os, "register_at_fork"):
+    os.register_at_fork(before=_before_fork, after_in_parent=_after_fork_in_parent,
+                        after_in_child=_after_fork_in_child)
+
+
 class Pool(ProcessPoolExecutor):
     """A process pool that, when the block it serves ends by an exception (Ctrl-C, SIGTERM, an error), cancels
     what has not started and kills its workers instead of waiting for them (a run's workers write into its staging

@@ -351,3 +351,30 @@ def test_the_cli_restores_the_callers_sigterm_handler():
     CliRunner().invoke(main, ["--help"])
     CliRunner().invoke(main, ["check", "nope.json", "--baseline", "nope.json"])
     assert (signal.getsignal(signal.SIGTERM), signal.getsignal(signal.SIGINT)) == before
+
+
+def test_a_worker_signalled_while_it_is_being_forked_never_runs_the_parents_handler():
+    """A SIGTERM sent to a child the instant it is forked (the pool terminated while it grows) ends it by the
+    worker's own disposition: the parent's Python handler never runs in it (it once printed 'Exception ignored
+    in: threading._after_fork ... Terminated' in CI); the parent's signal mask is left as it was."""
+    import fusion_eval.pool  # noqa: F401 - registers the fork hooks
+
+    def parent_handler(signum, frame):
+        raise RuntimeError("the parent's handler ran in the child")
+
+    old = signal.signal(signal.SIGTERM, parent_handler)
+    try:
+        pid = os.fork()
+        if pid == 0:                                    # the child: never return into pytest
+            try:
+                time.sleep(2.0)
+                os._exit(0)
+            except BaseException:                       # noqa: BLE001 - the parent's handler ran here
+                os._exit(3)
+        os.kill(pid, signal.SIGTERM)
+        _, status = os.waitpid(pid, 0)
+        assert os.WIFSIGNALED(status) and os.WTERMSIG(status) == signal.SIGTERM, status
+        assert not signal.pthread_sigmask(signal.SIG_BLOCK, set()) & {signal.SIGINT, signal.SIGTERM}
+        assert signal.getsignal(signal.SIGTERM) is parent_handler
+    finally:
+        signal.signal(signal.SIGTERM, old)
