@@ -55,7 +55,7 @@ def _setup_logging(verbose: int, quiet: int) -> None:
 def _usage_error(exc: click.UsageError) -> None:
     """click's own usage errors (an option's value out of range, an unknown option or command) as one line, like
     every other error of the tool, instead of click's usage block: the command, what is wrong, where help is."""
-    if type(exc).__name__ == "NoArgsIsHelpError":   # `fusion-eval` alone: click shows the help, as it should
+    if isinstance(exc, getattr(click.exceptions, "NoArgsIsHelpError", ())):   # `fusion-eval` alone: click's help
         exc.show()
         sys.exit(exc.exit_code)
     where = exc.ctx.command_path if exc.ctx is not None else "fusion-eval"

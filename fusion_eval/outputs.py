@@ -36,6 +36,17 @@ def alive(pid: int) -> bool:
     return True
 
 
+
+def write_atomic(target: Path, data: bytes) -> Path:
+    """``target`` written whole or not at all (a temporary beside it, then a rename): a reader never sees half a
+    file, and a worker writing into a staging folder (a run's result zips) does it the same way."""
+    target = Path(target)
+    target.parent.mkdir(parents=True, exist_ok=True)
+    tmp = target.with_name(f".{target.name}.tmp")
+    tmp.write_bytes(data)
+    os.replace(tmp, target)
+    return target
+
 class StagedDir:
     def __init__(self, final: Path, overwrite: bool = False, wait_lock_s: float = 0.0):
         self.final = Path(final)
@@ -82,12 +93,7 @@ class StagedDir:
         return self.write_bytes(name, text.encode("utf-8"))
 
     def write_bytes(self, name: str, data: bytes) -> Path:
-        target = self.staging / name
-        target.parent.mkdir(parents=True, exist_ok=True)
-        tmp = target.with_name(f".{target.name}.tmp")
-        tmp.write_bytes(data)
-        os.replace(tmp, target)
-        return target
+        return write_atomic(self.staging / name, data)
 
     def _lock(self) -> None:
         """Take ``.<name>.lock`` beside the target (created exclusively, holding our pid): a second process writing

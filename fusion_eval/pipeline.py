@@ -23,7 +23,7 @@ from .evaluation import span
 from .evaluation.run_metrics import (ESTIMATES, consistency, fused_error, ratio_metrics, run_metrics, segments,
                                      smoother_section)
 from .evaluation.trajectory import EstimateEvaluation, evaluate
-from .outputs import StagedDir
+from .outputs import StagedDir, write_atomic
 from .pool import executor
 from .progress import as_stages
 from .prepare import Prepared, offsets_note, prepare, settings_for
@@ -66,9 +66,7 @@ def evaluate_estimate(reference: PoseSeries, estimate: PoseSeries, name: str, ev
     ev.results = {}
     if zip_dir is not None:
         for fname, data in ev.zips.items():
-            tmp = Path(zip_dir) / f".{fname}.tmp"
-            tmp.write_bytes(data)
-            tmp.replace(Path(zip_dir) / fname)
+            write_atomic(Path(zip_dir) / fname, data)
         ev.zips = {}
     return ev
 

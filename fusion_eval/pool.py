@@ -31,12 +31,16 @@ class Inline:
         return fut
 
 
+def _worker_dispositions() -> None:
+    signal.signal(signal.SIGINT, signal.SIG_IGN)
+    signal.signal(signal.SIGTERM, signal.SIG_DFL)
+
+
 def worker_init() -> None:
     """In each worker: Ctrl-C is the parent's to handle (a Ctrl-C to the process group must not print a traceback
     from every worker), SIGTERM ends the worker at once, and the worker dies with its parent (Linux), so that no
     worker outlives the command that started it, whatever signal ends it."""
-    signal.signal(signal.SIGINT, signal.SIG_IGN)
-    signal.signal(signal.SIGTERM, signal.SIG_DFL)
+    _worker_dispositions()
     if sys.platform.startswith("linux"):
         try:
             import ctypes
@@ -67,8 +71,7 @@ def _after_fork_in_parent() -> None:
 
 def _after_fork_in_child() -> None:
     try:
-        signal.signal(signal.SIGINT, signal.SIG_IGN)
-        signal.signal(signal.SIGTERM, signal.SIG_DFL)
+        _worker_dispositions()
     finally:
         if _fork_mask:
             signal.pthread_sigmask(signal.SIG_SETMASK, _fork_mask.pop())

@@ -36,6 +36,13 @@ def exp_so3(phi: np.ndarray) -> np.ndarray:
 
 
 @njit(cache=True)
+def det3(M):
+    """The determinant of a 3x3 matrix, by cofactors."""
+    return (M[0, 0] * (M[1, 1] * M[2, 2] - M[1, 2] * M[2, 1]) - M[0, 1] * (M[1, 0] * M[2, 2] - M[1, 2] * M[2, 0])
+            + M[0, 2] * (M[1, 0] * M[2, 1] - M[1, 1] * M[2, 0]))
+
+
+@njit(cache=True)
 def _quats_of_matrices(R, q, bad):
     """scipy's ``from_matrix`` on orthogonal matrices (the largest of trace and diagonal picks the formula),
     normalised; ``bad[n]`` where scipy would orthogonalise or refuse the matrix (left to scipy)."""
@@ -43,14 +50,12 @@ def _quats_of_matrices(R, q, bad):
         M = R[n]
         ok = True
         for i in range(3):
-            for j in range(3):
+            for j in range(i, 3):              # M M^T is symmetric
                 g = M[i, 0] * M[j, 0] + M[i, 1] * M[j, 1] + M[i, 2] * M[j, 2]
                 e = 1.0 if i == j else 0.0
                 if not abs(g - e) <= 1e-12 + 1e-5 * abs(e):
                     ok = False
-        det = (M[0, 0] * (M[1, 1] * M[2, 2] - M[1, 2] * M[2, 1]) - M[0, 1] * (M[1, 0] * M[2, 2] - M[1, 2] * M[2, 0])
-               + M[0, 2] * (M[1, 0] * M[2, 1] - M[1, 1] * M[2, 0]))
-        if not ok or not det > 0.0:
+        if not ok or not det3(M) > 0.0:
             bad[n] = True
             continue
         tr = M[0, 0] + M[1, 1] + M[2, 2]

@@ -24,6 +24,8 @@ from evo.core.result import Result
 from evo.core.trajectory import PoseTrajectory3D
 from scipy.spatial.transform import Rotation
 
+from ..so3 import det3
+
 Rel = metrics.PoseRelation
 _EPS_QUAT = np.finfo(float).eps * 4.0     # evo.core.transformations._EPS: below it a quaternion maps to identity
 
@@ -158,12 +160,10 @@ def _all_so3(R):
     """evo's ``is_so3`` on every matrix: ``isclose(det, 1)`` and ``isclose(R^T R, I)`` (atol 1e-6, rtol 1e-5)."""
     for n in range(R.shape[0]):
         M = R[n]
-        det = (M[0, 0] * (M[1, 1] * M[2, 2] - M[1, 2] * M[2, 1]) - M[0, 1] * (M[1, 0] * M[2, 2] - M[1, 2] * M[2, 0])
-               + M[0, 2] * (M[1, 0] * M[2, 1] - M[1, 1] * M[2, 0]))
-        if not abs(det - 1.0) <= 1e-6 + 1e-5:
+        if not abs(det3(M) - 1.0) <= 1e-6 + 1e-5:
             return False
         for i in range(3):
-            for j in range(3):
+            for j in range(i, 3):              # R^T R is symmetric
                 g = M[0, i] * M[0, j] + M[1, i] * M[1, j] + M[2, i] * M[2, j]
                 e = 1.0 if i == j else 0.0
                 if not abs(g - e) <= 1e-6 + 1e-5 * e:
@@ -173,7 +173,7 @@ def _all_so3(R):
 
 def _check_so3(R: np.ndarray) -> None:
     """evo's ``is_so3`` on every matrix (``so3_log`` refuses anything else)."""
-    if not _all_so3(np.ascontiguousarray(R, float)):
+    if not _all_so3(np.asarray(R, float)):
         raise LieAlgebraException("matrix is not a valid SO(3) group element")
 
 

@@ -55,10 +55,8 @@ def relative_pose_kernel(x, xc, row, H, r, Rm):
     dpw = np.empty(3)
     for i in range(3):
         dpw[i] = x[XP + i] - xc[CLONE_P + i]
-    dp = np.empty(3)                  # R_c^T (p - p_c)
     dR = np.empty((3, 3))             # R_c^T R
     for i in range(3):
-        dp[i] = xc[CLONE_R + i] * dpw[0] + xc[CLONE_R + 3 + i] * dpw[1] + xc[CLONE_R + 6 + i] * dpw[2]
         for k in range(3):
             dR[i, k] = (xc[CLONE_R + i] * x[XR + k] + xc[CLONE_R + 3 + i] * x[XR + 3 + k]
                         + xc[CLONE_R + 6 + i] * x[XR + 6 + k])
@@ -81,6 +79,9 @@ def relative_pose_kernel(x, xc, row, H, r, Rm):
             H[i, CP_ID + i] = -1.0
             r[i] = row[DP + i] - dpw[i]
         return NRES
+    dp = np.empty(3)                  # R_c^T (p - p_c): only the body-frame form needs it
+    for i in range(3):
+        dp[i] = xc[CLONE_R + i] * dpw[0] + xc[CLONE_R + 3 + i] * dpw[1] + xc[CLONE_R + 6 + i] * dpw[2]
     for i in range(3):
         for k in range(3):
             H[i, P_ID + k] = xc[CLONE_R + 3 * k + i]          # R_c^T
