@@ -18,6 +18,7 @@ from .datasets import plausible
 from .calibration import imu_noise
 from .config import Settings
 from .calibration.extrinsic import apply_rotation, estimate_rotation
+from .calibration.travel import estimate_travel_pitch, pitch_from_smoothed_pass
 from .degrade import degrade_gnss
 from .errors import ConfigError, DataRangeError
 from .filters import check_combination, formulation_of, observations
@@ -151,7 +152,7 @@ def prepare(ds: Dataset, cfg: dict) -> Prepared:
                              "do not overlap in time")
 
     # --- lidar: offset, anchor in the world frame, resample on the IMU stamps
-    lidar = None
+    lidar = travel = None
     if ds.lidar is not None:
         applied["time_offset_s"]["lidar"] = lidar_off
         lid = replace(ds.lidar, t_s=ds.lidar.t_s + lidar_off)
@@ -166,6 +167,8 @@ def prepare(ds: Dataset, cfg: dict) -> Prepared:
             applied["lidar_anchor_t_s"] = t_anchor
         if ds.description.get("lidar_clock"):
             applied["lidar_clock"] = ds.description["lidar_clock"]
+        if cfg["filter"].get("nhc") and cfg["filter"].get("nhc_travel_pitch_mrad") == "auto":
+            travel = estimate_travel_pitch(lid.select(~lid.filled))
         if cfg["lidar"]["interpolate_to_imu"]:
             lid = snap_to_stamps(lid, imu.t_s)
         lidar = lid
@@ -235,7 +238,7 @@ def prepare(ds: Dataset, cfg: dict) -> Prepared:
     if cfg["filter"].get("discretization") == "auto":          # formulations that discretise a continuous model
         from .filters.discretize import resolve_auto
 
-        resolved["filter"] = {"discretization": resolve_auto("auto", imu.t_s)}
+        resolved.setdefault("filter", {})["discretization"] = resolve_auto("auto", imu.t_s)
         applied["discretization"] = resolved["filter"]["discretization"]
     # --- initial state
     if cfg["filter"]["init_pose_from"] == "lidar":
@@ -276,5 +279,15 @@ def prepare(ds: Dataset, cfg: dict) -> Prepared:
         g = normal_gravity_mps2(ds.geodetic_origin[0], ds.geodetic_origin[2]) if ds.geodetic_origin else 9.80665
     applied["gravity_mps2"] = float(g)
     applied["t_start_s"] = t0
-    return Prepared(imu=imu, groundtruth=gt, gnss=gnss, lidar=lidar, k_start=k0, x0=x0, gravity_mps2=float(g),
+    prep = Prepared(imu=imu, groundtruth=gt, gnss=gnss, lidar=lidar, k_start=k0, x0=x0, gravity_mps2=float(g),
                     gnss_info=gnss_info, applied=applied, odometer=odo, streams=extra, resolved=resolved)
+    if cfg["filter"].get("nhc") and cfg["filter"].get("nhc_travel_pitch_mrad") == "auto":
+        # the IMU's pitch against the direction of travel: from the lidar, else from a smoothed IMU + GNSS pass;
+        # without an estimate the constraint's vertical row is left out
+        why = "no lidar stream" if ds.lidar is None else "under 20 s of straight driving in the lidar"
+        if travel is None:
+            travel, why_not = pitch_from_smoothed_pass(prep, cfg) if use_gnss else (None, "no GNSS fused")
+            why = f"{why}; {why_not}"
+        resolved.setdefault("filter", {})["nhc_travel_pitch_mrad"] = None if travel is None else travel.pitch_mrad
+        applied["nhc_travel"] = travel.as_dict() if travel is not None else {"pitch_mrad": None, "method": why}
+    return prep

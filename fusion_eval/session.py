@@ -56,7 +56,12 @@ def manifest_layer(ds: Dataset) -> tuple[Layer, ...]:
 
 def resolve(req: ConfigRequest, ds: Dataset) -> dict:
     """The resolved (human-unit) configuration of a run of ``ds``."""
-    return merge_layers([*manifest_layer(ds), *req.layers])
+    from .filters import observations
+
+    cfg = merge_layers([*manifest_layer(ds), *req.layers])
+    for o in observations.REGISTRY:
+        o.resolve_for(cfg, ds.description)
+    return cfg
 
 
 def dataset(path: str | Path | None = None) -> Dataset:

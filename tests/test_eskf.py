@@ -179,3 +179,31 @@ def test_cloned_pose_is_fully_correlated_with_the_current_pose():
     assert np.abs(r).max() < 1e-12
     kf.update(lambda *_: (H, r, Rm))
     assert np.allclose(kf.x.p_w_m, x_before.p_w_m)
+
+
+@pytest.mark.parametrize("pitch_yaw_mrad", [(0.0, 0.0), (30.0, -20.0)])
+def test_body_velocity_rows_along_tilted_vehicle_axes_match_finite_differences(pitch_yaw_mrad):
+    """The non-holonomic rows along the vehicle's axes (an IMU pitched and yawed against the direction of
+    travel): residual and Jacobian against finite differences, and zero at a velocity along the travel axis."""
+    from fusion_eval.calibration.travel import vehicle_axes
+    from fusion_eval.filters.observations.base import BODY_VELOCITY_ROW, kernel_model
+    from fusion_eval.filters.observations.nhc import nhc_kernel
+
+    rng = np.random.default_rng(17)
+    axes = vehicle_axes(*(np.array(pitch_yaw_mrad) * 1e-3))
+    R = exp_so3(rng.normal(size=3))
+    x = NominalState(rng.normal(size=3), R @ (axes[0] * 12.0), R, np.zeros(3), np.zeros(3))
+    row = BODY_VELOCITY_ROW.pack(v=np.zeros(3), std=np.full(3, 0.1), used=[0.0, 1.0, 1.0], axes=axes.ravel())
+    H, r0, Rm = kernel_model(nhc_kernel, x, row=row)
+    assert r0.shape == (2,) and np.abs(r0).max() < 1e-12        # moving along the vehicle's x axis: no violation
+    assert np.allclose(Rm, np.eye(2) * 0.01)
+    x.v_w_mps[:] += rng.normal(size=3)                          # away from it, so that every column is exercised
+    H, r0, _ = kernel_model(nhc_kernel, x, row=row)
+    Hnum = np.zeros((2, 9))
+    for i in range(9):
+        d = np.zeros(21)
+        d[i] = 1e-6
+        xp, _, _ = _perturb(x, (np.zeros(3), np.eye(3)), d)
+        Hnum[:, i] = -(kernel_model(nhc_kernel, xp, row=row)[1] - r0) / 1e-6
+    assert np.abs(H[:, :9] - Hnum).max() < 1e-4
+    assert np.abs(H[:, 9:]).max() == 0.0

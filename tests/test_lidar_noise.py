@@ -43,14 +43,20 @@ def test_the_gate_rejects_and_the_report_counts(kitti_slice):
 def test_world_frame_increments_follow_a_good_scan_to_map_odometry_without_gnss():
     """SiMpLE on KITTI 06 without GNSS: the odometry's positions are better than its attitude (its yaw drifts
     against the IMU by tenths of a degree, its positions stay within 0.4 m), so body-frame increments, rotated by
-    the filter's attitude, carry that attitude error into the path, and world-frame increments do not."""
+    the filter's attitude, carry that attitude error into the path, and world-frame increments do not. The
+    non-holonomic constraint (on by default for a car) holds the path to the filter's heading and removes that
+    loss (measured: body 0.715 m without it, 0.406 with it; the lidar 0.414; world 0.388 and 0.370)."""
     from conftest import ROOT, shared_path
 
     shared_path("kitti-odometry-simple", "06")
     ds = fe.load_dataset(ROOT / "configs" / "datasets" / "simple-06.yaml")
     ape = {}
-    for frame in ("body", "world"):
-        est = fe.run(ds, overrides={"filter.use_gnss": False, "lidar.relative_frame": frame}).metrics["estimates"]
-        ape[frame] = est["fused"]["ape"]["translation_m"]["rmse"]
-        lidar = est["lidar"]["ape"]["translation_m"]["rmse"]
-    assert ape["world"] < lidar < ape["body"]
+    for nhc in (False, "auto"):
+        for frame in ("body", "world"):
+            est = fe.run(ds, overrides={"filter.use_gnss": False, "lidar.relative_frame": frame,
+                                        "filter.nhc": nhc}).metrics["estimates"]
+            ape[nhc, frame] = est["fused"]["ape"]["translation_m"]["rmse"]
+            lidar = est["lidar"]["ape"]["translation_m"]["rmse"]
+    assert ape[False, "world"] < lidar < ape[False, "body"], ape
+    assert ape["auto", "body"] < lidar and ape["auto", "world"] < lidar, ape
+    assert ape["auto", "body"] < 0.7 * ape[False, "body"], ape

@@ -34,7 +34,9 @@ STREAM_KEYS = {
     "lidar": {"format", "path", "time_offset_s", "anchor"} | _POSE_KEYS,
     "odometer": {"format", "path", "time_offset_s", "degrade"},
 }
-TOP_KEYS = {"name", "description", "attribution", "geodetic_origin", "streams", "config", "truth"}
+TOP_KEYS = {"name", "description", "attribution", "geodetic_origin", "streams", "config", "truth", "platform"}
+# what carried the sensors: 'car' / 'wheeled' turn the non-holonomic constraint on by default (filter.nhc: auto)
+PLATFORMS = ("car", "wheeled", "aerial", "handheld", "legged", "other")
 
 
 def load_dataset(path: str | Path, extra_streams: tuple[StreamSpec, ...] | None = None) -> Dataset:
@@ -72,7 +74,8 @@ def load_dataset(path: str | Path, extra_streams: tuple[StreamSpec, ...] | None 
         streams.update({n: {"format": "kitti_oxts", "path": "oxts"} for n, spec in extra.items() if spec.implicit_kitti_raw})
         # a raw drive has no lidar odometry: like a EuRoC folder's, its implicit manifest suggests the filter without
         # it (a configuration or --set that asks for lidar updates still overrides it, and is refused)
-        body = {"name": path.name, "streams": streams, "config": {"filter": {"lidar_update": "none"}}}
+        body = {"name": path.name, "streams": streams, "config": {"filter": {"lidar_update": "none"}},
+                "platform": "car"}                # KITTI's recording platform, a VW Passat
         return _from_manifest_dict(body, path, path / "(implicit manifest)", extra)
     raise DataFormatError(path, None, "expected dataset.yaml, an oxts/ folder (KITTI raw drive) or mav0/imu0/data.csv "
                                       "(EuRoC / TUM-VI) in this folder")
@@ -211,8 +214,11 @@ def _from_manifest_dict(body: dict, root: Path, manifest: Path, extra: dict | No
                     for n in streams if n in extra},
         "config": body.get("config") or {},
         "truth": body.get("truth"),
+        "platform": body.get("platform"),
         "streams": {s: {k: (str(v) if k == "path" else v) for k, v in streams[s].items()} for s in streams},
     }
+    if description["platform"] is not None and description["platform"] not in PLATFORMS:
+        raise ConfigError(f"{manifest}: 'platform' must be one of {', '.join(PLATFORMS)}, got {description['platform']!r}")
     if not isinstance(description["config"], dict):
         raise ConfigError(f"{manifest}: 'config' must be a mapping of configuration sections (suggested settings)")
     if description["lidar_anchor"] not in ("groundtruth", "none"):

@@ -151,6 +151,10 @@ class Observation:
     def enabled(self, cfg: dict) -> bool:
         return all(cfg[k.split(".")[0]][k.split(".")[1]] == v for k, v in self.enable_with.items())
 
+    def resolve_for(self, cfg: dict, description: dict) -> None:
+        """Settle this observation's dataset-dependent ``auto`` settings in a run's configuration (in place), from
+        the dataset's manifest (``description``); an unresolved ``auto`` reads as off."""
+
     def bind(self, run, s) -> Bound:
         raise NotImplementedError
 
@@ -176,16 +180,18 @@ def rows_inside(t_s: np.ndarray, t0: float, t_end: float) -> np.ndarray:
 
 
 # data row of a body-velocity observation: observed v_b, std per axis, and which axes it observes (1) or not (0)
-BODY_VELOCITY_ROW = Layout("body velocity data row", [("v", 3), ("std", 3), ("used", 3)])
-_BV, _BSTD, _BUSED = (BODY_VELOCITY_ROW.start(b) for b in ("v", "std", "used"))
+BODY_VELOCITY_ROW = Layout("body velocity data row", [("v", 3), ("std", 3), ("used", 3), ("axes", 9)])
+_BV, _BSTD, _BUSED, _BAXES = (BODY_VELOCITY_ROW.start(b) for b in ("v", "std", "used", "axes"))
+IDENTITY_AXES = np.eye(3).ravel()
 
 
 @njit(cache=True)
 def body_velocity_rows(x, row, H, r, Rm):
-    """Body-frame velocity ``v_b = R^T v``, compiled: the observed axes (one row each; 0 forward, 1 lateral, 2
-    vertical), with
-    ``d v_b / d dv = R^T`` and ``d v_b / d dtheta = [v_b]x``. Each observation that uses it wraps it in a kernel
-    of its own (the compiled replay dispatches on the kernel)."""
+    """Velocity along the vehicle's axes ``c_q^T v_b``, ``v_b = R^T v``, compiled: the observed axes (one row each;
+    0 forward, 1 lateral, 2 vertical), each axis ``c_q`` given in the IMU frame (row ``q`` of the data row's
+    ``axes``: the identity when the IMU is aligned with the vehicle), with ``d/d dv = c_q^T R^T`` and
+    ``d/d dtheta = c_q^T [v_b]x = (c_q x v_b)^T``. Each observation that uses it wraps it in a kernel of its own
+    (the compiled replay dispatches on the kernel)."""
     vb = np.empty(3)
     for q in range(3):
         vb[q] = (x[XR + q] * x[XV] + x[XR + 3 + q] * x[XV + 1] + x[XR + 6 + q] * x[XV + 2])
@@ -193,17 +199,19 @@ def body_velocity_rows(x, row, H, r, Rm):
     for q in range(3):
         if row[_BUSED + q] == 0.0:
             continue
+        a = _BAXES + 3 * q
         for k in range(H.shape[1]):
             H[m, k] = 0.0
         for k in range(Rm.shape[1]):
             Rm[m, k] = 0.0
             Rm[k, m] = 0.0
-        for k in range(3):
-            H[m, V_ID + k] = x[XR + 3 * k + q]            # (R^T)[q, k]
-        # [v_b]x row q
-        H[m, TH_ID + (q + 1) % 3] = -vb[(q + 2) % 3]
-        H[m, TH_ID + (q + 2) % 3] = vb[(q + 1) % 3]
-        r[m] = row[_BV + q] - vb[q]
+        for k in range(3):                                # c^T R^T
+            H[m, V_ID + k] = (row[a] * x[XR + 3 * k] + row[a + 1] * x[XR + 3 * k + 1]
+                              + row[a + 2] * x[XR + 3 * k + 2])
+        H[m, TH_ID] = row[a + 1] * vb[2] - row[a + 2] * vb[1]       # c x v_b
+        H[m, TH_ID + 1] = row[a + 2] * vb[0] - row[a] * vb[2]
+        H[m, TH_ID + 2] = row[a] * vb[1] - row[a + 1] * vb[0]
+        r[m] = row[_BV + q] - (row[a] * vb[0] + row[a + 1] * vb[1] + row[a + 2] * vb[2])
         Rm[m, m] = row[_BSTD + q] * row[_BSTD + q]
         m += 1
     return m

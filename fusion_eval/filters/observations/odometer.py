@@ -8,7 +8,7 @@ import numpy as np
 from numba import njit
 
 from ...spec import S
-from .base import BODY_VELOCITY_ROW, Bound, Kernel, Observation, body_velocity_rows, kernel_model, rows_inside
+from .base import BODY_VELOCITY_ROW, IDENTITY_AXES, Bound, Kernel, Observation, body_velocity_rows, kernel_model, rows_inside
 
 
 @njit(cache=True)
@@ -39,7 +39,7 @@ class Odometer(Observation):
         v = np.zeros((n, 3))
         v[:, 0] = odo.v_mps[rows]                     # forward
         data = BODY_VELOCITY_ROW.columns(v=v, std=np.full((n, 3), s.odometer.speed_std_mps),
-                                         used=np.tile([1.0, 0.0, 0.0], (n, 1)))
+                                         used=np.tile([1.0, 0.0, 0.0], (n, 1)), axes=np.tile(IDENTITY_AXES, (n, 1)))
 
         def model(j):
             return partial(kernel_model, odometer_kernel, row=data[j])
