@@ -148,3 +148,37 @@ def test_simulator_rejects_settings_it_cannot_honour(tmp_path, sets, needle):
     r = CliRunner().invoke(main, args)
     assert r.exit_code == 2 and needle in r.stderr, r.output
     assert not (tmp_path / "x").exists()
+
+
+_PROBE: dict = {}
+
+
+def _probe_dispositions(work) -> None:
+    """A pool worker's SIGTERM and SIGINT dispositions, appended to the file the test names (fork: inherited)."""
+    import signal
+
+    with open(_PROBE["path"], "a") as f:
+        f.write(f"{signal.getsignal(signal.SIGTERM) == signal.SIG_DFL} {signal.getsignal(signal.SIGINT) == signal.SIG_IGN}\n")
+
+
+def test_the_kitti_layout_writer_pool_workers_take_the_projects_signal_dispositions(tmp_path, monkeypatch):
+    """Over 20,000 packets the KITTI layout's files are written by a pool of forked workers. Closing the pool sends
+    them SIGTERM; workers that inherited the command's Python handler raised in reply and printed a traceback each
+    (seen once, after the command had exited). They must take the project's worker set-up: SIGTERM ends them at
+    once, Ctrl-C is the parent's."""
+    import signal
+
+    from fusion_eval.simulate import dataset as sd
+
+    seen = tmp_path / "seen.txt"
+    monkeypatch.setitem(_PROBE, "path", str(seen))
+    monkeypatch.setattr(sd, "_write_packet_range", _probe_dispositions)
+    monkeypatch.setattr(sd.os, "cpu_count", lambda: 2)           # two writers on any machine
+    old = signal.signal(signal.SIGTERM, lambda *a: None)       # a command's handler, as the CLI installs one
+    try:
+        r = CliRunner().invoke(main, ["-q", "simulate", str(tmp_path / "s"), "--duration", "210"])
+    finally:
+        signal.signal(signal.SIGTERM, old)
+    assert r.exit_code == 0, r.output
+    lines = seen.read_text().split("\n")[:-1]
+    assert len(lines) == 2 and set(lines) == {"True True"}, lines

@@ -113,7 +113,13 @@ def {name}(a, st, xc, clone_t, times, kinds, index, j0, j1, gates, clone_after, 
 
 
 def _source_digest(*fns) -> str:
-    h = hashlib.sha1(_LOOP.encode())
+    return source_digest(_LOOP, *fns)
+
+
+def source_digest(template: str, *fns) -> str:
+    """A name for the cached copy of a function built from ``template`` that calls ``fns``: numba's cache checks
+    only the file of the function itself, so the sources it calls go into its name."""
+    h = hashlib.sha1(template.encode())
     for f in fns:
         py = getattr(f, "py_func", f)
         h.update(inspect.getsource(py).encode())

@@ -33,6 +33,7 @@ from ..errors import ConfigError
 from ..fastfmt import format_table, table_text
 from ..geo import normal_gravity_mps2
 from ..outputs import StagedDir
+from ..pool import worker_init
 from ..so3 import exp_so3, inv_T, make_T, matrix_to_quat_xyzw, quat_xyzw_to_matrix
 from . import layouts, sensors
 from .motion import PROFILES, profile_segments, sample_motion
@@ -160,7 +161,9 @@ def simulate(out_dir: Path, profile: str, duration_s: float, seed: int, grade: s
             work = [(str(folder), int(a), int(b)) for a, b in zip(bounds[:-1], bounds[1:])]
             try:
                 if jobs > 1 and n > 20000:   # file creation is the cost: spread it over the cores
-                    with mp.get_context("fork").Pool(jobs) as pool:
+                    # the project's worker set-up: the pool's closing SIGTERM ends a worker quietly (it inherits the
+                    # command's handler otherwise, and prints a traceback per worker after the command has exited)
+                    with mp.get_context("fork").Pool(jobs, initializer=worker_init) as pool:
                         pool.map(_write_packet_range, work)
                 else:
                     for w in work:

@@ -28,6 +28,7 @@ import numpy as np
 from ..errors import ConfigError
 from ..filters.propagate import LAST_U
 from . import kernels
+from .compiled import compiled_pass
 from .record import EpochRecord
 
 
@@ -88,8 +89,9 @@ class _Workspace:
 class RTS:
     """The backward pass over a finished filter ``kf`` and its :class:`EpochRecord`."""
 
-    def __init__(self, kf, rec: EpochRecord):
+    def __init__(self, kf, rec: EpochRecord, python: bool = False):
         self.kf, self.rec = kf, rec
+        self.python = python                # step each IMU interval from Python (the oracle of the compiled one)
         self.ws = _Workspace(kf)
         a = kf.arrays
         self.t, self.u, self.gap, self.prm = a.t, a.u, a.gap, a.prm
@@ -172,6 +174,13 @@ class RTS:
         last = ep.size - 1
         xs = (ep.x[last].copy(), ep.c[last].copy(), ep.aux[last].copy(), ep.u[last].copy())   # last: smoothed = filtered
         Ps = self.cov(ep, last)
+        fast = None if self.python else compiled_pass(type(kf))
+        if fast is not None:                      # the whole pass in one compiled call (the same steps, below)
+            cl = self.rec.clones
+            fast(ep.t, ep.k_next, ep.n, ep.x, ep.c, ep.aux, ep.u, ep.P, ep.size, cl.n, cl.x, cl.c, cl.P,
+                 self.rec.clone_epoch, cl.size, ep.n_max, self.nc, self.t, self.u, self.gap, self.prm, RCOND, kf.cidx,
+                 out.rec_x, out.rec_Pdiag, out.rec_Ppt)
+            return out
         for b in range(last, 0, -1):
             self._emit(out, self._sample_at(b), xs, Ps)
             for i in reversed(clones_of.get(b, [])):
@@ -209,9 +218,9 @@ class RTS:
         kf._record_cov(P, P.shape[0], x, aux, kf.cidx, out.rec_Pdiag[k], out.rec_Ppt[k])
 
 
-def smooth(kf, rec: EpochRecord, k0: int) -> Smoothed:
-    """Run the RTS backward pass over a finished replay."""
-    return RTS(kf, rec).run(k0)
+def smooth(kf, rec: EpochRecord, k0: int, python: bool = False) -> Smoothed:
+    """Run the RTS backward pass over a finished replay (``python``: every interval stepped from Python)."""
+    return RTS(kf, rec, python).run(k0)
 
 
 class RtsSmoother:

@@ -265,6 +265,8 @@ class ErrorStateKF(ErrorStateBase):
 
     compiled_update = True
     _inject_kernel = staticmethod(inject_reset)     # the compiled replay's injection (D = I)
+    _rts_boxminus = staticmethod(boxminus_vec)      # the compiled RTS interval (fusion_eval.smoothing.compiled)
+    _rts_boxplus = staticmethod(boxplus_into)
 
     def own_jacobian(self, Hc: np.ndarray) -> np.ndarray:
         return np.ascontiguousarray(Hc[:, :self.n])          # D = I: the canonical error is this state

@@ -1,0 +1,164 @@
+"""The RTS backward pass in one compiled call: each interval between two recorded epochs, and the clones undone.
+
+Between two epochs (lidar/GNSS stamps) the filter only predicts. The backward pass recomputes those IMU
+intervals with the formulation's own step (the transition of each from an augmented covariance, as in
+:meth:`fusion_eval.smoothing.rts.RTS.segment`) and walks them backwards: the smoothed correction, the gain in
+its plain or clone-conditional form, the injection on the manifold, the record at each IMU sample. Stepped from
+Python that costs ~50-100 us per IMU interval in calls and small arrays, more than the filter's own replay at
+100 Hz; here the whole interval is one call. Like the filter's loop (:mod:`fusion_eval.filters.propagate`), the
+function is written once as source and instantiated with each formulation's step, ``[-]``, ``[+]`` and
+covariance record, for the formulations that have them compiled (``_rts_boxminus``/``_rts_boxplus``); the others
+keep the Python path, which is also the oracle of the tests.
+"""
+
+from __future__ import annotations
+
+import sys
+
+import numpy as np
+from numba import njit
+
+from ..filters.compiled_replay import source_digest
+from . import kernels
+
+_SEGMENT = '''
+def {name}(x_a, aux, c, P_a, n, nc, t, u, gap, prm, k, t0, u0, t_b, xs_x, xs_c, Ps, rcond, cidx,
+           out_x, out_Pdiag, out_Ppt):
+    N = t.shape[0]
+    kb = k
+    while kb < N and t[kb] <= t_b:
+        kb += 1
+    m = kb - k + 2                                # points: the epoch, every sample, the partial step to t_b
+    X = np.empty((m, x_a.shape[0]))
+    A = np.empty((m, nc, nc))
+    PH = np.empty((m, nc, nc))
+    PJ = np.empty((m, n, n))
+    KJ = np.full(m, -1, np.int64)
+    nb = n - nc
+    B = np.empty((m, nc, nb))
+    x = x_a.copy()
+    X[0] = x
+    if nb > 0:
+        A0, B0, Dinv = _condition(P_a, nc, rcond)
+        D = np.ascontiguousarray(P_a[nc:, nc:])
+        A[0] = A0
+        B[0] = B0
+    else:
+        A[0] = P_a
+        Dinv = np.zeros((0, 0))
+        D = np.zeros((0, 0))
+    PJ[0] = P_a
+    j = 0
+    uu0 = u0.copy()
+    while k < N and t[k] <= t_b:
+        dt = t[k] - t0
+        if dt > 0.0:
+            qs = gap[1] if (k > 0 and t[k] - t[k - 1] > gap[0]) else 1.0
+            Pa = _augmented(A[j], nc)
+            _step(x, Pa, 2 * nc, uu0, u[k], dt, qs, prm, aux, True)
+            j += 1
+            A[j] = Pa[:nc, :nc]
+            PH[j - 1] = Pa[:nc, nc:]
+            X[j] = x
+            if nb > 0:
+                B[j] = np.ascontiguousarray(PH[j - 1]) @ B[j - 1]
+                PJ[j] = _assemble(np.ascontiguousarray(A[j]), np.ascontiguousarray(B[j]), D, Dinv)
+            else:
+                PJ[j] = A[j]
+            KJ[j] = k
+        else:
+            KJ[j] = k
+        t0 = t[k]
+        uu0 = u[k].copy()
+        k += 1
+    if t_b > t0 and k < N:
+        frac = (t_b - t0) / (t[k] - t0)
+        u1 = uu0 + frac * (u[k] - uu0)
+        qs = gap[1] if (k > 0 and t[k] - t[k - 1] > gap[0]) else 1.0
+        Pa = _augmented(A[j], nc)
+        _step(x, Pa, 2 * nc, uu0, u1, t_b - t0, qs, prm, aux, True)
+        j += 1
+        A[j] = Pa[:nc, :nc]
+        PH[j - 1] = Pa[:nc, nc:]
+        X[j] = x
+        if nb > 0:
+            B[j] = np.ascontiguousarray(PH[j - 1]) @ B[j - 1]
+            PJ[j] = _assemble(np.ascontiguousarray(A[j]), np.ascontiguousarray(B[j]), D, Dinv)
+        else:
+            PJ[j] = A[j]
+        KJ[j] = -1
+    xs = xs_x.copy()
+    cs = xs_c.copy()
+    P = Ps.copy()
+    for i in range(j - 1, -1, -1):
+        e = _boxminus(xs, cs, X[i + 1], c, n)
+        phi = np.ascontiguousarray(PH[i])
+        if nb > 0:
+            d, P = _backward_clone(np.ascontiguousarray(A[i]), np.ascontiguousarray(B[i]), Dinv, phi,
+                                   np.ascontiguousarray(A[i + 1]), e, P, np.ascontiguousarray(PJ[i]),
+                                   np.ascontiguousarray(PJ[i + 1]), rcond)
+        else:
+            d, P = _backward(np.ascontiguousarray(PJ[i]), phi, np.ascontiguousarray(PJ[i + 1]), e, P, rcond)
+        _boxplus(xs, cs, X[i], c, d, n)
+        if i > 0 and KJ[i] >= 0:
+            out_x[KJ[i], :] = xs
+            _record_cov(P, n, xs, aux, cidx, out_Pdiag[KJ[i]], out_Ppt[KJ[i]])
+    return xs, cs, P
+
+
+def {name_pass}(ep_t, ep_k, ep_n, ep_x, ep_c, ep_aux, ep_u, ep_P, n_ep, cl_n, cl_x, cl_c, cl_P, clone_epoch, n_cl,
+                n_max, nc, t, u, gap, prm, rcond, cidx, out_x, out_Pdiag, out_Ppt):
+    N = t.shape[0]
+    last = n_ep - 1
+    xs = ep_x[last].copy()
+    cs = ep_c[last].copy()
+    P = _unpack(ep_P[last], n_max, ep_n[last])
+    ci = n_cl - 1
+    for b in range(last, -1, -1):
+        k = ep_k[b] - 1                               # the sample epoch b sits on, if any
+        if 0 <= k < N and abs(t[k] - ep_t[b]) < 1e-9:
+            out_x[k, :] = xs
+            _record_cov(P, P.shape[0], xs, ep_aux[b], cidx, out_Pdiag[k], out_Ppt[k])
+        if b == 0:
+            break
+        while ci >= 0 and clone_epoch[ci] > b:
+            ci -= 1
+        while ci >= 0 and clone_epoch[ci] == b:       # undo the clones taken at b, the last first
+            Pt = _unpack(cl_P[ci], n_max, cl_n[ci])
+            e = _boxminus(xs, cs, cl_x[ci], cl_c[ci], nc)
+            d, P = _uncondition(Pt, nc, e, np.ascontiguousarray(P[:nc, :nc]), rcond)
+            _boxplus(xs, cs, cl_x[ci], cl_c[ci], d, Pt.shape[0])
+            ci -= 1
+        a = b - 1
+        xs, cs, P = {name}(ep_x[a].copy(), ep_aux[a].copy(), ep_c[a], _unpack(ep_P[a], n_max, ep_n[a]), P.shape[0], nc,
+                           t, u, gap, prm, ep_k[a], ep_t[a], ep_u[a], ep_t[b], xs, cs, np.ascontiguousarray(P), rcond,
+                           cidx, out_x, out_Pdiag, out_Ppt)
+'''
+
+
+def compiled_pass(cls):
+    """``backward_pass(...)`` for the formulation class ``cls``: the whole RTS backward pass over an
+    :class:`~fusion_eval.smoothing.record.EpochRecord` (see :meth:`RTS.run`), or None when the formulation has no
+    compiled ``[-]``/``[+]``; compiled into and cached beside the formulation's module."""
+    if getattr(cls, "_rts_boxminus", None) is None:
+        return None
+    got = _CACHE.get(cls)
+    if got is not None:
+        return got
+    mod = sys.modules[cls.__module__]
+    calls = {"_step": cls._step, "_boxminus": cls._rts_boxminus, "_boxplus": cls._rts_boxplus,
+             "_record_cov": cls._record_cov, "_condition": kernels.condition, "_augmented": kernels.augmented,
+             "_assemble": kernels.assemble, "_backward": kernels.backward, "_backward_clone": kernels.backward_clone,
+             "_uncondition": kernels.uncondition, "_unpack": kernels.unpack_upper}
+    digest = source_digest(_SEGMENT, *calls.values(), kernels.pinv_sym)
+    name, name_pass = f"_rts_segment_{digest}", f"_rts_pass_{digest}"
+    ns = {**calls, "np": np, "__name__": cls.__module__}
+    exec(compile(_SEGMENT.format(name=name, name_pass=name_pass), mod.__file__, "exec"), ns)  # noqa: S102 - our template
+    for nm in (name, name_pass):                       # the segment first: the pass calls it by its global name
+        ns[nm].__qualname__ = nm
+        ns[nm] = njit(cache=True)(ns[nm])
+    _CACHE[cls] = ns[name_pass]
+    return _CACHE[cls]
+
+
+_CACHE: dict = {}
