@@ -42,7 +42,7 @@ CORE: dict[str, Spec] = {
                                      "prediction; error state [dp, dtheta, dk, dbg])", choices=("<process models>",)),
     "filter.iterations": S(1, "iterated EKF: re-linearise each update up to this many times (1 = plain EKF)", positive=True),
     "filter.replay": S("auto", "'auto' = the event loop in one compiled call when the formulation and every enabled "
-                               "observation have compiled kernels (no smoother, no iterated update), else from Python; "
+                               "observation have compiled kernels (the RTS smoother too; not the batch smoother or the iterated update), else from Python; "
                                "'python' = always from Python (same estimate, slower; for debugging)",
                        choices=("auto", "python")),
     "filter.iteration_tol": S(1e-8, "iterated EKF: stop when the correction changes by less than this (norm)", positive=True),

@@ -191,6 +191,32 @@ def test_the_compiled_backward_pass_equals_the_one_stepped_from_python(kitti_sli
     np.testing.assert_allclose(b.rec_Ppt, a.rec_Ppt, rtol=1e-12, atol=1e-30)
 
 
+def test_the_compiled_event_loop_keeps_the_smoothers_forward_record(kitti_slice, monkeypatch):
+    """With an RTS smoother the ESKF's replay stays in the compiled event loop, which keeps the epochs and the
+    states before each clone itself; the record, the filtered and the smoothed estimates equal those of the loop
+    stepped from Python (measured bit for bit)."""
+    from fusion_eval.filters import compiled_replay
+
+    used = []
+    orig = compiled_replay.usable
+    monkeypatch.setattr(compiled_replay, "usable", lambda *a: used.append(orig(*a)) or used[-1])
+    seen = _capture(monkeypatch)
+    ds = fe.load_dataset(kitti_slice)
+    runs, recs = {}, {}
+    for mode in ("python", "auto"):
+        runs[mode] = fe.run(ds, overrides={"smoother.method": "rts", "filter.replay": mode})
+        recs[mode] = seen["rec"]
+    assert used == [False, True]
+    a, b = recs["python"], recs["auto"]
+    assert (a.epochs.size, a.clones.size) == (b.epochs.size, b.clones.size) and b.clones.size > 100
+    for f in ("t", "k_next", "n", "x", "c", "aux", "u", "P"):
+        np.testing.assert_array_equal(getattr(b.epochs, f)[:b.epochs.size], getattr(a.epochs, f)[:a.epochs.size], f)
+        np.testing.assert_array_equal(getattr(b.clones, f)[:b.clones.size], getattr(a.clones, f)[:a.clones.size], f)
+    np.testing.assert_array_equal(b.clone_epoch[:b.clones.size], a.clone_epoch[:a.clones.size])
+    for est in ("fused", "smoothed"):
+        np.testing.assert_allclose(runs["auto"].series[est].p_w_m, runs["python"].series[est].p_w_m, rtol=0, atol=1e-12)
+
+
 @pytest.mark.parametrize("formulation", ["error_state", "invariant"])
 def test_the_recomputed_intervals_are_the_filters_own(kitti_slice, monkeypatch, formulation):
     """Between GNSS epochs the backward pass recomputes each IMU interval with the formulation's compiled step (and

@@ -3,7 +3,8 @@ Joseph update, injection and reset, adaptive noise, cloning and recording, for a
 
 It runs when the formulation declares a compiled injection (``FilterBase.compiled_inject``, with its error
 state the canonical one, ``D = I``) and every enabled observation binds a compiled kernel
-(``Bound.kernel``), with no smoother and no iterated update; otherwise :func:`fusion_eval.replay.replay`
+(``Bound.kernel``), with no iterated update and no batch smoother (an RTS smoother's forward record, the epochs
+and the states before each clone, is kept by the loop itself); otherwise :func:`fusion_eval.replay.replay`
 steps the events from Python (``filter.replay: python`` forces that path). Both paths run the same models
 (each observation's Python model is its kernel) and the same kernels for propagation and update, and give
 the same estimate (``tests/test_compiled_replay.py``: 1e-9 m).
@@ -25,6 +26,7 @@ from numba import njit
 
 from ..errors import FilterDivergedError
 from .layout import CLONE
+from .propagate import LAST_T, LAST_U
 from . import linalg
 from .linalg import joseph_update_into
 from .observations.base import M_MAX, N_MAX, matched_variance
@@ -39,7 +41,9 @@ CLONE_P, CLONE_R = CLONE.start("p"), CLONE.start("R")
 
 _LOOP = '''
 def {name}(a, st, xc, clone_t, times, kinds, index, j0, j1, gates, clone_after, n_core, clone_rows, xp, xr,
-           ad_nb, ad_blocks, ad_rate, ad_var, ad_hist, ad_count, nis_out, ok_out, ld_out, H, r, Rm, wn, wm, dx, cols, {datas}):
+           ad_nb, ad_blocks, ad_rate, ad_var, ad_hist, ad_count, nis_out, ok_out, ld_out, H, r, Rm, wn, wm, dx, cols,
+           rec_on, rst, n_max, ep_t, ep_k, ep_n, ep_x, ep_c, ep_aux, ep_u, ep_P, cl_t, cl_k, cl_n, cl_x, cl_c, cl_aux,
+           cl_u, cl_P, clone_epoch, {datas}):
     for j in range(j0, j1):
         t = times[j]
         kind = kinds[j]
@@ -100,6 +104,10 @@ def {name}(a, st, xc, clone_t, times, kinds, index, j0, j1, gates, clone_after, 
                     ad_hist[kind, c, 2] = ad_var[kind, 1]
                     ad_count[kind] = c + 1
         if clone_after[kind]:     # stochastic cloning
+            if rec_on:            # the smoother's record of the joint state before the clone is replaced
+                clone_epoch[rst[1]] = _epoch_index(ep_t, rst[0], a.last[0])
+                _store_row(a, st[{st_k}], n, xc, n_max, rst[1], cl_t, cl_k, cl_n, cl_x, cl_c, cl_aux, cl_u, cl_P)
+                rst[1] += 1
             mc = clone_covariance(a.P, n_core, clone_rows)
             for d in range(3):
                 xc[{clone_p} + d] = a.x[xp + d]
@@ -108,8 +116,36 @@ def {name}(a, st, xc, clone_t, times, kinds, index, j0, j1, gates, clone_after, 
             st[{st_n}] = n_core + mc
             st[{st_cloned}] = 1
             clone_t[0] = a.last[0]
+        if rec_on:                # the smoother's epoch: the filter after everything at this stamp
+            i = _epoch_index(ep_t, rst[0], a.last[0])
+            _store_row(a, st[{st_k}], st[{st_n}], xc, n_max, i, ep_t, ep_k, ep_n, ep_x, ep_c, ep_aux, ep_u, ep_P)
+            rst[0] = i + 1
     return {ok}, j1
 '''
+
+
+@njit(cache=True)
+def _epoch_index(ep_t, size, t):
+    """The epoch a record at ``t`` belongs to (:meth:`fusion_eval.smoothing.record.EpochRecord._epoch_index`)."""
+    return size - 1 if size > 0 and abs(ep_t[size - 1] - t) < 1e-12 else size
+
+
+@njit(cache=True)
+def _store_row(a, k_next, n, xc, n_max, i, s_t, s_k, s_n, s_x, s_c, s_aux, s_u, s_P):
+    """Row ``i`` of a smoother record (:meth:`fusion_eval.smoothing.record._Store.put`): the covariance's leading
+    ``n x n`` block as the upper triangle of an ``n_max x n_max`` one."""
+    s_t[i] = a.last[LAST_T]
+    s_k[i] = k_next
+    s_n[i] = n
+    s_x[i, :] = a.x
+    s_c[i, :] = xc
+    s_aux[i, :] = a.aux
+    s_u[i, :] = a.last[LAST_U:]
+    q = 0
+    for p in range(n_max):
+        for c in range(p, n_max):
+            s_P[i, q] = a.P[p, c] if (p < n and c < n) else 0.0
+            q += 1
 
 
 def _source_digest(*fns) -> str:
@@ -143,7 +179,8 @@ def compiled_loop(formulation):
     # file of the function itself); deeper helpers change with these files' other functions (README, Tests)
     digest = _source_digest(formulation._predict, formulation._step, formulation._inject_kernel, formulation._record_cov,
                             joseph_update_into, linalg.cholesky_into, linalg.whitened_norm2, linalg.block_nis,
-                            linalg.reset_attitude_block, linalg.clone_covariance, matched_variance, *KERNELS)
+                            linalg.reset_attitude_block, linalg.clone_covariance, matched_variance, _epoch_index,
+                            _store_row, *KERNELS)
     name = f"_replay_{digest}"
     dispatch = "\n".join(f"        {'if' if c == 0 else 'elif'} kind == {c}:\n            m = _k{c}(a.x, xc, d{c}[i], H, r, Rm)"
                          for c in range(len(KERNELS)))
@@ -153,7 +190,8 @@ def compiled_loop(formulation):
                        bad_residual=BAD_RESIDUAL, bad_correction=BAD_CORRECTION, bad_state=BAD_STATE)
     ns = {"np": np, "_predict": formulation._predict, "_inject": formulation._inject_kernel,
           "_record_cov": formulation._record_cov, "joseph_update_into": joseph_update_into, "block_nis": linalg.block_nis, "clone_covariance": linalg.clone_covariance,
-          "matched_variance": matched_variance, "__name__": mod.__name__}
+          "matched_variance": matched_variance, "_epoch_index": _epoch_index, "_store_row": _store_row,
+          "__name__": mod.__name__}
     ns.update({f"_k{c}": k for c, k in enumerate(KERNELS)})
     exec(compile(src, mod.__file__, "exec"), ns)  # noqa: S102 - our own template
     fn = ns[name]
@@ -166,8 +204,10 @@ def usable(kf, bound, smoother, iterations: int, mode: str) -> bool:
     """Whether the compiled loop can run this replay (see the module docstring)."""
     from .observations import KERNELS
 
-    return (mode != "python" and getattr(kf, "_inject_kernel", None) is not None and smoother is None
-            and iterations <= 1 and kf.recorder is None and bool(bound)
+    # the RTS smoother's record is kept by the loop itself; the batch smoother collects factors from Python
+    rts = smoother is not None and getattr(smoother, "name", None) == "rts" and kf.recorder is smoother.rec
+    return (mode != "python" and getattr(kf, "_inject_kernel", None) is not None and (smoother is None or rts)
+            and iterations <= 1 and (kf.recorder is None or rts) and bool(bound)
             and all(b.kernel is not None and b.kernel.fn in KERNELS for b in bound))
 
 
@@ -212,14 +252,27 @@ def run(kf, bound, times: np.ndarray, which: np.ndarray, index: np.ndarray, orde
         for b, c in zip(bound, slot):
             dof_slot[c] = b.dof
         dof_ev = dof_slot[kinds]
+    rec = kf.recorder
+    if rec is not None:               # an RTS smoother's record, kept by the loop (EpochRecord.epoch / before_clone)
+        rst = np.array([rec.epochs.size, rec.clones.size], np.int64)
+        ep, cl = rec.epochs, rec.clones
+        stores = (ep.t, ep.k_next, ep.n, ep.x, ep.c, ep.aux, ep.u, ep.P, cl.t, cl.k_next, cl.n, cl.x, cl.c, cl.aux, cl.u,
+                  cl.P, rec.clone_epoch)
+        n_max = ep.n_max
+    else:
+        rst, n_max = np.zeros(2, np.int64), 0
+        f1, i1, f2 = np.zeros(1), np.zeros(1, np.int64), np.zeros((1, 1))
+        stores = (f1, i1, i1, f2, f2, f2, f2, f2, f1, i1, i1, f2, f2, f2, f2, f2, i1)
     j = 0
     try:
         while j < n_ev:
             status, j_stop = loop(kf.arrays, st, kf.clone.vec, clone_t, ts, kinds, idx, j, min(n_ev, j + chunk), gates,
                                   clone_after, kf.layout.n_core, clone_rows, NOMINAL.start("p"), NOMINAL.start("R"),
                                   ad_nb, ad_blocks, ad_rate, ad_var, ad_hist, ad_count, nis_out, ok_out, ld_out, H, r, Rm,
-                                  wn, wm, dx, cols, *datas)
+                                  wn, wm, dx, cols, rec is not None, rst, n_max, *stores, *datas)
             _sync(kf, st, clone_t)
+            if rec is not None:
+                rec.epochs.size, rec.clones.size = int(rst[0]), int(rst[1])
             if status != OK:
                 raise FilterDivergedError(f"filter diverged at t={kf.t:.3f} s: {MESSAGES[status]}")
             j = j_stop
