@@ -50,12 +50,18 @@ def {name}(x_a, aux, c, P_a, n, nc, t, u, gap, prm, k, t0, u0, t_b, xs_x, xs_c, 
     PJ[0] = P_a
     j = 0
     uu0 = u0.copy()
-    while k < N and t[k] <= t_b:
-        dt = t[k] - t0
+    while k < N:
+        if t[k] <= t_b:                           # up to the next sample
+            dt, u1, ks = t[k] - t0, u[k], k
+        elif t_b > t0:                            # the partial step to t_b, the input interpolated there
+            dt, ks = t_b - t0, -1
+            u1 = uu0 + (t_b - t0) / (t[k] - t0) * (u[k] - uu0)
+        else:
+            break
         if dt > 0.0:
             qs = gap[1] if (k > 0 and t[k] - t[k - 1] > gap[0]) else 1.0
             Pa = _augmented(A[j], nc)
-            _step(x, Pa, 2 * nc, uu0, u[k], dt, qs, prm, aux, True)
+            _step(x, Pa, 2 * nc, uu0, u1, dt, qs, prm, aux, True)
             j += 1
             A[j] = Pa[:nc, :nc]
             PH[j - 1] = Pa[:nc, nc:]
@@ -65,28 +71,12 @@ def {name}(x_a, aux, c, P_a, n, nc, t, u, gap, prm, k, t0, u0, t_b, xs_x, xs_c, 
                 PJ[j] = _assemble(np.ascontiguousarray(A[j]), np.ascontiguousarray(B[j]), D, Dinv)
             else:
                 PJ[j] = A[j]
-            KJ[j] = k
-        else:
-            KJ[j] = k
+        KJ[j] = ks                                # the epoch itself may sit on sample k (dt = 0)
+        if ks < 0:
+            break
         t0 = t[k]
         uu0 = u[k].copy()
         k += 1
-    if t_b > t0 and k < N:
-        frac = (t_b - t0) / (t[k] - t0)
-        u1 = uu0 + frac * (u[k] - uu0)
-        qs = gap[1] if (k > 0 and t[k] - t[k - 1] > gap[0]) else 1.0
-        Pa = _augmented(A[j], nc)
-        _step(x, Pa, 2 * nc, uu0, u1, t_b - t0, qs, prm, aux, True)
-        j += 1
-        A[j] = Pa[:nc, :nc]
-        PH[j - 1] = Pa[:nc, nc:]
-        X[j] = x
-        if nb > 0:
-            B[j] = np.ascontiguousarray(PH[j - 1]) @ B[j - 1]
-            PJ[j] = _assemble(np.ascontiguousarray(A[j]), np.ascontiguousarray(B[j]), D, Dinv)
-        else:
-            PJ[j] = A[j]
-        KJ[j] = -1
     xs = xs_x.copy()
     cs = xs_c.copy()
     P = Ps.copy()
