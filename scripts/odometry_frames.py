@@ -1,5 +1,6 @@
 #!/usr/bin/env python3
-"""Why IMU + lidar can lose to the lidar alone without GNSS, and what `lidar.relative_frame` changes (issue 11).
+"""Why IMU + lidar can lose to the lidar alone without GNSS, and what `lidar.relative_frame` changes (issue 11):
+body, world and heading frames.
 
     python scripts/odometry_frames.py [--only simple-06]
 
@@ -63,7 +64,7 @@ def main() -> None:
         if not path.exists() or (path.suffix == ".yaml" and not (ROOT.parent / "shared" / "data").exists()):
             print(f"skipped {label}: its data is absent", file=sys.stderr)
             continue
-        for frame in ("body", "world"):
+        for frame in ("body", "world", "heading"):
             r = fe.run(path, overrides={**NO_GNSS, "lidar.relative_frame": frame})
             m = r.metrics["estimates"]
             fa, la = (m[k]["ape"]["translation_m"]["rmse"] for k in ("fused", "lidar"))

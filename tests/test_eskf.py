@@ -109,18 +109,19 @@ def _perturb(x, clone, d):
     return xp, cp, cR
 
 
-@pytest.mark.parametrize("world", [False, True])
-def test_relative_pose_jacobian_matches_finite_differences(world):
+@pytest.mark.parametrize("frame", ["body", "world", "heading"])
+def test_relative_pose_jacobian_matches_finite_differences(frame):
     rng = np.random.default_rng(11)
     x = NominalState(rng.normal(size=3) * 5, rng.normal(size=3), exp_so3(rng.normal(size=3)), np.zeros(3), np.zeros(3))
     clone = (x.p_w_m - rng.normal(size=3), x.R_wb @ exp_so3(rng.normal(size=3) * 0.2))
     # observations near the prediction: the attitude Jacobian is the identity only at zero residual
     # (the exact one carries the inverse right Jacobian of the residual)
-    dp_obs = (x.p_w_m - clone[0]) if world else clone[1].T @ (x.p_w_m - clone[0])
-    dp_obs = dp_obs + rng.normal(size=3) * 1e-4
+    psi = np.arctan2(clone[1][1, 0], clone[1][0, 0])
+    in_frame = {"world": np.eye(3), "body": clone[1], "heading": exp_so3(np.array([0.0, 0.0, psi]))}[frame]
+    dp_obs = in_frame.T @ (x.p_w_m - clone[0]) + rng.normal(size=3) * 1e-4
     dR_obs = clone[1].T @ x.R_wb @ exp_so3(rng.normal(size=3) * 1e-4)
     H, r0, _ = relative_pose(x, clone[0], clone[1], dp_obs_c=dp_obs, dR_obs=dR_obs, pos_std_m=0.1, att_std_rad=0.01,
-                             world=world)
+                             frame=frame)
     assert abs(r0[:3]).max() < 1e-3          # the increment is read in the frame it was given in
     eps = 1e-6
     Hnum = np.zeros_like(H)
@@ -129,11 +130,14 @@ def test_relative_pose_jacobian_matches_finite_differences(world):
         d[i] = eps
         xp, cp, cR = _perturb(x, clone, d)
         _, r1, _ = relative_pose(xp, cp, cR, dp_obs_c=dp_obs, dR_obs=dR_obs, pos_std_m=0.1, att_std_rad=0.01,
-                                 world=world)
+                                 frame=frame)
         Hnum[:, i] = -(r1 - r0) / eps   # r = z - h(x): dr = -H dx
     assert np.abs(H - Hnum).max() < 1e-4
-    # the world-frame increment does not involve either attitude
-    assert (not world) or np.abs(H[:3, 6:9]).max() == 0 and np.abs(H[:3, 18:21]).max() == 0
+    # the world-frame increment involves neither attitude; the heading-frame one only the clone's yaw
+    assert frame == "body" or np.abs(H[:3, 6:9]).max() == 0
+    assert frame != "world" or np.abs(H[:3, 18:21]).max() == 0
+    assert frame != "heading" or (np.abs(H[2, 18:21]).max() == 0 and np.abs(H[:3, 18]).max() == 0
+                                  and np.abs(H[:2, 19:21]).max() > 0)
 
 
 def test_gnss_lever_arm_and_absolute_pose_jacobians_match_finite_differences():

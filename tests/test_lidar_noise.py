@@ -60,3 +60,28 @@ def test_world_frame_increments_follow_a_good_scan_to_map_odometry_without_gnss(
     assert ape[False, "world"] < lidar < ape[False, "body"], ape
     assert ape["auto", "body"] < lidar and ape["auto", "world"] < lidar, ape
     assert ape["auto", "body"] < 0.7 * ape[False, "body"], ape
+
+
+def test_auto_frame_is_body_with_gnss_and_heading_without():
+    from fusion_eval.filters.observations.relative_pose import frame_of
+
+    assert frame_of("auto", True, "none") == "body" and frame_of("auto", False, "none") == "heading"
+    assert frame_of("auto", False, "batch") == "body"                  # the graph's between-factors are body-frame
+    assert frame_of("world", True, "none") == "world"                  # a choice is kept
+
+
+def test_heading_frame_increments_beat_a_good_odometry_without_gnss():
+    """SiMpLE on KITTI 06, IMU + lidar without GNSS (configs/lidar-imu.yaml): the heading frame takes the vertical
+    from the odometry's gravity-aligned map and the horizontal from the filter's yaw; the default ('auto') picks it
+    and halves the lidar's error (measured 0.214 m against 0.414; body 0.610)."""
+    from conftest import ROOT, shared_path
+
+    shared_path("kitti-odometry-simple", "06")
+    ds = fe.load_dataset(ROOT / "configs" / "datasets" / "simple-06.yaml")
+    base = {"filter.use_gnss": False, "imu.accel_noise_mps2_sqrthz": 0.3, "imu.gyro_noise_dps_sqrthz": 0.1}
+    ape = {}
+    for frame in ("auto", "heading", "body"):
+        est = fe.run(ds, overrides={**base, "lidar.relative_frame": frame}).metrics["estimates"]
+        ape[frame] = est["fused"]["ape"]["translation_m"]["rmse"]
+        lidar = est["lidar"]["ape"]["translation_m"]["rmse"]
+    assert ape["auto"] == ape["heading"] and ape["heading"] < 0.6 * lidar < ape["body"], (ape, lidar)

@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import hashlib
 import json
+import sys
 from pathlib import Path
 
 import numpy as np
@@ -157,15 +158,23 @@ def _probe_dispositions(work) -> None:
     """A pool worker's SIGTERM and SIGINT dispositions, appended to the file the test names (fork: inherited)."""
     import signal
 
+    dies_with_parent = True
+    if sys.platform.startswith("linux"):           # the initializer's PR_SET_PDEATHSIG (PR_GET_PDEATHSIG = 2)
+        import ctypes
+
+        sig = ctypes.c_int(0)
+        ctypes.CDLL(None, use_errno=True).prctl(2, ctypes.byref(sig), 0, 0, 0)
+        dies_with_parent = sig.value != 0
     with open(_PROBE["path"], "a") as f:
-        f.write(f"{signal.getsignal(signal.SIGTERM) == signal.SIG_DFL} {signal.getsignal(signal.SIGINT) == signal.SIG_IGN}\n")
+        f.write(f"{signal.getsignal(signal.SIGTERM) == signal.SIG_DFL} {signal.getsignal(signal.SIGINT) == signal.SIG_IGN}"
+                f" {dies_with_parent}\n")
 
 
 def test_the_kitti_layout_writer_pool_workers_take_the_projects_signal_dispositions(tmp_path, monkeypatch):
     """Over 20,000 packets the KITTI layout's files are written by a pool of forked workers. Closing the pool sends
     them SIGTERM; workers that inherited the command's Python handler raised in reply and printed a traceback each
     (seen once, after the command had exited). They must take the project's worker set-up: SIGTERM ends them at
-    once, Ctrl-C is the parent's."""
+    once, Ctrl-C is the parent's, and they die with the parent."""
     import signal
 
     from fusion_eval.simulate import dataset as sd
@@ -181,4 +190,4 @@ def test_the_kitti_layout_writer_pool_workers_take_the_projects_signal_dispositi
         signal.signal(signal.SIGTERM, old)
     assert r.exit_code == 0, r.output
     lines = seen.read_text().split("\n")[:-1]
-    assert len(lines) == 2 and set(lines) == {"True True"}, lines
+    assert len(lines) == 2 and set(lines) == {"True True True"}, lines

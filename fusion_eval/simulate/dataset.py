@@ -161,8 +161,10 @@ def simulate(out_dir: Path, profile: str, duration_s: float, seed: int, grade: s
             work = [(str(folder), int(a), int(b)) for a, b in zip(bounds[:-1], bounds[1:])]
             try:
                 if jobs > 1 and n > 20000:   # file creation is the cost: spread it over the cores
-                    # the project's worker set-up: the pool's closing SIGTERM ends a worker quietly (it inherits the
-                    # command's handler otherwise, and prints a traceback per worker after the command has exited)
+                    # the project's worker set-up (importing fusion_eval.pool registers its fork hook, which gives
+                    # every forked child the workers' signal dispositions; worker_init adds death with the parent):
+                    # without it the pool's closing SIGTERM met the command's handler in each worker, which printed a
+                    # traceback after the command had exited
                     with mp.get_context("fork").Pool(jobs, initializer=worker_init) as pool:
                         pool.map(_write_packet_range, work)
                 else:

@@ -75,9 +75,12 @@ class BatchSmoother:
         if f["bias_model"] == "gauss_markov":
             raise ConfigError("smoother.method=batch models the IMU biases as random walks (CombinedImuFactor): "
                               "filter.bias_model=gauss_markov is not supported (use random_walk or constant)")
-        if f["lidar_update"] == "relative" and cfg["lidar"].get("relative_frame") == "world":
+        from ..filters.observations.relative_pose import frame_of
+
+        frame = frame_of(cfg["lidar"]["relative_frame"], f["use_gnss"], "batch")
+        if f["lidar_update"] == "relative" and frame != "body":
             raise ConfigError("smoother.method=batch expresses lidar increments as BetweenFactor<Pose3> in the body frame: "
-                              "lidar.relative_frame=world is not supported (use body, or smoother.method=rts)")
+                              f"lidar.relative_frame={frame} is not supported (use body, or smoother.method=rts)")
         from ..filters import observations
 
         for o in observations.enabled(cfg):

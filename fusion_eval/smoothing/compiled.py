@@ -130,7 +130,7 @@ def compiled_pass(cls):
     """``backward_pass(...)`` for the formulation class ``cls``: the whole RTS backward pass over an
     :class:`~fusion_eval.smoothing.record.EpochRecord` (see :meth:`RTS.run`), or None when the formulation has no
     compiled ``[-]``/``[+]``; compiled into and cached beside the formulation's module."""
-    if getattr(cls, "_rts_boxminus", None) is None:
+    if vars(cls).get("_rts_boxminus") is None:      # declared by the class itself: a subclass may derive state
         return None
     got = _CACHE.get(cls)
     if got is not None:

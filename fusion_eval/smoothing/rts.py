@@ -168,12 +168,6 @@ class RTS:
         N = self.t.size
         out = Smoothed(np.full((N, kf.xv.size), np.nan), np.full((N, kf.arrays.rec_Pdiag.shape[1]), np.nan),
                        np.full((N,) + kf.arrays.rec_Ppt.shape[1:], np.nan))
-        clones_of: dict[int, list[int]] = {}
-        for i in range(self.rec.clones.size):
-            clones_of.setdefault(int(self.rec.clone_epoch[i]), []).append(i)
-        last = ep.size - 1
-        xs = (ep.x[last].copy(), ep.c[last].copy(), ep.aux[last].copy(), ep.u[last].copy())   # last: smoothed = filtered
-        Ps = self.cov(ep, last)
         fast = None if self.python else compiled_pass(type(kf))
         if fast is not None:                      # the whole pass in one compiled call (the same steps, below)
             cl = self.rec.clones
@@ -181,6 +175,12 @@ class RTS:
                  self.rec.clone_epoch, cl.size, ep.n_max, self.nc, self.t, self.u, self.gap, self.prm, RCOND, kf.cidx,
                  out.rec_x, out.rec_Pdiag, out.rec_Ppt)
             return out
+        clones_of: dict[int, list[int]] = {}
+        for i in range(self.rec.clones.size):
+            clones_of.setdefault(int(self.rec.clone_epoch[i]), []).append(i)
+        last = ep.size - 1
+        xs = (ep.x[last].copy(), ep.c[last].copy(), ep.aux[last].copy(), ep.u[last].copy())   # last: smoothed = filtered
+        Ps = self.cov(ep, last)
         for b in range(last, 0, -1):
             self._emit(out, self._sample_at(b), xs, Ps)
             for i in reversed(clones_of.get(b, [])):

@@ -5,14 +5,16 @@ Fires at IMU stamps at about ``filter.nhc_rate_hz``, and only while the vehicle 
 (``|w| < filter.nhc_max_turn_rate_rps``): in turns the IMU's lateral velocity (lever arm, slip) is not zero.
 
 The vehicle's axes are taken in the IMU frame: an IMU pitched against the direction of travel (KITTI's OXTS by
-8-13 mrad) would otherwise be told that a car driving straight climbs or sinks, and the constraint would hold its
+8-14 mrad) would otherwise be told that a car driving straight climbs or sinks, and the constraint would hold its
 pitch that far off, leaking gravity into the horizontal acceleration. ``filter.nhc_travel_pitch_mrad: auto``
-takes the pitch from the lidar odometry's own increments (:mod:`fusion_eval.calibration.travel`); with no
-estimate the vertical row is left out, since a wrong one does more harm than none.
+takes the pitch from the lidar odometry's own increments, else from a smoothed IMU + GNSS pass
+(:mod:`fusion_eval.calibration.travel`); with no estimate the vertical row is left out, since a wrong one does
+more harm than none.
 """
 
 from __future__ import annotations
 
+import logging
 from functools import partial
 
 import numpy as np
@@ -22,6 +24,8 @@ from ...spec import S
 from ...calibration.travel import vehicle_axes
 from .base import BODY_VELOCITY_ROW, Bound, Kernel, Observation, body_velocity_rows, kernel_model
 
+
+log = logging.getLogger(__name__)
 
 # manifest platforms that do not slide sideways or leave the road
 WHEELED = ("car", "wheeled")
@@ -50,8 +54,8 @@ class NonHolonomic(Observation):
         "filter.nhc_rate_hz": S(10.0, "rate of the constraint's pseudo-observations, Hz", positive=True),
         "filter.nhc_std_mps": S(0.1, "std of the constraint (lateral and vertical slip), m/s", positive=True),
         "filter.nhc_travel_pitch_mrad": S("auto", "pitch of the direction of travel above the IMU's x-y plane, mrad; 'auto' "
-                                                  "= from the lidar odometry's body-frame increments on straight stretches; "
-                                                  "null (or no estimate: no lidar, under 20 s of straight driving) = the "
+                                                  "= from the lidar odometry's body-frame increments on straight stretches, "
+                                                  "else from a smoothed IMU + GNSS pass; null (or no estimate) = the "
                                                   "vertical row is left out", "float", auto=True, nullable=True),
         "filter.nhc_travel_yaw_mrad": S(0.0, "yaw of the direction of travel to the left of the IMU's x axis, mrad (not "
                                              "estimated: the lidar's increments carry its own mount's yaw error)"),
@@ -69,8 +73,9 @@ class NonHolonomic(Observation):
         if cfg["filter"]["nhc"]:
             try:
                 check_combination(cfg)
-            except ConfigError:
+            except ConfigError as e:
                 cfg["filter"]["nhc"] = False
+                log.info("non-holonomic constraint left out on this %s: %s", description.get("platform"), e)
 
     def bind(self, run, s) -> Bound:
         f = s.filter

@@ -40,8 +40,10 @@ from .pose import POSE_RESIDUAL, RP, RTH, lidar_rows
 
 # data row of one lidar frame: 1 if it updates (0: the first frame, which only clones), the increment from the
 # previous frame in its body frame, the rotation increment row-major, position std, rotation std
-ROW = Layout("relative pose data row", [("update", 1), ("dp", 3), ("dR", 9), ("std_p", 1), ("std_th", 1), ("world", 1)])
-UPD, DP, DR, STD_P, STD_TH, WORLD = (ROW.start(b) for b in ("update", "dp", "dR", "std_p", "std_th", "world"))
+ROW = Layout("relative pose data row", [("update", 1), ("dp", 3), ("dR", 9), ("std_p", 1), ("std_th", 1), ("frame", 1)])
+UPD, DP, DR, STD_P, STD_TH, FRAME = (ROW.start(b) for b in ("update", "dp", "dR", "std_p", "std_th", "frame"))
+# the frame of the position increment (the data row's 'frame' column; lidar.relative_frame)
+FRAMES = {"body": 0.0, "world": 1.0, "heading": 2.0}
 NRES = POSE_RESIDUAL.n
 
 
@@ -72,12 +74,26 @@ def relative_pose_kernel(x, xc, row, H, r, Rm):
         r[3 + i] = th[i]
         Rm[i, i] = row[STD_P] * row[STD_P]
         Rm[3 + i, 3 + i] = row[STD_TH] * row[STD_TH]
-    if row[WORLD] != 0.0:
+    if row[FRAME] == 1.0:
         # the increment in the odometry's world frame: r_p = dp_w - (p - p_c), no attitude in it
         for i in range(3):
             H[i, P_ID + i] = 1.0
             H[i, CP_ID + i] = -1.0
             r[i] = row[DP + i] - dpw[i]
+        return NRES
+    if row[FRAME] == 2.0:
+        # the increment in the clone's heading frame (its yaw only): r_p = dp_h - Rz(psi_c)^T (p - p_c); the yaw of a
+        # right perturbation moves by (R21 dth_y + R22 dth_z) / (R00^2 + R10^2) (ZYX angles)
+        r00, r10 = xc[CLONE_R], xc[CLONE_R + 3]
+        c2 = r00 * r00 + r10 * r10
+        cp, sp = r00 / np.sqrt(c2), r10 / np.sqrt(c2)
+        h0, h1 = cp * dpw[0] + sp * dpw[1], -sp * dpw[0] + cp * dpw[1]
+        H[0, P_ID], H[0, P_ID + 1], H[1, P_ID], H[1, P_ID + 1], H[2, P_ID + 2] = cp, sp, -sp, cp, 1.0
+        H[0, CP_ID], H[0, CP_ID + 1], H[1, CP_ID], H[1, CP_ID + 1], H[2, CP_ID + 2] = -cp, -sp, sp, -cp, -1.0
+        dy, dz = xc[CLONE_R + 7] / c2, xc[CLONE_R + 8] / c2          # d psi / d dth_c (y, z)
+        H[0, CTH_ID + 1], H[0, CTH_ID + 2] = h1 * dy, h1 * dz
+        H[1, CTH_ID + 1], H[1, CTH_ID + 2] = -h0 * dy, -h0 * dz
+        r[0], r[1], r[2] = row[DP] - h0, row[DP + 1] - h1, row[DP + 2] - dpw[2]
         return NRES
     dp = np.empty(3)                  # R_c^T (p - p_c): only the body-frame form needs it
     for i in range(3):
@@ -95,11 +111,11 @@ def relative_pose_kernel(x, xc, row, H, r, Rm):
 
 
 def relative_pose(x, clone_p_w: np.ndarray, clone_R_wb: np.ndarray, *, dp_obs_c: np.ndarray, dR_obs: np.ndarray,
-                  pos_std_m: float, att_std_rad: float, world: bool = False):
-    """Odometry increment between the cloned pose (previous lidar frame) and the current pose; ``world``: the
-    position increment ``dp_obs_c`` is in the world frame instead of the clone's body frame."""
+                  pos_std_m: float, att_std_rad: float, frame: str = "body"):
+    """Odometry increment between the cloned pose (previous lidar frame) and the current pose; ``frame``: the
+    position increment ``dp_obs_c`` is in the clone's body frame, the world frame or the clone's heading frame."""
     row = ROW.pack(update=1.0, dp=dp_obs_c, dR=np.asarray(dR_obs, float).ravel(), std_p=pos_std_m, std_th=att_std_rad,
-                   world=float(world))
+                   frame=FRAMES[frame])
     return kernel_model(relative_pose_kernel, x, clone_p_w, clone_R_wb, row)
 
 
@@ -118,9 +134,11 @@ class RelativePose(Observation):
         "lidar.relative_att_std_deg": S(0.05, "relative update: rotation increment std, constant part, deg", positive=True),
         "lidar.relative_att_std_frac": S(0.0, "relative update: rotation increment std per radian turned (0.02 = 2 %: "
                                               "an odometry that under- or over-rotates turns)", nonneg=True),
-        "lidar.relative_frame": S("body", "frame of the position increment: 'body' (the previous frame's, rotated by the "
-                                          "filter's attitude) or 'world' (the odometry's own map frame)",
-                                  choices=("body", "world")),
+        "lidar.relative_frame": S("auto", "frame of the position increment: 'body' (the previous frame's, rotated by the "
+                                          "filter's attitude), 'world' (the odometry's own map frame), 'heading' (the "
+                                          "previous frame's yaw only: horizontal as 'body', vertical as 'world') or "
+                                          "'auto' = body when GNSS is fused (or under the batch smoother), else heading",
+                                  choices=("auto", *FRAMES)),
         "lidar.gate_prob": S(None, "reject a relative increment whose NIS is beyond this chi-square probability "
                                    "(6 dof), e.g. 0.9999; null = no gate", "float", positive=True, below=1.0, nullable=True),
         "lidar.noise_adapt": S("auto", "'nis' = scale the position and rotation noise online so that each block's "
@@ -143,7 +161,13 @@ class RelativePose(Observation):
         # every increment at once: from frame j-1 to frame j, in frame j-1's body frame
         prev, cur = slice(None, -1), slice(1, None)          # consecutive frames (rows, not state indices)
         dp_c = np.einsum("nji,nj->ni", R[prev], p[cur] - p[prev])
-        world = c.relative_frame == "world"
+        frame = c.relative_frame if c.relative_frame != "auto" else frame_of("auto", s.filter.use_gnss, s.smoother.method)
+        if frame == "heading":                              # Rz(psi_prev)^T (p_cur - p_prev)
+            psi = np.arctan2(R[prev][:, 1, 0], R[prev][:, 0, 0])
+            cp, sp, dw = np.cos(psi), np.sin(psi), p[cur] - p[prev]
+            dp_frame = np.column_stack([cp * dw[:, 0] + sp * dw[:, 1], -sp * dw[:, 0] + cp * dw[:, 1], dw[:, 2]])
+        else:
+            dp_frame = (p[cur] - p[prev]) if frame == "world" else dp_c
         dR = np.einsum("nji,njk->nik", R[prev], R[cur])
         pos_std = np.hypot(c.relative_pos_std_m, c.relative_pos_std_frac * np.linalg.norm(dp_c, axis=1))
         att_std = np.hypot(c.relative_att_std_rad, c.relative_att_std_frac * np.linalg.norm(log3_many(dR), axis=1))
@@ -153,9 +177,9 @@ class RelativePose(Observation):
         # row j: the increment into frame j (the first frame only starts the chain of clones)
         data = np.zeros((rows.size, ROW.n))
         if rows.size > 1:
-            data[cur] = ROW.columns(update=np.ones(rows.size - 1), dp=(p[cur] - p[prev]) if world else dp_c,
+            data[cur] = ROW.columns(update=np.ones(rows.size - 1), dp=dp_frame,
                                     dR=dR.reshape(-1, 9), std_p=pos_std, std_th=att_std,
-                                    world=np.full(rows.size - 1, float(world)))
+                                    frame=np.full(rows.size - 1, FRAMES[frame]))
 
         def model(j):
             if j == 0:
@@ -170,6 +194,18 @@ class RelativePose(Observation):
                      summary=None if scale is None else scale.summary,
                      kernel=Kernel(relative_pose_kernel, data, clone_after=True, adapt_blocks=blocks,
                                    adapt_rate=0.0 if scale is None else scale.rate), adapt=scale)
+
+
+def frame_of(frame: str, use_gnss: bool, smoother: str) -> str:
+    """'auto' resolved. With GNSS the fixes hold the filter's attitude, and the odometry's map, which tilts and
+    turns as it drifts, would fight them in any frame of its own (world: kitti-00 4.08 m against 0.72); without an
+    absolute position source the odometry's gravity-aligned map is the only vertical reference over distance, and
+    the filter's pitch, held by an accelerometer with unmodelled lag, would tilt each increment ('heading' keeps
+    the filter's yaw, which removes a map's rotation about the vertical). The batch smoother's between-factors
+    are body-frame."""
+    if frame != "auto":
+        return frame
+    return "body" if use_gnss or smoother == "batch" else "heading"
 
 
 def adapt_mode(s) -> str:
