@@ -18,7 +18,7 @@ from .datasets import plausible
 from .calibration import imu_noise
 from .config import Settings
 from .calibration.extrinsic import apply_rotation, estimate_rotation
-from .calibration.travel import MIN_STRETCHES, estimate_travel_pitch, pitch_from_smoothed_pass
+from .calibration.travel import MIN_STRETCHES, estimate_travel_pitch, pitch_from_smoothed_pass, uncertain
 from .degrade import degrade_gnss
 from .errors import ConfigError, DataRangeError
 from .filters import check_combination, formulation_of, observations
@@ -285,6 +285,8 @@ def prepare(ds: Dataset, cfg: dict) -> Prepared:
         # the IMU's pitch against the direction of travel: from the lidar, else from a smoothed IMU + GNSS pass;
         # without an estimate the constraint's vertical row is left out
         why = "no lidar stream" if ds.lidar is None else f"under {MIN_STRETCHES} s of straight driving in the lidar"
+        if travel is not None and uncertain(travel):
+            travel, why = None, f"{uncertain(travel)} from the lidar"
         if travel is None:
             travel, why_not = pitch_from_smoothed_pass(prep, cfg) if use_gnss else (None, "no GNSS fused")
             why = f"{why}; {why_not}"

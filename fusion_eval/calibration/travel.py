@@ -32,6 +32,9 @@ MIN_FORWARD_M = 3.0       # travelled along it (slow creeping says little about 
 MAX_TURN_RAD = 0.02       # rotation over it (in turns the IMU point slips sideways)
 MIN_STRETCHES = 20        # seconds of straight driving needed (one 1 s stretch starting every lidar frame)
 BLOCKS = 10
+# an estimate less certain than this is not used: at 20 m/s an axis off by 5 mrad puts 0.1 m/s, the constraint's own
+# default noise, into its vertical row (KITTI: 0.2-1.1 mrad from the lidar, 0.3-2.6 from the smoothed pass)
+MAX_STD_MRAD = 5.0
 LIDAR_METHOD = "median direction of the lidar's body-frame increments over 1 s of straight driving"
 SMOOTHED_METHOD = ("median direction of a smoothed IMU + GNSS pass's body-frame increments over 1 s of straight "
                    "driving (lateral row only in that pass)")
@@ -72,6 +75,13 @@ def estimate_travel_pitch(poses: PoseSeries) -> TravelEstimate | None:
     meds = np.array([np.median(b) for b in blocks if b.size])
     std = float(np.std(meds, ddof=1) / np.sqrt(meds.size) * 1e3) if meds.size > 1 else float("nan")
     return TravelEstimate(float(np.median(pitch) * 1e3), std, int(ok.sum()), seconds)
+
+
+def uncertain(est: TravelEstimate) -> str:
+    """Why ``est`` is too uncertain to use (its jackknife std above :data:`MAX_STD_MRAD`, or none), else ''."""
+    if np.isfinite(est.std_mrad) and est.std_mrad <= MAX_STD_MRAD:
+        return ""
+    return f"an estimate of {est.pitch_mrad:.1f} +/- {est.std_mrad:.1f} mrad, over {MAX_STD_MRAD:g} mrad of uncertainty"
 
 
 def vehicle_axes(pitch_rad: float, yaw_rad: float) -> np.ndarray:
@@ -120,6 +130,8 @@ def pitch_from_smoothed_pass(prep, cfg: dict) -> tuple[TravelEstimate | None, st
     got = estimate_travel_pitch(out.smoothed.fused)
     if got is None:
         return None, f"under {MIN_STRETCHES * WINDOW_S:.0f} s of straight driving in the smoothed IMU + GNSS pass"
+    if uncertain(got):
+        return None, f"{uncertain(got)} from the smoothed IMU + GNSS pass"
     return TravelEstimate(got.pitch_mrad, got.std_mrad, got.stretches, got.seconds, SMOOTHED_METHOD), ""
 
 
