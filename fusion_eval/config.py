@@ -157,6 +157,22 @@ def check_value(key: str, spec: Spec, value: Any, where: str) -> Any:
         return None
     if spec.auto and value == "auto":
         return value
+    try:
+        return _checked(key, spec, value, where)
+    except ConfigError as e:
+        # name the words the key also takes (its default may be one of them)
+        also = [w for w, ok in (("'auto'", spec.auto), ("null", spec.nullable)) if ok]
+        if not also or spec.kind == "choice":
+            raise
+        msg = str(e)
+        for lead, words in ((" must be true or false", ["true", "false"]), (" must be a number", ["a number"])):
+            if lead in msg:
+                w = words + also
+                raise ConfigError(msg.replace(lead, f" must be {', '.join(w[:-1])} or {w[-1]}", 1)) from None
+        raise
+
+
+def _checked(key: str, spec: Spec, value: Any, where: str) -> Any:
     k = spec.kind
     if k == "choice":
         if value not in spec.choices:

@@ -88,6 +88,27 @@ def anchor_lidar(lidar_odom: PoseSeries, gt: PoseSeries) -> tuple[PoseSeries, fl
     return replace(base, p_w_m=T_w[:, :3, 3], q_wb_xyzw=matrix_to_quat_xyzw(T_w[:, :3, :3])), float(lidar_odom.t_s[a])
 
 
+def _say_models(cfg: dict, ds: Dataset, applied: dict) -> None:
+    """For the report: the non-holonomic constraint (on or off, and why) and the lidar increments' frame, where the
+    configuration left them to the data ('auto')."""
+    from .filters.observations.nhc import WHEELED
+    from .filters.observations.relative_pose import frame_of
+
+    f, platform = cfg["filter"], ds.description.get("platform")
+    if f["nhc"]:
+        pitch = f.get("nhc_travel_pitch_mrad")
+        rows = "lateral row only" if pitch is None else "lateral and vertical rows"
+        why = f"the dataset's platform is a {platform}" if platform in WHEELED else "filter.nhc=true"
+        applied["nhc"] = f"on ({why}), {rows}" if pitch != "auto" else f"on ({why})"
+    elif platform in WHEELED:
+        applied["nhc"] = ("off on this {platform} (filter.nhc=false, or a process model or smoother without it; "
+                          "see README, 'The non-holonomic constraint')").format(platform=platform)
+    if f["lidar_update"] == "relative" and cfg["lidar"]["relative_frame"] == "auto":
+        frame = frame_of("auto", f["use_gnss"], cfg["smoother"]["method"])
+        why = "GNSS fused" if f["use_gnss"] else ("the batch smoother" if frame == "body" else "no GNSS fused")
+        applied["lidar_frame"] = {"frame": frame, "why": why}
+
+
 def needed_streams(cfg: dict) -> dict[str, tuple[str, str]]:
     """The streams the configured filter needs, each with the key that asks for it and the setting that
     would do without it."""
@@ -279,6 +300,7 @@ def prepare(ds: Dataset, cfg: dict) -> Prepared:
         g = normal_gravity_mps2(ds.geodetic_origin[0], ds.geodetic_origin[2]) if ds.geodetic_origin else 9.80665
     applied["gravity_mps2"] = float(g)
     applied["t_start_s"] = t0
+    _say_models(cfg, ds, applied)
     prep = Prepared(imu=imu, groundtruth=gt, gnss=gnss, lidar=lidar, k_start=k0, x0=x0, gravity_mps2=float(g),
                     gnss_info=gnss_info, applied=applied, odometer=odo, streams=extra, resolved=resolved)
     if cfg["filter"].get("nhc") and cfg["filter"].get("nhc_travel_pitch_mrad") == "auto":

@@ -190,3 +190,33 @@ def test_a_lidar_estimate_too_uncertain_falls_back_on_the_smoothed_pass(kitti_sl
     assert a["pitch_mrad"] is None and re.fullmatch(
         r"an estimate of 7\.4 \+/- 1\.1 mrad, over 0\.5 mrad of uncertainty from the lidar; an estimate of \d+\.\d "
         r"\+/- \d+\.\d mrad, over 0\.5 mrad of uncertainty from the smoothed IMU \+ GNSS pass", a["method"]), a
+
+
+@pytest.mark.parametrize("sets,lines", [
+    ((), ["- Non-holonomic constraint: on (the dataset's platform is a car).",
+          "- Lidar increments in the body frame (lidar.relative_frame: auto, GNSS fused)."]),
+    (("filter.use_gnss=false",), ["- Lidar increments in the heading frame (lidar.relative_frame: auto, no GNSS fused)."]),
+    (("filter.nhc=false",), ["- Non-holonomic constraint: off on this car (filter.nhc=false, or a process model or smoother "
+                             "without it; see README, 'The non-holonomic constraint')."]),
+    (("filter.nhc_travel_pitch_mrad=null",), ["- Non-holonomic constraint: on (the dataset's platform is a car), lateral "
+                                              "row only."]),
+])
+def test_the_report_says_what_auto_chose_for_the_constraint_and_the_lidar_frame(kitti_slice, sets, lines):
+    from fusion_eval.report.markdown import _estimates
+
+    prep, _ = _prepared(kitti_slice, *sets)
+    said = _estimates(prep.applied)
+    for line in lines:
+        assert line in said, said
+
+
+@pytest.mark.parametrize("sets,message", [
+    (("filter.nhc=maybe",), "filter.nhc must be true, false or 'auto', got 'maybe'"),
+    (("filter.nhc_travel_pitch_mrad=abc",), "filter.nhc_travel_pitch_mrad must be a number, 'auto' or null, got 'abc'"),
+])
+def test_a_bad_value_is_refused_naming_every_value_the_key_takes(sets, message):
+    from fusion_eval.config import load_config
+    from fusion_eval.errors import ConfigError
+
+    with pytest.raises(ConfigError, match=re.escape(message)):
+        load_config(None, sets)

@@ -95,12 +95,19 @@ def _estimates(applied: dict) -> list[str]:
         out.append(f"- Estimated lidar-IMU rotation correction (roll, pitch, yaw): "
                    f"{', '.join(f'{v:.2f}' for v in x['rpy_mrad'])} mrad +/- {', '.join(f'{v:.2f}' for v in x['std_mrad'])}"
                    f" (jackknife), from {x['method']}; applied to the lidar poses.")
+    n = applied.get("nhc")
+    if n:
+        out.append(f"- Non-holonomic constraint: {n}.")
     v = applied.get("nhc_travel")
     if v:
         out.append(f"- Direction of travel for the non-holonomic constraint: pitch {v['pitch_mrad']:.1f} +/- {v['std_mrad']:.1f} "
-                   f"mrad above the IMU's x axis, from the {v['method']} ({v['seconds']:.0f} s)." if v["pitch_mrad"] is not None
+                   f"mrad above the IMU's x axis, from the {v['method']} ({v['seconds']:.0f} s of it)."
+                   if v["pitch_mrad"] is not None
                    else f"- Direction of travel for the non-holonomic constraint: not estimated ({v['method']}); its vertical "
                         "row is left out.")
+    f = applied.get("lidar_frame")
+    if f:
+        out.append(f"- Lidar increments in the {f['frame']} frame (lidar.relative_frame: auto, {f['why']}).")
     return out
 
 
