@@ -38,8 +38,24 @@ def pinv_sym(P, rcond):
                 s2 -= L[i, k] * L[j, k]
             L[i, j] = s2 / L[j, j]
     if ok:
-        Li = np.linalg.inv(L)
-        G = Li.T @ Li
+        # C^-1 = L^-T L^-1 with L^-1 by forward substitution (lower triangular) and the product over its triangle:
+        # no LAPACK call, which costs more than the arithmetic at these sizes
+        Li = np.zeros((n, n))
+        for j in range(n):
+            Li[j, j] = 1.0 / L[j, j]
+            for i in range(j + 1, n):
+                acc = 0.0
+                for k in range(j, i):
+                    acc += L[i, k] * Li[k, j]
+                Li[i, j] = -acc / L[i, i]
+        G = np.empty((n, n))
+        for i in range(n):
+            for j in range(i, n):
+                acc = 0.0
+                for k in range(j, n):              # Li[k, i] Li[k, j], nonzero for k >= max(i, j) = j
+                    acc += Li[k, i] * Li[k, j]
+                G[i, j] = acc
+                G[j, i] = acc
     else:
         w, V = np.linalg.eigh(C)
         G = np.zeros((n, n))
