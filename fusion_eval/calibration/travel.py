@@ -130,8 +130,9 @@ def pitch_from_smoothed_pass(prep, cfg: dict) -> tuple[TravelEstimate | None, st
     got = estimate_travel_pitch(out.smoothed.fused)
     if got is None:
         return None, f"under {MIN_STRETCHES * WINDOW_S:.0f} s of straight driving in the smoothed IMU + GNSS pass"
-    if uncertain(got):
-        return None, f"{uncertain(got)} from the smoothed IMU + GNSS pass"
+    why = uncertain(got)
+    if why:
+        return None, f"{why} from the smoothed IMU + GNSS pass"
     return TravelEstimate(got.pitch_mrad, got.std_mrad, got.stretches, got.seconds, SMOOTHED_METHOD), ""
 
 
@@ -139,5 +140,4 @@ def replace_resolved(prep):
     """``prep`` without the IMU densities it estimated for the run (the pass sets its own)."""
     from dataclasses import replace
 
-    resolved = {sect: {k: v for k, v in body.items() if sect != "imu"} for sect, body in prep.resolved.items()}
-    return replace(prep, resolved=resolved)
+    return replace(prep, resolved={sect: body for sect, body in prep.resolved.items() if sect != "imu"})

@@ -26,9 +26,9 @@ from numba import njit
 
 from ..errors import FilterDivergedError
 from .layout import CLONE
-from .propagate import LAST_T, LAST_U
 from . import linalg
 from .linalg import joseph_update_into
+from ..smoothing.record import epoch_index, store_row
 from .observations.base import M_MAX, N_MAX, matched_variance
 
 OK, BAD_RESIDUAL, BAD_CORRECTION, BAD_STATE = 0, 1, 2, 3
@@ -105,8 +105,8 @@ def {name}(a, st, xc, clone_t, times, kinds, index, j0, j1, gates, clone_after, 
                     ad_count[kind] = c + 1
         if clone_after[kind]:     # stochastic cloning
             if rec_on:            # the smoother's record of the joint state before the clone is replaced
-                clone_epoch[rst[1]] = _epoch_index(ep_t, rst[0], a.last[0])
-                _store_row(a, st[{st_k}], n, xc, n_max, rst[1], cl_t, cl_k, cl_n, cl_x, cl_c, cl_aux, cl_u, cl_P)
+                clone_epoch[rst[1]] = epoch_index(ep_t, rst[0], a.last[0])
+                store_row(a, st[{st_k}], n, xc, n_max, rst[1], cl_t, cl_k, cl_n, cl_x, cl_c, cl_aux, cl_u, cl_P)
                 rst[1] += 1
             mc = clone_covariance(a.P, n_core, clone_rows)
             for d in range(3):
@@ -117,35 +117,13 @@ def {name}(a, st, xc, clone_t, times, kinds, index, j0, j1, gates, clone_after, 
             st[{st_cloned}] = 1
             clone_t[0] = a.last[0]
         if rec_on:                # the smoother's epoch: the filter after everything at this stamp
-            i = _epoch_index(ep_t, rst[0], a.last[0])
-            _store_row(a, st[{st_k}], st[{st_n}], xc, n_max, i, ep_t, ep_k, ep_n, ep_x, ep_c, ep_aux, ep_u, ep_P)
+            i = epoch_index(ep_t, rst[0], a.last[0])
+            store_row(a, st[{st_k}], st[{st_n}], xc, n_max, i, ep_t, ep_k, ep_n, ep_x, ep_c, ep_aux, ep_u, ep_P)
             rst[0] = i + 1
     return {ok}, j1
 '''
 
 
-@njit(cache=True)
-def _epoch_index(ep_t, size, t):
-    """The epoch a record at ``t`` belongs to (:meth:`fusion_eval.smoothing.record.EpochRecord._epoch_index`)."""
-    return size - 1 if size > 0 and abs(ep_t[size - 1] - t) < 1e-12 else size
-
-
-@njit(cache=True)
-def _store_row(a, k_next, n, xc, n_max, i, s_t, s_k, s_n, s_x, s_c, s_aux, s_u, s_P):
-    """Row ``i`` of a smoother record (:meth:`fusion_eval.smoothing.record._Store.put`): the covariance's leading
-    ``n x n`` block as the upper triangle of an ``n_max x n_max`` one."""
-    s_t[i] = a.last[LAST_T]
-    s_k[i] = k_next
-    s_n[i] = n
-    s_x[i, :] = a.x
-    s_c[i, :] = xc
-    s_aux[i, :] = a.aux
-    s_u[i, :] = a.last[LAST_U:]
-    q = 0
-    for p in range(n_max):
-        for c in range(p, n_max):
-            s_P[i, q] = a.P[p, c] if (p < n and c < n) else 0.0
-            q += 1
 
 
 def _source_digest(*fns) -> str:
@@ -179,8 +157,8 @@ def compiled_loop(formulation):
     # file of the function itself); deeper helpers change with these files' other functions (README, Tests)
     digest = _source_digest(formulation._predict, formulation._step, formulation._inject_kernel, formulation._record_cov,
                             joseph_update_into, linalg.cholesky_into, linalg.whitened_norm2, linalg.block_nis,
-                            linalg.reset_attitude_block, linalg.clone_covariance, matched_variance, _epoch_index,
-                            _store_row, *KERNELS)
+                            linalg.reset_attitude_block, linalg.clone_covariance, matched_variance, epoch_index,
+                            store_row, *KERNELS)
     name = f"_replay_{digest}"
     dispatch = "\n".join(f"        {'if' if c == 0 else 'elif'} kind == {c}:\n            m = _k{c}(a.x, xc, d{c}[i], H, r, Rm)"
                          for c in range(len(KERNELS)))
@@ -190,7 +168,7 @@ def compiled_loop(formulation):
                        bad_residual=BAD_RESIDUAL, bad_correction=BAD_CORRECTION, bad_state=BAD_STATE)
     ns = {"np": np, "_predict": formulation._predict, "_inject": formulation._inject_kernel,
           "_record_cov": formulation._record_cov, "joseph_update_into": joseph_update_into, "block_nis": linalg.block_nis, "clone_covariance": linalg.clone_covariance,
-          "matched_variance": matched_variance, "_epoch_index": _epoch_index, "_store_row": _store_row,
+          "matched_variance": matched_variance, "epoch_index": epoch_index, "store_row": store_row,
           "__name__": mod.__name__}
     ns.update({f"_k{c}": k for c, k in enumerate(KERNELS)})
     exec(compile(src, mod.__file__, "exec"), ns)  # noqa: S102 - our own template

@@ -18,8 +18,35 @@ state and the old clone, from which the backward pass recovers the old clone giv
 from __future__ import annotations
 
 import numpy as np
+from numba import njit
 
-from ..filters.propagate import LAST_U
+from ..filters.propagate import LAST_T, LAST_U
+
+
+@njit(cache=True)
+def epoch_index(ep_t, size, t):
+    """The epoch a record at ``t`` belongs to: the last one when it has the same stamp, else a new one."""
+    return size - 1 if size > 0 and abs(ep_t[size - 1] - t) < 1e-12 else size
+
+
+@njit(cache=True)
+def store_row(a, k_next, n, xc, n_max, i, s_t, s_k, s_n, s_x, s_c, s_aux, s_u, s_P):
+    """Row ``i`` of a store: the filter ``a`` (its :class:`FilterArrays`) with its next sample, state size and clone;
+    the covariance's leading ``n x n`` block as the upper triangle of an ``n_max x n_max`` one. The Python record and
+    the compiled event loop both write through it."""
+    s_t[i] = a.last[LAST_T]
+    s_k[i] = k_next
+    s_n[i] = n
+    s_x[i, :] = a.x
+    s_c[i, :] = xc
+    s_aux[i, :] = a.aux
+    s_u[i, :] = a.last[LAST_U:]
+    q = 0
+    for p in range(n_max):
+        for c in range(p, n_max):
+            s_P[i, q] = a.P[p, c] if (p < n and c < n) else 0.0
+            q += 1
+
 
 
 class _Store:
@@ -27,7 +54,6 @@ class _Store:
 
     def __init__(self, capacity: int, n_max: int, n_x: int, n_c: int, n_aux: int, n_u: int):
         self.n_max = n_max
-        self.iu = np.triu_indices(n_max)
         self.t = np.zeros(capacity)
         self.k_next = np.zeros(capacity, np.int64)
         self.n = np.zeros(capacity, np.int64)
@@ -35,22 +61,12 @@ class _Store:
         self.c = np.zeros((capacity, n_c))
         self.aux = np.zeros((capacity, n_aux))
         self.u = np.zeros((capacity, n_u))
-        self.P = np.zeros((capacity, len(self.iu[0])))
+        self.P = np.zeros((capacity, n_max * (n_max + 1) // 2))      # upper triangles
         self.size = 0
 
     def put(self, i: int, kf) -> None:
-        n = kf.n
-        self.t[i] = kf.t
-        self.k_next[i] = kf.k_next
-        self.n[i] = n
-        self.x[i] = kf.xv
-        self.c[i] = kf.clone.vec
-        self.aux[i] = kf.aux
-        self.u[i] = kf.arrays.last[LAST_U:]
-        # the upper triangle of the leading n x n block, in the packing of the full n_max x n_max one
-        Pm = np.zeros((self.n_max, self.n_max))
-        Pm[:n, :n] = kf.P[:n, :n]
-        self.P[i] = Pm[self.iu]
+        store_row(kf.arrays, kf.k_next, kf.n, kf.clone.vec, self.n_max, i, self.t, self.k_next, self.n, self.x, self.c,
+                  self.aux, self.u, self.P)
 
     def bytes_per_row(self) -> int:
         return int(sum(a[:1].nbytes for a in (self.t, self.k_next, self.n, self.x, self.c, self.aux, self.u, self.P)))
@@ -66,9 +82,7 @@ class EpochRecord:
         self.clone_epoch = np.zeros(n_events + 1, np.int64)    # the epoch each clone record belongs to
 
     def _epoch_index(self, t: float) -> int:
-        """The epoch a record at ``t`` belongs to: the last one when it has the same stamp, else a new one."""
-        e = self.epochs
-        return e.size - 1 if e.size and abs(e.t[e.size - 1] - t) < 1e-12 else e.size
+        return int(epoch_index(self.epochs.t, self.epochs.size, t))
 
     def epoch(self, kf) -> None:
         """Record the filter after everything that happened at its current stamp (one epoch per stamp)."""
