@@ -84,6 +84,25 @@ def test_ctrl_c_to_the_whole_group_prints_no_worker_traceback(warm_cli, tmp_path
     assert _group_gone(p.pid)
 
 
+@pytest.mark.slow
+def test_a_second_ctrl_c_during_the_exit_does_not_change_the_exit_status(warm_cli, tmp_path):
+    # Python restores SIGINT's default action when it finalizes: a repeated Ctrl-C during the exit killed the process
+    # by the signal (-2) after "interrupted" was printed (reproduced with 20-300 ms between the two)
+    out = tmp_path / "out"
+    p = _start(["run", "--out", str(out)], tmp_path)
+    assert wait_for(lambda: any(tmp_path.glob(".out.partial-*")), 60)
+    time.sleep(1.0)
+    os.killpg(p.pid, signal.SIGINT)
+    time.sleep(0.1)
+    try:
+        os.killpg(p.pid, signal.SIGINT)
+    except ProcessLookupError:                                     # already gone: nothing to repeat
+        pass
+    _, err = p.communicate(timeout=30)
+    assert p.returncode == 130 and "Traceback" not in err, err
+    assert not out.exists() and _group_gone(p.pid)
+
+
 def _sweep_setup(tmp_path: Path, n: int = 6) -> tuple[Path, Path]:
     ds = make_slice(tmp_path / "ds", 300)
     grid = tmp_path / "grid.yaml"
