@@ -140,7 +140,9 @@ def compiled_pass(cls):
              "_record_cov": cls._record_cov, "_condition": kernels.condition, "_augmented": kernels.augmented,
              "_assemble": kernels.assemble, "_backward": kernels.backward, "_backward_clone": kernels.backward_clone,
              "_uncondition": kernels.uncondition, "_unpack": kernels.unpack_upper}
-    digest = source_digest(_SEGMENT, *calls.values(), kernels.pinv_sym)
+    # the kernels' own callees too: numba's cache of this template checks only the formulation's module
+    digest = source_digest(_SEGMENT, *calls.values(), kernels.pinv_sym, kernels.chol_scaled, kernels._pinv_eig,
+                           kernels.solve_sym, kernels._solve_factored)
     name, name_pass = f"_rts_segment_{digest}", f"_rts_pass_{digest}"
     ns = {**calls, "np": np, "__name__": cls.__module__}
     exec(compile(_SEGMENT.format(name=name, name_pass=name_pass), mod.__file__, "exec"), ns)  # noqa: S102 - our template

@@ -8,66 +8,120 @@ from numba import njit
 
 
 @njit(cache=True)
-def pinv_sym(P, rcond):
-    """The (pseudo-)inverse of a covariance, taken on its correlation matrix so that a 1e-10 rad^2/s^2 bias
-    variance beside a 1e2 m^2 position variance is not cut off. A well-conditioned one goes through Cholesky;
-    a degenerate one (a quaternion's norm, a clone taken this instant) through the eigen-decomposition, with
-    the directions below ``rcond`` dropped."""
+def chol_scaled(P, rcond):
+    """``d`` and ``L`` with ``P = diag(d) L L^T diag(d)``: the Cholesky factor of the correlation matrix, so that a
+    1e-10 rad^2/s^2 bias variance beside a 1e2 m^2 position variance is not cut off; ``ok`` is False when a pivot
+    falls below ``rcond`` (a degenerate covariance: a quaternion's norm, a clone taken this instant). By hand:
+    numba's raises on failure, and a tiny pivot must fall back as well."""
     n = P.shape[0]
     d = np.empty(n)
     for i in range(n):
         d[i] = np.sqrt(P[i, i]) if P[i, i] > 0.0 else 1.0
+    L = np.zeros((n, n))
+    for j in range(n):
+        s = P[j, j] / (d[j] * d[j])
+        for k in range(j):
+            s -= L[j, k] * L[j, k]
+        if s <= 1e3 * rcond:
+            return d, L, False
+        L[j, j] = np.sqrt(s)
+        for i in range(j + 1, n):
+            s2 = P[i, j] / (d[i] * d[j])
+            for k in range(j):
+                s2 -= L[i, k] * L[j, k]
+            L[i, j] = s2 / L[j, j]
+    return d, L, True
+
+
+@njit(cache=True)
+def _pinv_eig(P, d, rcond):
+    """The pseudo-inverse of a degenerate covariance through its correlation matrix's eigen-decomposition, the
+    directions below ``rcond`` dropped."""
+    n = P.shape[0]
     C = np.empty((n, n))
     for i in range(n):
         for j in range(n):
             C[i, j] = P[i, j] / (d[i] * d[j])
-    # Cholesky by hand: numba's raises on failure, and a tiny pivot must fall back as well
-    L = np.zeros((n, n))
-    ok = True
-    for j in range(n):
-        s = C[j, j]
-        for k in range(j):
-            s -= L[j, k] * L[j, k]
-        if s <= 1e3 * rcond:
-            ok = False
-            break
-        L[j, j] = np.sqrt(s)
-        for i in range(j + 1, n):
-            s2 = C[i, j]
-            for k in range(j):
-                s2 -= L[i, k] * L[j, k]
-            L[i, j] = s2 / L[j, j]
-    if ok:
-        # C^-1 = L^-T L^-1 with L^-1 by forward substitution (lower triangular) and the product over its triangle:
-        # no LAPACK call, which costs more than the arithmetic at these sizes
-        Li = np.zeros((n, n))
-        for j in range(n):
-            Li[j, j] = 1.0 / L[j, j]
-            for i in range(j + 1, n):
-                acc = 0.0
-                for k in range(j, i):
-                    acc += L[i, k] * Li[k, j]
-                Li[i, j] = -acc / L[i, i]
-        G = np.empty((n, n))
-        for i in range(n):
-            for j in range(i, n):
-                acc = 0.0
-                for k in range(j, n):              # Li[k, i] Li[k, j], nonzero for k >= max(i, j) = j
-                    acc += Li[k, i] * Li[k, j]
-                G[i, j] = acc
-                G[j, i] = acc
-    else:
-        w, V = np.linalg.eigh(C)
-        G = np.zeros((n, n))
-        top = max(w[n - 1], 1e-300)
-        for k in range(n):
-            if w[k] > rcond * top:
-                v = V[:, k]
-                G += np.outer(v, v) / w[k]
+    w, V = np.linalg.eigh(C)
+    G = np.zeros((n, n))
+    top = max(w[n - 1], 1e-300)
+    for k in range(n):
+        if w[k] > rcond * top:
+            v = V[:, k]
+            G += np.outer(v, v) / w[k]
     for i in range(n):
         for j in range(n):
             G[i, j] /= d[i] * d[j]
     return G
+
+
+@njit(cache=True)
+def pinv_sym(P, rcond):
+    """The (pseudo-)inverse of a covariance (:func:`chol_scaled`; degenerate: :func:`_pinv_eig`)."""
+    n = P.shape[0]
+    d, L, ok = chol_scaled(P, rcond)
+    if not ok:
+        return _pinv_eig(P, d, rcond)
+    # C^-1 = L^-T L^-1 with L^-1 by forward substitution (lower triangular) and the product over its triangle:
+    # no LAPACK call, which costs more than the arithmetic at these sizes
+    Li = np.zeros((n, n))
+    for j in range(n):
+        Li[j, j] = 1.0 / L[j, j]
+        for i in range(j + 1, n):
+            acc = 0.0
+            for k in range(j, i):
+                acc += L[i, k] * Li[k, j]
+            Li[i, j] = -acc / L[i, i]
+    G = np.empty((n, n))
+    for i in range(n):
+        for j in range(i, n):
+            acc = 0.0
+            for k in range(j, n):              # Li[k, i] Li[k, j], nonzero for k >= max(i, j) = j
+                acc += Li[k, i] * Li[k, j]
+            G[i, j] = acc / (d[i] * d[j])
+            G[j, i] = G[i, j]
+    return G
+
+
+@njit(cache=True)
+def solve_sym(P, M, rcond):
+    """``P^+ M`` for a covariance ``P`` and a block of columns ``M``: two triangular solves over
+    :func:`chol_scaled`'s factor (a third of the work of forming the inverse and multiplying); a degenerate ``P``
+    through :func:`_pinv_eig`."""
+    d, L, ok = chol_scaled(P, rcond)
+    if not ok:
+        return _pinv_eig(P, d, rcond) @ np.ascontiguousarray(M)
+    return _solve_factored(d, L, M)
+
+
+@njit(cache=True)
+def _solve_factored(d, L, M):
+    """``P^-1 M`` from :func:`chol_scaled`'s ``d, L`` (row operations: the inner loops run along contiguous rows)."""
+    n, r = M.shape
+    X = np.empty((n, r))
+    for i in range(n):                         # L Z = D^-1 M
+        for c in range(r):
+            X[i, c] = M[i, c] / d[i]
+        for k in range(i):
+            lik = L[i, k]
+            for c in range(r):
+                X[i, c] -= lik * X[k, c]
+        inv = 1.0 / L[i, i]
+        for c in range(r):
+            X[i, c] *= inv
+    for i in range(n - 1, -1, -1):             # L^T W = Z, then D^-1 W
+        for k in range(i + 1, n):
+            lki = L[k, i]
+            for c in range(r):
+                X[i, c] -= lki * X[k, c]
+        inv = 1.0 / L[i, i]
+        for c in range(r):
+            X[i, c] *= inv
+    for i in range(n):
+        inv = 1.0 / d[i]
+        for c in range(r):
+            X[i, c] *= inv
+    return X
 
 
 @njit(cache=True)
@@ -76,9 +130,9 @@ def backward(P_j, phi, P_prior, e, Ps_next, rcond):
     rest (a clone): the correction ``C e`` of the posterior at j and the smoothed covariance at j."""
     n = P_j.shape[0]
     m = phi.shape[0]
-    PF = P_j.copy()                                  # P_j Phi^T
-    PF[:, :m] = np.ascontiguousarray(P_j[:, :m]) @ np.ascontiguousarray(phi.T)
-    C = PF @ pinv_sym(P_prior, rcond)
+    FP = P_j.copy()                                  # Phi P_j = (P_j Phi^T)^T
+    FP[:m, :] = phi @ np.ascontiguousarray(P_j[:m, :])
+    C = solve_sym(P_prior, FP, rcond).T              # P_j Phi^T (P^-)^-1, both symmetric
     Ps = P_j + C @ (Ps_next - P_prior) @ C.T
     return C @ e, 0.5 * (Ps + Ps.T)
 
@@ -87,23 +141,41 @@ def backward(P_j, phi, P_prior, e, Ps_next, rcond):
 def condition(P, m, rcond):
     """Split a covariance over ``[x (m), c]`` into ``x``'s covariance given ``c`` (``A - B D^-1 B^T``), the cross
     block ``B`` and ``D^-1``."""
-    A = np.ascontiguousarray(P[:m, :m])
+    n = P.shape[0]
     B = np.ascontiguousarray(P[:m, m:])
     Dinv = pinv_sym(np.ascontiguousarray(P[m:, m:]), rcond)
-    Ac = A - B @ Dinv @ B.T
-    return 0.5 * (Ac + Ac.T), B, Dinv
+    BD = B @ Dinv
+    Ac = np.empty((m, m))
+    for i in range(m):
+        for j in range(i, m):
+            acc = 0.0
+            for k in range(n - m):
+                acc += BD[i, k] * B[j, k]
+            Ac[i, j] = 0.5 * ((P[i, j] - acc) + (P[j, i] - acc))
+            Ac[j, i] = Ac[i, j]
+    return Ac, B, Dinv
 
 
 @njit(cache=True)
 def assemble(Ac, B, D, Dinv):
     """The joint covariance over ``[x, c]`` from ``x``'s conditional covariance, the cross block and ``D``."""
     m = Ac.shape[0]
-    n = m + D.shape[0]
+    nb = D.shape[0]
+    n = m + nb
+    BD = B @ Dinv
     P = np.empty((n, n))
-    P[:m, :m] = Ac + B @ Dinv @ B.T
-    P[:m, m:] = B
-    P[m:, :m] = B.T
-    P[m:, m:] = D
+    for i in range(m):
+        for j in range(m):
+            acc = 0.0
+            for k in range(nb):
+                acc += BD[i, k] * B[j, k]
+            P[i, j] = Ac[i, j] + acc
+        for j in range(nb):
+            P[i, m + j] = B[i, j]
+            P[m + j, i] = B[i, j]
+    for i in range(nb):
+        for j in range(nb):
+            P[m + i, m + j] = D[i, j]
     return P
 
 
@@ -114,26 +186,96 @@ def backward_clone(Ac_j, B_j, Dinv, phi, S_j, e, Ps_next, P_j, P_next, rcond):
 
         C_xx = A_c Phi^T S^-1,   C_xc = (I - C_xx Phi) B D^-1,   C_cc = I
 
-    (``A_c``: x's covariance given c at j, ``S = Phi A_c Phi^T + Q`` the same at j+1; ``docs/rts_smoother.md``)."""
+    (``A_c``: x's covariance given c at j, ``S = Phi A_c Phi^T + Q`` the same at j+1; ``docs/rts_smoother.md``).
+    ``C``'s clone rows are ``[0 I]``, so ``C dP C^T`` is formed from its leading rows only: two thirds of the
+    work of the full product."""
     m = Ac_j.shape[0]
     n = P_j.shape[0]
-    Cxx = Ac_j @ np.ascontiguousarray(phi.T) @ pinv_sym(S_j, rcond)
-    Cxc = (np.eye(m) - Cxx @ phi) @ B_j @ Dinv
-    C = np.eye(n)
-    C[:m, :m] = Cxx
-    C[:m, m:] = Cxc
-    Ps = P_j + C @ (Ps_next - P_next) @ C.T
-    return C @ e, 0.5 * (Ps + Ps.T)
+    nb = n - m
+    Cxx = np.ascontiguousarray(solve_sym(S_j, phi @ Ac_j, rcond).T)    # (S^-1 Phi A_c)^T: S, A_c symmetric
+    BD = B_j @ Dinv
+    Cxc = BD - Cxx @ (phi @ BD)
+    dP = Ps_next - P_next
+    W = np.zeros((m, n))                             # the leading rows of C dP (its clone rows: dP's own)
+    for i in range(m):
+        for k in range(n):
+            cik = Cxx[i, k] if k < m else Cxc[i, k - m]
+            for j in range(n):
+                W[i, j] += cik * dP[k, j]
+    Ps = np.empty((n, n))
+    for i in range(m):
+        for j in range(i, m):                        # C dP C^T over the leading block, its upper triangle
+            acc = 0.0
+            for k in range(m):
+                acc += W[i, k] * Cxx[j, k]
+            for k in range(nb):
+                acc += W[i, m + k] * Cxc[j, k]
+            Ps[i, j] = acc
+        for j in range(nb):                          # ... and the cross block: C dP's leading rows, clone columns
+            Ps[i, m + j] = W[i, m + j]
+    for i in range(nb):
+        for j in range(nb):
+            Ps[m + i, m + j] = dP[m + i, m + j]
+    for i in range(n):                               # P_j + that, both symmetrized, mirrored
+        for j in range(i, n):
+            x = 0.5 * (Ps[i, j] + Ps[j, i]) if i >= m else Ps[i, j]
+            v = 0.5 * (P_j[i, j] + P_j[j, i]) + x
+            Ps[i, j] = v
+            Ps[j, i] = v
+    d = np.empty(n)
+    for i in range(m):
+        acc = 0.0
+        for k in range(m):
+            acc += Cxx[i, k] * e[k]
+        for k in range(nb):
+            acc += Cxc[i, k] * e[m + k]
+        d[i] = acc
+    for i in range(nb):
+        d[m + i] = e[m + i]
+    return d, Ps
 
 
 @njit(cache=True)
 def uncondition(P_pre, m, e, Ps_lead, rcond):
     """Undo a clone: the smoothed correction and covariance of the state before it (its leading ``m`` states
-    and the old clone) from the smoothed leading states (``e``: their correction, ``Ps_lead``: covariance)."""
+    and the old clone) from the smoothed leading states (``e``: their correction, ``Ps_lead``: covariance).
+    With ``C = [I; Y^T]``, ``Y = A^-1 B`` (``A``, ``B``: the leading block and its cross block with the old
+    clone), the leading block becomes ``Ps_lead`` itself and only the clone's rows are computed."""
+    n = P_pre.shape[0]
+    nb = n - m
     A = np.ascontiguousarray(P_pre[:m, :m])
-    C = np.ascontiguousarray(P_pre[:, :m]) @ pinv_sym(A, rcond)
-    P = P_pre + C @ (Ps_lead - A) @ C.T
-    return C @ e, 0.5 * (P + P.T)
+    d, L, ok = chol_scaled(A, rcond)
+    if not ok:                                       # a degenerate leading block: A A^+ is not I, the general form
+        C = np.ascontiguousarray(P_pre[:, :m]) @ _pinv_eig(A, d, rcond)
+        P = P_pre + C @ (Ps_lead - A) @ C.T
+        return C @ e, 0.5 * (P + P.T)
+    Y = _solve_factored(d, L, P_pre[:m, m:])
+    dA = Ps_lead - A
+    T = dA @ Y                                       # (Ps_lead - A) Y: m x nb
+    P = np.empty((n, n))
+    for i in range(m):
+        for j in range(m):
+            P[i, j] = 0.5 * (Ps_lead[i, j] + Ps_lead[j, i])
+        for j in range(nb):
+            P[i, m + j] = P_pre[i, m + j] + T[i, j]
+            P[m + j, i] = P[i, m + j]
+    for i in range(nb):
+        for j in range(i, nb):
+            acc = 0.0
+            for k in range(m):
+                acc += Y[k, i] * T[k, j]
+            v = P_pre[m + i, m + j] + acc
+            P[m + i, m + j] = v
+            P[m + j, m + i] = v
+    out = np.empty(n)
+    for i in range(m):
+        out[i] = e[i]
+    for j in range(nb):
+        acc = 0.0
+        for k in range(m):
+            acc += Y[k, j] * e[k]
+        out[m + j] = acc
+    return out, P
 
 
 @njit(cache=True)
