@@ -20,6 +20,7 @@ from typing import Any, NamedTuple
 import numpy as np
 import yaml
 
+from . import yaml_lines
 from .errors import ConfigError
 from .spec import S, Spec  # noqa: F401  (re-exported: config.S, config.Spec)
 
@@ -273,15 +274,16 @@ def validate(body: Any, where: str, schema_: dict[str, Spec] | None = None, info
         if sect in informational:
             continue
         if sect not in sections:
-            raise ConfigError(f"{where}: unknown section {sect!r} (known: {', '.join(sections)})")
+            raise ConfigError(f"{yaml_lines.at(where, body, sect)}: unknown section {sect!r} (known: {', '.join(sections)})")
         if not isinstance(keys, dict):
-            raise ConfigError(f"{where}: section {sect!r} must be a mapping of keys")
+            raise ConfigError(f"{yaml_lines.at(where, body, sect)}: section {sect!r} must be a mapping of keys")
         for name, value in keys.items():
             key = f"{sect}.{name}"
+            at = yaml_lines.at(where, keys, name)          # file:line when the body came from a file
             if key not in schema_:
                 known = ", ".join(k.split(".")[1] for k in schema_ if k.startswith(sect + "."))
-                raise ConfigError(f"{where}: unknown key {key!r} (known in {sect}: {known})")
-            out.setdefault(sect, {})[name] = check_value(key, schema_[key], value, where)
+                raise ConfigError(f"{at}: unknown key {key!r} (known in {sect}: {known})")
+            out.setdefault(sect, {})[name] = check_value(key, schema_[key], value, at)
     return Layer(out, where)
 
 
@@ -291,7 +293,7 @@ def read_yaml(path: Path, what: str = "config file") -> Any:
     if not path.is_file():
         raise ConfigError(f"{path}: {what} not found")
     try:
-        return yaml.safe_load(path.read_text(encoding="utf-8"))
+        return yaml_lines.load(path.read_text(encoding="utf-8"))     # mappings that know their lines
     except UnicodeDecodeError:
         raise ConfigError(f"{path}: not a text (UTF-8) YAML {what}") from None
     except yaml.YAMLError as exc:

@@ -51,7 +51,8 @@ def request(config: Path | dict | None = None, variant: Path | None = None, sets
 
 def manifest_layer(ds: Dataset) -> tuple[Layer, ...]:
     body = ds.description.get("config")
-    return (validate(body, f"{ds.description['manifest']} (config)"),) if body else ()
+    # errors name the manifest's line (its 'config' mapping knows its lines)
+    return (validate(body, str(ds.description["manifest"])),) if body else ()
 
 
 def resolve(req: ConfigRequest, ds: Dataset) -> dict:

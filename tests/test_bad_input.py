@@ -109,14 +109,16 @@ def test_manifest_unknown_format(ds, tmp_path):
     m = ds / "dataset.yaml"
     m.write_text(m.read_text().replace("format: kitti_poses", "format: kitti_posez"))
     r, out = _run(ds, tmp_path)
-    _assert_clean_error(r, out, "dataset.yaml", "unknown format 'kitti_posez'", "kitti_poses")
+    line = next(i for i, ln in enumerate(m.read_text().splitlines(), 1) if "format: kitti_posez" in ln)
+    _assert_clean_error(r, out, f"dataset.yaml:{line}: ", "unknown format 'kitti_posez'", "kitti_poses")
 
 
 def test_manifest_unknown_key(ds, tmp_path):
     m = ds / "dataset.yaml"
     m.write_text(m.read_text().replace("    anchor: groundtruth", "    anchr: groundtruth"))
     r, out = _run(ds, tmp_path)
-    _assert_clean_error(r, out, "dataset.yaml", "unknown key 'anchr'")
+    line = next(i for i, ln in enumerate(m.read_text().splitlines(), 1) if "anchr: groundtruth" in ln)
+    _assert_clean_error(r, out, f"dataset.yaml:{line}: ", "unknown key 'anchr'")
 
 
 def test_streams_that_do_not_overlap(ds, tmp_path):
@@ -133,6 +135,13 @@ def test_unknown_config_key_and_bad_value(ds, tmp_path):
     cfg.write_text("filter:\n  use_gnss: [unclosed\n")
     r, out = _run(ds, tmp_path, "--config", str(cfg))
     _assert_clean_error(r, out, "bad.yaml", "not valid YAML")
+    # a value, a key and a section of a config file are named by their line, like a bad line of a data file
+    for body, needle in (("filter:\n  lidar_update: relative\n  use_gnss: maybe\n", "bad.yaml:3: filter.use_gnss"),
+                         ("imu:\n  gyro_noise_dps_sqrthz: 0.1\n  gyro_nose: 1\n", "bad.yaml:3: unknown key 'imu.gyro_nose'"),
+                         ("# comment\nfiltr:\n  x: 1\n", "bad.yaml:2: unknown section 'filtr'")):
+        cfg.write_text(body)
+        r, out = _run(ds, tmp_path, "--config", str(cfg))
+        _assert_clean_error(r, out, needle)
 
 
 def test_real_process_exit_code_and_single_line(ds, tmp_path):
@@ -161,8 +170,10 @@ def test_bad_manifest_values(ds, tmp_path, old, new, needle):
     text = m.read_text()
     assert old in text
     m.write_text(text.replace(old, new))
+    bad = next(ln for ln in new.splitlines() if ln not in old.splitlines())
+    line = next(i for i, ln in enumerate(m.read_text().splitlines(), 1) if bad in ln)
     r, out = _run(ds, tmp_path)
-    _assert_clean_error(r, out, "dataset.yaml", needle)
+    _assert_clean_error(r, out, f"dataset.yaml:{line}: ", needle)      # the line of the bad value
 
 
 def test_gnss_outside_the_run_is_an_error_not_silence(ds, tmp_path):

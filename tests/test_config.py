@@ -83,3 +83,23 @@ def test_chi2_quantiles_equal_scipy_stats():
     for dof in (1, 2, 3, 6, 15):
         q = np.array([0.025, 0.5, 0.975, 0.9999])
         assert np.array_equal(chi2_ppf(q, dof), chi2.ppf(q, dof))
+
+
+def test_yaml_mappings_know_the_lines_of_their_keys():
+    """Config and manifest errors name the line of the bad key (fusion_eval/yaml_lines.py); the mappings are dicts
+    to everything else (equality, JSON, yaml.safe_dump, pickling)."""
+    import json
+    import pickle
+
+    import yaml
+
+    from fusion_eval import yaml_lines
+
+    d = yaml_lines.load("a: 1\nb:\n  c: 2\n\n  d: [1, 2]\nbase: &x {k: 1}\ne:\n  <<: *x\n  m: 2\n")
+    assert d == {"a": 1, "b": {"c": 2, "d": [1, 2]}, "base": {"k": 1}, "e": {"k": 1, "m": 2}}
+    assert yaml_lines.at("f.yaml", d["b"], "d") == "f.yaml:5" and yaml_lines.at("f.yaml", d, "e") == "f.yaml:7"
+    assert yaml_lines.at("f.yaml", d["e"], "k") == "f.yaml:6"          # a merged key: where it was written
+    assert yaml_lines.at("f.yaml", d["b"], "nope") == "f.yaml:3"       # not there: the mapping's own line
+    assert yaml_lines.at("--set", {"a": 1}, "a") == "--set"            # not from a file: no line
+    assert yaml.safe_load(yaml.safe_dump(d)) == d and json.loads(json.dumps(d)) == d
+    assert pickle.loads(pickle.dumps(d))["b"].lines == {"c": 3, "d": 5}

@@ -167,7 +167,8 @@ def test_an_unknown_platform_is_refused_naming_the_manifest(kitti_slice, tmp_pat
     shutil.copytree(kitti_slice, d)
     m = d / "dataset.yaml"
     m.write_text(m.read_text().replace("platform: car", "platform: boat"))
-    with pytest.raises(ConfigError, match=r"dataset.yaml: 'platform' must be one of car, wheeled, aerial, handheld, "
+    line = next(i for i, ln in enumerate(m.read_text().splitlines(), 1) if ln.startswith("platform: boat"))
+    with pytest.raises(ConfigError, match=rf"dataset.yaml:{line}: 'platform' must be one of car, wheeled, aerial, handheld, "
                                           r"legged, other, got 'boat'"):
         load_dataset(d)
 

@@ -109,24 +109,24 @@ def _columns(entry: dict, kind: str, ctx: ReadContext) -> dict[str, int]:
     cols = entry.get("columns")
     required, optional = NAMES[kind]
     if not (isinstance(cols, list) and cols and all(isinstance(c, str) for c in cols)):
-        raise ConfigError(f"{ctx.manifest}: a csv stream needs 'columns': a list naming each column of the file "
+        raise ConfigError(f"{ctx.at(entry, 'columns')}: a csv stream needs 'columns': a list naming each column of the file "
                           f"(needs {', '.join(sorted(required))})")
     named = {c: i for i, c in enumerate(cols) if not c.startswith("_")}
     unknown = set(named) - required - optional
     if unknown or len(named) != sum(1 for c in cols if not c.startswith("_")):
         bad = sorted(unknown)[0] if unknown else "a repeated name"
-        raise ConfigError(f"{ctx.manifest}: csv column {bad!r} is not a {kind} column (known: "
+        raise ConfigError(f"{ctx.at(entry, 'columns')}: csv column {bad!r} is not a {kind} column (known: "
                           f"{', '.join(sorted(required | optional))}; '_' skips a column)")
     missing = required - set(named)
     if missing:
-        raise ConfigError(f"{ctx.manifest}: csv {kind} stream needs the columns {', '.join(sorted(missing))}")
+        raise ConfigError(f"{ctx.at(entry, 'columns')}: csv {kind} stream needs the columns {', '.join(sorted(missing))}")
     return named
 
 
 def _choice(entry: dict, key: str, table: dict, default: str, ctx: ReadContext):
     v = entry.get(key, default)
     if v not in table:
-        raise ConfigError(f"{ctx.manifest}: {key} must be one of {', '.join(table)}, got {v!r}")
+        raise ConfigError(f"{ctx.at(entry, key)}: {key} must be one of {', '.join(table)}, got {v!r}")
     return table[v]
 
 
@@ -161,13 +161,13 @@ def read_gnss(entry: dict, ctx: ReadContext) -> GnssSeries:
     named, rows, t, lines, src = _table(entry, "gnss", ctx, "GNSS CSV (columns)")
     if {"lat", "lon", "alt"} <= set(named):
         if ctx.origin is None:
-            raise ConfigError(f"{ctx.manifest}: GNSS in geodetic coordinates needs a geodetic_origin")
+            raise ConfigError(f"{ctx.at(entry)}: GNSS in geodetic coordinates needs a geodetic_origin")
         p = geodetic_to_enu(rows[:, named["lat"]], rows[:, named["lon"]], rows[:, named["alt"]], *ctx.origin,
                             source=src, lines=lines)
     elif {"x", "y", "z"} <= set(named):
         p = rows[:, [named["x"], named["y"], named["z"]]]
     else:
-        raise ConfigError(f"{ctx.manifest}: a csv GNSS stream needs columns lat, lon, alt (geodetic) or x, y, z (local ENU m)")
+        raise ConfigError(f"{ctx.at(entry, 'columns')}: a csv GNSS stream needs columns lat, lon, alt (geodetic) or x, y, z (local ENU m)")
     if {"std_e", "std_n", "std_u"} <= set(named):
         std = rows[:, [named["std_e"], named["std_n"], named["std_u"]]]
     elif "std" in named:
@@ -190,11 +190,11 @@ def std_m(entry: dict, ctx: ReadContext, default: float | None = None) -> np.nda
     """The entry's ``std_m`` (a number or three, metres; ``default`` when absent) as a (3,) array."""
     std = entry.get("std_m", default)
     if std is None:
-        raise ConfigError(f"{ctx.manifest}: the GNSS stream has no std columns: give 'std_m' (1-sigma, m)")
+        raise ConfigError(f"{ctx.at(entry)}: the GNSS stream has no std columns: give 'std_m' (1-sigma, m)")
     if isinstance(std, (int, float)) and not isinstance(std, bool):
         std = [std] * 3
     if not (isinstance(std, list) and len(std) == 3 and all(isinstance(v, (int, float)) and v > 0 for v in std)):
-        raise ConfigError(f"{ctx.manifest}: gnss 'std_m' must be a positive number or 3 positive numbers (m), got {entry.get('std_m')!r}")
+        raise ConfigError(f"{ctx.at(entry, 'std_m')}: gnss 'std_m' must be a positive number or 3 positive numbers (m), got {entry.get('std_m')!r}")
     return np.asarray(std, float)
 
 

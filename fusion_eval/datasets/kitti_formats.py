@@ -18,7 +18,7 @@ from .streams import ReadContext
 
 def _origin(ctx: ReadContext, what: str):
     if ctx.origin is None:
-        raise ConfigError(f"{ctx.manifest}: {what} needs a geodetic origin (geodetic_origin: first_fix or [lat, lon, alt])")
+        raise ConfigError(f"{ctx.at()}: {what} needs a geodetic origin (geodetic_origin: first_fix or [lat, lon, alt])")
     return ctx.origin
 
 
@@ -30,19 +30,19 @@ def pose_times(entry: dict, ctx: ReadContext, n_poses: int) -> np.ndarray:
     """The stamps of a KITTI pose file: a times file (absolute, or put on the IMU packets' clock with ``align_to``
     or ``t0_s``), or the stamps of the IMU packets themselves (``align_to: imu``, optionally smoothed: the recovered
     clock is left in ``ctx.notes['clock']``)."""
-    manifest, raw, times = ctx.manifest, ctx.imu_packets, entry.get("times")
+    raw, times = ctx.imu_packets, entry.get("times")
     pose_path = ctx.path(entry)
     if not isinstance(times, dict):
-        raise ConfigError(f"{manifest}: KITTI poses need 'times': {{file: times.txt}} and/or {{align_to: imu, index_offset: 0}}")
+        raise ConfigError(f"{ctx.at(entry)}: KITTI poses need 'times': {{file: times.txt}} and/or {{align_to: imu, index_offset: 0}}")
     if times.get("align_to") == "imu" and raw is None:
-        raise ConfigError(f"{manifest}: times.align_to: imu needs the IMU as kitti_oxts packets; give times.file instead")
+        raise ConfigError(f"{ctx.at(times, 'align_to')}: times.align_to: imu needs the IMU as kitti_oxts packets; give times.file instead")
     offset = times.get("index_offset", 0)
     if isinstance(offset, bool) or not isinstance(offset, int):
-        raise ConfigError(f"{manifest}: times.index_offset must be an integer, got {offset!r}")
+        raise ConfigError(f"{ctx.at(times, 'index_offset')}: times.index_offset must be an integer, got {offset!r}")
     if "t0_s" in times and not _num(times["t0_s"]):
-        raise ConfigError(f"{manifest}: times.t0_s must be a number of seconds, got {times['t0_s']!r}")
+        raise ConfigError(f"{ctx.at(times, 't0_s')}: times.t0_s must be a number of seconds, got {times['t0_s']!r}")
     if "file" in times and not isinstance(times["file"], str):
-        raise ConfigError(f"{manifest}: times.file must be a file name, got {times['file']!r}")
+        raise ConfigError(f"{ctx.at(times, 'file')}: times.file must be a file name, got {times['file']!r}")
     if "file" in times:
         tpath = ctx.root / times["file"]
         t, _ = kitti_poses.read_times(tpath)
@@ -55,7 +55,7 @@ def pose_times(entry: dict, ctx: ReadContext, n_poses: int) -> np.ndarray:
             ok = (j >= 0) & (j < raw.t_s.size)
             ok[ok] &= ~raw.filled[j[ok]]
             if not ok.any():
-                raise DataRangeError(f"{manifest}: no lidar frame maps onto a valid IMU packet (index_offset {offset})")
+                raise DataRangeError(f"{ctx.at(times, 'index_offset')}: no lidar frame maps onto a valid IMU packet (index_offset {offset})")
             t = t + float(np.median(raw.t_s[j[ok]] - t[ok]))
         elif "t0_s" in times:
             t = t + float(times["t0_s"])
@@ -63,16 +63,16 @@ def pose_times(entry: dict, ctx: ReadContext, n_poses: int) -> np.ndarray:
     if times.get("align_to") == "imu":
         j = np.arange(n_poses) + offset
         if j[0] < 0 or j[-1] >= raw.t_s.size:
-            raise DataRangeError(f"{manifest}: lidar frames 0..{n_poses - 1} with index_offset {offset} map outside the "
+            raise DataRangeError(f"{ctx.at(times, 'index_offset')}: lidar frames 0..{n_poses - 1} with index_offset {offset} map outside the "
                                  f"{raw.t_s.size} IMU packets; give a times file or another index_offset")
         smooth = times.get("smooth_s")
         if smooth is None:
             return raw.t_s[j].copy()
         if not _num(smooth) or smooth <= 0:
-            raise ConfigError(f"{manifest}: times.smooth_s must be a positive number of seconds, got {smooth!r}")
+            raise ConfigError(f"{ctx.at(times, 'smooth_s')}: times.smooth_s must be a positive number of seconds, got {smooth!r}")
         t, ctx.notes["clock"] = clock.smooth_frame_times(raw.t_s[j], ~raw.filled[j], float(smooth))
         return t
-    raise ConfigError(f"{manifest}: 'times' needs 'file' or 'align_to: imu'")
+    raise ConfigError(f"{ctx.at(entry, 'times')}: 'times' needs 'file' or 'align_to: imu'")
 
 
 def read_kitti_poses(entry: dict, ctx: ReadContext) -> PoseSeries:

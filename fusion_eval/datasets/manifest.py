@@ -17,6 +17,8 @@ import numpy as np
 import yaml
 
 from ..errors import ConfigError, DataFormatError
+from .. import yaml_lines
+from ..yaml_lines import at
 from ..so3 import make_T, matrix_to_quat_xyzw
 from ..types import Dataset, PoseSeries
 from . import kitti_oxts, kitti_poses, plausible
@@ -85,7 +87,7 @@ def _from_manifest(manifest: Path, extra: dict) -> Dataset:
     from ._text import read_text
 
     try:
-        body = yaml.safe_load(read_text(manifest, "a YAML dataset manifest"))
+        body = yaml_lines.load(read_text(manifest, "a YAML dataset manifest"))     # mappings that know their lines
     except yaml.YAMLError as exc:
         mark = getattr(exc, "problem_mark", None)
         raise DataFormatError(manifest, None if mark is None else mark.line + 1, f"not valid YAML ({getattr(exc, 'problem', exc)})") from None
@@ -102,15 +104,15 @@ def _from_manifest_dict(body: dict, root: Path, manifest: Path, extra: dict | No
     extra = extra or {}
     unknown = set(body) - TOP_KEYS
     if unknown:
-        raise ConfigError(f"{manifest}: unknown manifest key {sorted(unknown)[0]!r} (known: {', '.join(sorted(TOP_KEYS))})")
+        raise ConfigError(f"{at(manifest, body, sorted(unknown)[0])}: unknown manifest key {sorted(unknown)[0]!r} (known: {', '.join(sorted(TOP_KEYS))})")
     streams = body.get("streams")
     if not isinstance(streams, dict) or "imu" not in streams:
-        raise ConfigError(f"{manifest}: 'streams' must be a mapping that names at least 'imu'")
+        raise ConfigError(f"{at(manifest, body, 'streams')}: 'streams' must be a mapping that names at least 'imu'")
     for name, spec in streams.items():
         if name not in STREAMS and name not in extra:
-            raise ConfigError(f"{manifest}: unknown stream {name!r} (known: {', '.join([*STREAMS, *extra])})")
+            raise ConfigError(f"{at(manifest, streams, name)}: unknown stream {name!r} (known: {', '.join([*STREAMS, *extra])})")
         if not isinstance(spec, dict):
-            raise ConfigError(f"{manifest}: stream {name!r} must be a mapping with 'format' and 'path'")
+            raise ConfigError(f"{at(manifest, streams, name)}: stream {name!r} must be a mapping with 'format' and 'path'")
         registered = for_stream(name) if name in STREAMS else {}
         allowed = STREAM_KEYS[name] if name in STREAMS else extra[name].keys
         formats = tuple(registered) if name in STREAMS else tuple(extra[name].readers)
@@ -118,30 +120,30 @@ def _from_manifest_dict(body: dict, root: Path, manifest: Path, extra: dict | No
             allowed = allowed | registered[spec["format"]].keys
         fmt = spec.get("format")
         if fmt not in formats:
-            raise ConfigError(f"{manifest}: stream {name!r} has unknown format {fmt!r} (known for {name}: {', '.join(formats)})")
+            raise ConfigError(f"{at(manifest, spec, 'format')}: stream {name!r} has unknown format {fmt!r} (known for {name}: {', '.join(formats)})")
         bad = {k for k in set(spec) - allowed if not (name in ("groundtruth", "lidar") and k.startswith("T_imu_"))}
         if bad:
-            raise ConfigError(f"{manifest}: unknown key {sorted(bad)[0]!r} in stream {name!r} "
+            raise ConfigError(f"{at(manifest, spec, sorted(bad)[0])}: unknown key {sorted(bad)[0]!r} in stream {name!r} "
                               f"(known: {', '.join(sorted(allowed))})")
         extr = [k for k in spec if k.startswith("T_imu_")]
         if extr and extr != [f"T_imu_{spec.get('frame', 'imu')}"]:
             # an extrinsic for another frame than the stream's would be ignored, and the poses taken as the IMU's
-            raise ConfigError(f"{manifest}: stream {name!r} gives {extr[0]} but its frame is {spec.get('frame', 'imu')!r}: "
+            raise ConfigError(f"{at(manifest, spec, extr[0])}: stream {name!r} gives {extr[0]} but its frame is {spec.get('frame', 'imu')!r}: "
                               f"set frame: {extr[0][6:]} (the poses are of that sensor)")
         if not isinstance(spec.get("path"), str) or not spec["path"]:
-            raise ConfigError(f"{manifest}: stream {name!r} needs a 'path' (a file or folder name)")
+            raise ConfigError(f"{at(manifest, spec, 'path')}: stream {name!r} needs a 'path' (a file or folder name)")
         if fmt != "kitti_poses" and "times" in spec:
-            raise ConfigError(f"{manifest}: 'times' applies to kitti_poses streams only (stream {name!r} is {fmt}: "
+            raise ConfigError(f"{at(manifest, spec, 'times')}: 'times' applies to kitti_poses streams only (stream {name!r} is {fmt}: "
                               "its file has its own timestamps)")
         for key in ("time_offset_s", "gyro_lag_s", "accel_lag_s"):
             v = spec.get(key, 0.0)
             may_be_auto = key != "time_offset_s" or name == "lidar"     # estimated by fusion_eval.timing
             if not (v == "auto" and may_be_auto) and not _is_num(v):
-                raise ConfigError(f"{manifest}: {key} of stream {name!r} must be a number of seconds, got {v!r}")
+                raise ConfigError(f"{at(manifest, spec, key)}: {key} of stream {name!r} must be a number of seconds, got {v!r}")
             if key != "time_offset_s" and _is_num(v) and abs(v) > plausible.MAX_LAG_S:
-                raise ConfigError(f"{manifest}: {key} of stream {name!r} is {v:g} s: {plausible.LAG_NOTE}")
+                raise ConfigError(f"{at(manifest, spec, key)}: {key} of stream {name!r} is {v:g} s: {plausible.LAG_NOTE}")
         if "degrade" in spec and not isinstance(spec["degrade"], bool):
-            raise ConfigError(f"{manifest}: 'degrade' of stream {name!r} must be true or false, got {spec['degrade']!r}")
+            raise ConfigError(f"{at(manifest, spec, 'degrade')}: 'degrade' of stream {name!r} must be true or false, got {spec['degrade']!r}")
 
     oxts_cache: dict[Path, kitti_oxts.OxtsPackets] = {}
 
@@ -175,14 +177,14 @@ def _from_manifest_dict(body: dict, root: Path, manifest: Path, extra: dict | No
     elif isinstance(origin, (list, tuple)) and len(origin) == 3 and all(_is_num(v) for v in origin):
         origin_t = tuple(float(v) for v in origin)
     else:
-        raise ConfigError(f"{manifest}: geodetic_origin must be 'first_fix' or [lat_deg, lon_deg, alt_m], got {origin!r}")
+        raise ConfigError(f"{at(manifest, body, 'geodetic_origin')}: geodetic_origin must be 'first_fix' or [lat_deg, lon_deg, alt_m], got {origin!r}")
     if origin_t is not None:
         from ..geo import check_geodetic
 
         try:
             check_geodetic(*origin_t, str(manifest), what="geodetic_origin")
         except DataFormatError as exc:
-            raise ConfigError(f"{manifest}: {exc.expected}") from None
+            raise ConfigError(f"{at(manifest, body, 'geodetic_origin')}: {exc.expected}") from None
 
     ctx = ctx_with(origin_t)
     got = {name: read(name, origin_t) for name in ("odometer", "gnss", "groundtruth", "lidar") if name in streams}
@@ -218,11 +220,11 @@ def _from_manifest_dict(body: dict, root: Path, manifest: Path, extra: dict | No
         "streams": {s: {k: (str(v) if k == "path" else v) for k, v in streams[s].items()} for s in streams},
     }
     if description["platform"] is not None and description["platform"] not in PLATFORMS:
-        raise ConfigError(f"{manifest}: 'platform' must be one of {', '.join(PLATFORMS)}, got {description['platform']!r}")
+        raise ConfigError(f"{at(manifest, body, 'platform')}: 'platform' must be one of {', '.join(PLATFORMS)}, got {description['platform']!r}")
     if not isinstance(description["config"], dict):
-        raise ConfigError(f"{manifest}: 'config' must be a mapping of configuration sections (suggested settings)")
+        raise ConfigError(f"{at(manifest, body, 'config')}: 'config' must be a mapping of configuration sections (suggested settings)")
     if description["lidar_anchor"] not in ("groundtruth", "none"):
-        raise ConfigError(f"{manifest}: lidar 'anchor' must be 'groundtruth' or 'none', got {description['lidar_anchor']!r}")
+        raise ConfigError(f"{at(manifest, streams.get('lidar'), 'anchor')}: lidar 'anchor' must be 'groundtruth' or 'none', got {description['lidar_anchor']!r}")
     return Dataset(name=str(body.get("name", root.name)), imu=imu, groundtruth=gt, gnss=gnss, lidar=lidar, odometer=odo,
                    geodetic_origin=origin_t, description=description, extra=extra_series)
 
@@ -231,7 +233,8 @@ def _is_num(v) -> bool:
     return isinstance(v, (int, float)) and not isinstance(v, bool) and bool(np.isfinite(v))
 
 
-def _transform(spec_value, root: Path, manifest: Path, what: str) -> np.ndarray:
+def _transform(spec_value, root: Path, where: str, what: str) -> np.ndarray:
+    """A 4x4 transform from a manifest value; ``where``: its place (``file:line``), for messages."""
     if isinstance(spec_value, dict) and isinstance(spec_value.get("file"), str):
         return kitti_poses.calib_transform(root / spec_value["file"], spec_value.get("key"))
     if isinstance(spec_value, (list, tuple)) and len(spec_value) in (12, 16) and all(_is_num(v) for v in spec_value):
@@ -239,13 +242,13 @@ def _transform(spec_value, root: Path, manifest: Path, what: str) -> np.ndarray:
         T[: len(spec_value) // 4, :] = np.asarray(spec_value, float).reshape(-1, 4)
         R = T[:3, :3]
         if np.abs(R.T @ R - np.eye(3)).max() > 1e-3 or np.linalg.det(R) < 0:
-            raise ConfigError(f"{manifest}: {what}: the 3x3 block must be a rotation (R^T R = I, det +1)")
+            raise ConfigError(f"{where}: {what}: the 3x3 block must be a rotation (R^T R = I, det +1)")
         try:
-            kitti_poses.check_lever_arm(T, manifest, what)
+            kitti_poses.check_lever_arm(T, where, what)
         except DataFormatError as exc:
             raise ConfigError(str(exc)) from None
         return T
-    raise ConfigError(f"{manifest}: {what} must be {{file: ..., key: ...}} or a list of 12 numbers (3x4 row-major)")
+    raise ConfigError(f"{where}: {what} must be {{file: ..., key: ...}} or a list of 12 numbers (3x4 row-major)")
 
 
 def _extrinsic(spec, root, manifest) -> np.ndarray:
@@ -254,7 +257,7 @@ def _extrinsic(spec, root, manifest) -> np.ndarray:
     from the stream's bag), or for ``cam0`` from KITTI's ``T_cam0_imu`` or ``T_cam0_velo`` and ``T_velo_imu``."""
     frame = spec.get("frame", "imu")
     if not isinstance(frame, str) or not frame:
-        raise ConfigError(f"{manifest}: pose 'frame' must be a frame name ('imu', 'cam0' or one with T_imu_<frame>)")
+        raise ConfigError(f"{at(manifest, spec, 'frame')}: pose 'frame' must be a frame name ('imu', 'cam0' or one with T_imu_<frame>)")
     if frame == "imu":
         return np.eye(4)
     key = f"T_imu_{frame}"
@@ -263,23 +266,24 @@ def _extrinsic(spec, root, manifest) -> np.ndarray:
         if isinstance(v, dict) and "tf_static" in v:
             pair = v["tf_static"]
             if not (isinstance(pair, list) and len(pair) == 2 and all(isinstance(x, str) for x in pair)):
-                raise ConfigError(f"{manifest}: {key}: tf_static must be [imu_frame, {frame}_frame]")
+                raise ConfigError(f"{at(manifest, spec, key)}: {key}: tf_static must be [imu_frame, {frame}_frame]")
             from . import rosbag
 
             bag = root / v.get("bag", spec["path"])
             T = rosbag.static_transform(bag, pair[0], pair[1])
             if T is None:
-                raise ConfigError(f"{manifest}: {key}: no /tf_static transform {pair[0]} -> {pair[1]} in {bag}")
+                raise ConfigError(f"{at(manifest, spec, key)}: {key}: no /tf_static transform {pair[0]} -> {pair[1]} in {bag}")
         else:
-            T = _transform(v, root, manifest, key)
+            T = _transform(v, root, at(manifest, spec, key), key)
         return np.linalg.inv(T)
     if frame == "cam0":
         if "T_cam0_imu" in spec:
-            return _transform(spec["T_cam0_imu"], root, manifest, "T_cam0_imu")
+            return _transform(spec["T_cam0_imu"], root, at(manifest, spec, "T_cam0_imu"), "T_cam0_imu")
         if "T_cam0_velo" in spec and "T_velo_imu" in spec:
-            return _transform(spec["T_cam0_velo"], root, manifest, "T_cam0_velo") @ _transform(spec["T_velo_imu"], root, manifest, "T_velo_imu")
-        raise ConfigError(f"{manifest}: frame 'cam0' needs T_imu_cam0, T_cam0_imu, or T_cam0_velo and T_velo_imu")
-    raise ConfigError(f"{manifest}: frame {frame!r} needs {key} (the {frame} frame's pose in the IMU frame: 12 numbers "
+            return (_transform(spec["T_cam0_velo"], root, at(manifest, spec, "T_cam0_velo"), "T_cam0_velo")
+                    @ _transform(spec["T_velo_imu"], root, at(manifest, spec, "T_velo_imu"), "T_velo_imu"))
+        raise ConfigError(f"{at(manifest, spec, 'frame')}: frame 'cam0' needs T_imu_cam0, T_cam0_imu, or T_cam0_velo and T_velo_imu")
+    raise ConfigError(f"{at(manifest, spec, 'frame')}: frame {frame!r} needs {key} (the {frame} frame's pose in the IMU frame: 12 numbers "
                       f"(3x4 row-major), {{file: ..., key: ...}} or {{tf_static: [imu_frame, {frame}_frame]}})")
 
 

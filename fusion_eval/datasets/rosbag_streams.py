@@ -26,10 +26,10 @@ KEYS = frozenset({"topic", "stamps", "std_m", "child_frame", "parent_frame"})
 def _topic(entry: dict, ctx: ReadContext) -> str:
     t = entry.get("topic")
     if not isinstance(t, str) or not t:
-        raise ConfigError(f"{ctx.manifest}: a rosbag stream needs 'topic' (the topic to read)")
+        raise ConfigError(f"{ctx.at(entry)}: a rosbag stream needs 'topic' (the topic to read)")
     stamps = entry.get("stamps", "header")
     if stamps not in ("header", "record"):
-        raise ConfigError(f"{ctx.manifest}: 'stamps' must be 'header' or 'record', got {stamps!r}")
+        raise ConfigError(f"{ctx.at(entry, 'stamps')}: 'stamps' must be 'header' or 'record', got {stamps!r}")
     return t
 
 
@@ -45,7 +45,7 @@ def read_gnss(entry: dict, ctx: ReadContext):
 
     topic = _topic(entry, ctx)
     if ctx.origin is None:
-        raise ConfigError(f"{ctx.manifest}: NavSatFix fixes need a geodetic_origin ('first_fix' or [lat, lon, alt])")
+        raise ConfigError(f"{ctx.at(entry)}: NavSatFix fixes need a geodetic_origin ('first_fix' or [lat, lon, alt])")
     default = std_m(entry, ctx) if "std_m" in entry else None
     return rosbag.read_navsatfix(ctx.path(entry), topic, ctx.origin, stamps=entry.get("stamps", "header"),
                                  default_std_m=default)
@@ -68,7 +68,7 @@ def read_speed(entry: dict, ctx: ReadContext) -> SpeedSeries:
     """The forward speed of an Odometry topic: its twist (child frame) along the body x axis."""
     poses = read_poses(entry, ctx)
     if poses.v_w_mps is None:
-        raise ConfigError(f"{ctx.manifest}: odometer topic {entry['topic']!r} has no twist (expected nav_msgs/Odometry)")
+        raise ConfigError(f"{ctx.at(entry, 'topic')}: odometer topic {entry['topic']!r} has no twist (expected nav_msgs/Odometry)")
     v_b = np.einsum("nji,nj->ni", poses.R_wb(), poses.v_w_mps)
     return SpeedSeries(t_s=poses.t_s, v_mps=v_b[:, 0], source=poses.source)
 

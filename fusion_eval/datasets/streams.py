@@ -12,6 +12,8 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, Callable
 
+from .. import yaml_lines
+
 
 @dataclass
 class ReadContext:
@@ -26,6 +28,10 @@ class ReadContext:
 
     def path(self, entry: dict) -> Path:
         return self.root / entry["path"]
+
+    def at(self, entry: dict | None = None, key: str | None = None) -> str:
+        """Where ``key`` of a manifest entry is, ``manifest:line``, for a reader's message."""
+        return yaml_lines.at(self.manifest, entry, key)
 
 
 @dataclass(frozen=True)
