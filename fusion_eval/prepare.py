@@ -314,4 +314,16 @@ def prepare(ds: Dataset, cfg: dict) -> Prepared:
             why = f"{why}; {why_not}"
         resolved.setdefault("filter", {})["nhc_travel_pitch_mrad"] = None if travel is None else travel.pitch_mrad
         applied["nhc_travel"] = travel.as_dict() if travel is not None else {"pitch_mrad": None, "method": why}
+    applied["auto_settled"] = _auto_settled(cfg, resolved, applied)
     return prep
+
+
+def _auto_settled(cfg: dict, resolved: dict, applied: dict) -> dict:
+    """``{section.key: value}`` for each configuration key left to the data ('auto') that the preparation settled
+    to one value for the whole run: the report's configuration block shows it beside the 'auto'."""
+    got = {f"{sect}.{k}": v for sect, body in resolved.items() for k, v in body.items() if cfg[sect].get(k) == "auto"}
+    if cfg["filter"]["gravity_mps2"] == "auto":
+        got["filter.gravity_mps2"] = applied["gravity_mps2"]
+    if "lidar_frame" in applied:
+        got["lidar.relative_frame"] = applied["lidar_frame"]["frame"]
+    return got

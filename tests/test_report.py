@@ -13,6 +13,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+import yaml
 
 from fusion_eval import provenance, tables
 from fusion_eval.commands.check import Row, junit
@@ -112,6 +113,11 @@ def test_run_writes_report_html_tex_and_plain_wording(slice_run):
     n_png = len([p for p in slice_run.iterdir() if p.suffix == ".png"])
     assert n_png > 0 and page.count("data:image/png;base64,") == n_png
     assert "oxts" in page and re.search(r"<code>[0-9a-f]{64}</code>", page)
+    # an 'auto' the data settled shows what it became, with the value the preparation applied
+    settled = yaml.safe_load((slice_run / "config.resolved.yaml").read_text())["applied"]["auto_settled"]
+    assert f"discretization: auto  # -> {settled['filter.discretization']}" in md
+    assert f"gravity_mps2: auto  # -> {settled['filter.gravity_mps2']:.6g}" in md
+    assert 9.7 < settled["filter.gravity_mps2"] < 9.9
 
 
 def _console(stderr: str) -> list[str]:

@@ -261,5 +261,20 @@ def report_md(dataset: str, config_name: str, evals: dict, ratios: dict, cfg: di
     if "lidar_anchor_t_s" in applied:
         L.append(f"- Lidar odometry anchored at the ground-truth pose at t = {applied['lidar_anchor_t_s']:.6f} s; "
                  f"{'resampled on the IMU stamps' if cfg['lidar']['interpolate_to_imu'] else 'at its own stamps'}.")
-    L += ["", "## Configuration", "", "```yaml", yaml.safe_dump(cfg, sort_keys=False).rstrip(), "```", ""]
+    L += ["", "## Configuration", "", "```yaml", _config_block(cfg, applied.get("auto_settled", {})), "```", ""]
     return "\n".join(L)
+
+
+def _config_block(cfg: dict, settled: dict) -> str:
+    """The configuration as YAML, each 'auto' the data settled followed by what it became (``# -> 9.80943``)."""
+    out, sect = [], None
+    for line in yaml.safe_dump(cfg, sort_keys=False).rstrip().splitlines():
+        if not line.startswith(" ") and line.endswith(":"):
+            sect = line[:-1]
+        key, sep, value = line.strip().partition(": ")
+        v = settled.get(f"{sect}.{key}") if sep and value == "auto" else None
+        if v is not None:
+            shown = f"{v:.6g}" if isinstance(v, float) else str(v)
+            line = f"{line}  # -> {shown}"
+        out.append(line)
+    return "\n".join(out)
