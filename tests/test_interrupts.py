@@ -72,14 +72,27 @@ def test_a_signal_ends_run_within_2_s_and_leaves_nothing(warm_cli, tmp_path, sig
     assert _group_gone(p.pid), "a worker outlived the command"
 
 
-@pytest.mark.slow
-def test_ctrl_c_to_the_whole_group_prints_no_worker_traceback(warm_cli, tmp_path):
+def _ctrl_c_to_a_run(tmp_path: Path, presses: int) -> tuple[subprocess.Popen, str, Path]:
+    """A default run Ctrl-C'ed ``presses`` times (100 ms apart) once it writes, as a terminal sends it: to the whole
+    process group; the process, its stderr and its output folder."""
     out = tmp_path / "out"
     p = _start(["run", "--out", str(out)], tmp_path)
     assert wait_for(lambda: any(tmp_path.glob(".out.partial-*")), 60)
     time.sleep(1.0)
-    os.killpg(p.pid, signal.SIGINT)                                # as a terminal's Ctrl-C does
+    for i in range(presses):
+        if i:
+            time.sleep(0.1)
+        try:
+            os.killpg(p.pid, signal.SIGINT)
+        except ProcessLookupError:                                 # already gone: nothing to repeat
+            break
     _, err = p.communicate(timeout=30)
+    return p, err, out
+
+
+@pytest.mark.slow
+def test_ctrl_c_to_the_whole_group_prints_no_worker_traceback(warm_cli, tmp_path):
+    p, err, _ = _ctrl_c_to_a_run(tmp_path, 1)
     assert p.returncode == 130 and "Traceback" not in err and "KeyboardInterrupt" not in err, err
     assert _group_gone(p.pid)
 
@@ -88,17 +101,7 @@ def test_ctrl_c_to_the_whole_group_prints_no_worker_traceback(warm_cli, tmp_path
 def test_a_second_ctrl_c_during_the_exit_does_not_change_the_exit_status(warm_cli, tmp_path):
     # Python restores SIGINT's default action when it finalizes: a repeated Ctrl-C during the exit killed the process
     # by the signal (-2) after "interrupted" was printed (reproduced with 20-300 ms between the two)
-    out = tmp_path / "out"
-    p = _start(["run", "--out", str(out)], tmp_path)
-    assert wait_for(lambda: any(tmp_path.glob(".out.partial-*")), 60)
-    time.sleep(1.0)
-    os.killpg(p.pid, signal.SIGINT)
-    time.sleep(0.1)
-    try:
-        os.killpg(p.pid, signal.SIGINT)
-    except ProcessLookupError:                                     # already gone: nothing to repeat
-        pass
-    _, err = p.communicate(timeout=30)
+    p, err, out = _ctrl_c_to_a_run(tmp_path, 2)
     assert p.returncode == 130 and "Traceback" not in err, err
     assert not out.exists() and _group_gone(p.pid)
 
