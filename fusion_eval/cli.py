@@ -95,14 +95,25 @@ class Group(click.Group):
             raise
 
 
+_PROCESS_ENTRY = False        # set by entry(): the command is the whole process, not a call inside another program
+
+
+def entry() -> None:
+    """The console script and ``python -m fusion_eval``: :func:`main` as the process itself."""
+    global _PROCESS_ENTRY
+    _PROCESS_ENTRY = True
+    main()
+
+
 def _interrupted(exc: BaseException) -> None:
     # The command is over: a second Ctrl-C (an impatient user, a terminal's repeat) must not change how it ends.
     # Python gives a handled signal back its default action when the interpreter finalizes, so a SIGINT arriving
     # during the exit (the pool's threads joined, numba's caches closed: a few hundred ms) killed the process by the
-    # signal (status -2) after "interrupted" was printed, instead of exiting 130. So SIGINT is ignored from here on
-    # (SIGTERM keeps its default: it must still end an exit that hangs); this only outlives the command for an
-    # in-process caller, and only after an interruption.
-    signal.signal(signal.SIGINT, signal.SIG_IGN)
+    # signal (status -2) after "interrupted" was printed, instead of exiting 130. So the process ignores SIGINT from
+    # here on (SIGTERM keeps its default: it must still end an exit that hangs); a program that called main() itself
+    # keeps its own handler.
+    if _PROCESS_ENTRY:
+        signal.signal(signal.SIGINT, signal.SIG_IGN)
     what = "terminated (SIGTERM)" if isinstance(exc, interrupts.Terminated) else "interrupted"
     click.echo(f"\n{what}: {exc.args[0] if exc.args else 'no output directory was written'}", err=True)
     sys.exit(143 if isinstance(exc, interrupts.Terminated) else 130)

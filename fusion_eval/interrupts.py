@@ -139,6 +139,11 @@ def _follow(rfd: int, main_ident: int, generation: int) -> None:
 def _handler(signum, frame) -> None:
     global _pending, _received, _handler_calls
     _handler_calls += 1
+    if _received is not None:
+        # already raised in this block: the clean-up it started (staging folder, lock, workers) must run to its end,
+        # not be cut by a second Ctrl-C, which would leave the folder and its lock behind
+        _pending = None
+        return
     if _in_llvmlite(frame):
         _pending = signum                                       # the watcher delivers it again
         return

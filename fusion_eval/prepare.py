@@ -322,6 +322,9 @@ def _auto_settled(cfg: dict, resolved: dict, applied: dict) -> dict:
     """``{section.key: value}`` for each configuration key left to the data ('auto') that the preparation settled
     to one value for the whole run: the report's configuration block shows it beside the 'auto'."""
     got = {f"{sect}.{k}": v for sect, body in resolved.items() for k, v in body.items() if cfg[sect].get(k) == "auto"}
+    for key, scale in (("accel_noise_mps2_sqrthz", "accel_noise_scale"), ("gyro_noise_dps_sqrthz", "gyro_noise_scale")):
+        if f"imu.{key}" in got:                      # what the filter runs with (settings_for): the estimate x scale
+            got[f"imu.{key}"] *= float(cfg["imu"].get(scale, 1.0))
     if cfg["filter"]["gravity_mps2"] == "auto":
         got["filter.gravity_mps2"] = applied["gravity_mps2"]
     if "lidar_frame" in applied:

@@ -14,6 +14,7 @@ from __future__ import annotations
 from dataclasses import dataclass
 from pathlib import Path
 
+from . import yaml_lines
 from .config import Layer, merge_layers, parse_file, parse_overrides, parse_sets, validate
 from .types import Dataset
 
@@ -51,8 +52,10 @@ def request(config: Path | dict | None = None, variant: Path | None = None, sets
 
 def manifest_layer(ds: Dataset) -> tuple[Layer, ...]:
     body = ds.description.get("config")
-    # errors name the manifest's line (its 'config' mapping knows its lines)
-    return (validate(body, str(ds.description["manifest"])),) if body else ()
+    # errors name the manifest's line when its 'config' mapping came from a file (it knows its lines); a built-in
+    # manifest (a plain KITTI raw or EuRoC folder) has none, and is named as the suggested config of that folder
+    where = str(ds.description["manifest"]) + ("" if yaml_lines.line_of(body) else " (config)")
+    return (validate(body, where),) if body else ()
 
 
 def resolve(req: ConfigRequest, ds: Dataset) -> dict:

@@ -35,7 +35,7 @@ def _mapping(loader: _Loader, node: yaml.MappingNode):
     for key_node, _ in node.value:
         try:
             key = loader.construct_object(key_node)
-            data.lines.setdefault(key, key_node.start_mark.line + 1)
+            data.lines[key] = key_node.start_mark.line + 1    # the last one wins, as it does for the value
         except TypeError:                        # an unhashable key: construct_mapping has already refused it
             pass
 

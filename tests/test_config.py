@@ -103,3 +103,7 @@ def test_yaml_mappings_know_the_lines_of_their_keys():
     assert yaml_lines.at("--set", {"a": 1}, "a") == "--set"            # not from a file: no line
     assert yaml.safe_load(yaml.safe_dump(d)) == d and json.loads(json.dumps(d)) == d
     assert pickle.loads(pickle.dumps(d))["b"].lines == {"c": 3, "d": 5}
+    # the line of the value that counts: a key written again, or after a merge, names its last place
+    d = yaml_lines.load("base: &b\n  x: 1\nderived:\n  <<: *b\n  x: bad\na: 1\na: 2\n")
+    assert d["derived"]["x"] == "bad" and yaml_lines.at("f", d["derived"], "x") == "f:5"
+    assert d["a"] == 2 and yaml_lines.at("f", d, "a") == "f:7"

@@ -103,7 +103,7 @@ def test_a_second_ctrl_c_during_the_exit_does_not_change_the_exit_status(warm_cl
     # by the signal (-2) after "interrupted" was printed (reproduced with 20-300 ms between the two)
     p, err, out = _ctrl_c_to_a_run(tmp_path, 2)
     assert p.returncode == 130 and "Traceback" not in err, err
-    assert not out.exists() and _group_gone(p.pid)
+    assert not out.exists() and not list(tmp_path.glob(".out.*")) and _group_gone(p.pid)   # the clean-up ran to its end
 
 
 def _sweep_setup(tmp_path: Path, n: int = 6) -> tuple[Path, Path]:
@@ -400,3 +400,21 @@ def test_a_worker_signalled_while_it_is_being_forked_never_runs_the_parents_hand
         assert signal.getsignal(signal.SIGTERM) is parent_handler
     finally:
         signal.signal(signal.SIGTERM, old)
+
+
+def test_an_interrupted_command_called_in_process_leaves_the_callers_handler(monkeypatch, tmp_path):
+    """Only the process that is the command ignores a second Ctrl-C while it exits (cli._interrupted); a program or
+    notebook that called main() keeps its own SIGINT handler, so its next Ctrl-C still works."""
+    from click.testing import CliRunner
+
+    from fusion_eval import session
+    from fusion_eval.cli import main
+
+    def interrupted(*a, **k):
+        raise KeyboardInterrupt
+    monkeypatch.setattr(session, "dataset", interrupted)
+    before = signal.getsignal(signal.SIGINT)
+    r = CliRunner().invoke(main, ["-q", "run", "--out", str(tmp_path / "o")])
+    assert r.exit_code == 130 and "interrupted" in r.stderr, (r.exit_code, r.output)
+    assert signal.getsignal(signal.SIGINT) is before
+

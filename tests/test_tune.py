@@ -53,6 +53,10 @@ def test_the_space_refuses_keys_that_change_the_data_and_bad_ranges(tmp_path):
     ]:
         with pytest.raises(ConfigError, match=words.replace("(", r"\(")):
             load_space(_space(tmp_path, body))
+    # a bad key is named by its line in the space file
+    with pytest.raises(ConfigError, match=r"space.yaml:3: imu.gyro_noise_dps_sqrthz: the range must be low < high"):
+        load_space(_space(tmp_path, "params:\n  imu.accel_noise_scale: {low: 0.5, high: 2}\n"
+                                    "  imu.gyro_noise_dps_sqrthz: {low: 1, high: 0.1}\n"))
 
 
 def test_objectives_parse_aliases_and_weighted_sums_and_name_missing_keys():

@@ -45,7 +45,7 @@ from typing import Callable
 
 import numpy as np
 
-from .. import resources, session
+from .. import resources, session, yaml_lines
 from .. import trials as mc
 from ..config import check_value, read_yaml, schema
 from ..errors import ConfigError, FilterDivergedError, FusionEvalError
@@ -86,25 +86,25 @@ def load_sweep(path: Path) -> dict:
         raise ConfigError(f"{path}: a sweep file is a mapping with grid, settings or random")
     bad = set(body) - SWEEP_KEYS
     if bad:
-        raise ConfigError(f"{path}: unknown sweep key {sorted(bad)[0]!r} (known: {', '.join(sorted(SWEEP_KEYS))})")
+        raise ConfigError(f"{yaml_lines.at(path, body, sorted(bad)[0])}: unknown sweep key {sorted(bad)[0]!r} (known: {', '.join(sorted(SWEEP_KEYS))})")
     for key, kind, what in (("grid", dict, "a mapping of configuration keys to lists of values"),
                             ("settings", dict, "a mapping of setting names to {key: value}"),
                             ("random", dict, "a mapping with n, seed and ranges"),
                             ("datasets", list, "a list of dataset paths"), ("variants", list, "a list of variant names"),
                             ("plots", bool, "true or false"), ("config", str, "a configuration file path")):
         if key in body and body[key] is not None and not isinstance(body[key], kind):
-            raise ConfigError(f"{path}: '{key}' must be {what}, got {body[key]!r}")
+            raise ConfigError(f"{yaml_lines.at(path, body, key)}: '{key}' must be {what}, got {body[key]!r}")
     tr = body.get("trials", 1)
     if isinstance(tr, bool) or not isinstance(tr, int) or tr < 1:
-        raise ConfigError(f"{path}: 'trials' must be a whole number >= 1 (Monte-Carlo trials of every setting), got {tr!r}")
+        raise ConfigError(f"{yaml_lines.at(path, body, 'trials')}: 'trials' must be a whole number >= 1 (Monte-Carlo trials of every setting), got {tr!r}")
     rnd = body.get("random")
     if rnd:
         n, seed, ranges = rnd.get("n"), rnd.get("seed", 0), rnd.get("ranges")
         if isinstance(n, bool) or not isinstance(n, int) or n <= 0 or isinstance(seed, bool) or not isinstance(seed, int):
-            raise ConfigError(f"{path}: random needs an integer n > 0 and an integer seed, got n={n!r}, seed={seed!r}")
+            raise ConfigError(f"{yaml_lines.at(path, rnd, 'n')}: random needs an integer n > 0 and an integer seed, got n={n!r}, seed={seed!r}")
         if not isinstance(ranges, dict) or not ranges or not all(
                 isinstance(v, list) and len(v) == 2 and all(_isnum(x) for x in v) for v in ranges.values()):
-            raise ConfigError(f"{path}: random ranges must map keys to [low, high] numbers, got {ranges!r}")
+            raise ConfigError(f"{yaml_lines.at(path, rnd, 'ranges')}: random ranges must map keys to [low, high] numbers, got {ranges!r}")
     return body
 
 

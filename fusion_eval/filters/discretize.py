@@ -142,8 +142,9 @@ def van_loan(Ft, Qc, dt):
     Y = Qc * h
     Q = Y.copy()
     AY = np.empty((n, n))
-    # |Phi| >= 1 (its diagonal) and |Q_d| >= |Y_1| (the first term is the largest): the series stop once their
-    # terms fall below rounding relative to those, without rescanning the sums
+    # |Phi| >= 1 (its diagonal) and |Q_d| is about |Y_1| = h max(Q_c) or more (the integrand Phi Q_c Phi^T keeps
+    # Q_c's diagonal, up to the biases' decay over the step; later terms may be larger, at |F_t h| up to 2): the
+    # series stop once their terms fall below rounding relative to those, without rescanning the sums
     q_ref = _dense_abs_max(Y)
     for k in range(1, _MAX_TERMS):
         _sparse_left(rows, cols, vals, nnz, term, nxt, h / k)         # A^k / k!

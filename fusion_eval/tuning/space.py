@@ -20,6 +20,7 @@ import math
 from dataclasses import dataclass
 from pathlib import Path
 
+from .. import yaml_lines
 from ..config import check_value, read_yaml, schema
 from ..errors import ConfigError
 
@@ -72,57 +73,59 @@ def load_space(path: Path) -> Space:
         raise ConfigError(f"{where}: a tune space is a mapping with 'params' (config key: {{low, high, log}})")
     bad = set(body) - {"params", "fixed"}
     if bad:
-        raise ConfigError(f"{where}: unknown key {sorted(bad)[0]!r} (known: params, fixed)")
+        raise ConfigError(f"{yaml_lines.at(path, body, sorted(bad)[0])}: unknown key {sorted(bad)[0]!r} (known: params, fixed)")
     known = schema()
 
-    def tunable(key: str) -> None:
+    def tunable(key: str, at: str) -> None:
         if key not in known:
-            raise ConfigError(f"{where}: unknown configuration key {key!r}")
+            raise ConfigError(f"{at}: unknown configuration key {key!r}")
         if key in DATA_KEYS or key.split(".")[0] in DATA_SECTIONS:
-            raise ConfigError(f"{where}: {key} changes the data or how it is scored, not the filter's belief: "
+            raise ConfigError(f"{at}: {key} changes the data or how it is scored, not the filter's belief: "
                               "it cannot be tuned")
 
     params = []
     for key, spec in body["params"].items():
-        tunable(key)
+        at = yaml_lines.at(path, body["params"], key)             # file:line of this key, for its errors
+        tunable(key, at)
         if not isinstance(spec, dict):
-            raise ConfigError(f"{where}: {key} needs {{low, high, log}} or {{choices}}, got {spec!r}")
+            raise ConfigError(f"{at}: {key} needs {{low, high, log}} or {{choices}}, got {spec!r}")
         if "choices" in spec:
             ch = spec["choices"]
             if not isinstance(ch, list) or len(ch) < 2 or set(spec) - {"choices"}:
-                raise ConfigError(f"{where}: {key}: 'choices' must be a list of at least two values, alone")
-            params.append(Param(key, choices=tuple(check_value(key, known[key], c, where) for c in ch)))
+                raise ConfigError(f"{at}: {key}: 'choices' must be a list of at least two values, alone")
+            params.append(Param(key, choices=tuple(check_value(key, known[key], c, at) for c in ch)))
             continue
         if set(spec) - {"low", "high", "log", "shape"}:
-            raise ConfigError(f"{where}: {key}: unknown field {sorted(set(spec) - {'low', 'high', 'log', 'shape'})[0]!r} "
+            raise ConfigError(f"{at}: {key}: unknown field {sorted(set(spec) - {'low', 'high', 'log', 'shape'})[0]!r} "
                               "(known: low, high, log, shape, or choices)")
         try:
             low, high = float(spec["low"]), float(spec["high"])
         except (KeyError, TypeError, ValueError):
-            raise ConfigError(f"{where}: {key} needs numbers low and high, got {spec!r}") from None
+            raise ConfigError(f"{at}: {key} needs numbers low and high, got {spec!r}") from None
         log = spec.get("log", False)
         if not isinstance(log, bool):
-            raise ConfigError(f"{where}: {key}: log must be true or false, got {log!r}")
+            raise ConfigError(f"{at}: {key}: log must be true or false, got {log!r}")
         if not (math.isfinite(low) and math.isfinite(high) and low < high and (low > 0 or not log)):
-            raise ConfigError(f"{where}: {key}: the range must be low < high{' with low > 0 (log scale)' if log else ''}, "
+            raise ConfigError(f"{at}: {key}: the range must be low < high{' with low > 0 (log scale)' if log else ''}, "
                               f"got [{low:g}, {high:g}]")
         shape = spec.get("shape")
         if shape is not None:
             if not isinstance(shape, list) or not all(isinstance(s, (int, float)) and not isinstance(s, bool)
                                                       and s > 0 for s in shape):
-                raise ConfigError(f"{where}: {key}: shape must be a list of positive numbers, got {shape!r}")
+                raise ConfigError(f"{at}: {key}: shape must be a list of positive numbers, got {shape!r}")
             shape = tuple(float(s) for s in shape)
         p = Param(key, low, high, log, shape)
         for v in (low, high):
-            check_value(key, known[key], p.value(v), where)
+            check_value(key, known[key], p.value(v), at)
         params.append(p)
     fixed = body.get("fixed") or {}
     if not isinstance(fixed, dict):
-        raise ConfigError(f"{where}: 'fixed' must map configuration keys to values")
+        raise ConfigError(f"{yaml_lines.at(path, body, 'fixed')}: 'fixed' must map configuration keys to values")
     for key, v in fixed.items():
-        tunable(key)
-        fixed[key] = check_value(key, known[key], v, where)
+        at = yaml_lines.at(path, fixed, key)
+        tunable(key, at)
+        fixed[key] = check_value(key, known[key], v, at)
     overlap = set(fixed) & {p.key for p in params}
     if overlap:
-        raise ConfigError(f"{where}: {sorted(overlap)[0]} is both tuned and fixed")
+        raise ConfigError(f"{yaml_lines.at(path, fixed, sorted(overlap)[0])}: {sorted(overlap)[0]} is both tuned and fixed")
     return Space(where, tuple(params), dict(fixed))

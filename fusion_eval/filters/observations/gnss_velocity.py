@@ -64,7 +64,7 @@ def _from_oxts(entry: dict, ctx) -> VectorSeries:
 
 
 def _from_text(entry: dict, ctx) -> VectorSeries:
-    return read_vectors(ctx.path(entry), 3, WHAT, std=entry.get("std_mps"), manifest=ctx.manifest, key="std_mps")
+    return read_vectors(ctx.path(entry), 3, WHAT, std=entry.get("std_mps"), manifest=ctx.at(entry, "std_mps"), key="std_mps")
 
 
 def _prepare(series: VectorSeries, cfg: dict, t_ref_s: float, degrade: bool) -> tuple[VectorSeries, dict]:
