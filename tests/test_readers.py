@@ -102,3 +102,24 @@ def test_other_real_drives_read(drive):
     ds = load_dataset(shared_path("kitti-raw", "2011_09_30", drive))
     assert len(ds.imu) > 1000
     assert np.isfinite(ds.groundtruth.p_w_m).all()
+
+
+def test_series_share_what_cannot_change_and_copy_the_rest():
+    """A series made from another's arrays (dataclasses.replace, select) shares them, since neither can write them;
+    an array the caller can still write, or a read-only view of one, is copied, so a series never changes under it."""
+    from dataclasses import replace
+
+    import numpy as np
+
+    from fusion_eval.types import PoseSeries
+
+    t, q = np.arange(3.0), np.tile([0.0, 0.0, 0.0, 1.0], (3, 1))
+    a = np.zeros((3, 3))
+    s = PoseSeries(t_s=t, p_w_m=a, q_wb_xyzw=q)
+    a[0, 0] = 5.0                                       # the caller's array: the series holds a copy
+    assert s.p_w_m[0, 0] == 0.0 and not s.p_w_m.flags.writeable and not s.q_wb_xyzw.flags.writeable
+    r = replace(s, source="again")
+    assert r.p_w_m is s.p_w_m and r.t_s is s.t_s       # shared: read-only all the way down
+    v = a.view()
+    v.setflags(write=False)                             # read-only, but a view of a writable array
+    assert PoseSeries(t_s=t, p_w_m=v, q_wb_xyzw=q).p_w_m is not v
