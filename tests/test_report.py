@@ -189,3 +189,17 @@ def test_metrics_tex_compiles_and_fits_the_page(slice_run, tmp_path):
     assert r.returncode == 0, r.stdout[-2000:]
     log = (tmp_path / "d.log").read_text(errors="replace")
     assert "Overfull \\hbox" not in log and (tmp_path / "d.pdf").stat().st_size > 1000
+
+
+def test_the_report_says_when_the_filter_scales_an_estimated_noise():
+    from fusion_eval.report.markdown import _config_block, _estimates
+
+    applied = {"imu_noise": {"accel_noise_mps2_sqrthz": 0.05, "gyro_noise_dps_sqrthz": 0.1},
+               "auto_settled": {"imu.accel_noise_mps2_sqrthz": 0.05, "imu.gyro_noise_dps_sqrthz": 0.2}}
+    line = next(ln for ln in _estimates(applied) if "IMU white noise" in ln)
+    assert "accelerometer 0.0500 m/s^2/sqrt(Hz), gyro 0.1000" in line and "uses 2x that: imu.gyro_noise_scale" in line
+    assert line.count("the filter uses") == 1                      # the unscaled one says nothing more
+    block = _config_block({"imu": {"gyro_noise_dps_sqrthz": "auto", "accel_noise_scale": 1.0},
+                           "lidar": {"noise_adapt": "auto"}}, applied["auto_settled"])
+    assert "gyro_noise_dps_sqrthz: auto  # -> 0.2" in block
+    assert "noise_adapt: auto\n" in block + "\n"                   # not settled for the run: no value shown

@@ -87,8 +87,18 @@ def _estimates(applied: dict) -> list[str]:
         out.append(f"- Estimated {name.replace('_', ' ')}: {e['value_s'] * 1000:.1f} ms{unc}, from {e['method']}.")
     n = applied.get("imu_noise")
     if n:
-        parts = [f"accelerometer {n['accel_noise_mps2_sqrthz']:.4f} m/s^2/sqrt(Hz)" if "accel_noise_mps2_sqrthz" in n else "",
-                 f"gyro {n['gyro_noise_dps_sqrthz']:.4f} deg/s/sqrt(Hz)" if "gyro_noise_dps_sqrthz" in n else ""]
+        used = applied.get("auto_settled", {})
+
+        def part(key: str, what: str, unit: str, scale_key: str) -> str:
+            if key not in n:
+                return ""
+            text = f"{what} {n[key]:.4f} {unit}"
+            u = used.get(f"imu.{key}")
+            if u is not None and n[key] > 0 and abs(u / n[key] - 1.0) > 1e-9:      # a noise scale applied to it
+                text += f" (the filter uses {u / n[key]:g}x that: imu.{scale_key})"
+            return text
+        parts = [part("accel_noise_mps2_sqrthz", "accelerometer", "m/s^2/sqrt(Hz)", "accel_noise_scale"),
+                 part("gyro_noise_dps_sqrthz", "gyro", "deg/s/sqrt(Hz)", "gyro_noise_scale")]
         out.append(f"- IMU white noise estimated from the stream's second differences: {', '.join(p for p in parts if p)}.")
     x = applied.get("lidar_extrinsic")
     if x:
