@@ -282,3 +282,30 @@ def test_prune_thresholds_are_medians_per_report_index():
     th = dict(S.prune_thresholds(fake, 2))
     assert th == {0: 2.0, REPORTS - 1: 12.0}
     assert S.prune_thresholds(SimpleNamespace(get_trials=lambda deepcopy=False, states=None: trials[:4]), 2) == ()
+
+
+def test_the_first_trial_is_the_default_even_where_the_default_is_auto(tmp_path):
+    """An 'auto' key of the space starts from what the default run settled on (the lidar frame it chose), so trial 0
+    is the default configuration; if the space cannot hold a default value and no trial beats the default, the
+    report says so and best.yaml is the default itself, not a worse trial."""
+    from types import SimpleNamespace
+
+    from fusion_eval.tuning import report as R
+    from fusion_eval.tuning import study as S
+
+    space = load_space(_space(tmp_path, "params:\n  lidar.relative_frame: {choices: [body, heading, world]}\n"
+                                        "  imu.gyro_noise_dps_sqrthz: {low: 0.01, high: 1, log: true}\n"
+                                        "  filter.formulation: {choices: [error_state, invariant]}\n"))
+    default = {"train": {"status": "ok", "values": [0.75], "steps": [{"resolved": {
+        "imu_noise": {"gyro_noise_dps_sqrthz": 0.13}, "auto_settled": {"lidar.relative_frame": "body"}}}]}}
+    point = S._default_point(SimpleNamespace(space=space, base_config=None), default)
+    assert point == {"lidar.relative_frame": "body", "imu.gyro_noise_dps_sqrthz": 0.13, "filter.formulation": "error_state"}
+
+    best = {"number": 7, "values": [0.82], "overrides": {"lidar.relative_frame": "world"},
+            "train": {"status": "ok", "values": [0.82]}}
+    res = {"default": default, "best": best}
+    assert R.default_wins(res) and not R.default_wins({**res, "best": {**best, "train": {"status": "ok", "values": [0.7]}}})
+    s = SimpleNamespace(out_dir=tmp_path, train=["kitti-00"], objectives=[SimpleNamespace(name="fused.ape.rmse")])
+    text = R.default_yaml(s, res)
+    assert "no trial" in text and "0.75" in text and "0.82" in text and yaml.safe_load(text) == {}
+    assert "no better than the default" in R._generalisation([("training", 0.75, 0.82)])

@@ -20,6 +20,23 @@ from .study import Setup, write_json
 FUSED_APE = "fused.ape.rmse"
 
 
+def default_wins(res: dict) -> bool:
+    """Whether the default configuration scores better than the best trial on the training drives (first objective):
+    possible when the space cannot hold the default's values (an 'auto' a choice list lacks, a value out of range)."""
+    best, default = res.get("best"), res.get("default") or {}
+    d, t = _obj(default.get("train"), 0), _obj((best or {}).get("train"), 0)
+    return best is not None and math.isfinite(d) and math.isfinite(t) and d < t
+
+
+def default_yaml(s: Setup, res: dict) -> str:
+    """``best.yaml`` when no trial beat the default configuration: the default itself (nothing overridden)."""
+    d, t = _obj(res["default"]["train"], 0), _obj(res["best"]["train"], 0)
+    return (f"# fusion-eval tune: no trial of {s.out_dir} beat the default configuration on "
+            f"{', '.join(Path(x).name for x in s.train)} ({s.objectives[0].name} {d:.6g}, the best trial "
+            f"{res['best']['number']} {t:.6g}): this is the default, nothing overridden (the best trial is in best.json)\n"
+            "# use: fusion-eval run DATASET -c best.yaml\n{}\n")
+
+
 def best_yaml(s: Setup, best: dict) -> str:
     nested: dict = {}
     for key, v in best["overrides"].items():
@@ -99,7 +116,12 @@ def markdown(s: Setup, res: dict, runtime_s: float) -> str:
         fixed = " (fixed)" if key in s.space.fixed else ""
         rows.append([f"{key}{fixed}", _v(d), _v(v)])
     L += ["## Tuned values", ""] + markdown_table(["key", "default", "tuned"], rows) + [""]
-    if best["number"] == 0:         # trial 0 is the default configuration (study.py enqueues it first)
+    if default_wins(res):           # the default's values were not all in the space: trial 0 was not the default
+        L += [f"**No trial beat the default configuration** on the training drives ({_f(_obj(default['train'], 0))} "
+              f"against the best trial's {_f(_obj(best['train'], 0))}; the space cannot hold every default value, so "
+              "the first trial was not the default): `best.yaml` is the default configuration, the best trial is in "
+              "`best.json`. More trials, or a space that holds the default's values, may find better ones.", ""]
+    elif best["number"] == 0:       # trial 0 is the default configuration (study.py enqueues it first)
         L += ["**No trial beat the first one, the default configuration**: the tuned values are the default's. "
               "More trials, or a wider space, may find better ones.", ""]
     rows, gaps = [], []
@@ -143,6 +165,9 @@ def _per_drive_obj(rec: dict | None) -> dict[str, float]:
 
 def _generalisation(gaps) -> str:
     """Whether the gain on the training drives holds on the held-out ones (overfitting shows as a gap)."""
+    if gaps and all(math.isfinite(x) for x in gaps[0][1:]) and gaps[0][1] - gaps[0][2] <= 0 and len(gaps) < 2:
+        return (f"The tuned values are no better than the default on the training drives "
+                f"({gaps[0][2] - gaps[0][1]:.4g} worse); no held-out drives (give --test).")
     if len(gaps) < 2 or not all(math.isfinite(x) for _, a, b in gaps for x in (a, b)):
         return "No held-out drives: whether the tuned values generalise is not measured (give --test)."
     (_, d_tr, t_tr), (_, d_te, t_te) = gaps
@@ -196,7 +221,7 @@ def write(s: Setup, res: dict, runtime_s: float, with_plots: bool = True) -> lis
     out = s.out_dir
     files = []
     if res["best"] is not None:
-        atomic_write(out / "best.yaml", best_yaml(s, res["best"]))
+        atomic_write(out / "best.yaml", default_yaml(s, res) if default_wins(res) else best_yaml(s, res["best"]))
         write_json(out / "best.json", res["best"])
         files += ["best.yaml", "best.json"]
     atomic_write(out / "trials.csv", trials_csv(res["study"], s))

@@ -293,16 +293,19 @@ def _default(s: Setup, ex: Executor) -> dict:
 
 def _default_point(s: Setup, default: dict) -> dict:
     """The default configuration's value of every tuned key inside its range: the built-in value, or for an 'auto'
-    IMU noise the value the run estimated from the data. Keys without one are sampled."""
+    the value the default run settled on (the IMU noise it estimated, the lidar frame it chose, ...). Keys without
+    one are sampled: then the first trial is not the default, and the report compares the tuned values with the
+    default run itself."""
     from ..config import schema
 
     known = schema()
-    resolved = (default["train"]["steps"][0].get("resolved") or {}).get("imu_noise") or {}
+    got = default["train"]["steps"][0].get("resolved") or {}
+    resolved, settled = got.get("imu_noise") or {}, got.get("auto_settled") or {}
     out = {}
     for p in s.space.params:
         v = (s.base_config or {}).get(p.key.split(".")[0], {}).get(p.key.split(".", 1)[1], known[p.key].default)
         if v == "auto":
-            v = resolved.get(p.key.split(".", 1)[1])
+            v = resolved.get(p.key.split(".", 1)[1], settled.get(p.key))
         if p.choices is not None:
             if v in p.choices:
                 out[p.key] = v

@@ -123,7 +123,7 @@ def _step(job: Job, path: str, seed: int, watch: _NllWatch | None = None) -> dic
             res = filter_and_evaluate(ds, cfg, sh, pool, dataset_path=path, config_source=req.source, monitor=watch)
         flat = flatten(res.metrics)
         rec.update(status="ok", values=[o.value(flat) for o in job.objectives], metrics=flat,
-                   resolved={k: _resolved(res.metrics, k) for k in ("imu_noise",)})
+                   resolved={k: _resolved(res.metrics, k) for k in ("imu_noise", "auto_settled")})
     except _Pruned:
         rec.update(status="pruned", error=None)
     except FilterDivergedError as exc:
