@@ -28,7 +28,7 @@ from ..errors import FilterDivergedError
 from .layout import CLONE
 from . import linalg
 from .linalg import joseph_update_into
-from ..smoothing.record import epoch_index, store_row
+from ..smoothing.record import epoch_index, store_prior, store_row
 from .observations.base import M_MAX, N_MAX, matched_variance
 
 OK, BAD_RESIDUAL, BAD_CORRECTION, BAD_STATE = 0, 1, 2, 3
@@ -43,13 +43,15 @@ _LOOP = '''
 def {name}(a, st, xc, clone_t, times, kinds, index, j0, j1, gates, clone_after, n_core, clone_rows, xp, xr,
            ad_nb, ad_blocks, ad_rate, ad_var, ad_hist, ad_count, nis_out, ok_out, ld_out, H, r, Rm, wn, wm, dx, cols,
            rec_on, rst, n_max, ep_t, ep_k, ep_n, ep_x, ep_c, ep_aux, ep_u, ep_P, cl_t, cl_k, cl_n, cl_x, cl_c, cl_aux,
-           cl_u, cl_P, clone_epoch, {datas}):
+           cl_u, cl_P, clone_epoch, pr_P, pr_ok, {datas}):
     for j in range(j0, j1):
         t = times[j]
         kind = kinds[j]
         i = index[j]
         n = st[{st_n}]
         st[{st_k}] = _predict(a, n, st[{st_k}], max(t, a.last[0]), True)
+        if rec_on:                # the smoother's record of the prior of the epoch this stamp opens
+            store_prior(a.P, n, n_max, ep_t, rst[0], a.last[0], pr_P, pr_ok)
 {dispatch}
         nis_out[j] = np.nan
         if m > 0:
@@ -158,7 +160,7 @@ def compiled_loop(formulation):
     digest = _source_digest(formulation._predict, formulation._step, formulation._inject_kernel, formulation._record_cov,
                             joseph_update_into, linalg.cholesky_into, linalg.whitened_norm2, linalg.block_nis,
                             linalg.reset_attitude_block, linalg.clone_covariance, matched_variance, epoch_index,
-                            store_row, *KERNELS)
+                            store_row, store_prior, *KERNELS)
     name = f"_replay_{digest}"
     dispatch = "\n".join(f"        {'if' if c == 0 else 'elif'} kind == {c}:\n            m = _k{c}(a.x, xc, d{c}[i], H, r, Rm)"
                          for c in range(len(KERNELS)))
@@ -168,7 +170,7 @@ def compiled_loop(formulation):
                        bad_residual=BAD_RESIDUAL, bad_correction=BAD_CORRECTION, bad_state=BAD_STATE)
     ns = {"np": np, "_predict": formulation._predict, "_inject": formulation._inject_kernel,
           "_record_cov": formulation._record_cov, "joseph_update_into": joseph_update_into, "block_nis": linalg.block_nis, "clone_covariance": linalg.clone_covariance,
-          "matched_variance": matched_variance, "epoch_index": epoch_index, "store_row": store_row,
+          "matched_variance": matched_variance, "epoch_index": epoch_index, "store_row": store_row, "store_prior": store_prior,
           "__name__": mod.__name__}
     ns.update({f"_k{c}": k for c, k in enumerate(KERNELS)})
     exec(compile(src, mod.__file__, "exec"), ns)  # noqa: S102 - our own template
@@ -235,12 +237,12 @@ def run(kf, bound, times: np.ndarray, which: np.ndarray, index: np.ndarray, orde
         rst = np.array([rec.epochs.size, rec.clones.size], np.int64)
         ep, cl = rec.epochs, rec.clones
         stores = (ep.t, ep.k_next, ep.n, ep.x, ep.c, ep.aux, ep.u, ep.P, cl.t, cl.k_next, cl.n, cl.x, cl.c, cl.aux, cl.u,
-                  cl.P, rec.clone_epoch)
+                  cl.P, rec.clone_epoch, rec.prior_P, rec.prior_ok)
         n_max = ep.n_max
     else:
         rst, n_max = np.zeros(2, np.int64), 0
         f1, i1, f2 = np.zeros(1), np.zeros(1, np.int64), np.zeros((1, 1))
-        stores = (f1, i1, i1, f2, f2, f2, f2, f2, f1, i1, i1, f2, f2, f2, f2, f2, i1)
+        stores = (f1, i1, i1, f2, f2, f2, f2, f2, f1, i1, i1, f2, f2, f2, f2, f2, i1, f2, np.zeros(1, np.bool_))
     j = 0
     try:
         while j < n_ev:

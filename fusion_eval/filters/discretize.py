@@ -193,6 +193,45 @@ def second_order(Ft, Qc, dt):
 
 
 @njit(cache=True)
+def phi_only(Ft, dt, method):
+    """The transition ``Phi`` alone, as :func:`transition` gives it (the RTS smoother's, where the prior covariance
+    is known): Van Loan's ``Phi`` series with the same scaling and doubling, without ``Q_d``'s series."""
+    n = Ft.shape[0]
+    if method == FIRST_ORDER:
+        return np.eye(n) + Ft * dt
+    if method == SECOND_ORDER:
+        FT = Ft * dt
+        return np.eye(n) + FT + 0.5 * (FT @ FT)
+    norm = 0.0
+    for i in range(n):
+        r = 0.0
+        for k in range(n):
+            r += abs(Ft[i, k])
+        norm = max(norm, r * dt)
+    s = 0
+    while norm > 2.0:
+        norm *= 0.5
+        s += 1
+    h = dt * 0.5 ** s
+    rows = np.empty(n * n, np.int64)
+    cols = np.empty(n * n, np.int64)
+    vals = np.empty(n * n)
+    nnz = _nonzeros(Ft, rows, cols, vals)
+    Phi = np.eye(n)
+    term = np.eye(n)
+    nxt = np.empty((n, n))
+    for k in range(1, _MAX_TERMS):
+        _sparse_left(rows, cols, vals, nnz, term, nxt, h / k)
+        term, nxt = nxt, term
+        Phi += term
+        if _dense_abs_max(term) <= 1e-17:
+            break
+    for _ in range(s):
+        Phi = Phi @ Phi
+    return Phi
+
+
+@njit(cache=True)
 def transition_full(Ft, Qc, dt, method):
     """``(Phi, Q_d)`` by ``method`` (one of :data:`METHODS`' values) for a full noise density ``Qc`` (n, n)."""
     if method == VAN_LOAN:

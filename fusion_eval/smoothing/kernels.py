@@ -141,9 +141,17 @@ def backward(P_j, phi, P_prior, e, Ps_next, rcond):
 def condition(P, m, rcond):
     """Split a covariance over ``[x (m), c]`` into ``x``'s covariance given ``c`` (``A - B D^-1 B^T``), the cross
     block ``B`` and ``D^-1``."""
+    Dinv = pinv_sym(np.ascontiguousarray(P[m:, m:]), rcond)
+    Ac, B = condition_given(P, m, Dinv)
+    return Ac, B, Dinv
+
+
+@njit(cache=True)
+def condition_given(P, m, Dinv):
+    """:func:`condition` with the clone's ``D^-1`` already known (the clone is constant between epochs): ``x``'s
+    covariance given ``c`` and the cross block."""
     n = P.shape[0]
     B = np.ascontiguousarray(P[:m, m:])
-    Dinv = pinv_sym(np.ascontiguousarray(P[m:, m:]), rcond)
     BD = B @ Dinv
     Ac = np.empty((m, m))
     for i in range(m):
@@ -153,7 +161,7 @@ def condition(P, m, rcond):
                 acc += BD[i, k] * B[j, k]
             Ac[i, j] = 0.5 * ((P[i, j] - acc) + (P[j, i] - acc))
             Ac[j, i] = Ac[i, j]
-    return Ac, B, Dinv
+    return Ac, B
 
 
 @njit(cache=True)

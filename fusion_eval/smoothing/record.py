@@ -12,7 +12,7 @@ the filter sits at, the next sample index and the covariance ``P[:n, :n]`` (uppe
 second such record, taken just before the clone replaces the previous one: the joint covariance of the current
 state and the old clone, from which the backward pass recovers the old clone given the smoothed state
 (``docs/rts_smoother.md``). With the 21-state ESKF that is 2,200 bytes per epoch and as much per lidar frame
-(:meth:`EpochRecord.bytes_per_epoch`).
+(:meth:`EpochRecord.bytes_per_epoch`); with ``priors``, each epoch's prior covariance too (1,850 bytes more).
 """
 
 from __future__ import annotations
@@ -49,6 +49,21 @@ def store_row(a, k_next, n, xc, n_max, i, s_t, s_k, s_n, s_x, s_c, s_aux, s_u, s
 
 
 
+@njit(cache=True)
+def store_prior(P, n, n_max, ep_t, size, t, pr_P, pr_ok):
+    """The covariance just predicted to ``t``, before anything happens at ``t``: the prior of the epoch that ``t``
+    opens (a new stamp only), kept so that the backward pass need not recompute that interval's covariance."""
+    i = epoch_index(ep_t, size, t)
+    if i != size or i >= pr_ok.shape[0] or pr_ok[i]:       # not a new stamp, or no priors kept (see EpochRecord)
+        return
+    q = 0
+    for p in range(n_max):
+        for c in range(p, n_max):
+            pr_P[i, q] = P[p, c] if (p < n and c < n) else 0.0
+            q += 1
+    pr_ok[i] = True
+
+
 class _Store:
     """Preallocated rows of one kind of record (capacity known before the replay: one per event, plus two)."""
 
@@ -75,11 +90,17 @@ class _Store:
 class EpochRecord:
     """The forward pass's record for the RTS smoother; attach it to a filter (``kf.recorder``) before the replay."""
 
-    def __init__(self, kf, n_events: int):
+    def __init__(self, kf, n_events: int, priors: bool = False):
         shape = (kf.layout.n, kf.xv.size, kf.clone.vec.size, kf.aux.size, kf.arrays.last.size - LAST_U)
         self.epochs = _Store(n_events + 2, *shape)
         self.clones = _Store(n_events + 1, *shape)
         self.clone_epoch = np.zeros(n_events + 1, np.int64)    # the epoch each clone record belongs to
+        # each epoch's prior covariance (upper triangle), where the replay kept it: with ``priors`` (where an interval's
+        # covariance is dear to recompute, as Van Loan's at 10 Hz), the backward pass steps into an epoch with its
+        # transition alone; +1,850 bytes per epoch with the 21-state ESKF
+        n_max, rows = kf.layout.n, (n_events + 2 if priors else 0)
+        self.prior_P = np.zeros((max(rows, 1), n_max * (n_max + 1) // 2))     # a row to index even when unused
+        self.prior_ok = np.zeros(rows, np.bool_)
 
     def _epoch_index(self, t: float) -> int:
         return int(epoch_index(self.epochs.t, self.epochs.size, t))
@@ -90,6 +111,11 @@ class EpochRecord:
         self.epochs.put(i, kf)
         self.epochs.size = i + 1
 
+    def prior(self, kf) -> None:
+        """Record the covariance just predicted to the filter's stamp, before any update there (a new stamp only)."""
+        store_prior(kf.arrays.P, kf.n, self.epochs.n_max, self.epochs.t, self.epochs.size, kf.t, self.prior_P,
+                    self.prior_ok)
+
     def before_clone(self, kf) -> None:
         """Record the joint state of the filter and its old clone, just before a new clone replaces it."""
         c = self.clones
@@ -98,10 +124,10 @@ class EpochRecord:
         c.size += 1
 
     def bytes_per_epoch(self) -> int:
-        return self.epochs.bytes_per_row()
+        return self.epochs.bytes_per_row() + (self.prior_P[:1].nbytes + 1 if self.prior_ok.size else 0)
 
     def nbytes(self) -> int:
-        return self.epochs.bytes_per_row() * self.epochs.size + self.clones.bytes_per_row() * self.clones.size
+        return self.bytes_per_epoch() * self.epochs.size + self.clones.bytes_per_row() * self.clones.size
 
 
 __all__ = ["EpochRecord"]

@@ -124,29 +124,43 @@ class RTS:
         u0, t0, k = ep.u[a].copy(), float(ep.t[a]), int(ep.k_next[a])
         points, phis = [[x.copy(), aux.copy(), A, B, P, -1, u0.copy()]], []
         N = t.size
+        # the prior of epoch a + 1, where the forward pass kept it: the step into that epoch needs only its transition
+        phi_of = getattr(self.kf, "_rts_phi", None)
+        ok = self.rec.prior_ok
+        prior = (kernels.unpack_upper(self.rec.prior_P[a + 1], ep.n_max, n)
+                 if phi_of is not None and a + 1 < ok.size and ok[a + 1] else None)
 
-        def advance(u1, dt, qscale, sample):
+        def advance(u1, dt, qscale, sample, last=False):
             nonlocal A, B
-            A, phi = self._step(x, aux, A, u0, u1, dt, qscale)
-            if B is not None:
-                B = phi @ B
-                Pj = kernels.assemble(A, B, self._D, self._Dinv)
+            if prior is not None and last:
+                phi = phi_of(x, u0, u1, dt, qscale, self.prm, aux)
+                self.kf._step(x, A, 0, u0, u1, dt, qscale, self.prm, aux, False)
+                Pj = prior
+                if B is not None:
+                    A, B = kernels.condition_given(Pj, self.nc, self._Dinv)
+                else:
+                    A = Pj
             else:
-                Pj = A
+                A, phi = self._step(x, aux, A, u0, u1, dt, qscale)
+                if B is not None:
+                    B = phi @ B
+                    Pj = kernels.assemble(A, B, self._D, self._Dinv)
+                else:
+                    Pj = A
             points.append([x.copy(), aux.copy(), A, B, Pj, sample, np.array(u1, float)])
             phis.append(phi)
 
         while k < N and t[k] <= t_b:
             dt = t[k] - t0
             if dt > 0.0:
-                advance(u[k], dt, gap[1] if (k > 0 and t[k] - t[k - 1] > gap[0]) else 1.0, k)
+                advance(u[k], dt, gap[1] if (k > 0 and t[k] - t[k - 1] > gap[0]) else 1.0, k, t[k] == t_b)
             else:
                 points[-1][5] = k
             t0, u0 = t[k], u[k].copy()
             k += 1
         if t_b > t0 and k < N:
             frac = (t_b - t0) / (t[k] - t0)
-            advance(u0 + frac * (u[k] - u0), t_b - t0, gap[1] if (k > 0 and t[k] - t[k - 1] > gap[0]) else 1.0, -1)
+            advance(u0 + frac * (u[k] - u0), t_b - t0, gap[1] if (k > 0 and t[k] - t[k - 1] > gap[0]) else 1.0, -1, True)
         return points, phis
 
     def cov(self, store, i: int) -> np.ndarray:
@@ -173,7 +187,7 @@ class RTS:
             cl = self.rec.clones
             fast(ep.t, ep.k_next, ep.n, ep.x, ep.c, ep.aux, ep.u, ep.P, ep.size, cl.n, cl.x, cl.c, cl.P,
                  self.rec.clone_epoch, cl.size, ep.n_max, self.nc, self.t, self.u, self.gap, self.prm, RCOND, kf.cidx,
-                 out.rec_x, out.rec_Pdiag, out.rec_Ppt)
+                 out.rec_x, out.rec_Pdiag, out.rec_Ppt, self.rec.prior_P, self.rec.prior_ok)
             return out
         clones_of: dict[int, list[int]] = {}
         for i in range(self.rec.clones.size):
@@ -236,14 +250,19 @@ class RtsSmoother:
                               "filter.formulation=error_state or invariant")
 
     def __init__(self, kf, s, n_events: int):
-        self.rec = kf.recorder = EpochRecord(kf, n_events)     # the filter records the state before each clone
+        # the filter records the state before each clone; and each epoch's prior where recomputing an interval's
+        # covariance is dear (Van Loan's or the second-order series: 10 Hz IMUs) and the formulation can step into
+        # an epoch with its transition alone
+        disc = getattr(getattr(s, "filter", None), "discretization", "first_order")
+        priors = getattr(kf, "_rts_phi", None) is not None and disc != "first_order"
+        self.rec = kf.recorder = EpochRecord(kf, n_events, priors)
         self.rec.epoch(kf)
 
     def epoch(self, kf) -> None:
         self.rec.epoch(kf)
 
     def before_update(self, kf, bound, j: int) -> None:
-        pass
+        self.rec.prior(kf)                   # the covariance just predicted to this stamp (a new epoch's prior)
 
     def after_update(self, kf, res) -> None:
         pass

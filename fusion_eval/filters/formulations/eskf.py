@@ -162,6 +162,19 @@ def step(x, P, n, u0, u1, dt, qscale, prm, aux, cov):
     decay_biases(x, dt, prm)
 
 
+@njit(cache=True)
+def rts_phi(x, u0, u1, dt, qscale, prm, aux):
+    """The transition :func:`step` linearises the interval at (the same attitude, midpoint inputs and biases), alone:
+    the RTS smoother's, where the interval's prior covariance was recorded."""
+    fm = np.empty(3)
+    wm = np.empty(3)
+    for i in range(3):
+        fm[i] = 0.5 * (u0[UF + i] + u1[UF + i]) - x[XBA + i]
+        wm[i] = 0.5 * (u0[UW + i] + u1[UW + i]) - x[XBG + i]
+    Ft, _ = continuous_model(attitude(x), fm, wm, prm, qscale)
+    return discretize.phi_only(Ft, dt, int(prm[PRM_DISC]))
+
+
 predict_to = compiled_loop(__name__, step, record_cov_by_index)
 
 BIAS_KEYS = {
@@ -267,6 +280,7 @@ class ErrorStateKF(ErrorStateBase):
     _inject_kernel = staticmethod(inject_reset)     # the compiled replay's injection (D = I)
     _rts_boxminus = staticmethod(boxminus_vec)      # the compiled RTS interval (fusion_eval.smoothing.compiled)
     _rts_boxplus = staticmethod(boxplus_into)
+    _rts_phi = staticmethod(rts_phi)
 
     def own_jacobian(self, Hc: np.ndarray) -> np.ndarray:
         return np.ascontiguousarray(Hc[:, :self.n])          # D = I: the canonical error is this state
