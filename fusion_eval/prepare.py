@@ -55,11 +55,15 @@ def settings_for(cfg: dict, prep: Prepared) -> Settings:
     for sect, body in prep.resolved.items():
         c[sect].update(body)
     imu = c["imu"]
-    for key, scale in (("accel_noise_mps2_sqrthz", "accel_noise_scale"), ("gyro_noise_dps_sqrthz", "gyro_noise_scale")):
+    for key, scale in NOISE_SCALES:
         f = float(imu.get(scale, 1.0))
         if f != 1.0 and isinstance(imu.get(key), (int, float)):     # the filter's value; the report keeps the estimate
             imu[key] = imu[key] * f
     return Settings(c)
+
+
+# each IMU white-noise density and the factor the filter applies to it (to a value given or estimated alike)
+NOISE_SCALES = (("accel_noise_mps2_sqrthz", "accel_noise_scale"), ("gyro_noise_dps_sqrthz", "gyro_noise_scale"))
 
 
 def _offset(cfg: dict, ds: Dataset, stream: str, auto: bool = False):
@@ -322,7 +326,7 @@ def _auto_settled(cfg: dict, resolved: dict, applied: dict) -> dict:
     """``{section.key: value}`` for each configuration key left to the data ('auto') that the preparation settled
     to one value for the whole run: the report's configuration block shows it beside the 'auto'."""
     got = {f"{sect}.{k}": v for sect, body in resolved.items() for k, v in body.items() if cfg[sect].get(k) == "auto"}
-    for key, scale in (("accel_noise_mps2_sqrthz", "accel_noise_scale"), ("gyro_noise_dps_sqrthz", "gyro_noise_scale")):
+    for key, scale in NOISE_SCALES:
         if f"imu.{key}" in got:                      # what the filter runs with (settings_for): the estimate x scale
             got[f"imu.{key}"] *= float(cfg["imu"].get(scale, 1.0))
     if cfg["filter"]["gravity_mps2"] == "auto":

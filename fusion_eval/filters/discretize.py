@@ -120,6 +120,12 @@ def _dense_abs_max(X):
 def van_loan(Ft, Qc, dt):
     """Exact ``Phi = expm(F_t T)`` and ``Q_d = int_0^T Phi(s) Q_c Phi(s)^T ds`` (``Qc``: the full density, (n, n)),
     by the sparse Taylor series of the block-triangular exponential with scaling and doubling (module docstring)."""
+    return _van_loan(Ft, Qc, dt, True)
+
+
+@njit(cache=True)
+def _van_loan(Ft, Qc, dt, with_q):
+    """:func:`van_loan`; without ``with_q``, ``Phi`` alone (``Q_d`` returned as ``Qc``, untouched)."""
     n = Ft.shape[0]
     norm = 0.0
     for i in range(n):
@@ -150,16 +156,18 @@ def van_loan(Ft, Qc, dt):
         _sparse_left(rows, cols, vals, nnz, term, nxt, h / k)         # A^k / k!
         term, nxt = nxt, term
         Phi += term
-        # Y_{k+1} = (A Y_k + Y_k A^T) / (k + 1): A Y_k is the transpose of Y_k A^T (Y symmetric)
-        _sparse_left(rows, cols, vals, nnz, Y, AY, h / (k + 1))
-        for i in range(n):
-            for j in range(n):
-                Y[i, j] = AY[i, j] + AY[j, i]
-        Q += Y
-        if _dense_abs_max(term) <= 1e-17 and _dense_abs_max(Y) <= 1e-17 * q_ref:
+        if with_q:
+            # Y_{k+1} = (A Y_k + Y_k A^T) / (k + 1): A Y_k is the transpose of Y_k A^T (Y symmetric)
+            _sparse_left(rows, cols, vals, nnz, Y, AY, h / (k + 1))
+            for i in range(n):
+                for j in range(n):
+                    Y[i, j] = AY[i, j] + AY[j, i]
+            Q += Y
+        if _dense_abs_max(term) <= 1e-17 and (not with_q or _dense_abs_max(Y) <= 1e-17 * q_ref):
             break
     for _ in range(s):
-        Q = Q + Phi @ Q @ Phi.T
+        if with_q:
+            Q = Q + Phi @ Q @ Phi.T
         Phi = Phi @ Phi
     return Phi, 0.5 * (Q + Q.T)
 
@@ -183,11 +191,15 @@ def van_loan_block(Ft, Qc, dt):
 
 
 @njit(cache=True)
+def _phi_second(Ft, dt):
+    FT = Ft * dt
+    return np.eye(Ft.shape[0]) + FT + 0.5 * (FT @ FT)
+
+
+@njit(cache=True)
 def second_order(Ft, Qc, dt):
     """``Phi = I + F_t T + (F_t T)^2 / 2`` and ``Q_d = T/2 (Phi Q_c Phi^T + Q_c)`` (``Qc``: (n, n))."""
-    n = Ft.shape[0]
-    FT = Ft * dt
-    Phi = np.eye(n) + FT + 0.5 * (FT @ FT)
+    Phi = _phi_second(Ft, dt)
     Qd = 0.5 * dt * (Phi @ Qc @ Phi.T + Qc)
     return Phi, 0.5 * (Qd + Qd.T)
 
@@ -195,40 +207,12 @@ def second_order(Ft, Qc, dt):
 @njit(cache=True)
 def phi_only(Ft, dt, method):
     """The transition ``Phi`` alone, as :func:`transition` gives it (the RTS smoother's, where the prior covariance
-    is known): Van Loan's ``Phi`` series with the same scaling and doubling, without ``Q_d``'s series."""
-    n = Ft.shape[0]
-    if method == FIRST_ORDER:
-        return np.eye(n) + Ft * dt
+    is known): for Van Loan its ``Phi`` series with the same scaling and doubling, without ``Q_d``'s."""
+    if method == VAN_LOAN:
+        return _van_loan(Ft, np.zeros_like(Ft), dt, False)[0]
     if method == SECOND_ORDER:
-        FT = Ft * dt
-        return np.eye(n) + FT + 0.5 * (FT @ FT)
-    norm = 0.0
-    for i in range(n):
-        r = 0.0
-        for k in range(n):
-            r += abs(Ft[i, k])
-        norm = max(norm, r * dt)
-    s = 0
-    while norm > 2.0:
-        norm *= 0.5
-        s += 1
-    h = dt * 0.5 ** s
-    rows = np.empty(n * n, np.int64)
-    cols = np.empty(n * n, np.int64)
-    vals = np.empty(n * n)
-    nnz = _nonzeros(Ft, rows, cols, vals)
-    Phi = np.eye(n)
-    term = np.eye(n)
-    nxt = np.empty((n, n))
-    for k in range(1, _MAX_TERMS):
-        _sparse_left(rows, cols, vals, nnz, term, nxt, h / k)
-        term, nxt = nxt, term
-        Phi += term
-        if _dense_abs_max(term) <= 1e-17:
-            break
-    for _ in range(s):
-        Phi = Phi @ Phi
-    return Phi
+        return _phi_second(Ft, dt)
+    return np.eye(Ft.shape[0]) + Ft * dt
 
 
 @njit(cache=True)
