@@ -4,6 +4,7 @@ leaves a half-written output directory and never destroys an earlier one."""
 
 from __future__ import annotations
 
+import contextlib
 import os
 import shutil
 import socket
@@ -40,12 +41,25 @@ def alive(pid: int) -> bool:
 def write_atomic(target: Path, data: bytes) -> Path:
     """``target`` written whole or not at all (a temporary beside it, then a rename): a reader never sees half a
     file, and a worker writing into a staging folder (a run's result zips) does it the same way."""
+    with atomic_file(target) as fh:
+        fh.write(data)
+    return Path(target)
+
+
+@contextlib.contextmanager
+def atomic_file(target: Path):
+    """A binary file that becomes ``target`` when the block ends without an error (as :func:`write_atomic`), for
+    writers that stream: a long drive's TUM text or result zip is never held whole in memory."""
     target = Path(target)
     target.parent.mkdir(parents=True, exist_ok=True)
     tmp = target.with_name(f".{target.name}.tmp")
-    tmp.write_bytes(data)
+    try:
+        with open(tmp, "wb") as fh:
+            yield fh
+    except BaseException:
+        tmp.unlink(missing_ok=True)
+        raise
     os.replace(tmp, target)
-    return target
 
 class StagedDir:
     def __init__(self, final: Path, overwrite: bool = False, wait_lock_s: float = 0.0):

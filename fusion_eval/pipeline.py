@@ -23,7 +23,7 @@ from .evaluation import span
 from .evaluation.run_metrics import (ESTIMATES, consistency, fused_error, ratio_metrics, run_metrics, segments,
                                      smoother_section)
 from .evaluation.trajectory import EstimateEvaluation, evaluate
-from .outputs import StagedDir, write_atomic
+from .outputs import StagedDir
 from .pool import executor
 from .progress import as_stages
 from .prepare import Prepared, offsets_note, prepare, settings_for
@@ -59,15 +59,17 @@ def evaluate_estimate(reference: PoseSeries, estimate: PoseSeries, name: str, ev
                       zip_dir: Path | None = None) -> EstimateEvaluation:
     """evo's metrics of one estimate and its evo result files (in a worker: the files travel back as bytes,
     smaller than the result objects they are made of). With ``zip_dir`` (the run's staging folder) the worker
-    writes them there itself: on a long drive they are hundreds of MB that the main process need not hold."""
+    writes them there itself, and the estimate's TUM file beside them (it holds the estimate: another job would
+    need a copy): on a long drive they are hundreds of MB that the main process need not hold."""
     ev = evaluate(reference, estimate, name, ev_cfg["t_max_diff_s"], ev_cfg["rpe_delta_m"], ev_cfg["association"],
                   ev_cfg["alignment"], ev_cfg["engine"])
-    ev.zips = report.files.evo_zips(ev)
-    ev.results = {}
     if zip_dir is not None:
-        for fname, data in ev.zips.items():
-            write_atomic(Path(zip_dir) / fname, data)
+        report.files.write_evo_zips(ev, zip_dir)
+        report.files.write_tum(Path(zip_dir) / report.files.TUM_FILES[name], name, estimate)
         ev.zips = {}
+    else:
+        ev.zips = report.files.evo_zips(ev)
+    ev.results = {}
     return ev
 
 
@@ -160,6 +162,9 @@ def filter_and_evaluate(ds: Dataset, cfg: dict, sh: Shared, pool, *, dataset_pat
     n_trials = mc.check_count(trials)
     stages = as_stages(progress)
     trial_futs = [pool.submit(trial_metrics, ds, mc.apply(cfg, i)) for i in range(1, n_trials)]
+    # a simulated drive's true biases, for the bias plot (None for real data); read before the replay, whose
+    # records would otherwise share the peak with the reading's buffers (hundreds of MB on a long drive)
+    truth_b = truth_imu_biases(ds.description, prep.applied["time_offset_s"]["imu"]) if cfg["output"]["plots"] else None
     t = time.perf_counter()
     stages.start("filter")
     # overflow in absurd settings is reported as divergence (exit 3), not as numpy warnings
@@ -183,10 +188,10 @@ def filter_and_evaluate(ds: Dataset, cfg: dict, sh: Shared, pool, *, dataset_pat
                                                                    "imu_only", ev_cfg, zip_dir if sh.private else None)
     err = fused_error(gt, filt, att_vel=cfg["output"]["plots"])
     # the TUM files and the filter's plots, each a job of its own, alongside the evaluations
-    # a simulated drive's true biases, for the bias plot (None for real data)
-    truth_b = truth_imu_biases(ds.description, prep.applied["time_offset_s"]["imu"]) if cfg["output"]["plots"] else None
-    first = report.write_filter_outputs(out, series, filt, err, cfg["output"]["plots"], pool,
-                                        truth_biases=truth_b) if out is not None else []
+    first = report.write_filter_outputs(out, series, filt, err, cfg["output"]["plots"], pool, truth_biases=truth_b,
+                                        tums_written=[n for n in ("fused", "smoothed", "imu_only")
+                                                      if n in series and (n != "imu_only" or sh.private)]
+                                        ) if out is not None else []
     names = [n for n in ESTIMATES if n in futures]
     stages.start("evaluate", len(names))
     evals = {}

@@ -178,12 +178,16 @@ def _replay_compiled(kf, bound, times, which, index, order, progress, monitor=No
 def _output(kf, t_imu, k0, rec_x, rec_Pdiag, rec_Ppt, source, imu_only, nis) -> FilterOutput:
     """A filter output (``fused`` or ``smoothed``) from the record at the IMU samples ``k0 ..``."""
     sl = slice(k0, None)
+    # one new array, its square root taken in place (numpy's temporary would be another 82 MB on a long drive, at the
+    # run's peak); the filter's record keeps its variances
+    sigma = np.maximum(rec_Pdiag[sl], 0.0)
+    np.sqrt(sigma, out=sigma)
     rec = unpack(rec_x[sl])
     poses = PoseSeries(t_s=t_imu[sl], p_w_m=rec["p"], q_wb_xyzw=matrix_to_quat_xyzw(rec["R"]), v_w_mps=rec["v"],
                        source=source)
     return FilterOutput(
         fused=poses, accel_bias_b=rec["ba"].copy(), gyro_bias_b=rec["bg"].copy(),
-        sigma=np.sqrt(np.maximum(rec_Pdiag[sl], 0.0)), P_pos_att=rec_Ppt[sl], nis=nis,
+        sigma=sigma, P_pos_att=rec_Ppt[sl], nis=nis,
         imu_only=imu_only, n_imu_samples=int(t_imu.size - k0), odometer_scale=kf.odometer_scale(rec_x[sl]),
     )
 

@@ -308,3 +308,18 @@ def test_unsorted_stamps_fall_back_to_evos_linear_search():
     i1, i2 = sync.matching_time_indices(s1, s2, 0.01)
     j1, j2 = engine.matching_time_indices(s1, s2, 0.01)
     assert list(j1) == i1 and list(j2) == i2 == [1, 2, 0]
+
+
+@pytest.mark.parametrize("relation", [Rel.translation_part, Rel.rotation_angle_deg, Rel.full_transformation])
+def test_errors_in_chunks_are_the_errors_of_one_stack(monkeypatch, relation):
+    """A long drive's error poses are made a chunk at a time (engine.CHUNK_POSES): the same numbers, bit for bit,
+    as the whole stack at once, for APE and RPE, chunks that do not divide the poses included."""
+    ref, est = _load("kitti")
+    ref_T, est_T = engine.traj_se3(ref), engine.traj_se3(est)
+    pairs = engine.rpe_pairs(ref_T, est_T, 1, Unit.frames)
+    whole = engine.ape_error(ref_T, est_T, relation), engine.rpe_error(ref_T, est_T, relation, pairs)
+    monkeypatch.setattr(engine, "CHUNK_POSES", 97)
+    chunked = engine.ape_error(ref_T, est_T, relation), engine.rpe_error(ref_T, est_T, relation, pairs)
+    assert len(ref_T) > 5 * 97 and len(pairs) > 2 * 97
+    assert np.array_equal(chunked[0], whole[0])
+    assert np.array_equal(chunked[1][0], whole[1][0]) and np.array_equal(chunked[1][1], whole[1][1])

@@ -5,7 +5,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from fusion_eval.fastfmt import format_table, table_text
+from fusion_eval.fastfmt import format_table, table_chunks, table_text
 
 
 def test_matches_python_formatting():
@@ -27,3 +27,14 @@ def test_rejects_values_it_cannot_write_exactly():
         format_table(np.array([[1e10]]), [9])
     with pytest.raises(ValueError):
         format_table(np.array([[np.nan]]), [3])
+
+
+def test_chunks_are_the_table_in_pieces_and_a_bad_value_stops_it_before_the_first():
+    rng = np.random.default_rng(1)
+    a = np.column_stack([np.arange(1000) * 0.005, rng.normal(size=(1000, 7))])
+    whole = format_table(a, [6] + [9] * 7)[0].tobytes()
+    pieces = list(table_chunks(a, [6] + [9] * 7, rows=97))
+    assert len(pieces) == 11 and b"".join(pieces) == whole
+    a[-1, 3] = np.nan                      # checked whole: a writer that streams never leaves a partial file
+    with pytest.raises(ValueError):
+        next(table_chunks(a, [6] + [9] * 7, rows=97))

@@ -18,7 +18,7 @@ from fusion_eval.datasets.truth import TruthBiases, read_imu_biases, truth_imu_b
 from fusion_eval.errors import DataFormatError
 from fusion_eval.evaluation.run_metrics import VEL_FROM_POSITIONS, fused_att_vel_error, fused_error
 from fusion_eval.filters.layout import CANONICAL
-from fusion_eval.report import filter_plots, plots
+from fusion_eval.report import filter_plots, plots, thin
 from fusion_eval.so3 import exp_so3, matrix_to_quat_xyzw
 from fusion_eval.types import PoseSeries
 
@@ -88,7 +88,7 @@ def test_truth_velocity_from_central_differences_when_the_truth_has_none():
     assert av["vel_truth"] == VEL_FROM_POSITIONS
     # second-order differences: O(dt^2 v w^2) inside, first order at the two ends
     assert np.abs(av["vel_err_w_mps"][1:-1]).max() < 1e-3 and np.abs(av["vel_err_w_mps"]).max() < 0.05
-    fig = plots.att_vel_error_figure(av)
+    fig = plots.att_vel_error_figure(thin.att_vel(av))
     assert len(fig.axes) == 6 and "central differences" in fig._suptitle.get_text()
 
 
@@ -96,7 +96,7 @@ def test_att_vel_figure_without_velocity_has_the_attitude_column_only():
     gt = _circle()
     av = fused_att_vel_error(gt, _filter_output(gt, np.random.default_rng(3)))
     av = {**av, "vel_err_w_mps": None, "vel_sigma_w_mps": None}
-    fig = plots.att_vel_error_figure(av)
+    fig = plots.att_vel_error_figure(thin.att_vel(av))
     assert len(fig.axes) == 3 and fig.axes[0].get_ylabel() == "roll [deg]"
     assert "fused_error_att_vel_3sigma.png" in filter_plots(True)
 

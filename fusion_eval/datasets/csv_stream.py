@@ -67,12 +67,12 @@ def load_table(path: Path, what: str, ncols_min: int, delimiter: str | None = ",
                 break
             named = True
         head, pos = head + 1, end + 1
-    body = text[pos:]
     # the common case, one clean block of rows after the header: read by pandas from a row count; otherwise (comment
-    # or blank lines among the rows) each line is classified first
-    clean = "#" not in body and "\n\n" not in body and "\r" not in body
+    # or blank lines among the rows) each line is classified first (searched in place: the body's copy would be
+    # the file's size again)
+    clean = all(text.find(c, pos) < 0 for c in ("#", "\n\n", "\r"))
     if clean:
-        n_rows = body.count("\n") + (0 if body.endswith("\n") or not body else 1)
+        n_rows = text.count("\n", pos) + (0 if text.endswith("\n") or pos >= len(text) else 1)
         line_no = np.arange(head + 1, head + 1 + n_rows)
         skip = head
     else:

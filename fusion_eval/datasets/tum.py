@@ -29,16 +29,22 @@ def stamp_decimals(t_s: np.ndarray) -> int:
     return int(max(0, min(9, np.floor(np.log10(2.0 ** 53 / max(big, 1.0))))))
 
 
-def format_tum(poses: PoseSeries, header: str | None = None) -> str:
-    """TUM text: positions and quaternions with 9 decimals (nanometres), stamps with :func:`stamp_decimals`;
-    evo reading it back gives the same metrics to 1e-6. Formatted by the compiled table writer (a simulated
-    hour at 200 Hz is 5.8 million numbers)."""
-    from ..fastfmt import table_text
+def tum_chunks(poses: PoseSeries, header: str | None = None):
+    """TUM text as ``bytes`` chunks: positions and quaternions with 9 decimals (nanometres), stamps with
+    :func:`stamp_decimals`; evo reading it back gives the same metrics to 1e-6. Formatted by the compiled table
+    writer a chunk at a time (a simulated hour at 200 Hz is 5.8 million numbers: streamed into its file, it is
+    never held whole)."""
+    from ..fastfmt import table_chunks
 
-    lines = [f"# {h}" for h in header.splitlines()] if header else []
+    if header:
+        yield "".join(f"# {h}\n" for h in header.splitlines()).encode("utf-8")
     mat = np.column_stack([poses.t_s, poses.p_w_m, poses.q_wb_xyzw])
     if mat.size and np.all(np.isfinite(mat)) and np.abs(mat[:, 1:]).max() < 9e6:
-        body = table_text(mat, [stamp_decimals(poses.t_s)] + [9] * 7)
+        yield from table_chunks(mat, [stamp_decimals(poses.t_s)] + [9] * 7)
     else:       # non-finite or huge values (a diverged dead reckoning): Python's formatting handles them
-        body = "".join(" ".join(f"{x:.9f}" for x in row) + "\n" for row in mat)
-    return "\n".join(lines) + ("\n" if lines else "") + body
+        yield "".join(" ".join(f"{x:.9f}" for x in row) + "\n" for row in mat).encode()
+
+
+def format_tum(poses: PoseSeries, header: str | None = None) -> str:
+    """The TUM text of :func:`tum_chunks` as one string."""
+    return b"".join(tum_chunks(poses, header)).decode("utf-8")

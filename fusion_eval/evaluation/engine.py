@@ -208,7 +208,20 @@ def ape_error(ref_T: np.ndarray, est_T: np.ndarray, relation: Rel) -> np.ndarray
         return np.linalg.norm(est_T[:, :3, 3] - ref_T[:, :3, 3], axis=1)
     if relation == Rel.point_distance_error_ratio:
         raise metrics.MetricsException("unsupported pose_relation")
-    return pose_error(relative(est_T, ref_T), relation)
+    return _chunked(len(ref_T), lambda a, b: pose_error(relative(est_T[a:b], ref_T[a:b]), relation))
+
+
+# error poses per call of pose_error: each 4x4 pose and the temporaries of its error cost ~400 bytes, so the whole
+# stack of a long drive (an hour at 200 Hz) would be ~300 MB at once; a chunk's is 26 MB, as fast
+CHUNK_POSES = 1 << 16
+
+
+def _chunked(n: int, error_of) -> np.ndarray:
+    """``error_of(a, b)`` (the errors of the poses ``a:b``) over ``0..n`` in chunks of :data:`CHUNK_POSES`,
+    concatenated: each pose's error is computed alone, so the result is the same numbers as one call."""
+    if n <= CHUNK_POSES:
+        return error_of(0, n)
+    return np.concatenate([error_of(a, min(a + CHUNK_POSES, n)) for a in range(0, n, CHUNK_POSES)])
 
 
 def rpe_pairs(ref_T: np.ndarray, est_T: np.ndarray, delta: float, delta_unit: metrics.Unit, rel_tol: float = 0.1,
@@ -291,10 +304,15 @@ def rpe_error(ref_T: np.ndarray, est_T: np.ndarray, relation: Rel, pairs: np.nda
             delta_ids = delta_ids[nz]
             err = np.divide(err[nz], d_ref[nz]) * 100
         return err, delta_ids
-    E = np.empty((i.size, 4, 4))
-    _rpe_poses(np.ascontiguousarray(ref_T, float), np.ascontiguousarray(est_T, float), np.ascontiguousarray(i),
-               np.ascontiguousarray(j), E)
-    return pose_error(E, relation), delta_ids
+    ref_T, est_T = np.ascontiguousarray(ref_T, float), np.ascontiguousarray(est_T, float)
+    i, j = np.ascontiguousarray(i), np.ascontiguousarray(j)
+
+    def error_of(a: int, b: int) -> np.ndarray:
+        E = np.empty((b - a, 4, 4))
+        _rpe_poses(ref_T, est_T, i[a:b], j[a:b], E)
+        return pose_error(E, relation)
+
+    return _chunked(i.size, error_of), delta_ids
 
 
 # ---------------------------------------------------------------------------------------------- results

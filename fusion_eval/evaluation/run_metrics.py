@@ -41,8 +41,12 @@ def _truth_at_fused(gt: PoseSeries, filt):
     against sigma and the attitude/velocity error all ask for it; on a long drive it is seconds of work)."""
     if _LAST[0] is gt and _LAST[1] is filt.fused:
         return _LAST[2]
-    gi = interpolate_poses(gt, filt.fused.t_s)
-    out = gi, np.isin(filt.fused.t_s, gi.t_s)
+    t = filt.fused.t_s
+    gi = interpolate_poses(gt, t)
+    # the stamps inside the truth's span, which interpolate_poses keeps: a range of the sorted stamps, so a slice
+    # (views of the estimate's arrays, not copies: on a long drive each is tens of MB)
+    a, b = np.searchsorted(t, gt.t_s[0], "left"), np.searchsorted(t, gt.t_s[-1], "right")
+    out = gi, slice(int(a), int(max(a, b)))
     _LAST[:] = gt, filt.fused, out
     return out
 
@@ -50,7 +54,8 @@ def _truth_at_fused(gt: PoseSeries, filt):
 def nees(gt: PoseSeries, filt) -> dict:
     """Position and attitude NEES of an estimate with covariance (fused or smoothed) against the ground truth."""
     gi, sel = _truth_at_fused(gt, filt)
-    n_pos, n_att = pose_nees(filt.fused.p_w_m[sel], filt.fused.R_wb()[sel], gi.p_w_m, gi.R_wb(), filt.P_pos_att[sel])
+    n_pos, n_att = pose_nees(filt.fused.p_w_m[sel], quat_xyzw_to_matrix(filt.fused.q_wb_xyzw[sel]), gi.p_w_m, gi.R_wb(),
+                             filt.P_pos_att[sel])
     ok = np.isfinite(n_pos) & np.isfinite(n_att)
     return {"position": {**summary(n_pos[ok], 3), "t_s": gi.t_s[ok], "values": n_pos[ok]},
             "attitude": {**summary(n_att[ok], 3), "t_s": gi.t_s[ok], "values": n_att[ok]}} if ok.any() else {}
@@ -119,7 +124,7 @@ def fused_att_vel_error(gt: PoseSeries, filt) -> dict:
     return _att_vel_error(gt, gi, sel, filt)
 
 
-def _att_vel_error(gt: PoseSeries, gi: PoseSeries, sel: np.ndarray, filt) -> dict:
+def _att_vel_error(gt: PoseSeries, gi: PoseSeries, sel: slice, filt) -> dict:
     v_w, vel_truth = truth_velocity_w(gt)
     v_true = np.column_stack([np.interp(gi.t_s, gt.t_s, v_w[:, i]) for i in range(3)])
     R_true = quat_xyzw_to_matrix(gi.q_wb_xyzw)

@@ -12,7 +12,7 @@ from __future__ import annotations
 
 from ..outputs import StagedDir
 from ..provenance import input_files
-from . import files, html
+from . import files, html, thin
 from .markdown import metrics_tex, report_md
 
 FILTER_PLOTS = ["trajectories.png", "ape_over_time.png", "biases.png", "fused_error_3sigma.png",
@@ -20,23 +20,26 @@ FILTER_PLOTS = ["trajectories.png", "ape_over_time.png", "biases.png", "fused_er
 
 
 def write_filter_outputs(out: StagedDir, series: dict, filt, fused_err: dict, make_plots: bool, pool=None,
-                         truth_biases=None) -> list:
+                         truth_biases=None, tums_written=()) -> list:
     """TUM files and the plots that need no evaluation, each a job of its own on ``pool`` when given (so that
     they spread over the workers). Returns the futures to wait for (or nothing: done here); the plots the
     report lists are :func:`filter_plots` (``ape_over_time.png`` is drawn with the metrics, in
     :func:`write_evaluation`). ``fused_err``: :func:`fusion_eval.evaluation.run_metrics.fused_error`;
     ``truth_biases``: the true IMU biases on the filter's clock where the dataset knows them (a simulated drive,
-    :func:`fusion_eval.datasets.truth.truth_imu_biases`), drawn over the estimated ones."""
-    jobs = [(_write_tums, out, series)]
+    :func:`fusion_eval.datasets.truth.truth_imu_biases`), drawn over the estimated ones; ``tums_written``: the
+    estimates whose TUM files another job writes (the one evaluating them, :func:`fusion_eval.pipeline.evaluate_estimate`).
+    A job gets only what it draws (:mod:`.thin`): a long drive's series would cost their size again in pickles."""
+    jobs = [(files.write_tum, out.path(files.TUM_FILES[n]), n, s) for n, s in series.items()
+            if s is not None and n in files.TUM_FILES and n not in tums_written]
     if make_plots:
         from . import plots
 
-        jobs += [(plots.plot_trajectories, out.path("trajectories.png"), series),
-                 (plots.plot_biases, out.path("biases.png"), filt.fused.t_s, filt.accel_bias_b, filt.gyro_bias_b,
-                  filt.sigma, truth_biases),
-                 (plots.plot_error_sigma, out.path("fused_error_3sigma.png"), fused_err["t_s"], fused_err["err_w_m"],
-                  fused_err["sigma_w_m"], fused_err.get("smoothed")),
-                 (plots.plot_att_vel_error_sigma, out.path("fused_error_att_vel_3sigma.png"), fused_err["att_vel"])]
+        jobs += [(plots.plot_trajectories, out.path("trajectories.png"), *thin.paths(series)),
+                 (plots.plot_biases, out.path("biases.png"),
+                  *thin.biases(filt.fused.t_s, filt.accel_bias_b, filt.gyro_bias_b, filt.sigma, truth_biases)),
+                 (plots.plot_error_sigma, out.path("fused_error_3sigma.png"),
+                  thin.error_sigma(fused_err["t_s"], fused_err["err_w_m"], fused_err["sigma_w_m"], fused_err.get("smoothed"))),
+                 (plots.plot_att_vel_error_sigma, out.path("fused_error_att_vel_3sigma.png"), thin.att_vel(fused_err["att_vel"]))]
     if pool is None:
         for j in jobs:
             j[0](*j[1:])
@@ -47,13 +50,6 @@ def write_filter_outputs(out: StagedDir, series: dict, filt, fused_err: dict, ma
 def filter_plots(make_plots: bool) -> list[str]:
     """The plots :func:`write_filter_outputs` draws."""
     return list(FILTER_PLOTS) if make_plots else []
-
-
-def _write_tums(out: StagedDir, series: dict) -> None:
-    for name, fname in files.TUM_FILES.items():
-        s = series.get(name)
-        if s is not None:
-            out.write_text(fname, files.tum_text(name, s))
 
 
 def write_evaluation(out: StagedDir, res, plots_written: list[str], pool=None, advance=None) -> None:

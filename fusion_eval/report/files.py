@@ -11,13 +11,15 @@ import io
 import json
 import platform
 import zipfile
+from pathlib import Path
 
 import yaml
 
 from .. import __version__
-from ..datasets.tum import format_tum
+from ..datasets.tum import format_tum, tum_chunks
 from ..evaluation.keys import STATS
 from ..evaluation.trajectory import EstimateEvaluation
+from ..outputs import atomic_file
 from ..tables import csv_text
 from ..types import PoseSeries
 
@@ -40,11 +42,22 @@ def versions() -> dict:
     return out
 
 
-def tum_text(name: str, s: PoseSeries) -> str:
+def _tum_header(name: str, s: PoseSeries) -> str:
     hdr = f"fusion-eval {__version__} {name}: timestamp tx ty tz qx qy qz qw (world = local ENU, body = IMU)"
     if not s.has_orientation:
         hdr += "\nposition only: quaternions are identity placeholders"
-    return format_tum(s, hdr)
+    return hdr
+
+
+def tum_text(name: str, s: PoseSeries) -> str:
+    return format_tum(s, _tum_header(name, s))
+
+
+def write_tum(path: Path, name: str, s: PoseSeries) -> None:
+    """The estimate ``name``'s TUM file (:func:`tum_text`), streamed into ``path`` atomically."""
+    with atomic_file(path) as fh:
+        for chunk in tum_chunks(s, _tum_header(name, s)):
+            fh.write(chunk)
 
 
 def metrics_json(metrics: dict) -> str:
@@ -78,23 +91,40 @@ def resolved_config(cfg: dict, extra: dict) -> str:
     return yaml.safe_dump({**cfg, **extra, "versions": versions()}, sort_keys=False)
 
 
-def evo_zips(ev: EstimateEvaluation) -> dict[str, bytes]:
-    """evo result files (``evo_res`` reads them), one per metric: ``<metric>_<estimate>.zip`` -> bytes.
+def _zip_names(ev: EstimateEvaluation):
+    """``(file name, evo result, with its trajectories)`` per metric. Only the APE translation zip carries the
+    (associated) reference and estimate trajectories: the other zips of an estimate would hold copies of the
+    same poses (or, for RPE, a reduced copy); each keeps evo's statistics and arrays, which is what ``evo_res``
+    reads."""
+    return [(f"{key}_{ev.name}.zip", res, key == "ape_translation") for key, res in ev.results.items()]
 
-    Only the APE translation zip carries the (associated) reference and estimate trajectories: the other
-    zips of an estimate would hold copies of the same poses (or, for RPE, a reduced copy); each keeps evo's
-    statistics and arrays, which is what ``evo_res`` reads."""
-    out = {}
-    for key, res in ev.results.items():
-        out[f"{key}_{ev.name}.zip"] = result_zip(res, trajectories=key == "ape_translation")
-    return out
+
+def evo_zips(ev: EstimateEvaluation) -> dict[str, bytes]:
+    """evo result files (``evo_res`` reads them), one per metric: ``<metric>_<estimate>.zip`` -> bytes."""
+    return {fname: result_zip(res, trajectories=traj) for fname, res, traj in _zip_names(ev)}
+
+
+def write_evo_zips(ev: EstimateEvaluation, folder: Path) -> None:
+    """The files of :func:`evo_zips` written into ``folder``, each streamed into its file (a long drive's are
+    hundreds of MB that need not be held whole)."""
+    for fname, res, traj in _zip_names(ev):
+        with atomic_file(Path(folder) / fname) as fh:
+            write_result_zip(fh, res, trajectories=traj)
 
 
 def result_zip(res, trajectories: bool = True) -> bytes:
+    """:func:`write_result_zip` as bytes."""
+    buf = io.BytesIO()
+    write_result_zip(buf, res, trajectories)
+    return buf.getvalue()
+
+
+def write_result_zip(dest, res, trajectories: bool = True) -> None:
     """An evo result file as ``evo.tools.file_interface.save_res_file`` writes it (``info.json``,
-    ``stats.json``, one ``.npy`` per array, one ``.tum`` per trajectory), with fixed entry times and sorted
-    entries so that identical runs give identical bytes. The trajectories' text comes from the compiled
-    writer (9 decimals) instead of ``np.savetxt``, which took most of the time of a run's writing."""
+    ``stats.json``, one ``.npy`` per array, one ``.tum`` per trajectory) into the binary file ``dest``, with
+    fixed entry times and sorted entries so that identical runs give identical bytes. The trajectories' text
+    comes from the compiled writer (9 decimals) instead of ``np.savetxt``, which took most of the time of a
+    run's writing, a chunk at a time."""
     import numpy as np
     from evo.core.trajectory import PoseTrajectory3D
 
@@ -109,17 +139,24 @@ def result_zip(res, trajectories: bool = True) -> bytes:
 
             raw = io.BytesIO()
             file_interface.save_res_file(raw, copy.copy(res), confirm_overwrite=False)
-            return normalized_zip(raw.getvalue())
+            dest.write(normalized_zip(raw.getvalue()))
+            return
         poses = PoseSeries(t_s=np.asarray(traj.timestamps), p_w_m=traj.positions_xyz,
                            q_wb_xyzw=traj.orientations_quat_wxyz[:, [1, 2, 3, 0]], source=name)
-        entries[f"{name}.tum"] = format_tum(poses).encode()
-    buf = io.BytesIO()
-    with zipfile.ZipFile(buf, "w") as zout:          # uncompressed, as evo writes them
+        entries[f"{name}.tum"] = poses          # streamed below, in the entries' order
+    with zipfile.ZipFile(dest, "w") as zout:          # uncompressed, as evo writes them
         for fname in sorted(entries):
             zi = zipfile.ZipInfo(fname, date_time=FIXED_ZIP_TIME)
             zi.external_attr = 0o644 << 16
-            zout.writestr(zi, entries[fname])
-    return buf.getvalue()
+            data = entries[fname]
+            if isinstance(data, bytes):
+                zout.writestr(zi, data)
+                continue
+            # the same bytes as writestr (a seekable file: the sizes are patched in after); ZIP64 where a TUM text
+            # of rows at most 257 bytes could pass 2 GiB (a drive of days)
+            with zout.open(zi, "w", force_zip64=len(data) * 257 > zipfile.ZIP64_LIMIT) as fh:
+                for chunk in tum_chunks(data):
+                    fh.write(chunk)
 
 
 def normalized_zip(data: bytes) -> bytes:

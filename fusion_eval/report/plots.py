@@ -17,6 +17,7 @@ matplotlib.rcParams["axes.titley"] = 1.0
 
 from ..evaluation.keys import is_number  # noqa: E402
 from ..filters.layout import CANONICAL  # noqa: E402
+from . import thin  # noqa: E402
 
 BA_ID, BG_ID = (CANONICAL.start(b) for b in ("BA", "BG"))
 
@@ -28,9 +29,7 @@ _META = {"Software": None}
 _VCOLORS = plt.rcParams["axes.prop_cycle"].by_key()["color"]  # no version string in the PNG: same inputs, same bytes
 
 
-def _every(n: int, at_most: int = 2500) -> slice:
-    """A stride that keeps at most ``at_most`` of ``n`` points: a plot 1000 pixels wide shows no more."""
-    return slice(None, None, max(1, -(-n // at_most)))
+_every = thin.every
 
 
 def _envelope(y: np.ndarray, at_most: int = 5000) -> np.ndarray:
@@ -66,23 +65,22 @@ def _save(fig, path: Path) -> None:
     plt.close(fig)
 
 
-def plot_trajectories(path: Path, series: dict) -> None:
-    """Top view (East/North) of every estimate with the ground truth; axes fit the ground truth so a
-    diverging dead-reckoning track does not squash the rest."""
+def plot_trajectories(path: Path, paths: dict, extent: tuple) -> None:
+    """Top view (East/North) of every estimate with the ground truth (``paths``, ``extent``:
+    :func:`fusion_eval.report.thin.paths`); axes fit the ground truth so a diverging dead-reckoning track does
+    not squash the rest."""
     fig, ax = plt.subplots(figsize=(8, 7))
-    gt = series["groundtruth"].p_w_m
     for name in ("groundtruth", "lidar", "imu_only", "gnss", "fused", "smoothed"):
-        s = series.get(name)
-        if s is None or len(s) == 0:
+        p = paths.get(name)
+        if p is None:
             continue
-        p = s.p_w_m[_every(len(s), 20000)]         # a path of 20,000 points is smooth at this size
         if name == "gnss":
             ax.plot(p[:, 0], p[:, 1], ".", ms=2.5, color=COLORS[name], label=LABELS[name])
         else:
             ax.plot(p[:, 0], p[:, 1], "-", lw=1.6 if name == "groundtruth" else 1.1,
                     color=COLORS[name], label=LABELS[name], alpha=0.9)
-    ax.plot(gt[0, 0], gt[0, 1], "k^", ms=8, label="start")
-    lo, hi = gt[:, :2].min(axis=0), gt[:, :2].max(axis=0)  # not a state index: East, North
+    lo, hi, start = extent
+    ax.plot(start[0], start[1], "k^", ms=8, label="start")
     pad = 0.08 * (hi - lo).max() + 5.0
     ax.set_xlim(lo[0] - pad, hi[0] + pad)
     ax.set_ylim(lo[1] - pad, hi[1] + pad)
@@ -188,37 +186,29 @@ def plot_biases(path: Path, t_s: np.ndarray, ba: np.ndarray, bg: np.ndarray, sig
     _save(biases_figure(t_s, ba, bg, sigma, truth), path)
 
 
-def _inside_3sigma_pct(e: np.ndarray, sg: np.ndarray) -> list[float]:
-    """Per column, the percentage of epochs whose error is inside its +/-3 sigma (NaN: no sigma for that state)."""
-    return [float(np.mean(np.abs(e[:, i]) <= 3 * sg[:, i]) * 100) if np.isfinite(sg[:, i]).any() else float("nan")
-            for i in range(e.shape[1])]
-
-
-def _error_sigma_panels(axes, t_s: np.ndarray, err: np.ndarray, sigma: np.ndarray, names, unit: str,
-                        scale: float = 1.0, smoothed: tuple[np.ndarray, np.ndarray] | None = None,
-                        titles=None) -> None:
-    """One axis per column of ``err`` (N, 3): the filter's +/-3 sigma as a grey band, the error over it, the
-    smoother's error and sigma where given, and the share of epochs inside 3 sigma in the title. ``scale``:
-    SI to the unit shown; ``names`` label the y axes, ``titles`` (default: the names) open the titles."""
-    inside_f = _inside_3sigma_pct(err, sigma)
-    inside_s = _inside_3sigma_pct(*smoothed) if smoothed is not None else None
-    k = _every(t_s.size)
-    t = t_s[k] - t_s[0]
+def _error_sigma_panels(axes, d: dict, names, unit: str, scale: float = 1.0, titles=None) -> None:
+    """One axis per column of ``d["err"]`` (N, 3) (``d``: :func:`fusion_eval.report.thin.error_sigma`): the
+    filter's +/-3 sigma as a grey band, the error over it, the smoother's error and sigma where given, and the
+    share of epochs inside 3 sigma in the title. ``scale``: SI to the unit shown; ``names`` label the y axes,
+    ``titles`` (default: the names) open the titles."""
+    t_s, err, sigma, smoothed = d["t_s"], d["err"], d["sigma"], d["smoothed"]
+    inside_f, inside_s = d["inside"]
+    t = t_s - t_s[0]
     for i, (ax, name, what) in enumerate(zip(axes, names, titles or names)):
-        s3 = 3 * sigma[k, i] * scale
+        s3 = 3 * sigma[:, i] * scale
         ax.fill_between(t, -s3, s3, color="tab:gray", alpha=0.3, lw=0, label="+/-3 sigma (filter)")
-        ax.plot(t, err[k, i] * scale, color=COLORS["fused"], lw=0.9, label="fused - ground truth")
+        ax.plot(t, err[:, i] * scale, color=COLORS["fused"], lw=0.9, label="fused - ground truth")
         title = (f"{what}: {inside_f[i]:.1f} % of epochs inside 3 sigma" if np.isfinite(inside_f[i])
                  else f"{what}: the filter has no sigma for this state")
         if smoothed is not None:
-            e, sg = smoothed[0][k, i] * scale, 3 * smoothed[1][k, i] * scale
+            e, sg = smoothed[0][:, i] * scale, 3 * smoothed[1][:, i] * scale
             ax.plot(t, sg, color=COLORS["smoothed"], lw=0.6, ls="--", label="+/-3 sigma (smoothed)")
             ax.plot(t, -sg, color=COLORS["smoothed"], lw=0.6, ls="--")
             ax.plot(t, e, color=COLORS["smoothed"], lw=0.9, label="smoothed - ground truth")
             title += f" (smoothed: {inside_s[i]:.1f} %)"
         # limits from the errors and the band's common width: a sigma spike at a gap in the data (or the prior's
         # first seconds) would otherwise flatten the errors into a line
-        shown = np.abs(err[k, i] * scale) if smoothed is None else np.abs(np.r_[err[k, i], smoothed[0][k, i]] * scale)
+        shown = np.abs(err[:, i] * scale) if smoothed is None else np.abs(np.r_[err[:, i], smoothed[0][:, i]] * scale)
         lim = max(float(np.nanmax(shown, initial=0.0)), float(np.nanpercentile(s3, 98)) if np.isfinite(s3).any() else 0.0)
         if lim > 0:
             ax.set_ylim(-1.08 * lim, 1.08 * lim)
@@ -227,12 +217,13 @@ def _error_sigma_panels(axes, t_s: np.ndarray, err: np.ndarray, sigma: np.ndarra
         ax.grid(alpha=0.3)
 
 
-def plot_error_sigma(path: Path, t_s: np.ndarray, err_w: np.ndarray, sigma: np.ndarray,
-                     smoothed: tuple[np.ndarray, np.ndarray] | None = None) -> None:
-    """Fused position error per ENU axis with the filter's own +/-3 sigma (``sigma``: (N, 3) per axis): is
-    the covariance honest? ``smoothed``: the smoother's error and sigma at the same stamps, drawn over it."""
+def plot_error_sigma(path: Path, d: dict) -> None:
+    """Fused position error per ENU axis with the filter's own +/-3 sigma per axis (``d``:
+    :func:`fusion_eval.report.thin.error_sigma`): is the covariance honest? The smoother's error and sigma at
+    the same stamps, where given, drawn over it."""
+    smoothed = d["smoothed"]
     fig, axes = plt.subplots(3, 1, figsize=(10, 7), sharex=True)
-    _error_sigma_panels(axes, t_s, err_w, sigma, ("East", "North", "Up"), "m", smoothed=smoothed)
+    _error_sigma_panels(axes, d, ("East", "North", "Up"), "m")
     axes[0].legend(loc="upper right", fontsize=8, ncol=2 if smoothed is not None else 1)
     axes[-1].set_xlabel("time since start [s]")
     fig.suptitle("Position error with its own +/-3 sigma" + (" (filter and smoother)" if smoothed is not None else ""))
@@ -247,23 +238,20 @@ VEL_TITLES = ("East velocity error", "North velocity error", "Up velocity error"
 
 
 def att_vel_error_figure(av: dict):
-    """The figure of :func:`plot_att_vel_error_sigma`: attitude error (left column, deg) and velocity error
-    (right column, m/s; absent when the estimate has no velocity) with the filter's +/-3 sigma."""
-    has_vel = av.get("vel_err_w_mps") is not None
+    """The figure of :func:`plot_att_vel_error_sigma` (``av``: :func:`fusion_eval.report.thin.att_vel`):
+    attitude error (left column, deg) and velocity error (right column, m/s; absent when the estimate has no
+    velocity) with the filter's +/-3 sigma."""
+    has_vel = av.get("vel") is not None
     fig, axes = plt.subplots(3, 2 if has_vel else 1, figsize=(14 if has_vel else 9, 7.5), sharex=True, squeeze=False)
-    sm = av.get("smoothed")
-    _error_sigma_panels(axes[:, 0], av["t_s"], av["att_err_b_rad"], av["att_sigma_b_rad"], ATT_NAMES, "deg",
-                        scale=180 / np.pi, smoothed=None if sm is None else (sm[0], sm[1]), titles=ATT_TITLES)
+    _error_sigma_panels(axes[:, 0], av["att"], ATT_NAMES, "deg", scale=180 / np.pi, titles=ATT_TITLES)
     title = ("Attitude error Log(R_gt^T R_fused), body frame (x, y, z = roll, pitch, yaw for a forward-left-up IMU), "
              "with the filter's +/-3 sigma")
     if has_vel:
-        sm_v = None if sm is None or sm[2] is None else (sm[2], sm[3])
-        _error_sigma_panels(axes[:, 1], av["t_s"], av["vel_err_w_mps"], av["vel_sigma_w_mps"], VEL_NAMES, "m/s",
-                            smoothed=sm_v, titles=VEL_TITLES)
+        _error_sigma_panels(axes[:, 1], av["vel"], VEL_NAMES, "m/s", titles=VEL_TITLES)
         title += f"\nvelocity error: fused minus true ENU velocity; true velocity: {av['vel_truth']}"
     for ax in axes[-1]:
         ax.set_xlabel("time since start [s]")
-    axes[0, 0].legend(loc="upper right", fontsize=7, ncol=2 if sm is not None else 1)
+    axes[0, 0].legend(loc="upper right", fontsize=7, ncol=2 if av["att"]["smoothed"] is not None else 1)
     fig.suptitle(title, fontsize=10)
     fig.subplots_adjust(left=0.07, right=0.99, top=0.89, bottom=0.07, hspace=0.35, wspace=0.18)
     return fig
@@ -271,8 +259,8 @@ def att_vel_error_figure(av: dict):
 
 def plot_att_vel_error_sigma(path: Path, av: dict) -> None:
     """Fused attitude and velocity errors against the ground truth with the filter's own +/-3 sigma (``av``:
-    :func:`fusion_eval.evaluation.run_metrics.fused_att_vel_error`): the position plot's question for the other
-    two blocks of the state."""
+    :func:`fusion_eval.report.thin.att_vel` of :func:`fusion_eval.evaluation.run_metrics.fused_att_vel_error`):
+    the position plot's question for the other two blocks of the state."""
     _save(att_vel_error_figure(av), path)
 
 

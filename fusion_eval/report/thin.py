@@ -1,0 +1,70 @@
+"""What the filter's plots draw, reduced where the full series live (numpy only, no matplotlib).
+
+A plot 1000 pixels wide shows no more than a few thousand points. The run draws its plots in worker processes:
+sending them a long drive's full series (an hour at 200 Hz: 720,000 poses, each series tens of MB) cost the
+main process hundreds of MB of pickles and the workers as much again, to draw the same pixels. The reductions
+here are the ones the plots applied themselves; what is computed over every epoch (the share of epochs inside
+3 sigma, the ground truth's extent) is computed here over every epoch, so the PNGs are the same bytes.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+
+def every(n: int, at_most: int = 2500) -> slice:
+    """A stride that keeps at most ``at_most`` of ``n`` points: a plot 1000 pixels wide shows no more."""
+    return slice(None, None, max(1, -(-n // at_most)))
+
+
+def inside_3sigma_pct(e: np.ndarray, sg: np.ndarray) -> list[float]:
+    """Per column, the percentage of epochs whose error is inside its +/-3 sigma (NaN: no sigma for that state)."""
+    return [float(np.mean(np.abs(e[:, i]) <= 3 * sg[:, i]) * 100) if np.isfinite(sg[:, i]).any() else float("nan")
+            for i in range(e.shape[1])]
+
+
+def error_sigma(t_s: np.ndarray, err: np.ndarray, sigma: np.ndarray, smoothed=None) -> dict:
+    """An error-against-3-sigma panel set's data: ``t_s``, ``err``, ``sigma`` (N, 3) and the smoother's
+    ``(err, sigma)`` thinned by :func:`every`, and ``inside`` (filter, smoother): the shares of all epochs."""
+    k = every(t_s.size)
+    return {"t_s": t_s[k], "err": np.ascontiguousarray(err[k]), "sigma": np.ascontiguousarray(sigma[k]),
+            "smoothed": None if smoothed is None else tuple(np.ascontiguousarray(a[k]) for a in smoothed),
+            "inside": (inside_3sigma_pct(err, sigma), None if smoothed is None else inside_3sigma_pct(*smoothed))}
+
+
+def att_vel(av: dict) -> dict:
+    """:func:`fusion_eval.evaluation.run_metrics.fused_att_vel_error`'s dict as the attitude/velocity plot draws
+    it: ``att`` and ``vel`` (None without a velocity), each :func:`error_sigma`, and ``vel_truth``."""
+    sm = av.get("smoothed")
+    att = error_sigma(av["t_s"], av["att_err_b_rad"], av["att_sigma_b_rad"], None if sm is None else (sm[0], sm[1]))
+    vel = None
+    if av.get("vel_err_w_mps") is not None:
+        vel = error_sigma(av["t_s"], av["vel_err_w_mps"], av["vel_sigma_w_mps"],
+                          None if sm is None or sm[2] is None else (sm[2], sm[3]))
+    return {"att": att, "vel": vel, "vel_truth": av.get("vel_truth")}
+
+
+def biases(t_s: np.ndarray, ba: np.ndarray, bg: np.ndarray, sigma: np.ndarray, truth=None) -> tuple:
+    """The bias plot's arguments thinned by :func:`every` (``truth``: the true biases inside the thinned span,
+    thinned the same way)."""
+    from dataclasses import replace
+
+    k = every(t_s.size)
+    t_s, ba, bg, sigma = t_s[k], ba[k], bg[k], sigma[k]
+    if truth is not None and t_s.size:
+        inside = np.flatnonzero((truth.t_s >= t_s[0]) & (truth.t_s <= t_s[-1]))
+        tk = inside[every(inside.size)]
+        truth = replace(truth, t_s=truth.t_s[tk], accel_b_mps2=truth.accel_b_mps2[tk], gyro_b_rps=truth.gyro_b_rps[tk])
+    return t_s, ba, bg, sigma, truth
+
+
+PATH_POINTS = 20000       # a path of 20,000 points is smooth at a plot's size
+
+
+def paths(series: dict) -> tuple[dict, tuple]:
+    """East/North paths ``(n, 2)`` of each series thinned to :data:`PATH_POINTS`, and the ground truth's extent
+    ``(lo, hi, start)`` over all its poses (the axes fit it)."""
+    out = {n: np.ascontiguousarray(s.p_w_m[every(len(s), PATH_POINTS), :2]) for n, s in series.items()
+           if s is not None and len(s)}
+    gt = series["groundtruth"].p_w_m[:, :2]
+    return out, (gt.min(axis=0), gt.max(axis=0), gt[0].copy())
