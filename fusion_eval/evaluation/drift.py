@@ -47,16 +47,19 @@ def kitti_drift(T_gt: np.ndarray, T_est: np.ndarray, lengths=LENGTHS_M, step: in
         raise ValueError("ground truth and estimate must have the same number of poses")
     dist = _path_lengths(T_gt)
     first = np.arange(0, len(dist), step)
+    inv = np.linalg.inv
+    # the first frames' inverses once for every length (each matrix's inverse is its own: the same numbers as
+    # inverting each length's subset; 8 lengths x 3 stacks of inverses took 1 s on a simulated hour at 200 Hz)
+    inv_gt, inv_est = inv(T_gt[first]), inv(T_est[first])
     rows = []
     for L in lengths:
         last = np.searchsorted(dist, dist[first] + L, side="right")   # first index with dist > dist[first] + L
         ok = last < len(dist)
-        i, j = first[ok], last[ok]
-        if i.size == 0:
+        j = last[ok]
+        if j.size == 0:
             continue
-        inv = np.linalg.inv
-        d_gt = inv(T_gt[i]) @ T_gt[j]
-        d_est = inv(T_est[i]) @ T_est[j]
+        d_gt = inv_gt[ok] @ T_gt[j]
+        d_est = inv_est[ok] @ T_est[j]
         E = inv(d_est) @ d_gt
         t_err = np.linalg.norm(E[:, :3, 3], axis=1) / L
         r_err = _rot_angle(E[:, :3, :3]) / L
