@@ -61,8 +61,9 @@ def evaluate_estimate(reference: PoseSeries, estimate: PoseSeries, name: str, ev
     smaller than the result objects they are made of). With ``zip_dir`` (the run's staging folder) the worker
     writes them there itself, and the estimate's TUM file beside them (it holds the estimate: another job would
     need a copy): on a long drive they are hundreds of MB that the main process need not hold."""
+    # the RPE results without their reduced trajectories: the result files do not hold them (report.files.evo_zips)
     ev = evaluate(reference, estimate, name, ev_cfg["t_max_diff_s"], ev_cfg["rpe_delta_m"], ev_cfg["association"],
-                  ev_cfg["alignment"], ev_cfg["engine"])
+                  ev_cfg["alignment"], ev_cfg["engine"], rpe_trajectories=False)
     if zip_dir is not None:
         report.files.write_evo_zips(ev, zip_dir)
         report.files.write_tum(Path(zip_dir) / report.files.TUM_FILES[name], name, estimate)

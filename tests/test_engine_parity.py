@@ -209,6 +209,11 @@ def test_run_evaluation_equal_with_either_engine(slice_run, alignment):
         assert za.keys() == zb.keys()
         for k in za:
             _same_result(*(file_interface.load_res_file(io.BytesIO(z[k]), load_trajectories=True) for z in (za, zb)))
+        # a run leaves the RPE results' reduced trajectories out (its files do not hold them): the same bytes
+        c = evaluate(gt, est, est_name, 0.01, 50.0, alignment=alignment, engine_name="arrays", rpe_trajectories=False)
+        assert evo_zips(c) == za
+        rpe = [r for k, r in c.results.items() if k.startswith("rpe")]
+        assert (len(rpe) > 0) == (est_name != "gnss") and not any(r.trajectories for r in rpe)
 
 
 @pytest.mark.slow

@@ -147,10 +147,11 @@ class _EvoLoops:
 class _Arrays:
     """The same results from :mod:`.engine` (whole arrays; the pairs of each delta selected once, by evo)."""
 
-    def __init__(self, ref_a, est_a):
+    def __init__(self, ref_a, est_a, rpe_trajectories: bool = True):
         self.ref_a, self.est_a = ref_a, est_a
         self.ref_T, self.est_T = engine.traj_se3(ref_a), engine.traj_se3(est_a)
         self._pairs: dict = {}
+        self.rpe_trajectories = rpe_trajectories
 
     def se3(self):
         return self.ref_T, self.est_T
@@ -163,7 +164,7 @@ class _Arrays:
         if (delta, unit) not in self._pairs:
             self._pairs[(delta, unit)] = engine.rpe_pairs(self.ref_T, self.est_T, delta, unit)
         err, ids = engine.rpe_error(self.ref_T, self.est_T, rel, self._pairs[(delta, unit)])
-        return engine.rpe_result(self.ref_a, self.est_a, rel, err, ids, delta, unit)
+        return engine.rpe_result(self.ref_a, self.est_a, rel, err, ids, delta, unit, trajectories=self.rpe_trajectories)
 
 
 def _align(est_a, ref_a, alignment: str, arrays: bool, n_to_align: int = -1):
@@ -210,7 +211,7 @@ def evaluate(reference, estimate, name: str, t_max_diff_s: float,
              rpe_delta_m: float, association: str = "nearest", alignment: str = "none",
              engine_name: str = "arrays", *, relations: tuple[str, ...] = keys.DEFAULT_RELATIONS, up_axis: str = "auto",
              n_to_align: int = -1, t_offset_s: float = 0.0, has_orientation: bool | None = None,
-             cov: tuple[np.ndarray, np.ndarray] | None = None) -> EstimateEvaluation:
+             cov: tuple[np.ndarray, np.ndarray] | None = None, rpe_trajectories: bool = True) -> EstimateEvaluation:
     """APE and RPE (per frame, per ``rpe_delta_m`` metres) under each pose relation, and the KITTI drift metric
     of one estimate. ``reference`` and ``estimate``: pose series, or evo trajectories as evo's readers give them.
 
@@ -222,6 +223,8 @@ def evaluate(reference, estimate, name: str, t_max_diff_s: float,
     ``engine_name``: ``arrays`` computes evo's metrics on whole arrays (:mod:`.engine`), ``evo`` runs evo's own
     per-pose loops; both give the same numbers and result files. ``cov``: the estimate's pose covariances
     ``(t_s, (N, 6, 6))`` in ROS's order and frames: the NEES of position and attitude (:func:`pose_nees_of`).
+    ``rpe_trajectories``: False leaves the reduced trajectories out of the arrays engine's RPE results (see
+    :func:`engine.rpe_result`; evo's loops always make them).
     """
     if engine_name not in ENGINES:
         raise ValueError(f"evaluation engine {engine_name!r}: expected one of {', '.join(ENGINES)}")
@@ -247,7 +250,7 @@ def evaluate(reference, estimate, name: str, t_max_diff_s: float,
         est_a, ev.alignment_params, applied = _align(est_a, ref_a, alignment, arrays, n_to_align)
     if cov is not None:
         ev.nees = pose_nees_of(ref_a, est_a, cov, applied, t_max_diff_s)
-    calc = _Arrays(ref_a, est_a) if arrays else _EvoLoops(ref_a, est_a)
+    calc = _Arrays(ref_a, est_a, rpe_trajectories) if arrays else _EvoLoops(ref_a, est_a)
     wanted = ["trans_part", *[r for r in relations if r != "trans_part"]]
     rels = [(keys.RELATION_KEYS[r], keys.EVO_RELATIONS[r]) for r in wanted
             if has_orientation or r in keys.POSITION_RELATIONS]
