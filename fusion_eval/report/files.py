@@ -16,7 +16,7 @@ from pathlib import Path
 import yaml
 
 from .. import __version__
-from ..datasets.tum import format_tum, tum_chunks
+from ..datasets.tum import tum_chunks
 from ..evaluation.keys import STATS
 from ..evaluation.trajectory import EstimateEvaluation
 from ..outputs import atomic_file
@@ -47,10 +47,6 @@ def _tum_header(name: str, s: PoseSeries) -> str:
     if not s.has_orientation:
         hdr += "\nposition only: quaternions are identity placeholders"
     return hdr
-
-
-def tum_text(name: str, s: PoseSeries) -> str:
-    return format_tum(s, _tum_header(name, s))
 
 
 def write_tum(path: Path, name: str, s: PoseSeries) -> None:
