@@ -182,17 +182,17 @@ def filter_and_evaluate(ds: Dataset, cfg: dict, sh: Shared, pool, *, dataset_pat
     # this run's own estimates write their result files into its folder from the worker; shared ones (a batch
     # writes them into every run's folder) come back as bytes
     zip_dir = out.path(".") if out is not None else None
-    futures.update({n: pool.submit(evaluate_estimate, ref, series[n], n, ev_cfg, zip_dir) for n in ("fused", "smoothed")
-                    if n in series})
+    own = [n for n in ("fused", "smoothed") if n in series]
+    if "imu_only" not in futures and sh.private:
+        own.append("imu_only")
+    futures.update({n: pool.submit(evaluate_estimate, ref, series[n], n, ev_cfg, zip_dir) for n in own})
     if "imu_only" not in futures:       # evaluated once per preparation (later runs of a batch reuse it)
         futures["imu_only"] = sh.futures["imu_only"] = pool.submit(evaluate_estimate, ref, series["imu_only"],
-                                                                   "imu_only", ev_cfg, zip_dir if sh.private else None)
+                                                                   "imu_only", ev_cfg)
     err = fused_error(gt, filt, att_vel=cfg["output"]["plots"])
     # the TUM files and the filter's plots, each a job of its own, alongside the evaluations
     first = report.write_filter_outputs(out, series, filt, err, cfg["output"]["plots"], pool, truth_biases=truth_b,
-                                        tums_written=[n for n in ("fused", "smoothed", "imu_only")
-                                                      if n in series and (n != "imu_only" or sh.private)]
-                                        ) if out is not None else []
+                                        tums_written=own) if out is not None else []
     names = [n for n in ESTIMATES if n in futures]
     stages.start("evaluate", len(names))
     evals = {}

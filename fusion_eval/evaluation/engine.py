@@ -323,16 +323,19 @@ def _metric_result(metric, err: np.ndarray, ref_name: str, est_name: str, title_
     return res
 
 
-def _add_time_arrays(res: Result, traj_ref, traj_est, skip_first: bool) -> None:
-    """The arrays ``evo_ape``/``evo_rpe`` add for a timed trajectory (computed on the whole arrays)."""
+def _add_time_arrays(res: Result, traj_ref, traj_est, skip_first: bool, ids: np.ndarray | None = None) -> None:
+    """The arrays ``evo_ape``/``evo_rpe`` add for a timed trajectory (computed on the whole arrays), of the poses
+    ``ids`` (RPE: the trajectories evo reduces to them) or of all; the distances are evo's ``traj.distances``
+    (``geometry.accumulated_distances`` of the positions)."""
     if not isinstance(traj_est, PoseTrajectory3D):
         return
+    sel = slice(None) if ids is None else ids
     k = 1 if skip_first else 0
-    ts = np.asarray(traj_est.timestamps)
+    ts = np.asarray(traj_est.timestamps)[sel]
     res.add_np_array("seconds_from_start", (ts - ts[0])[k:])
     res.add_np_array("timestamps", ts[k:])
-    res.add_np_array("distances_from_start", traj_ref.distances[k:])
-    res.add_np_array("distances", traj_est.distances[k:])
+    res.add_np_array("distances_from_start", geometry.accumulated_distances(traj_ref.positions_xyz[sel])[k:])
+    res.add_np_array("distances", geometry.accumulated_distances(traj_est.positions_xyz[sel])[k:])
 
 
 def names(traj_ref, traj_est) -> tuple[str, str]:
@@ -363,18 +366,10 @@ def rpe_result(traj_ref, traj_est, relation: Rel, err: np.ndarray, delta_ids: np
     metric = metrics.RPE(relation, delta, delta_unit, rel_tol, all_pairs, pairs_from_reference)
     res = _metric_result(metric, err, ref_name, est_name, title_suffix)
     ids = np.concatenate([[0], np.asarray(delta_ids, dtype=int)])
-    if not trajectories:
-        if isinstance(traj_est, PoseTrajectory3D):      # the arrays _add_time_arrays takes from the reduced ones
-            ts = np.asarray(traj_est.timestamps)[ids]
-            res.add_np_array("seconds_from_start", (ts - ts[0])[1:])
-            res.add_np_array("timestamps", ts[1:])
-            res.add_np_array("distances_from_start", geometry.accumulated_distances(traj_ref.positions_xyz[ids])[1:])
-            res.add_np_array("distances", geometry.accumulated_distances(traj_est.positions_xyz[ids])[1:])
-        return res
-    r_ref, r_est = reduced(traj_ref, ids), reduced(traj_est, ids)
-    res.add_trajectory(ref_name, r_ref)
-    res.add_trajectory(est_name, r_est)
-    _add_time_arrays(res, r_ref, r_est, skip_first=True)
+    if trajectories:
+        res.add_trajectory(ref_name, reduced(traj_ref, ids))
+        res.add_trajectory(est_name, reduced(traj_est, ids))
+    _add_time_arrays(res, traj_ref, traj_est, skip_first=True, ids=ids)
     return res
 
 

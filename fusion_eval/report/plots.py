@@ -140,15 +140,10 @@ def biases_figure(t_s: np.ndarray, ba: np.ndarray, bg: np.ndarray, sigma: np.nda
     """The figure of :func:`plot_biases`: a 2 x 3 grid, accelerometer x/y/z [mg] over gyro x/y/z [deg/h], each
     axis with its own +/-3 sigma band and limits; ``truth`` (``t_s``, ``accel_b_mps2``, ``gyro_b_rps`` on the
     filter's clock, :class:`fusion_eval.datasets.truth.TruthBiases`) overlaid where given."""
-    k = _every(t_s.size)
-    t_s, ba, bg, sigma = t_s[k], ba[k], bg[k], sigma[k]
+    t_s, ba, bg, sigma, truth = thin.biases(t_s, ba, bg, sigma, truth)       # as given when thinned already
     t0 = float(t_s[0])
     t = t_s - t0
-    tt = tk = None
-    if truth is not None:
-        inside = (truth.t_s >= t_s[0]) & (truth.t_s <= t_s[-1])
-        tk = np.flatnonzero(inside)[_every(int(inside.sum()))]
-        tt = truth.t_s[tk] - t0
+    tt = None if truth is None else truth.t_s - t0
     fig, axes = plt.subplots(2, 3, figsize=(13, 6.5), sharex=True)
     rows = ((ba, BA_ID, MG_MPS2, "mg", "accelerometer", None if truth is None else truth.accel_b_mps2),
             (bg, BG_ID, DEG_H_RPS, "deg/h", "gyro", None if truth is None else truth.gyro_b_rps))
@@ -162,8 +157,8 @@ def biases_figure(t_s: np.ndarray, ba: np.ndarray, bg: np.ndarray, sigma: np.nda
             ax.plot(t, b, color=c, lw=1.2, label="estimate")
             extra = []
             title = f"{what} {axis}: final {b[-1]:.3g} +/- {s3[-1]:.2g} {unit} (3 sigma)"
-            if tb is not None and tk.size:
-                bt = tb[tk, i] / unit_si
+            if tb is not None and tb.shape[0]:
+                bt = tb[:, i] / unit_si
                 ax.plot(tt, bt, color="black", lw=1.0, ls=(0, (4, 2)), label="true bias (simulator)")
                 extra.append(bt)
                 title += f", true {bt[-1]:.3g}"
