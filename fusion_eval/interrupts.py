@@ -41,6 +41,7 @@ class Terminated(KeyboardInterrupt):
 
 
 _pending: int | None = None                  # a signal received inside llvmlite, not yet delivered
+_deferring = 0                               # depth of deferred() blocks: record signals, raise them after
 _handler_calls = 0                           # calls of the handler so far (deferring or raising)
 _generation = 0                              # handled() blocks ended so far: a watcher of an ended block stops
 _on_abort: dict[int, object] = {}             # token -> clean-up, run (newest first) when the watcher ends the command
@@ -73,6 +74,24 @@ def _abort(signum: int) -> None:
 
 
 _received: int | None = None                 # the last signal raised in this block
+
+
+@contextmanager
+def deferred():
+    """Inside: a signal is recorded, not raised, and raised as soon as the block ends. For code around which CPython
+    runs Python from C and drops what it raises, such as a fork's at-fork hooks (an exception raised in one is printed
+    as "Exception ignored" and lost: a run once exited 0 after a SIGTERM). Blocking the signals in the forking thread
+    is not enough: a process-directed signal is then taken by another thread, and Python runs its handler in the main
+    thread at the next bytecode, wherever that is."""
+    global _deferring
+    _deferring += 1
+    try:
+        yield
+    finally:
+        _deferring -= 1
+        pending = _pending
+        if not _deferring and pending is not None and threading.current_thread() is threading.main_thread():
+            _thread.interrupt_main(pending)                     # the handler runs at the next bytecode, and raises
 
 
 def received() -> int | None:
@@ -128,7 +147,7 @@ def _follow(rfd: int, main_ident: int, generation: int) -> None:
                 return                                          # the main thread has ended
             inside = _in_llvmlite(frame)
             pending = _pending
-            if pending is not None and not inside:
+            if pending is not None and not inside and not _deferring:
                 _thread.interrupt_main(pending)                 # the handler runs again, at the next bytecode
                 time.sleep(5 * _POLL_S)
             elif inside and time.monotonic() - t_arrived > ABORT_AFTER_S:
@@ -144,8 +163,8 @@ def _handler(signum, frame) -> None:
         # not be cut by a second Ctrl-C, which would leave the folder and its lock behind
         _pending = None
         return
-    if _in_llvmlite(frame):
-        _pending = signum                                       # the watcher delivers it again
+    if _deferring or _in_llvmlite(frame):
+        _pending = signum                                       # delivered again, by deferred() or the watcher
         return
     _pending = None
     _received = signum
@@ -169,8 +188,9 @@ def handled():
     rfd, wfd = os.pipe()
     os.set_blocking(wfd, False)
     old_fd = signal.set_wakeup_fd(wfd, warn_on_full_buffer=False)
-    threading.Thread(target=_watch, args=(rfd, threading.main_thread().ident), daemon=True,
-                     name="fusion-eval-interrupt").start()
+    watcher = threading.Thread(target=_watch, args=(rfd, threading.main_thread().ident), daemon=True,
+                               name="fusion-eval-interrupt")
+    watcher.start()
     try:
         yield
     finally:
@@ -178,6 +198,10 @@ def handled():
         _generation += 1
         signal.set_wakeup_fd(old_fd)
         os.close(wfd)                                           # the watcher reads an end of file and ends
+        # ... and is waited for: a daemon thread that wakes while the interpreter finalizes can crash it (CPython
+        # gh-110052, 3.9-3.12; seen in CI as "Fatal Python error: PyThreadState_Get" and exit -6 right after an
+        # interrupted run printed its last line, the watcher woken by this very close)
+        watcher.join(timeout=2.0)
         for s, h in old.items():
             if h is not None:                                   # None: set from C, cannot be restored from Python
                 signal.signal(s, h)

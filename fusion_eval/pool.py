@@ -11,6 +11,7 @@ import os
 import signal
 import sys
 from concurrent.futures import Future, ProcessPoolExecutor
+from contextlib import contextmanager
 
 
 class Inline:
@@ -56,8 +57,30 @@ def worker_init() -> None:
 # terminated while a worker was being forked). So SIGINT and SIGTERM are blocked in the forking thread across the
 # fork; the child sets the worker's dispositions first and only then unblocks, so a signal already sent to it is
 # taken by those (SIGTERM ends it, SIGINT is ignored), never by the parent's handler.
+#
+# The parent must not raise them inside an at-fork hook either: an exception raised in one is printed and dropped
+# by CPython ("Exception ignored in: _after_fork_in_parent"), and the run went on to exit 0 after a SIGTERM (seen
+# in CI). So the pools fork inside :func:`signals_held`, which also defers the command's handler
+# (interrupts.deferred): a signal sent meanwhile is raised when the hold ends, in ordinary code.
 _FORK_SIGNALS = {signal.SIGINT, signal.SIGTERM}
 _fork_mask: list = []
+_unheld_mask: list = []                      # the masks that signals_held() will restore, innermost last
+
+
+@contextmanager
+def signals_held():
+    """SIGINT and SIGTERM blocked in this thread and deferred by the command's handler inside the block (around a
+    fork), raised after it."""
+    from . import interrupts
+
+    with interrupts.deferred():              # ends after the mask is restored: what it raises cannot skip that
+        old = signal.pthread_sigmask(signal.SIG_BLOCK, _FORK_SIGNALS)
+        _unheld_mask.append(old)
+        try:
+            yield
+        finally:
+            _unheld_mask.pop()
+            signal.pthread_sigmask(signal.SIG_SETMASK, old)
 
 
 def _before_fork() -> None:
@@ -73,8 +96,12 @@ def _after_fork_in_child() -> None:
     try:
         _worker_dispositions()
     finally:
-        if _fork_mask:
-            signal.pthread_sigmask(signal.SIG_SETMASK, _fork_mask.pop())
+        # the mask from before any hold: a worker forked inside signals_held() must not keep them blocked
+        mask = _unheld_mask[0] if _unheld_mask else (_fork_mask[-1] if _fork_mask else None)
+        _fork_mask.clear()
+        _unheld_mask.clear()
+        if mask is not None:
+            signal.pthread_sigmask(signal.SIG_SETMASK, mask)
 
 
 if hasattr(os, "register_at_fork"):
@@ -92,6 +119,11 @@ class Pool(ProcessPoolExecutor):
 
         super().__init__(max_workers=max_workers, mp_context=mp_context, initializer=worker_init)
         self._abort_token = interrupts.on_abort(self.terminate)
+
+    def _spawn_process(self):
+        # every worker is forked here, in the thread that submits (see signals_held)
+        with signals_held():
+            super()._spawn_process()
 
     def __exit__(self, exc_type, exc, tb):
         from . import interrupts

@@ -33,7 +33,7 @@ from ..errors import ConfigError
 from ..fastfmt import format_table, table_text
 from ..geo import normal_gravity_mps2
 from ..outputs import StagedDir
-from ..pool import worker_init
+from ..pool import signals_held, worker_init
 from ..so3 import exp_so3, inv_T, make_T, matrix_to_quat_xyzw, quat_xyzw_to_matrix
 from . import layouts, sensors
 from .motion import PROFILES, profile_segments, sample_motion
@@ -165,7 +165,9 @@ def simulate(out_dir: Path, profile: str, duration_s: float, seed: int, grade: s
                     # every forked child the workers' signal dispositions; worker_init adds death with the parent):
                     # without it the pool's closing SIGTERM met the command's handler in each worker, which printed a
                     # traceback after the command had exited
-                    with mp.get_context("fork").Pool(jobs, initializer=worker_init) as pool:
+                    with signals_held():                 # forked with SIGINT/SIGTERM held (pool.signals_held)
+                        pool = mp.get_context("fork").Pool(jobs, initializer=worker_init)
+                    with pool:
                         pool.map(_write_packet_range, work)
                 else:
                     for w in work:
