@@ -139,6 +139,9 @@ class Display(Stages):
                 self.stream.write("stage times (wall): " + ", ".join(f"{n} {t:.1f} s" for n, t in self.times) + "\n")
                 self.stream.flush()
             self.times = []
+        if self._ticker is not None and self._ticker is not threading.current_thread():
+            self._ticker.join(timeout=1.0)       # no daemon thread left to wake while the interpreter exits
+            self._ticker = None
 
 
 class Counter:
