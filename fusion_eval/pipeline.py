@@ -102,6 +102,7 @@ class Shared:
     timings: dict
     private: bool = False                    # one run only (not a batch's): its evaluations may write its files
     written: tuple = ()                      # estimates whose TUM and result files their evaluations wrote
+    handles: dict = field(default_factory=dict)   # "ref" and the series as the pool's jobs take them (pool.share)
 
 
 def share(ds: Dataset, cfg: dict, pool, zip_dir: Path | None = None) -> Shared:
@@ -126,10 +127,14 @@ def share(ds: Dataset, cfg: dict, pool, zip_dir: Path | None = None) -> Shared:
     except DataRangeError as exc:
         raise DataRangeError(f"{exc} {offsets_note(prep.applied)}".rstrip()) from None
     ref = span.crop(gt, sp)              # as evo's --t_start/--t_end: the reference reduced to the span
-    futures = {n: pool.submit(evaluate_estimate, ref, series[n], n, ev_cfg) for n in ("lidar", "gnss") if n in series}
     series["imu_only"] = dead_reckoning(prep, settings_for(cfg, prep))
-    futures["imu_only"] = pool.submit(evaluate_estimate, ref, series["imu_only"], "imu_only", ev_cfg, zip_dir)
-    return Shared(prep, series, sp, ref, futures, timings, written=("imu_only",) if zip_dir is not None else ())
+    # before the first job, which forks the workers: they hold these already (pool.share)
+    handles = {"ref": pool.share(ref), **{n: pool.share(s) for n, s in series.items()}}
+    futures = {n: pool.submit(evaluate_estimate, handles["ref"], handles[n], n, ev_cfg)
+               for n in ("lidar", "gnss") if n in series}
+    futures["imu_only"] = pool.submit(evaluate_estimate, handles["ref"], handles["imu_only"], "imu_only", ev_cfg, zip_dir)
+    return Shared(prep, series, sp, ref, futures, timings, written=("imu_only",) if zip_dir is not None else (),
+                  handles=handles)
 
 
 def execute(ds: Dataset, cfg: dict, *, dataset_path: str | Path | None = None, config_source: str = "default",
@@ -187,12 +192,13 @@ def filter_and_evaluate(ds: Dataset, cfg: dict, sh: Shared, pool, *, dataset_pat
     # writes them into every run's folder) come back as bytes
     zip_dir = out.path(".") if out is not None else None
     own = [n for n in ("fused", "smoothed") if n in series]
-    futures.update({n: pool.submit(evaluate_estimate, ref, series[n], n, ev_cfg, zip_dir) for n in own})
+    futures.update({n: pool.submit(evaluate_estimate, sh.handles.get("ref", ref), series[n], n, ev_cfg, zip_dir)
+                    for n in own})
     own += [n for n in sh.written if out is not None]
     err = fused_error(gt, filt, att_vel=cfg["output"]["plots"])
     # the TUM files and the filter's plots, each a job of its own, alongside the evaluations
     first = report.write_filter_outputs(out, series, filt, err, cfg["output"]["plots"], pool, truth_biases=truth_b,
-                                        tums_written=own) if out is not None else []
+                                        tums_written=own, handles=sh.handles) if out is not None else []
     names = [n for n in ESTIMATES if n in futures]
     stages.start("evaluate", len(names))
     evals = {}

@@ -20,6 +20,10 @@ class Inline:
     def __enter__(self):
         return self
 
+    def share(self, obj):
+        """See :meth:`Pool.share`: here, the object itself."""
+        return obj
+
     def __exit__(self, *exc):
         return False
 
@@ -109,6 +113,35 @@ if hasattr(os, "register_at_fork"):
                         after_in_child=_after_fork_in_child)
 
 
+# Objects registered by Pool.share, by token: a worker forked after the registration has them in its memory (fork
+# copies the parent's pages only when either side writes them), so a job names them by token instead of pickling them.
+_SHARED: dict[int, object] = {}
+_share_tokens = iter(range(1, 1 << 62))
+
+
+def _shared_object(token: int):
+    return _SHARED[token]
+
+
+def _as_is(obj):
+    return obj
+
+
+class Shared:
+    """An argument of a pool's jobs that its forked workers already hold (:meth:`Pool.share`)."""
+
+    __slots__ = ("token", "obj", "pool")
+
+    def __init__(self, token: int, obj, pool: "Pool"):
+        self.token, self.obj, self.pool = token, obj, pool
+
+    def __reduce__(self):
+        # pickled by the executor when the job is sent: by then the pool's workers exist
+        if self.token <= self.pool._inherited_upto:
+            return _shared_object, (self.token,)
+        return _as_is, (self.obj,)
+
+
 class Pool(ProcessPoolExecutor):
     """A process pool that, when the block it serves ends by an exception (Ctrl-C, SIGTERM, an error), cancels
     what has not started and kills its workers instead of waiting for them (a run's workers write into its staging
@@ -119,16 +152,43 @@ class Pool(ProcessPoolExecutor):
 
         super().__init__(max_workers=max_workers, mp_context=mp_context, initializer=worker_init)
         self._abort_token = interrupts.on_abort(self.terminate)
+        self._shared: list[int] = []
+        self._inherited_upto = 0                 # the last shared token every worker was forked after
+        self._forks = mp_context.get_start_method() == "fork"
+
+    def share(self, obj) -> Shared:
+        """``obj`` as an argument of this pool's jobs: the workers forked after this call (a pool forks them at its
+        first job) hold it already, and the jobs name it instead of pickling it (a simulated hour's ground truth
+        and estimates are tens of MB each, sent to four jobs). Otherwise it is pickled as usual. Held until the
+        pool ends."""
+        token = next(_share_tokens)
+        _SHARED[token] = obj
+        self._shared.append(token)
+        return Shared(token, obj, self)
 
     def _spawn_process(self):
         # every worker is forked here, in the thread that submits (see signals_held)
         with signals_held():
             super()._spawn_process()
+        # what this worker holds; a pool that has forked before holds its earlier value for the older workers
+        upto = self._shared[-1] if (self._forks and self._shared) else 0
+        self._inherited_upto = upto if len(self._processes) == 1 else min(self._inherited_upto, upto)
+
+    def _forget_shared(self) -> None:
+        for t in self._shared:
+            _SHARED.pop(t, None)
+        self._shared = []
 
     def __exit__(self, exc_type, exc, tb):
         from . import interrupts
 
         interrupts.forget(self._abort_token)
+        try:
+            return self._exit(exc_type, exc, tb)
+        finally:
+            self._forget_shared()
+
+    def _exit(self, exc_type, exc, tb):
         if exc_type is not None:
             self.terminate()
             return False

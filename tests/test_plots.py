@@ -276,3 +276,38 @@ def test_default_values_read_from_the_default_run(tmp_path):
     got = default_values(tasks, tmp_path, [key_auto, key_set, "gnss.std_m"])
     assert got == {("/d/x", "eskf"): {key_auto: 0.134, key_set: 0.01}}
     assert default_values(tasks, tmp_path / "elsewhere", [key_set]) == {}
+
+
+def test_evaluation_plots_drawn_from_their_thinned_data_are_the_same_bytes(tmp_path):
+    """The run sends the metric plots only what they draw (``thin.ape_curves``, ``drift_only``, ``segment_map``,
+    ``consistency``): a simulated hour's evaluations were tens of MB per plot in pickles. Same PNG bytes."""
+    from fusion_eval.evaluation.trajectory import EstimateEvaluation
+
+    rng = np.random.default_rng(8)
+    n = 23_457                                          # long enough to be reduced, not a multiple of the bins
+    t = 50.0 + 0.005 * np.arange(n)
+    p = np.column_stack([np.cumsum(rng.normal(0, 0.01, n)), np.cumsum(rng.normal(0, 0.01, n)), np.zeros(n)])
+
+    def ev(name, scale):
+        e = np.abs(rng.normal(0, scale, n)) + np.linspace(0, 1, n)
+        return EstimateEvaluation(name=name, poses=n, matched_poses=n, metrics={"ape": {"translation_m": {"rmse": 1.0}}},
+                                  zips={"x.zip": b"0" * 1000}, ape_t_s=t, ape_err_m=e, ref_p_m=p,
+                                  drift={"t_err_pct": 1.0, "r_err_deg_per_100m": 0.1,
+                                         "per_length": {"100": {"t_err_pct": 1.0, "r_err_deg_per_m": 0.001}}})
+    evals = {"fused": ev("fused", 0.1), "lidar": ev("lidar", 0.3), "imu_only": ev("imu_only", 5.0)}
+    segs = [{"index": 0, "start_m": 0.0, "end_m": 1.0, "start_s": 0.0, "end_s": 10.0, "rmse_m": {"fused": 1.0}}]
+    seg = {"by": "time", "length": 10.0, "segments": segs, "worst": [0], "primary": "fused", "secondary": "lidar"}
+    cons = {"nees": {"position": {**_series(3), "t_s": t, "values": rng.chisquare(3, n)}},
+            "nis": {"lidar": {**_series(6), "t_s": t[::20], "values": rng.chisquare(6, t[::20].size)}}}
+    for name, draw, full, lean in (
+            ("ape", plots.plot_ape_over_time, (evals, 50.0), (thin.ape_curves(evals), 50.0)),
+            ("drift", plots.plot_drift, (evals,), (thin.drift_only(evals),)),
+            ("segments", plots.plot_segment_map, (evals, seg), (thin.segment_map(evals, seg), seg)),
+            ("consistency", plots.plot_consistency, (cons, 50.0), (thin.consistency(cons), 50.0))):
+        draw(tmp_path / f"{name}_full.png", *full)
+        draw(tmp_path / f"{name}_lean.png", *lean)
+        assert (tmp_path / f"{name}_full.png").read_bytes() == (tmp_path / f"{name}_lean.png").read_bytes(), name
+    assert thin.ape_curves(evals)["fused"].ape_err_m.size <= 5002 and not thin.drift_only(evals)["fused"].zips
+    assert set(thin.segment_map(evals, seg)) == {"fused", "lidar"}
+    assert np.array_equal(thin.envelope(thin.ape_curves(evals)["imu_only"].ape_err_m), np.arange(
+        thin.ape_curves(evals)["imu_only"].ape_err_m.size))            # an envelope of an envelope keeps it

@@ -20,7 +20,7 @@ FILTER_PLOTS = ["trajectories.png", "ape_over_time.png", "biases.png", "fused_er
 
 
 def write_filter_outputs(out: StagedDir, series: dict, filt, fused_err: dict, make_plots: bool, pool=None,
-                         truth_biases=None, tums_written=()) -> list:
+                         truth_biases=None, tums_written=(), handles=None) -> list:
     """TUM files and the plots that need no evaluation, each a job of its own on ``pool`` when given (so that
     they spread over the workers). Returns the futures to wait for (or nothing: done here); the plots the
     report lists are :func:`filter_plots` (``ape_over_time.png`` is drawn with the metrics, in
@@ -28,8 +28,10 @@ def write_filter_outputs(out: StagedDir, series: dict, filt, fused_err: dict, ma
     ``truth_biases``: the true IMU biases on the filter's clock where the dataset knows them (a simulated drive,
     :func:`fusion_eval.datasets.truth.truth_imu_biases`), drawn over the estimated ones; ``tums_written``: the
     estimates whose TUM files another job writes (the one evaluating them, :func:`fusion_eval.pipeline.evaluate_estimate`).
-    A job gets only what it draws (:mod:`.thin`): a long drive's series would cost their size again in pickles."""
-    jobs = [(files.write_tum, out.path(files.TUM_FILES[n]), n, s) for n, s in series.items()
+    A job gets only what it draws (:mod:`.thin`): a long drive's series would cost their size again in pickles;
+    ``handles``: series as the pool's workers already hold them (:meth:`fusion_eval.pool.Pool.share`)."""
+    handles = handles or {}
+    jobs = [(files.write_tum, out.path(files.TUM_FILES[n]), n, handles.get(n, s)) for n, s in series.items()
             if s is not None and n in files.TUM_FILES and n not in tums_written]
     if make_plots:
         from . import plots
@@ -79,18 +81,19 @@ def write_evaluation(out: StagedDir, res, plots_written: list[str], pool=None, a
         from . import plots
 
         t0 = float(res.filt.fused.t_s[0])
-        jobs.append((plots.plot_ape_over_time, out.path("ape_over_time.png"), res.evals, t0))
+        jobs.append((plots.plot_ape_over_time, out.path("ape_over_time.png"), thin.ape_curves(res.evals), t0))
         if any(ev.drift for ev in res.evals.values()):
-            jobs.append((plots.plot_drift, out.path("kitti_drift.png"), res.evals))
+            jobs.append((plots.plot_drift, out.path("kitti_drift.png"), thin.drift_only(res.evals)))
             plots_written.append("kitti_drift.png")
         if res.consistency.get("nees"):
-            jobs.append((plots.plot_consistency, out.path("consistency.png"), res.consistency, t0))
+            jobs.append((plots.plot_consistency, out.path("consistency.png"), thin.consistency(res.consistency), t0))
             plots_written.append("consistency.png")
         if res.metrics.get("trials"):
             jobs.append((plots.plot_trials, out.path("trials.png"), res.metrics["trials"]))
             plots_written.append("trials.png")
         if res.segments and "fused" in res.evals:
-            jobs.append((plots.plot_segment_map, out.path("segments_map.png"), res.evals, res.segments))
+            jobs.append((plots.plot_segment_map, out.path("segments_map.png"), thin.segment_map(res.evals, res.segments),
+                         res.segments))
             plots_written.append("segments_map.png")
     futures = []
     for j in jobs:

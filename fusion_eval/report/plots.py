@@ -32,22 +32,7 @@ _VCOLORS = plt.rcParams["axes.prop_cycle"].by_key()["color"]  # no version strin
 _every = thin.every
 
 
-def _envelope(y: np.ndarray, at_most: int = 5000) -> np.ndarray:
-    """Indices that keep a long series' look: above ``at_most`` points, the minimum and the maximum of each of
-    ``at_most / 2`` consecutive bins, in order (a stride would drop the peaks a reader looks for). Shorter series
-    are kept whole, so a plot of a short drive is unchanged."""
-    n = len(y)
-    if n <= at_most:
-        return np.arange(n)
-    b = -(-n // (at_most // 2))
-    m = -(-n // b)
-    # NaN (a gap) and the padding never win a bin: +inf for the minimum, -inf for the maximum
-    y = np.asarray(y, float)
-    blocks_lo = np.concatenate([np.where(np.isnan(y), np.inf, y), np.full(m * b - n, np.inf)]).reshape(m, b)
-    blocks_hi = np.concatenate([np.where(np.isnan(y), -np.inf, y), np.full(m * b - n, -np.inf)]).reshape(m, b)
-    base = np.arange(m) * b
-    k = np.concatenate([base + np.argmin(blocks_lo, axis=1), base + np.argmax(blocks_hi, axis=1), [0, n - 1]])
-    return np.unique(np.minimum(k, n - 1))
+_envelope = thin.envelope
 
 
 def _no_minor_labels(ax) -> None:

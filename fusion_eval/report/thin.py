@@ -68,3 +68,66 @@ def paths(series: dict) -> tuple[dict, tuple]:
            if s is not None and len(s)}
     gt = series["groundtruth"].p_w_m[:, :2]
     return out, (gt.min(axis=0), gt.max(axis=0), gt[0].copy())
+
+
+def envelope(y: np.ndarray, at_most: int = 5000) -> np.ndarray:
+    """Indices that keep a long series' look: above ``at_most`` points, the minimum and the maximum of each of
+    ``at_most / 2`` consecutive bins, in order (a stride would drop the peaks a reader looks for). Shorter series
+    are kept whole, so a plot of a short drive is unchanged; so is an envelope's own output (up to ``at_most + 2``
+    points: each bin's two and both ends), so a series reduced here draws the same points in the plot."""
+    n = len(y)
+    if n <= at_most + 2:
+        return np.arange(n)
+    b = -(-n // (at_most // 2))
+    m = -(-n // b)
+    # NaN (a gap) and the padding never win a bin: +inf for the minimum, -inf for the maximum
+    y = np.asarray(y, float)
+    blocks_lo = np.concatenate([np.where(np.isnan(y), np.inf, y), np.full(m * b - n, np.inf)]).reshape(m, b)
+    blocks_hi = np.concatenate([np.where(np.isnan(y), -np.inf, y), np.full(m * b - n, -np.inf)]).reshape(m, b)
+    base = np.arange(m) * b
+    k = np.concatenate([base + np.argmin(blocks_lo, axis=1), base + np.argmax(blocks_hi, axis=1), [0, n - 1]])
+    return np.unique(np.minimum(k, n - 1))
+
+
+def _lean(ev, **arrays):
+    """``ev`` without its result files and evo objects (a plot reads neither), with ``arrays`` replaced."""
+    from dataclasses import replace
+
+    return replace(ev, zips={}, results={}, **arrays)
+
+
+def ape_curves(evals: dict) -> dict:
+    """The APE-over-time plot's evaluations: each APE series reduced to its :func:`envelope` (what the plot
+    draws), nothing else of the arrays."""
+    out = {}
+    for n, ev in evals.items():
+        if ev.ape_err_m is None:
+            out[n] = _lean(ev, ref_p_m=None)
+            continue
+        k = envelope(ev.ape_err_m)
+        out[n] = _lean(ev, ape_t_s=ev.ape_t_s[k], ape_err_m=ev.ape_err_m[k], ref_p_m=None)
+    return out
+
+
+def drift_only(evals: dict) -> dict:
+    """The drift plot's evaluations: their KITTI drift figures, no arrays."""
+    return {n: _lean(ev, ape_t_s=None, ape_err_m=None, ref_p_m=None) for n, ev in evals.items()}
+
+
+def segment_map(evals: dict, seg: dict) -> dict:
+    """The segment map's evaluations: the two it compares (whole: it colours every point of the route)."""
+    keep = {seg.get("primary", "fused"), seg.get("secondary")}
+    return {n: _lean(ev) for n, ev in evals.items() if n in keep}
+
+
+def consistency(cons: dict) -> dict:
+    """The NEES/NIS plot's data: each series reduced to its :func:`envelope` (summaries over every epoch kept)."""
+    def reduce(d):
+        if isinstance(d, dict) and "values" in d and "t_s" in d:
+            v = np.asarray(d["values"])
+            k = envelope(v)
+            return {**d, "values": v[k], "t_s": np.asarray(d["t_s"])[k]}
+        if isinstance(d, dict):
+            return {key: reduce(val) for key, val in d.items()}
+        return d
+    return reduce(cons)
