@@ -151,7 +151,8 @@ def execute(ds: Dataset, cfg: dict, *, dataset_path: str | Path | None = None, c
     others run on the same pool, and ``metrics["trials"]`` summarises every metric over all of them.
     """
     stages = as_stages(progress)
-    with executor(jobs) as pool:
+    plots = out is not None and cfg["output"]["plots"]
+    with executor(jobs, preload=("fusion_eval.report.plots",) if plots else ()) as pool:
         stages.start("prepare")
         sh = share(ds, cfg, pool, zip_dir=out.path(".") if out is not None else None)
         sh.private = True

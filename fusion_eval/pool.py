@@ -6,6 +6,7 @@ main process filters and writes. ``jobs=1`` runs everything in this process (ins
 
 from __future__ import annotations
 
+import importlib
 import multiprocessing as mp
 import os
 import signal
@@ -41,11 +42,14 @@ def _worker_dispositions() -> None:
     signal.signal(signal.SIGTERM, signal.SIG_DFL)
 
 
-def worker_init() -> None:
+def worker_init(preload: tuple[str, ...] = ()) -> None:
     """In each worker: Ctrl-C is the parent's to handle (a Ctrl-C to the process group must not print a traceback
     from every worker), SIGTERM ends the worker at once, and the worker dies with its parent (Linux), so that no
-    worker outlives the command that started it, whatever signal ends it."""
+    worker outlives the command that started it, whatever signal ends it. ``preload``: modules to import now, while
+    the parent still prepares and filters (matplotlib for a run's plots: about a second per process)."""
     _worker_dispositions()
+    for name in preload:
+        importlib.import_module(name)
     if sys.platform.startswith("linux"):
         try:
             import ctypes
@@ -147,10 +151,11 @@ class Pool(ProcessPoolExecutor):
     what has not started and kills its workers instead of waiting for them (a run's workers write into its staging
     folder: they must be gone before it is removed)."""
 
-    def __init__(self, max_workers: int, mp_context):
+    def __init__(self, max_workers: int, mp_context, preload: tuple[str, ...] = ()):
         from . import interrupts
 
-        super().__init__(max_workers=max_workers, mp_context=mp_context, initializer=worker_init)
+        super().__init__(max_workers=max_workers, mp_context=mp_context, initializer=worker_init,
+                         initargs=(tuple(preload),))
         self._abort_token = interrupts.on_abort(self.terminate)
         self._shared: list[int] = []
         self._inherited_upto = 0                 # the last shared token every worker was forked after
@@ -214,10 +219,11 @@ class Pool(ProcessPoolExecutor):
             queue._writer.close()                               # noqa: SLF001 - see above
 
 
-def executor(jobs: int | None = None):
-    """A process pool of ``jobs`` workers (default: the cores, at most 4), or :class:`Inline` for one job."""
+def executor(jobs: int | None = None, preload: tuple[str, ...] = ()):
+    """A process pool of ``jobs`` workers (default: the cores, at most 4), or :class:`Inline` for one job.
+    ``preload``: modules each worker imports as it starts (:func:`worker_init`)."""
     jobs = (os.cpu_count() or 1) if jobs is None else jobs
     if jobs <= 1:
         return Inline()
     # fork: the workers inherit the imported modules and the data, so they start in milliseconds
-    return Pool(max_workers=min(jobs, 4), mp_context=mp.get_context("fork"))
+    return Pool(max_workers=min(jobs, 4), mp_context=mp.get_context("fork"), preload=preload)

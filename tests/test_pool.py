@@ -36,3 +36,41 @@ def test_a_shared_object_reaches_forked_workers_without_a_pickle():
         assert ex.submit(np.sum, ex.share(np.arange(4))).result() == 6
     assert not pool._SHARED
     assert pool.Inline().share(early.obj) is early.obj
+
+
+def test_a_run_draws_its_plots_in_workers_that_preloaded_matplotlib(kitti_slice, tmp_path):
+    """The run's plots are drawn by its workers, which import matplotlib as they start (while the main process
+    prepares and filters); the main process, which only submits them, never imports it (about a second)."""
+    import subprocess
+    import sys
+
+    out = tmp_path / "out"
+    code = ("import sys\n"
+            "from fusion_eval.cli import main\n"
+            "try:\n"
+            f"    main(['-q', 'run', {str(kitti_slice)!r}, '--out', {str(out)!r}], standalone_mode=False)\n"
+            "finally:\n"
+            "    print('matplotlib' in sys.modules)\n")
+    r = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=300)
+    assert r.returncode == 0, r.stderr
+    assert r.stdout.split()[-1] == "False", r.stdout
+    assert {p.name for p in out.glob("*.png")} >= {"trajectories.png", "biases.png", "ape_over_time.png"}
+
+
+def _imported(name: str) -> bool:
+    import sys
+
+    return name in sys.modules
+
+
+def test_workers_import_the_preloaded_modules_as_they_start():
+    import sys
+
+    from fusion_eval import pool
+
+    if "wave" in sys.modules:
+        pytest.skip("this process imported the module already: its workers would inherit it")
+    with pool.executor(2, preload=("wave",)) as ex:
+        assert ex.submit(_imported, "wave").result()
+    with pool.executor(2) as ex:
+        assert not ex.submit(_imported, "wave").result()

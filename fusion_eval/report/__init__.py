@@ -15,6 +15,15 @@ from ..provenance import input_files
 from . import files, html, thin
 from .markdown import metrics_tex, report_md
 
+def draw(name: str, *args) -> None:
+    """``plots.<name>(*args)``, with matplotlib imported where the plot is drawn: the run's plots are jobs of its
+    worker processes (which import it as they start, :func:`fusion_eval.pool.executor`'s ``preload``), and the main
+    process, which only submits them, never pays the second of importing it."""
+    from . import plots
+
+    getattr(plots, name)(*args)
+
+
 FILTER_PLOTS = ["trajectories.png", "ape_over_time.png", "biases.png", "fused_error_3sigma.png",
                 "fused_error_att_vel_3sigma.png"]
 
@@ -34,14 +43,13 @@ def write_filter_outputs(out: StagedDir, series: dict, filt, fused_err: dict, ma
     jobs = [(files.write_tum, out.path(files.TUM_FILES[n]), n, handles.get(n, s)) for n, s in series.items()
             if s is not None and n in files.TUM_FILES and n not in tums_written]
     if make_plots:
-        from . import plots
-
-        jobs += [(plots.plot_trajectories, out.path("trajectories.png"), *thin.paths(series)),
-                 (plots.plot_biases, out.path("biases.png"),
+        jobs += [(draw, "plot_trajectories", out.path("trajectories.png"), *thin.paths(series)),
+                 (draw, "plot_biases", out.path("biases.png"),
                   *thin.biases(filt.fused.t_s, filt.accel_bias_b, filt.gyro_bias_b, filt.sigma, truth_biases)),
-                 (plots.plot_error_sigma, out.path("fused_error_3sigma.png"),
+                 (draw, "plot_error_sigma", out.path("fused_error_3sigma.png"),
                   thin.error_sigma(fused_err["t_s"], fused_err["err_w_m"], fused_err["sigma_w_m"], fused_err.get("smoothed"))),
-                 (plots.plot_att_vel_error_sigma, out.path("fused_error_att_vel_3sigma.png"), thin.att_vel(fused_err["att_vel"]))]
+                 (draw, "plot_att_vel_error_sigma", out.path("fused_error_att_vel_3sigma.png"),
+                  thin.att_vel(fused_err["att_vel"]))]
     if pool is None:
         for j in jobs:
             j[0](*j[1:])
@@ -78,21 +86,19 @@ def write_evaluation(out: StagedDir, res, plots_written: list[str], pool=None, a
     jobs = []
     plots_written = list(plots_written)
     if plots_written:
-        from . import plots
-
         t0 = float(res.filt.fused.t_s[0])
-        jobs.append((plots.plot_ape_over_time, out.path("ape_over_time.png"), thin.ape_curves(res.evals), t0))
+        jobs.append((draw, "plot_ape_over_time", out.path("ape_over_time.png"), thin.ape_curves(res.evals), t0))
         if any(ev.drift for ev in res.evals.values()):
-            jobs.append((plots.plot_drift, out.path("kitti_drift.png"), thin.drift_only(res.evals)))
+            jobs.append((draw, "plot_drift", out.path("kitti_drift.png"), thin.drift_only(res.evals)))
             plots_written.append("kitti_drift.png")
         if res.consistency.get("nees"):
-            jobs.append((plots.plot_consistency, out.path("consistency.png"), thin.consistency(res.consistency), t0))
+            jobs.append((draw, "plot_consistency", out.path("consistency.png"), thin.consistency(res.consistency), t0))
             plots_written.append("consistency.png")
         if res.metrics.get("trials"):
-            jobs.append((plots.plot_trials, out.path("trials.png"), res.metrics["trials"]))
+            jobs.append((draw, "plot_trials", out.path("trials.png"), res.metrics["trials"]))
             plots_written.append("trials.png")
         if res.segments and "fused" in res.evals:
-            jobs.append((plots.plot_segment_map, out.path("segments_map.png"), thin.segment_map(res.evals, res.segments),
+            jobs.append((draw, "plot_segment_map", out.path("segments_map.png"), thin.segment_map(res.evals, res.segments),
                          res.segments))
             plots_written.append("segments_map.png")
     futures = []
