@@ -42,14 +42,13 @@ def _worker_dispositions() -> None:
     signal.signal(signal.SIGTERM, signal.SIG_DFL)
 
 
-def worker_init(preload: tuple[str, ...] = ()) -> None:
+def worker_init(preload: tuple[str, ...] = (), parent: int | None = None) -> None:
     """In each worker: Ctrl-C is the parent's to handle (a Ctrl-C to the process group must not print a traceback
     from every worker), SIGTERM ends the worker at once, and the worker dies with its parent (Linux), so that no
-    worker outlives the command that started it, whatever signal ends it. ``preload``: modules to import now, while
-    the parent still prepares and filters (matplotlib for a run's plots: about a second per process)."""
+    worker outlives the command that started it, whatever signal ends it. ``preload``: modules to import then, while
+    the parent still prepares and filters (matplotlib for a run's plots: about a second per process); ``parent``:
+    the pid of the process that made the pool."""
     _worker_dispositions()
-    for name in preload:
-        importlib.import_module(name)
     if sys.platform.startswith("linux"):
         try:
             import ctypes
@@ -57,6 +56,12 @@ def worker_init(preload: tuple[str, ...] = ()) -> None:
             ctypes.CDLL("libc.so.6", use_errno=True).prctl(1, signal.SIGKILL)      # PR_SET_PDEATHSIG
         except (OSError, AttributeError):
             pass
+    # a parent that died before the line above armed it would never send the signal: this worker would wait on the
+    # pool's queue for ever, holding the command's stdout and stderr open (a captured run would hang)
+    if parent is not None and os.getppid() != parent:
+        os._exit(1)
+    for name in preload:
+        importlib.import_module(name)
 
 
 # A worker forked at the moment the run is interrupted would run the parent's Python signal handler inside
@@ -104,12 +109,14 @@ def _after_fork_in_child() -> None:
     try:
         _worker_dispositions()
     finally:
-        # the mask from before any hold: a worker forked inside signals_held() must not keep them blocked
-        mask = _unheld_mask[0] if _unheld_mask else (_fork_mask[-1] if _fork_mask else None)
+        # a worker never keeps them blocked: not when forked inside signals_held(), nor by a thread created in one
+        # (multiprocessing.Pool's, which forks replacement workers), whose mask it inherits
         _fork_mask.clear()
         _unheld_mask.clear()
-        if mask is not None:
-            signal.pthread_sigmask(signal.SIG_SETMASK, mask)
+        signal.pthread_sigmask(signal.SIG_UNBLOCK, _FORK_SIGNALS)
+        intr = sys.modules.get(__package__ + ".interrupts")
+        if intr is not None:
+            intr._deferring = 0                 # noqa: SLF001 - the parent's hold is not this process's
 
 
 if hasattr(os, "register_at_fork"):
@@ -155,7 +162,7 @@ class Pool(ProcessPoolExecutor):
         from . import interrupts
 
         super().__init__(max_workers=max_workers, mp_context=mp_context, initializer=worker_init,
-                         initargs=(tuple(preload),))
+                         initargs=(tuple(preload), os.getpid()))
         self._abort_token = interrupts.on_abort(self.terminate)
         self._shared: list[int] = []
         self._inherited_upto = 0                 # the last shared token every worker was forked after

@@ -339,3 +339,13 @@ def test_a_calibration_lever_arm_of_100_km_is_blamed_on_the_calibration(ds, tmp_
     p.write_text("\n".join(lines) + "\n")
     r, out = _run(ds, tmp_path)
     _assert_clean_error(r, out, "calib_imu_to_velo.txt", "sensors of one vehicle are at most 1000 m apart")
+
+
+def test_a_delimiter_of_several_characters_is_parsed_by_the_line_loop():
+    """numpy's parser takes a one-character delimiter only: a longer one goes to the line loop, as before."""
+    from pathlib import Path
+
+    from fusion_eval.datasets._text import parse_numeric_rows
+
+    rows, lines = parse_numeric_rows(Path("x.csv"), "# t::a\n1::2\n\n3.5::4\n", 2, "x", delimiter="::")
+    assert rows.tolist() == [[1.0, 2.0], [3.5, 4.0]] and lines.tolist() == [2, 4]

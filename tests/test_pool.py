@@ -74,3 +74,21 @@ def test_workers_import_the_preloaded_modules_as_they_start():
         assert ex.submit(_imported, "wave").result()
     with pool.executor(2) as ex:
         assert not ex.submit(_imported, "wave").result()
+
+
+def test_a_worker_whose_parent_died_before_it_started_exits_before_its_preload(tmp_path):
+    """The parent-death signal is armed first; a parent gone before that (killed while the worker started) would
+    never send it, so the worker checks and exits before the preload's import (a second it would spend orphaned,
+    then wait on the queue for ever, holding the command's output open)."""
+    import os
+    import subprocess
+    import sys
+
+    (tmp_path / "marker_mod.py").write_text(f"open({str(tmp_path / 'imported')!r}, 'w').close()\n")
+    env = {**os.environ, "PYTHONPATH": f"{tmp_path}{os.pathsep}{os.environ.get('PYTHONPATH', '')}"}
+    for parent, code in (("os.getppid() + 1", 1), ("os.getppid()", 0)):
+        r = subprocess.run([sys.executable, "-c", "import os\nfrom fusion_eval.pool import worker_init\n"
+                            f"worker_init(('marker_mod',), parent={parent})\n"], env=env, capture_output=True,
+                           text=True, timeout=60)
+        assert r.returncode == code, r.stderr
+        assert (tmp_path / "imported").exists() == (code == 0)
