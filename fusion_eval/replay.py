@@ -17,7 +17,7 @@ import numpy as np
 from .config import Settings
 from . import smoothing
 from .filters import compiled_replay, make_filter, observations
-from .filters.formulations.eskf import dead_reckon
+from .filters.formulations.eskf import dead_reckon_poses
 from .filters.formulations.imu_model import imu_inputs, imu_params
 from .filters.state import unpack
 from .prepare import Prepared
@@ -48,9 +48,8 @@ def dead_reckoning(prep: Prepared, s: Settings) -> PoseSeries:
     """Pure IMU integration (accelerometer and gyro) from the filter's initial state: the unfiltered IMU."""
     t = np.ascontiguousarray(prep.imu.t_s)
     k0 = prep.k_start
-    rec = unpack(dead_reckon(prep.x0, imu_params(prep.gravity_mps2, 0.0, 0.0, 0.0, 0.0), t,
-                             imu_inputs(prep.imu.f_b_mps2, prep.imu.w_b_rps), k0)[k0:])
-    p, R = rec["p"], rec["R"]
+    p, R = dead_reckon_poses(prep.x0, imu_params(prep.gravity_mps2, 0.0, 0.0, 0.0, 0.0), t,
+                             imu_inputs(prep.imu.f_b_mps2, prep.imu.w_b_rps), k0)
     t = t[k0:]
     finite = np.all(np.isfinite(p), axis=1) & np.all(np.abs(p) < 1e9, axis=1)
     return PoseSeries(t_s=t[finite], p_w_m=p[finite], q_wb_xyzw=matrix_to_quat_xyzw(R[finite]), source="imu_only")

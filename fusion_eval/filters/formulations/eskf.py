@@ -310,6 +310,37 @@ def dead_reckon(x0: NominalState, prm: np.ndarray, t: np.ndarray, u: np.ndarray,
     return a.rec_x
 
 
+def dead_reckon_poses(x0: NominalState, prm: np.ndarray, t: np.ndarray, u: np.ndarray, k0: int,
+                      chunk: int = 65_536) -> tuple[np.ndarray, np.ndarray]:
+    """:func:`dead_reckon`'s positions ``(N - k0, 3)`` and rotation matrices ``(N - k0, 3, 3)`` from sample ``k0``
+    on, the same numbers (tested): integrated ``chunk`` samples at a time into one reused record, so that a long
+    drive's dead reckoning does not hold its whole nominal state (35 numbers per sample: 200 MB of fresh pages on a
+    simulated hour at 200 Hz, for the 12 it keeps)."""
+    t = np.ascontiguousarray(t, float)
+    u = np.ascontiguousarray(u, float)
+    prm = np.ascontiguousarray(prm, float)
+    N = t.size
+    x = x0.vec.copy()
+    p_out = np.empty((N - k0, 3))
+    R_out = np.empty((N - k0, 3, 3))
+    first = positions_attitudes(x[None, :])
+    p_out[0], R_out[0] = first[0][0], first[1][0]
+    rec = np.empty((min(chunk, N - k0) + 1, x.size))
+    one = slice(0, 1)                # a sample's stamp and input row: replaced below  # not a state index
+    a = new_arrays(x, np.zeros((N_CORE, N_CORE)), t[one], u[one], 0, prm, np.array([np.inf, 1.0]), np.zeros(1),
+                   np.zeros(N_CORE, np.int64), record=False)
+    c0 = k0                                        # the sample the state sits at
+    while c0 < N - 1:
+        c1 = min(c0 + chunk, N - 1)                # through sample c1, each step as the whole-drive loop takes it
+        a = a._replace(t=t[c0:c1 + 1], u=u[c0:c1 + 1], last=np.concatenate([[t[c0]], u[c0]]),
+                       rec_x=rec[:c1 - c0 + 1])
+        predict_to(a, N_CORE, 1, float(t[c1]), False)
+        p, R = positions_attitudes(rec[1:c1 - c0 + 1])
+        p_out[c0 + 1 - k0:c1 + 1 - k0], R_out[c0 + 1 - k0:c1 + 1 - k0] = p, R
+        c0 = c1
+    return p_out, R_out
+
+
 def positions_attitudes(rec_x: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """Positions ``(N, 3)`` and attitudes ``(N, 3, 3)`` of recorded nominal vectors."""
     u = unpack(rec_x)
