@@ -35,7 +35,7 @@ def _at_stamps(t: np.ndarray, tq: np.ndarray):
     j = np.minimum(np.searchsorted(t, tq), t.size - 1)
     if not np.array_equal(t[j], tq):
         return None
-    if j[-1] - j[0] == j.size - 1 and np.all(np.diff(j) == 1):
+    if np.all(np.diff(j) == 1):
         return slice(int(j[0]), int(j[-1]) + 1)
     return j
 

@@ -100,7 +100,6 @@ class Shared:
     ref: PoseSeries                          # the reference cropped to the common span
     futures: dict                            # name -> future of an unfiltered estimate's evaluation
     timings: dict
-    private: bool = False                    # one run only (not a batch's): its evaluations may write its files
     written: tuple = ()                      # estimates whose TUM and result files their evaluations wrote
     handles: dict = field(default_factory=dict)   # "ref" and the series as the pool's jobs take them (pool.share)
 
@@ -155,7 +154,6 @@ def execute(ds: Dataset, cfg: dict, *, dataset_path: str | Path | None = None, c
     with executor(jobs, preload=("fusion_eval.report.plots",) if plots else ()) as pool:
         stages.start("prepare")
         sh = share(ds, cfg, pool, zip_dir=out.path(".") if out is not None else None)
-        sh.private = True
         return filter_and_evaluate(ds, cfg, sh, pool, dataset_path=dataset_path,
                                    config_source=config_source, progress=stages, out=out, trials=trials)
 
@@ -166,7 +164,7 @@ def filter_and_evaluate(ds: Dataset, cfg: dict, sh: Shared, pool, *, dataset_pat
     """The filter's part of a run on prepared data (:func:`share`): replay, evaluate, summarise, write. ``cfg``
     may differ from the one ``sh`` was prepared with only in what the filter alone reads (a sweep's noise
     settings, :func:`fusion_eval.commands.sweep.batch_key`). ``monitor``: see :func:`fusion_eval.replay.replay`."""
-    prep, gt, ref, ev_cfg = sh.prep, sh.prep.groundtruth, sh.ref, cfg["evaluation"]
+    prep, gt, ev_cfg = sh.prep, sh.prep.groundtruth, cfg["evaluation"]
     timings = dict(sh.timings)
     s = settings_for(cfg, prep)
     series = dict(sh.series)
@@ -193,9 +191,9 @@ def filter_and_evaluate(ds: Dataset, cfg: dict, sh: Shared, pool, *, dataset_pat
     # writes them into every run's folder) come back as bytes
     zip_dir = out.path(".") if out is not None else None
     own = [n for n in ("fused", "smoothed") if n in series]
-    futures.update({n: pool.submit(evaluate_estimate, sh.handles.get("ref", ref), series[n], n, ev_cfg, zip_dir)
+    futures.update({n: pool.submit(evaluate_estimate, sh.handles["ref"], series[n], n, ev_cfg, zip_dir)
                     for n in own})
-    own += [n for n in sh.written if out is not None]
+    own += list(sh.written)                  # set only for a run with a folder (execute)
     err = fused_error(gt, filt, att_vel=cfg["output"]["plots"])
     # the TUM files and the filter's plots, each a job of its own, alongside the evaluations
     first = report.write_filter_outputs(out, series, filt, err, cfg["output"]["plots"], pool, truth_biases=truth_b,

@@ -77,7 +77,6 @@ def worker_init(preload: tuple[str, ...] = (), parent: int | None = None) -> Non
 # (interrupts.deferred): a signal sent meanwhile is raised when the hold ends, in ordinary code.
 _FORK_SIGNALS = {signal.SIGINT, signal.SIGTERM}
 _fork_mask: list = []
-_unheld_mask: list = []                      # the masks that signals_held() will restore, innermost last
 
 
 @contextmanager
@@ -88,11 +87,9 @@ def signals_held():
 
     with interrupts.deferred():              # ends after the mask is restored: what it raises cannot skip that
         old = signal.pthread_sigmask(signal.SIG_BLOCK, _FORK_SIGNALS)
-        _unheld_mask.append(old)
         try:
             yield
         finally:
-            _unheld_mask.pop()
             signal.pthread_sigmask(signal.SIG_SETMASK, old)
 
 
@@ -112,7 +109,6 @@ def _after_fork_in_child() -> None:
         # a worker never keeps them blocked: not when forked inside signals_held(), nor by a thread created in one
         # (multiprocessing.Pool's, which forks replacement workers), whose mask it inherits
         _fork_mask.clear()
-        _unheld_mask.clear()
         signal.pthread_sigmask(signal.SIG_UNBLOCK, _FORK_SIGNALS)
         intr = sys.modules.get(__package__ + ".interrupts")
         if intr is not None:
@@ -138,7 +134,7 @@ def _as_is(obj):
     return obj
 
 
-class Shared:
+class Handle:
     """An argument of a pool's jobs that its forked workers already hold (:meth:`Pool.share`)."""
 
     __slots__ = ("token", "obj", "pool")
@@ -168,7 +164,7 @@ class Pool(ProcessPoolExecutor):
         self._inherited_upto = 0                 # the last shared token every worker was forked after
         self._forks = mp_context.get_start_method() == "fork"
 
-    def share(self, obj) -> Shared:
+    def share(self, obj) -> Handle:
         """``obj`` as an argument of this pool's jobs: the workers forked after this call (a pool forks them at its
         first job) hold it already, and the jobs name it instead of pickling it (a simulated hour's ground truth
         and estimates are tens of MB each, sent to four jobs). Otherwise it is pickled as usual. Held until the
@@ -176,7 +172,7 @@ class Pool(ProcessPoolExecutor):
         token = next(_share_tokens)
         _SHARED[token] = obj
         self._shared.append(token)
-        return Shared(token, obj, self)
+        return Handle(token, obj, self)
 
     def _spawn_process(self):
         # every worker is forked here, in the thread that submits (see signals_held)

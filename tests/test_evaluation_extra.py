@@ -213,7 +213,7 @@ def test_segment_breakdown_equals_the_masked_form():
 
 
 def test_plot_envelope_keeps_every_peak_and_short_series_whole():
-    from fusion_eval.report.plots import _envelope
+    from fusion_eval.report.thin import envelope as _envelope
 
     rng = np.random.default_rng(5)
     y = rng.normal(size=720_001)
@@ -225,7 +225,7 @@ def test_plot_envelope_keeps_every_peak_and_short_series_whole():
 
 
 def test_plot_envelope_skips_gaps():
-    from fusion_eval.report.plots import _envelope
+    from fusion_eval.report.thin import envelope as _envelope
 
     y = np.random.default_rng(6).normal(size=50_000)
     y[::7] = np.nan                                    # a gap in every bin

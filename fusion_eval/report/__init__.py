@@ -15,6 +15,7 @@ from ..provenance import input_files
 from . import files, html, thin
 from .markdown import metrics_tex, report_md
 
+
 def draw(name: str, *args) -> None:
     """``plots.<name>(*args)``, with matplotlib imported where the plot is drawn: the run's plots are jobs of its
     worker processes (which import it as they start, :func:`fusion_eval.pool.executor`'s ``preload``), and the main

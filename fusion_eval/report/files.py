@@ -50,7 +50,8 @@ def _tum_header(name: str, s: PoseSeries) -> str:
 
 
 def write_tum(path: Path, name: str, s: PoseSeries) -> None:
-    """The estimate ``name``'s TUM file (:func:`tum_text`), streamed into ``path`` atomically."""
+    """The estimate ``name``'s TUM file (:func:`fusion_eval.datasets.tum.tum_chunks` under a header naming it),
+    streamed into ``path`` atomically."""
     with atomic_file(path) as fh:
         for chunk in tum_chunks(s, _tum_header(name, s)):
             fh.write(chunk)

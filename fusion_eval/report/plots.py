@@ -29,11 +29,6 @@ _META = {"Software": None}
 _VCOLORS = plt.rcParams["axes.prop_cycle"].by_key()["color"]  # no version string in the PNG: same inputs, same bytes
 
 
-_every = thin.every
-
-
-_envelope = thin.envelope
-
 
 def _no_minor_labels(ax) -> None:
     """Log axes label their minor ticks, and their major ticks in mathtext (10^k); laying those labels out
@@ -88,7 +83,7 @@ def plot_ape_over_time(path: Path, evals: dict, t0: float) -> None:
             continue
         rmse = ev.metrics["ape"]["translation_m"]["rmse"]
         style = "." if name == "gnss" else "-"
-        k = _envelope(ev.ape_err_m)
+        k = thin.envelope(ev.ape_err_m)
         ax.plot(ev.ape_t_s[k] - t0, np.maximum(ev.ape_err_m[k], 1e-3), style, ms=2.5, lw=1.0,
                 color=COLORS.get(name, _VCOLORS[i % len(_VCOLORS)]), label=f"{LABELS.get(name, name)} (RMSE {rmse:.2f} m)")
     ax.set_yscale("log")
@@ -249,13 +244,13 @@ def plot_compare_ape(path: Path, runs, evs_unfiltered: dict, t0: float) -> None:
     fig, ax = plt.subplots(figsize=(10, 4.5))
     for i, r in enumerate(runs):
         rmse = r.ev.metrics["ape"]["translation_m"]["rmse"]
-        k = _envelope(r.ev.ape_err_m)
+        k = thin.envelope(r.ev.ape_err_m)
         ax.plot(r.ev.ape_t_s[k] - t0, np.maximum(r.ev.ape_err_m[k], 1e-3), "-", lw=1.0, color=_VCOLORS[i % len(_VCOLORS)],
                 label=f"{r.name} (RMSE {rmse:.2f} m)")
     for name in ("lidar", "gnss"):
         ev = evs_unfiltered.get(name)
         if ev is not None and ev.ape_err_m is not None:
-            k = _envelope(ev.ape_err_m)
+            k = thin.envelope(ev.ape_err_m)
             ax.plot(ev.ape_t_s[k] - t0, np.maximum(ev.ape_err_m[k], 1e-3), ":" if name == "lidar" else ".", ms=2, lw=1.0,
                     color=COLORS[name], label=f"{LABELS[name]} (RMSE {ev.metrics['ape']['translation_m']['rmse']:.2f} m)")
     ax.set_yscale("log")
@@ -511,7 +506,7 @@ def plot_sweep(out_dir: Path, rows: list[dict], keys: list[str], metric: str, ta
                 continue
             res = file_interface.load_res_file(z)
             ts = res.np_arrays["timestamps"]
-            k = _envelope(res.np_arrays["error_array"])
+            k = thin.envelope(res.np_arrays["error_array"])
             ax.plot(ts[k] - ts[0], res.np_arrays["error_array"][k], style, lw=1.0,
                     label=f"{name} ({Path(t.dataset).name}, RMSE {res.stats['rmse']:.3f} m)")
         ax.set_xlabel("time since start [s]")
@@ -561,7 +556,7 @@ def consistency_figure(cons: dict, t0: float):
         # NEES is a continuous series (a line); NIS values are separate innovations (pixel markers, cheap to draw)
         style = "-" if label.startswith("NEES") else ","
         v = np.asarray(d["values"])
-        k = _envelope(v)
+        k = thin.envelope(v)
         ax.plot(np.asarray(d["t_s"])[k] - t0, np.maximum(v[k], 1e-4), style, lw=0.7, color="tab:blue",
                 label="NEES (line) / NIS (dots)")
         ax.axhline(lo, color="tab:red", lw=0.8, ls="--", label="95 % chi-square bounds of one epoch")
@@ -601,7 +596,7 @@ def segment_map_figure(evals: dict, seg: dict, up_axis: str = "z"):
     panels = 2 if lid is not None and lid.ape_err_m is not None else 1
     fig, axes = plt.subplots(1, panels, figsize=(7 * panels, 6.6), squeeze=False)
     p = f.ref_p_m
-    k = _every(len(p))
+    k = thin.every(len(p))
     sc = axes[0, 0].scatter(p[k, i0], p[k, i1], c=f.ape_err_m[k], s=3, cmap="viridis")
     fig.colorbar(sc, ax=axes[0, 0], label=f"{a} APE [m]")
     axes[0, 0].set_title(f"{a} error along the route")
