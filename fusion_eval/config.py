@@ -115,6 +115,9 @@ CORE: dict[str, Spec] = {
                               "float", positive=True, nullable=True),
     "evaluation.rpe_delta_m": S(100.0, "RPE segment length for the per-distance RPE, m", positive=True),
     "output.plots": S(True, "write PNG plots"),
+    "output.zip_trajectories": S(False, "also store the associated reference and estimate trajectories in each estimate's "
+                                        "APE translation result zip, as evo does with its save_traj_in_zip setting (off by "
+                                        "default, as in evo: the TUM files hold the same poses)"),
 }
 
 

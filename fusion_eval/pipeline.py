@@ -56,20 +56,21 @@ class RunResult:
 
 
 def evaluate_estimate(reference: PoseSeries, estimate: PoseSeries, name: str, ev_cfg: dict,
-                      zip_dir: Path | None = None) -> EstimateEvaluation:
+                      zip_dir: Path | None = None, zip_trajectories: bool = False) -> EstimateEvaluation:
     """evo's metrics of one estimate and its evo result files (in a worker: the files travel back as bytes,
     smaller than the result objects they are made of). With ``zip_dir`` (the run's staging folder) the worker
     writes them there itself, and the estimate's TUM file beside them (it holds the estimate: another job would
-    need a copy): on a long drive they are hundreds of MB that the main process need not hold."""
+    need a copy): on a long drive they are hundreds of MB that the main process need not hold. ``zip_trajectories``:
+    ``output.zip_trajectories``."""
     # the RPE results without their reduced trajectories: the result files do not hold them (report.files.evo_zips)
     ev = evaluate(reference, estimate, name, ev_cfg["t_max_diff_s"], ev_cfg["rpe_delta_m"], ev_cfg["association"],
                   ev_cfg["alignment"], ev_cfg["engine"], rpe_trajectories=False)
     if zip_dir is not None:
-        report.files.write_evo_zips(ev, zip_dir)
+        report.files.write_evo_zips(ev, zip_dir, zip_trajectories)
         report.files.write_tum(Path(zip_dir) / report.files.TUM_FILES[name], name, estimate)
         ev.zips = {}
     else:
-        ev.zips = report.files.evo_zips(ev)
+        ev.zips = report.files.evo_zips(ev, zip_trajectories)
     ev.results = {}
     return ev
 
@@ -129,9 +130,11 @@ def share(ds: Dataset, cfg: dict, pool, zip_dir: Path | None = None) -> Shared:
     series["imu_only"] = dead_reckoning(prep, settings_for(cfg, prep))
     # before the first job, which forks the workers: they hold these already (pool.share)
     handles = {"ref": pool.share(ref), **{n: pool.share(s) for n, s in series.items()}}
-    futures = {n: pool.submit(evaluate_estimate, handles["ref"], handles[n], n, ev_cfg)
+    zt = cfg["output"]["zip_trajectories"]
+    futures = {n: pool.submit(evaluate_estimate, handles["ref"], handles[n], n, ev_cfg, None, zt)
                for n in ("lidar", "gnss") if n in series}
-    futures["imu_only"] = pool.submit(evaluate_estimate, handles["ref"], handles["imu_only"], "imu_only", ev_cfg, zip_dir)
+    futures["imu_only"] = pool.submit(evaluate_estimate, handles["ref"], handles["imu_only"], "imu_only", ev_cfg, zip_dir,
+                                      zt)
     return Shared(prep, series, sp, ref, futures, timings, written=("imu_only",) if zip_dir is not None else (),
                   handles=handles)
 
@@ -191,13 +194,15 @@ def filter_and_evaluate(ds: Dataset, cfg: dict, sh: Shared, pool, *, dataset_pat
     # writes them into every run's folder) come back as bytes
     zip_dir = out.path(".") if out is not None else None
     own = [n for n in ("fused", "smoothed") if n in series]
-    futures.update({n: pool.submit(evaluate_estimate, sh.handles["ref"], series[n], n, ev_cfg, zip_dir)
-                    for n in own})
+    futures.update({n: pool.submit(evaluate_estimate, sh.handles["ref"], series[n], n, ev_cfg, zip_dir,
+                                   cfg["output"]["zip_trajectories"]) for n in own})
     own += list(sh.written)                  # set only for a run with a folder (execute)
     err = fused_error(gt, filt, att_vel=cfg["output"]["plots"])
     # the TUM files and the filter's plots, each a job of its own, alongside the evaluations
     first = report.write_filter_outputs(out, series, filt, err, cfg["output"]["plots"], pool, truth_biases=truth_b,
                                         tums_written=own, handles=sh.handles) if out is not None else []
+    # the NEES needs no metric: computed here while the workers evaluate, not after (0.7 s on a simulated hour)
+    cons = consistency(gt, filt)
     names = [n for n in ESTIMATES if n in futures]
     stages.start("evaluate", len(names))
     evals = {}
@@ -213,7 +218,6 @@ def filter_and_evaluate(ds: Dataset, cfg: dict, sh: Shared, pool, *, dataset_pat
                              f"{gt.t_s[0]:.3f}..{gt.t_s[-1]:.3f} s) within evaluation.t_max_diff_s = {ev_cfg['t_max_diff_s']} s "
                              f"{offsets_note(prep.applied)}".rstrip())
     ratios = ratio_metrics(evals)
-    cons = consistency(gt, filt)
     seg = segments(gt, evals, ev_cfg)
     metrics = run_metrics(ds.name, evals, ratios, ev_cfg, prep.applied, prep.gnss_info, cons, seg, sh.span,
                           smoother=smoother_section(filt))

@@ -177,6 +177,7 @@ def test_run_evaluation_equal_with_either_engine(slice_run, alignment):
     """A run's estimates evaluated both ways: every metric, the drift figures and every result file."""
     from fusion_eval.datasets.tum import read_tum
     from fusion_eval.evaluation.trajectory import evaluate
+    from fusion_eval.evaluation.keys import RELATION_KEYS
     from fusion_eval.report.files import evo_zips
 
     gt = read_tum(slice_run / "groundtruth.tum")
@@ -184,8 +185,12 @@ def test_run_evaluation_equal_with_either_engine(slice_run, alignment):
         est = read_tum(slice_run / f"{est_name}.tum")
         if est_name == "gnss":
             est = dataclasses.replace(est, has_orientation=False)
-        a = evaluate(gt, est, est_name, 0.01, 50.0, alignment=alignment, engine_name="arrays")
-        b = evaluate(gt, est, est_name, 0.01, 50.0, alignment=alignment, engine_name="evo")
+        # every relation in one evaluation: the arrays engine makes each delta's error poses, and the stamps and
+        # distances of each metric, once for all relations (the point-distance relation on its own path)
+        rels = tuple(RELATION_KEYS)
+        a = evaluate(gt, est, est_name, 0.01, 50.0, alignment=alignment, engine_name="arrays", relations=rels)
+        b = evaluate(gt, est, est_name, 0.01, 50.0, alignment=alignment, engine_name="evo", relations=rels)
+        assert len(b.results) == (18 if est_name != "gnss" else 2)
         assert a.metrics.keys() == b.metrics.keys()
         for g in b.metrics:
             for k, sb in b.metrics[g].items():
@@ -205,13 +210,20 @@ def test_run_evaluation_equal_with_either_engine(slice_run, alignment):
                 assert np.allclose(v, b.alignment_params[k], atol=TOL, rtol=0)
         for k in a.results:
             _same_result(a.results[k], b.results[k])
-        za, zb = evo_zips(a), evo_zips(b)
+        za, zb = evo_zips(a, trajectories=True), evo_zips(b, trajectories=True)
         assert za.keys() == zb.keys()
         for k in za:
             _same_result(*(file_interface.load_res_file(io.BytesIO(z[k]), load_trajectories=True) for z in (za, zb)))
         # a run leaves the RPE results' reduced trajectories out (its files do not hold them): the same bytes
-        c = evaluate(gt, est, est_name, 0.01, 50.0, alignment=alignment, engine_name="arrays", rpe_trajectories=False)
-        assert evo_zips(c) == za
+        c = evaluate(gt, est, est_name, 0.01, 50.0, alignment=alignment, engine_name="arrays", rpe_trajectories=False,
+                     relations=rels)
+        assert evo_zips(c, trajectories=True) == za
+        # output.zip_trajectories off (the default, as evo's save_traj_in_zip): the same zips without them
+        plain = {k: file_interface.load_res_file(io.BytesIO(z), load_trajectories=True) for k, z in evo_zips(c).items()}
+        assert plain.keys() == za.keys() and not any(r.trajectories for r in plain.values())
+        for k, r in plain.items():
+            full = file_interface.load_res_file(io.BytesIO(za[k]))
+            assert r.stats == full.stats and all(np.array_equal(r.np_arrays[n], full.np_arrays[n]) for n in full.np_arrays)
         rpe = [r for k, r in c.results.items() if k.startswith("rpe")]
         assert (len(rpe) > 0) == (est_name != "gnss") and not any(r.trajectories for r in rpe)
 

@@ -12,6 +12,7 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 import numpy as np
+from numba import njit
 
 LENGTHS_M = (100, 200, 300, 400, 500, 600, 700, 800)
 STEP_FRAMES = 10
@@ -35,9 +36,66 @@ def _path_lengths(T_gt: np.ndarray) -> np.ndarray:
     return np.concatenate([[0.0], np.cumsum(steps)])
 
 
-def _rot_angle(R: np.ndarray) -> np.ndarray:
-    c = 0.5 * (np.trace(R, axis1=-2, axis2=-1) - 1.0)
-    return np.arccos(np.clip(c, -1.0, 1.0))
+@njit(cache=True, inline="always")
+def _inv3(A, out):
+    """The general inverse of a 3x3 block (adjugate over determinant), as the devkit inverts whole matrices:
+    a pose file's rotation need not be exactly orthonormal, so no transpose."""
+    a, b, c = A[0, 0], A[0, 1], A[0, 2]
+    d, e, f = A[1, 0], A[1, 1], A[1, 2]
+    g, h, i = A[2, 0], A[2, 1], A[2, 2]
+    c00, c10, c20 = e * i - f * h, f * g - d * i, d * h - e * g
+    r = 1.0 / (a * c00 + b * c10 + c * c20)
+    out[0, 0], out[0, 1], out[0, 2] = c00 * r, (c * h - b * i) * r, (b * f - c * e) * r
+    out[1, 0], out[1, 1], out[1, 2] = c10 * r, (a * i - c * g) * r, (c * d - a * f) * r
+    out[2, 0], out[2, 1], out[2, 2] = c20 * r, (b * g - a * h) * r, (a * e - b * d) * r
+
+
+@njit(cache=True)
+def _errors(T_gt, T_est, first, last, length_m):
+    """``|t(E)| / L`` and ``angle(E) / L`` of each pair (first[m], last[m]), with
+    ``E = (T_est,i^-1 T_est,j)^-1 (T_gt,i^-1 T_gt,j)`` on the rotation and translation blocks of affine poses
+    (bottom row 0 0 0 1). One loop: numpy's stacked ``inv`` costs ~1.5 us a matrix, 0.8 s per estimate on a
+    simulated hour at 200 Hz; this is equal to it within 1e-12 (tested)."""
+    n = first.shape[0]
+    t_err = np.empty(n)
+    r_err = np.empty(n)
+    Ag = np.empty((3, 3))
+    Ae = np.empty((3, 3))
+    Ri = np.empty((3, 3))
+    dRg = np.empty((3, 3))
+    dRe = np.empty((3, 3))
+    dt = np.empty(3)
+    for m in range(n):
+        i, j = first[m], last[m]
+        _inv3(T_gt[i, :3, :3], Ag)
+        _inv3(T_est[i, :3, :3], Ae)
+        for r in range(3):
+            for c in range(3):
+                sg = 0.0
+                se = 0.0
+                for q in range(3):
+                    sg += Ag[r, q] * T_gt[j, q, c]
+                    se += Ae[r, q] * T_est[j, q, c]
+                dRg[r, c] = sg
+                dRe[r, c] = se
+            sg = 0.0
+            se = 0.0
+            for q in range(3):
+                sg += Ag[r, q] * (T_gt[j, q, 3] - T_gt[i, q, 3])
+                se += Ae[r, q] * (T_est[j, q, 3] - T_est[i, q, 3])
+            dt[r] = sg - se                     # t(E) = dRe^-1 (t_gt - t_est) of the two relative motions
+        _inv3(dRe, Ri)
+        trace = 0.0
+        norm2 = 0.0
+        for r in range(3):
+            s = 0.0
+            for q in range(3):
+                s += Ri[r, q] * dt[q]
+                trace += Ri[r, q] * dRg[q, r]
+            norm2 += s * s
+        t_err[m] = np.sqrt(norm2) / length_m
+        r_err[m] = np.arccos(min(1.0, max(-1.0, 0.5 * (trace - 1.0)))) / length_m
+    return t_err, r_err
 
 
 def kitti_drift(T_gt: np.ndarray, T_est: np.ndarray, lengths=LENGTHS_M, step: int = STEP_FRAMES) -> DriftResult | None:
@@ -47,22 +105,15 @@ def kitti_drift(T_gt: np.ndarray, T_est: np.ndarray, lengths=LENGTHS_M, step: in
         raise ValueError("ground truth and estimate must have the same number of poses")
     dist = _path_lengths(T_gt)
     first = np.arange(0, len(dist), step)
-    inv = np.linalg.inv
-    # the first frames' inverses once for every length (each matrix's inverse is its own: the same numbers as
-    # inverting each length's subset; 8 lengths x 3 stacks of inverses took 1 s on a simulated hour at 200 Hz)
-    inv_gt, inv_est = inv(T_gt[first]), inv(T_est[first])
+    T_gt = np.ascontiguousarray(T_gt, dtype=np.float64)
+    T_est = np.ascontiguousarray(T_est, dtype=np.float64)
     rows = []
     for L in lengths:
         last = np.searchsorted(dist, dist[first] + L, side="right")   # first index with dist > dist[first] + L
         ok = last < len(dist)
-        j = last[ok]
-        if j.size == 0:
+        if not ok.any():
             continue
-        d_gt = inv_gt[ok] @ T_gt[j]
-        d_est = inv_est[ok] @ T_est[j]
-        E = inv(d_est) @ d_gt
-        t_err = np.linalg.norm(E[:, :3, 3], axis=1) / L
-        r_err = _rot_angle(E[:, :3, :3]) / L
+        t_err, r_err = _errors(T_gt, T_est, first[ok], last[ok], float(L))
         rows.append((L, t_err, r_err))
     if not rows:
         return None

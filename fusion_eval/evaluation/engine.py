@@ -291,28 +291,43 @@ def rpe_error(ref_T: np.ndarray, est_T: np.ndarray, relation: Rel, pairs: np.nda
     """``RPE.process_data``'s error array and delta ids for the pairs ``(i, j)``: the error pose
     ``(Q_i^-1 Q_j)^-1 (P_i^-1 P_j)`` (TUM RGB-D), or for the point-distance relations the difference of the
     pair distances."""
+    return rpe_errors(ref_T, est_T, (relation,), pairs)[0]
+
+
+def rpe_errors(ref_T: np.ndarray, est_T: np.ndarray, relations, pairs: np.ndarray) -> list:
+    """:func:`rpe_error` of each relation on the same pairs, the error poses made once for all of them (a chunk
+    at a time): each relation's array is the same numbers as its own call."""
     if len(ref_T) != len(est_T):
         raise metrics.MetricsException("trajectories must have same number of poses")
     i, j = pairs[:, 0], pairs[:, 1]
-    delta_ids = j
-    if relation in (Rel.point_distance, Rel.point_distance_error_ratio):
-        d_ref = np.linalg.norm(ref_T[i, :3, 3] - ref_T[j, :3, 3], axis=1)
-        d_est = np.linalg.norm(est_T[i, :3, 3] - est_T[j, :3, 3], axis=1)
-        err = np.abs(d_ref - d_est)
-        if relation == Rel.point_distance_error_ratio:
-            nz = d_ref.nonzero()[0]
-            delta_ids = delta_ids[nz]
-            err = np.divide(err[nz], d_ref[nz]) * 100
-        return err, delta_ids
-    ref_T, est_T = np.ascontiguousarray(ref_T, float), np.ascontiguousarray(est_T, float)
-    i, j = np.ascontiguousarray(i), np.ascontiguousarray(j)
+    out: dict = {}
+    for relation in relations:
+        if relation in (Rel.point_distance, Rel.point_distance_error_ratio):
+            d_ref = np.linalg.norm(ref_T[i, :3, 3] - ref_T[j, :3, 3], axis=1)
+            d_est = np.linalg.norm(est_T[i, :3, 3] - est_T[j, :3, 3], axis=1)
+            err, delta_ids = np.abs(d_ref - d_est), j
+            if relation == Rel.point_distance_error_ratio:
+                nz = d_ref.nonzero()[0]
+                delta_ids = delta_ids[nz]
+                err = np.divide(err[nz], d_ref[nz]) * 100
+            out[relation] = (err, delta_ids)
+    on_poses = [r for r in relations if r not in out]
+    if on_poses:
+        ref_T, est_T = np.ascontiguousarray(ref_T, float), np.ascontiguousarray(est_T, float)
+        i, j = np.ascontiguousarray(i), np.ascontiguousarray(j)
+        chunks: dict = {r: [] for r in on_poses}
 
-    def error_of(a: int, b: int) -> np.ndarray:
-        E = np.empty((b - a, 4, 4))
-        _rpe_poses(ref_T, est_T, i[a:b], j[a:b], E)
-        return pose_error(E, relation)
+        def error_of(a: int, b: int) -> np.ndarray:
+            E = np.empty((b - a, 4, 4))
+            _rpe_poses(ref_T, est_T, i[a:b], j[a:b], E)
+            for r in on_poses:
+                chunks[r].append(pose_error(E, r))
+            return np.empty(0)
 
-    return _chunked(i.size, error_of), delta_ids
+        _chunked(i.size, error_of)
+        for r in on_poses:
+            out[r] = (chunks[r][0] if len(chunks[r]) == 1 else np.concatenate(chunks[r]), j)
+    return [out[r] for r in relations]
 
 
 # ---------------------------------------------------------------------------------------------- results
@@ -323,11 +338,20 @@ def _metric_result(metric, err: np.ndarray, ref_name: str, est_name: str, title_
     return res
 
 
-def _add_time_arrays(res: Result, traj_ref, traj_est, skip_first: bool, ids: np.ndarray | None = None) -> None:
+TIME_ARRAYS = ("seconds_from_start", "timestamps", "distances_from_start", "distances")
+
+
+def _add_time_arrays(res: Result, traj_ref, traj_est, skip_first: bool, ids: np.ndarray | None = None,
+                     time_arrays: dict | None = None) -> None:
     """The arrays ``evo_ape``/``evo_rpe`` add for a timed trajectory (computed on the whole arrays), of the poses
     ``ids`` (RPE: the trajectories evo reduces to them) or of all; the distances are evo's ``traj.distances``
-    (``geometry.accumulated_distances`` of the positions)."""
+    (``geometry.accumulated_distances`` of the positions). ``time_arrays``: those of another result of the same
+    poses (:data:`TIME_ARRAYS` -> array), taken as they are instead of computed again."""
     if not isinstance(traj_est, PoseTrajectory3D):
+        return
+    if time_arrays is not None:
+        for name in TIME_ARRAYS:
+            res.add_np_array(name, time_arrays[name])
         return
     sel = slice(None) if ids is None else ids
     k = 1 if skip_first else 0
@@ -342,21 +366,22 @@ def names(traj_ref, traj_est) -> tuple[str, str]:
     return traj_ref.name or "reference", traj_est.name or "estimate"
 
 
-def ape_result(traj_ref, traj_est, relation: Rel, err: np.ndarray, title_suffix: str = "\n(not aligned)") -> Result:
+def ape_result(traj_ref, traj_est, relation: Rel, err: np.ndarray, title_suffix: str = "\n(not aligned)",
+               time_arrays: dict | None = None) -> Result:
     """The ``Result`` of ``evo.main_ape.ape`` for an error series computed here (``traj_*``: the associated,
-    already aligned, evo trajectories the result carries)."""
+    already aligned, evo trajectories the result carries; ``time_arrays``: see :func:`_add_time_arrays`)."""
     ref_name, est_name = names(traj_ref, traj_est)
     res = _metric_result(metrics.APE(relation), err, ref_name, est_name, title_suffix)
     res.add_trajectory(ref_name, traj_ref)
     res.add_trajectory(est_name, traj_est)
-    _add_time_arrays(res, traj_ref, traj_est, skip_first=False)
+    _add_time_arrays(res, traj_ref, traj_est, skip_first=False, time_arrays=time_arrays)
     return res
 
 
 def rpe_result(traj_ref, traj_est, relation: Rel, err: np.ndarray, delta_ids: np.ndarray, delta: float,
                delta_unit: metrics.Unit, rel_tol: float = 0.1, all_pairs: bool = False,
                pairs_from_reference: bool = False, title_suffix: str = "\n(not aligned)",
-               trajectories: bool = True) -> Result:
+               trajectories: bool = True, time_arrays: dict | None = None) -> Result:
     """The ``Result`` of ``evo.main_rpe.rpe``: statistics of the error series, and the trajectories reduced
     to the first pose and each pair's second pose (copies: the inputs are left as they are). Without
     ``trajectories`` the result carries the same statistics and arrays but not the reduced trajectories (a run's
@@ -369,7 +394,7 @@ def rpe_result(traj_ref, traj_est, relation: Rel, err: np.ndarray, delta_ids: np
     if trajectories:
         res.add_trajectory(ref_name, reduced(traj_ref, ids))
         res.add_trajectory(est_name, reduced(traj_est, ids))
-    _add_time_arrays(res, traj_ref, traj_est, skip_first=True, ids=ids)
+    _add_time_arrays(res, traj_ref, traj_est, skip_first=True, ids=ids, time_arrays=time_arrays)
     return res
 
 

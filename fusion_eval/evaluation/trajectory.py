@@ -145,26 +145,50 @@ class _EvoLoops:
 
 
 class _Arrays:
-    """The same results from :mod:`.engine` (whole arrays; the pairs of each delta selected once, by evo)."""
+    """The same results from :mod:`.engine` (whole arrays; the pairs of each delta selected once, by evo). The
+    error poses of a delta serve every relation in ``relations`` (made once, on the first relation's call), and
+    the arrays of stamps and distances, the same poses for every relation, are computed once per metric."""
 
-    def __init__(self, ref_a, est_a, rpe_trajectories: bool = True):
+    def __init__(self, ref_a, est_a, rpe_trajectories: bool = True, relations=()):
         self.ref_a, self.est_a = ref_a, est_a
         self.ref_T, self.est_T = engine.traj_se3(ref_a), engine.traj_se3(est_a)
         self._pairs: dict = {}
+        self._rpe: dict = {}
+        self._time: dict = {}
         self.rpe_trajectories = rpe_trajectories
+        self.relations = tuple(relations)
 
     def se3(self):
         return self.ref_T, self.est_T
 
+    def _time_arrays(self, key, ids, make):
+        """``make(kept time arrays or None)``, keeping the new result's time arrays for the next relation of the
+        same poses (``ids``; the point-distance ratio drops pairs of zero reference distance, so its ids may
+        differ from the others')."""
+        kept = self._time.get(key)
+        same = kept is not None and (ids is None or np.array_equal(kept[0], ids))
+        res = make(kept[1] if same else None)
+        if not same and engine.TIME_ARRAYS[0] in res.np_arrays:
+            self._time[key] = (ids, {k: res.np_arrays[k] for k in engine.TIME_ARRAYS})
+        return res
+
     def ape(self, rel):
-        return engine.ape_result(self.ref_a, self.est_a, rel, engine.ape_error(self.ref_T, self.est_T, rel))
+        err = engine.ape_error(self.ref_T, self.est_T, rel)
+        return self._time_arrays("ape", None, lambda ta: engine.ape_result(self.ref_a, self.est_a, rel, err,
+                                                                           time_arrays=ta))
 
     def rpe(self, rel, delta, unit):
         metrics.RPE(rel, delta, unit)                  # evo's argument checks, before any work
-        if (delta, unit) not in self._pairs:
-            self._pairs[(delta, unit)] = engine.rpe_pairs(self.ref_T, self.est_T, delta, unit)
-        err, ids = engine.rpe_error(self.ref_T, self.est_T, rel, self._pairs[(delta, unit)])
-        return engine.rpe_result(self.ref_a, self.est_a, rel, err, ids, delta, unit, trajectories=self.rpe_trajectories)
+        key = (delta, unit)
+        if key not in self._pairs:
+            self._pairs[key] = engine.rpe_pairs(self.ref_T, self.est_T, delta, unit)
+        if (key, rel) not in self._rpe:
+            rels = [rel] + [r for r in self.relations if r != rel and (key, r) not in self._rpe]
+            for r, out in zip(rels, engine.rpe_errors(self.ref_T, self.est_T, rels, self._pairs[key])):
+                self._rpe[(key, r)] = out
+        err, ids = self._rpe.pop((key, rel))
+        return self._time_arrays(key, ids, lambda ta: engine.rpe_result(
+            self.ref_a, self.est_a, rel, err, ids, delta, unit, trajectories=self.rpe_trajectories, time_arrays=ta))
 
 
 def _align(est_a, ref_a, alignment: str, arrays: bool, n_to_align: int = -1):
@@ -250,10 +274,10 @@ def evaluate(reference, estimate, name: str, t_max_diff_s: float,
         est_a, ev.alignment_params, applied = _align(est_a, ref_a, alignment, arrays, n_to_align)
     if cov is not None:
         ev.nees = pose_nees_of(ref_a, est_a, cov, applied, t_max_diff_s)
-    calc = _Arrays(ref_a, est_a, rpe_trajectories) if arrays else _EvoLoops(ref_a, est_a)
     wanted = ["trans_part", *[r for r in relations if r != "trans_part"]]
     rels = [(keys.RELATION_KEYS[r], keys.EVO_RELATIONS[r]) for r in wanted
             if has_orientation or r in keys.POSITION_RELATIONS]
+    calc = _Arrays(ref_a, est_a, rpe_trajectories, [rel for _, rel in rels]) if arrays else _EvoLoops(ref_a, est_a)
 
     ev.metrics[keys.APE] = {}
     for key, rel in rels:

@@ -88,23 +88,24 @@ def resolved_config(cfg: dict, extra: dict) -> str:
     return yaml.safe_dump({**cfg, **extra, "versions": versions()}, sort_keys=False)
 
 
-def _zip_names(ev: EstimateEvaluation):
-    """``(file name, evo result, with its trajectories)`` per metric. Only the APE translation zip carries the
-    (associated) reference and estimate trajectories: the other zips of an estimate would hold copies of the
-    same poses (or, for RPE, a reduced copy); each keeps evo's statistics and arrays, which is what ``evo_res``
-    reads."""
-    return [(f"{key}_{ev.name}.zip", res, key == "ape_translation") for key, res in ev.results.items()]
+def _zip_names(ev: EstimateEvaluation, trajectories: bool):
+    """``(file name, evo result, with its trajectories)`` per metric. Each zip keeps evo's statistics and arrays,
+    which is what ``evo_res`` reads. With ``trajectories`` (evo's ``save_traj_in_zip``, off by default in evo and
+    here: the run's TUM files hold the same poses, and on a long drive their text was most of the writing) only
+    the APE translation zip carries the (associated) reference and estimate trajectories: the other zips of an
+    estimate would hold copies of the same poses (or, for RPE, a reduced copy)."""
+    return [(f"{key}_{ev.name}.zip", res, trajectories and key == "ape_translation") for key, res in ev.results.items()]
 
 
-def evo_zips(ev: EstimateEvaluation) -> dict[str, bytes]:
+def evo_zips(ev: EstimateEvaluation, trajectories: bool = False) -> dict[str, bytes]:
     """evo result files (``evo_res`` reads them), one per metric: ``<metric>_<estimate>.zip`` -> bytes."""
-    return {fname: result_zip(res, trajectories=traj) for fname, res, traj in _zip_names(ev)}
+    return {fname: result_zip(res, trajectories=traj) for fname, res, traj in _zip_names(ev, trajectories)}
 
 
-def write_evo_zips(ev: EstimateEvaluation, folder: Path) -> None:
+def write_evo_zips(ev: EstimateEvaluation, folder: Path, trajectories: bool = False) -> None:
     """The files of :func:`evo_zips` written into ``folder``, each streamed into its file (a long drive's are
     hundreds of MB that need not be held whole)."""
-    for fname, res, traj in _zip_names(ev):
+    for fname, res, traj in _zip_names(ev, trajectories):
         with atomic_file(Path(folder) / fname) as fh:
             write_result_zip(fh, res, trajectories=traj)
 
