@@ -23,6 +23,7 @@ from .evaluation import span
 from .evaluation.run_metrics import (ESTIMATES, consistency, fused_error, ratio_metrics, run_metrics, segments,
                                      smoother_section)
 from .evaluation.trajectory import EstimateEvaluation, evaluate
+from .memory import release_free_heap
 from .outputs import StagedDir
 from .pool import executor
 from .progress import as_stages
@@ -52,7 +53,8 @@ class RunResult:
     resolved_extra: dict                     # informational sections of config.resolved.yaml
     timings_s: dict = field(default_factory=dict)
     out_dir: Path | None = None              # where it was written (run_to_dir)
-    truth_biases: object = None              # a simulated drive's true IMU biases (datasets.truth.TruthBiases)
+    truth_biases: object = None              # a simulated drive's true IMU biases as the bias plot draws them
+                                             # (datasets.truth.TruthBiases, report.thin.truth_biases)
 
 
 def evaluate_estimate(reference: PoseSeries, estimate: PoseSeries, name: str, ev_cfg: dict,
@@ -72,6 +74,8 @@ def evaluate_estimate(reference: PoseSeries, estimate: PoseSeries, name: str, ev
     else:
         ev.zips = report.files.evo_zips(ev, zip_trajectories)
     ev.results = {}
+    if name != "fused":     # the segment map colours the fused estimate's route alone: 17 MB less a long estimate
+        ev.ref_p_m = None
     return ev
 
 
@@ -177,6 +181,8 @@ def filter_and_evaluate(ds: Dataset, cfg: dict, sh: Shared, pool, *, dataset_pat
     # a simulated drive's true biases, for the bias plot (None for real data); read before the replay, whose
     # records would otherwise share the peak with the reading's buffers (hundreds of MB on a long drive)
     truth_b = truth_imu_biases(ds.description, prep.applied["time_offset_s"]["imu"]) if cfg["output"]["plots"] else None
+    # only what the bias plot draws, against the fused estimate's stamps (the IMU samples from the start on)
+    truth_b = report.thin.truth_biases(truth_b, prep.imu.t_s[prep.k_start:])
     t = time.perf_counter()
     stages.start("filter")
     # overflow in absurd settings is reported as divergence (exit 3), not as numpy warnings
@@ -184,6 +190,7 @@ def filter_and_evaluate(ds: Dataset, cfg: dict, sh: Shared, pool, *, dataset_pat
         filt = replay(prep, s, progress=None if progress is None else stages, imu_only=series["imu_only"],
                       monitor=monitor)
     timings["filter"] = time.perf_counter() - t
+    release_free_heap()                  # the replay's scratch, before the evaluations' results arrive
     t = time.perf_counter()
     series["fused"] = filt.fused
     if filt.smoothed is not None:
@@ -260,6 +267,7 @@ def run_to_dir(dataset_path: str | Path, req: session.ConfigRequest, out_dir: Pa
     t = time.perf_counter()
     ds = session.dataset(dataset_path)
     cfg = session.resolve(req, ds)
+    release_free_heap()                  # the readers' buffers, before the run's peak
     load_s = time.perf_counter() - t
     log.debug("loaded %s: %d IMU samples, %s GNSS fixes, %s lidar poses, %s ground-truth poses", ds.name, len(ds.imu),
               len(ds.gnss) if ds.gnss else 0, len(ds.lidar) if ds.lidar else 0, len(ds.groundtruth) if ds.groundtruth else 0)

@@ -153,7 +153,8 @@ def prepare(ds: Dataset, cfg: dict) -> Prepared:
     imu = ds.imu
     off = _offset(cfg, ds, "imu")
     applied["time_offset_s"]["imu"] = off
-    imu = replace(imu, t_s=imu.t_s + off)
+    if off != 0.0:
+        imu = replace(imu, t_s=imu.t_s + off)
     n_filled = int(imu.filled.sum())
     if cfg["imu"]["filled_packets"] == "drop" and n_filled:
         imu = imu.select(~imu.filled)
@@ -168,7 +169,9 @@ def prepare(ds: Dataset, cfg: dict) -> Prepared:
 
     # --- ground truth: the same clock as its source; filled-in packets are not truth
     gt = ds.groundtruth
-    gt = replace(gt, t_s=gt.t_s + float(ds.description.get("time_offset_s", {}).get("groundtruth", 0.0)))
+    gt_off = float(ds.description.get("time_offset_s", {}).get("groundtruth", 0.0))
+    if gt_off != 0.0:           # else the series as read (a copy would be ~60 MB for a long drive's truth)
+        gt = replace(gt, t_s=gt.t_s + gt_off)
     gt = gt.select(~gt.filled)
     if len(gt) < 2 or gt.t_s[-1] <= imu.t_s[0] or gt.t_s[0] >= imu.t_s[-1]:
         raise DataRangeError(f"IMU ({ds.imu.source}, {imu.t_s[0]:.3f}..{imu.t_s[-1]:.3f} s after imu.time_offset_s = "

@@ -19,6 +19,7 @@ from . import smoothing
 from .filters import compiled_replay, make_filter, observations
 from .filters.formulations.eskf import dead_reckon_poses
 from .filters.formulations.imu_model import imu_inputs, imu_params
+from .filters.layout import PACKED, unpack_pose_cov
 from .filters.state import unpack
 from .prepare import Prepared
 from .so3 import matrix_to_quat_xyzw
@@ -35,13 +36,19 @@ class FilterOutput:
     accel_bias_b: np.ndarray        # (N, 3) m/s^2
     gyro_bias_b: np.ndarray         # (N, 3) rad/s
     sigma: np.ndarray               # (N, 15) 1-sigma of the canonical error state (NaN where the filter has no such state)
-    P_pos_att: np.ndarray           # (N, 6, 6) covariance of [dp, dtheta] (theta: right perturbation)
+    P_pos_att_packed: np.ndarray    # (N, 21) covariance of [dp, dtheta] (theta: right perturbation), packed as
+                                    # recorded (filters.layout.PACKED); P_pos_att: the (N, 6, 6) matrices
     nis: dict                       # observation name -> {"t_s": (M,), "nis": (M,), "dof": int, "rejected": int}
     imu_only: PoseSeries
     n_imu_samples: int
     odometer_scale: np.ndarray | None = None   # (N,) odometer scale error k (formulations with a K block)
     smoothed: "FilterOutput | None" = None     # the smoother's estimate (smoother.method), same fields
     smoother_info: dict | None = None          # what the smoother kept and how long it took
+
+    @property
+    def P_pos_att(self) -> np.ndarray:
+        """``(N, 6, 6)`` covariance of [dp, dtheta], unpacked on each access (a new array: 207 MB on a long drive)."""
+        return unpack_pose_cov(self.P_pos_att_packed)
 
 
 def dead_reckoning(prep: Prepared, s: Settings) -> PoseSeries:
@@ -116,9 +123,10 @@ def check_divergence(out: FilterOutput) -> None:
     and initial uncertainty far too small make it reject nothing and follow nothing)."""
     from .errors import FilterDivergedError
 
-    P = out.P_pos_att
-    diag = np.diagonal(P, axis1=1, axis2=2) if P.size else np.zeros((0, 6))
-    bad = np.flatnonzero(~np.all(np.isfinite(P.reshape(len(P), -1)), axis=1) | np.any(diag < 0, axis=1)) if P.size else []
+    P = out.P_pos_att_packed
+    diag = P[:, np.diagonal(PACKED)] if P.size else np.zeros((0, 6))
+    # a row's sum is non-finite when one of its entries is (inf - inf is NaN): one number a row, not 21 booleans
+    bad = np.flatnonzero(~np.isfinite(P.sum(axis=1)) | np.any(diag < 0, axis=1)) if P.size else []
     if len(bad):
         raise FilterDivergedError(f"filter diverged at t={out.fused.t_s[bad[0]]:.3f} s: the position/attitude covariance is "
                                   "non-finite or has a negative variance")
@@ -177,16 +185,17 @@ def _replay_compiled(kf, bound, times, which, index, order, progress, monitor=No
 def _output(kf, t_imu, k0, rec_x, rec_Pdiag, rec_Ppt, source, imu_only, nis) -> FilterOutput:
     """A filter output (``fused`` or ``smoothed``) from the record at the IMU samples ``k0 ..``."""
     sl = slice(k0, None)
-    # one new array, its square root taken in place (numpy's temporary would be another 82 MB on a long drive, at the
-    # run's peak); the filter's record keeps its variances
-    sigma = np.maximum(rec_Pdiag[sl], 0.0)
+    # the square roots taken in the record itself, which nothing reads after this (a new array was another 82 MB on
+    # a long drive, at the run's peak)
+    sigma = rec_Pdiag[sl]
+    np.maximum(sigma, 0.0, out=sigma)
     np.sqrt(sigma, out=sigma)
     rec = unpack(rec_x[sl])
     poses = PoseSeries(t_s=t_imu[sl], p_w_m=rec["p"], q_wb_xyzw=matrix_to_quat_xyzw(rec["R"]), v_w_mps=rec["v"],
                        source=source)
     return FilterOutput(
         fused=poses, accel_bias_b=rec["ba"].copy(), gyro_bias_b=rec["bg"].copy(),
-        sigma=sigma, P_pos_att=rec_Ppt[sl], nis=nis,
+        sigma=sigma, P_pos_att_packed=rec_Ppt[sl], nis=nis,
         imu_only=imu_only, n_imu_samples=int(t_imu.size - k0), odometer_scale=kf.odometer_scale(rec_x[sl]),
     )
 

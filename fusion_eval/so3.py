@@ -104,6 +104,34 @@ def _rotvecs_of_quats(q, out):
 
 
 @njit(cache=True)
+def _relative_rotvec(a, b, out, n):
+    """``out[n]``: the rotation vector of ``R(a)^T R(b)`` for quaternions ``a``, ``b`` (x, y, z, w; normalised
+    first, as their matrices would be), as the quaternion ``conj(a) b`` and scipy's ``as_rotvec``."""
+    sa = np.sqrt(a[0] ** 2 + a[1] ** 2 + a[2] ** 2 + a[3] ** 2)
+    sb = np.sqrt(b[0] ** 2 + b[1] ** 2 + b[2] ** 2 + b[3] ** 2)
+    ax, ay, az, aw = -a[0] / sa, -a[1] / sa, -a[2] / sa, a[3] / sa
+    bx, by, bz, bw = b[0] / sb, b[1] / sb, b[2] / sb, b[3] / sb
+    _rotvec_of_quat(aw * bx + bw * ax + ay * bz - az * by, aw * by + bw * ay + az * bx - ax * bz,
+                    aw * bz + bw * az + ax * by - ay * bx, aw * bw - ax * bx - ay * by - az * bz, out, n)
+
+
+@njit(cache=True)
+def _relative_rotvecs(qa, qb, out):
+    for n in range(qa.shape[0]):
+        _relative_rotvec(qa[n], qb[n], out, n)
+
+
+def relative_rotvecs(q_a_xyzw: np.ndarray, q_b_xyzw: np.ndarray) -> np.ndarray:
+    """``Log(R_a^T R_b)`` (rad, ``(N, 3)``) of two stacks of quaternions (x, y, z, w), with no matrices: equal to
+    :func:`log_so3` of the matrices' product to 1e-9 (tested); a long drive's stacks of matrices and products
+    were ~150 MB and 0.3 s."""
+    qa, qb = (np.ascontiguousarray(np.reshape(q, (-1, 4)), dtype=float) for q in (q_a_xyzw, q_b_xyzw))
+    out = np.empty((qa.shape[0], 3))
+    _relative_rotvecs(qa, qb, out)
+    return out
+
+
+@njit(cache=True)
 def _matrices_of_quats(q, R):
     """scipy's ``from_quat(q).as_matrix()``: normalised, then the standard formula."""
     for n in range(q.shape[0]):

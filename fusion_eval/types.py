@@ -84,6 +84,13 @@ def _check_rows(name: str, a: np.ndarray, n: int, cols: int, source: str, lines:
         raise DataFormatError(source, line_of(lines, bad[0]), f"{what} {name} must be finite numbers (found NaN or inf)")
 
 
+def _keeps_all(mask) -> bool:
+    """A boolean mask that keeps every row: ``select`` returns the series itself (its arrays are read-only), not
+    a copy of each (a long drive's ground truth with no filled-in packet was ~60 MB copied for nothing)."""
+    mask = np.asarray(mask)
+    return mask.dtype == bool and bool(mask.all())
+
+
 @dataclass(frozen=True)
 class ImuSeries:
     """IMU samples: specific force and angular rate in the body frame.
@@ -123,6 +130,8 @@ class ImuSeries:
         return int(self.t_s.size)
 
     def select(self, mask: np.ndarray) -> "ImuSeries":
+        if _keeps_all(mask):
+            return self
         lines = None if self.lines is None else self.lines[mask]
         return replace(self, t_s=self.t_s[mask], f_b_mps2=self.f_b_mps2[mask], w_b_rps=self.w_b_rps[mask],
                        filled=self.filled[mask], lines=lines)
@@ -164,6 +173,8 @@ class GnssSeries:
                           has_orientation=False, source=self.source)
 
     def select(self, mask: np.ndarray) -> "GnssSeries":
+        if _keeps_all(mask):
+            return self
         lines = None if self.lines is None else self.lines[mask]
         return replace(self, t_s=self.t_s[mask], p_w_m=self.p_w_m[mask], std_w_m=self.std_w_m[mask],
                        filled=self.filled[mask], lines=lines)
@@ -221,6 +232,8 @@ class PoseSeries:
         return quat_xyzw_to_matrix(self.q_wb_xyzw).reshape(-1, 3, 3)
 
     def select(self, mask: np.ndarray) -> "PoseSeries":
+        if _keeps_all(mask):
+            return self
         lines = None if self.lines is None else self.lines[mask]
         v = None if self.v_w_mps is None else self.v_w_mps[mask]
         return replace(self, t_s=self.t_s[mask], p_w_m=self.p_w_m[mask], q_wb_xyzw=self.q_wb_xyzw[mask],
@@ -285,6 +298,8 @@ class VectorSeries:
         return int(self.t_s.size)
 
     def select(self, mask: np.ndarray) -> "VectorSeries":
+        if _keeps_all(mask):
+            return self
         lines = None if self.lines is None else self.lines[mask]
         return replace(self, t_s=self.t_s[mask], values=self.values[mask], std=self.std[mask], filled=self.filled[mask],
                        lines=lines)

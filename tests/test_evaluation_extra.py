@@ -253,3 +253,34 @@ def test_evaluate_names_same_named_files_by_their_folder(slice_run, tmp_path):
                                   str(tmp_path / "b" / "fused.tum"), "--no-plots", "--out", str(tmp_path / "o")])
     assert r.exit_code == 0, r.output
     assert set(json.loads((tmp_path / "o" / "metrics.json").read_text())["estimates"]) == {"a-fused", "b-fused"}
+
+
+def test_compiled_pose_nees_equals_the_matrix_formula():
+    """The NEES loop (quaternions, adjugate quadratic forms) against ``e^T P^-1 e`` by numpy's solve with the
+    attitude error ``log(R_est^T R_true)`` of the matrices: equal to 1e-9 relative, whatever each quaternion's
+    sign; a singular covariance gives a non-finite NEES (left out by the callers) instead of an exception."""
+    from scipy.spatial.transform import Rotation
+
+    from fusion_eval.evaluation.consistency import pose_nees, pose_nees_q
+    from fusion_eval.filters.layout import pack_pose_cov, unpack_pose_cov
+    from fusion_eval.so3 import log_so3, quat_xyzw_to_matrix
+
+    rng = np.random.default_rng(3)
+    n = 2000
+    q_est = Rotation.random(n, random_state=3).as_quat()
+    q_true = (Rotation.from_quat(q_est) * Rotation.from_rotvec(rng.normal(0, 0.02, (n, 3)))).as_quat()
+    q_true[::3] *= -1.0
+    p_est = rng.normal(0, 100, (n, 3))
+    p_true = p_est + rng.normal(0, 0.5, (n, 3))
+    A = rng.normal(size=(n, 6, 6))
+    P = A @ A.transpose(0, 2, 1) * 1e-3 + np.eye(6) * 1e-5
+    P = 0.5 * (P + P.transpose(0, 2, 1))             # exactly symmetric, as the filters' covariances are
+    R_est, R_true = quat_xyzw_to_matrix(q_est), quat_xyzw_to_matrix(q_true)
+    want_p = nees(p_true - p_est, P[:, :3, :3])
+    want_a = nees(log_so3(np.einsum("nji,njk->nik", R_est, R_true)), P[:, 3:, 3:])
+    packed = pack_pose_cov(P)
+    assert packed.shape == (n, 21) and np.array_equal(unpack_pose_cov(packed), P)
+    for n_p, n_a in (pose_nees_q(p_est, q_est, p_true, q_true, packed), pose_nees(p_est, R_est, p_true, R_true, P)):
+        assert np.allclose(n_p, want_p, rtol=1e-9, atol=0) and np.allclose(n_a, want_a, rtol=1e-9, atol=0)
+    P[0, :3, :3] = 0.0
+    assert not np.isfinite(pose_nees_q(p_est[:1], q_est[:1], p_true[:1], q_true[:1], pack_pose_cov(P[:1]))[0][0])

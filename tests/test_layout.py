@@ -11,7 +11,7 @@ import pytest
 
 from conftest import ROOT
 from fusion_eval.filters import formulations
-from fusion_eval.filters.layout import CANONICAL, Layout, canonical_index
+from fusion_eval.filters.layout import CANONICAL, Layout, canonical_index, unpack_pose_cov
 
 PKG = ROOT / "fusion_eval"
 # Where state vectors and covariances are indexed: the filters, the replay, and what reads their records.
@@ -77,4 +77,4 @@ def test_recorded_covariance_is_the_canonical_one(cls):
         else:
             assert np.all(np.isnan(got)), (cls.name, b)
     pt = CANONICAL.index(*POSE_BLOCKS)
-    assert np.allclose(kf.arrays.rec_Ppt[0], C[np.ix_(pt, pt)], rtol=1e-12)
+    assert np.allclose(unpack_pose_cov(kf.arrays.rec_Ppt[0]), C[np.ix_(pt, pt)], rtol=1e-12)

@@ -96,3 +96,23 @@ def test_compiled_conversions_equal_scipys():
         log_so3(-np.eye(3))
     with pytest.raises(ValueError, match="zero norm"):
         quat_xyzw_to_matrix(np.zeros(4))
+
+
+def test_relative_rotvecs_equal_the_log_of_the_matrix_product():
+    """``Log(R_a^T R_b)`` from the quaternions alone equals scipy-exact ``log_so3`` of the matrices' product to 1e-9
+    rad, for small and large relative rotations (near pi too), whatever each quaternion's sign and norm."""
+    from scipy.spatial.transform import Rotation
+
+    from fusion_eval.so3 import log_so3, relative_rotvecs
+
+    rng = np.random.default_rng(7)
+    qa = Rotation.random(3000, random_state=7).as_quat()
+    d = np.concatenate([rng.normal(0, 1e-4, (1000, 3)), rng.normal(0, 0.5, (1000, 3)),
+                        np.tile(np.pi * 0.999 * np.array([0.0, 0.6, 0.8]), (1000, 1))])
+    qb = (Rotation.from_quat(qa) * Rotation.from_rotvec(d)).as_quat()
+    qb[::2] *= -1.0
+    qa[1::3] *= 1.7                        # not unit: normalised first, as the matrices would be
+    want = log_so3(np.einsum("nji,njk->nik", quat_xyzw_to_matrix(qa), quat_xyzw_to_matrix(qb)))
+    got = relative_rotvecs(qa, qb)
+    assert np.max(np.abs(got - want)) < 1e-9
+    assert np.max(np.abs(got - d)) < 1e-9

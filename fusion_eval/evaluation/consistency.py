@@ -7,9 +7,10 @@ attitude error uses the filter's own convention, the right perturbation ``R_true
 from __future__ import annotations
 
 import numpy as np
+from numba import njit
 
-from ..filters.layout import POSE
-from ..so3 import log_so3
+from ..filters.layout import PACKED, POSE, pack_pose_cov
+from ..so3 import _quats, _relative_rotvec
 from ..stats import chi2_ppf
 
 
@@ -18,13 +19,48 @@ def nees(err: np.ndarray, cov: np.ndarray) -> np.ndarray:
     return np.einsum("ni,ni->n", err, np.linalg.solve(cov, err[..., None])[..., 0])
 
 
+@njit(cache=True, inline="always", error_model="numpy")
+def _quad3(P, pk, a, e0, e1, e2):
+    """``e^T C^-1 e`` for the 3x3 block ``C`` at ``a`` of a packed symmetric ``P`` (``pk``: the packing's index of
+    each entry), by the adjugate: a solve's figure, NaN or inf where ``C`` is singular."""
+    p00, p01, p02 = P[pk[a, a]], P[pk[a, a + 1]], P[pk[a, a + 2]]
+    p11, p12, p22 = P[pk[a + 1, a + 1]], P[pk[a + 1, a + 2]], P[pk[a + 2, a + 2]]
+    c00, c01, c02 = p11 * p22 - p12 * p12, p02 * p12 - p01 * p22, p01 * p12 - p02 * p11
+    c11, c12, c22 = p00 * p22 - p02 * p02, p01 * p02 - p00 * p12, p00 * p11 - p01 * p01
+    det = p00 * c00 + p01 * c01 + p02 * c02
+    q = (e0 * (c00 * e0 + c01 * e1 + c02 * e2) + e1 * (c01 * e0 + c11 * e1 + c12 * e2)
+         + e2 * (c02 * e0 + c12 * e1 + c22 * e2))
+    return q / det
+
+
+@njit(cache=True, error_model="numpy")       # a singular covariance: inf or NaN, not an exception
+def _pose_nees(p_est, q_est, p_true, q_true, P, pk, i_p, i_th, n_pos, n_att):
+    th = np.empty((1, 3))
+    for n in range(p_est.shape[0]):
+        n_pos[n] = _quad3(P[n], pk, i_p, p_true[n, 0] - p_est[n, 0], p_true[n, 1] - p_est[n, 1],
+                          p_true[n, 2] - p_est[n, 2])
+        _relative_rotvec(q_est[n], q_true[n], th, 0)          # Log(R_est^T R_true)
+        n_att[n] = _quad3(P[n], pk, i_th, th[0, 0], th[0, 1], th[0, 2])
+
+
+def pose_nees_q(p_est: np.ndarray, q_est_xyzw: np.ndarray, p_true: np.ndarray, q_true_xyzw: np.ndarray,
+                P_pos_att_packed: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Position and attitude NEES per epoch (each 3 dof) of poses given by quaternions ``(x, y, z, w)``, with the
+    covariances packed as the filters record them (``(N, 21)``, :data:`~fusion_eval.filters.layout.PACKED`): the
+    attitude error is the rotation vector of ``R_est^T R_true`` (scipy's ``as_rotvec``). One compiled loop with no
+    stack-sized temporaries (the matrices, products and solves took 0.7 s and ~200 MB on a simulated hour)."""
+    f = [np.ascontiguousarray(a, dtype=float) for a in (p_est, q_est_xyzw, p_true, q_true_xyzw, P_pos_att_packed)]
+    n_pos, n_att = np.empty(len(f[0])), np.empty(len(f[0]))
+    _pose_nees(*f, PACKED, POSE.sl("P").start, POSE.sl("TH").start, n_pos, n_att)
+    return n_pos, n_att
+
+
 def pose_nees(p_est: np.ndarray, R_est: np.ndarray, p_true: np.ndarray, R_true: np.ndarray,
               P_pos_att: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """Position and attitude NEES per epoch (each 3 dof)."""
-    e_p = p_true - p_est
-    e_th = log_so3(np.einsum("nji,njk->nik", R_est, R_true))
-    p, th = POSE.sl("P"), POSE.sl("TH")
-    return nees(e_p, P_pos_att[:, p, p]), nees(e_th, P_pos_att[:, th, th])
+    """Position and attitude NEES per epoch (each 3 dof) of poses given by rotation matrices and ``(N, 6, 6)``
+    covariances (:func:`pose_nees_q`)."""
+    return pose_nees_q(p_est, _quats(R_est).reshape(-1, 4), p_true, _quats(R_true).reshape(-1, 4),
+                       pack_pose_cov(P_pos_att))
 
 
 def fraction_inside(values: np.ndarray, dof: int, prob: float = 0.95) -> tuple[float, float, float]:

@@ -10,10 +10,10 @@ import numpy as np
 
 from ..filters.layout import CANONICAL
 from ..interp import interpolate_poses
-from ..so3 import log_so3, quat_xyzw_to_matrix
+from ..so3 import relative_rotvecs
 from ..types import PoseSeries
 from . import keys
-from .consistency import innovation_nll, innovation_summary, pose_nees, summary
+from .consistency import innovation_nll, innovation_summary, pose_nees_q, summary
 from .segments import breakdown
 from .trajectory import EstimateEvaluation
 
@@ -54,8 +54,8 @@ def _truth_at_fused(gt: PoseSeries, filt):
 def nees(gt: PoseSeries, filt) -> dict:
     """Position and attitude NEES of an estimate with covariance (fused or smoothed) against the ground truth."""
     gi, sel = _truth_at_fused(gt, filt)
-    n_pos, n_att = pose_nees(filt.fused.p_w_m[sel], quat_xyzw_to_matrix(filt.fused.q_wb_xyzw[sel]), gi.p_w_m, gi.R_wb(),
-                             filt.P_pos_att[sel])
+    n_pos, n_att = pose_nees_q(filt.fused.p_w_m[sel], filt.fused.q_wb_xyzw[sel], gi.p_w_m, gi.q_wb_xyzw,
+                               filt.P_pos_att_packed[sel])
     ok = np.isfinite(n_pos) & np.isfinite(n_att)
     return {"position": {**summary(n_pos[ok], 3), "t_s": gi.t_s[ok], "values": n_pos[ok]},
             "attitude": {**summary(n_att[ok], 3), "t_s": gi.t_s[ok], "values": n_att[ok]}} if ok.any() else {}
@@ -127,10 +127,9 @@ def fused_att_vel_error(gt: PoseSeries, filt) -> dict:
 def _att_vel_error(gt: PoseSeries, gi: PoseSeries, sel: slice, filt) -> dict:
     v_w, vel_truth = truth_velocity_w(gt)
     v_true = np.column_stack([np.interp(gi.t_s, gt.t_s, v_w[:, i]) for i in range(3)])
-    R_true = quat_xyzw_to_matrix(gi.q_wb_xyzw)
 
     def errors(f) -> tuple:
-        att = log_so3(np.einsum("nji,njk->nik", R_true, quat_xyzw_to_matrix(f.fused.q_wb_xyzw[sel]))).reshape(-1, 3)
+        att = relative_rotvecs(gi.q_wb_xyzw, f.fused.q_wb_xyzw[sel])          # Log(R_true^T R_fused)
         sg = f.sigma[sel]
         v = f.fused.v_w_mps
         vel = None if v is None else v[sel] - v_true

@@ -10,7 +10,8 @@ sample passed. What a formulation supplies is its step and how to record its cov
     propagates the nominal vector ``x`` (layout ``NOMINAL``) and, when ``cov``, ``P[:n, :n]`` over one
     interval with the input rows ``u0 -> u1`` (``qscale`` multiplies the white-noise variances);
 ``record_cov(P, n, x, aux, cidx, diag_out, ppt_out)``
-    writes the canonical error variances (15) and the 6x6 covariance of ``[dp, dtheta]`` (for NEES).
+    writes the canonical error variances (15) and the 6x6 covariance of ``[dp, dtheta]`` (for NEES), packed
+    (its upper triangle, :data:`~fusion_eval.filters.layout.PACKED`).
 
 Everything the loop reads and writes travels in one :class:`FilterArrays` record. Numba compiles a
 function that receives another compiled function as an argument once per argument and cannot cache
@@ -28,7 +29,7 @@ from collections import namedtuple
 import numpy as np
 from numba import njit
 
-from .layout import CANONICAL, POSE_BLOCKS
+from .layout import CANONICAL, PACKED, POSE_BLOCKS, POSE_PACKED_N
 
 # ``last``: the time, then the input row the state sits at
 LAST_T, LAST_U = 0, 1
@@ -44,8 +45,8 @@ FilterArrays = namedtuple("FilterArrays", [
     "aux",        # formulation scratch (e.g. the nominal filter's quaternion sign reference)
     "cidx",       # (15,) own index of each canonical core state, -1 where the map is not the identity
     "rec_x",      # (N, NOMINAL.n) recorded nominal states
-    "rec_Pdiag",  # (N, 15) recorded canonical variances
-    "rec_Ppt",    # (N, 6, 6) recorded covariance of [dp, dtheta]
+    "rec_Pdiag",  # (N, 15) recorded canonical variances (replay's output takes their square roots in place)
+    "rec_Ppt",    # (N, 21) recorded covariance of [dp, dtheta], packed (layout.PACKED)
 ])
 
 _LOOP = '''
@@ -98,6 +99,7 @@ def compiled_loop(module_name: str, step, record_cov):
 
 
 _PT = CANONICAL.index(*POSE_BLOCKS)
+_PK = PACKED
 
 
 @njit(cache=True)
@@ -109,9 +111,9 @@ def record_cov_by_index(P, n, x, aux, cidx, diag_out, ppt_out):
         diag_out[i] = P[j, j] if j >= 0 else np.nan
     for a in range(_PT.shape[0]):
         ia = cidx[_PT[a]]
-        for b in range(_PT.shape[0]):
+        for b in range(a, _PT.shape[0]):
             ib = cidx[_PT[b]]
-            ppt_out[a, b] = P[ia, ib] if (ia >= 0 and ib >= 0) else np.nan
+            ppt_out[_PK[a, b]] = P[ia, ib] if (ia >= 0 and ib >= 0) else np.nan
 
 
 def new_arrays(x: np.ndarray, P: np.ndarray, t: np.ndarray, u: np.ndarray, k0: int, prm: np.ndarray, gap: np.ndarray,
@@ -121,4 +123,4 @@ def new_arrays(x: np.ndarray, P: np.ndarray, t: np.ndarray, u: np.ndarray, k0: i
     rows = N if record else 1
     return FilterArrays(x=x, P=P, last=np.concatenate([[t[k0]], u[k0]]), t=t, u=u, prm=prm, gap=gap, aux=aux, cidx=cidx,
                         rec_x=np.full((N, x.size), np.nan), rec_Pdiag=np.full((rows, CANONICAL.n_core), np.nan),
-                        rec_Ppt=np.full((rows, _PT.size, _PT.size), np.nan))
+                        rec_Ppt=np.full((rows, POSE_PACKED_N), np.nan))

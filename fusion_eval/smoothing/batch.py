@@ -26,7 +26,7 @@ import numpy as np
 
 from ..errors import ConfigError
 from ..filters.formulations.imu_model import PRM_G, UF, UW
-from ..filters.layout import CANONICAL, NOMINAL
+from ..filters.layout import CANONICAL, NOMINAL, POSE_PACKED_N, pack_pose_cov
 from ..filters.observations import gnss_position as gp, pose as ap, relative_pose as rp
 from ..filters.observations.base import kernel_model
 from ..filters.state import NominalState
@@ -260,7 +260,8 @@ def batch_smooth(kf, rec: BatchRecord, s, k0: int, progress=None) -> tuple[Smoot
     marg = gtsam.ISAM2(ip)
     marg.update(graph, result)
 
-    out = Smoothed(np.full((N, NOMINAL.n), np.nan), np.full((N, CANONICAL.n_core), np.nan), np.full((N, 6, 6), np.nan))
+    out = Smoothed(np.full((N, NOMINAL.n), np.nan), np.full((N, CANONICAL.n_core), np.nan),
+                   np.full((N, POSE_PACKED_N), np.nan))
     P_, V_, TH_, BA_, BG_ = (CANONICAL.sl(b) for b in ("P", "V", "TH", "BA", "BG"))
     for i, tt in enumerate(keys_t):
         pose, vel, bias = result.atPose3(X(i)), result.atVector(V(i)), result.atConstantBias(B(i))
@@ -270,6 +271,7 @@ def batch_smooth(kf, rec: BatchRecord, s, k0: int, progress=None) -> tuple[Smoot
         J[0:3, 3:6] = R                      # dp_world = R t_local
         J[3:6, 0:3] = I3                     # dtheta = omega (both right perturbations)
         Sc = J @ Sp @ J.T
+        Sc_packed = pack_pose_cov(Sc)
         diag = np.empty(CANONICAL.n_core)
         diag[P_], diag[TH_] = np.diag(Sc)[:3], np.diag(Sc)[3:]
         diag[V_] = np.diag(marg.marginalCovariance(V(i)))
@@ -288,7 +290,7 @@ def batch_smooth(kf, rec: BatchRecord, s, k0: int, progress=None) -> tuple[Smoot
             x = NominalState(st.position(), st.velocity(), st.attitude().matrix(), bias.accelerometer(), bias.gyroscope())
             out.rec_x[kk] = x.vec
             out.rec_Pdiag[kk] = diag      # between keyframes: the keyframe's covariance (the prediction's is not added)
-            out.rec_Ppt[kk] = Sc
+            out.rec_Ppt[kk] = Sc_packed
         if progress is not None and i % 200 == 0:
             progress(i / n_kf)
     info = {"method": "batch", "keyframes": int(n_kf), "factors": int(graph.size()), **{f"{k}_factors": v for k, v in counts.items()},

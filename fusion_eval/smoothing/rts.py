@@ -39,7 +39,7 @@ class Smoothed:
 
     rec_x: np.ndarray        # (N, NOMINAL.n)
     rec_Pdiag: np.ndarray    # (N, 15)
-    rec_Ppt: np.ndarray      # (N, 6, 6)
+    rec_Ppt: np.ndarray      # (N, 21): the 6x6 of [dp, dtheta], packed (filters.layout.PACKED)
 
 
 RCOND = 1e-10       # relative eigenvalue of a correlation matrix below which a direction is degenerate

@@ -29,7 +29,7 @@ import numpy as np
 from numba import njit
 
 from .. import discretize
-from ..layout import CANONICAL, POSE_BLOCKS, Layout
+from ..layout import CANONICAL, PACKED, POSE_BLOCKS, Layout
 from ..mech import XP, XV, attitude, exp3, log3, mech_step, skew3
 from ..propagate import compiled_loop
 from ..state import ClonePose, NominalState
@@ -45,6 +45,7 @@ N_CORE = LAYOUT.n_core
 CP0, CV0, CTH0 = CANONICAL.start("P"), CANONICAL.start("V"), CANONICAL.start("TH")
 CCP0, CCTH0 = CANONICAL.start("CP"), CANONICAL.start("CTH")
 _PT = CANONICAL.index(*POSE_BLOCKS)
+_PK = PACKED
 
 
 @njit(cache=True)
@@ -117,8 +118,8 @@ def record_cov(P, n, x, aux, cidx, diag_out, ppt_out):
     for i in range(N_CORE):
         diag_out[i] = C[i, i]
     for i in range(_PT.shape[0]):
-        for j in range(_PT.shape[0]):
-            ppt_out[i, j] = C[_PT[i], _PT[j]]
+        for j in range(i, _PT.shape[0]):
+            ppt_out[_PK[i, j]] = C[_PT[i], _PT[j]]
 
 
 predict_to = compiled_loop(__name__, step, record_cov)

@@ -22,7 +22,7 @@ from __future__ import annotations
 import numpy as np
 from numba import njit
 
-from ..layout import CANONICAL, POSE_BLOCKS, Layout
+from ..layout import CANONICAL, PACKED, POSE_BLOCKS, Layout
 from ..linalg import symmetrize_into
 from ..mech import XBA, XBG, attitude, mech_step, skew3
 from ..propagate import compiled_loop
@@ -45,6 +45,7 @@ AQ0 = AUX.start("q")
 
 TH0 = CANONICAL.start("TH")
 _PT = CANONICAL.index(*POSE_BLOCKS)
+_PK = PACKED
 
 
 @njit(cache=True)
@@ -205,8 +206,8 @@ def record_cov(P, n, x, aux, cidx, diag_out, ppt_out):
     for i in range(cidx.shape[0]):
         diag_out[i] = C[i, i]
     for i in range(_PT.shape[0]):
-        for j in range(_PT.shape[0]):
-            ppt_out[i, j] = C[_PT[i], _PT[j]]
+        for j in range(i, _PT.shape[0]):
+            ppt_out[_PK[i, j]] = C[_PT[i], _PT[j]]
 
 
 predict_to = compiled_loop(__name__, step, record_cov)
