@@ -79,6 +79,13 @@ def evaluate_estimate(reference: PoseSeries, estimate: PoseSeries, name: str, ev
     return ev
 
 
+def plot_truth_biases(description: dict, imu_time_offset_s: float, t_first: float, t_last: float):
+    """A simulated drive's true IMU biases as the bias plot draws them against an estimate plotted over
+    ``t_first..t_last`` (:func:`fusion_eval.report.thin.truth_biases`); None for a dataset without them."""
+    truth = truth_imu_biases(description, imu_time_offset_s)
+    return None if truth is None else report.thin.truth_biases_in(truth, t_first, t_last)
+
+
 def trial_metrics(ds: Dataset, cfg: dict) -> dict:
     """One Monte-Carlo trial's metrics (in a worker: nothing written, nothing else sent back). Its informational
     log lines (the estimated gyro lag, ...) repeat the main run's, once per trial: only warnings are let through."""
@@ -178,11 +185,11 @@ def filter_and_evaluate(ds: Dataset, cfg: dict, sh: Shared, pool, *, dataset_pat
     n_trials = mc.check_count(trials)
     stages = as_stages(progress)
     trial_futs = [pool.submit(trial_metrics, ds, mc.apply(cfg, i)) for i in range(1, n_trials)]
-    # a simulated drive's true biases, for the bias plot (None for real data); read before the replay, whose
-    # records would otherwise share the peak with the reading's buffers (hundreds of MB on a long drive)
-    truth_b = truth_imu_biases(ds.description, prep.applied["time_offset_s"]["imu"]) if cfg["output"]["plots"] else None
-    # only what the bias plot draws, against the fused estimate's stamps (the IMU samples from the start on)
-    truth_b = report.thin.truth_biases(truth_b, prep.imu.t_s[prep.k_start:])
+    # a simulated drive's true biases, for the bias plot (None for real data): read on a worker while this process
+    # filters (a simulated hour's table is 79 MB of text, 0.7 s), only what the plot draws sent back
+    truth_b = pool.submit(plot_truth_biases, ds.description, prep.applied["time_offset_s"]["imu"],
+                          *report.thin.plotted_span(prep.imu.t_s[prep.k_start:])) \
+        if cfg["output"]["plots"] and ds.description.get("truth") else None
     t = time.perf_counter()
     stages.start("filter")
     # overflow in absurd settings is reported as divergence (exit 3), not as numpy warnings
@@ -204,6 +211,7 @@ def filter_and_evaluate(ds: Dataset, cfg: dict, sh: Shared, pool, *, dataset_pat
     futures.update({n: pool.submit(evaluate_estimate, sh.handles["ref"], series[n], n, ev_cfg, zip_dir,
                                    cfg["output"]["zip_trajectories"]) for n in own})
     own += list(sh.written)                  # set only for a run with a folder (execute)
+    truth_b = truth_b.result() if truth_b is not None else None
     err = fused_error(gt, filt, att_vel=cfg["output"]["plots"])
     # the TUM files and the filter's plots, each a job of its own, alongside the evaluations
     first = report.write_filter_outputs(out, series, filt, err, cfg["output"]["plots"], pool, truth_biases=truth_b,

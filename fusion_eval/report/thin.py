@@ -56,12 +56,22 @@ def truth_biases(truth, t_s: np.ndarray):
     ``t_s`` thinned by :func:`every`, thinned the same way; copies), or None. Taking them again from the result
     changes nothing (at most 2,500 points are kept whole), so a run keeps only these from the start: a simulated
     hour's table is 38 MB."""
-    from dataclasses import replace
-
     if truth is None or not np.size(t_s):
         return truth
+    return truth_biases_in(truth, *plotted_span(t_s))
+
+
+def plotted_span(t_s: np.ndarray) -> tuple[float, float]:
+    """The first and last of the stamps ``t_s`` that :func:`every` keeps."""
     kept = t_s[every(t_s.size)]
-    inside = np.flatnonzero((truth.t_s >= kept[0]) & (truth.t_s <= kept[-1]))
+    return float(kept[0]), float(kept[-1])
+
+
+def truth_biases_in(truth, t_first: float, t_last: float):
+    """:func:`truth_biases` for an estimate whose plotted span (:func:`plotted_span`) is ``t_first..t_last``."""
+    from dataclasses import replace
+
+    inside = np.flatnonzero((truth.t_s >= t_first) & (truth.t_s <= t_last))
     tk = inside[every(inside.size)]
     return replace(truth, t_s=truth.t_s[tk], accel_b_mps2=truth.accel_b_mps2[tk], gyro_b_rps=truth.gyro_b_rps[tk])
 
