@@ -31,6 +31,11 @@ class DataFormatError(FusionEvalError):
             where = f"{where}:{line}"
         super().__init__(f"{where}: {expected}")
 
+    def __reduce__(self):
+        # rebuilt from its three fields, not from the message alone: raised in a worker, it travels back through the
+        # pool's pickle as the same error (a message-only rebuild failed there and broke the pool with a traceback)
+        return type(self), (self.path, self.line, self.expected)
+
 
 class ConfigError(FusionEvalError):
     """A configuration or manifest key is unknown, missing or has a wrong value."""

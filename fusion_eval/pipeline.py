@@ -114,6 +114,7 @@ class Shared:
     timings: dict
     written: tuple = ()                      # estimates whose TUM and result files their evaluations wrote
     handles: dict = field(default_factory=dict)   # "ref" and the series as the pool's jobs take them (pool.share)
+    truth_biases: object = None              # future of a simulated drive's true biases for the bias plot, or None
 
 
 def share(ds: Dataset, cfg: dict, pool, zip_dir: Path | None = None) -> Shared:
@@ -141,13 +142,19 @@ def share(ds: Dataset, cfg: dict, pool, zip_dir: Path | None = None) -> Shared:
     series["imu_only"] = dead_reckoning(prep, settings_for(cfg, prep))
     # before the first job, which forks the workers: they hold these already (pool.share)
     handles = {"ref": pool.share(ref), **{n: pool.share(s) for n, s in series.items()}}
+    # a simulated drive's true biases, for the bias plot (None for real data): read on a worker while this process
+    # filters (a simulated hour's table is 79 MB of text, 0.7 s), only what the plot draws sent back; the first job,
+    # so that the main process never waits for it behind the evaluations
+    truth = pool.submit(plot_truth_biases, ds.description, prep.applied["time_offset_s"]["imu"],
+                        *report.thin.plotted_span(prep.imu.t_s[prep.k_start:])) \
+        if cfg["output"]["plots"] and ds.description.get("truth") else None
     zt = cfg["output"]["zip_trajectories"]
     futures = {n: pool.submit(evaluate_estimate, handles["ref"], handles[n], n, ev_cfg, None, zt)
                for n in ("lidar", "gnss") if n in series}
     futures["imu_only"] = pool.submit(evaluate_estimate, handles["ref"], handles["imu_only"], "imu_only", ev_cfg, zip_dir,
                                       zt)
     return Shared(prep, series, sp, ref, futures, timings, written=("imu_only",) if zip_dir is not None else (),
-                  handles=handles)
+                  handles=handles, truth_biases=truth)
 
 
 def execute(ds: Dataset, cfg: dict, *, dataset_path: str | Path | None = None, config_source: str = "default",
@@ -185,11 +192,6 @@ def filter_and_evaluate(ds: Dataset, cfg: dict, sh: Shared, pool, *, dataset_pat
     n_trials = mc.check_count(trials)
     stages = as_stages(progress)
     trial_futs = [pool.submit(trial_metrics, ds, mc.apply(cfg, i)) for i in range(1, n_trials)]
-    # a simulated drive's true biases, for the bias plot (None for real data): read on a worker while this process
-    # filters (a simulated hour's table is 79 MB of text, 0.7 s), only what the plot draws sent back
-    truth_b = pool.submit(plot_truth_biases, ds.description, prep.applied["time_offset_s"]["imu"],
-                          *report.thin.plotted_span(prep.imu.t_s[prep.k_start:])) \
-        if cfg["output"]["plots"] and ds.description.get("truth") else None
     t = time.perf_counter()
     stages.start("filter")
     # overflow in absurd settings is reported as divergence (exit 3), not as numpy warnings
@@ -211,7 +213,7 @@ def filter_and_evaluate(ds: Dataset, cfg: dict, sh: Shared, pool, *, dataset_pat
     futures.update({n: pool.submit(evaluate_estimate, sh.handles["ref"], series[n], n, ev_cfg, zip_dir,
                                    cfg["output"]["zip_trajectories"]) for n in own})
     own += list(sh.written)                  # set only for a run with a folder (execute)
-    truth_b = truth_b.result() if truth_b is not None else None
+    truth_b = sh.truth_biases.result() if sh.truth_biases is not None else None
     err = fused_error(gt, filt, att_vel=cfg["output"]["plots"])
     # the TUM files and the filter's plots, each a job of its own, alongside the evaluations
     first = report.write_filter_outputs(out, series, filt, err, cfg["output"]["plots"], pool, truth_biases=truth_b,

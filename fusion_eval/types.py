@@ -84,11 +84,12 @@ def _check_rows(name: str, a: np.ndarray, n: int, cols: int, source: str, lines:
         raise DataFormatError(source, line_of(lines, bad[0]), f"{what} {name} must be finite numbers (found NaN or inf)")
 
 
-def _keeps_all(mask) -> bool:
-    """A boolean mask that keeps every row: ``select`` returns the series itself (its arrays are read-only), not
-    a copy of each (a long drive's ground truth with no filled-in packet was ~60 MB copied for nothing)."""
+def _keeps_all(mask, t_s: np.ndarray) -> bool:
+    """A boolean mask of one entry per row that keeps every row: ``select`` returns the series itself (its arrays
+    are read-only), not a copy of each (a long drive's ground truth with no filled-in packet was ~60 MB copied for
+    nothing). Any other mask (a wrong length too) is indexed as before."""
     mask = np.asarray(mask)
-    return mask.dtype == bool and bool(mask.all())
+    return mask.dtype == bool and mask.shape == t_s.shape and bool(mask.all())
 
 
 @dataclass(frozen=True)
@@ -130,7 +131,7 @@ class ImuSeries:
         return int(self.t_s.size)
 
     def select(self, mask: np.ndarray) -> "ImuSeries":
-        if _keeps_all(mask):
+        if _keeps_all(mask, self.t_s):
             return self
         lines = None if self.lines is None else self.lines[mask]
         return replace(self, t_s=self.t_s[mask], f_b_mps2=self.f_b_mps2[mask], w_b_rps=self.w_b_rps[mask],
@@ -173,7 +174,7 @@ class GnssSeries:
                           has_orientation=False, source=self.source)
 
     def select(self, mask: np.ndarray) -> "GnssSeries":
-        if _keeps_all(mask):
+        if _keeps_all(mask, self.t_s):
             return self
         lines = None if self.lines is None else self.lines[mask]
         return replace(self, t_s=self.t_s[mask], p_w_m=self.p_w_m[mask], std_w_m=self.std_w_m[mask],
@@ -232,7 +233,7 @@ class PoseSeries:
         return quat_xyzw_to_matrix(self.q_wb_xyzw).reshape(-1, 3, 3)
 
     def select(self, mask: np.ndarray) -> "PoseSeries":
-        if _keeps_all(mask):
+        if _keeps_all(mask, self.t_s):
             return self
         lines = None if self.lines is None else self.lines[mask]
         v = None if self.v_w_mps is None else self.v_w_mps[mask]
@@ -298,7 +299,7 @@ class VectorSeries:
         return int(self.t_s.size)
 
     def select(self, mask: np.ndarray) -> "VectorSeries":
-        if _keeps_all(mask):
+        if _keeps_all(mask, self.t_s):
             return self
         lines = None if self.lines is None else self.lines[mask]
         return replace(self, t_s=self.t_s[mask], values=self.values[mask], std=self.std[mask], filled=self.filled[mask],

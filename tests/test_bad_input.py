@@ -349,3 +349,32 @@ def test_a_delimiter_of_several_characters_is_parsed_by_the_line_loop():
 
     rows, lines = parse_numeric_rows(Path("x.csv"), "# t::a\n1::2\n\n3.5::4\n", 2, "x", delimiter="::")
     assert rows.tolist() == [[1.0, 2.0], [3.5, 4.0]] and lines.tolist() == [2, 4]
+
+
+def test_a_data_error_raised_in_a_worker_comes_back_whole():
+    """Raised in a pool worker, a DataFormatError travels back through pickle as itself (path, line, message): a
+    message-only rebuild failed and broke the pool, a traceback instead of the one-line error."""
+    import pickle
+
+    from fusion_eval.errors import DataFormatError
+
+    e = pickle.loads(pickle.dumps(DataFormatError("truth/imu_biases.csv", 5, "expected a number, got 'abc'")))
+    assert isinstance(e, DataFormatError) and (e.path, e.line) == ("truth/imu_biases.csv", 5)
+    assert str(e) == "truth/imu_biases.csv:5: expected a number, got 'abc'"
+
+
+@pytest.mark.slow
+def test_a_corrupt_true_bias_file_read_on_a_worker_is_a_one_line_error(tmp_path):
+    """A simulated drive's true biases are read on a worker (for the bias plot): a bad line there is the same
+    one-line error and exit 2 as anywhere else, from a real process with its worker pool."""
+    from fusion_eval.simulate.dataset import simulate
+
+    sim = tmp_path / "sim"
+    simulate(sim, "urban", 20.0, 1, "automotive", (), jobs=1)
+    _edit_line(sim / "truth" / "imu_biases.csv", 5, "0.1,abc,0,0,0,0,0")
+    r = subprocess.run([sys.executable, "-m", "fusion_eval", "run", str(sim), "--out", str(tmp_path / "o")],
+                       capture_output=True, text=True, timeout=300)
+    assert r.returncode == 2, r.stderr
+    assert r.stderr.strip().splitlines()[-1].startswith("error: ") and "Traceback" not in r.stderr
+    assert "imu_biases.csv:5:" in r.stderr
+    assert not (tmp_path / "o").exists()

@@ -340,3 +340,17 @@ def test_errors_in_chunks_are_the_errors_of_one_stack(monkeypatch, relation):
     assert len(ref_T) > 5 * 97 and len(pairs) > 2 * 97
     assert np.array_equal(chunked[0], whole[0])
     assert np.array_equal(chunked[1][0], whole[1][0]) and np.array_equal(chunked[1][1], whole[1][1])
+
+
+def test_errors_of_several_relations_at_once_are_each_relations_own(monkeypatch):
+    """``rpe_errors`` makes each chunk's error poses once for all relations: each array is bit for bit its relation's
+    own call, a relation named twice included, and the point-distance ratio keeps its own (fewer) ids."""
+    ref, est = _load("kitti")
+    ref_T, est_T = engine.traj_se3(ref), engine.traj_se3(est)
+    pairs = engine.rpe_pairs(ref_T, est_T, 1, Unit.frames)
+    monkeypatch.setattr(engine, "CHUNK_POSES", 97)
+    rels = [Rel.translation_part, Rel.rotation_angle_deg, Rel.point_distance_error_ratio, Rel.full_transformation,
+            Rel.rotation_angle_deg]
+    for r, (err, ids) in zip(rels, engine.rpe_errors(ref_T, est_T, rels, pairs)):
+        own_err, own_ids = engine.rpe_error(ref_T, est_T, r, pairs)
+        assert np.array_equal(err, own_err) and np.array_equal(ids, own_ids), r

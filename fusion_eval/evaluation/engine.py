@@ -301,7 +301,7 @@ def rpe_errors(ref_T: np.ndarray, est_T: np.ndarray, relations, pairs: np.ndarra
         raise metrics.MetricsException("trajectories must have same number of poses")
     i, j = pairs[:, 0], pairs[:, 1]
     out: dict = {}
-    for relation in relations:
+    for relation in dict.fromkeys(relations):           # each once, however often named
         if relation in (Rel.point_distance, Rel.point_distance_error_ratio):
             d_ref = np.linalg.norm(ref_T[i, :3, 3] - ref_T[j, :3, 3], axis=1)
             d_est = np.linalg.norm(est_T[i, :3, 3] - est_T[j, :3, 3], axis=1)
@@ -311,7 +311,7 @@ def rpe_errors(ref_T: np.ndarray, est_T: np.ndarray, relations, pairs: np.ndarra
                 delta_ids = delta_ids[nz]
                 err = np.divide(err[nz], d_ref[nz]) * 100
             out[relation] = (err, delta_ids)
-    on_poses = [r for r in relations if r not in out]
+    on_poses = [r for r in dict.fromkeys(relations) if r not in out]
     if on_poses:
         ref_T, est_T = np.ascontiguousarray(ref_T, float), np.ascontiguousarray(est_T, float)
         i, j = np.ascontiguousarray(i), np.ascontiguousarray(j)

@@ -156,7 +156,7 @@ class _Arrays:
         self._rpe: dict = {}
         self._time: dict = {}
         self.rpe_trajectories = rpe_trajectories
-        self.relations = tuple(relations)
+        self.relations = tuple(dict.fromkeys(relations))
 
     def se3(self):
         return self.ref_T, self.est_T

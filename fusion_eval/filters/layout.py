@@ -117,7 +117,7 @@ POSE_BLOCKS = ("P", "TH")
 POSE = Layout("recorded pose covariance", [(b, CANONICAL[b].size) for b in POSE_BLOCKS])
 
 # It is recorded packed: the upper triangle row by row (21 of the 36 numbers: a simulated hour at 200 Hz records
-# 720,001 of them, 121 MB instead of 207). PACKED[i, j] (= PACKED[j, i]) is the place of entry (i, j).
+# 720,001 of them, 115 MiB instead of 198). PACKED[i, j] (= PACKED[j, i]) is the place of entry (i, j).
 _IU, _JU = np.triu_indices(POSE.n)
 POSE_PACKED_N = _IU.size
 PACKED = np.zeros((POSE.n, POSE.n), np.int64)
