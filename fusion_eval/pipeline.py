@@ -58,12 +58,14 @@ class RunResult:
 
 
 def evaluate_estimate(reference: PoseSeries, estimate: PoseSeries, name: str, ev_cfg: dict,
-                      zip_dir: Path | None = None, zip_trajectories: bool = False) -> EstimateEvaluation:
+                      zip_dir: Path | None = None, zip_trajectories: bool = False,
+                      route: bool = False) -> EstimateEvaluation:
     """evo's metrics of one estimate and its evo result files (in a worker: the files travel back as bytes,
     smaller than the result objects they are made of). With ``zip_dir`` (the run's staging folder) the worker
     writes them there itself, and the estimate's TUM file beside them (it holds the estimate: another job would
     need a copy): on a long drive they are hundreds of MB that the main process need not hold. ``zip_trajectories``:
-    ``output.zip_trajectories``."""
+    ``output.zip_trajectories``; ``route``: keep the associated reference positions (the segment map's primary
+    estimate; sent back for no other, a long estimate's are 17 MB)."""
     # the RPE results without their reduced trajectories: the result files do not hold them (report.files.evo_zips)
     ev = evaluate(reference, estimate, name, ev_cfg["t_max_diff_s"], ev_cfg["rpe_delta_m"], ev_cfg["association"],
                   ev_cfg["alignment"], ev_cfg["engine"], rpe_trajectories=False)
@@ -74,7 +76,7 @@ def evaluate_estimate(reference: PoseSeries, estimate: PoseSeries, name: str, ev
     else:
         ev.zips = report.files.evo_zips(ev, zip_trajectories)
     ev.results = {}
-    if name != "fused":     # the segment map colours the fused estimate's route alone: 17 MB less a long estimate
+    if not route:
         ev.ref_p_m = None
     return ev
 
@@ -83,7 +85,7 @@ def plot_truth_biases(description: dict, imu_time_offset_s: float, t_first: floa
     """A simulated drive's true IMU biases as the bias plot draws them against an estimate plotted over
     ``t_first..t_last`` (:func:`fusion_eval.report.thin.truth_biases`); None for a dataset without them."""
     truth = truth_imu_biases(description, imu_time_offset_s)
-    return None if truth is None else report.thin.truth_biases_in(truth, t_first, t_last)
+    return None if truth is None else report.thin.truth_biases(truth, t_first, t_last)
 
 
 def trial_metrics(ds: Dataset, cfg: dict) -> dict:
@@ -210,8 +212,9 @@ def filter_and_evaluate(ds: Dataset, cfg: dict, sh: Shared, pool, *, dataset_pat
     # writes them into every run's folder) come back as bytes
     zip_dir = out.path(".") if out is not None else None
     own = [n for n in ("fused", "smoothed") if n in series]
+    # the segment map colours the fused estimate's route (run_metrics.segments' primary)
     futures.update({n: pool.submit(evaluate_estimate, sh.handles["ref"], series[n], n, ev_cfg, zip_dir,
-                                   cfg["output"]["zip_trajectories"]) for n in own})
+                                   cfg["output"]["zip_trajectories"], n == "fused") for n in own})
     own += list(sh.written)                  # set only for a run with a folder (execute)
     truth_b = sh.truth_biases.result() if sh.truth_biases is not None else None
     err = fused_error(gt, filt, att_vel=cfg["output"]["plots"])

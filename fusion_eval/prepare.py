@@ -26,7 +26,7 @@ from .filters.state import NominalState
 from .geo import normal_gravity_mps2
 from .interp import interpolate_pose_at, snap_to_stamps
 from .so3 import inv_T, make_T, matrix_to_quat_xyzw
-from .types import Dataset, GnssSeries, ImuSeries, PoseSeries, SpeedSeries
+from .types import Dataset, GnssSeries, ImuSeries, PoseSeries, SpeedSeries, shifted
 
 log = logging.getLogger(__name__)
 
@@ -153,8 +153,7 @@ def prepare(ds: Dataset, cfg: dict) -> Prepared:
     imu = ds.imu
     off = _offset(cfg, ds, "imu")
     applied["time_offset_s"]["imu"] = off
-    if off != 0.0:
-        imu = replace(imu, t_s=imu.t_s + off)
+    imu = shifted(imu, off)
     n_filled = int(imu.filled.sum())
     if cfg["imu"]["filled_packets"] == "drop" and n_filled:
         imu = imu.select(~imu.filled)
@@ -168,10 +167,7 @@ def prepare(ds: Dataset, cfg: dict) -> Prepared:
     applied.update(timing_applied)
 
     # --- ground truth: the same clock as its source; filled-in packets are not truth
-    gt = ds.groundtruth
-    gt_off = float(ds.description.get("time_offset_s", {}).get("groundtruth", 0.0))
-    if gt_off != 0.0:           # else the series as read (a copy would be ~60 MB for a long drive's truth)
-        gt = replace(gt, t_s=gt.t_s + gt_off)
+    gt = shifted(ds.groundtruth, float(ds.description.get("time_offset_s", {}).get("groundtruth", 0.0)))
     gt = gt.select(~gt.filled)
     if len(gt) < 2 or gt.t_s[-1] <= imu.t_s[0] or gt.t_s[0] >= imu.t_s[-1]:
         raise DataRangeError(f"IMU ({ds.imu.source}, {imu.t_s[0]:.3f}..{imu.t_s[-1]:.3f} s after imu.time_offset_s = "
@@ -183,7 +179,7 @@ def prepare(ds: Dataset, cfg: dict) -> Prepared:
     lidar = travel = None
     if ds.lidar is not None:
         applied["time_offset_s"]["lidar"] = lidar_off
-        lid = replace(ds.lidar, t_s=ds.lidar.t_s + lidar_off)
+        lid = shifted(ds.lidar, lidar_off)
         if cfg["lidar"]["extrinsic_rotation"] == "auto":
             # the mount rotation against the calibration file, from the time-aligned signals (hand-eye)
             rot = estimate_rotation(imu, lid.select(~lid.filled))
@@ -221,7 +217,7 @@ def prepare(ds: Dataset, cfg: dict) -> Prepared:
     if ds.gnss is not None:
         off = _offset(cfg, ds, "gnss")
         applied["time_offset_s"]["gnss"] = off
-        g = replace(ds.gnss, t_s=ds.gnss.t_s + off)
+        g = shifted(ds.gnss, off)
         g = g.select(~g.filled)
         if len(g) and (g.t_s[-1] < t0 or g.t_s[0] > imu.t_s[-1]):
             raise DataRangeError(f"GNSS ({ds.gnss.source}, {g.t_s[0]:.3f}..{g.t_s[-1]:.3f} s after its time_offset_s of "
@@ -243,7 +239,7 @@ def prepare(ds: Dataset, cfg: dict) -> Prepared:
     if ds.odometer is not None:
         off = _offset(cfg, ds, "odometer")
         applied["time_offset_s"]["odometer"] = off
-        odo = replace(ds.odometer, t_s=ds.odometer.t_s + off)
+        odo = shifted(ds.odometer, off)
         if ds.description.get("odometer_degrade", False) and cfg["odometer"]["added_noise_std_mps"] > 0:
             # its own stream of gnss.seed (seed + 1 would be the next Monte-Carlo trial's GNSS noise)
             rng = np.random.default_rng([cfg["gnss"]["seed"], 2])
@@ -292,7 +288,7 @@ def prepare(ds: Dataset, cfg: dict) -> Prepared:
             raw = ds.extra[spec.name]
             off = _offset(cfg, ds, spec.name)
             applied["time_offset_s"][spec.name] = off
-            st = replace(raw, t_s=raw.t_s + off)
+            st = shifted(raw, off)
             st = st.select(~st.filled)
             st = st.select((st.t_s >= t0) & (st.t_s <= imu.t_s[-1]))
             if spec.prepare is not None:

@@ -105,14 +105,10 @@ def _rotvecs_of_quats(q, out):
 
 @njit(cache=True)
 def _relative_rotvec(a, b, out, n):
-    """``out[n]``: the rotation vector of ``R(a)^T R(b)`` for quaternions ``a``, ``b`` (x, y, z, w; normalised
-    first, as their matrices would be), as the quaternion ``conj(a) b`` and scipy's ``as_rotvec``."""
-    sa = np.sqrt(a[0] ** 2 + a[1] ** 2 + a[2] ** 2 + a[3] ** 2)
-    sb = np.sqrt(b[0] ** 2 + b[1] ** 2 + b[2] ** 2 + b[3] ** 2)
-    ax, ay, az, aw = -a[0] / sa, -a[1] / sa, -a[2] / sa, a[3] / sa
-    bx, by, bz, bw = b[0] / sb, b[1] / sb, b[2] / sb, b[3] / sb
-    _rotvec_of_quat(aw * bx + bw * ax + ay * bz - az * by, aw * by + bw * ay + az * bx - ax * bz,
-                    aw * bz + bw * az + ax * by - ay * bx, aw * bw - ax * bx - ay * by - az * bz, out, n)
+    """``out[n]``: the rotation vector of ``R(a)^T R(b)`` for quaternions ``a``, ``b`` (x, y, z, w): the normalised
+    product ``conj(a) b`` (:func:`_qmul`, as SLERP forms it) and scipy's ``as_rotvec``."""
+    x, y, z, w = _qmul(-a[0], -a[1], -a[2], a[3], b[0], b[1], b[2], b[3])
+    _rotvec_of_quat(x, y, z, w, out, n)
 
 
 @njit(cache=True)
@@ -150,18 +146,22 @@ def _matrices_of_quats(q, R):
 
 
 @njit(cache=True)
+def _qmul(px, py, pz, pw, qx, qy, qz, qw):
+    """Quaternion product ``p q`` (x, y, z, w), normalised (scipy's ``__mul__``), as four numbers: no array per
+    product in the per-pose loops that call it."""
+    x = pw * qx + qw * px + (py * qz - pz * qy)
+    y = pw * qy + qw * py + (pz * qx - px * qz)
+    z = pw * qz + qw * pz + (px * qy - py * qx)
+    w = pw * qw - px * qx - py * qy - pz * qz
+    s = np.sqrt(x ** 2 + y ** 2 + z ** 2 + w ** 2)
+    return x / s, y / s, z / s, w / s
+
+
+@njit(cache=True)
 def _compose(p, q):
-    """Quaternion product ``p q`` (x, y, z, w), normalised (scipy's ``__mul__``)."""
-    cx = p[1] * q[2] - p[2] * q[1]
-    cy = p[2] * q[0] - p[0] * q[2]
-    cz = p[0] * q[1] - p[1] * q[0]
-    r = np.empty(4)
-    r[0] = p[3] * q[0] + q[3] * p[0] + cx
-    r[1] = p[3] * q[1] + q[3] * p[1] + cy
-    r[2] = p[3] * q[2] + q[3] * p[2] + cz
-    r[3] = p[3] * q[3] - p[0] * q[0] - p[1] * q[1] - p[2] * q[2]
-    s = np.sqrt(r[0] ** 2 + r[1] ** 2 + r[2] ** 2 + r[3] ** 2)
-    return r / s
+    """:func:`_qmul` of two quaternion arrays, as an array."""
+    x, y, z, w = _qmul(p[0], p[1], p[2], p[3], q[0], q[1], q[2], q[3])
+    return np.array([x, y, z, w])
 
 
 @njit(cache=True)
@@ -174,9 +174,7 @@ def _slerp(t, q, tq, out):
         if tq[m] == t[0]:
             i = 0
         alpha = (tq[m] - t[i]) / (t[i + 1] - t[i])
-        pinv = np.array([-q[i, 0], -q[i, 1], -q[i, 2], q[i, 3]])
-        d = _compose(pinv, q[i + 1])
-        _rotvec_of_quat(d[0], d[1], d[2], d[3], rv, 0)
+        _relative_rotvec(q[i], q[i + 1], rv, 0)          # Log(q_i^-1 q_{i+1})
         v0, v1, v2 = rv[0, 0] * alpha, rv[0, 1] * alpha, rv[0, 2] * alpha
         angle = np.sqrt(v0 * v0 + v1 * v1 + v2 * v2)
         if angle <= 1e-3:

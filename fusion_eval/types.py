@@ -84,6 +84,12 @@ def _check_rows(name: str, a: np.ndarray, n: int, cols: int, source: str, lines:
         raise DataFormatError(source, line_of(lines, bad[0]), f"{what} {name} must be finite numbers (found NaN or inf)")
 
 
+def shifted(series, dt_s: float):
+    """``series`` (any of the series below) with its stamps moved by ``dt_s`` seconds; the series itself for 0 s (its
+    arrays are read-only; a copy of a long drive's ground truth was ~60 MB for nothing)."""
+    return series if dt_s == 0.0 else replace(series, t_s=series.t_s + dt_s)
+
+
 def _keeps_all(mask, t_s: np.ndarray) -> bool:
     """A boolean mask of one entry per row that keeps every row: ``select`` returns the series itself (its arrays
     are read-only), not a copy of each (a long drive's ground truth with no filled-in packet was ~60 MB copied for

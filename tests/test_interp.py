@@ -37,3 +37,12 @@ def test_stamps_between_samples_are_interpolated():
     s = _series()
     assert interp._at_stamps(s.t_s, s.t_s[5:9] + 1e-4) is None
     assert interp._at_stamps(s.t_s, s.t_s[5:9]) == slice(5, 9)
+
+
+def test_a_series_shifted_by_zero_is_itself_and_otherwise_a_moved_copy():
+    from fusion_eval.types import shifted
+
+    s = _series(10)
+    assert shifted(s, 0.0) is s
+    moved = shifted(s, 0.25)
+    assert np.array_equal(moved.t_s, s.t_s + 0.25) and np.array_equal(moved.p_w_m, s.p_w_m) and moved is not s

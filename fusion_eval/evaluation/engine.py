@@ -216,12 +216,21 @@ def ape_error(ref_T: np.ndarray, est_T: np.ndarray, relation: Rel) -> np.ndarray
 CHUNK_POSES = 1 << 16
 
 
+def _chunks(n: int):
+    """``(a, b)`` of the chunks of :data:`CHUNK_POSES` poses that cover ``0..n`` (one, ``(0, n)``, when it is short)."""
+    if n <= CHUNK_POSES:
+        return [(0, n)]
+    return [(a, min(a + CHUNK_POSES, n)) for a in range(0, n, CHUNK_POSES)]
+
+
+def _joined(parts: list) -> np.ndarray:
+    return parts[0] if len(parts) == 1 else np.concatenate(parts)
+
+
 def _chunked(n: int, error_of) -> np.ndarray:
     """``error_of(a, b)`` (the errors of the poses ``a:b``) over ``0..n`` in chunks of :data:`CHUNK_POSES`,
     concatenated: each pose's error is computed alone, so the result is the same numbers as one call."""
-    if n <= CHUNK_POSES:
-        return error_of(0, n)
-    return np.concatenate([error_of(a, min(a + CHUNK_POSES, n)) for a in range(0, n, CHUNK_POSES)])
+    return _joined([error_of(a, b) for a, b in _chunks(n)])
 
 
 def rpe_pairs(ref_T: np.ndarray, est_T: np.ndarray, delta: float, delta_unit: metrics.Unit, rel_tol: float = 0.1,
@@ -315,18 +324,14 @@ def rpe_errors(ref_T: np.ndarray, est_T: np.ndarray, relations, pairs: np.ndarra
     if on_poses:
         ref_T, est_T = np.ascontiguousarray(ref_T, float), np.ascontiguousarray(est_T, float)
         i, j = np.ascontiguousarray(i), np.ascontiguousarray(j)
-        chunks: dict = {r: [] for r in on_poses}
-
-        def error_of(a: int, b: int) -> np.ndarray:
+        parts: dict = {r: [] for r in on_poses}
+        for a, b in _chunks(i.size):                # each chunk's error poses, then every relation's errors of them
             E = np.empty((b - a, 4, 4))
             _rpe_poses(ref_T, est_T, i[a:b], j[a:b], E)
             for r in on_poses:
-                chunks[r].append(pose_error(E, r))
-            return np.empty(0)
-
-        _chunked(i.size, error_of)
+                parts[r].append(pose_error(E, r))
         for r in on_poses:
-            out[r] = (chunks[r][0] if len(chunks[r]) == 1 else np.concatenate(chunks[r]), j)
+            out[r] = (_joined(parts[r]), j)
     return [out[r] for r in relations]
 
 

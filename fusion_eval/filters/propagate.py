@@ -99,7 +99,14 @@ def compiled_loop(module_name: str, step, record_cov):
 
 
 _PT = CANONICAL.index(*POSE_BLOCKS)
-_PK = PACKED
+
+
+@njit(cache=True)
+def record_pose_cov(C, ppt_out):
+    """The [dp, dtheta] block of a canonical covariance ``C`` into a record row, packed (:data:`PACKED`)."""
+    for a in range(_PT.shape[0]):
+        for b in range(a, _PT.shape[0]):
+            ppt_out[PACKED[a, b]] = C[_PT[a], _PT[b]]
 
 
 @njit(cache=True)
@@ -113,7 +120,7 @@ def record_cov_by_index(P, n, x, aux, cidx, diag_out, ppt_out):
         ia = cidx[_PT[a]]
         for b in range(a, _PT.shape[0]):
             ib = cidx[_PT[b]]
-            ppt_out[_PK[a, b]] = P[ia, ib] if (ia >= 0 and ib >= 0) else np.nan
+            ppt_out[PACKED[a, b]] = P[ia, ib] if (ia >= 0 and ib >= 0) else np.nan
 
 
 def new_arrays(x: np.ndarray, P: np.ndarray, t: np.ndarray, u: np.ndarray, k0: int, prm: np.ndarray, gap: np.ndarray,

@@ -45,20 +45,11 @@ def att_vel(av: dict) -> dict:
 
 
 def biases(t_s: np.ndarray, ba: np.ndarray, bg: np.ndarray, sigma: np.ndarray, truth=None) -> tuple:
-    """The bias plot's arguments thinned by :func:`every` (``truth``: the true biases inside the thinned span,
-    thinned the same way)."""
+    """The bias plot's arguments thinned by :func:`every` (``truth``: :func:`truth_biases` over the plotted span)."""
     k = every(t_s.size)
-    return t_s[k], ba[k], bg[k], sigma[k], truth_biases(truth, t_s)
-
-
-def truth_biases(truth, t_s: np.ndarray):
-    """The true biases the bias plot draws against an estimate at the stamps ``t_s`` (those inside the span of
-    ``t_s`` thinned by :func:`every`, thinned the same way; copies), or None. Taking them again from the result
-    changes nothing (at most 2,500 points are kept whole), so a run keeps only these from the start: a simulated
-    hour's table is 38 MB."""
-    if truth is None or not np.size(t_s):
-        return truth
-    return truth_biases_in(truth, *plotted_span(t_s))
+    if truth is not None and t_s.size:
+        truth = truth_biases(truth, *plotted_span(t_s))
+    return t_s[k], ba[k], bg[k], sigma[k], truth
 
 
 def plotted_span(t_s: np.ndarray) -> tuple[float, float]:
@@ -67,8 +58,11 @@ def plotted_span(t_s: np.ndarray) -> tuple[float, float]:
     return float(kept[0]), float(kept[-1])
 
 
-def truth_biases_in(truth, t_first: float, t_last: float):
-    """:func:`truth_biases` for an estimate whose plotted span (:func:`plotted_span`) is ``t_first..t_last``."""
+def truth_biases(truth, t_first: float, t_last: float):
+    """The true biases the bias plot draws against an estimate plotted over ``t_first..t_last``
+    (:func:`plotted_span`): those inside it, thinned by :func:`every` (copies). Taking them again from the result
+    changes nothing (at most 2,500 points are kept whole), so a run keeps only these from the start: a simulated
+    hour's table is 38 MB."""
     from dataclasses import replace
 
     inside = np.flatnonzero((truth.t_s >= t_first) & (truth.t_s <= t_last))

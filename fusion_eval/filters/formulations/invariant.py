@@ -29,9 +29,9 @@ import numpy as np
 from numba import njit
 
 from .. import discretize
-from ..layout import CANONICAL, PACKED, POSE_BLOCKS, Layout
+from ..layout import CANONICAL, Layout
 from ..mech import XP, XV, attitude, exp3, log3, mech_step, skew3
-from ..propagate import compiled_loop
+from ..propagate import compiled_loop, record_pose_cov
 from ..state import ClonePose, NominalState
 from . import imu_model
 from .base import FilterBase
@@ -44,8 +44,6 @@ ICP, ICTH = LAYOUT.start("CP"), LAYOUT.start("CTH")
 N_CORE = LAYOUT.n_core
 CP0, CV0, CTH0 = CANONICAL.start("P"), CANONICAL.start("V"), CANONICAL.start("TH")
 CCP0, CCTH0 = CANONICAL.start("CP"), CANONICAL.start("CTH")
-_PT = CANONICAL.index(*POSE_BLOCKS)
-_PK = PACKED
 
 
 @njit(cache=True)
@@ -117,9 +115,7 @@ def record_cov(P, n, x, aux, cidx, diag_out, ppt_out):
     C = D @ np.ascontiguousarray(P[:N_CORE, :N_CORE]) @ D.T
     for i in range(N_CORE):
         diag_out[i] = C[i, i]
-    for i in range(_PT.shape[0]):
-        for j in range(i, _PT.shape[0]):
-            ppt_out[_PK[i, j]] = C[_PT[i], _PT[j]]
+    record_pose_cov(C, ppt_out)
 
 
 predict_to = compiled_loop(__name__, step, record_cov)

@@ -22,10 +22,10 @@ from __future__ import annotations
 import numpy as np
 from numba import njit
 
-from ..layout import CANONICAL, PACKED, POSE_BLOCKS, Layout
+from ..layout import CANONICAL, Layout
 from ..linalg import symmetrize_into
 from ..mech import XBA, XBG, attitude, mech_step, skew3
-from ..propagate import compiled_loop
+from ..propagate import compiled_loop, record_pose_cov
 from .base import FilterBase
 from .imu_model import PRM_G, PRM_QA, PRM_QBA, PRM_QBG, PRM_QG, UF, UW
 
@@ -44,8 +44,6 @@ AQ, AQC = AUX.sl("q"), AUX.sl("qc")
 AQ0 = AUX.start("q")
 
 TH0 = CANONICAL.start("TH")
-_PT = CANONICAL.index(*POSE_BLOCKS)
-_PK = PACKED
 
 
 @njit(cache=True)
@@ -205,9 +203,7 @@ def record_cov(P, n, x, aux, cidx, diag_out, ppt_out):
     C = D @ np.ascontiguousarray(P[:N_NOM, :N_NOM]) @ D.T
     for i in range(cidx.shape[0]):
         diag_out[i] = C[i, i]
-    for i in range(_PT.shape[0]):
-        for j in range(i, _PT.shape[0]):
-            ppt_out[_PK[i, j]] = C[_PT[i], _PT[j]]
+    record_pose_cov(C, ppt_out)
 
 
 predict_to = compiled_loop(__name__, step, record_cov)
