@@ -13,6 +13,7 @@ from fusion_eval.filters import discretize
 from fusion_eval.filters.formulations import eskf
 from fusion_eval.filters.formulations.eskf import continuous_model
 from fusion_eval.filters.formulations.imu_model import PRM_KBA, PRM_KBG, imu_params
+from fusion_eval.filters.state import NominalState
 
 N = eskf.N_CORE
 
@@ -178,3 +179,26 @@ def test_sparse_first_order_covariance_equals_the_dense_product(n):
     expect = F @ P[:n, :n] @ F.T + Q
     propagate_cov(P, n, R, f, w, dt, prm, 1.0)
     assert np.abs(P[:n, :n] - expect).max() <= 1e-12 * np.abs(expect).max()
+
+
+@pytest.mark.parametrize("method", ["van_loan", "second_order"])
+def test_the_step_leaves_its_transition_where_the_rts_smoother_gave_it_room(method):
+    """With room after its scratch (``FilterBase.reserve_transition``) the ESKF's step writes the transition of the
+    interval it stepped: the one :func:`eskf.rts_phi` recomputes from the same state and inputs (the RTS smoother's
+    backward pass uses the kept one); without room it writes nothing."""
+    rng = np.random.default_rng(3)
+    prm = imu_params(9.81, 0.05, np.radians(0.1), 1e-3, 1e-5, method)
+    x = NominalState(rng.standard_normal(3), rng.standard_normal(3), Rotation.random(random_state=3).as_matrix(),
+                     0.01 * rng.standard_normal(3), 1e-3 * rng.standard_normal(3)).vec
+    u0 = np.array([0.3, -0.2, 9.7, 0.01, -0.02, 0.2])
+    u1 = np.array([0.5, -0.1, 9.9, 0.02, -0.01, 0.25])
+    n = eskf.N_CORE
+    aux = np.zeros(eskf.AUX_OWN + n * n)
+    x1 = x.copy()
+    eskf.step(x1, np.eye(n) * 0.1, n, u0, u1, 0.1, 1.0, prm, aux, True)
+    phi = eskf.rts_phi(x.copy(), u0, u1, 0.1, 1.0, prm, np.zeros(1))
+    np.testing.assert_allclose(aux[eskf.AUX_OWN:].reshape(n, n), phi, rtol=0, atol=1e-15)
+    assert np.abs(phi - np.eye(n)).max() > 0.1                    # a real transition, not the identity
+    own = np.zeros(eskf.AUX_OWN)
+    eskf.step(x.copy(), np.eye(n) * 0.1, n, u0, u1, 0.1, 1.0, prm, own, True)
+    assert not own.any()

@@ -43,7 +43,7 @@ _LOOP = '''
 def {name}(a, st, xc, clone_t, times, kinds, index, j0, j1, gates, clone_after, n_core, clone_rows, xp, xr,
            ad_nb, ad_blocks, ad_rate, ad_var, ad_hist, ad_count, nis_out, ok_out, ld_out, H, r, Rm, wn, wm, dx, cols,
            rec_on, rst, n_max, ep_t, ep_k, ep_n, ep_x, ep_c, ep_aux, ep_u, ep_P, cl_t, cl_k, cl_n, cl_x, cl_c, cl_aux,
-           cl_u, cl_P, clone_epoch, pr_P, pr_ok, {datas}):
+           cl_u, cl_P, clone_epoch, pr_P, pr_ok, pr_phi, {datas}):
     for j in range(j0, j1):
         t = times[j]
         kind = kinds[j]
@@ -51,7 +51,7 @@ def {name}(a, st, xc, clone_t, times, kinds, index, j0, j1, gates, clone_after, 
         n = st[{st_n}]
         st[{st_k}] = _predict(a, n, st[{st_k}], max(t, a.last[0]), True)
         if rec_on:                # the smoother's record of the prior of the epoch this stamp opens
-            store_prior(a.P, n, n_max, ep_t, rst[0], a.last[0], pr_P, pr_ok)
+            store_prior(a.P, n, n_max, ep_t, rst[0], a.last[0], pr_P, pr_ok, a.aux, pr_phi)
 {dispatch}
         nis_out[j] = np.nan
         if m > 0:
@@ -237,12 +237,12 @@ def run(kf, bound, times: np.ndarray, which: np.ndarray, index: np.ndarray, orde
         rst = np.array([rec.epochs.size, rec.clones.size], np.int64)
         ep, cl = rec.epochs, rec.clones
         stores = (ep.t, ep.k_next, ep.n, ep.x, ep.c, ep.aux, ep.u, ep.P, cl.t, cl.k_next, cl.n, cl.x, cl.c, cl.aux, cl.u,
-                  cl.P, rec.clone_epoch, rec.prior_P, rec.prior_ok)
+                  cl.P, rec.clone_epoch, rec.prior_P, rec.prior_ok, rec.prior_phi)
         n_max = ep.n_max
     else:
         rst, n_max = np.zeros(2, np.int64), 0
         f1, i1, f2 = np.zeros(1), np.zeros(1, np.int64), np.zeros((1, 1))
-        stores = (f1, i1, i1, f2, f2, f2, f2, f2, f1, i1, i1, f2, f2, f2, f2, f2, i1, f2, np.zeros(1, np.bool_))
+        stores = (f1, i1, i1, f2, f2, f2, f2, f2, f1, i1, i1, f2, f2, f2, f2, f2, i1, f2, np.zeros(1, np.bool_), f2)
     j = 0
     try:
         while j < n_ev:

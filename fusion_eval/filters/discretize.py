@@ -83,37 +83,22 @@ _MAX_TERMS = 40           # |A| <= 2: the k-th term is below 2^k/k!, rounding le
 
 
 @njit(cache=True)
-def _nonzeros(A, rows, cols, vals):
-    """The non-zero entries of ``A`` into ``rows, cols, vals``; returns their count."""
+def _csr(A):
+    """``A``'s non-zeros by rows (``ptr``, ``cols``, ``vals``): the series' products touch only those (~40 of 225)."""
+    n = A.shape[0]
+    ptr = np.empty(n + 1, np.int64)
+    cols = np.empty(n * n, np.int64)
+    vals = np.empty(n * n)
     c = 0
-    for i in range(A.shape[0]):
-        for k in range(A.shape[1]):
+    for i in range(n):
+        ptr[i] = c
+        for k in range(n):
             if A[i, k] != 0.0:
-                rows[c], cols[c], vals[c] = i, k, A[i, k]
+                cols[c] = k
+                vals[c] = A[i, k]
                 c += 1
-    return c
-
-
-@njit(cache=True)
-def _sparse_left(rows, cols, vals, nnz, X, out, scale):
-    """``out <- scale * A X`` for the sparse ``A`` (``rows, cols, vals``)."""
-    out[:, :] = 0.0
-    m = X.shape[1]
-    for e in range(nnz):
-        i, k, v = rows[e], cols[e], vals[e] * scale
-        for j in range(m):
-            out[i, j] += v * X[k, j]
-
-
-@njit(cache=True)
-def _dense_abs_max(X):
-    m = 0.0
-    for i in range(X.shape[0]):
-        for j in range(X.shape[1]):
-            a = abs(X[i, j])
-            if a > m:
-                m = a
-    return m
+    ptr[n] = c
+    return ptr, cols, vals
 
 
 @njit(cache=True)
@@ -125,7 +110,11 @@ def van_loan(Ft, Qc, dt):
 
 @njit(cache=True)
 def _van_loan(Ft, Qc, dt, with_q):
-    """:func:`van_loan`; without ``with_q``, ``Phi`` alone (``Q_d`` returned as ``Qc``, untouched)."""
+    """:func:`van_loan`; without ``with_q``, ``Phi`` alone (``Q_d`` returned as ``Qc``, untouched).
+
+    One pass per term over ``A``'s rows forms the next term of both series, adds it to its sum and takes its
+    largest entry (the stopping test), with no scratch matrix zeroed or rescanned: the per-term cost is the
+    sparse products themselves (about half of what separate passes cost at 15 states)."""
     n = Ft.shape[0]
     norm = 0.0
     for i in range(n):
@@ -138,38 +127,68 @@ def _van_loan(Ft, Qc, dt, with_q):
         norm *= 0.5
         s += 1
     h = dt * 0.5 ** s
-    rows = np.empty(n * n, np.int64)
-    cols = np.empty(n * n, np.int64)
-    vals = np.empty(n * n)
-    nnz = _nonzeros(Ft, rows, cols, vals)
+    ptr, cols, vals = _csr(Ft)
     Phi = np.eye(n)
     term = np.eye(n)
     nxt = np.empty((n, n))
+    row = np.empty(n)
     Y = Qc * h
     Q = Y.copy()
     AY = np.empty((n, n))
     # |Phi| >= 1 (its diagonal) and |Q_d| is about |Y_1| = h max(Q_c) or more (the integrand Phi Q_c Phi^T keeps
     # Q_c's diagonal, up to the biases' decay over the step; later terms may be larger, at |F_t h| up to 2): the
     # series stop once their terms fall below rounding relative to those, without rescanning the sums
-    q_ref = _dense_abs_max(Y)
+    q_ref = 0.0
+    for i in range(n):
+        for j in range(n):
+            q_ref = max(q_ref, abs(Y[i, j]))
     for k in range(1, _MAX_TERMS):
-        _sparse_left(rows, cols, vals, nnz, term, nxt, h / k)         # A^k / k!
-        term, nxt = nxt, term
-        Phi += term
-        if with_q:
-            # Y_{k+1} = (A Y_k + Y_k A^T) / (k + 1): A Y_k is the transpose of Y_k A^T (Y symmetric)
-            _sparse_left(rows, cols, vals, nnz, Y, AY, h / (k + 1))
-            for i in range(n):
+        c_phi = h / k                      # A^k / k! = (h F_t / k) A^(k-1) / (k-1)!
+        c_y = h / (k + 1)                  # Y_{k+1} = (A Y_k + Y_k A^T) / (k + 1), A Y_k the transpose of Y_k A^T
+        t_max = 0.0
+        y_max = 0.0
+        for i in range(n):
+            for j in range(n):
+                row[j] = 0.0
+            for e in range(ptr[i], ptr[i + 1]):
+                v = vals[e] * c_phi
+                src = cols[e]
                 for j in range(n):
-                    Y[i, j] = AY[i, j] + AY[j, i]
-            Q += Y
-        if _dense_abs_max(term) <= 1e-17 and (not with_q or _dense_abs_max(Y) <= 1e-17 * q_ref):
+                    row[j] += v * term[src, j]
+            for j in range(n):
+                x = row[j]
+                nxt[i, j] = x
+                Phi[i, j] += x
+                t_max = max(t_max, abs(x))
+            if with_q:
+                for j in range(n):
+                    row[j] = 0.0
+                for e in range(ptr[i], ptr[i + 1]):
+                    v = vals[e] * c_y
+                    src = cols[e]
+                    for j in range(n):
+                        row[j] += v * Y[src, j]
+                for j in range(n):
+                    AY[i, j] = row[j]
+        term, nxt = nxt, term
+        if with_q:
+            for i in range(n):
+                for j in range(i, n):
+                    y = AY[i, j] + AY[j, i]        # exactly symmetric: so is every sum of these
+                    Y[i, j] = y
+                    Y[j, i] = y
+                    Q[i, j] += y
+                    if j != i:
+                        Q[j, i] += y
+                    y_max = max(y_max, abs(y))
+        if t_max <= 1e-17 and (not with_q or y_max <= 1e-17 * q_ref):
             break
     for _ in range(s):
         if with_q:
             Q = Q + Phi @ Q @ Phi.T
+            Q = 0.5 * (Q + Q.T)
         Phi = Phi @ Phi
-    return Phi, 0.5 * (Q + Q.T)
+    return Phi, Q
 
 
 @njit(cache=True)

@@ -62,6 +62,16 @@ def rmul_exp3(R, phi):
 
 
 @njit(cache=True)
+def mul_tn(A, B):
+    """``A^T B`` of two 3x3 matrices, in scalars (a 3x3 ``@`` is a BLAS call, dearer than the product)."""
+    C = np.empty((3, 3))
+    for i in range(3):
+        for j in range(3):
+            C[i, j] = A[0, i] * B[0, j] + A[1, i] * B[1, j] + A[2, i] * B[2, j]
+    return C
+
+
+@njit(cache=True)
 def log3(R):
     """Rotation vector of a rotation matrix (the inverse of :func:`exp3`), accurate near 0 and pi.
 
@@ -69,7 +79,7 @@ def log3(R):
     near pi the axis comes from the symmetric part, whose antisymmetric part vanishes there.
     """
     w = np.array([R[2, 1] - R[1, 2], R[0, 2] - R[2, 0], R[1, 0] - R[0, 1]])
-    s = 0.5 * np.sqrt(w @ w)
+    s = 0.5 * np.sqrt(w[0] * w[0] + w[1] * w[1] + w[2] * w[2])
     c = 0.5 * (R[0, 0] + R[1, 1] + R[2, 2] - 1.0)
     th = np.arctan2(s, c)
     if th < 1e-6:

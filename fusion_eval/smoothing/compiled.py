@@ -24,7 +24,7 @@ from . import kernels
 
 _SEGMENT = '''
 def {name}(x_a, aux, c, P_a, n, nc, t, u, gap, prm, k, t0, u0, t_b, xs_x, xs_c, Ps, rcond, cidx,
-           out_x, out_Pdiag, out_Ppt, pr_row, pr_has, n_max):
+           out_x, out_Pdiag, out_Ppt, pr_row, pr_has, n_max, phi_row):
     N = t.shape[0]
     kb = k
     while kb < N and t[kb] <= t_b:
@@ -62,8 +62,8 @@ def {name}(x_a, aux, c, P_a, n, nc, t, u, gap, prm, k, t0, u0, t_b, xs_x, xs_c, 
         if dt > 0.0:
             qs = gap[1] if (k > 0 and t[k] - t[k - 1] > gap[0]) else 1.0
             if pr_has and (ks < 0 or t[k] == t_b):
-                # the step into epoch b, whose prior the forward pass kept: only the transition and the state
-                PH[j] = _phi(x, uu0, u1, dt, qs, prm, aux)
+                # the step into epoch b, whose prior and transition the forward pass kept: only the state
+                PH[j] = phi_row.reshape((nc, nc))
                 _step(x, A[j], 0, uu0, u1, dt, qs, prm, aux, False)
                 j += 1
                 Pp = _unpack(pr_row, n_max, n)
@@ -113,7 +113,7 @@ def {name}(x_a, aux, c, P_a, n, nc, t, u, gap, prm, k, t0, u0, t_b, xs_x, xs_c, 
 
 
 def {name_pass}(ep_t, ep_k, ep_n, ep_x, ep_c, ep_aux, ep_u, ep_P, n_ep, cl_n, cl_x, cl_c, cl_P, clone_epoch, n_cl,
-                n_max, nc, t, u, gap, prm, rcond, cidx, out_x, out_Pdiag, out_Ppt, pr_P, pr_ok):
+                n_max, nc, t, u, gap, prm, rcond, cidx, out_x, out_Pdiag, out_Ppt, pr_P, pr_ok, pr_phi):
     N = t.shape[0]
     last = n_ep - 1
     xs = ep_x[last].copy()
@@ -139,7 +139,7 @@ def {name_pass}(ep_t, ep_k, ep_n, ep_x, ep_c, ep_aux, ep_u, ep_P, n_ep, cl_n, cl
         xs, cs, P = {name}(ep_x[a].copy(), ep_aux[a].copy(), ep_c[a], _unpack(ep_P[a], n_max, ep_n[a]), P.shape[0], nc,
                            t, u, gap, prm, ep_k[a], ep_t[a], ep_u[a], ep_t[b], xs, cs, np.ascontiguousarray(P), rcond,
                            cidx, out_x, out_Pdiag, out_Ppt, pr_P[min(b, pr_P.shape[0] - 1)], b < pr_ok.shape[0] and pr_ok[b],
-                           n_max)
+                           n_max, pr_phi[min(b, pr_phi.shape[0] - 1)])
 '''
 
 
@@ -156,11 +156,12 @@ def compiled_pass(cls):
     calls = {"_step": cls._step, "_boxminus": cls._rts_boxminus, "_boxplus": cls._rts_boxplus,
              "_record_cov": cls._record_cov, "_condition": kernels.condition, "_augmented": kernels.augmented,
              "_assemble": kernels.assemble, "_backward": kernels.backward, "_backward_clone": kernels.backward_clone,
-             "_uncondition": kernels.uncondition, "_unpack": kernels.unpack_upper, "_phi": cls._rts_phi,
+             "_uncondition": kernels.uncondition, "_unpack": kernels.unpack_upper,
              "_condition_given": kernels.condition_given}
     # the kernels' own callees too: numba's cache of this template checks only the formulation's module
     digest = source_digest(_SEGMENT, *calls.values(), kernels.pinv_sym, kernels.chol_scaled, kernels._pinv_eig,
-                           kernels.solve_sym, kernels._solve_factored, discretize.phi_only, discretize._van_loan)
+                           kernels.solve_sym, kernels._solve_factored, kernels._tri_inverse, discretize.transition_full, discretize._van_loan,
+                           discretize._csr, discretize.second_order)
     name, name_pass = f"_rts_segment_{digest}", f"_rts_pass_{digest}"
     ns = {**calls, "np": np, "__name__": cls.__module__}
     exec(compile(_SEGMENT.format(name=name, name_pass=name_pass), mod.__file__, "exec"), ns)  # noqa: S102 - our template

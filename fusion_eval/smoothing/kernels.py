@@ -1,5 +1,9 @@
 """The smoother's linear algebra, compiled: one backward step costs a few microseconds instead of the ~100 of
-small NumPy calls, which matters at one step per IMU interval."""
+small NumPy calls, which matters at one step per IMU interval.
+
+Loops are written by hand where they exploit a structure (triangles, symmetric halves, a clone's identity rows) or
+where a LAPACK call would cost more than its arithmetic; dense products of whole 15-21 state blocks go to BLAS
+(``@``), which at these sizes is 3-4x faster than a scalar triple loop (0.37 against 1.4 us for 15x15, measured)."""
 
 from __future__ import annotations
 
@@ -62,16 +66,8 @@ def pinv_sym(P, rcond):
     d, L, ok = chol_scaled(P, rcond)
     if not ok:
         return _pinv_eig(P, d, rcond)
-    # C^-1 = L^-T L^-1 with L^-1 by forward substitution (lower triangular) and the product over its triangle:
-    # no LAPACK call, which costs more than the arithmetic at these sizes
-    Li = np.zeros((n, n))
-    for j in range(n):
-        Li[j, j] = 1.0 / L[j, j]
-        for i in range(j + 1, n):
-            acc = 0.0
-            for k in range(j, i):
-                acc += L[i, k] * Li[k, j]
-            Li[i, j] = -acc / L[i, i]
+    # C^-1 = L^-T L^-1, the product over its triangle: no LAPACK call, which costs more than the arithmetic here
+    Li = _tri_inverse(L)
     G = np.empty((n, n))
     for i in range(n):
         for j in range(i, n):
@@ -95,28 +91,32 @@ def solve_sym(P, M, rcond):
 
 
 @njit(cache=True)
+def _tri_inverse(L):
+    """The inverse of a lower-triangular ``L``, by forward substitution (itself lower triangular)."""
+    n = L.shape[0]
+    Li = np.zeros((n, n))
+    for j in range(n):
+        Li[j, j] = 1.0 / L[j, j]
+        for i in range(j + 1, n):
+            acc = 0.0
+            for k in range(j, i):
+                acc += L[i, k] * Li[k, j]
+            Li[i, j] = -acc / L[i, i]
+    return Li
+
+
+@njit(cache=True)
 def _solve_factored(d, L, M):
-    """``P^-1 M`` from :func:`chol_scaled`'s ``d, L`` (row operations: the inner loops run along contiguous rows)."""
+    """``P^-1 M = D^-1 L^-T L^-1 D^-1 M`` from :func:`chol_scaled`'s ``d, L``: ``L``'s inverse by substitution
+    (n^3/6), then two BLAS products; the substitutions over ``M``'s columns cost twice as much at 15 states."""
     n, r = M.shape
-    X = np.empty((n, r))
-    for i in range(n):                         # L Z = D^-1 M
+    Z = np.empty((n, r))
+    for i in range(n):
+        inv = 1.0 / d[i]
         for c in range(r):
-            X[i, c] = M[i, c] / d[i]
-        for k in range(i):
-            lik = L[i, k]
-            for c in range(r):
-                X[i, c] -= lik * X[k, c]
-        inv = 1.0 / L[i, i]
-        for c in range(r):
-            X[i, c] *= inv
-    for i in range(n - 1, -1, -1):             # L^T W = Z, then D^-1 W
-        for k in range(i + 1, n):
-            lki = L[k, i]
-            for c in range(r):
-                X[i, c] -= lki * X[k, c]
-        inv = 1.0 / L[i, i]
-        for c in range(r):
-            X[i, c] *= inv
+            Z[i, c] = M[i, c] * inv
+    Li = _tri_inverse(L)
+    X = np.ascontiguousarray(Li.T) @ (Li @ Z)
     for i in range(n):
         inv = 1.0 / d[i]
         for c in range(r):
@@ -195,51 +195,32 @@ def backward_clone(Ac_j, B_j, Dinv, phi, S_j, e, Ps_next, P_j, P_next, rcond):
         C_xx = A_c Phi^T S^-1,   C_xc = (I - C_xx Phi) B D^-1,   C_cc = I
 
     (``A_c``: x's covariance given c at j, ``S = Phi A_c Phi^T + Q`` the same at j+1; ``docs/rts_smoother.md``).
-    ``C``'s clone rows are ``[0 I]``, so ``C dP C^T`` is formed from its leading rows only: two thirds of the
-    work of the full product."""
+    ``C``'s clone rows are ``[0 I]``, so ``C dP C^T`` is formed from its leading rows ``C_x = [C_xx C_xc]`` only:
+    ``W = C_x dP`` (whose clone columns are the cross block) and ``W C_x^T``, two thirds of the full product."""
     m = Ac_j.shape[0]
     n = P_j.shape[0]
-    nb = n - m
-    Cxx = np.ascontiguousarray(solve_sym(S_j, phi @ Ac_j, rcond).T)    # (S^-1 Phi A_c)^T: S, A_c symmetric
+    Cx = np.empty((m, n))
+    Cx[:, :m] = solve_sym(S_j, phi @ Ac_j, rcond).T           # C_xx = (S^-1 Phi A_c)^T: S, A_c symmetric
     BD = B_j @ Dinv
-    Cxc = BD - Cxx @ (phi @ BD)
+    Cx[:, m:] = BD - np.ascontiguousarray(Cx[:, :m]) @ (phi @ BD)
     dP = Ps_next - P_next
-    W = np.zeros((m, n))                             # the leading rows of C dP (its clone rows: dP's own)
-    for i in range(m):
-        for k in range(n):
-            cik = Cxx[i, k] if k < m else Cxc[i, k - m]
-            for j in range(n):
-                W[i, j] += cik * dP[k, j]
+    W = Cx @ dP
+    lead = W @ np.ascontiguousarray(Cx.T)
     Ps = np.empty((n, n))
-    for i in range(m):
-        for j in range(i, m):                        # C dP C^T over the leading block, its upper triangle
-            acc = 0.0
-            for k in range(m):
-                acc += W[i, k] * Cxx[j, k]
-            for k in range(nb):
-                acc += W[i, m + k] * Cxc[j, k]
-            Ps[i, j] = acc
-        for j in range(nb):                          # ... and the cross block: C dP's leading rows, clone columns
-            Ps[i, m + j] = W[i, m + j]
-    for i in range(nb):
-        for j in range(nb):
-            Ps[m + i, m + j] = dP[m + i, m + j]
-    for i in range(n):                               # P_j + that, both symmetrized, mirrored
+    for i in range(n):                               # P_j + C dP C^T, both symmetrized (upper triangle, mirrored)
         for j in range(i, n):
-            x = 0.5 * (Ps[i, j] + Ps[j, i]) if i >= m else Ps[i, j]
+            if j < m:
+                x = lead[i, j]
+            elif i < m:
+                x = W[i, j]
+            else:
+                x = 0.5 * (dP[i, j] + dP[j, i])
             v = 0.5 * (P_j[i, j] + P_j[j, i]) + x
             Ps[i, j] = v
             Ps[j, i] = v
     d = np.empty(n)
-    for i in range(m):
-        acc = 0.0
-        for k in range(m):
-            acc += Cxx[i, k] * e[k]
-        for k in range(nb):
-            acc += Cxc[i, k] * e[m + k]
-        d[i] = acc
-    for i in range(nb):
-        d[m + i] = e[m + i]
+    d[:m] = Cx @ e
+    d[m:] = e[m:]
     return d, Ps
 
 

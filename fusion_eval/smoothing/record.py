@@ -39,7 +39,7 @@ def store_row(a, k_next, n, xc, n_max, i, s_t, s_k, s_n, s_x, s_c, s_aux, s_u, s
     s_n[i] = n
     s_x[i, :] = a.x
     s_c[i, :] = xc
-    s_aux[i, :] = a.aux
+    s_aux[i, :] = a.aux[:s_aux.shape[1]]          # the formulation's own scratch (not the transition room)
     s_u[i, :] = a.last[LAST_U:]
     q = 0
     for p in range(n_max):
@@ -50,9 +50,10 @@ def store_row(a, k_next, n, xc, n_max, i, s_t, s_k, s_n, s_x, s_c, s_aux, s_u, s
 
 
 @njit(cache=True)
-def store_prior(P, n, n_max, ep_t, size, t, pr_P, pr_ok):
+def store_prior(P, n, n_max, ep_t, size, t, pr_P, pr_ok, aux, pr_phi):
     """The covariance just predicted to ``t``, before anything happens at ``t``: the prior of the epoch that ``t``
-    opens (a new stamp only), kept so that the backward pass need not recompute that interval's covariance."""
+    opens (a new stamp only), and the transition of the step into it (what the formulation's step left at the end
+    of its scratch, ``FilterBase._rts_phi``), kept so that the backward pass need recompute neither."""
     i = epoch_index(ep_t, size, t)
     if i != size or i >= pr_ok.shape[0] or pr_ok[i]:       # not a new stamp, or no priors kept (see EpochRecord)
         return
@@ -61,6 +62,10 @@ def store_prior(P, n, n_max, ep_t, size, t, pr_P, pr_ok):
         for c in range(p, n_max):
             pr_P[i, q] = P[p, c] if (p < n and c < n) else 0.0
             q += 1
+    m = pr_phi.shape[1]
+    off = aux.shape[0] - m
+    for q in range(m):
+        pr_phi[i, q] = aux[off + q]
     pr_ok[i] = True
 
 
@@ -95,12 +100,16 @@ class EpochRecord:
         self.epochs = _Store(n_events + 2, *shape)
         self.clones = _Store(n_events + 1, *shape)
         self.clone_epoch = np.zeros(n_events + 1, np.int64)    # the epoch each clone record belongs to
-        # each epoch's prior covariance (upper triangle), where the replay kept it: with ``priors`` (where an interval's
-        # covariance is dear to recompute, as Van Loan's at 10 Hz), the backward pass steps into an epoch with its
-        # transition alone; +1,850 bytes per epoch with the 21-state ESKF
-        n_max, rows = kf.layout.n, (n_events + 2 if priors else 0)
+        # each epoch's prior covariance (upper triangle) and the transition of the step into it, where the replay
+        # kept them: with ``priors`` (where an interval's covariance is dear to recompute, as Van Loan's at 10 Hz), the
+        # backward pass steps into an epoch with neither recomputed; +1,850 + 1,800 bytes per epoch with the 21-state
+        # ESKF. The formulation's step writes the transition into room after its scratch (reserved here)
+        n_max, rows, nc = kf.layout.n, (n_events + 2 if priors else 0), kf.layout.n_core
         self.prior_P = np.zeros((max(rows, 1), n_max * (n_max + 1) // 2))     # a row to index even when unused
+        self.prior_phi = np.zeros((max(rows, 1), nc * nc))
         self.prior_ok = np.zeros(rows, np.bool_)
+        if priors:
+            kf.reserve_transition()
 
     def _epoch_index(self, t: float) -> int:
         return int(epoch_index(self.epochs.t, self.epochs.size, t))
@@ -114,7 +123,7 @@ class EpochRecord:
     def prior(self, kf) -> None:
         """Record the covariance just predicted to the filter's stamp, before any update there (a new stamp only)."""
         store_prior(kf.arrays.P, kf.n, self.epochs.n_max, self.epochs.t, self.epochs.size, kf.t, self.prior_P,
-                    self.prior_ok)
+                    self.prior_ok, kf.arrays.aux, self.prior_phi)
 
     def before_clone(self, kf) -> None:
         """Record the joint state of the filter and its old clone, just before a new clone replaces it."""
@@ -124,7 +133,8 @@ class EpochRecord:
         c.size += 1
 
     def bytes_per_epoch(self) -> int:
-        return self.epochs.bytes_per_row() + (self.prior_P[:1].nbytes + 1 if self.prior_ok.size else 0)
+        return self.epochs.bytes_per_row() + (self.prior_P[:1].nbytes + self.prior_phi[:1].nbytes + 1
+                                              if self.prior_ok.size else 0)
 
     def nbytes(self) -> int:
         return self.bytes_per_epoch() * self.epochs.size + self.clones.bytes_per_row() * self.clones.size

@@ -66,7 +66,7 @@ class _Workspace:
         kf.arrays.last[LAST_U:] = u
         kf.xv[:] = x
         kf.clone.vec[:] = c
-        kf.aux[:] = aux
+        kf.aux[:aux.size] = aux
         kf.n = int(n)
         kf.cloned = kf.n > kf.layout.n_core
 
@@ -124,16 +124,16 @@ class RTS:
         u0, t0, k = ep.u[a].copy(), float(ep.t[a]), int(ep.k_next[a])
         points, phis = [[x.copy(), aux.copy(), A, B, P, -1, u0.copy()]], []
         N = t.size
-        # the prior of epoch a + 1, where the forward pass kept it: the step into that epoch needs only its transition
-        phi_of = getattr(self.kf, "_rts_phi", None)
+        # the prior of epoch a + 1 and the transition into it, where the forward pass kept them: the step into that
+        # epoch then only moves the state
         ok = self.rec.prior_ok
         prior = (kernels.unpack_upper(self.rec.prior_P[a + 1], ep.n_max, n)
-                 if phi_of is not None and a + 1 < ok.size and ok[a + 1] else None)
+                 if a + 1 < ok.size and ok[a + 1] else None)
 
         def advance(u1, dt, qscale, sample, last=False):
             nonlocal A, B
             if prior is not None and last:
-                phi = phi_of(x, u0, u1, dt, qscale, self.prm, aux)
+                phi = self.rec.prior_phi[a + 1].reshape(nc, nc).copy()
                 self.kf._step(x, A, 0, u0, u1, dt, qscale, self.prm, aux, False)
                 Pj = prior
                 if B is not None:
@@ -187,7 +187,7 @@ class RTS:
             cl = self.rec.clones
             fast(ep.t, ep.k_next, ep.n, ep.x, ep.c, ep.aux, ep.u, ep.P, ep.size, cl.n, cl.x, cl.c, cl.P,
                  self.rec.clone_epoch, cl.size, ep.n_max, self.nc, self.t, self.u, self.gap, self.prm, RCOND, kf.cidx,
-                 out.rec_x, out.rec_Pdiag, out.rec_Ppt, self.rec.prior_P, self.rec.prior_ok)
+                 out.rec_x, out.rec_Pdiag, out.rec_Ppt, self.rec.prior_P, self.rec.prior_ok, self.rec.prior_phi)
             return out
         clones_of: dict[int, list[int]] = {}
         for i in range(self.rec.clones.size):
@@ -254,7 +254,7 @@ class RtsSmoother:
         # covariance is dear (Van Loan's or the second-order series: 10 Hz IMUs) and the formulation can step into
         # an epoch with its transition alone
         disc = getattr(getattr(s, "filter", None), "discretization", "first_order")
-        priors = getattr(kf, "_rts_phi", None) is not None and disc != "first_order"
+        priors = kf._rts_phi is not None and disc != "first_order"
         self.rec = kf.recorder = EpochRecord(kf, n_events, priors)
         self.rec.epoch(kf)
 

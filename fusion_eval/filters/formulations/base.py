@@ -89,6 +89,11 @@ class FilterBase:
     # whether the RTS smoother runs over it: its error coordinates must be minimal (a 4-parameter quaternion's
     # norm direction makes the backward gains ill-posed; measured to diverge on the simulation)
     smoothable = True
+    # an RTS smoother's shortcut into each epoch (the formulations whose dense discretization is dear to recompute):
+    # ``_rts_phi(x, u0, u1, dt, qscale, prm, aux)`` gives a step's transition alone, and the compiled ``_step``
+    # writes the transition of every dense step into the last ``n_core^2`` entries of its scratch when the scratch
+    # has that room (:meth:`reserve_transition`), so the forward pass can keep each epoch's for the backward one
+    _rts_phi = None
 
     def __init__(self, x0: NominalState, P0: np.ndarray, prm: np.ndarray, t: np.ndarray, u: np.ndarray, k0: int,
                  gap: tuple[float, float] = (np.inf, 1.0), extra_var: dict[str, float] | None = None):
@@ -142,6 +147,11 @@ class FilterBase:
 
     def initial_aux(self) -> np.ndarray:
         return np.zeros(1)
+
+    def reserve_transition(self) -> None:
+        """Give the step room after its own scratch for the transition of each dense step (see ``_rts_phi``)."""
+        self.aux = np.concatenate([self.aux, np.zeros(self.layout.n_core ** 2)])
+        self.arrays = self.arrays._replace(aux=self.aux)
 
     def quats(self) -> dict[str, np.ndarray]:
         """The quaternions (w, x, y, z) of the own quaternion blocks, for the canonical map."""

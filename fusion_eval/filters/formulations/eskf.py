@@ -30,7 +30,7 @@ from numba import njit
 
 from .. import discretize, linalg
 from ..layout import CANONICAL, CLONE
-from ..mech import XBA, XBG, XP, XV, attitude, log3, mech_step, rmul_exp3, skew3
+from ..mech import XBA, XBG, XP, XV, attitude, log3, mech_step, mul_tn, rmul_exp3, skew3
 from ..propagate import compiled_loop, new_arrays, record_cov_by_index
 from ..state import NominalState, unpack
 from ...spec import S
@@ -42,6 +42,7 @@ LAYOUT = CANONICAL
 P_ID, V_ID, TH_ID, BA_ID, BG_ID = (LAYOUT.start(b) for b in ("P", "V", "TH", "BA", "BG"))
 CP_ID, CTH_ID = LAYOUT.start("CP"), LAYOUT.start("CTH")
 N_CORE = LAYOUT.n_core
+AUX_OWN = 1             # the size of its own scratch (unused); an RTS record's transition room follows it
 CLONE_P, CLONE_R = CLONE.start("p"), CLONE.start("R")
 
 
@@ -158,6 +159,12 @@ def step(x, P, n, u0, u1, dt, qscale, prm, aux, cov):
             Ft, Qc = continuous_model(attitude(x), fm, wm, prm, qscale)
             Phi, Qd = discretize.transition(Ft, Qc, dt, method)
             discretize.propagate_dense(P, n, Phi, Qd)
+            if aux.shape[0] > AUX_OWN:            # room the RTS smoother gave: it keeps the transition into each epoch
+                q = AUX_OWN
+                for i in range(N_CORE):
+                    for j in range(N_CORE):
+                        aux[q] = Phi[i, j]
+                        q += 1
     mech_step(x, u0[UF:UF + 3], u0[UW:UW + 3], u1[UF:UF + 3], u1[UW:UW + 3], dt, prm[PRM_G])
     decay_biases(x, dt, prm)
 
@@ -165,7 +172,8 @@ def step(x, P, n, u0, u1, dt, qscale, prm, aux, cov):
 @njit(cache=True)
 def rts_phi(x, u0, u1, dt, qscale, prm, aux):
     """The transition :func:`step` linearises the interval at (the same attitude, midpoint inputs and biases), alone:
-    the RTS smoother's, where the interval's prior covariance was recorded."""
+    what the forward step leaves in the RTS smoother's room (the Python backward pass, the tests' oracle, recomputes
+    it with this)."""
     fm = np.empty(3)
     wm = np.empty(3)
     for i in range(3):
@@ -227,7 +235,7 @@ def boxminus_vec(x, xc, x0, xc0, n):
     """``(x, clone) [-] (x0, clone0)`` over the first ``n`` error states (right perturbations on attitudes)."""
     d = np.zeros(n)
     R, R0 = attitude(x), attitude(x0)
-    dth = log3(np.ascontiguousarray(R0.T @ R))
+    dth = log3(mul_tn(R0, R))
     for i in range(3):
         d[P_ID + i] = x[XP + i] - x0[XP + i]
         d[V_ID + i] = x[XV + i] - x0[XV + i]
@@ -237,7 +245,7 @@ def boxminus_vec(x, xc, x0, xc0, n):
     if n > N_CORE:
         Rc = xc[CLONE_R:CLONE_R + 9].reshape((3, 3))
         Rc0 = xc0[CLONE_R:CLONE_R + 9].reshape((3, 3))
-        dthc = log3(np.ascontiguousarray(Rc0.T @ Rc))
+        dthc = log3(mul_tn(Rc0, Rc))
         for i in range(3):
             d[CP_ID + i] = xc[CLONE_P + i] - xc0[CLONE_P + i]
             d[CTH_ID + i] = dthc[i]
