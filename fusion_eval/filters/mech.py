@@ -141,17 +141,15 @@ def mech_step(x, f0, w0, f1, w1, dt, g):
     E12, E21 = b * p1 * p2 - a * p0, b * p1 * p2 + a * p0
     fa0, fa1, fa2 = f0[0] - x[XBA], f0[1] - x[XBA + 1], f0[2] - x[XBA + 2]
     fb0, fb1, fb2 = f1[0] - x[XBA], f1[1] - x[XBA + 1], f1[2] - x[XBA + 2]
-    am = np.empty(3)
-    R1 = np.empty(9)
+    # row i of R1 and of the world acceleration read only row i of R0: each row is stepped in place
     for i in range(3):
         r0, r1, r2 = x[XR + 3 * i], x[XR + 3 * i + 1], x[XR + 3 * i + 2]
         n0 = r0 * E00 + r1 * E10 + r2 * E20
         n1 = r0 * E01 + r1 * E11 + r2 * E21
         n2 = r0 * E02 + r1 * E12 + r2 * E22
-        R1[3 * i], R1[3 * i + 1], R1[3 * i + 2] = n0, n1, n2
-        am[i] = 0.5 * ((r0 * fa0 + r1 * fa1 + r2 * fa2) + (n0 * fb0 + n1 * fb1 + n2 * fb2))
-    am[2] -= g
-    for i in range(3):
-        x[XP + i] += x[XV + i] * dt + 0.5 * am[i] * dt * dt
-        x[XV + i] += am[i] * dt
-    x[XR:XR + 9] = R1
+        x[XR + 3 * i], x[XR + 3 * i + 1], x[XR + 3 * i + 2] = n0, n1, n2
+        am = 0.5 * ((r0 * fa0 + r1 * fa1 + r2 * fa2) + (n0 * fb0 + n1 * fb1 + n2 * fb2))
+        if i == 2:
+            am -= g
+        x[XP + i] += x[XV + i] * dt + 0.5 * am * dt * dt
+        x[XV + i] += am * dt

@@ -54,48 +54,72 @@ def propagate_cov(P, n, R, f_b, w_b, dt, prm, qscale):
     linearised at; ``n`` is the number of states (15 + 6 with a clone); ``qscale`` multiplies the
     white-noise variances (gaps).
     """
-    # F's blocks: A = -R [f]x dt (dv/dtheta), B = -R dt (dv/dba), C = -[w]x dt (dtheta/dtheta minus I),
-    # in one scratch array; products written out (numpy's 3x3 products are BLAS calls, dearer than the sums)
-    ABC = np.empty((3, 3, 3))
-    f0, f1, f2 = f_b[0], f_b[1], f_b[2]
-    for i in range(3):
-        r0, r1, r2 = R[i, 0], R[i, 1], R[i, 2]
-        ABC[0, i, 0] = -(r1 * f2 - r2 * f1) * dt          # -(R [f]x)[i, :] dt
-        ABC[0, i, 1] = -(r2 * f0 - r0 * f2) * dt
-        ABC[0, i, 2] = -(r0 * f1 - r1 * f0) * dt
-        ABC[1, i, 0], ABC[1, i, 1], ABC[1, i, 2] = -r0 * dt, -r1 * dt, -r2 * dt
-    w0, w1, w2 = w_b[0] * dt, w_b[1] * dt, w_b[2] * dt
-    ABC[2, 0, 0], ABC[2, 0, 1], ABC[2, 0, 2] = 0.0, w2, -w1
-    ABC[2, 1, 0], ABC[2, 1, 1], ABC[2, 1, 2] = -w2, 0.0, w0
-    ABC[2, 2, 0], ABC[2, 2, 1], ABC[2, 2, 2] = w1, -w0, 0.0
+    _propagate_cov(P, n, R, f_b[0], f_b[1], f_b[2], w_b[0], w_b[1], w_b[2], dt, prm, qscale)
+
+
+@njit(cache=True)
+def _propagate_cov(P, n, R, f0, f1, f2, w0, w1, w2, dt, prm, qscale):
+    """:func:`propagate_cov` on scalars, with no array allocated: it runs once per IMU sample, where an allocation
+    costs as much as a tenth of the arithmetic."""
+    # F's blocks: A = -R [f]x dt (dv/dtheta), B = -R dt (dv/dba), C = -[w]x dt (dtheta/dtheta minus I), as
+    # scalars a<row><col>, b<row><col> (numpy's 3x3 products are BLAS calls, dearer than the sums)
+    a00, a01, a02 = -(R[0, 1] * f2 - R[0, 2] * f1) * dt, -(R[0, 2] * f0 - R[0, 0] * f2) * dt, -(R[0, 0] * f1 - R[0, 1] * f0) * dt
+    a10, a11, a12 = -(R[1, 1] * f2 - R[1, 2] * f1) * dt, -(R[1, 2] * f0 - R[1, 0] * f2) * dt, -(R[1, 0] * f1 - R[1, 1] * f0) * dt
+    a20, a21, a22 = -(R[2, 1] * f2 - R[2, 2] * f1) * dt, -(R[2, 2] * f0 - R[2, 0] * f2) * dt, -(R[2, 0] * f1 - R[2, 1] * f0) * dt
+    b00, b01, b02 = -R[0, 0] * dt, -R[0, 1] * dt, -R[0, 2] * dt
+    b10, b11, b12 = -R[1, 0] * dt, -R[1, 1] * dt, -R[1, 2] * dt
+    b20, b21, b22 = -R[2, 0] * dt, -R[2, 1] * dt, -R[2, 2] * dt
+    c0, c1, c2 = w0 * dt, w1 * dt, w2 * dt
     # rows, in place: P <- F P. Row blocks P, V, TH each read only the old rows after them (V, then TH and
     # BA, then TH and BG), so they are updated in that order; TH's three rows read one another: per column,
     # the three new values are formed before any is written.
     for j in range(n):
+        th0, th1, th2 = P[TH_ID, j], P[TH_ID + 1, j], P[TH_ID + 2, j]
+        ba0, ba1, ba2 = P[BA_ID, j], P[BA_ID + 1, j], P[BA_ID + 2, j]
         for i in range(3):
             P[P_ID + i, j] += dt * P[V_ID + i, j]
-        for i in range(3):
-            s = P[V_ID + i, j]
-            for k in range(3):
-                s += ABC[0, i, k] * P[TH_ID + k, j] + ABC[1, i, k] * P[BA_ID + k, j]
-            P[V_ID + i, j] = s
-        t0 = P[TH_ID, j] - dt * P[BG_ID, j] + ABC[2, 0, 1] * P[TH_ID + 1, j] + ABC[2, 0, 2] * P[TH_ID + 2, j]
-        t1 = P[TH_ID + 1, j] - dt * P[BG_ID + 1, j] + ABC[2, 1, 0] * P[TH_ID, j] + ABC[2, 1, 2] * P[TH_ID + 2, j]
-        t2 = P[TH_ID + 2, j] - dt * P[BG_ID + 2, j] + ABC[2, 2, 0] * P[TH_ID, j] + ABC[2, 2, 1] * P[TH_ID + 1, j]
-        P[TH_ID, j], P[TH_ID + 1, j], P[TH_ID + 2, j] = t0, t1, t2
+        s = P[V_ID, j]
+        s += a00 * th0 + b00 * ba0
+        s += a01 * th1 + b01 * ba1
+        s += a02 * th2 + b02 * ba2
+        P[V_ID, j] = s
+        s = P[V_ID + 1, j]
+        s += a10 * th0 + b10 * ba0
+        s += a11 * th1 + b11 * ba1
+        s += a12 * th2 + b12 * ba2
+        P[V_ID + 1, j] = s
+        s = P[V_ID + 2, j]
+        s += a20 * th0 + b20 * ba0
+        s += a21 * th1 + b21 * ba1
+        s += a22 * th2 + b22 * ba2
+        P[V_ID + 2, j] = s
+        P[TH_ID, j] = th0 - dt * P[BG_ID, j] + c2 * th1 + (-c1) * th2
+        P[TH_ID + 1, j] = th1 - dt * P[BG_ID + 1, j] + (-c2) * th0 + c0 * th2
+        P[TH_ID + 2, j] = th2 - dt * P[BG_ID + 2, j] + c1 * th0 + (-c0) * th1
     # columns, in place: P <- (F P) F^T, the same order on the column blocks
     for i in range(n):
+        th0, th1, th2 = P[i, TH_ID], P[i, TH_ID + 1], P[i, TH_ID + 2]
+        ba0, ba1, ba2 = P[i, BA_ID], P[i, BA_ID + 1], P[i, BA_ID + 2]
         for j in range(3):
             P[i, P_ID + j] += dt * P[i, V_ID + j]
-        for j in range(3):
-            s = P[i, V_ID + j]
-            for k in range(3):
-                s += P[i, TH_ID + k] * ABC[0, j, k] + P[i, BA_ID + k] * ABC[1, j, k]
-            P[i, V_ID + j] = s
-        t0 = P[i, TH_ID] - dt * P[i, BG_ID] + P[i, TH_ID + 1] * ABC[2, 0, 1] + P[i, TH_ID + 2] * ABC[2, 0, 2]
-        t1 = P[i, TH_ID + 1] - dt * P[i, BG_ID + 1] + P[i, TH_ID] * ABC[2, 1, 0] + P[i, TH_ID + 2] * ABC[2, 1, 2]
-        t2 = P[i, TH_ID + 2] - dt * P[i, BG_ID + 2] + P[i, TH_ID] * ABC[2, 2, 0] + P[i, TH_ID + 1] * ABC[2, 2, 1]
-        P[i, TH_ID], P[i, TH_ID + 1], P[i, TH_ID + 2] = t0, t1, t2
+        s = P[i, V_ID]
+        s += th0 * a00 + ba0 * b00
+        s += th1 * a01 + ba1 * b01
+        s += th2 * a02 + ba2 * b02
+        P[i, V_ID] = s
+        s = P[i, V_ID + 1]
+        s += th0 * a10 + ba0 * b10
+        s += th1 * a11 + ba1 * b11
+        s += th2 * a12 + ba2 * b12
+        P[i, V_ID + 1] = s
+        s = P[i, V_ID + 2]
+        s += th0 * a20 + ba0 * b20
+        s += th1 * a21 + ba1 * b21
+        s += th2 * a22 + ba2 * b22
+        P[i, V_ID + 2] = s
+        P[i, TH_ID] = th0 - dt * P[i, BG_ID] + th1 * c2 + th2 * (-c1)
+        P[i, TH_ID + 1] = th1 - dt * P[i, BG_ID + 1] + th0 * (-c2) + th2 * c0
+        P[i, TH_ID + 2] = th2 - dt * P[i, BG_ID + 2] + th0 * c1 + th1 * (-c0)
     # Gauss-Markov biases: F has 1 - dt/tau on the bias diagonal (identity for a random walk)
     fa, fg = 1.0 - prm[PRM_KBA] * dt, 1.0 - prm[PRM_KBG] * dt
     if fa != 1.0 or fg != 1.0:
@@ -147,15 +171,18 @@ def step(x, P, n, u0, u1, dt, qscale, prm, aux, cov):
     """One IMU interval: covariance linearised at the start-of-interval attitude and the midpoint,
     bias-corrected IMU values, then the midpoint mechanization."""
     if cov:
-        fm = np.empty(3)
-        wm = np.empty(3)
-        for i in range(3):
-            fm[i] = 0.5 * (u0[UF + i] + u1[UF + i]) - x[XBA + i]
-            wm[i] = 0.5 * (u0[UW + i] + u1[UW + i]) - x[XBG + i]
         method = int(prm[PRM_DISC])
-        if method == discretize.FIRST_ORDER:
-            propagate_cov(P, n, attitude(x), fm, wm, dt, prm, qscale)     # sparse, same result
+        if method == discretize.FIRST_ORDER:                            # sparse, same result; no array allocated
+            _propagate_cov(P, n, attitude(x), 0.5 * (u0[UF] + u1[UF]) - x[XBA], 0.5 * (u0[UF + 1] + u1[UF + 1]) - x[XBA + 1],
+                           0.5 * (u0[UF + 2] + u1[UF + 2]) - x[XBA + 2], 0.5 * (u0[UW] + u1[UW]) - x[XBG],
+                           0.5 * (u0[UW + 1] + u1[UW + 1]) - x[XBG + 1], 0.5 * (u0[UW + 2] + u1[UW + 2]) - x[XBG + 2],
+                           dt, prm, qscale)
         else:
+            fm = np.empty(3)
+            wm = np.empty(3)
+            for i in range(3):
+                fm[i] = 0.5 * (u0[UF + i] + u1[UF + i]) - x[XBA + i]
+                wm[i] = 0.5 * (u0[UW + i] + u1[UW + i]) - x[XBG + i]
             Ft, Qc = continuous_model(attitude(x), fm, wm, prm, qscale)
             Phi, Qd = discretize.transition(Ft, Qc, dt, method)
             discretize.propagate_dense(P, n, Phi, Qd)
