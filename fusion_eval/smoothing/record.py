@@ -12,7 +12,8 @@ the filter sits at, the next sample index and the covariance ``P[:n, :n]`` (uppe
 second such record, taken just before the clone replaces the previous one: the joint covariance of the current
 state and the old clone, from which the backward pass recovers the old clone given the smoothed state
 (``docs/rts_smoother.md``). With the 21-state ESKF that is 2,200 bytes per epoch and as much per lidar frame
-(:meth:`EpochRecord.bytes_per_epoch`); with ``priors``, each epoch's prior covariance too (1,850 bytes more).
+(:meth:`EpochRecord.bytes_per_epoch`); with ``priors``, each epoch's prior covariance and the transition into it too
+(1,850 + 1,800 bytes more).
 """
 
 from __future__ import annotations
