@@ -42,7 +42,7 @@ LAYOUT = CANONICAL
 P_ID, V_ID, TH_ID, BA_ID, BG_ID = (LAYOUT.start(b) for b in ("P", "V", "TH", "BA", "BG"))
 CP_ID, CTH_ID = LAYOUT.start("CP"), LAYOUT.start("CTH")
 N_CORE = LAYOUT.n_core
-AUX_OWN = 1             # the size of its own scratch (unused); an RTS record's transition room follows it
+AUX_OWN = 1             # not a state index: the size of its own scratch (unused); an RTS record's transition room follows it
 CLONE_P, CLONE_R = CLONE.start("p"), CLONE.start("R")
 
 
