@@ -102,6 +102,18 @@ def _csr(A):
 
 
 @njit(cache=True)
+def _csr_row(ptr, cols, vals, scale, i, X, row):
+    """``row <- scale * (A X)[i, :]`` for the sparse ``A`` of :func:`_csr`."""
+    for j in range(X.shape[1]):
+        row[j] = 0.0
+    for e in range(ptr[i], ptr[i + 1]):
+        v = vals[e] * scale
+        src = cols[e]
+        for j in range(X.shape[1]):
+            row[j] += v * X[src, j]
+
+
+@njit(cache=True)
 def van_loan(Ft, Qc, dt):
     """Exact ``Phi = expm(F_t T)`` and ``Q_d = int_0^T Phi(s) Q_c Phi(s)^T ds`` (``Qc``: the full density, (n, n)),
     by the sparse Taylor series of the block-triangular exponential with scaling and doubling (module docstring)."""
@@ -148,26 +160,14 @@ def _van_loan(Ft, Qc, dt, with_q):
         t_max = 0.0
         y_max = 0.0
         for i in range(n):
-            for j in range(n):
-                row[j] = 0.0
-            for e in range(ptr[i], ptr[i + 1]):
-                v = vals[e] * c_phi
-                src = cols[e]
-                for j in range(n):
-                    row[j] += v * term[src, j]
+            _csr_row(ptr, cols, vals, c_phi, i, term, row)
             for j in range(n):
                 x = row[j]
                 nxt[i, j] = x
                 Phi[i, j] += x
                 t_max = max(t_max, abs(x))
             if with_q:
-                for j in range(n):
-                    row[j] = 0.0
-                for e in range(ptr[i], ptr[i + 1]):
-                    v = vals[e] * c_y
-                    src = cols[e]
-                    for j in range(n):
-                        row[j] += v * Y[src, j]
+                _csr_row(ptr, cols, vals, c_y, i, Y, row)
                 for j in range(n):
                     AY[i, j] = row[j]
         term, nxt = nxt, term

@@ -161,7 +161,7 @@ def compiled_pass(cls):
     # the kernels' own callees too: numba's cache of this template checks only the formulation's module
     digest = source_digest(_SEGMENT, *calls.values(), kernels.pinv_sym, kernels.chol_scaled, kernels._pinv_eig,
                            kernels.solve_sym, kernels._solve_factored, kernels._tri_inverse, discretize.transition_full, discretize._van_loan,
-                           discretize._csr, discretize.second_order)
+                           discretize._csr, discretize._csr_row, discretize.second_order)
     name, name_pass = f"_rts_segment_{digest}", f"_rts_pass_{digest}"
     ns = {**calls, "np": np, "__name__": cls.__module__}
     exec(compile(_SEGMENT.format(name=name, name_pass=name_pass), mod.__file__, "exec"), ns)  # noqa: S102 - our template
