@@ -234,6 +234,8 @@ def test_the_compiled_event_loop_keeps_the_smoothers_forward_record(kitti_slice,
     np.testing.assert_array_equal(b.clone_epoch[:b.clones.size], a.clone_epoch[:a.clones.size])
     np.testing.assert_array_equal(b.prior_ok, a.prior_ok)              # each epoch's prior, kept by both loops
     np.testing.assert_array_equal(b.prior_P[b.prior_ok], a.prior_P[a.prior_ok])
+    np.testing.assert_array_equal(b.prior_phi[b.prior_ok], a.prior_phi[a.prior_ok])   # and the transition into it
+    assert np.isfinite(b.prior_phi[b.prior_ok]).all() and np.abs(b.prior_phi[b.prior_ok] - np.eye(15).ravel()).max() > 0.1
     assert b.prior_ok[1:b.epochs.size].all()
     for est in ("fused", "smoothed"):
         np.testing.assert_array_equal(runs["auto"].series[est].p_w_m, runs["python"].series[est].p_w_m)
@@ -380,3 +382,21 @@ def test_a_formulation_that_derives_part_of_its_state_from_the_input_is_smoothed
 def test_the_batch_estimate_refuses_an_observation_it_has_no_factor_for_before_filtering(kitti_slice):
     with pytest.raises(ConfigError, match=r"smoother.method=batch has no factor for .*\(filter.nhc\): set filter.nhc=false"):
         fe.run(fe.load_dataset(kitti_slice), overrides={"smoother.method": "batch", "filter.nhc": True})
+
+
+def test_a_transition_the_step_did_not_write_surfaces_as_nan_not_as_an_estimate(kitti_slice, monkeypatch):
+    """The room the smoother reserves for the step's transition is NaN until the step writes it and is refilled
+    after each epoch takes it: were a formulation to claim it keeps transitions without writing them, the smoothed
+    estimate would be NaN (and the run refused as diverged), never a plausible one from a zero transition."""
+    from fusion_eval.filters.formulations.eskf import ErrorStateKF
+    from fusion_eval.smoothing.rts import smooth
+
+    seen = _capture(monkeypatch)
+    fe.run(fe.load_dataset(kitti_slice), overrides={"smoother.method": "rts"})
+    kf, rec = seen["kf"], seen["rec"]
+    assert kf.keeps_transition() and np.isnan(kf.aux[1:]).all()       # the room, refilled after the last epoch
+    assert np.isfinite(smooth(kf, rec, 0).rec_x[-1]).all()
+    rec.prior_phi[rec.prior_ok] = np.nan                              # as if the step had written nothing
+    assert np.isnan(smooth(kf, rec, 0).rec_x[:-1, :3]).any()
+    kf.reserve_transition()                                           # once per filter: a second call adds nothing
+    assert kf.aux.size == 1 + 15 * 15 and isinstance(kf, ErrorStateKF)

@@ -26,7 +26,7 @@ from numba import njit
 
 from ..errors import FilterDivergedError
 from .layout import CLONE
-from . import linalg
+from . import discretize, linalg, mech
 from .linalg import joseph_update_into
 from ..smoothing.record import epoch_index, store_prior, store_row
 from .observations.base import M_MAX, N_MAX, matched_variance
@@ -128,8 +128,15 @@ def {name}(a, st, xc, clone_t, times, kinds, index, j0, j1, gates, clone_after, 
 
 
 
+# what the formulations' steps call outside their own module: a loop built on a step is cached whole, and numba's
+# cache would not see a change there
+STEP_CALLEES = (discretize.transition, discretize.transition_full, discretize.van_loan, discretize._van_loan,
+                discretize._csr, discretize._csr_row, discretize.second_order, discretize._phi_second,
+                discretize.propagate_dense, mech.mech_step, mech.log3, mech.mul_tn, mech.rmul_exp3, mech.exp3, mech.skew3)
+
+
 def _source_digest(*fns) -> str:
-    return source_digest(_LOOP, *fns)
+    return source_digest(_LOOP, *fns, *STEP_CALLEES)
 
 
 def source_digest(template: str, *fns) -> str:

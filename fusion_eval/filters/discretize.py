@@ -122,7 +122,7 @@ def van_loan(Ft, Qc, dt):
 
 @njit(cache=True)
 def _van_loan(Ft, Qc, dt, with_q):
-    """:func:`van_loan`; without ``with_q``, ``Phi`` alone (``Q_d`` returned as ``Qc``, untouched).
+    """:func:`van_loan`; without ``with_q``, ``Phi`` alone (``Q_d`` returned as ``Qc h``, its first term).
 
     One pass per term over ``A``'s rows forms the next term of both series, adds it to its sum and takes its
     largest entry (the stopping test), with no scratch matrix zeroed or rescanned: the per-term cost is the
@@ -186,9 +186,8 @@ def _van_loan(Ft, Qc, dt, with_q):
     for _ in range(s):
         if with_q:
             Q = Q + Phi @ Q @ Phi.T
-            Q = 0.5 * (Q + Q.T)
         Phi = Phi @ Phi
-    return Phi, Q
+    return Phi, (0.5 * (Q + Q.T) if s > 0 else Q)   # Q is exactly symmetric before any doubling
 
 
 @njit(cache=True)

@@ -18,8 +18,7 @@ import sys
 import numpy as np
 from numba import njit
 
-from ..filters import discretize
-from ..filters.compiled_replay import source_digest
+from ..filters.compiled_replay import STEP_CALLEES, source_digest
 from . import kernels
 
 _SEGMENT = '''
@@ -160,8 +159,7 @@ def compiled_pass(cls):
              "_condition_given": kernels.condition_given}
     # the kernels' own callees too: numba's cache of this template checks only the formulation's module
     digest = source_digest(_SEGMENT, *calls.values(), kernels.pinv_sym, kernels.chol_scaled, kernels._pinv_eig,
-                           kernels.solve_sym, kernels._solve_factored, kernels._tri_inverse, discretize.transition_full, discretize._van_loan,
-                           discretize._csr, discretize._csr_row, discretize.second_order)
+                           kernels.solve_sym, kernels._solve_factored, kernels._tri_inverse, *STEP_CALLEES)
     name, name_pass = f"_rts_segment_{digest}", f"_rts_pass_{digest}"
     ns = {**calls, "np": np, "__name__": cls.__module__}
     exec(compile(_SEGMENT.format(name=name, name_pass=name_pass), mod.__file__, "exec"), ns)  # noqa: S102 - our template

@@ -128,7 +128,6 @@ def _solve_factored(d, L, M):
 def backward(P_j, phi, P_prior, e, Ps_next, rcond):
     """One RTS step over an interval whose transition is ``phi`` on the leading states and the identity on the
     rest (a clone): the correction ``C e`` of the posterior at j and the smoothed covariance at j."""
-    n = P_j.shape[0]
     m = phi.shape[0]
     FP = P_j.copy()                                  # Phi P_j = (P_j Phi^T)^T
     FP[:m, :] = phi @ np.ascontiguousarray(P_j[:m, :])

@@ -54,7 +54,8 @@ def store_row(a, k_next, n, xc, n_max, i, s_t, s_k, s_n, s_x, s_c, s_aux, s_u, s
 def store_prior(P, n, n_max, ep_t, size, t, pr_P, pr_ok, aux, pr_phi):
     """The covariance just predicted to ``t``, before anything happens at ``t``: the prior of the epoch that ``t``
     opens (a new stamp only), and the transition of the step into it (what the formulation's step left at the end
-    of its scratch, ``FilterBase._rts_phi``), kept so that the backward pass need recompute neither."""
+    of its scratch, ``FilterBase.keeps_transition``), kept so that the backward pass need recompute neither. The
+    room is refilled with NaN: the next epoch's must be written by the steps into it."""
     i = epoch_index(ep_t, size, t)
     if i != size or i >= pr_ok.shape[0] or pr_ok[i]:       # not a new stamp, or no priors kept (see EpochRecord)
         return
@@ -67,6 +68,7 @@ def store_prior(P, n, n_max, ep_t, size, t, pr_P, pr_ok, aux, pr_phi):
     off = aux.shape[0] - m
     for q in range(m):
         pr_phi[i, q] = aux[off + q]
+        aux[off + q] = np.nan
     pr_ok[i] = True
 
 

@@ -253,8 +253,7 @@ class RtsSmoother:
         # the filter records the state before each clone; and each epoch's prior where recomputing an interval's
         # covariance is dear (Van Loan's or the second-order series: 10 Hz IMUs) and the formulation can step into
         # an epoch with its transition alone
-        disc = getattr(getattr(s, "filter", None), "discretization", "first_order")
-        priors = kf._rts_phi is not None and disc != "first_order"
+        priors = kf.keeps_transition()
         self.rec = kf.recorder = EpochRecord(kf, n_events, priors)
         self.rec.epoch(kf)
 

@@ -89,11 +89,6 @@ class FilterBase:
     # whether the RTS smoother runs over it: its error coordinates must be minimal (a 4-parameter quaternion's
     # norm direction makes the backward gains ill-posed; measured to diverge on the simulation)
     smoothable = True
-    # an RTS smoother's shortcut into each epoch (the formulations whose dense discretization is dear to recompute):
-    # ``_rts_phi(x, u0, u1, dt, qscale, prm, aux)`` gives a step's transition alone, and the compiled ``_step``
-    # writes the transition of every dense step into the last ``n_core^2`` entries of its scratch when the scratch
-    # has that room (:meth:`reserve_transition`), so the forward pass can keep each epoch's for the backward one
-    _rts_phi = None
 
     def __init__(self, x0: NominalState, P0: np.ndarray, prm: np.ndarray, t: np.ndarray, u: np.ndarray, k0: int,
                  gap: tuple[float, float] = (np.inf, 1.0), extra_var: dict[str, float] | None = None):
@@ -148,10 +143,20 @@ class FilterBase:
     def initial_aux(self) -> np.ndarray:
         return np.zeros(1)
 
+    def keeps_transition(self) -> bool:
+        """Whether its compiled step writes the transition of each step into room after its own scratch
+        (:meth:`reserve_transition`): where that transition is dear to recompute (a dense discretization), the RTS
+        smoother then keeps each epoch's prior and transition instead of recomputing the interval into it."""
+        return False
+
     def reserve_transition(self) -> None:
-        """Give the step room after its own scratch for the transition of each dense step (see ``_rts_phi``)."""
-        self.aux = np.concatenate([self.aux, np.zeros(self.layout.n_core ** 2)])
-        self.arrays = self.arrays._replace(aux=self.aux)
+        """Give the step room after its own scratch for its transition (:meth:`keeps_transition`), filled with NaN:
+        the record takes what the step wrote and refills it (``record.store_prior``), so a transition the step did
+        not write shows as NaN in the smoothed estimate rather than as a plausible one. Once per filter."""
+        room = self.layout.n_core ** 2
+        if self.aux.size < room:
+            self.aux = np.concatenate([self.aux, np.full(room, np.nan)])
+            self.arrays = self.arrays._replace(aux=self.aux)
 
     def quats(self) -> dict[str, np.ndarray]:
         """The quaternions (w, x, y, z) of the own quaternion blocks, for the canonical map."""

@@ -186,7 +186,7 @@ def step(x, P, n, u0, u1, dt, qscale, prm, aux, cov):
             Ft, Qc = continuous_model(attitude(x), fm, wm, prm, qscale)
             Phi, Qd = discretize.transition(Ft, Qc, dt, method)
             discretize.propagate_dense(P, n, Phi, Qd)
-            if aux.shape[0] > AUX_OWN:            # room the RTS smoother gave: it keeps the transition into each epoch
+            if aux.shape[0] == AUX_OWN + N_CORE * N_CORE:     # the RTS smoother's room: it keeps the one into each epoch
                 q = AUX_OWN
                 for i in range(N_CORE):
                     for j in range(N_CORE):
@@ -198,9 +198,8 @@ def step(x, P, n, u0, u1, dt, qscale, prm, aux, cov):
 
 @njit(cache=True)
 def rts_phi(x, u0, u1, dt, qscale, prm, aux):
-    """The transition :func:`step` linearises the interval at (the same attitude, midpoint inputs and biases), alone:
-    what the forward step leaves in the RTS smoother's room (the Python backward pass, the tests' oracle, recomputes
-    it with this)."""
+    """The transition :func:`step` linearises the interval at (the same attitude, midpoint inputs and biases), alone,
+    recomputed: the tests' oracle of what the step leaves in the RTS smoother's room."""
     fm = np.empty(3)
     wm = np.empty(3)
     for i in range(3):
@@ -315,7 +314,9 @@ class ErrorStateKF(ErrorStateBase):
     _inject_kernel = staticmethod(inject_reset)     # the compiled replay's injection (D = I)
     _rts_boxminus = staticmethod(boxminus_vec)      # the compiled RTS interval (fusion_eval.smoothing.compiled)
     _rts_boxplus = staticmethod(boxplus_into)
-    _rts_phi = staticmethod(rts_phi)
+
+    def keeps_transition(self) -> bool:
+        return int(self.arrays.prm[PRM_DISC]) != discretize.FIRST_ORDER     # Van Loan's or the second-order series
 
     def own_jacobian(self, Hc: np.ndarray) -> np.ndarray:
         return np.ascontiguousarray(Hc[:, :self.n])          # D = I: the canonical error is this state
