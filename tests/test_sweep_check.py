@@ -267,3 +267,32 @@ def test_a_batch_whose_preparation_fails_records_each_run_as_failed(small, tmp_p
     recs = sw.run_batch(group)
     assert [r["status"] for r in recs] == ["failed"] * len(group)
     assert all("ValueError: a bug in the preparation" in r["error"] for r in recs)
+
+
+def test_the_batches_of_one_key_prepare_once_per_worker(small, tmp_path, monkeypatch):
+    """A key's runs cut into several batches (BATCH_MAX) load and prepare the data once per worker process, not
+    once per batch; the records are those of runs made alone, and nothing is kept once the sweep ends."""
+    import fusion_eval.pipeline as pl
+    from fusion_eval.commands import sweep as sw
+
+    monkeypatch.setenv("SOURCE_DATE_EPOCH", "1700000000")
+    monkeypatch.setattr(sw, "BATCH_MAX", 2)
+    calls = []
+    orig = pl.prepare
+    monkeypatch.setattr(pl, "prepare", lambda *a, **k: calls.append(1) or orig(*a, **k))
+    grid = _sweep_file(tmp_path, "  f: {lidar.relative_pos_std_frac: 0.04}\n")     # default, c, d, f: one key
+    tasks = sw.plan(grid, [str(small)], tmp_path / "p")[0]
+    groups = [g for g in sw.batches(tasks, 1) if len(g) > 1]
+    assert len({g[0].batch for g in groups}) < len(groups)                       # a key cut into two batches
+    a, b = tmp_path / "batch", tmp_path / "alone"
+    for out, flag in ((a, "--batch"), (b, "--no-batch")):
+        calls.clear()
+        r = CliRunner().invoke(main, ["sweep", str(small), "--grid", str(grid), "--out", str(out), "--jobs", "1", flag])
+        assert r.exit_code == 0, r.output
+        if flag == "--batch":                                                   # one preparation per key (e
+            assert len(calls) == len({t.batch for t in tasks}) and not sw._PREPARED   # alone), none kept after
+    recs_a = {p.name: json.loads(p.read_text()) for p in (a / "records").glob("*.json")}
+    recs_b = {p.name: json.loads(p.read_text()) for p in (b / "records").glob("*.json")}
+    assert recs_a.keys() == recs_b.keys() and len(recs_a) == 7
+    for k in recs_a:
+        assert recs_a[k]["metrics"] == recs_b[k]["metrics"], k
