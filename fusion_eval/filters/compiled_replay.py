@@ -28,7 +28,7 @@ from ..errors import FilterDivergedError
 from .layout import CLONE
 from . import discretize, linalg, mech
 from .linalg import joseph_update_into
-from ..smoothing.record import epoch_index, store_prior, store_row
+from ..smoothing.record import epoch_index, pack_upper, store_prior, store_row
 from .observations.base import M_MAX, N_MAX, matched_variance
 
 OK, BAD_RESIDUAL, BAD_CORRECTION, BAD_STATE = 0, 1, 2, 3
@@ -118,7 +118,10 @@ def {name}(a, st, xc, clone_t, times, kinds, index, j0, j1, gates, clone_after, 
             st[{st_n}] = n_core + mc
             st[{st_cloned}] = 1
             clone_t[0] = a.last[0]
-        if rec_on:                # the smoother's epoch: the filter after everything at this stamp
+        # the smoother's epoch: the filter after everything at this stamp, written once, after its last event (lidar,
+        # GNSS and the constraint share stamps: each event rewrote the row before); a chunk's last event writes it
+        # too, which the next chunk's events at that stamp rewrite
+        if rec_on and (j + 1 >= j1 or times[j + 1] != t):
             i = epoch_index(ep_t, rst[0], a.last[0])
             store_row(a, st[{st_k}], st[{st_n}], xc, n_max, i, ep_t, ep_k, ep_n, ep_x, ep_c, ep_aux, ep_u, ep_P)
             rst[0] = i + 1
@@ -167,7 +170,7 @@ def compiled_loop(formulation):
     digest = _source_digest(formulation._predict, formulation._step, formulation._inject_kernel, formulation._record_cov,
                             joseph_update_into, linalg.cholesky_into, linalg.whitened_norm2, linalg.block_nis,
                             linalg.reset_attitude_block, linalg.clone_covariance, matched_variance, epoch_index,
-                            store_row, store_prior, *KERNELS)
+                            store_row, store_prior, pack_upper, *KERNELS)
     name = f"_replay_{digest}"
     dispatch = "\n".join(f"        {'if' if c == 0 else 'elif'} kind == {c}:\n            m = _k{c}(a.x, xc, d{c}[i], H, r, Rm)"
                          for c in range(len(KERNELS)))
