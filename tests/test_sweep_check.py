@@ -296,3 +296,16 @@ def test_the_batches_of_one_key_prepare_once_per_worker(small, tmp_path, monkeyp
     assert recs_a.keys() == recs_b.keys() and len(recs_a) == 7
     for k in recs_a:
         assert recs_a[k]["metrics"] == recs_b[k]["metrics"], k
+
+
+@pytest.mark.parametrize("n, jobs, sizes", [(17, 2, [6, 6, 5]), (16, 2, [8, 8]), (9, 2, [5, 4]), (5, 1, [5]),
+                                            (65, 2, [8, 7, 7, 7, 7, 7, 7, 7, 8]), (1, 2, [1]), (3, 8, [1, 1, 1])])
+def test_batches_are_cut_into_near_equal_chunks(n, jobs, sizes):
+    """At most BATCH_MAX runs and an equal share of the workers per batch, sizes differing by one at most: no
+    trailing batch of one run (which would load and prepare the data alone), every run once, in order."""
+    from fusion_eval.commands.sweep import Task, batches
+
+    tasks = [Task(id=f"r{i}", dataset="d", variant="v", variant_path=None, setting=str(i), overrides={},
+                  base_config=None, plots=False, out_root="o", batch="k") for i in range(n)]
+    got = batches(tasks, jobs)
+    assert sorted(map(len, got)) == sorted(sizes) and [t.id for g in got for t in g] == [t.id for t in tasks]
