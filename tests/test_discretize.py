@@ -13,6 +13,7 @@ from fusion_eval.filters import discretize
 from fusion_eval.filters.formulations import eskf
 from fusion_eval.filters.formulations.eskf import continuous_model
 from fusion_eval.filters.formulations.imu_model import PRM_KBA, PRM_KBG, imu_params
+from fusion_eval.filters.mech import XBA, XBG, XR
 from fusion_eval.filters.state import NominalState
 
 N = eskf.N_CORE
@@ -184,8 +185,8 @@ def test_sparse_first_order_covariance_equals_the_dense_product(n):
 @pytest.mark.parametrize("method", ["van_loan", "second_order"])
 def test_the_step_leaves_its_transition_where_the_rts_smoother_gave_it_room(method):
     """With room after its scratch (``FilterBase.reserve_transition``) the ESKF's step writes the transition of the
-    interval it stepped: the one :func:`eskf.rts_phi` recomputes from the same state and inputs (the RTS smoother's
-    backward pass uses the kept one); without room it writes nothing."""
+    interval it stepped: the transition recomputed from the same state and inputs (the RTS smoother's backward pass
+    uses the kept one); without room it writes nothing."""
     rng = np.random.default_rng(3)
     prm = imu_params(9.81, 0.05, np.radians(0.1), 1e-3, 1e-5, method)
     x = NominalState(rng.standard_normal(3), rng.standard_normal(3), Rotation.random(random_state=3).as_matrix(),
@@ -196,7 +197,10 @@ def test_the_step_leaves_its_transition_where_the_rts_smoother_gave_it_room(meth
     aux = np.zeros(eskf.AUX_OWN + n * n)
     x1 = x.copy()
     eskf.step(x1, np.eye(n) * 0.1, n, u0, u1, 0.1, 1.0, prm, aux, True)
-    phi = eskf.rts_phi(x.copy(), u0, u1, 0.1, 1.0, prm, np.zeros(1))
+    fm = 0.5 * (u0[:3] + u1[:3]) - x[XBA:XBA + 3]                   # the step's linearisation: midpoint inputs,
+    wm = 0.5 * (u0[3:] + u1[3:]) - x[XBG:XBG + 3]                   # its start attitude and biases
+    Ft, Qc = continuous_model(x[XR:XR + 9].reshape(3, 3), fm, wm, prm, 1.0)
+    phi = discretize.transition(Ft, Qc, 0.1, discretize.METHODS[method])[0]
     np.testing.assert_allclose(aux[eskf.AUX_OWN:].reshape(n, n), phi, rtol=0, atol=1e-15)
     assert np.abs(phi - np.eye(n)).max() > 0.1                    # a real transition, not the identity
     own = np.zeros(eskf.AUX_OWN)

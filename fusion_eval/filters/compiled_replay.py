@@ -133,7 +133,7 @@ def {name}(a, st, xc, clone_t, times, kinds, index, j0, j1, gates, clone_after, 
 
 # what the formulations' steps call outside their own module: a loop built on a step is cached whole, and numba's
 # cache would not see a change there
-STEP_CALLEES = (discretize.transition, discretize.transition_full, discretize.van_loan, discretize._van_loan,
+STEP_CALLEES = (discretize.transition, discretize.transition_full, discretize.van_loan,
                 discretize._csr, discretize._csr_row, discretize.second_order, discretize._phi_second,
                 discretize.propagate_dense, mech.mech_step, mech.log3, mech.mul_tn, mech.rmul_exp3, mech.exp3, mech.skew3)
 

@@ -116,13 +116,7 @@ def _csr_row(ptr, cols, vals, scale, i, X, row):
 @njit(cache=True)
 def van_loan(Ft, Qc, dt):
     """Exact ``Phi = expm(F_t T)`` and ``Q_d = int_0^T Phi(s) Q_c Phi(s)^T ds`` (``Qc``: the full density, (n, n)),
-    by the sparse Taylor series of the block-triangular exponential with scaling and doubling (module docstring)."""
-    return _van_loan(Ft, Qc, dt, True)
-
-
-@njit(cache=True)
-def _van_loan(Ft, Qc, dt, with_q):
-    """:func:`van_loan`; without ``with_q``, ``Phi`` alone (``Q_d`` returned as ``Qc h``, its first term).
+    by the sparse Taylor series of the block-triangular exponential with scaling and doubling (module docstring).
 
     One pass per term over ``A``'s rows forms the next term of both series, adds it to its sum and takes its
     largest entry (the stopping test), with no scratch matrix zeroed or rescanned: the per-term cost is the
@@ -166,26 +160,23 @@ def _van_loan(Ft, Qc, dt, with_q):
                 nxt[i, j] = x
                 Phi[i, j] += x
                 t_max = max(t_max, abs(x))
-            if with_q:
-                _csr_row(ptr, cols, vals, c_y, i, Y, row)
-                for j in range(n):
-                    AY[i, j] = row[j]
+            _csr_row(ptr, cols, vals, c_y, i, Y, row)
+            for j in range(n):
+                AY[i, j] = row[j]
         term, nxt = nxt, term
-        if with_q:
-            for i in range(n):
-                for j in range(i, n):
-                    y = AY[i, j] + AY[j, i]        # exactly symmetric: so is every sum of these
-                    Y[i, j] = y
-                    Y[j, i] = y
-                    Q[i, j] += y
-                    if j != i:
-                        Q[j, i] += y
-                    y_max = max(y_max, abs(y))
-        if t_max <= 1e-17 and (not with_q or y_max <= 1e-17 * q_ref):
+        for i in range(n):
+            for j in range(i, n):
+                y = AY[i, j] + AY[j, i]            # exactly symmetric: so is every sum of these
+                Y[i, j] = y
+                Y[j, i] = y
+                Q[i, j] += y
+                if j != i:
+                    Q[j, i] += y
+                y_max = max(y_max, abs(y))
+        if t_max <= 1e-17 and y_max <= 1e-17 * q_ref:
             break
     for _ in range(s):
-        if with_q:
-            Q = Q + Phi @ Q @ Phi.T
+        Q = Q + Phi @ Q @ Phi.T
         Phi = Phi @ Phi
     return Phi, (0.5 * (Q + Q.T) if s > 0 else Q)   # Q is exactly symmetric before any doubling
 
@@ -220,17 +211,6 @@ def second_order(Ft, Qc, dt):
     Phi = _phi_second(Ft, dt)
     Qd = 0.5 * dt * (Phi @ Qc @ Phi.T + Qc)
     return Phi, 0.5 * (Qd + Qd.T)
-
-
-@njit(cache=True)
-def phi_only(Ft, dt, method):
-    """The transition ``Phi`` alone, as :func:`transition` gives it (the RTS smoother's, where the prior covariance
-    is known): for Van Loan its ``Phi`` series with the same scaling and doubling, without ``Q_d``'s."""
-    if method == VAN_LOAN:
-        return _van_loan(Ft, np.zeros_like(Ft), dt, False)[0]
-    if method == SECOND_ORDER:
-        return _phi_second(Ft, dt)
-    return np.eye(Ft.shape[0]) + Ft * dt
 
 
 @njit(cache=True)

@@ -86,6 +86,7 @@ class FilterBase:
     _record_cov = None
     clone_t = None          # stamp of the cloned pose
     recorder = None         # an RTS smoother's forward record (fusion_eval.smoothing.record), when smoothing
+    transition_room = False  # whether reserve_transition gave its scratch room for the step's transition
     # whether the RTS smoother runs over it: its error coordinates must be minimal (a 4-parameter quaternion's
     # norm direction makes the backward gains ill-posed; measured to diverge on the simulation)
     smoothable = True
@@ -153,10 +154,10 @@ class FilterBase:
         """Give the step room after its own scratch for its transition (:meth:`keeps_transition`), filled with NaN:
         the record takes what the step wrote and refills it (``record.store_prior``), so a transition the step did
         not write shows as NaN in the smoothed estimate rather than as a plausible one. Once per filter."""
-        room = self.layout.n_core ** 2
-        if self.aux.size < room:
-            self.aux = np.concatenate([self.aux, np.full(room, np.nan)])
+        if not self.transition_room:
+            self.aux = np.concatenate([self.aux, np.full(self.layout.n_core ** 2, np.nan)])
             self.arrays = self.arrays._replace(aux=self.aux)
+            self.transition_room = True
 
     def quats(self) -> dict[str, np.ndarray]:
         """The quaternions (w, x, y, z) of the own quaternion blocks, for the canonical map."""

@@ -196,19 +196,6 @@ def step(x, P, n, u0, u1, dt, qscale, prm, aux, cov):
     decay_biases(x, dt, prm)
 
 
-@njit(cache=True)
-def rts_phi(x, u0, u1, dt, qscale, prm, aux):
-    """The transition :func:`step` linearises the interval at (the same attitude, midpoint inputs and biases), alone,
-    recomputed: the tests' oracle of what the step leaves in the RTS smoother's room."""
-    fm = np.empty(3)
-    wm = np.empty(3)
-    for i in range(3):
-        fm[i] = 0.5 * (u0[UF + i] + u1[UF + i]) - x[XBA + i]
-        wm[i] = 0.5 * (u0[UW + i] + u1[UW + i]) - x[XBG + i]
-    Ft, _ = continuous_model(attitude(x), fm, wm, prm, qscale)
-    return discretize.phi_only(Ft, dt, int(prm[PRM_DISC]))
-
-
 predict_to = compiled_loop(__name__, step, record_cov_by_index)
 
 BIAS_KEYS = {
