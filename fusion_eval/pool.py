@@ -12,6 +12,7 @@ import os
 import signal
 import sys
 from concurrent.futures import Future, ProcessPoolExecutor
+from concurrent.futures import process as cf_process
 from contextlib import contextmanager
 
 
@@ -205,6 +206,7 @@ class Pool(ProcessPoolExecutor):
     def terminate(self) -> None:
         procs = list((getattr(self, "_processes", None) or {}).values())
         queue = getattr(self, "_result_queue", None)          # shutdown() forgets it
+        manager = getattr(self, "_executor_manager_thread", None)     # so does it this
         self.shutdown(wait=False, cancel_futures=True)
         for p in procs:
             if p.is_alive():
@@ -220,6 +222,11 @@ class Pool(ProcessPoolExecutor):
         # broken pool and ends.
         if queue is not None:
             queue._writer.close()                               # noqa: SLF001 - see above
+        # That thread closes its wake-up pipe as it ends; Python's exit hook for process pools writes to the pipes of
+        # the pools still registered, and could find this one closed under it (CPython 3.11 checks, then writes,
+        # unlocked): an EBADF traceback after "terminated" (seen once in CI). The thread no longer needs waking.
+        if manager is not None:
+            cf_process._threads_wakeups.pop(manager, None)      # noqa: SLF001
 
 
 def executor(jobs: int | None = None, preload: tuple[str, ...] = ()):
