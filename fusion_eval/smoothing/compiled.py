@@ -2,13 +2,15 @@
 
 Between two epochs (lidar/GNSS stamps) the filter only predicts. The backward pass recomputes those IMU
 intervals with the formulation's own step (the transition of each from an augmented covariance, as in
-:meth:`fusion_eval.smoothing.rts.RTS.segment`) and walks them backwards: the smoothed correction, the gain in
-its plain or clone-conditional form, the injection on the manifold, the record at each IMU sample. Stepped from
-Python that costs ~50-100 us per IMU interval in calls and small arrays, more than the filter's own replay at
-100 Hz; here the whole interval is one call. Like the filter's loop (:mod:`fusion_eval.filters.propagate`), the
-function is written once as source and instantiated with each formulation's step, ``[-]``, ``[+]`` and
-covariance record, for the formulations that have them compiled (``_rts_boxminus``/``_rts_boxplus``); the others
-keep the Python path, which is also the oracle of the tests.
+:meth:`fusion_eval.smoothing.rts.RTS.segment`) and walks them backwards: the correction, the gain in its plain or
+clone-conditional form, the injection on the manifold, the record at each IMU sample. Every point of an interval is
+smoothed from the interval's end at once (the gains of IMU-only steps multiply out), so the end's prior is factored
+once per interval rather than once per sample; the Python path steps sample by sample (the textbook recursion) and
+is the oracle of this one: the same estimate to rounding. Stepped from Python an interval costs ~50-100 us in calls
+and small arrays, more than the filter's own replay at 100 Hz; here the whole pass is one call. Like the filter's
+loop (:mod:`fusion_eval.filters.propagate`), the function is written once as source and instantiated with each
+formulation's step, ``[-]``, ``[+]`` and covariance record, for the formulations that have them compiled
+(``_rts_boxminus``/``_rts_boxplus``); the others keep the Python path.
 """
 
 from __future__ import annotations
@@ -32,7 +34,6 @@ def {name}(x_a, aux, c, P_a, n, nc, t, u, gap, prm, k, t0, u0, t_b, xs_x, xs_c, 
     X = np.empty((m, x_a.shape[0]))
     A = np.empty((m, nc, nc))
     PH = np.empty((m, nc, nc))
-    PJ = np.empty((m, n, n))
     KJ = np.full(m, -1, np.int64)
     nb = n - nc
     B = np.empty((m, nc, nb))
@@ -47,8 +48,9 @@ def {name}(x_a, aux, c, P_a, n, nc, t, u, gap, prm, k, t0, u0, t_b, xs_x, xs_c, 
         A[0] = P_a
         Dinv = np.zeros((0, 0))
         D = np.zeros((0, 0))
-    PJ[0] = P_a
+    P_end = P_a                                   # the joint prior at the interval's end, where the record kept it
     j = 0
+    j_kept = -1
     uu0 = u0.copy()
     while k < N:
         if t[k] <= t_b:                           # up to the next sample
@@ -65,15 +67,15 @@ def {name}(x_a, aux, c, P_a, n, nc, t, u, gap, prm, k, t0, u0, t_b, xs_x, xs_c, 
                 PH[j] = phi_row.reshape((nc, nc))
                 _step(x, A[j], 0, uu0, u1, dt, qs, prm, aux, False)
                 j += 1
-                Pp = _unpack(pr_row, n_max, n)
+                P_end = _unpack(pr_row, n_max, n)
+                j_kept = j
                 X[j] = x
-                PJ[j] = Pp
                 if nb > 0:
-                    Ac, Bp = _condition_given(Pp, nc, Dinv)
+                    Ac, Bp = _condition_given(P_end, nc, Dinv)
                     A[j] = Ac
                     B[j] = Bp
                 else:
-                    A[j] = Pp
+                    A[j] = P_end
             else:
                 Pa = _augmented(A[j], nc)
                 _step(x, Pa, 2 * nc, uu0, u1, dt, qs, prm, aux, True)
@@ -83,9 +85,6 @@ def {name}(x_a, aux, c, P_a, n, nc, t, u, gap, prm, k, t0, u0, t_b, xs_x, xs_c, 
                 X[j] = x
                 if nb > 0:
                     B[j] = np.ascontiguousarray(PH[j - 1]) @ B[j - 1]
-                    PJ[j] = _assemble(np.ascontiguousarray(A[j]), np.ascontiguousarray(B[j]), D, Dinv)
-                else:
-                    PJ[j] = A[j]
         KJ[j] = ks                                # the epoch itself may sit on sample k (dt = 0)
         if ks < 0:
             break
@@ -95,15 +94,25 @@ def {name}(x_a, aux, c, P_a, n, nc, t, u, gap, prm, k, t0, u0, t_b, xs_x, xs_c, 
     xs = xs_x.copy()
     cs = xs_c.copy()
     P = Ps.copy()
+    if j == 0:
+        return xs, cs, P
+    # Only the IMU acts inside the interval, so the gains of its steps multiply out: every point i is smoothed
+    # from the end j directly (C = P_i Phi(j,i)^T (P_j^-)^-1), with one factorisation of the end's prior for the
+    # whole interval and Phi(j,i) accumulated backward (docs/rts_smoother.md, section 3)
+    if j_kept != j:
+        P_end = _assemble(np.ascontiguousarray(A[j]), np.ascontiguousarray(B[j]), D, Dinv) if nb > 0 else A[j].copy()
+    e = _boxminus(xs, cs, X[j], c, n)
+    dP = P - P_end
+    M = _pinv(np.ascontiguousarray(A[j]), rcond)
+    BD_end = np.ascontiguousarray(B[j]) @ Dinv if nb > 0 else np.zeros((nc, 0))
     for i in range(j - 1, -1, -1):
-        e = _boxminus(xs, cs, X[i + 1], c, n)
-        phi = np.ascontiguousarray(PH[i])
+        M = M @ np.ascontiguousarray(PH[i])
+        Ai = np.ascontiguousarray(A[i])
         if nb > 0:
-            d, P = _backward_clone(np.ascontiguousarray(A[i]), np.ascontiguousarray(B[i]), Dinv, phi,
-                                   np.ascontiguousarray(A[i + 1]), e, P, np.ascontiguousarray(PJ[i]),
-                                   np.ascontiguousarray(PJ[i + 1]), rcond)
+            Pi = P_a if i == 0 else _assemble(Ai, np.ascontiguousarray(B[i]), D, Dinv)
+            d, P = _interval_clone(M, Ai, np.ascontiguousarray(B[i]), Dinv, BD_end, e, dP, Pi)
         else:
-            d, P = _backward(np.ascontiguousarray(PJ[i]), phi, np.ascontiguousarray(PJ[i + 1]), e, P, rcond)
+            d, P = _interval_plain(M, Ai, e, dP)
         _boxplus(xs, cs, X[i], c, d, n)
         if i > 0 and KJ[i] >= 0:
             out_x[KJ[i], :] = xs
@@ -154,12 +163,14 @@ def compiled_pass(cls):
     mod = sys.modules[cls.__module__]
     calls = {"_step": cls._step, "_boxminus": cls._rts_boxminus, "_boxplus": cls._rts_boxplus,
              "_record_cov": cls._record_cov, "_condition": kernels.condition, "_augmented": kernels.augmented,
-             "_assemble": kernels.assemble, "_backward": kernels.backward, "_backward_clone": kernels.backward_clone,
+             "_assemble": kernels.assemble, "_interval_plain": kernels.interval_plain,
+             "_interval_clone": kernels.interval_clone, "_pinv": kernels.pinv_sym,
              "_uncondition": kernels.uncondition, "_unpack": kernels.unpack_upper,
              "_condition_given": kernels.condition_given}
     # the kernels' own callees too: numba's cache of this template checks only the formulation's module
     digest = source_digest(_SEGMENT, *calls.values(), kernels.pinv_sym, kernels.chol_scaled, kernels._pinv_eig,
-                           kernels.solve_sym, kernels._solve_factored, kernels._tri_inverse, *STEP_CALLEES)
+                           kernels.solve_sym, kernels._solve_factored, kernels._tri_inverse,
+                           kernels._clone_gain_applied, *STEP_CALLEES)
     name, name_pass = f"_rts_segment_{digest}", f"_rts_pass_{digest}"
     ns = {**calls, "np": np, "__name__": cls.__module__}
     exec(compile(_SEGMENT.format(name=name, name_pass=name_pass), mod.__file__, "exec"), ns)  # noqa: S102 - our template

@@ -193,16 +193,45 @@ def backward_clone(Ac_j, B_j, Dinv, phi, S_j, e, Ps_next, P_j, P_next, rcond):
 
         C_xx = A_c Phi^T S^-1,   C_xc = (I - C_xx Phi) B D^-1,   C_cc = I
 
-    (``A_c``: x's covariance given c at j, ``S = Phi A_c Phi^T + Q`` the same at j+1; ``docs/rts_smoother.md``).
-    ``C``'s clone rows are ``[0 I]``, so ``C dP C^T`` is formed from its leading rows ``C_x = [C_xx C_xc]`` only:
-    ``W = C_x dP`` (whose clone columns are the cross block) and ``W C_x^T``, two thirds of the full product."""
+    (``A_c``: x's covariance given c at j, ``S = Phi A_c Phi^T + Q`` the same at j+1; ``docs/rts_smoother.md``)."""
     m = Ac_j.shape[0]
     n = P_j.shape[0]
     Cx = np.empty((m, n))
     Cx[:, :m] = solve_sym(S_j, phi @ Ac_j, rcond).T           # C_xx = (S^-1 Phi A_c)^T: S, A_c symmetric
     BD = B_j @ Dinv
     Cx[:, m:] = BD - np.ascontiguousarray(Cx[:, :m]) @ (phi @ BD)
-    dP = Ps_next - P_next
+    return _clone_gain_applied(Cx, e, Ps_next - P_next, P_j)
+
+
+@njit(cache=True)
+def interval_clone(M, Ac_i, B_i, Dinv, BD_b, e, dP, P_i):
+    """:func:`backward_clone` from a point ``i`` of an interval straight to its end ``b`` (no observation between):
+    the gains of the steps between multiply out to ``C_xx = A_c,i Phi(b,i)^T S_b^-1 = (M A_c,i)^T`` with
+    ``M = S_b^-1 Phi(b,i)`` (accumulated backward, one factorisation of ``S_b`` per interval) and
+    ``C_xc = (B_i - C_xx B_b) D^-1`` (``B_b = Phi(b,i) B_i``); ``e`` and ``dP`` are the end's correction and
+    ``P^s_b - P^-_b`` (``docs/rts_smoother.md``, section 3)."""
+    m = Ac_i.shape[0]
+    Cx = np.empty((m, P_i.shape[0]))
+    Cx[:, :m] = (M @ Ac_i).T
+    Cx[:, m:] = B_i @ Dinv - np.ascontiguousarray(Cx[:, :m]) @ BD_b
+    return _clone_gain_applied(Cx, e, dP, P_i)
+
+
+@njit(cache=True)
+def interval_plain(M, P_i, e, dP):
+    """:func:`backward` from a point ``i`` of an interval straight to its end ``b``: ``C = P_i Phi(b,i)^T
+    (P^-_b)^-1 = (M P_i)^T`` with ``M = (P^-_b)^-1 Phi(b,i)``."""
+    C = np.ascontiguousarray((M @ P_i).T)
+    Ps = P_i + C @ dP @ C.T
+    return C @ e, 0.5 * (Ps + Ps.T)
+
+
+@njit(cache=True)
+def _clone_gain_applied(Cx, e, dP, P_j):
+    """The correction ``C e`` and ``P_j + C dP C^T`` for ``C = [[C_x], [0 I]]``: a clone's rows of the gain are
+    ``[0 I]``, so the product is formed from the leading rows only: ``W = C_x dP`` (whose clone columns are the
+    cross block) and ``W C_x^T``, two thirds of the full product."""
+    m, n = Cx.shape
     W = Cx @ dP
     lead = W @ np.ascontiguousarray(Cx.T)
     Ps = np.empty((n, n))
