@@ -509,8 +509,10 @@ def _display(quiet: bool):
     d = Display()
     try:
         yield d
-    finally:
-        d.close()
+    except BaseException:
+        d.close(summary=False)          # the error line is what follows, not the times of the stages that ran
+        raise
+    d.close()
 
 
 if __name__ == "__main__":  # pragma: no cover

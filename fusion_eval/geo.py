@@ -29,6 +29,19 @@ def check_geodetic(lat_deg, lon_deg, alt_m, source: str, lines=None, what: str =
             raise DataFormatError(source, line, f"{what} {name} {float(v[i])!r} {unit} is outside [{lo:g}, {hi:g}] {unit}")
 
 
+# A local ENU frame is a drive's: its origin farther than this from the data is a wrong origin (lat/lon swapped, a
+# sign lost), whose frame would tilt the drive's gravity by degrees
+MAX_ORIGIN_DISTANCE_M = 200e3
+
+
+def great_circle_m(a_deg, b_deg) -> float:
+    """The great-circle distance between two (lat, lon) points in degrees, on a sphere of the Earth's mean radius
+    (haversine): good to 0.5 %, enough to tell a drive's neighbourhood from another continent."""
+    la1, lo1, la2, lo2 = np.radians([a_deg[0], a_deg[1], b_deg[0], b_deg[1]])
+    h = np.sin((la2 - la1) / 2) ** 2 + np.cos(la1) * np.cos(la2) * np.sin((lo2 - lo1) / 2) ** 2
+    return float(2 * 6_371_008.8 * np.arcsin(min(1.0, np.sqrt(h))))
+
+
 def geodetic_to_enu(lat_deg: np.ndarray, lon_deg: np.ndarray, alt_m: np.ndarray,
                     origin_lat_deg: float, origin_lon_deg: float, origin_alt_m: float, source: str = "<geodetic>",
                     lines=None) -> np.ndarray:

@@ -92,6 +92,22 @@ def anchor_lidar(lidar_odom: PoseSeries, gt: PoseSeries) -> tuple[PoseSeries, fl
     return replace(base, p_w_m=T_w[:, :3, 3], q_wb_xyzw=matrix_to_quat_xyzw(T_w[:, :3, :3])), float(lidar_odom.t_s[a])
 
 
+def _flag_data(ds: Dataset, applied: dict) -> None:
+    """What the data hold that no plausibility bound refuses but that makes the figures suspect, said on stderr and
+    in the report: the IMU stopping for seconds, and a wheeled vehicle's streams jumping faster than it can drive."""
+    from .filters.observations.nhc import WHEELED
+
+    platform = ds.description.get("platform")
+    warnings = plausible.imu_gaps(ds.imu)
+    if platform in WHEELED:
+        warnings += plausible.ground_vehicle_glitches({"groundtruth": ds.groundtruth, "gnss": ds.gnss, "lidar": ds.lidar},
+                                                      platform)
+    for w in warnings:
+        log.warning("%s", w)
+    if warnings:
+        applied["data_warnings"] = warnings
+
+
 def _say_models(cfg: dict, ds: Dataset, applied: dict) -> None:
     """For the report: the non-holonomic constraint (on or off, and why) and the lidar increments' frame, where the
     configuration left them to the data ('auto')."""
@@ -304,6 +320,7 @@ def prepare(ds: Dataset, cfg: dict) -> Prepared:
     applied["gravity_mps2"] = float(g)
     applied["t_start_s"] = t0
     _say_models(cfg, ds, applied)
+    _flag_data(ds, applied)
     prep = Prepared(imu=imu, groundtruth=gt, gnss=gnss, lidar=lidar, k_start=k0, x0=x0, gravity_mps2=float(g),
                     gnss_info=gnss_info, applied=applied, odometer=odo, streams=extra, resolved=resolved)
     if cfg["filter"].get("nhc") and cfg["filter"].get("nhc_travel_pitch_mrad") == "auto":

@@ -128,12 +128,12 @@ class Display(Stages):
             if target > self.bar.n:
                 self.bar.update(target - self.bar.n)
 
-    def close(self) -> None:
+    def close(self, summary: bool = True) -> None:
         self._stop.set()
         with self.lock:
             self._end_stage()
             self.name = None
-            if not self.tty and self.times:
+            if not self.tty and self.times and summary:
                 # wall time spent in each stage (work of one stage that overlaps another, such as the evaluations
                 # that run alongside the filter, counts where it was waited for)
                 self.stream.write("stage times (wall): " + ", ".join(f"{n} {t:.1f} s" for n, t in self.times) + "\n")

@@ -14,7 +14,8 @@ from dataclasses import replace
 import numpy as np
 
 from .calibration import measure_shifts, resolve
-from .errors import ConfigError
+from .datasets.plausible import LAG_NOTE, MAX_LAG_S
+from .errors import ConfigError, DataRangeError
 from .types import Dataset, ImuSeries
 
 log = logging.getLogger(__name__)
@@ -66,6 +67,13 @@ def align(ds: Dataset, cfg: dict, imu: ImuSeries, lidar_offset_given) -> tuple[I
             off = est["lidar_offset"].value_s if off == "auto" else off
             accel = est["accel_lag"].value_s if accel == "auto" else accel
             gyro = est["gyro_lag"].value_s if gyro == "auto" else gyro
+            for k in ("accel_lag", "gyro_lag"):
+                # the data fix lidar offset + lag; a lag beyond a second means the given lidar offset is off (as a
+                # lag set by hand beyond it is refused)
+                if k in est and not abs(est[k].value_s) <= MAX_LAG_S:
+                    raise DataRangeError(f"imu.{k}_s=auto comes out at {est[k].value_s:+.3f} s from the data, given the lidar's "
+                                         f"time offset of {off:g} s (lidar.time_offset_s or the manifest's); {LAG_NOTE}: "
+                                         "that offset is probably wrong")
             for k, v in est.items():
                 log.info("%s estimated from the data: %.1f +/- %.1f ms", k.replace("_", " "), v.value_s * 1e3, v.std_s * 1e3)
         else:

@@ -51,6 +51,16 @@ def line_of(lines: np.ndarray | None, i: int) -> int | None:
     return int(lines[min(i, len(lines) - 1)])
 
 
+def check_unit_quaternions(source, lines, q: np.ndarray, tol: float = 1e-2) -> None:
+    """Quaternions whose norm is not 1 within ``tol`` (as every pose series requires): an
+    all-zero or scaled quaternion is a corrupted pose, not one to normalise silently."""
+    norms = np.linalg.norm(np.asarray(q, float), axis=1)
+    bad = np.flatnonzero(~(np.abs(norms - 1.0) <= tol))
+    if bad.size:
+        raise DataFormatError(source, line_of(lines, int(bad[0])),
+                              f"pose quaternion must have unit norm, got norm {norms[bad[0]]:.4f}")
+
+
 def check_times(t: np.ndarray, source: str, lines: np.ndarray | None, what: str, allow_equal: bool = False) -> None:
     """Finite, increasing stamps (equal consecutive ones allowed with ``allow_equal``), or a one-line error naming the
     line of the first that is not."""
@@ -217,12 +227,8 @@ class PoseSeries:
         check_times(t, self.source, self.lines, "pose", allow_equal=self.repeated_stamps)
         _check_rows("position", np.asarray(self.p_w_m), t.size, 3, self.source, self.lines, "pose")
         _check_rows("quaternion", q, t.size, 4, self.source, self.lines, "pose")
-        norms = np.linalg.norm(q, axis=1)
-        bad = np.flatnonzero(np.abs(norms - 1.0) > 1e-2)
-        if bad.size:
-            raise DataFormatError(self.source, line_of(self.lines, bad[0]),
-                                  f"pose quaternion must have unit norm, got norm {norms[bad[0]]:.4f}")
-        object.__setattr__(self, "q_wb_xyzw", _frozen_own(q / norms[:, None]))
+        check_unit_quaternions(self.source, self.lines, q)
+        object.__setattr__(self, "q_wb_xyzw", _frozen_own(q / np.linalg.norm(q, axis=1)[:, None]))
         if self.v_w_mps is not None:
             _check_rows("velocity", np.asarray(self.v_w_mps), t.size, 3, self.source, self.lines, "pose")
             object.__setattr__(self, "v_w_mps", _frozen(self.v_w_mps))

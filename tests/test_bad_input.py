@@ -378,3 +378,131 @@ def test_a_corrupt_true_bias_file_read_on_a_worker_is_a_one_line_error(tmp_path)
     assert r.stderr.strip().splitlines()[-1].startswith("error: ") and "Traceback" not in r.stderr
     assert "imu_biases.csv:5:" in r.stderr
     assert not (tmp_path / "o").exists()
+
+
+# ---- implausible data that once passed (found by corrupting real files) -----------------------------------------
+def _tum(path: Path, n: int = 60, edit=None) -> Path:
+    rows = [[100 + i * 0.1, 0.5 * i, 0.1 * i, 0.0, 0.0, 0.0, 0.0, 1.0] for i in range(n)]
+    if edit:
+        edit(rows)
+    path.write_text("".join(" ".join(f"{v:.6f}" for v in r) + "\n" for r in rows))
+    return path
+
+
+@pytest.mark.parametrize("edit,needle", [
+    (lambda rows: rows[30].__setitem__(slice(4, 8), [0.0, 0.0, 0.0, 0.0]), "est.tum:31: pose quaternion must have unit norm, got norm 0.0000"),
+    (lambda rows: rows[30].__setitem__(7, 5.0), "est.tum:31: pose quaternion must have unit norm, got norm 5.0000"),
+    (lambda rows: rows[30].__setitem__(1, rows[30][1] + 1000.0), "est.tum:31: trajectory pose moves 1e+04 m/s"),
+], ids=["zero-quaternion", "scaled-quaternion", "1-km-jump"])
+def test_evaluate_refuses_a_corrupted_pose_evo_would_take(tmp_path, edit, needle):
+    """evo reads an all-zero quaternion (and normalises a scaled one) and a 1 km jump in 0.1 s without a word; a run
+    refuses all three; so does evaluate now, naming the line."""
+    ref, est = _tum(tmp_path / "ref.tum"), _tum(tmp_path / "est.tum", edit=edit)
+    out = tmp_path / "o"
+    r = CliRunner().invoke(main, ["evaluate", str(ref), str(est), "-o", str(out)])
+    _assert_clean_error(r, out, needle)
+
+
+def test_evaluate_refuses_kitti_files_without_times_of_different_lengths(tmp_path):
+    """Paired by frame index, a pose missing mid-file would shift every later pair: refused, naming both counts."""
+    rows = [f"1 0 0 {i * 0.8:.3f} 0 1 0 0 0 0 1 0" for i in range(40)]
+    ref, est = tmp_path / "ref.txt", tmp_path / "est.txt"
+    ref.write_text("\n".join(rows) + "\n")
+    est.write_text("\n".join(rows[:10] + rows[11:]) + "\n")
+    out = tmp_path / "o"
+    r = CliRunner().invoke(main, ["evaluate", str(ref), str(est), "-o", str(out)])
+    _assert_clean_error(r, out, "est.txt has 39 poses and the reference", "ref.txt 40", "paired by frame index")
+
+
+def test_an_auto_gyro_lag_beyond_a_second_blames_the_given_lidar_offset(tmp_path):
+    """The data fix lidar offset + gyro lag; with a lidar offset of 5 s given, auto once applied a lag of -4.94 s
+    (fused APE 27 m) although a lag of 5 s set by hand is refused."""
+    ds = make_slice(tmp_path / "ds", 500)                   # the estimate needs 20 s of lidar
+    man = ds / "dataset.yaml"
+    text = man.read_text()
+    lidar_offset = "    time_offset_s: 0.0\n    anchor: groundtruth"
+    assert "gyro_lag_s: auto" in text and text.count(lidar_offset) == 1
+    man.write_text(text.replace(lidar_offset, lidar_offset.replace("0.0", "5.0")))
+    r, out = _run(ds, tmp_path)
+    _assert_clean_error(r, out, "imu.gyro_lag_s=auto comes out at -4.9", "time offset of 5 s", "probably wrong")
+
+
+def test_a_geodetic_origin_far_from_the_data_is_refused(ds, tmp_path):
+    import yaml
+
+    man = ds / "dataset.yaml"
+    body = yaml.safe_load(man.read_text())
+    body["geodetic_origin"] = [8.4, 48.98, 116.0]           # lat and lon swapped: a valid place, 5,900 km away
+    man.write_text(yaml.safe_dump(body))
+    r, out = _run(ds, tmp_path)
+    _assert_clean_error(r, out, "geodetic_origin [8.4, 48.98, 116.0] is 5,8", "km from the drive's first fix", "swapped?")
+    body["geodetic_origin"] = [48.98, 8.39, 116.0]           # right, near the first fix: accepted
+    man.write_text(yaml.safe_dump(body))
+    r, out = _run(ds, tmp_path)
+    assert r.exit_code == 0, r.output
+
+
+def test_an_oxts_value_error_names_the_packet_file(ds, tmp_path):
+    p = ds / "oxts" / "data" / "0000000040.txt"
+    vals = p.read_text().split()
+    vals[:3] = ["0", "0", "0"]                               # a zeroed packet: lat, lon, alt 0 (a valid place)
+    p.write_text(" ".join(vals) + "\n")
+    r, out = _run(ds, tmp_path)
+    _assert_clean_error(r, out, "timestamps.txt:41:", "(its values: ", "0000000040.txt)")
+
+
+def test_glitches_and_gaps_below_the_refusal_bounds_are_flagged_in_the_report(ds, tmp_path):
+    """A 111 m jump of one OXTS packet (1,100 m/s: within the 10 km/s bound, impossible for a car) and a 500 m spike
+    of one lidar pose ran to plausible-looking numbers with exit 0 and no word; they are now a warning on stderr and
+    a 'Data warning' in the report (not refused: a real receiver's fix can jump, and the gates are the filter's)."""
+    p = ds / "oxts" / "data" / "0000000050.txt"
+    vals = p.read_text().split()
+    vals[0] = f"{float(vals[0]) + 0.001:.10f}"
+    p.write_text(" ".join(vals) + "\n")
+    poses = ds / "lidar" / "poses.txt"
+    rows = poses.read_text().splitlines()
+    v = rows[80].split()
+    v[3] = f"{float(v[3]) + 500.0:.6e}"
+    rows[80] = " ".join(v)
+    poses.write_text("\n".join(rows) + "\n")
+    out = tmp_path / "out"
+    r = CliRunner().invoke(main, ["run", str(ds), "--out", str(out), "--no-plots"])
+    assert r.exit_code == 0, r.output
+    report = (out / "report.md").read_text()
+    for needle in ("groundtruth: 2 step(s) faster than 100 m/s for a car", "0000000050.txt",
+                   "lidar: 2 step(s) faster than 100 m/s", "poses.txt:81"):
+        assert needle in r.stderr and needle in report, needle
+    import json
+
+    assert len(json.loads((out / "metrics.json").read_text())["preprocessing"]["data_warnings"]) == 3   # + GNSS
+
+
+def test_the_clean_drive_has_no_data_warning(slice_run):
+    import json
+
+    assert "data_warnings" not in json.loads((slice_run / "metrics.json").read_text())["preprocessing"]
+    assert "Data warning" not in (slice_run / "report.md").read_text()
+
+
+def test_a_gap_of_seconds_in_the_imu_stamps_is_flagged(ds, tmp_path):
+    p = ds / "oxts" / "timestamps.txt"
+    lines = p.read_text().splitlines()
+    for i in range(60, len(lines)):                          # +30 s from packet 60 on (a minute is refused)
+        date, hms = lines[i].split()
+        h, m, s = hms.split(":")
+        lines[i] = f"{date} {h}:{int(m) + 1 if float(s) + 30 >= 60 else int(m):02d}:{(float(s) + 30) % 60:012.9f}"
+    p.write_text("\n".join(lines) + "\n")
+    out = tmp_path / "out"
+    r = CliRunner().invoke(main, ["run", str(ds), "--out", str(out), "--no-plots"])
+    assert r.exit_code == 0, r.output
+    assert "imu: 1 gap(s) longer than 5 s, the longest 30" in r.stderr
+    assert "timestamps.txt:61" in (out / "report.md").read_text()
+
+
+def test_a_failed_run_prints_no_stage_times(ds, tmp_path):
+    p = ds / "oxts" / "data" / "0000000031.txt"
+    vals = p.read_text().split()
+    vals[0] = "91.5"
+    p.write_text(" ".join(vals) + "\n")
+    r = CliRunner().invoke(main, ["run", str(ds), "--out", str(tmp_path / "o"), "--no-plots"])
+    assert r.exit_code == 2 and "stage times" not in r.stderr and r.stderr.strip().splitlines()[-1].startswith("error: ")

@@ -11,7 +11,7 @@ from __future__ import annotations
 import json
 from pathlib import Path
 
-from ..datasets.trajectory_file import as_series, read_bag_trajectories, read_trajectory
+from ..datasets.trajectory_file import BY_INDEX, as_series, read_bag_trajectories, read_trajectory
 from ..errors import ConfigError, DataRangeError
 from ..evaluation import keys
 from ..evaluation.estimates import evaluate_series, validate_options
@@ -37,7 +37,14 @@ def read_inputs(inputs: list, bag: Path | None, ref_topic: str | None, fmt: str,
         raise ConfigError("--ref names a topic: give the bag with --bag")
     if len(inputs) < 2:
         raise ConfigError("give a reference file and at least one estimate file (or --bag FILE --ref TOPIC TOPIC...)")
-    return read_trajectory(inputs[0], ref_times, fmt), [read_trajectory(p, times, fmt) for p in inputs[1:]]
+    ref, ests = read_trajectory(inputs[0], ref_times, fmt), [read_trajectory(p, times, fmt) for p in inputs[1:]]
+    for f in ests:
+        # paired by frame index, one pose missing mid-file would shift every later pair, silently
+        if ref.stamps == BY_INDEX and f.stamps == BY_INDEX and f.traj.num_poses != ref.traj.num_poses:
+            raise DataRangeError(f"{f.source} has {f.traj.num_poses} poses and the reference {ref.source} "
+                                 f"{ref.traj.num_poses}: KITTI pose files without times are paired by frame index, so "
+                                 "they must have one pose per frame each (give both times files: --ref-times, --times)")
+    return ref, ests
 
 
 def run_evaluate(inputs: list, out_dir: Path, ref_times: Path | None = None, times: Path | None = None,

@@ -17,6 +17,7 @@ import numpy as np
 import yaml
 
 from ..errors import ConfigError, DataFormatError
+from ..geo import MAX_ORIGIN_DISTANCE_M, great_circle_m
 from .. import yaml_lines
 from ..yaml_lines import at
 from ..so3 import make_T, matrix_to_quat_xyzw
@@ -166,16 +167,27 @@ def _from_manifest_dict(body: dict, root: Path, manifest: Path, extra: dict | No
 
     imu, _ = read("imu", None)
 
+    def first_fix():
+        geo_src = next((streams[s] for s in ("gnss", "groundtruth", "imu") if s in streams and streams[s]["format"] == "kitti_oxts"), None)
+        fix = kitti_oxts.first_valid_fix(oxts(geo_src)) if geo_src else None
+        g = streams.get("gnss")
+        if fix is None and g is not None:
+            ff = for_stream("gnss")[g["format"]].first_fix
+            fix = ff(g, ctx_with(None)) if ff else None
+        return fix
+
     origin = body.get("geodetic_origin", "first_fix")
     if origin == "first_fix":
-        geo_src = next((streams[s] for s in ("gnss", "groundtruth", "imu") if s in streams and streams[s]["format"] == "kitti_oxts"), None)
-        origin_t = kitti_oxts.first_valid_fix(oxts(geo_src)) if geo_src else None
-        g = streams.get("gnss")
-        if origin_t is None and g is not None:
-            ff = for_stream("gnss")[g["format"]].first_fix
-            origin_t = ff(g, ctx_with(None)) if ff else None
+        origin_t = first_fix()
     elif isinstance(origin, (list, tuple)) and len(origin) == 3 and all(_is_num(v) for v in origin):
         origin_t = tuple(float(v) for v in origin)
+        fix = first_fix() if abs(origin_t[0]) <= 90.0 else None
+        far = None if fix is None else great_circle_m(origin_t[:2], fix[:2])
+        if far is not None and far > MAX_ORIGIN_DISTANCE_M:
+            raise ConfigError(f"{at(manifest, body, 'geodetic_origin')}: geodetic_origin {list(origin)} is {far / 1e3:,.0f} km "
+                              f"from the drive's first fix ({fix[0]:.6f}, {fix[1]:.6f}); an origin is where the local "
+                              f"frame is, within {MAX_ORIGIN_DISTANCE_M / 1e3:g} km of the data (latitude and longitude "
+                              "swapped? they go [lat_deg, lon_deg, alt_m])")
     else:
         raise ConfigError(f"{at(manifest, body, 'geodetic_origin')}: geodetic_origin must be 'first_fix' or [lat_deg, lon_deg, alt_m], got {origin!r}")
     if origin_t is not None:

@@ -9,6 +9,8 @@ is refused; what real data can hold (a lidar odometry failure jumping by metres)
 
 from __future__ import annotations
 
+from pathlib import Path
+
 import numpy as np
 
 from ..errors import DataFormatError, DataRangeError
@@ -18,9 +20,14 @@ MAX_LAG_S = 1.0          # an IMU channel's latency: beyond a second it is a clo
 LAG_NOTE = (f"a channel lag is a latency of milliseconds (KITTI's OXTS: 0.06 s), at most {MAX_LAG_S:g} s here; a clock "
             "offset between streams goes in time_offset_s")
 MAX_IMU_GAP_S = 60.0
+FLAG_IMU_GAP_S = 1.0     # shorter stops are bridged by the filter (imu.gap_factor); longer ones are flagged
 MAX_SPAN_RATIO = 50.0
 MAX_POSITION_M = 1e7
 MAX_SPEED_MPS = 1e4
+# A wheeled ground vehicle's speed with a wide margin (360 km/h): a faster step between consecutive poses of its ground
+# truth, GNSS or lidar odometry is a glitch (a corrupted packet, an odometry failure). Flagged, not refused: a real
+# receiver's fix can jump like that, and what the filter makes of it is for its gates to say.
+MAX_GROUND_SPEED_MPS = 100.0
 
 
 def check_imu(imu) -> None:
@@ -51,23 +58,89 @@ def check_span(name: str, series, imu) -> None:
 
 def check_poses(name: str, poses) -> None:
     """Positions beyond :data:`MAX_POSITION_M` and consecutive poses faster than :data:`MAX_SPEED_MPS`."""
-    p = np.asarray(poses.p_w_m)
+    check_track(name, poses.source, poses.lines, poses.t_s, poses.p_w_m)
+
+
+def check_track(name: str, source, lines, t_s, p_m) -> None:
+    """:func:`check_poses` on arrays: ``lines`` maps row ``i`` to its line in ``source`` (None: row ``i`` is line
+    ``i + 1``)."""
+    p = np.asarray(p_m, float)
     if p.size == 0:
         return
     r = np.linalg.norm(p, axis=1)
     bad = np.flatnonzero(r > MAX_POSITION_M)
     if bad.size:
         i = int(bad[0])
-        raise DataFormatError(poses.source, line_of(poses.lines, i), f"{name} position {p[i].tolist()} m is {r[i]:.3g} m from its "
-                                                             f"frame's origin (more than {MAX_POSITION_M:.0e} m): a corrupted pose")
+        raise DataFormatError(source, line_of(lines, i), f"{name} position {p[i].tolist()} m is {r[i]:.3g} m from its "
+                                                         f"frame's origin (more than {MAX_POSITION_M:.0e} m): a corrupted "
+                                                         f"pose{_packet(source, line_of(lines, i))}")
     if p.shape[0] > 1:
-        dt = np.diff(np.asarray(poses.t_s))
+        dt = np.diff(np.asarray(t_s, float))
         v = np.linalg.norm(np.diff(p, axis=0), axis=1) / np.where(dt > 0, dt, np.inf)
         bad = np.flatnonzero(v > MAX_SPEED_MPS)
         if bad.size:
             i = int(bad[0]) + 1
-            raise DataFormatError(poses.source, line_of(poses.lines, i), f"{name} pose moves {v[i - 1]:.3g} m/s from the previous one "
-                                                                 f"(more than {MAX_SPEED_MPS:.0e} m/s): a corrupted pose or stamp")
+            raise DataFormatError(source, line_of(lines, i), f"{name} pose moves {v[i - 1]:.3g} m/s from the previous one "
+                                                             f"(more than {MAX_SPEED_MPS:.0e} m/s): a corrupted pose or "
+                                                             f"stamp{_packet(source, line_of(lines, i))}")
+
+
+def _packet(source, line) -> str:
+    """For a KITTI OXTS stream, whose rows are named by the line of ``oxts/timestamps.txt``, the packet file that
+    holds the row's values (a corrupted value is there, not in the stamp)."""
+    src = Path(str(source))
+    if line is None or src.name != "timestamps.txt" or not (src.parent / "data").is_dir():
+        return ""
+    return f" (its values: {src.parent / 'data' / f'{line - 1:010d}.txt'})"
+
+
+def imu_gaps(imu) -> list[str]:
+    """The IMU's stops longer than :data:`FLAG_IMU_GAP_S` (and 50 median steps), shorter than the refused
+    :data:`MAX_IMU_GAP_S`, as one sentence for the report: the filter only dead-reckons across them, and a stop
+    in the stamps alone (a corrupted clock) shifts every stream aligned to the IMU."""
+    t = np.asarray(imu.t_s)
+    if t.size < 3:
+        return []
+    d = np.diff(t)
+    med = float(np.median(d))
+    bad = np.flatnonzero(d > max(FLAG_IMU_GAP_S, 50.0 * med))
+    if not bad.size:
+        return []
+    i = int(bad[0]) + 1
+    line = line_of(imu.lines, i)
+    at = f"{imu.source}:{line}" if line is not None else str(imu.source)
+    return [f"imu: {bad.size} gap(s) longer than {max(FLAG_IMU_GAP_S, 50.0 * med):.3g} s, the longest {d[bad].max():.3g} s, "
+            f"the first of {d[bad[0]]:.3g} s before {at}: the filter dead-reckons across a gap, and a gap in the stamps "
+            "alone (a corrupted clock) shifts every stream aligned to the IMU"]
+
+
+def ground_vehicle_glitches(streams: dict, platform: str) -> list[str]:
+    """Per stream (``streams``: name -> pose or GNSS series, or None), the steps between consecutive real (not
+    filled-in) samples faster than :data:`MAX_GROUND_SPEED_MPS` (for fixes with a std, beyond 6 sigma of their
+    difference), as one sentence each for the report."""
+    out = []
+    for name, s in streams.items():
+        if s is None or len(s) < 2:
+            continue
+        real = ~np.asarray(s.filled, bool) if getattr(s, "filled", None) is not None else np.ones(len(s), bool)
+        idx = np.flatnonzero(real)
+        p, t = np.asarray(s.p_w_m)[idx], np.asarray(s.t_s)[idx]
+        dt = np.diff(t)
+        step = np.linalg.norm(np.diff(p, axis=0), axis=1)
+        std = getattr(s, "std_w_m", None)
+        if std is not None:             # a fix's own noise is no glitch: 6 sigma of the two fixes' difference allowed
+            sd = np.asarray(std, float)[idx]
+            step = np.maximum(step - 6.0 * np.sqrt(np.sum(sd[1:] ** 2 + sd[:-1] ** 2, axis=1)), 0.0)
+        v = step / np.where(dt > 0, dt, np.inf)
+        bad = np.flatnonzero(v > MAX_GROUND_SPEED_MPS)
+        if bad.size:
+            i = int(idx[bad[0] + 1])
+            line = line_of(s.lines, i)
+            at = f"{s.source}:{line}" if line is not None else str(s.source)
+            out.append(f"{name}: {bad.size} step(s) faster than {MAX_GROUND_SPEED_MPS:g} m/s for a {platform}, the first "
+                       f"{v[bad[0]]:.3g} m/s at {at}{_packet(s.source, line)}: a glitch in the data, whose figures "
+                       "are suspect")
+    return out
 
 
 def check_dataset(imu, streams: dict) -> None:

@@ -27,8 +27,9 @@ from pathlib import Path
 import numpy as np
 
 from ..errors import DataFormatError
-from ..types import check_times
+from ..types import check_times, check_unit_quaternions
 from . import kitti_poses
+from .plausible import check_track
 from ._text import parse_numeric_rows, read_text
 
 log = logging.getLogger(__name__)
@@ -100,6 +101,13 @@ def _stamps_checked(path: Path, t: np.ndarray, lines: np.ndarray) -> int:
     return int(np.count_nonzero(np.diff(t) == 0))
 
 
+def _poses_checked(path: Path, lines: np.ndarray, t_s: np.ndarray, p_m: np.ndarray, q: np.ndarray) -> None:
+    """Refuse, naming the line, what evo would take silently: a quaternion of norm far from 1 (all zeros; it would
+    normalise a scaled one) and a pose beyond the plausibility bounds a run applies (a jump faster than 10 km/s)."""
+    check_unit_quaternions(path, lines, q)
+    check_track("trajectory", path, lines, t_s, p_m)
+
+
 def read_trajectory(path: Path, times: Path | None = None, fmt: str = "auto") -> TrajectoryFile:
     """Check and read a TUM, KITTI or EuRoC trajectory file with evo's readers.
 
@@ -121,6 +129,7 @@ def read_trajectory(path: Path, times: Path | None = None, fmt: str = "auto") ->
     if fmt == "tum":
         rows, lines = parse_numeric_rows(path, text, 8, "TUM trajectory file (timestamp tx ty tz qx qy qz qw)")
         repeated = _stamps_checked(path, rows[:, 0], lines)
+        _poses_checked(path, lines, rows[:, 0], rows[:, 1:4], rows[:, 4:8])
         try:
             traj = file_interface.read_tum_trajectory_file(str(path))
         except file_interface.FileInterfaceException:
@@ -132,6 +141,7 @@ def read_trajectory(path: Path, times: Path | None = None, fmt: str = "auto") ->
         rows, lines = parse_numeric_rows(path, text, _EUROC_COLS, "EuRoC CSV trajectory (#timestamp [ns],p_x,p_y,p_z,"
                                          "q_w,q_x,q_y,q_z,...)", delimiter=",")
         repeated = _stamps_checked(path, rows[:, 0], lines)
+        _poses_checked(path, lines, rows[:, 0] * 1e-9, rows[:, 1:4], rows[:, 4:8])
         traj = file_interface.read_euroc_csv_trajectory(str(path))
         how = "EuRoC stamps (ns)"
     else:
@@ -146,6 +156,7 @@ def read_trajectory(path: Path, times: Path | None = None, fmt: str = "auto") ->
         else:
             t, how, repeated = np.arange(poses.num_poses, dtype=float), BY_INDEX, 0
         traj = PoseTrajectory3D(poses_se3=poses.poses_se3, timestamps=t)
+        check_track("trajectory", path, None, t, traj.positions_xyz)
     traj.meta["name"] = path.stem
     if repeated:
         log.warning("%s: %d repeated stamps (accepted, as evo accepts them)", path, repeated)

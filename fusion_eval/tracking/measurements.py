@@ -72,6 +72,10 @@ def read_measurements(path: Path) -> Measurements:
             raise DataFormatError(path, lineno, f"timestamps must not decrease ({t} us after {prev_t} us)")
         if k == RADAR and z[0] < 0:
             raise DataFormatError(path, lineno, f"radar range rho must be >= 0, got {z[0]}")
+        if k == RADAR and abs(z[1]) > 2 * np.pi:
+            # any radian convention ([-pi, pi], [0, 2 pi)) stays within 2 pi; beyond it the bearing is in degrees
+            raise DataFormatError(path, lineno, f"radar bearing phi must be an angle in radians (within +/-2 pi), got "
+                                                f"{z[1]} (degrees?)")
         prev_t = t
         kinds.append(k)
         zs.append(z + [0.0] * (3 - n_meas))
