@@ -187,7 +187,7 @@ def _from_manifest_dict(body: dict, root: Path, manifest: Path, extra: dict | No
             raise ConfigError(f"{at(manifest, body, 'geodetic_origin')}: geodetic_origin {list(origin)} is {far / 1e3:,.0f} km "
                               f"from the drive's first fix ({fix[0]:.6f}, {fix[1]:.6f}); an origin is where the local "
                               f"frame is, within {MAX_ORIGIN_DISTANCE_M / 1e3:g} km of the data (latitude and longitude "
-                              "swapped? they go [lat_deg, lon_deg, alt_m])")
+                              "swapped, in the origin or in the fixes? both go lat, lon, alt)")
     else:
         raise ConfigError(f"{at(manifest, body, 'geodetic_origin')}: geodetic_origin must be 'first_fix' or [lat_deg, lon_deg, alt_m], got {origin!r}")
     if origin_t is not None:

@@ -264,7 +264,11 @@ def run(kf, bound, times: np.ndarray, which: np.ndarray, index: np.ndarray, orde
             if rec is not None:
                 rec.epochs.size, rec.clones.size = int(rst[0]), int(rst[1])
             if status != OK:
-                raise FilterDivergedError(f"filter diverged at t={kf.t:.3f} s: {MESSAGES[status]}")
+                # which observation's update, so that a stream with corrupted values is named (GNSS thousands of
+                # km off once diverged with no word on the cause)
+                b = bound[int(which[order[j_stop]])] if 0 <= j_stop < n_ev else None
+                what = MESSAGES[status] + (f" (update {int(idx[j_stop]) + 1} of the {b.name} stream)" if b is not None else "")
+                raise FilterDivergedError(f"filter diverged at t={kf.t:.3f} s: {what}")
             j = j_stop
             if progress is not None:
                 progress(j / n_ev)
