@@ -437,7 +437,7 @@ def test_a_geodetic_origin_far_from_the_data_is_refused(ds, tmp_path):
     body["geodetic_origin"] = [8.4, 48.98, 116.0]           # lat and lon swapped: a valid place, 5,900 km away
     man.write_text(yaml.safe_dump(body))
     r, out = _run(ds, tmp_path)
-    _assert_clean_error(r, out, "geodetic_origin [8.4, 48.98, 116.0] is 5,8", "km from the drive's first fix", "swapped?")
+    _assert_clean_error(r, out, "geodetic_origin [8.4, 48.98, 116.0] is 5,8", "km from the drive's first fix", "swapped, in the origin or in the fixes?")
     body["geodetic_origin"] = [48.98, 8.39, 116.0]           # right, near the first fix: accepted
     man.write_text(yaml.safe_dump(body))
     r, out = _run(ds, tmp_path)
@@ -508,3 +508,12 @@ def test_a_failed_run_prints_no_stage_times(ds, tmp_path):
     p.write_text(" ".join(vals) + "\n")
     r = CliRunner().invoke(main, ["run", str(ds), "--out", str(tmp_path / "o"), "--no-plots"])
     assert r.exit_code == 2 and "stage times" not in r.stderr and r.stderr.strip().splitlines()[-1].startswith("error: ")
+
+
+def test_evaluate_says_when_the_stamps_differ_by_a_unit(tmp_path):
+    ref = _tum(tmp_path / "ref.tum")
+    ns = tmp_path / "ns.tum"
+    ns.write_text("".join(f"{int(round((100 + i * 0.1) * 1e9))} {0.5 * i:.3f} 0 0 0 0 0 1\n" for i in range(60)))
+    out = tmp_path / "o"
+    r = CliRunner().invoke(main, ["evaluate", str(ref), str(ns), "-o", str(out)])
+    _assert_clean_error(r, out, "0 poses of", "the estimate's stamps are 1e+9 times the reference's: in another unit?")

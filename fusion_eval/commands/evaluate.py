@@ -11,6 +11,8 @@ from __future__ import annotations
 import json
 from pathlib import Path
 
+import numpy as np
+
 from ..datasets.trajectory_file import BY_INDEX, as_series, read_bag_trajectories, read_trajectory
 from ..errors import ConfigError, DataRangeError
 from ..evaluation import keys
@@ -119,7 +121,19 @@ def _refuse_unmatched(ref_f, est_fs, evals: dict, association: str, t_max_diff_s
         if ev.matched_poses < 2:
             raise DataRangeError(f"{ev.matched_poses} poses of {_span(f)} match the reference {_span(ref_f)} "
                                  f"({association}, within --t-max-diff {t_max_diff_s} s); at least 2 are needed "
-                                 "(a time offset between the files? --t-offset; KITTI files without times? --times)")
+                                 f"({_unit_hint(ref_f, f)}a time offset between the files? --t-offset; KITTI files "
+                                 "without times? --times)")
+
+
+def _unit_hint(ref_f, f) -> str:
+    """Where the two files' first stamps differ by a power of 1000 (seconds against milli-, micro- or nanoseconds),
+    say so: a EuRoC file of microseconds is read as nanoseconds, a TUM file of nanoseconds as seconds."""
+    a, b = (float(x.traj.timestamps[0]) if len(x.traj.timestamps) else 0.0 for x in (ref_f, f))
+    if a > 0 and b > 0:
+        k = np.log10(b / a) / 3
+        if abs(k) >= 0.8 and abs(k - round(k)) < 0.2:
+            return f"the estimate's stamps are 1e{3 * round(k):+d} times the reference's: in another unit? "
+    return ""
 
 
 def _summary_table(m: dict) -> tuple[list[str], list[list], str]:
