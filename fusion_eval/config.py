@@ -82,6 +82,9 @@ CORE: dict[str, Spec] = {
     "lidar.extrinsic_rotation": S("calibration", "lidar-IMU rotation: the 'calibration' files' as they are, or 'auto' = corrected "
                                                  "by a hand-eye estimate from the data (gyro and accelerometer vs lidar)",
                                   choices=("calibration", "auto")),
+    "lidar.extrinsic_translation": S("calibration", "lidar-IMU lever arm: the 'calibration' files' as it is, or 'auto' = its "
+                                                    "horizontal components corrected by the same hand-eye estimate",
+                                     choices=("calibration", "auto")),
     "lidar.interpolate_to_imu": S(True, "resample the lidar poses onto the IMU stamps (SLERP) before fusing"),
     "gnss.time_offset_s": S(None, "added to GNSS stamps; null = the manifest's value (default 0)", "float", nullable=True),
     "gnss.rate_hz": S(1.0, "decimate GNSS to this rate (null = keep every fix); only for streams the manifest marks 'degrade'",

@@ -17,7 +17,7 @@ from . import timing
 from .datasets import plausible
 from .calibration import imu_noise
 from .config import Settings
-from .calibration.extrinsic import apply_rotation, estimate_rotation
+from .calibration.extrinsic import apply_extrinsic, estimate_extrinsic
 from .calibration.travel import MIN_STRETCHES, estimate_travel_pitch, pitch_from_smoothed_pass, uncertain
 from .degrade import degrade_gnss
 from .errors import ConfigError, DataRangeError
@@ -196,12 +196,15 @@ def prepare(ds: Dataset, cfg: dict) -> Prepared:
     if ds.lidar is not None:
         applied["time_offset_s"]["lidar"] = lidar_off
         lid = shifted(ds.lidar, lidar_off)
-        if cfg["lidar"]["extrinsic_rotation"] == "auto":
-            # the mount rotation against the calibration file, from the time-aligned signals (hand-eye)
-            rot = estimate_rotation(imu, lid.select(~lid.filled))
-            lid = apply_rotation(lid, rot.R_E)
-            applied["lidar_extrinsic"] = rot.as_dict()
-            log.info("lidar rotation correction estimated: roll, pitch, yaw %s mrad", np.round(rot.rpy_mrad, 2))
+        rot_auto, arm_auto = (cfg["lidar"][k] == "auto" for k in ("extrinsic_rotation", "extrinsic_translation"))
+        if rot_auto or arm_auto:
+            # the mount against the calibration file, from the time-aligned signals (hand-eye)
+            est = estimate_extrinsic(imu, lid.select(~lid.filled))
+            lid = apply_extrinsic(lid, est.R_E if rot_auto else np.eye(3), est.t_E_m if arm_auto else None)
+            applied["lidar_extrinsic"] = {**est.as_dict(), "applied": [k for k, on in (("rotation", rot_auto),
+                                                                                      ("lever_arm", arm_auto)) if on]}
+            log.info("lidar mount correction estimated: roll, pitch, yaw %s mrad; lever arm x, y %s cm",
+                     np.round(est.rpy_mrad, 2), np.round(est.t_E_m[:2] * 100, 1))
         if ds.description.get("lidar_anchor", "groundtruth") == "groundtruth":
             lid, t_anchor = anchor_lidar(lid, gt)
             applied["lidar_anchor_t_s"] = t_anchor

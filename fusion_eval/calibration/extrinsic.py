@@ -1,24 +1,28 @@
-"""The rotation between the lidar odometry's body frame and the IMU, estimated from the data (hand-eye).
+"""The lidar odometry's mount against the IMU, estimated from the data (hand-eye): the rotation and the
+horizontal lever arm.
 
-With a mount rotated by R_E against the calibration file, the IMU poses the readers derive from the lidar
-move as ``E T E^-1``: their body-frame rotation rate is ``R_E w`` and their body-frame specific force
-``R_E f``, where ``w`` and ``f`` are what the gyro and the accelerometer measure. So R_E is the rotation
-that best maps the IMU's signals onto the lidar's (Wahba's problem, solved by SVD), both signals on the
-time-aligned, low-passed grid of :mod:`fusion_eval.calibration.time_offset`:
+With a mount offset by ``E = (R_E, t_E)`` against the calibration file, the IMU poses the readers derive from the
+lidar move as ``E T E^-1``: their body-frame rotation rate is ``R_E w``, and their body-frame specific force
+``R_E f - K t_E`` with ``K = [w']x^2 + [dw'/dt]x`` (``w' = R_E w``): the centripetal and tangential acceleration of
+the offset point. So R_E is the rotation that best maps the IMU's signals onto the lidar's (Wahba's problem, solved
+by SVD) and ``t_E`` a linear least-squares term beside it, all signals on the time-aligned, low-passed grid of
+:mod:`fusion_eval.calibration.time_offset`:
 
 - the rates fix roll and pitch of R_E (a car turns about its vertical axis, so its rate vector points up
   and a yaw of R_E leaves it unchanged);
-- the specific force fixes the yaw: forward and lateral acceleration have distinct directions in the body
-  frame. Gravity, a constant in the odometry's world frame, is solved out as in the time-offset estimate.
+- the specific force fixes the yaw (forward and lateral acceleration have distinct directions in the body frame)
+  and the lever arm's horizontal components (through ``K``, in turns). Gravity, a constant in the odometry's world
+  frame, is solved out as in the time-offset estimate, and so is a constant horizontal accelerometer bias: left in,
+  its ~0.05 m/s^2 correlates with the always-negative ``-w^2`` of turning and put a 13-17 cm lever arm into a
+  simulated drive that had none. The vertical component of the lever arm is not observable from a ground
+  vehicle's yaw (``K``'s third column is zero for a rate about z) and stays the calibration's.
 
-The two sets are weighted by the inverse of their residual variance; the uncertainty is a block
-jackknife. The lever arm is not estimated: at a car's yaw rates its signal (the centripetal acceleration
-of a 10 cm arm, w^2 r ~ 1 cm/s^2) is far below the noise of a 10 Hz odometry's second differences.
+The two sets are weighted by the inverse of their residual variance; the uncertainty is a block jackknife.
 """
 
 from __future__ import annotations
 
-from dataclasses import dataclass, replace
+from dataclasses import dataclass, field, replace
 
 import numpy as np
 from scipy.spatial.transform import Rotation
@@ -30,15 +34,19 @@ from . import time_offset as to
 
 
 @dataclass(frozen=True)
-class RotationEstimate:
+class ExtrinsicEstimate:
     R_E: np.ndarray              # lidar-derived body frame from the IMU frame (the correction is its inverse)
     rpy_mrad: np.ndarray         # R_E as roll, pitch, yaw (extrinsic xyz), mrad
     std_mrad: np.ndarray         # jackknife standard error of each
     samples: int
+    t_E_m: np.ndarray = field(default_factory=lambda: np.zeros(3))     # the calibration's lever-arm error, IMU axes
+    t_std_m: np.ndarray = field(default_factory=lambda: np.full(3, np.nan))
 
     def as_dict(self) -> dict:
         return {"rpy_mrad": self.rpy_mrad.tolist(), "std_mrad": self.std_mrad.tolist(), "samples": self.samples,
-                "method": "hand-eye: gyro vs lidar rotation rate and accelerometer vs lidar acceleration (Wahba, SVD)"}
+                "lever_arm_error_m": self.t_E_m.tolist(), "lever_arm_std_m": self.t_std_m.tolist(),
+                "method": "hand-eye: gyro vs lidar rotation rate and accelerometer vs lidar acceleration (Wahba, SVD; "
+                          "lever arm and horizontal accelerometer bias by least squares beside it)"}
 
 
 def _wahba(H: np.ndarray) -> np.ndarray:
@@ -50,7 +58,8 @@ def _wahba(H: np.ndarray) -> np.ndarray:
 
 def _signals(imu: ImuSeries, lidar: PoseSeries):
     """Body-frame signals on a common grid: lidar rates and IMU rates; lidar acceleration A, its gravity
-    matrix B (A - B g = R_E f) and the accelerometer F; validity masks."""
+    matrix B (A - B g = R_E f) and the accelerometer F; the raw gyro and its derivative for the lever arm's
+    regressor; validity masks."""
     t_ref = float(imu.t_s[0])
     imu, lidar = replace(imu, t_s=imu.t_s - t_ref), replace(lidar, t_s=lidar.t_s - t_ref)
     grid = to._common_grid(imu, lidar, 0.0)
@@ -58,55 +67,92 @@ def _signals(imu: ImuSeries, lidar: PoseSeries):
     wg, ok_g = to.imu_signal(imu.t_s, imu.w_b_rps, grid, to.RATE_SMOOTH_S)
     A, B, ok_a = to.lidar_accel_signal(lidar, grid)
     F, ok_f = to.imu_signal(imu.t_s, imu.f_b_mps2, grid, to.ACCEL_SMOOTH_S)
-    return wl, wg, ok_r & ok_g, A, B, F, ok_a & ok_f
+    w = to._interp(imu.t_s, imu.w_b_rps, grid)
+    return wl, wg, ok_r & ok_g, A, B, F, ok_a & ok_f, (w, np.gradient(w, to.GRID_S, axis=0), ok_f)
 
 
-def _solve(wl, wg, A, B, F, iters: int = 4) -> np.ndarray:
+def _lever_regressor(raw, R: np.ndarray) -> np.ndarray:
+    """``smooth([w']x^2 + [dw'/dt]x)`` with ``w' = R w``, through the accelerometer's low-pass, on the grid (N, 3, 3)."""
+    w, wd, ok = raw
+    S = _skew(w @ R.T)
+    K = S @ S + _skew(wd @ R.T)
+    Ks, _ = to._smooth(K.reshape(-1, 9), ok, to.ACCEL_SMOOTH_S)
+    return Ks.reshape(-1, 3, 3)
+
+
+def _skew(v: np.ndarray) -> np.ndarray:
+    S = np.zeros(v.shape[:-1] + (3, 3))
+    S[..., 0, 1], S[..., 0, 2], S[..., 1, 2] = -v[..., 2], v[..., 1], -v[..., 0]
+    return S - np.swapaxes(S, -1, -2)
+
+
+# weak priors on what the data may not show (m, m/s^2): far beyond any calibration error or accelerometer bias, so
+# that they only hold an unobserved direction (a drive without turns) at zero
+LEVER_PRIOR_M, BIAS_PRIOR_MPS2 = 0.5, 0.5
+
+
+def _solve(wl, wg, A, B, F, K_of, iters: int = 6):
+    """R_E and the lever-arm term ``d = -t_E`` (horizontal; the vertical stays 0) for the grid points given."""
     wl0, wg0 = wl - wl.mean(axis=0), wg - wg.mean(axis=0)
     R = np.eye(3)
+    d = np.zeros(3)
+    ones = np.broadcast_to(np.eye(3)[:, :2], (A.shape[0], 3, 2))
     for _ in range(iters):
-        # gravity for the current R: min sum |A - B g - R F|^2
-        g = np.linalg.solve(np.einsum("nki,nkj->ij", B, B), np.einsum("nji,nj->i", B, A - F @ R.T))
-        y = A - np.einsum("nij,j->ni", B, g)
+        K = K_of(R)
+        # given R: A - R F = B g + K d + c, linear in gravity g (world), d (x, y) and the accelerometer bias c (x, y)
+        y0 = A - F @ R.T
+        J = np.concatenate([B, K[:, :, :2], ones], axis=2)
+        N = np.einsum("nki,nkj->ij", J, J)
+        b = np.einsum("nki,nk->i", J, y0)
+        ra = np.mean(np.sum((y0 - np.einsum("nij,j->ni", J, np.linalg.lstsq(N, b, rcond=1e-12)[0])) ** 2, axis=1))
+        N[3:5, 3:5] += np.eye(2) * ra / LEVER_PRIOR_M ** 2
+        N[5:7, 5:7] += np.eye(2) * ra / BIAS_PRIOR_MPS2 ** 2
+        sol = np.linalg.solve(N, b)
+        d = np.array([sol[3], sol[4], 0.0])
+        y = A - np.einsum("nij,j->ni", J[:, :, :3], sol[:3]) - np.einsum("nij,j->ni", J[:, :, 3:], sol[3:])
         ra = np.mean(np.sum((y - F @ R.T) ** 2, axis=1))
         rr = np.mean(np.sum((wl0 - wg0 @ R.T) ** 2, axis=1))
         H = wg0.T @ wl0 / max(rr, 1e-12) + F.T @ y / max(ra, 1e-12)
         R = _wahba(H)
-    return R
+    return R, d
 
 
-def estimate_rotation(imu: ImuSeries, lidar: PoseSeries, blocks: int = to.BLOCKS) -> RotationEstimate:
-    """R_E with its jackknife uncertainty; ``imu`` and ``lidar`` already time-aligned (lags and offset applied),
-    ``lidar`` holding the IMU poses the calibration file gives, on the lidar stamps."""
-    wl, wg, ok_r, A, B, F, ok_a = _signals(imu, lidar)
+def estimate_extrinsic(imu: ImuSeries, lidar: PoseSeries, blocks: int = to.BLOCKS) -> ExtrinsicEstimate:
+    """R_E and t_E with their jackknife uncertainty; ``imu`` and ``lidar`` already time-aligned (lags and offset
+    applied), ``lidar`` holding the IMU poses the calibration file gives, on the lidar stamps."""
+    wl, wg, ok_r, A, B, F, ok_a, raw = _signals(imu, lidar)
     if ok_r.sum() < 1000 or ok_a.sum() < 1000:
-        raise DataRangeError(f"too little overlap of {imu.source} and {lidar.source} without gaps to estimate the lidar rotation")
+        raise DataRangeError(f"too little overlap of {imu.source} and {lidar.source} without gaps to estimate the lidar mount")
     blk = to._block_of(ok_r.size, blocks)
+    cache: dict = {}
+
+    def K_of(R):                        # the regressor over the whole grid (its low-pass needs it), per R
+        key = R.tobytes()
+        if key not in cache:
+            cache.clear()
+            cache[key] = _lever_regressor(raw, R)
+        return cache[key]
 
     def solve(keep):
-        mr, ma = ok_r & keep[blk], ok_a & keep[blk]
-        return _solve(wl[mr], wg[mr], A[ma], B[ma], F[ma])
+        m = ok_r & ok_a & keep[blk]
+        R, d = _solve(wl[m], wg[m], A[m], B[m], F[m], lambda R: K_of(R)[m])
+        return np.r_[Rotation.from_matrix(R).as_euler("xyz") * 1e3, -d], R
 
-    R = solve(np.ones(blocks, bool))
-    rpy = Rotation.from_matrix(R).as_euler("xyz") * 1e3
-    loo = []
-    for b in range(blocks):
-        keep = np.ones(blocks, bool)
-        keep[b] = False
-        loo.append(Rotation.from_matrix(solve(keep)).as_euler("xyz") * 1e3)
-    loo = np.asarray(loo)
+    full, R = solve(np.ones(blocks, bool))
+    loo = np.asarray([solve(np.arange(blocks) != b)[0] for b in range(blocks)])
     std = np.sqrt((blocks - 1) / blocks * np.sum((loo - loo.mean(axis=0)) ** 2, axis=0))
-    return RotationEstimate(R, rpy, std, int(ok_a.sum()))
+    std[5] = np.nan                     # the vertical lever arm: not estimated
+    return ExtrinsicEstimate(R, full[:3], std[:3], int((ok_r & ok_a).sum()), full[3:], std[3:])
 
 
-def apply_rotation(lidar: PoseSeries, R_E: np.ndarray) -> PoseSeries:
-    """The lidar poses corrected for the mount rotation: relative to the first pose, ``X -> E^-1 X E``."""
+def apply_extrinsic(lidar: PoseSeries, R_E: np.ndarray, t_E_m=None) -> PoseSeries:
+    """The lidar poses corrected for the mount's offset ``E = (R_E, t_E)``: relative to the first pose,
+    ``X -> E^-1 X E``."""
     T = make_T(lidar.R_wb(), lidar.p_w_m)
-    E = make_T(R_E, np.zeros(3))
-    Ei = make_T(R_E.T, np.zeros(3))
+    E = make_T(R_E, np.zeros(3) if t_E_m is None else np.asarray(t_E_m, float))
     X = inv_T(T[0])[None] @ T
-    Tc = T[0][None] @ Ei[None] @ X @ E[None]
+    Tc = T[0][None] @ inv_T(E)[None] @ X @ E[None]
     return replace(lidar, p_w_m=Tc[:, :3, 3], q_wb_xyzw=matrix_to_quat_xyzw(Tc[:, :3, :3]))
 
 
-__all__ = ["RotationEstimate", "estimate_rotation", "apply_rotation"]
+__all__ = ["ExtrinsicEstimate", "estimate_extrinsic", "apply_extrinsic"]

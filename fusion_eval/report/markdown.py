@@ -102,9 +102,13 @@ def _estimates(applied: dict) -> list[str]:
         out.append(f"- IMU white noise estimated from the stream's second differences: {', '.join(p for p in parts if p)}.")
     x = applied.get("lidar_extrinsic")
     if x:
-        out.append(f"- Estimated lidar-IMU rotation correction (roll, pitch, yaw): "
+        did = x.get("applied", ["rotation"])
+        lever, lstd = (x.get(k, [float("nan")] * 3) for k in ("lever_arm_error_m", "lever_arm_std_m"))
+        out.append(f"- Estimated lidar-IMU mount correction, rotation (roll, pitch, yaw): "
                    f"{', '.join(f'{v:.2f}' for v in x['rpy_mrad'])} mrad +/- {', '.join(f'{v:.2f}' for v in x['std_mrad'])}"
-                   f" (jackknife), from {x['method']}; applied to the lidar poses.")
+                   f"; lever-arm error (x, y): {lever[0] * 100:.1f}, {lever[1] * 100:.1f} cm +/- {lstd[0] * 100:.1f}, "
+                   f"{lstd[1] * 100:.1f} (jackknife), from {x['method']}; applied to the lidar poses: "
+                   f"{' and '.join(did) if did else 'neither'}.")
     n = applied.get("nhc")
     if n:
         out.append(f"- Non-holonomic constraint: {n}.")
