@@ -12,6 +12,8 @@ from __future__ import annotations
 import numpy as np
 from numba import njit
 
+from .errors import DataRangeError
+
 
 @njit(cache=True)
 def _format(a, dec, sep, end):
@@ -60,13 +62,21 @@ def _format(a, dec, sep, end):
     return buf[:pos], offs
 
 
+class ValueTooLargeError(DataRangeError, ValueError):
+    """A value :func:`format_table` cannot write exactly (a ``ValueError`` too, for callers that catch those)."""
+
+
 def _checked(a: np.ndarray, decimals) -> tuple[np.ndarray, np.ndarray]:
     a = np.ascontiguousarray(a, dtype=np.float64)
     dec = np.broadcast_to(np.asarray(decimals, np.int64), (a.shape[1],)).copy()
     if not np.all(np.isfinite(a)):
         raise ValueError("format_table: values must be finite")
     if a.size and np.any(np.abs(a).max(axis=0) * 10.0 ** dec >= 2.0 ** 53):
-        raise ValueError("format_table: a value is too large for its number of decimals")
+        # not a bug to trace back but a value no plausible setting or datum gives (a simulated noise of 1e12 m):
+        # one line, like every bad input
+        col = int(np.argmax(np.abs(a).max(axis=0) * 10.0 ** dec))
+        raise ValueTooLargeError(f"a value to write, {float(np.abs(a[:, col]).max()):.3g}, is too large for its "
+                                 f"{int(dec[col])} decimals: an implausible setting or datum")
     return a, dec
 
 

@@ -4,6 +4,7 @@ manifest, generic CSV streams, frames with ``T_imu_<frame>``) and their one-line
 
 from __future__ import annotations
 
+import re
 import shutil
 
 import numpy as np
@@ -199,3 +200,18 @@ def test_the_readmes_manifests(drives):
         # the GNSS as accurate as through the simulator's own manifest (a wrong geodetic origin offsets it by metres)
         own = fe.run(drives[layout]).metrics["estimates"]["gnss"]["ape"]["translation_m"]["rmse"]
         assert r["estimates"]["gnss"]["ape"]["translation_m"]["rmse"] == pytest.approx(own, rel=1e-9), layout
+
+
+@pytest.mark.parametrize("edit,needle", [
+    (lambda e: e.__setitem__("delimiter", ""), "delimiter must be a non-empty string"),       # once a ValueError traceback
+    (lambda e: e.__setitem__("columns", ["t", "ax", "ax", "az", "wx", "wy", "wz"]), "csv column 'ax' is named twice"),
+], ids=["empty-delimiter", "repeated-column"])
+def test_a_csv_entry_that_cannot_be_read_is_named_with_its_line(drives, tmp_path, edit, needle):
+    man = yaml.safe_load((drives["csv_log"] / "dataset.yaml").read_text())
+    for f in drives["csv_log"].iterdir():
+        if f.is_file() and f.name != "dataset.yaml":
+            shutil.copy(f, tmp_path / f.name)
+    edit(man["streams"]["imu"])
+    (tmp_path / "dataset.yaml").write_text(yaml.safe_dump(man, sort_keys=False))
+    with pytest.raises(ConfigError, match=r"dataset\.yaml:\d+: " + re.escape(needle)):
+        load_dataset(tmp_path)

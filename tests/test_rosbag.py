@@ -493,3 +493,19 @@ def test_tf_example_against_evo_tf_lookup():
     same = np.abs(ours.t_s[i] - ref.timestamps) < 1e-9
     assert same.any()
     np.testing.assert_allclose(ref.positions_xyz[same], ours.p_w_m[i[same]], rtol=0, atol=1e-9)
+
+
+def test_a_bag_garbled_in_the_middle_is_a_one_line_error(tmp_path):
+    """A ROS 1 bag whose middle is overwritten opens (its index is intact) and fails only where the reader meets the
+    damage: once rosbags' ReaderError traceback out of `run`; now the bag, the topic and how far it got."""
+    from fusion_eval.errors import DataFormatError
+
+    imu = _imu(np.random.default_rng(5), n=5000)
+    bag = _write(tmp_path, FLAVOURS[0], [rb.BagStream("/imu/data", "imu", imu, "imu_link")])
+    assert bag.suffix == ".bag"
+    data = bytearray(bag.read_bytes())
+    mid = len(data) // 2
+    data[mid:mid + 4096] = bytes(range(256)) * 16
+    bag.write_bytes(bytes(data))
+    with pytest.raises(DataFormatError, match=r"damaged: reading topic '/imu/data' failed after \d+ messages"):
+        rb.read_imu(bag, "/imu/data")

@@ -191,3 +191,21 @@ def test_the_kitti_layout_writer_pool_workers_take_the_projects_signal_dispositi
     assert r.exit_code == 0, r.output
     lines = seen.read_text().split("\n")[:-1]
     assert len(lines) == 2 and set(lines) == {"True True True"}, lines
+
+
+@pytest.mark.parametrize("args,needle", [
+    (("-d", "0.001"), "--duration must be between 2 and 86400 s"),             # once a NaN ValueError traceback
+    (("-d", "1e9"), "--duration must be between 2 and 86400 s"),               # once a 745 GiB allocation
+    (("-d", "30", "--seed", "-1"), "--seed must be >= 0"),
+    (("-d", "30", "--set", "imu.accel_noise_mps2_sqrthz=1e6"), "the simulated IMU's specific force reaches"),
+    (("-d", "30", "--set", "odometer.noise_std_mps=1e12"), "is too large for its 6 decimals"),   # once a traceback
+])
+def test_absurd_simulator_settings_are_one_line_errors(tmp_path, args, needle):
+    from click.testing import CliRunner
+
+    from fusion_eval.cli import main
+
+    out = tmp_path / "sim"
+    r = CliRunner().invoke(main, ["simulate", str(out), *args])
+    assert r.exit_code == 2 and needle in r.stderr and "\n" not in r.stderr.strip(), r.output
+    assert not out.exists()

@@ -173,6 +173,16 @@ def test_check_accepts_a_sweep_csv(tmp_path):
     ("variants: eskf\nsettings: {a: {imu.gyro_noise_dps_sqrthz: 0.1}}\n", "'variants' must be a list"),
     ("plots: 'no'\nsettings: {a: {imu.gyro_noise_dps_sqrthz: 0.1}}\n", "'plots' must be true or false"),
     ("settings: {a: {imu.nope: 1}}\n", "unknown configuration key"),
+    # found by corrupting sweep files: each names its line now, and a sweep too large to plan is refused (a 400^3
+    # grid and random n = 1e9 once ran for minutes with no output)
+    ("grid:\n  imu.gyro_noise_dps_sqrthz: [0.1, -1]\n", "bad.yaml:2: imu.gyro_noise_dps_sqrthz must be >= 0"),
+    ("grid:\n  imu.gyro_noise_dps_sqrthz: [0.1, 0.1]\n", "bad.yaml:2: grid key 'imu.gyro_noise_dps_sqrthz' lists a value twice"),
+    ("random:\n  n: 1000000000\n  ranges: {imu.gyro_noise_dps_sqrthz: [0.01, 1]}\n", "bad.yaml:2: random n=1,000,000,000 is more than"),
+    ("grid:\n  imu.gyro_noise_dps_sqrthz: [" + ", ".join(f"{0.01 * (i + 1):g}" for i in range(400)) + "]\n"
+     "  imu.accel_noise_mps2_sqrthz: [" + ", ".join(f"{0.01 * (i + 1):g}" for i in range(400)) + "]\n",
+     "the sweep has 160,000 settings, more than 100,000 (a grid of 400 x 400)"),
+    ("random:\n  n: 3\n  ranges:\n    imu.gyro_noise_dps_sqrthz: [1.0, 0.01]\n", "bad.yaml:4: random range of"),
+    ("random:\n  n: 3\n  ranges:\n    filter.formulation: [0.1, 1]\n", "bad.yaml:4: 'filter.formulation' takes one of"),
 ])
 def test_malformed_sweep_files_are_one_line_errors(small, tmp_path, body, needle):
     sw = tmp_path / "bad.yaml"

@@ -54,6 +54,7 @@ from ..variants import resolve_variant
 
 log = logging.getLogger(__name__)
 
+MAX_SETTINGS = 100_000      # a sweep's settings: beyond, a typo (a 400^3 grid once filled 600 MB before running anything)
 SWEEP_KEYS = {"datasets", "variants", "config", "plots", "grid", "settings", "random", "trials"}
 
 
@@ -126,35 +127,50 @@ def settings_of(body: dict, where: str) -> list[tuple[str, dict]]:
 
     known = schema()
 
-    def check(key, value):
+    def check(key, value, mapping):
+        at = yaml_lines.at(where, mapping, key)            # the line of the key in the sweep file
         if key not in known:
-            raise ConfigError(f"{where}: unknown configuration key {key!r} in the sweep")
-        return check_value(key, known[key], value, where)
+            raise ConfigError(f"{at}: unknown configuration key {key!r} in the sweep")
+        return check_value(key, known[key], value, at)
 
     for name, ov in (body.get("settings") or {}).items():
         if not isinstance(ov, dict):
-            raise ConfigError(f"{where}: setting {name!r} must map configuration keys to values")
-        out.append((str(name), {k: check(k, v) for k, v in ov.items()}))
+            raise ConfigError(f"{yaml_lines.at(where, body.get('settings'), name)}: setting {name!r} must map configuration "
+                              "keys to values")
+        out.append((str(name), {k: check(k, v, ov) for k, v in ov.items()}))
     grid = body.get("grid") or {}
+    rnd = body.get("random")
     if grid:
         gkeys = list(grid)
         for k in gkeys:
             if not isinstance(grid[k], list) or not grid[k]:
-                raise ConfigError(f"{where}: grid key {k!r} needs a non-empty list of values")
+                raise ConfigError(f"{yaml_lines.at(where, grid, k)}: grid key {k!r} needs a non-empty list of values")
+            if len(set(map(repr, grid[k]))) != len(grid[k]):
+                raise ConfigError(f"{yaml_lines.at(where, grid, k)}: grid key {k!r} lists a value twice: {grid[k]!r}")
+        size = math.prod(len(grid[k]) for k in gkeys) + (int(rnd["n"]) if rnd else 0)
+        if size > MAX_SETTINGS:
+            raise ConfigError(f"{where}: the sweep has {size:,} settings, more than {MAX_SETTINGS:,} (a grid of "
+                              f"{' x '.join(str(len(grid[k])) for k in gkeys)}); sweep fewer values, or use random")
         for combo in itertools.product(*(grid[k] for k in gkeys)):
-            ov = {k: check(k, v) for k, v in zip(gkeys, combo)}
+            ov = {k: check(k, v, grid) for k, v in zip(gkeys, combo)}
             out.append((",".join(f"{k}={v}" for k, v in ov.items()), ov))
-    rnd = body.get("random")
     if rnd:
         n, seed, ranges = int(rnd["n"]), int(rnd.get("seed", 0)), rnd["ranges"]
+        if n > MAX_SETTINGS:
+            raise ConfigError(f"{yaml_lines.at(where, rnd, 'n')}: random n={n:,} is more than {MAX_SETTINGS:,} settings")
+        for k, (lo, hi) in ranges.items():
+            if not (0 < _num(lo) < _num(hi)):
+                raise ConfigError(f"{yaml_lines.at(where, ranges, k)}: random range of {k!r} must be 0 < low < high "
+                                  f"(log-uniform), got [{lo}, {hi}]")
+            if k in known and known[k].choices:
+                raise ConfigError(f"{yaml_lines.at(where, ranges, k)}: {k!r} takes one of {', '.join(map(str, known[k].choices))}"
+                                  ": a choice, not a range (put it in grid)")
         rng = np.random.default_rng(seed)
         for i in range(n):
             ov = {}
             for k, (lo, hi) in ranges.items():
                 lo, hi = _num(lo), _num(hi)
-                if not (0 < lo < hi):
-                    raise ConfigError(f"{where}: random range of {k!r} must be 0 < low < high (log-uniform)")
-                ov[k] = check(k, float(math.exp(rng.uniform(math.log(lo), math.log(hi)))))
+                ov[k] = check(k, float(math.exp(rng.uniform(math.log(lo), math.log(hi)))), ranges)
             out.append((f"random-{i:03d}", ov))
     names = [n for n, _ in out]
     if len(set(names)) != len(names):

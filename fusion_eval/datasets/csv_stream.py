@@ -113,10 +113,16 @@ def _columns(entry: dict, kind: str, ctx: ReadContext) -> dict[str, int]:
                           f"(needs {', '.join(sorted(required))})")
     named = {c: i for i, c in enumerate(cols) if not c.startswith("_")}
     unknown = set(named) - required - optional
-    if unknown or len(named) != sum(1 for c in cols if not c.startswith("_")):
-        bad = sorted(unknown)[0] if unknown else "a repeated name"
-        raise ConfigError(f"{ctx.at(entry, 'columns')}: csv column {bad!r} is not a {kind} column (known: "
+    if unknown:
+        raise ConfigError(f"{ctx.at(entry, 'columns')}: csv column {sorted(unknown)[0]!r} is not a {kind} column (known: "
                           f"{', '.join(sorted(required | optional))}; '_' skips a column)")
+    repeated = sorted({c for c in cols if not c.startswith("_") and cols.count(c) > 1})
+    if repeated:
+        raise ConfigError(f"{ctx.at(entry, 'columns')}: csv column {repeated[0]!r} is named twice")
+    delim = entry.get("delimiter", ",")
+    if delim is not None and not (isinstance(delim, str) and delim):
+        raise ConfigError(f"{ctx.at(entry, 'delimiter')}: delimiter must be a non-empty string (',' or ' ' for "
+                          f"whitespace), got {delim!r}")
     missing = required - set(named)
     if missing:
         raise ConfigError(f"{ctx.at(entry, 'columns')}: csv {kind} stream needs the columns {', '.join(sorted(missing))}")

@@ -746,7 +746,7 @@ def _fixed_fields(path: str | Path, topic: str, msgtype: str, need_record: bool 
         conns = [c for c in reader.connections if c.topic == topic]
         cdr = reader.is2
         raws, recs = [], []
-        for _, t, raw in reader.messages(conns):
+        for _, t, raw in _read_messages(reader, conns, path, topic):
             raws.append(raw)
             recs.append(t)
         rec_ns = np.array(recs, dtype=np.int64)
@@ -934,13 +934,28 @@ def _strip(frame: str) -> str:
     return frame.lstrip("/")
 
 
+def _read_messages(reader, conns, path, topic: str):
+    """``reader.messages(conns)``, a damaged bag's error as a one-line one: a bag garbled in the middle opens (its
+    index is intact) and fails only when the reader reaches the damage, with rosbags' own exception."""
+    n = 0
+    try:
+        for item in reader.messages(conns):
+            yield item
+            n += 1
+    except DataFormatError:
+        raise
+    except Exception as err:
+        raise DataFormatError(path, None, f"damaged: reading topic '{topic}' failed after {n} messages "
+                                          f"({type(err).__name__}: {err})") from None
+
+
 def _messages(path, topic: str, accepted: Sequence[str]) -> Iterator[tuple[str, int, Any]]:
     """(message type, record time ns, deserialized message) of every message of a topic, in record order."""
     with open_reader(path) as reader:
         table = {name: (info.msgtype, int(info.msgcount)) for name, info in reader.topics.items()}
         typ = _check_topic(path, table, topic, accepted)
         conns = [c for c in reader.connections if c.topic == topic]
-        for conn, t, raw in reader.messages(conns):
+        for conn, t, raw in _read_messages(reader, conns, path, topic):
             try:
                 msg = reader.deserialize(raw, conn.msgtype)
             except Exception as err:

@@ -6,6 +6,8 @@ Everything a report writes or plots about a run is computed here; the report onl
 
 from __future__ import annotations
 
+import logging
+
 import numpy as np
 
 from ..filters.layout import CANONICAL
@@ -16,6 +18,8 @@ from . import keys
 from .consistency import innovation_nll, innovation_summary, pose_nees_q, summary
 from .segments import breakdown
 from .trajectory import EstimateEvaluation
+
+log = logging.getLogger(__name__)
 
 ESTIMATES = ("fused", "smoothed", "lidar", "gnss", "imu_only")
 
@@ -165,6 +169,24 @@ def estimate_metrics(ev: EstimateEvaluation) -> dict:
     return out
 
 
+# a stream whose median NIS is this many times its dof is not followed at all (a consistent filter: ~1x; a mistuned
+# one: a few x): wrong units or frames, which the divergence check (10^4 x) lets through as plausible-looking numbers
+MISFIT_NIS_RATIO = 20.0
+
+
+def inconsistent_streams(nis: dict) -> list[str]:
+    """For the report: each observation whose median NIS exceeds :data:`MISFIT_NIS_RATIO` times its dof."""
+    out = []
+    for k, d in nis.items():
+        v = np.asarray(d.get("values", []), float)
+        v = v[np.isfinite(v)]
+        if v.size >= 10 and np.median(v) > MISFIT_NIS_RATIO * d["dof"]:
+            out.append(f"{k}: median NIS {np.median(v):.4g} for {d['dof']} dof ({np.median(v) / d['dof']:.0f}x): the filter "
+                       "does not follow this stream; check the units and frames of its data and of the IMU (an accelerometer "
+                       "in g, gravity's sign, a quaternion's order, degrees for radians)")
+    return out
+
+
 def run_metrics(dataset: str, evals: dict[str, EstimateEvaluation], ratios: dict, ev_cfg: dict, applied: dict,
                 gnss_info: dict | None, cons: dict | None = None, seg: dict | None = None, span: dict | None = None,
                 smoother: dict | None = None) -> dict:
@@ -182,6 +204,11 @@ def run_metrics(dataset: str, evals: dict[str, EstimateEvaluation], ratios: dict
             "segments": seg, "gnss_degradation": gnss_info, "preprocessing": applied}
     if out["nis"]:
         out["innovations"] = innovation_summary(out["nis"])
+        misfit = inconsistent_streams(cons.get("nis", {}))
+        for w in misfit:
+            log.warning("%s", w)
+        if misfit:       # a new mapping: the prepared data's own may serve other runs (a sweep's batch)
+            out["preprocessing"] = {**applied, "data_warnings": [*applied.get("data_warnings", []), *misfit]}
     if smoother is not None:
         out["smoother"] = smoother
         out["nees_smoothed"] = {k: _strip_arrays(v) for k, v in cons.get("nees_smoothed", {}).items()}

@@ -224,7 +224,7 @@ def report_md(dataset: str, config_name: str, evals: dict, ratios: dict, cfg: di
     for name, ev in evals.items():
         if ev.note:
             L.append(f"- {name}: {ev.note}.")
-    for w in applied.get("data_warnings", ()):
+    for w in (metrics.get("preprocessing") or applied).get("data_warnings", ()):
         L.append(f"- **Data warning**: {w}.")
     ev0 = metrics.get("evaluation", {})
     L += ["", f"Association: **{ev0.get('association', 'nearest')}**"

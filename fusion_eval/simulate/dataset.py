@@ -35,6 +35,7 @@ from ..geo import normal_gravity_mps2
 from ..outputs import StagedDir
 from ..pool import signals_held, worker_init
 from ..so3 import exp_so3, inv_T, make_T, matrix_to_quat_xyzw, quat_xyzw_to_matrix
+from ..types import IMU_MAX_RATE_RPS, IMU_MAX_SPECIFIC_FORCE_MPS2
 from . import layouts, sensors
 from .motion import PROFILES, profile_segments, sample_motion
 from .settings import GRADES, sim_schema
@@ -92,6 +93,9 @@ def kitti_stamps(t_s: np.ndarray) -> str:
     return "\n".join(np.datetime_as_string(ns, unit="ns")).replace("T", " ") + "\n"
 
 
+MIN_DURATION_S, MAX_DURATION_S = 2.0, 86400.0
+
+
 def simulate(out_dir: Path, profile: str, duration_s: float, seed: int, grade: str, sets: tuple[str, ...] = (),
              overwrite: bool = False, jobs: int | None = None) -> dict:
     """Simulate a drive and write it (atomically) to ``out_dir``; returns a summary for the CLI."""
@@ -99,8 +103,12 @@ def simulate(out_dir: Path, profile: str, duration_s: float, seed: int, grade: s
     rate = c["imu"]["rate_hz"]
     if not 10.0 <= rate <= 400.0:
         raise ConfigError(f"imu.rate_hz must be between 10 and 400 Hz, got {rate:g}")
-    if not (duration_s > 0 and np.isfinite(duration_s)):
-        raise ConfigError(f"--duration must be a finite number > 0 s, got {duration_s:g}")
+    # at least two lidar frames and a GNSS fix to write; at most a day (a day at 400 Hz is 2.6 GB of IMU text: more is
+    # a typo, which once asked numpy for 745 GiB)
+    if not (MIN_DURATION_S <= duration_s <= MAX_DURATION_S):
+        raise ConfigError(f"--duration must be between {MIN_DURATION_S:g} and {MAX_DURATION_S:g} s, got {duration_s:g}")
+    if seed < 0:
+        raise ConfigError(f"--seed must be >= 0, got {seed}")
     if not 0.0 <= c["lidar"]["outlier_prob"] <= 1.0:
         raise ConfigError(f"lidar.outlier_prob must be between 0 and 1, got {c['lidar']['outlier_prob']:g}")
     if not -90.0 <= c["origin"]["lat_deg"] <= 90.0 or not -180.0 <= c["origin"]["lon_deg"] <= 360.0:
@@ -125,6 +133,12 @@ def simulate(out_dir: Path, profile: str, duration_s: float, seed: int, grade: s
     t = c["start"]["posix_s"] + np.arange(n) / rate
     m = sample_motion(segs, yaw0, t, g, n_prefix=n_prefix)
     im = sensors.imu(_lagged(m, c["imu"], segs, yaw0, t, g, n_prefix), c["imu"], rng)
+    for what, a, lim, unit in (("angular rate", im.w_b_rps, IMU_MAX_RATE_RPS, "rad/s"),
+                               ("specific force", im.f_b_mps2, IMU_MAX_SPECIFIC_FORCE_MPS2, "m/s^2")):
+        peak = float(np.max(np.abs(a)))
+        if not peak <= lim:        # what no reader takes (run would refuse the dataset written): an absurd setting
+            raise ConfigError(f"the simulated IMU's {what} reaches {peak:.3g} {unit}, beyond the {lim:g} {unit} a reader "
+                              f"accepts: an imu.* noise, bias or scale-factor setting is implausible")
     gt_t, gps_p, gps_std = sensors.gnss(m, c["gnss"], rng)
     odo_t, odo_v = sensors.odometer(m, c["odometer"], rng)
     lc = c["lidar"]
