@@ -4,14 +4,13 @@ definitions; the canonical map and recording index follow from the pairs."""
 from __future__ import annotations
 
 import re
-from pathlib import Path
 
 import numpy as np
 import pytest
 
 from conftest import ROOT
 from fusion_eval.filters import formulations
-from fusion_eval.filters.layout import CANONICAL, Layout, canonical_index, unpack_pose_cov
+from fusion_eval.filters.layout import CANONICAL, Layout, unpack_pose_cov
 
 PKG = ROOT / "fusion_eval"
 # Where state vectors and covariances are indexed: the filters, the replay, and what reads their records.
@@ -56,7 +55,7 @@ def test_layouts_derive_indices_from_blocks():
 def test_recorded_covariance_is_the_canonical_one(cls):
     """What each formulation's compiled recording writes equals D P D^T with D the canonical map (NaN where
     the formulation has no such state): the recording and the map agree, whatever the layout."""
-    from fusion_eval.filters.layout import POSE_BLOCKS, canonical_map
+    from fusion_eval.filters.layout import POSE_BLOCKS
     from fusion_eval.filters.state import NominalState
     from fusion_eval.so3 import exp_so3
 

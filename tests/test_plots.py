@@ -4,7 +4,6 @@ filter's clock."""
 
 from __future__ import annotations
 
-from pathlib import Path
 from types import SimpleNamespace
 
 import matplotlib

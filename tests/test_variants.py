@@ -100,7 +100,6 @@ def test_iterated_update_with_one_iteration_is_the_plain_ekf():
     rng = np.random.default_rng(3)
     x0 = NominalState(rng.normal(size=3), rng.normal(size=3), exp_so3(rng.normal(size=3)), np.zeros(3), np.zeros(3))
     t = np.array([0.0, 0.1])
-    z = np.zeros((2, 3))
     prm = np.zeros(5)
     filters = [ErrorStateKF(x0, np.diag(np.linspace(0.01, 0.2, 15)), prm, t, np.zeros((2, 6)), 0) for _ in range(2)]
     for kf in filters:

@@ -16,7 +16,6 @@ import csv
 import fnmatch
 import json
 import math
-import os
 import re
 import xml.etree.ElementTree as ET
 from dataclasses import dataclass

@@ -6,7 +6,6 @@ RPE length each run was evaluated with, so a sweep over ``evaluation.rpe_delta_m
 
 from __future__ import annotations
 
-import os
 from pathlib import Path
 
 import numpy as np

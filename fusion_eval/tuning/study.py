@@ -15,7 +15,6 @@ import logging
 import os
 import socket
 import statistics
-import time
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Callable
