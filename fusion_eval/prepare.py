@@ -29,6 +29,7 @@ from .so3 import inv_T, make_T, matrix_to_quat_xyzw
 from .types import Dataset, GnssSeries, ImuSeries, PoseSeries, SpeedSeries, shifted
 
 log = logging.getLogger(__name__)
+GRAVITY_RANGE_MPS2 = (9.0, 10.5)
 
 
 @dataclass(frozen=True)
@@ -320,6 +321,11 @@ def prepare(ds: Dataset, cfg: dict) -> Prepared:
     g = cfg["filter"]["gravity_mps2"]
     if g == "auto":
         g = normal_gravity_mps2(ds.geodetic_origin[0], ds.geodetic_origin[2]) if ds.geodetic_origin else 9.80665
+    elif not GRAVITY_RANGE_MPS2[0] <= g <= GRAVITY_RANGE_MPS2[1]:
+        # the Earth's gravity is 9.76-9.84 m/s^2 at sea level and less only kilometres up; 98 (a typo for 9.8) once
+        # ran to a fused APE of 395 m with exit 0
+        raise ConfigError(f"filter.gravity_mps2={g:g} is no gravity on Earth's surface (accepted: {GRAVITY_RANGE_MPS2[0]:g} "
+                          f"to {GRAVITY_RANGE_MPS2[1]:g} m/s^2; 'auto' takes WGS84's at the geodetic origin)")
     applied["gravity_mps2"] = float(g)
     applied["t_start_s"] = t0
     _say_models(cfg, ds, applied)

@@ -242,6 +242,7 @@ def test_implausible_geodetic_origin_and_settings(ds, tmp_path):
     ("imu.gap_noise_scale=1e200", "is beyond any plausible value"),       # once an OverflowError traceback
     ("gnss.noise_std_m=1e300", "is beyond any plausible value"),          # once a numpy RuntimeWarning first
     ("evaluation.segment_m=1e-6", "windows (at most 100,000)"),           # once a hang: 80 million windows
+    ("filter.gravity_mps2=98", "is no gravity on Earth's surface"),       # once a fused APE of 395 m, exit 0
 ])
 def test_implausible_settings(ds, tmp_path, setting, needle):
     r, out = _run(ds, tmp_path, "--set", setting)

@@ -209,3 +209,14 @@ def test_absurd_simulator_settings_are_one_line_errors(tmp_path, args, needle):
     r = CliRunner().invoke(main, ["simulate", str(out), *args])
     assert r.exit_code == 2 and needle in r.stderr and "\n" not in r.stderr.strip(), r.output
     assert not out.exists()
+
+
+def test_a_misspelt_waypoint_key_is_refused(tmp_path):
+    from click.testing import CliRunner
+
+    from fusion_eval.cli import main
+
+    wp = tmp_path / "wp.yaml"
+    wp.write_text("waypoints: [[0, 0], [100, 0]]\nspeedz: 3\n")
+    r = CliRunner().invoke(main, ["simulate", str(tmp_path / "sim"), "--profile", str(wp), "-d", "20"])
+    assert r.exit_code == 2 and "unknown waypoint profile key 'speedz'" in r.stderr, r.output

@@ -135,7 +135,7 @@ def test_check_exit_codes_and_rules(tmp_path):
     (tmp_path / "bad.json").write_text("{not json")
     r = run(main, ["check", str(tmp_path / "bad.json"), "--baseline", str(base)])
     assert r.exit_code == 2 and "bad.json:1: not valid JSON" in r.stderr
-    for rule in ("fused.ape.rmse <", "__import__('os') < 1", "nope.x < 1"):
+    for rule in ("fused.ape.rmse <", "__import__('os') < 1", "nope.x < 1", "fused.ape.rmse < nan", "fused.ape.rmse < inf"):
         r = run(main, ["check", str(same), "--baseline", str(base), "--require", rule])
         assert r.exit_code == 2, (rule, r.output)
     r = run(main, ["check", str(worse), "--baseline", str(tmp_path / "nb.json"), "--update-baseline"])

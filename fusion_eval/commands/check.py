@@ -141,9 +141,13 @@ def evaluate_rule(rule: str, metrics: dict) -> tuple[bool, str]:
 
     def value(tok: str) -> float:
         try:
-            return float(tok)
+            v = float(tok)
         except ValueError:
             pass
+        else:
+            if not math.isfinite(v):        # 'nan' or 'inf' parse as floats; a rule against them cannot be meant
+                raise CheckUsageError(f"--require {rule!r}: {tok!r} is not a finite number")
+            return v
         if tok not in metrics:
             close = [k for k in metrics if k.endswith(tok.split(".")[-1])][:3]
             raise CheckUsageError(f"--require {rule!r}: unknown metric {tok!r}" + (f" (e.g. {', '.join(close)})" if close else ""))

@@ -80,6 +80,9 @@ def highway() -> list[Segment]:
             Segment(40.0, 30.0, -0.012, np.radians(-1.0), 8.0), Segment(20.0, 25.0, 0.0, 0.0, 8.0)]
 
 
+WAYPOINT_KEYS = frozenset({"waypoints", "speeds_mps", "turn_radius_m", "start_stationary_s"})
+
+
 def from_waypoints_yaml(path: Path) -> tuple[list[Segment], float, int]:
     """Segments from ``waypoints: [[E, N], ...]`` (m), ``speeds_mps`` (one per leg, or one number),
     ``turn_radius_m`` (default 15) and ``start_stationary_s`` (default 5).
@@ -96,6 +99,9 @@ def from_waypoints_yaml(path: Path) -> tuple[list[Segment], float, int]:
         raise ConfigError(f"{path}: cannot read the waypoint profile ({exc})") from None
     if not isinstance(body, dict) or "waypoints" not in body:
         raise ConfigError(f"{path}: a waypoint profile needs 'waypoints: [[east_m, north_m], ...]'")
+    unknown = sorted(set(map(str, body)) - WAYPOINT_KEYS)
+    if unknown:                  # a misspelt key would be ignored, its default used (a 'speedz:' ran at 10 m/s)
+        raise ConfigError(f"{path}: unknown waypoint profile key {unknown[0]!r} (known: {', '.join(sorted(WAYPOINT_KEYS))})")
     try:
         W = np.asarray(body["waypoints"], float)
         sp = np.broadcast_to(np.asarray(body.get("speeds_mps", 10.0), float), (max(len(W) - 1, 1),))
