@@ -90,7 +90,8 @@ CORE: dict[str, Spec] = {
     "gnss.rate_hz": S(1.0, "decimate GNSS to this rate (null = keep every fix); only for streams the manifest marks 'degrade'",
                       "float", positive=True, nullable=True),
     "gnss.noise_std_m": S([1.0, 1.0, 2.0], "white noise added per axis E/N/U, m ([0, 0, 0] = none)", nonneg=True),
-    "gnss.outages_s": S([], "outage windows [[start, end], ...] in seconds from the filter's start (the first IMU sample it uses)", "windows"),
+    "gnss.outages_s": S([], "outage windows [[start, end], ...] in seconds from the filter's start (the first IMU sample it "
+                            "uses); applied to a receiver's stream too (which gets no noise and keeps its rate)", "windows"),
     "gnss.seed": S(0, "seed of the GNSS noise", nonneg=True),
     "odometer.time_offset_s": S(None, "added to odometer stamps; null = the manifest's value (default 0)", "float", nullable=True),
     "odometer.added_noise_std_mps": S(0.05, "white noise added to an odometer stream the manifest marks 'degrade' "

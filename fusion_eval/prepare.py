@@ -248,7 +248,14 @@ def prepare(ds: Dataset, cfg: dict) -> Prepared:
             gnss, gnss_info = degrade_gnss(g, t0, c["rate_hz"], c["noise_std_m"], c["outages_s"], c["seed"], c["std_m"])
         else:
             gnss = g if c["std_m"] == "auto" else replace(g, std_w_m=np.tile(np.asarray(c["std_m"], float), (len(g), 1)))
-            gnss_info = {"degraded": False, "fixes_used": len(gnss),
+            # a receiver's fixes get no noise and keep their rate, but outages are the user's experiment: they apply
+            # (once silently ignored here)
+            out = np.zeros(len(gnss), bool)
+            for a, b in c["outages_s"]:
+                out |= (gnss.t_s >= t0 + a) & (gnss.t_s < t0 + b)
+            gnss = gnss.select(~out)
+            gnss_info = {"degraded": False, "fixes_used": len(gnss), "outages_s": [list(map(float, w)) for w in c["outages_s"]],
+                         "fixes_in_outages": int(out.sum()),
                          "std_given_to_filter_m": "as the stream reports" if c["std_m"] == "auto" else c["std_m"]}
         if use_gnss and len(gnss) == 0:
             raise DataRangeError(f"no GNSS fix of {ds.gnss.source} is left inside the IMU span after degradation")

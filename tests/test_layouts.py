@@ -215,3 +215,13 @@ def test_a_csv_entry_that_cannot_be_read_is_named_with_its_line(drives, tmp_path
     (tmp_path / "dataset.yaml").write_text(yaml.safe_dump(man, sort_keys=False))
     with pytest.raises(ConfigError, match=r"dataset\.yaml:\d+: " + re.escape(needle)):
         load_dataset(tmp_path)
+
+
+def test_outages_apply_to_a_receivers_gnss_too(drives):
+    """A receiver's fixes (not marked for degradation) get no noise and keep their rate, but gnss.outages_s is the
+    user's experiment and applies: it was silently ignored, the run the same as without it."""
+    m = fe.run(drives["csv_log"], overrides={"gnss.outages_s": [[0.0, 20.0]]}).metrics
+    info = m["gnss_degradation"]
+    assert info["degraded"] is False and info["fixes_in_outages"] >= 19 and info["outages_s"] == [[0.0, 20.0]]
+    full = fe.run(drives["csv_log"]).metrics["gnss_degradation"]
+    assert info["fixes_used"] == full["fixes_used"] - info["fixes_in_outages"]

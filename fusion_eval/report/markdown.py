@@ -243,8 +243,10 @@ def report_md(dataset: str, config_name: str, evals: dict, ratios: dict, cfg: di
     if gnss_info is None:
         L.append("The dataset has no GNSS stream.")
     elif not gnss_info.get("degraded", True):
-        L.append(f"The GNSS stream is a receiver's output (the manifest does not mark it for degradation): used as it is, "
-                 f"{gnss_info['fixes_used']} fixes; std given to the filter: {gnss_info['std_given_to_filter_m']}.")
+        outages = (f", {_outages(gnss_info['outages_s'], gnss_info['fixes_in_outages'], 'fixes')}"
+                   if gnss_info.get("outages_s") else "")
+        L.append(f"The GNSS stream is a receiver's output (the manifest does not mark it for degradation): used as it is"
+                 f"{outages}, {gnss_info['fixes_used']} fixes; std given to the filter: {gnss_info['std_given_to_filter_m']}.")
     else:
         rate = "every fix kept" if gnss_info["rate_hz"] is None else f"decimated to {gnss_info['rate_hz']:g} Hz"
         L.append(f"KITTI's OXTS position is the GPS/INS solution that is also the ground truth, so it was degraded: "
