@@ -51,7 +51,8 @@ CORE: dict[str, Spec] = {
                              "float", positive=True, auto=True),
     "filter.init_pose_from": S("groundtruth", "initial position/attitude from 'groundtruth' or the first valid 'lidar' pose",
                                choices=("groundtruth", "lidar")),
-    "filter.init_velocity_from": S("groundtruth", "initial velocity from 'groundtruth' or from differencing the first two 'gnss' fixes",
+    "filter.init_velocity_from": S("groundtruth", "initial velocity from 'groundtruth' (its positions differenced where it has "
+                                                  "no velocity) or from differencing the first two 'gnss' fixes",
                                    choices=("groundtruth", "gnss")),
     "smoother.method": S("none", "offline smoothing beside the filter, written as the 'smoothed' estimate: 'none', 'rts' "
                                  "(Rauch-Tung-Striebel backward pass over the filter's own models) or 'batch' (GTSAM factor "

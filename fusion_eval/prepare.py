@@ -93,6 +93,21 @@ def anchor_lidar(lidar_odom: PoseSeries, gt: PoseSeries) -> tuple[PoseSeries, fl
     return replace(base, p_w_m=T_w[:, :3, 3], q_wb_xyzw=matrix_to_quat_xyzw(T_w[:, :3, :3])), float(lidar_odom.t_s[a])
 
 
+def _velocity_from_positions(poses, t0: float, half_window_s: float = 0.1) -> np.ndarray:
+    """The velocity at ``t0`` of a pose series without one: the least-squares slope of its positions over
+    ``t0 +/- half_window_s`` (a motion capture's millimetre noise over 0.1 s is centimetres per second), or of the two
+    samples nearest ``t0`` where the window holds fewer than two."""
+    t, p = np.asarray(poses.t_s), np.asarray(poses.p_w_m)
+    k = np.flatnonzero(np.abs(t - t0) <= half_window_s)
+    if k.size < 2:
+        k = np.sort(np.argsort(np.abs(t - t0))[:2])
+    dt = t[k] - t[k].mean()
+    if not np.any(dt):
+        raise ConfigError(f"filter.init_velocity_from=groundtruth: {poses.source} has no velocity and no two poses near "
+                          "the start to difference; use gnss")
+    return (dt @ (p[k] - p[k].mean(axis=0))) / (dt @ dt)
+
+
 def _flag_data(ds: Dataset, applied: dict) -> None:
     """What the data hold that no plausibility bound refuses but that makes the figures suspect, said on stderr and
     in the report: the IMU stopping for seconds, and a wheeled vehicle's streams jumping faster than it can drive."""
@@ -304,8 +319,9 @@ def prepare(ds: Dataset, cfg: dict) -> Prepared:
         v0 = (gnss.p_w_m[1] - gnss.p_w_m[0]) / (gnss.t_s[1] - gnss.t_s[0])
     else:
         _, _, v0 = interpolate_pose_at(gt, t0)
-        if v0 is None:
-            raise ConfigError("filter.init_velocity_from=groundtruth needs a ground truth with velocity (KITTI OXTS); use gnss")
+        if v0 is None:          # a ground truth of poses only (TUM, EuRoC's motion capture): its positions differenced
+            v0 = _velocity_from_positions(gt, t0)
+            applied["init_velocity"] = "the ground truth's positions differenced (it has no velocity)"
     x0 = NominalState(p_w_m=np.array(p0), v_w_mps=np.array(v0), R_wb=np.array(R0), ba_b=np.zeros(3), bg_b=np.zeros(3))
 
     # --- the enabled observations' own streams: offset, filled packets, the run's span, degradation

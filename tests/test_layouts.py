@@ -225,3 +225,19 @@ def test_outages_apply_to_a_receivers_gnss_too(drives):
     assert info["degraded"] is False and info["fixes_in_outages"] >= 19 and info["outages_s"] == [[0.0, 20.0]]
     full = fe.run(drives["csv_log"]).metrics["gnss_degradation"]
     assert info["fixes_used"] == full["fixes_used"] - info["fixes_in_outages"]
+
+
+def test_a_ground_truth_without_velocity_starts_the_filter_from_its_positions(drives, tmp_path):
+    """A EuRoC / TUM-VI ground truth of poses only (8 columns: a motion capture's): the initial velocity comes from
+    its positions differenced around the start, where the run once stopped ('needs a ground truth with velocity
+    (KITTI OXTS)'), so a plain TUM-VI folder never ran by default."""
+    src = drives["euroc"]
+    dst = tmp_path / "eu"
+    shutil.copytree(src, dst)
+    gt = dst / "mav0" / "state_groundtruth_estimate0" / "data.csv"
+    lines = gt.read_text().splitlines()
+    gt.write_text("\n".join(",".join(ln.split(",")[:8]) for ln in lines) + "\n")
+    full, cut = fe.run(src).metrics, fe.run(dst).metrics
+    assert "differenced" in cut["preprocessing"]["init_velocity"] and "init_velocity" not in full["preprocessing"]
+    a, b = (m["estimates"]["fused"]["ape"]["translation_m"]["rmse"] for m in (full, cut))
+    assert b == pytest.approx(a, rel=0.02), (a, b)
