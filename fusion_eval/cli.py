@@ -88,7 +88,8 @@ class Group(click.Group):
             if signum is not None:
                 _interrupted(interrupts.Terminated() if signum == signal.SIGTERM else KeyboardInterrupt())
             if isinstance(exc, FusionEvalError):
-                click.echo(f"error: {exc}", err=True)
+                # one line, whatever a library's message embedded (a YAML parser's report spans several)
+                click.echo("error: " + " ".join(str(exc).split()), err=True)
                 sys.exit(exc.exit_code)
             if isinstance(exc, click.UsageError):   # a command's options, an unknown command
                 _usage_error(exc)

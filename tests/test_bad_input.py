@@ -537,3 +537,32 @@ def test_a_stream_the_filter_does_not_follow_is_flagged(ds, tmp_path):
     warnings = json.loads((out / "metrics.json").read_text())["preprocessing"]["data_warnings"]
     assert any("median NIS" in w and "does not follow this stream" in w for w in warnings), warnings
     assert "median NIS" in r.stderr and "an accelerometer in g" in (out / "report.md").read_text()
+
+
+def test_a_library_message_of_several_lines_is_one_line(tmp_path):
+    """A ROS 2 bag folder whose metadata.yaml is invalid: rosbags embeds PyYAML's report, which spans seven lines."""
+    bag = tmp_path / "drive"
+    bag.mkdir()
+    (bag / "metadata.yaml").write_text("rosbag2_bagfile_information: [unclosed\n")
+    out = tmp_path / "o"
+    r = CliRunner().invoke(main, ["evaluate", "--bag", str(bag), "--ref", "/a", "/b", "-o", str(out)])
+    _assert_clean_error(r, out, "rosbag2 bag", "Could not load YAML")
+
+
+def test_a_stamp_beyond_int64_nanoseconds_is_named(tmp_path):
+    from fusion_eval.datasets.csv_stream import load_table
+
+    p = tmp_path / "imu.csv"
+    rows = [f"{1767225600000000000 + i * 10_000_000},0.1,0.2,0.3,0.0,0.0,9.8" for i in range(20)]
+    rows[12] = "99999999999999999999999,0.1,0.2,0.3,0.0,0.0,9.8"
+    p.write_text("#timestamp [ns],w_x,w_y,w_z,a_x,a_y,a_z\n" + "\n".join(rows) + "\n")
+    from fusion_eval.errors import DataFormatError
+
+    with pytest.raises(DataFormatError, match=r"imu\.csv:14: .*beyond any date"):
+        load_table(p, "EuRoC IMU CSV", 7, ",", int_first=True)
+
+
+def test_a_run_of_column_counts_is_said_as_a_range():
+    from fusion_eval.datasets._text import _counts
+
+    assert _counts(range(8, 64)) == "8 to 63" and _counts((8, 12)) == "8 or 12" and _counts((7,)) == "7"

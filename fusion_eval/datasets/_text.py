@@ -45,7 +45,7 @@ def parse_numeric_rows(path: Path, text: str, ncols: int | tuple[int, ...], what
         parts = s.split(delimiter) if delimiter else s.split()
         parts = [p.strip() for p in parts]
         if len(parts) not in allowed or (width is not None and len(parts) != width):
-            exp = " or ".join(str(a) for a in allowed) if width is None else str(width)
+            exp = _counts(allowed) if width is None else str(width)
             raise DataFormatError(path, lineno, f"{what} must have {exp} values per row, got {len(parts)}")
         width = len(parts)
         try:
@@ -126,3 +126,12 @@ def exact_floats() -> dict:
     import pandas as pd
 
     return {} if int(pd.__version__.split(".")[0]) >= 3 else {"float_precision": "round_trip"}
+
+
+def _counts(allowed) -> str:
+    """``8 or 12``, or ``8 to 63`` for a run of consecutive counts (once 56 alternatives listed one by one)."""
+    a = sorted(set(allowed))
+    if len(a) > 2 and a[-1] - a[0] == len(a) - 1:
+        return f"{a[0]} to {a[-1]}"
+    return " or ".join(map(str, a))
+

@@ -101,6 +101,10 @@ def load_table(path: Path, what: str, ncols_min: int, delimiter: str | None = ",
             bad = np.flatnonzero(rows[:, 0] != np.round(rows[:, 0]))
             if bad.size:
                 raise DataFormatError(path, int(ln[bad[0]]), f"{what}: the stamp must be an integer number of nanoseconds")
+            bad = np.flatnonzero(np.abs(rows[:, 0]) >= 2.0 ** 63)
+            if bad.size:
+                raise DataFormatError(path, int(ln[bad[0]]), f"{what}: the stamp {rows[bad[0], 0]:.6g} ns is beyond any "
+                                                             "date (int64 nanoseconds end in 2262): a corrupted stamp")
         raise DataFormatError(path, None, f"{what}: rows of unequal length or an empty field")
     return rows, first_col, line_no
 
