@@ -319,3 +319,13 @@ def test_batches_are_cut_into_near_equal_chunks(n, jobs, sizes):
                   base_config=None, plots=False, out_root="o", batch="k") for i in range(n)]
     got = batches(tasks, jobs)
     assert sorted(map(len, got)) == sorted(sizes) and [t.id for g in got for t in g] == [t.id for t in tasks]
+
+
+def test_check_says_when_the_baseline_is_of_another_dataset(tmp_path):
+    base, cur = _metrics(tmp_path, "base.json", 1.0), _metrics(tmp_path, "cur.json", 1.0)
+    for p, name in ((base, "kitti-00"), (cur, "simple-05")):
+        m = json.loads(p.read_text())
+        m["dataset"] = name
+        p.write_text(json.dumps(m))
+    r = CliRunner().invoke(main, ["check", str(cur), "--baseline", str(base)])
+    assert r.exit_code == 0 and "of dataset 'simple-05' and the baseline of 'kitti-00'" in r.stderr, r.output

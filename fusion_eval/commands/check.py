@@ -15,6 +15,7 @@ from __future__ import annotations
 import csv
 import fnmatch
 import json
+import logging
 import math
 import re
 import xml.etree.ElementTree as ET
@@ -25,6 +26,8 @@ from ..errors import DataFormatError, FusionEvalError
 from ..outputs import atomic_write
 from ..evaluation import keys
 from ..tables import markdown as md_table
+
+log = logging.getLogger(__name__)
 
 
 def default_patterns(kind: str, rpe_delta_m: float) -> tuple[str, ...]:
@@ -214,6 +217,9 @@ def check(metrics_path: Path, baseline: Path, rtol: float, atol: float, patterns
     base, base_kind, _ = load_metrics(resources.find(baseline), trial_stat)   # configs/baselines/... from any directory
     if kind != base_kind:
         raise ConfigError(f"{metrics_path} is a {kind} file but the baseline {baseline} is a {base_kind} file")
+    names = [_dataset_of(p) for p in (metrics_path, resources.find(baseline))]
+    if None not in names and names[0] != names[1]:
+        log.warning("the metrics are of dataset %r and the baseline of %r: compared all the same", *names)
     pats = tuple(patterns) or default_patterns(kind, delta)
     rows = compare_metrics(current, base, pats, rtol, atol)
     _refuse_incomplete_baseline(resources.find(baseline), [r.metric for r in rows if r.verdict == "new"])
@@ -223,6 +229,17 @@ def check(metrics_path: Path, baseline: Path, rtol: float, atol: float, patterns
     if junit_path:
         atomic_write(junit_path, junit(rows, evaluated))
     return CheckResult(rows, evaluated, ok)
+
+
+def _dataset_of(path: Path) -> str | None:
+    """The dataset a run's metrics.json was computed on (None for a sweep.csv or a file without one)."""
+    if Path(path).suffix == ".csv":
+        return None
+    try:
+        name = json.loads(Path(path).read_text()).get("dataset")
+    except (json.JSONDecodeError, OSError, AttributeError, UnicodeDecodeError):
+        return None
+    return name if isinstance(name, str) else None
 
 
 def _refuse_incomplete_baseline(path: Path, lacking: list[str]) -> None:
