@@ -460,7 +460,7 @@ def _num_or_na(x, nd: int) -> str:
 @click.option("-o", "--out", "out_dir", required=True, type=click.Path(path_type=Path),
               help="Study directory; the same command resumes the study stored there.")
 @click.option("--sampler", type=click.Choice(["tpe", "cmaes"]), default="tpe", show_default=True)
-@click.option("--seed", type=int, default=0, show_default=True, help="Seed of the sampler.")
+@click.option("--seed", type=click.IntRange(0, 2 ** 32 - 1), default=0, show_default=True, help="Seed of the sampler.")
 @click.option("--seeds", type=click.IntRange(min=1), default=1, show_default=True,
               help="Monte-Carlo seeds per drive (GNSS degradation and other random elements); the objective is their mean.")
 @click.option("-c", "--config", "config_path", type=click.Path(path_type=Path), help="Base configuration of every trial.")

@@ -329,10 +329,13 @@ def parse_sets(sets: tuple[str, ...], schema_: dict[str, Spec] | None = None) ->
         key = key.strip()
         if not sep or "." not in key:
             raise ConfigError(f"--set {item!r}: expected section.key=value, e.g. imu.gyro_noise_dps_sqrthz=0.05")
+        shown = item if len(item) <= 200 else item[:200] + f"... ({len(item):,} characters)"
         try:
             value = yaml.safe_load(raw)
         except yaml.YAMLError:
-            raise ConfigError(f"--set {item!r}: value is not valid YAML") from None
+            raise ConfigError(f"--set {shown!r}: value is not valid YAML") from None
+        except ValueError:       # an integer of thousands of digits (Python's int limit): no setting's value
+            raise ConfigError(f"--set {shown!r}: the value is not a plausible number") from None
         sect, _, name = key.partition(".")
         one = validate({sect: {name: value}}, f"--set {key}", schema_)
         body.setdefault(sect, {}).update(one.body[sect])

@@ -20,10 +20,14 @@ def atomic_write(path: Path, text: str) -> None:
     writing one file, such as two ``tune`` runs sharing a study, do not share it): a reader sees the old or the new
     file, never half of one."""
     path = Path(path)
-    path.parent.mkdir(parents=True, exist_ok=True)
     tmp = path.with_name(f".{path.name}.tmp-{os.getpid()}")
-    tmp.write_text(text)
-    os.replace(tmp, path)
+    try:
+        path.parent.mkdir(parents=True, exist_ok=True)
+        tmp.write_text(text)
+        os.replace(tmp, path)
+    except OSError as exc:                  # a folder in the way, a path under /proc: one line, no temporary left
+        tmp.unlink(missing_ok=True)
+        raise OutputError(f"{path}: cannot write ({exc.strerror or exc})") from None
 
 
 def alive(pid: int) -> bool:
@@ -61,10 +65,53 @@ def atomic_file(target: Path):
         raise
     os.replace(tmp, target)
 
+OUTPUT_MARKERS = ("metrics.json", "report.html", "compare.json", "dataset.yaml")   # what a command's folder holds
+
+
+def resumable_dir(out: Path, markers: tuple[str, ...], what: str, inputs=()) -> None:
+    """A sweep's or a tune's folder, which a second command resumes: refuse a path that is a file, that overlaps an
+    input (:func:`refuse_overlap`), or a non-empty folder that is not one of its kind (none of ``markers`` in it: a
+    sweep or a tune once mixed its files into a run's output and replaced its report.html)."""
+    out = Path(out)
+    refuse_overlap(out, inputs)
+    if out.exists() and not out.is_dir():
+        raise OutputError(f"{out}: output path exists and is not a directory")
+    if out.is_dir() and any(out.iterdir()) and not any((out / m).exists() for m in markers):
+        raise OutputError(f"{out}: the folder is not empty and is not a {what}'s (no {' or '.join(markers)} in it): give "
+                          f"a new --out, or the folder of the {what} to resume")
+    try:
+        out.mkdir(parents=True, exist_ok=True)
+    except OSError as exc:
+        raise OutputError(f"{out}: cannot create output directory ({exc.strerror})") from None
+
+
+def dataset_roots(*paths) -> tuple[Path, ...]:
+    """Datasets given as a folder or a manifest file, as inputs an output must not replace (None, the embedded
+    default, is left out)."""
+    return tuple(Path(p) for p in paths if p is not None)
+
+
+def refuse_overlap(out: Path, inputs=()) -> None:
+    """An output folder that is or holds an input, or the current directory: replacing it (``--overwrite``)
+    deleted the inputs (a run with ``--out`` its own dataset folder exited 0 with the dataset gone). A folder inside
+    a dataset's is allowed (``results/`` beside a manifest, or in a dataset folder one works in)."""
+    final = Path(out).resolve()
+    for p in inputs:
+        q = Path(p).resolve()
+        if final == q or final in q.parents:
+            raise OutputError(f"{out}: the output directory {'is' if final == q else 'holds'} the input {p}, which "
+                              "replacing it would delete: give another --out")
+    cwd = Path.cwd().resolve()
+    if final == cwd or final in cwd.parents:
+        raise OutputError(f"{out}: the output directory {'is' if final == cwd else 'holds'} the current directory: "
+                          "give a new folder")
+
+
 class StagedDir:
-    def __init__(self, final: Path, overwrite: bool = False, wait_lock_s: float = 0.0):
+    def __init__(self, final: Path, overwrite: bool = False, wait_lock_s: float = 0.0, inputs=()):
         self.final = Path(final)
         self.overwrite = overwrite
+        self.inputs = tuple(Path(p) for p in inputs if p is not None)   # what must survive the replacement
         # a sweep's run may be retried on another worker while the first (lost to the scheduler, not yet dead)
         # still writes it: the retry waits for that writer instead of failing
         self.wait_lock_s = wait_lock_s
@@ -73,10 +120,16 @@ class StagedDir:
 
     def check(self) -> None:
         """Fail early (before any work) if the target cannot be used."""
+        refuse_overlap(self.final, self.inputs)
         if self.final.exists() and not self.final.is_dir():
             raise OutputError(f"{self.final}: output path exists and is not a directory")
         if self.final.is_dir() and any(self.final.iterdir()) and not self.overwrite:
             raise OutputError(f"{self.final}: output directory exists and is not empty (use --overwrite, or overwrite=True in Python, to replace it)")
+        if self.overwrite and self.final.is_dir() and any(self.final.iterdir()) and \
+                not any((self.final / m).exists() for m in OUTPUT_MARKERS):
+            # --out DATASET/oxts --overwrite once deleted the IMU packets
+            raise OutputError(f"{self.final}: --overwrite replaces only a folder fusion-eval wrote (holding "
+                              f"{', '.join(OUTPUT_MARKERS)}), and this one holds none of them")
 
     def __enter__(self) -> "StagedDir":
         self.check()

@@ -24,7 +24,7 @@ from .evaluation.run_metrics import (ESTIMATES, consistency, fused_error, ratio_
                                      smoother_section)
 from .evaluation.trajectory import EstimateEvaluation, evaluate
 from .memory import release_free_heap
-from .outputs import StagedDir
+from .outputs import StagedDir, dataset_roots
 from .pool import executor
 from .progress import as_stages
 from .prepare import Prepared, offsets_note, prepare, settings_for
@@ -273,8 +273,9 @@ def run_to_dir(dataset_path: str | Path, req: session.ConfigRequest, out_dir: Pa
                wait_lock_s: float = 0.0) -> RunResult:
     """Load the dataset, resolve the configuration, run, evaluate and write every output atomically into
     ``out_dir`` (nothing is left behind when it fails)."""
-    staged = StagedDir(out_dir, overwrite=overwrite, wait_lock_s=wait_lock_s)
+    staged = StagedDir(out_dir, overwrite=overwrite, wait_lock_s=wait_lock_s, inputs=dataset_roots(dataset_path))
     staged.check()
+    mc.check_count(trials)               # before any data is read
     stages = as_stages(progress)
     stages.start("load")
     t = time.perf_counter()

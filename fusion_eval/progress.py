@@ -11,6 +11,7 @@ sweeps and tunes: runs done, failed, and an ETA.
 
 from __future__ import annotations
 
+import os
 import sys
 import threading
 import time
@@ -66,7 +67,8 @@ class Display(Stages):
     """Stages drawn on ``stream``: tqdm bars on a terminal, one line per stage elsewhere."""
 
     def __init__(self, stream: TextIO | None = None, tty: bool | None = None, refresh_s: float = 0.25):
-        self.stream = stream or sys.stderr
+        # stderr closed (2>&-): Python's sys.stderr is None; progress is then written nowhere
+        self.stream = stream or sys.stderr or open(os.devnull, "w")  # noqa: SIM115 - lives as long as the process
         self.tty = self.stream.isatty() if tty is None else tty
         self.lock = threading.Lock()
         self.bar = None

@@ -37,9 +37,12 @@ def headline(sec: dict) -> tuple[str, ...]:
     return HEADLINE + tuple(p for p in SMOOTHED if p in sec["stats"])
 
 
+MAX_TRIALS = 10_000     # Monte-Carlo trials of one run or setting: beyond, a typo (1e23 once ran until killed)
+
+
 def check_count(n: int) -> int:
-    if isinstance(n, bool) or not isinstance(n, int) or n < 1:
-        raise ConfigError(f"--trials must be a whole number >= 1, got {n!r}")
+    if isinstance(n, bool) or not isinstance(n, int) or not 1 <= n <= MAX_TRIALS:
+        raise ConfigError(f"--trials must be a whole number from 1 to {MAX_TRIALS:,}, got {n!r}")
     return n
 
 

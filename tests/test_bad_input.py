@@ -566,3 +566,73 @@ def test_a_run_of_column_counts_is_said_as_a_range():
     from fusion_eval.datasets._text import _counts
 
     assert _counts(range(8, 64)) == "8 to 63" and _counts((8, 12)) == "8 or 12" and _counts((7,)) == "7"
+
+
+# ---- the output folder against the inputs, and options out of range (found by misusing the command line) --------
+@pytest.mark.parametrize("where", ["itself", "parent"])
+def test_an_output_folder_that_would_replace_the_dataset_is_refused(ds, tmp_path, where):
+    """--out the dataset folder (or its parent) with --overwrite once deleted the dataset and exited 0."""
+    out = {"itself": ds, "parent": ds.parent}[where]
+    before = sorted(p.name for p in ds.iterdir())
+    r = CliRunner().invoke(main, ["-q", "run", str(ds), "--out", str(out), "--no-plots", "--overwrite"])
+    assert r.exit_code == 2 and r.stderr.strip().startswith("error: ") and "input" in r.stderr, r.output
+    assert sorted(p.name for p in ds.iterdir()) == before
+
+
+def test_evaluate_and_track_do_not_replace_their_input_files(tmp_path):
+    ref, est = _tum(tmp_path / "ref.tum"), _tum(tmp_path / "est.tum")
+    r = CliRunner().invoke(main, ["evaluate", str(ref), str(est), "-o", str(tmp_path), "--overwrite"])
+    assert r.exit_code == 2 and "holds the input" in r.stderr and ref.exists() and est.exists(), r.output
+    trk = tmp_path / "t" / "trk.txt"
+    trk.parent.mkdir()
+    r = CliRunner().invoke(main, ["simulate-track", str(trk)])
+    assert r.exit_code == 0, r.output
+    r = CliRunner().invoke(main, ["track", str(trk), "-o", str(trk.parent), "--overwrite"])
+    assert r.exit_code == 2 and "holds the input" in r.stderr and trk.exists(), r.output
+
+
+def test_a_sweep_or_tune_into_a_runs_output_folder_is_refused(slice_run, kitti_slice, tmp_path):
+    """They resume their own folders, but once mixed their files into a run's and replaced its report.html."""
+    sw = tmp_path / "s.yaml"
+    sw.write_text("settings:\n  a: {imu.gyro_noise_dps_sqrthz: 0.1}\n")
+    before = (slice_run / "report.html").read_text()
+    r = CliRunner().invoke(main, ["sweep", str(kitti_slice), "--grid", str(sw), "--out", str(slice_run), "--no-plots"])
+    assert r.exit_code == 2 and "is not a sweep's (no records or runs in it)" in r.stderr, r.output
+    r = CliRunner().invoke(main, ["tune", str(kitti_slice), "--objective", "nll", "--trials", "2", "--out", str(slice_run)])
+    assert r.exit_code == 2 and "is not a tune's (no study.journal in it)" in r.stderr, r.output
+    assert (slice_run / "report.html").read_text() == before
+
+
+@pytest.mark.parametrize("args,needle", [
+    (["run", "--trials", "99999999999999999999", "--no-plots"], "--trials must be a whole number from 1 to 10,000"),
+    (["simulate-track", "{tmp}/t.txt", "--duration", "1e12"], "must give 2 to 10,000,000 measurements"),  # 7 PiB asked
+    (["simulate-track", "{tmp}/t.txt", "--interval", "100"], "must give 2 to 10,000,000 measurements"),   # an empty file
+    (["simulate-track", "{tmp}/t.txt", "--speed", "nan"], "--speed must be a finite number"),
+    (["simulate-track", "{tmp}/t.txt", "--seed", "-1"], "--seed must be >= 0"),
+    (["tune", "--objective", "nll", "--seed", "-1"], "Invalid value for '--seed'"),
+    (["run", "--no-plots", "-s", "gnss.noise_std_m=" + "9" * 5000], "the value is not a plausible number"),
+    (["check", "{metrics}", "--baseline", "{metrics}", "--summary", "{tmp}/c.md", "--junit", "{tmp}"],
+     "cannot write (Is a directory)"),        # the summary elsewhere: the shared run's folder stays as it was
+], ids=["run-trials", "track-duration", "track-interval", "track-speed", "track-seed", "tune-seed", "set-digits",
+        "junit-folder"])
+def test_options_out_of_range_are_one_line_errors(slice_run, tmp_path, args, needle):
+    args = [a.format(tmp=tmp_path, metrics=slice_run / "metrics.json") for a in args]
+    if args[0] in ("run", "tune"):
+        args += ["--out", str(tmp_path / "o")]
+    r = CliRunner().invoke(main, args)
+    assert r.exit_code == 2 and needle in r.stderr and "\n" not in r.stderr.strip(), r.output
+    assert not list(tmp_path.glob(".*tmp*"))
+
+
+def test_tune_refuses_one_drive_as_training_folder_and_held_out_manifest(kitti_slice, tmp_path):
+    r = CliRunner().invoke(main, ["tune", str(kitti_slice), "--test", str(kitti_slice / "dataset.yaml"), "--objective",
+                                  "nll", "--trials", "2", "--out", str(tmp_path / "o")])
+    assert r.exit_code == 2 and "is both a training and a held-out drive" in r.stderr, r.output
+
+
+def test_a_run_with_stderr_closed_still_runs(tmp_path):
+    out = tmp_path / "o"
+    p = subprocess.run([sys.executable, "-m", "fusion_eval", "run", "--no-plots", "--out", str(out)], stderr=subprocess.DEVNULL,
+                       stdin=subprocess.DEVNULL, stdout=subprocess.PIPE, text=True, close_fds=True,
+                       preexec_fn=lambda: __import__("os").close(2))
+    assert p.returncode == 0 and (out / "metrics.json").exists(), p.stdout

@@ -26,7 +26,7 @@ from ..evaluation import keys, span
 from ..evaluation.run_metrics import consistency, segments
 from ..evaluation.trajectory import evaluate, ratio
 from ..filters import observations
-from ..outputs import StagedDir
+from ..outputs import StagedDir, dataset_roots
 from ..pool import executor
 from ..prepare import prepare, settings_for
 from ..replay import replay
@@ -134,7 +134,7 @@ def compare(dataset_path: Path | None, variants: list[str], variant_dir: Path | 
             sets: tuple[str, ...], out_dir: Path | None, overwrite: bool = False, make_plots: bool = True,
             progress: Callable[[float], None] | None = None, trials: int = 1) -> dict:
     out_dir = out_dir if out_dir is not None else Path("results") / f"compare-{time.strftime('%Y%m%d-%H%M%S')}"
-    staged = StagedDir(out_dir, overwrite=overwrite)
+    staged = StagedDir(out_dir, overwrite=overwrite, inputs=dataset_roots(dataset_path))
     staged.check()
     n_trials = mc.check_count(trials)
     if len(set(variants)) != len(variants) or not variants:

@@ -57,7 +57,7 @@ def run_evaluate(inputs: list, out_dir: Path, ref_times: Path | None = None, tim
                  up_axis: str = "auto", n_to_align: int = -1, t_offset_s: float = 0.0) -> dict:
     validate_options(association, alignment, t_max_diff_s, rpe_delta_m, segment_m, segment_s, engine, relations,
                      up_axis, n_to_align)
-    staged = StagedDir(out_dir, overwrite=overwrite)
+    staged = StagedDir(out_dir, overwrite=overwrite, inputs=(*(inputs if bag is None else ()), bag, ref_times, times))
     staged.check()
     ref_f, est_fs = read_inputs(list(inputs), bag, ref_topic, fmt, ref_times, times)
     series, about, covs = {}, {}, {}

@@ -50,6 +50,7 @@ from .. import trials as mc
 from ..config import check_value, read_yaml, schema
 from ..errors import ConfigError, FilterDivergedError, FusionEvalError
 from ..batch import FILTER_ONLY_KEYS, batch_key  # noqa: F401 - FILTER_ONLY_KEYS: part of this module's API
+from ..outputs import dataset_roots, resumable_dir
 from ..variants import resolve_variant
 
 log = logging.getLogger(__name__)
@@ -212,6 +213,10 @@ def plan(sweep_path: Path, datasets: list[str], out_dir: Path, variant_dir: Path
     variants = body.get("variants") or ["default"]
     vpaths = {v: (None if v == "default" else str(resolve_variant(v, variant_dir).resolve())) for v in variants}
     settings = settings_of(body, str(sweep_path))
+    n_runs = len(paths) * len(variants) * len(settings) * n_trials
+    if n_runs > MAX_SETTINGS:
+        raise ConfigError(f"{sweep_path}: the sweep plans {n_runs:,} runs ({len(paths)} datasets x {len(variants)} variants x "
+                          f"{len(settings)} settings x {n_trials} trials), more than {MAX_SETTINGS:,}")
     out_root = str(Path(out_dir).resolve())
     tasks = []
     for ds_path in paths:
@@ -503,6 +508,8 @@ def run_sweep(sweep: str | Path, datasets: list[str], out_dir: Path, jobs: int |
         raise ConfigError("--jobs must be >= 1")
     sweep_path = resources.sweep_file(str(sweep))
     tasks, body = plan(sweep_path, datasets, out_dir, variant_dir, trials)
+    if not summarize_only:
+        resumable_dir(out_dir, ("records", "runs"), "sweep", dataset_roots(*{t.dataset for t in tasks}))
     counts = {"run": 0, "failed": 0, "skipped": 0}
     if summarize_only:
         if not (Path(out_dir) / "records").is_dir():

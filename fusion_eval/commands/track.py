@@ -5,7 +5,7 @@ from __future__ import annotations
 import math
 from pathlib import Path
 
-from ..errors import ConfigError
+from ..errors import ConfigError, OutputError
 from ..outputs import StagedDir
 
 
@@ -27,7 +27,7 @@ def track(input_path: Path, out_dir: Path, sensors: str, noise_ax: float, noise_
         _positive(name, v)
     params = TrackParams(noise_ax=noise_ax, noise_ay=noise_ay, lidar_var=tuple(lidar_var), radar_var=tuple(radar_var),
                          sensors=sensors)
-    staged = StagedDir(out_dir, overwrite=overwrite)
+    staged = StagedDir(out_dir, overwrite=overwrite, inputs=(input_path,))
     staged.check()
     m = read_measurements(input_path)
     res = run_track(m, params)
@@ -37,6 +37,9 @@ def track(input_path: Path, out_dir: Path, sensors: str, noise_ax: float, noise_
         return write_track_outputs(out, res, params, str(input_path), make_plots)
 
 
+MAX_TRACK_MEASUREMENTS = 10_000_000
+
+
 def simulate_track(out_file: Path, duration_s: float, interval_s: float, seed: int, start, heading_deg: float,
                    speed_mps: float, overwrite: bool = False) -> int:
     """Write a measurement file with known truth; returns the number of measurements."""
@@ -44,13 +47,27 @@ def simulate_track(out_file: Path, duration_s: float, interval_s: float, seed: i
 
     if not (duration_s > 0 and interval_s > 0 and math.isfinite(duration_s) and math.isfinite(interval_s)):
         raise ConfigError("--duration and --interval must be finite numbers > 0")
+    n = duration_s / interval_s
+    if not 2 <= n <= MAX_TRACK_MEASUREMENTS:     # one empty line; or 7 PiB asked of numpy for 1e12 s
+        raise ConfigError(f"--duration / --interval must give 2 to {MAX_TRACK_MEASUREMENTS:,} measurements, got {n:.3g}")
+    if seed < 0:
+        raise ConfigError(f"--seed must be >= 0, got {seed}")
+    for name, v in (("--start", start[0]), ("--start", start[1]), ("--heading", heading_deg), ("--speed", speed_mps)):
+        if not (math.isfinite(v) and abs(v) <= 1e6):   # the measurement file would hold nan, which track refuses
+            raise ConfigError(f"{name} must be a finite number (at most 1e6 in size), got {v}")
     out_file = Path(out_file)
+    if out_file.is_dir():
+        raise ConfigError(f"{out_file}: is a folder (give a file name)")
     if out_file.exists() and not overwrite:
         raise ConfigError(f"{out_file}: exists (use --overwrite to replace it)")
     text = sim(duration_s, interval_s, seed, start=tuple(start), speed_mps=speed_mps, heading0_rad=math.radians(heading_deg))
     if not out_file.parent.is_dir():
         raise ConfigError(f"{out_file.parent}: folder not found")
     tmp = out_file.with_name(f".{out_file.name}.tmp")
-    tmp.write_text(text)
-    tmp.replace(out_file)
+    try:
+        tmp.write_text(text)
+        tmp.replace(out_file)
+    except OSError as exc:
+        tmp.unlink(missing_ok=True)
+        raise OutputError(f"{out_file}: cannot write ({exc.strerror})") from None
     return text.count("\n")

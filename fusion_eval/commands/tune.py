@@ -47,7 +47,9 @@ def run_tune(train: list[str], test: list[str], space: str, objectives: list[str
     for p in train_paths + test_paths:
         if not Path(p).exists():
             raise ConfigError(f"{p}: dataset not found")
-    overlap = set(train_paths) & set(test_paths)
+    # one drive given as its folder and as its manifest is one drive
+    root = {p: str(Path(p).parent) if Path(p).is_file() else p for p in train_paths + test_paths}
+    overlap = {root[p] for p in train_paths} & {root[p] for p in test_paths}
     if overlap:
         raise ConfigError(f"{sorted(overlap)[0]} is both a training and a held-out drive")
     s = Setup(space=load_space(space_file(space)), objectives=tuple(obj.parse(o) for o in objectives),

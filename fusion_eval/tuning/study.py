@@ -20,7 +20,7 @@ from pathlib import Path
 from typing import Callable
 
 from ..errors import ConfigError
-from ..outputs import alive, atomic_write
+from ..outputs import alive, atomic_write, resumable_dir
 from .objectives import Objective
 from .space import Space
 from .worker import REPORTS, Job, score
@@ -83,7 +83,7 @@ def open_study(s: Setup):
     from optuna.storages.journal import JournalFileBackend
 
     sampler = _sampler(s)                   # a bad sampler choice is refused before the folder is made
-    s.out_dir.mkdir(parents=True, exist_ok=True)
+    resumable_dir(s.out_dir, ("study.journal",), "tune")
     journal = s.out_dir / "study.journal"
     storage = JournalStorage(JournalFileBackend(str(journal), lock_obj=_flock(journal)))
     directions = ["minimize"] * len(s.objectives)
