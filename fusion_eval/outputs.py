@@ -65,6 +65,7 @@ def atomic_file(target: Path):
         raise
     os.replace(tmp, target)
 
+
 OUTPUT_MARKERS = ("metrics.json", "report.html", "compare.json", "dataset.yaml")   # what a command's folder holds
 
 
