@@ -93,6 +93,12 @@ class Group(click.Group):
                 sys.exit(exc.exit_code)
             if isinstance(exc, click.UsageError):   # a command's options, an unknown command
                 _usage_error(exc)
+            if isinstance(exc, OSError) and not isinstance(exc, BrokenPipeError):
+                # the system refused a read or write no check foresaw (stdout on a full device): one line, not a
+                # traceback; the output folder was written atomically or not at all
+                click.echo("error: " + " ".join(f"{exc.filename + ': ' if exc.filename else ''}{exc.strerror or exc}".split()),
+                           err=True)
+                sys.exit(2)
             raise
 
 
@@ -103,6 +109,10 @@ def entry() -> None:
     """The console script and ``python -m fusion_eval``: :func:`main` as the process itself."""
     global _PROCESS_ENTRY
     _PROCESS_ENTRY = True
+    # a path that is not UTF-8 (a byte the file system allows) is echoed back as the bytes it was given, not as a
+    # UnicodeEncodeError after the command's work is done
+    if sys.stdout is not None and hasattr(sys.stdout, "reconfigure"):
+        sys.stdout.reconfigure(errors="surrogateescape")
     main()
 
 

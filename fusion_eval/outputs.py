@@ -158,7 +158,7 @@ class StagedDir:
         return self.staging / name
 
     def write_text(self, name: str, text: str) -> Path:
-        return self.write_bytes(name, text.encode("utf-8"))
+        return self.write_bytes(name, text.encode("utf-8", "surrogateescape"))   # a non-UTF-8 path in a report
 
     def write_bytes(self, name: str, data: bytes) -> Path:
         return write_atomic(self.staging / name, data)

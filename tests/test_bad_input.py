@@ -636,3 +636,29 @@ def test_a_run_with_stderr_closed_still_runs(tmp_path):
                        stdin=subprocess.DEVNULL, stdout=subprocess.PIPE, text=True, close_fds=True,
                        preexec_fn=lambda: __import__("os").close(2))
     assert p.returncode == 0 and (out / "metrics.json").exists(), p.stdout
+
+
+def test_evaluate_refuses_one_estimate_given_twice(tmp_path):
+    ref, est = _tum(tmp_path / "ref.tum"), _tum(tmp_path / "est.tum")
+    out = tmp_path / "o"
+    r = CliRunner().invoke(main, ["evaluate", str(ref), str(est), str(est), "-o", str(out)])
+    _assert_clean_error(r, out, "given twice as an estimate")
+
+
+@pytest.mark.skipif(not Path("/dev/full").exists(), reason="needs Linux's /dev/full")
+def test_stdout_on_a_full_device_and_a_non_utf8_output_name(tmp_path):
+    """Both once traced back after the work was done: an OSError at the final echo, and a UnicodeEncodeError on a
+    folder name with a byte that is not UTF-8 (in the echo and in report.md)."""
+    import os
+
+    out = tmp_path / "o"
+    with open("/dev/full", "w") as full:
+        p = subprocess.run([sys.executable, "-m", "fusion_eval", "run", "--no-plots", "--out", str(out)], stdout=full,
+                           stderr=subprocess.PIPE, stdin=subprocess.DEVNULL, text=True)
+    assert p.returncode == 2 and p.stderr.strip().splitlines()[-1] == "error: No space left on device", p.stderr
+    assert "Traceback" not in p.stderr
+    odd = os.fsencode(str(tmp_path)) + b"/bad\xffname"
+    p = subprocess.run([sys.executable, "-m", "fusion_eval", "-q", "run", "--no-plots", "--out", odd],
+                       capture_output=True, stdin=subprocess.DEVNULL)
+    assert p.returncode == 0 and b"Traceback" not in p.stderr and os.path.isdir(odd + b"/"), p.stderr
+    assert p.stdout.strip() == odd

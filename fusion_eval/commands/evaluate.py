@@ -39,6 +39,12 @@ def read_inputs(inputs: list, bag: Path | None, ref_topic: str | None, fmt: str,
         raise ConfigError("--ref names a topic: give the bag with --bag")
     if len(inputs) < 2:
         raise ConfigError("give a reference file and at least one estimate file (or --bag FILE --ref TOPIC TOPIC...)")
+    seen: dict = {}
+    for p in inputs[1:]:                 # one file twice would be evaluated twice, as two estimates
+        key = Path(p).resolve()
+        if key in seen:
+            raise ConfigError(f"{p}: given twice as an estimate (as {seen[key]} before)")
+        seen[key] = p
     ref, ests = read_trajectory(inputs[0], ref_times, fmt), [read_trajectory(p, times, fmt) for p in inputs[1:]]
     for f in ests:
         # paired by frame index, one pose missing mid-file would shift every later pair, silently
