@@ -206,3 +206,51 @@ def test_the_step_leaves_its_transition_where_the_rts_smoother_gave_it_room(meth
     own = np.zeros(eskf.AUX_OWN)
     eskf.step(x.copy(), np.eye(n) * 0.1, n, u0, u1, 0.1, 1.0, prm, own, True)
     assert not own.any()
+
+
+@pytest.mark.parametrize("dt", [0.005, 0.01, 0.1, 0.2])
+@pytest.mark.parametrize("decay", [(0.0, 0.0), (1 / 3600, 1 / 1800), (1.0, 2.0)])
+def test_structured_van_loan_equals_the_series(dt, decay):
+    """The ESKF's Van Loan on its dynamics' structure (triples of ``C`` powers, Gauss-Legendre for ``Q_d``) against
+    the general sparse series, for random attitudes, forces, turn rates up to its limit ``|w| T = 1/2``, Gauss-Markov
+    or random-walk biases and a gap's noise scale: 1e-13 relative, ``Q_d`` exactly symmetric."""
+    from fusion_eval.filters.formulations.eskf_van_loan import RHO_MAX, van_loan_eskf
+
+    rng = np.random.default_rng(int(dt * 1e4) + int(decay[1] * 1e4))
+    prm = imu_params(9.81, 0.05, np.radians(0.1), 1e-3, 1e-5, "van_loan", *decay)
+    Phi, Qd = np.empty((N, N)), np.empty((N, N))
+    for k in range(40):
+        R = Rotation.random(random_state=rng).as_matrix()
+        f = np.array([0.8, -0.4, 9.81]) + rng.standard_normal(3)
+        w = rng.standard_normal(3)
+        w *= (0.999 * RHO_MAX if k == 0 else rng.uniform(0.0, RHO_MAX)) / dt / np.linalg.norm(w)
+        qscale = (1.0, 25.0)[k % 2]
+        Ft, Qc = continuous_model(R, f, w, prm, qscale)
+        ref_phi, ref_q = discretize.van_loan(Ft, np.diag(Qc), dt)
+        assert van_loan_eskf(R, f, w, dt, prm, qscale, Phi, Qd)
+        assert np.abs(Phi - ref_phi).max() <= 1e-13 * np.abs(ref_phi).max()
+        assert np.abs(Qd - ref_q).max() <= 1e-13 * np.abs(ref_q).max()
+        assert np.array_equal(Qd, Qd.T)
+
+
+def test_structured_van_loan_declines_outside_its_range_and_the_step_takes_the_series():
+    """Beyond ``|w| T = 1/2`` (an IMU gap while turning) the structured form declines and writes nothing; the step
+    then takes the general series (its transition, kept for the smoother, is the series')."""
+    from fusion_eval.filters.formulations.eskf_van_loan import van_loan_eskf
+
+    prm = imu_params(9.81, 0.05, np.radians(0.1), 1e-3, 1e-5, "van_loan")
+    R, f, w = np.eye(3), np.array([0.0, 0.0, 9.81]), np.array([0.0, 0.0, 0.6])
+    Phi, Qd = np.full((N, N), 7.0), np.full((N, N), 7.0)
+    assert not van_loan_eskf(R, f, w, 1.0, prm, 1.0, Phi, Qd)
+    assert not van_loan_eskf(R, f, w * np.nan, 0.1, prm, 1.0, Phi, Qd)
+    assert (Phi == 7.0).all() and (Qd == 7.0).all()
+    x = NominalState(np.zeros(3), np.zeros(3), np.eye(3), np.zeros(3), np.zeros(3)).vec
+    u = np.r_[f, w]
+    aux = np.zeros(eskf.AUX_OWN + N * N)
+    P = np.eye(N) * 0.1
+    eskf.step(x.copy(), P, N, u, u, 1.0, 1.0, prm, aux, True)
+    Ft, Qc = continuous_model(R, f, w, prm, 1.0)
+    phi, qd = discretize.van_loan(Ft, np.diag(Qc), 1.0)
+    np.testing.assert_array_equal(aux[eskf.AUX_OWN:].reshape(N, N), phi)
+    expect = phi @ (np.eye(N) * 0.1) @ phi.T + qd
+    assert np.abs(P - expect).max() <= 1e-13 * np.abs(expect).max()

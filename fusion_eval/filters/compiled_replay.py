@@ -27,6 +27,7 @@ from numba import njit
 from ..errors import FilterDivergedError
 from .layout import CLONE
 from . import discretize, linalg, mech
+from .formulations import eskf_van_loan
 from .linalg import joseph_update_into
 from ..smoothing.record import epoch_index, pack_upper, store_prior, store_row
 from .observations.base import M_MAX, N_MAX, matched_variance
@@ -135,7 +136,8 @@ def {name}(a, st, xc, clone_t, times, kinds, index, j0, j1, gates, clone_after, 
 # cache would not see a change there
 STEP_CALLEES = (discretize.transition, discretize.transition_full, discretize.van_loan,
                 discretize._csr, discretize._csr_row, discretize.second_order, discretize._phi_second,
-                discretize.propagate_dense, mech.mech_step, mech.log3, mech.mul_tn, mech.rmul_exp3, mech.exp3, mech.skew3)
+                discretize.propagate_dense, mech.mech_step, mech.log3, mech.mul_tn, mech.rmul_exp3, mech.exp3, mech.skew3,
+                *eskf_van_loan.CALLEES)
 
 
 def _source_digest(*fns) -> str:
