@@ -60,7 +60,8 @@ def joseph_update_dense(P, n, H, r, Rm, gate):
 
 def workspace(n_max: int, m_max: int):
     """Scratch arrays of :func:`joseph_update_into` for up to ``n_max`` states and ``m_max`` residual rows."""
-    return np.zeros((5, m_max, n_max)), np.zeros((3, m_max, m_max)), np.zeros(n_max), np.zeros(n_max, np.int64)
+    return (np.zeros((5, m_max, n_max)), np.zeros((3, m_max, m_max)), np.zeros(n_max),
+            np.zeros((m_max, n_max + 1), np.int64))
 
 
 @njit(cache=True)
@@ -76,27 +77,30 @@ def joseph_update_into(P, n, H, m, r, Rm, gate, wn, wm, dx, cols):
     turned variances negative on badly scaled covariances (stds from 1e-4 to 1e4, R from 1e-8 to 1), where this order
     and the dense one stay at 1e-15. ``S`` is factored by a Cholesky decomposition (it is symmetric positive
     definite, or the filter has failed). ``U``, ``K`` and ``W`` are held transposed (m x n) so that the inner
-    loops run along rows; only the columns where ``H`` has a non-zero enter ``U`` and ``W`` (a pose residual
-    touches 12 of 21 states).
-    ``wn``: (5, m_max, n_max) scratch for U^T, K^T, (W - K R)^T, H's non-zero columns and one row of P; ``wm``: (>= 2, m_max, m_max) for S (left holding the
-    innovation covariance ``H P H^T + R``) and its Cholesky factor; ``dx``: the correction (n_max,);
-    ``cols``: (n_max,) int scratch. An innovation whose NIS exceeds ``gate`` is rejected (``P`` unchanged,
+    loops run along rows; only each row's non-zero entries of ``H`` enter ``U``, ``S`` and ``W`` (a pose residual's
+    rows touch 4 or 9 of 21 states).
+    ``wn``: (>= 3, m_max, n_max) scratch for U^T, K^T, (W - K R)^T; ``wm``: (>= 2, m_max, m_max) for S (left holding
+    the innovation covariance ``H P H^T + R``) and its Cholesky factor; ``dx``: the correction (n_max,);
+    ``cols``: (m_max, n_max + 1) int scratch (each row's non-zero columns). An innovation whose NIS exceeds
+    ``gate`` is rejected (``P`` unchanged,
     ``dx`` zero).
     """
-    UT, KT, VT, HC, row = wn[0], wn[1], wn[2], wn[3], wn[4, 0]
+    UT, KT, VT = wn[0], wn[1], wn[2]
     S, L = wm[0], wm[1]
-    nc = 0
-    for j in range(n):
-        for a in range(m):
+    # each row's non-zero columns, ascending: cols[a, 0] of them in cols[a, 1:] (a pose residual's rotation
+    # rows touch 4 of 21 states, its position rows 9), so that H's products skip its zeros
+    for a in range(m):
+        c = 0
+        for j in range(n):
             if H[a, j] != 0.0:
-                cols[nc] = j
-                nc += 1
-                break
+                c += 1
+                cols[a, c] = j
+        cols[a, 0] = c
     for a in range(m):                      # U^T = H P
         for i in range(n):
             UT[a, i] = 0.0
-        for c in range(nc):
-            j = cols[c]
+        for c in range(cols[a, 0]):
+            j = cols[a, 1 + c]
             h = H[a, j]
             for i in range(n):
                 UT[a, i] += h * P[j, i]
@@ -104,9 +108,11 @@ def joseph_update_into(P, n, H, m, r, Rm, gate, wn, wm, dx, cols):
         for b in range(a, m):
             s1 = 0.0
             s2 = 0.0
-            for c in range(nc):
-                j = cols[c]
+            for c in range(cols[a, 0]):
+                j = cols[a, 1 + c]
                 s1 += H[a, j] * UT[b, j]
+            for c in range(cols[b, 0]):
+                j = cols[b, 1 + c]
                 s2 += H[b, j] * UT[a, j]
             v = 0.5 * (s1 + s2 + Rm[a, b] + Rm[b, a])
             S[a, b] = v
@@ -148,16 +154,12 @@ def joseph_update_into(P, n, H, m, r, Rm, gate, wn, wm, dx, cols):
             k = KT[a, i]
             for j in range(n):
                 P[i, j] -= k * UT[a, j]
-    for a in range(m):                      # W^T = H A^T, on H's non-zero columns; then W^T - (K R)^T
-        for c in range(nc):
-            HC[a, c] = H[a, cols[c]]
-    for i in range(n):
-        for c in range(nc):                 # the row's entries H needs, gathered once
-            row[c] = P[i, cols[c]]
+    for i in range(n):                      # W^T = H A^T, on each row's non-zero columns; then W^T - (K R)^T
         for a in range(m):
             s = 0.0
-            for c in range(nc):
-                s += row[c] * HC[a, c]
+            for c in range(cols[a, 0]):
+                j = cols[a, 1 + c]
+                s += P[i, j] * H[a, j]
             for b in range(m):
                 s -= KT[b, i] * Rm[b, a]
             VT[a, i] = s
@@ -216,7 +218,7 @@ def joseph_update_s(P, n, H, r, Rm, gate):
     wn = np.zeros((5, m, n))
     wm = np.zeros((2, m, m))
     dx = np.zeros(n)
-    cols = np.zeros(n, np.int64)
+    cols = np.zeros((m, n + 1), np.int64)
     nis, ok = joseph_update_into(P, n, H, m, np.ascontiguousarray(r), Rm, gate, wn, wm, dx, cols)
     return dx, nis, ok, wm[0].copy()
 
