@@ -16,7 +16,6 @@ from pathlib import Path
 from typing import Callable
 
 import numpy as np
-import yaml
 
 from .. import session
 from ..datasets.tum import format_tum
@@ -38,6 +37,7 @@ from ..report import html
 from ..tables import cell, csv_text, latex, latex_document, markdown
 from ..types import PoseSeries
 from ..variants import folder_name, resolve_variant
+from .. import yaml_lines
 
 log = logging.getLogger(__name__)
 
@@ -198,7 +198,7 @@ def compare(dataset_path: Path | None, variants: list[str], variant_dir: Path | 
                 out.write_text(f"variants/{folder}/smoothed.tum",
                                format_tum(r.filt.smoothed.fused, f"fusion-eval compare: variant {r.name}, smoothed"))
             out.write_text(f"variants/{folder}/config.resolved.yaml",
-                           yaml.safe_dump({**r.cfg, "versions": versions()}, sort_keys=False))
+                           yaml_lines.dump({**r.cfg, "versions": versions()}))
         if make_plots:
             from ..report import plots
 

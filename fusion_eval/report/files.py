@@ -14,9 +14,7 @@ import platform
 import zipfile
 from pathlib import Path
 
-import yaml
-
-from .. import __version__
+from .. import __version__, yaml_lines
 from ..datasets.tum import tum_chunks
 from ..evaluation.keys import STATS
 from ..evaluation.trajectory import EstimateEvaluation
@@ -92,7 +90,7 @@ def metrics_csv(evals: dict[str, EstimateEvaluation], ratios: dict) -> str:
 def resolved_config(cfg: dict, extra: dict) -> str:
     """``config.resolved.yaml``: the configuration, then informational sections (the dataset, what was
     applied, the versions); ``-c`` accepts the file and ignores those sections."""
-    return yaml.safe_dump({**cfg, **extra, "versions": versions()}, sort_keys=False)
+    return yaml_lines.dump({**cfg, **extra, "versions": versions()})
 
 
 def _zip_names(ev: EstimateEvaluation, trajectories: bool):

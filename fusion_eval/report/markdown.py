@@ -5,8 +5,7 @@ Everything is formatted from numbers the evaluation layer computed; nothing here
 
 from __future__ import annotations
 
-import yaml
-
+from .. import yaml_lines
 from ..evaluation.keys import rpe_distance_group
 from ..evaluation.run_metrics import ESTIMATES
 from ..evaluation.span import describe as describe_span
@@ -286,7 +285,7 @@ def report_md(dataset: str, config_name: str, evals: dict, ratios: dict, cfg: di
 def _config_block(cfg: dict, settled: dict) -> str:
     """The configuration as YAML, each 'auto' the data settled followed by what it became (``# -> 9.80943``)."""
     out, sect = [], None
-    for line in yaml.safe_dump(cfg, sort_keys=False).rstrip().splitlines():
+    for line in yaml_lines.dump(cfg).rstrip().splitlines():
         if not line.startswith(" ") and line.endswith(":"):
             sect = line[:-1]
         key, sep, value = line.strip().partition(": ")
