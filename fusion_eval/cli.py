@@ -52,6 +52,26 @@ def _setup_logging(verbose: int, quiet: int) -> None:
         logging.getLogger(noisy).setLevel(logging.WARNING if verbose < 2 else logging.INFO)
 
 
+def _given(ctx, *names: str) -> list[str]:
+    """Which of the options ``names`` (parameter names) the user gave, rather than left at their defaults."""
+    from click.core import ParameterSource
+
+    return [n for n in names if ctx.get_parameter_source(n) in (ParameterSource.COMMANDLINE, ParameterSource.ENVIRONMENT)]
+
+
+def _flag(name: str) -> str:
+    return "--" + name.replace("_", "-")
+
+
+def _refuse_ignored(ctx, names: tuple[str, ...], why: str) -> None:
+    """A usage error naming the options of ``names`` that were given though they do not apply (``why``): an option
+    silently ignored makes a user believe a result was computed their way."""
+    given = _given(ctx, *names)
+    if given:
+        raise click.UsageError(f"{', '.join(_flag(n) for n in given)} {'does' if len(given) == 1 else 'do'} not apply "
+                               f"{why}")
+
+
 def _usage_error(exc: click.UsageError) -> None:
     """click's own usage errors (an option's value out of range, an unknown option or command) as one line, like
     every other error of the tool, instead of click's usage block: the command, what is wrong, where help is."""
@@ -139,6 +159,8 @@ def _interrupted(exc: BaseException) -> None:
 @click.pass_context
 def main(ctx, verbose, quiet):
     """Fuse IMU, GNSS and lidar odometry with Kalman filters and evaluate them with evo."""
+    if verbose and quiet:
+        raise click.UsageError("-q and -v ask for opposite things: give one of them")
     _setup_logging(verbose, quiet)
     ctx.obj = {"quiet": quiet > 0}
 
@@ -243,6 +265,9 @@ def sweep(ctx, datasets, sweep_file, out_dir, jobs, variant_dir, scheduler, dask
     """Run DATASET(s) over the settings of a sweep file, in parallel or on Dask, and rank the results."""
     from .commands.sweep import run_sweep
 
+    if summarize_only:
+        _refuse_ignored(ctx, ("jobs", "scheduler", "dask_mode", "retry_failed", "trials", "batch"),
+                        "with --summarize-only, which runs nothing (it rebuilds the summary from the records)")
     t0 = time.perf_counter()
     bars: list = []
 
@@ -316,6 +341,14 @@ def evaluate(ctx, inputs, out_dir, fmt, bag, ref_topic, ref_times, times, associ
     from .commands.evaluate import run_evaluate
     from .evaluation.keys import DEFAULT_RELATIONS
 
+    if _given(ctx, "segment_m") and segment_s is not None:
+        raise click.UsageError("--segment-m and --segment-s: give one (the per-segment window along the route in m, "
+                               "or in time in s)")
+    if alignment != "4dof":
+        _refuse_ignored(ctx, ("up_axis",), f"with --alignment {alignment} (the gravity axis of --alignment 4dof)")
+    if alignment == "none":
+        _refuse_ignored(ctx, ("n_to_align",), "without an --alignment")
+
     m = run_evaluate(list(inputs), out_dir, ref_times, times, association, alignment, t_max_diff, rpe_delta_m,
                      segment_m, segment_s, overwrite, not no_plots, engine, bag=bag, ref_topic=ref_topic, fmt=fmt,
                      relations=tuple(relations) or DEFAULT_RELATIONS, up_axis=up_axis, n_to_align=n_to_align,
@@ -350,6 +383,8 @@ def track(ctx, input_path, out_dir, sensors, noise_ax, noise_ay, lidar_var, rada
     """Track a 2-D target from lidar (KF) and radar (EKF) measurements; RMSE against the file's ground truth."""
     from .commands.track import track as run_track
 
+    if sensors != "both":
+        _refuse_ignored(ctx, ("radar_var",) if sensors == "lidar" else ("lidar_var",), f"with --sensors {sensors}")
     metrics = run_track(input_path, out_dir, sensors, noise_ax, noise_ay, lidar_var, radar_var, overwrite, not no_plots,
                         smooth)
     if ctx.obj["quiet"]:
@@ -411,7 +446,7 @@ def check(ctx, metrics_path, baseline, rtol, atol, patterns, rules, junit_path, 
         click.echo(f"baseline {baseline} updated from {metrics_path}")
         return
     res = run_check(metrics_path, baseline, rtol, atol, tuple(patterns), tuple(rules), junit_path, summary_path,
-                    None if trial_stat == "none" else trial_stat)
+                    None if trial_stat == "none" else trial_stat, trial_stat_given=bool(_given(ctx, "trial_stat")))
     if ctx.obj["quiet"]:            # one line for scripts: the verdict (the exit code says it too)
         click.echo("check: PASS" if res.ok else "check: FAIL (regression or failed rule)")
         sys.exit(0 if res.ok else 1)

@@ -150,3 +150,39 @@ def test_help_and_check_import_no_plotting_dask_or_pandas(slice_run):
     code, mods = _loaded("evaluate", str(slice_run / "groundtruth.tum"), str(slice_run / "fused.tum"), "--out",
                          str(slice_run.parent / "probe-eval"))
     assert code == 0 and "matplotlib" in mods
+
+
+def test_options_that_would_be_ignored_are_refused(tmp_path):
+    """An option given where it does not apply is a usage error naming it, before any work, rather than silently
+    dropped (the user would believe a result was computed their way)."""
+    cases = {("-q", "-v", "check", "m.json", "-b", "b.json"): "-q and -v ask for opposite things",
+             ("evaluate", "a.tum", "b.tum", "-o", str(tmp_path / "e"), "--segment-m", "50", "--segment-s", "5"):
+                 "--segment-m and --segment-s: give one",
+             ("evaluate", "a.tum", "b.tum", "-o", str(tmp_path / "e"), "--up-axis", "z"):
+                 "--up-axis does not apply with --alignment none",
+             ("evaluate", "a.tum", "b.tum", "-o", str(tmp_path / "e"), "--alignment", "se3", "--up-axis", "z"):
+                 "--up-axis does not apply with --alignment se3",
+             ("evaluate", "a.tum", "b.tum", "-o", str(tmp_path / "e"), "--n-to-align", "10"):
+                 "--n-to-align does not apply without an --alignment",
+             ("track", "x.txt", "-o", str(tmp_path / "t"), "--sensors", "lidar", "--radar-var", "1", "1", "1"):
+                 "--radar-var does not apply with --sensors lidar",
+             ("track", "x.txt", "-o", str(tmp_path / "t"), "--sensors", "radar", "--lidar-var", "1", "1"):
+                 "--lidar-var does not apply with --sensors radar",
+             ("sweep", "--grid", "noise5", "-o", str(tmp_path / "s"), "--summarize-only", "--trials", "3", "-j", "2"):
+                 "--jobs, --trials do not apply with --summarize-only"}
+    for args, needle in cases.items():
+        r = CliRunner().invoke(main, list(args), prog_name="fusion-eval")
+        err = r.stderr.strip()
+        assert r.exit_code == 2 and err.startswith("error: ") and needle in err and "\n" not in err, (args, r.output)
+    # the same options where they apply are accepted (evaluate gets as far as its missing files)
+    r = CliRunner().invoke(main, ["evaluate", "a.tum", "b.tum", "-o", str(tmp_path / "e"), "--alignment", "4dof",
+                                  "--up-axis", "z", "--n-to-align", "10", "--segment-s", "5"], prog_name="fusion-eval")
+    assert "does not apply" not in r.output and "a.tum" in r.stderr
+
+
+def test_compare_refuses_one_variant_named_twice(tmp_path):
+    from fusion_eval import resources
+
+    r = CliRunner().invoke(main, ["compare", "--variants", f"eskf,{resources.variant_dir() / 'eskf.yaml'}", "-o",
+                                  str(tmp_path / "c")], prog_name="fusion-eval")
+    assert r.exit_code == 2 and "names one variant twice: 'eskf' and" in r.stderr and not (tmp_path / "c").exists()

@@ -329,3 +329,31 @@ def test_check_says_when_the_baseline_is_of_another_dataset(tmp_path):
         p.write_text(json.dumps(m))
     r = CliRunner().invoke(main, ["check", str(cur), "--baseline", str(base)])
     assert r.exit_code == 0 and "of dataset 'simple-05' and the baseline of 'kitti-00'" in r.stderr, r.output
+
+
+@pytest.mark.parametrize("value,name", [(-1.0, "base.json"), (1e300, "base.json"), (-0.2, "cur.json")])
+def test_check_refuses_an_impossible_error_figure(tmp_path, value, name):
+    """A negative APE or one beyond a million km gates nothing (1e300 lets every regression pass): exit 2 naming the
+    file and the metric. A negative log-likelihood, which may well be negative, is compared as usual."""
+    cur = _metrics(tmp_path, "cur.json", 1.0)
+    body = json.loads(cur.read_text())
+    body["estimates"]["fused"]["ape"]["translation_m"]["rmse"] = value
+    (tmp_path / name).write_text(json.dumps(body))
+    base = tmp_path / "base.json"
+    if name == "cur.json":
+        base.write_text(json.dumps(json.loads(_metrics(tmp_path, "b0.json", 1.0).read_text())))
+    r = CliRunner().invoke(main, ["check", str(cur), "--baseline", str(base)])
+    assert r.exit_code == 2 and f"{name}: fused.ape.translation_m.rmse is {value:g}" in r.stderr, r.output
+    body = json.loads(_metrics(tmp_path, "n.json", 1.0).read_text())
+    body.setdefault("nis", {})["lidar"] = {"nll_mean": -25.0}
+    (tmp_path / "n.json").write_text(json.dumps(body))
+    r = CliRunner().invoke(main, ["check", str(tmp_path / "n.json"), "--baseline", str(tmp_path / "n.json"), "-m", "nis.*"])
+    assert r.exit_code == 0, r.output
+
+
+def test_check_trial_stat_asked_of_runs_without_trials_is_an_error(tmp_path):
+    cur = _metrics(tmp_path, "cur.json", 1.0)
+    r = CliRunner().invoke(main, ["check", str(cur), "--baseline", str(cur), "--trial-stat", "median"])
+    assert r.exit_code == 2 and "--trial-stat applies to the metrics of a run with --trials" in r.stderr
+    r = CliRunner().invoke(main, ["check", str(cur), "--baseline", str(cur)])       # the default statistic: fine
+    assert r.exit_code == 0

@@ -205,8 +205,10 @@ class CheckResult:
 
 def check(metrics_path: Path, baseline: Path, rtol: float, atol: float, patterns: tuple[str, ...] = (),
           rules: tuple[str, ...] = (), junit_path: Path | None = None, summary_path: Path | None = None,
-          trial_stat: str | None = "mean") -> CheckResult:
-    """Compare a metrics file with its baseline, evaluate the rules, write the summary (and JUnit)."""
+          trial_stat: str | None = "mean", trial_stat_given: bool = False) -> CheckResult:
+    """Compare a metrics file with its baseline, evaluate the rules, write the summary (and JUnit).
+    ``trial_stat_given``: the statistic was asked for (``--trial-stat``), so a pair of files without trials is an
+    error rather than the statistic silently not applying."""
     from ..errors import ConfigError
 
     if not (math.isfinite(rtol) and math.isfinite(atol)) or rtol < 0 or atol < 0:
@@ -220,8 +222,17 @@ def check(metrics_path: Path, baseline: Path, rtol: float, atol: float, patterns
     names = [_dataset_of(p) for p in (metrics_path, resources.find(baseline))]
     if None not in names and names[0] != names[1]:
         log.warning("the metrics are of dataset %r and the baseline of %r: compared all the same", *names)
+    if trial_stat_given and not any(_has_trials(p) for p in (metrics_path, resources.find(baseline))):
+        raise ConfigError(f"--trial-stat applies to the metrics of a run with --trials N; neither {metrics_path} nor "
+                          f"{baseline} has trials")
     pats = tuple(patterns) or default_patterns(kind, delta)
     rows = compare_metrics(current, base, pats, rtol, atol)
+    for r in rows:
+        for value, path in ((r.baseline, resources.find(baseline)), (r.current, metrics_path)):
+            column = r.metric.rsplit(".", 1)[-1] if kind == "csv" else r.metric     # a sweep.csv key: run.column
+            if value is not None and _ERROR_FIGURE.search(column) and not 0.0 <= value <= MAX_ERROR_FIGURE:
+                raise DataFormatError(path, None, f"{r.metric} is {value:g}: an error figure lies in 0 .. "
+                                                  f"{MAX_ERROR_FIGURE:g} (a hand-edited or corrupted file?)")
     _refuse_incomplete_baseline(resources.find(baseline), [r.metric for r in rows if r.verdict == "new"])
     evaluated = [(r, *evaluate_rule(r, current)) for r in rules]
     ok = all(r.verdict not in ("REGRESSION", "MISSING") for r in rows) and all(h for _, h, _ in evaluated)
@@ -229,6 +240,22 @@ def check(metrics_path: Path, baseline: Path, rtol: float, atol: float, patterns
     if junit_path:
         atomic_write(junit_path, junit(rows, evaluated))
     return CheckResult(rows, evaluated, ok)
+
+
+# the figures that cannot be negative (APE, RPE and drift statistics, ratios of errors; not a log-likelihood) and an upper bound no real
+# one reaches (a million km): a baseline outside it gates nothing (1e300 lets every regression pass)
+_ERROR_FIGURE = re.compile(r"(^|[._/])(ape|rpe|kitti_drift|t_err|r_err)|_over_")
+MAX_ERROR_FIGURE = 1e9
+
+
+def _has_trials(path: Path) -> bool:
+    """Whether ``path`` is the metrics.json of a run with ``--trials``."""
+    if Path(path).suffix == ".csv":
+        return False
+    try:
+        return bool(json.loads(Path(path).read_text()).get("trials"))
+    except (json.JSONDecodeError, OSError, AttributeError, UnicodeDecodeError):
+        return False
 
 
 def _dataset_of(path: Path) -> str | None:

@@ -140,6 +140,12 @@ def compare(dataset_path: Path | None, variants: list[str], variant_dir: Path | 
     if len(set(variants)) != len(variants) or not variants:
         raise ConfigError("--variants needs one or more distinct names")
     paths = [resolve_variant(v, variant_dir) for v in variants]
+    seen: dict = {}
+    for v, p in zip(variants, paths):       # one file named twice (by name and by path) would run and show twice
+        key = Path(p).resolve()
+        if key in seen:
+            raise ConfigError(f"--variants names one variant twice: {seen[key]!r} and {v!r} are both {p}")
+        seen[key] = v
     reqs = [session.request(config=base_config, variant=p, sets=sets) for p in paths]   # all validated before any work
     stages = as_stages(progress)
     stages.start("load")
