@@ -494,7 +494,7 @@ def _num_or_na(x, nd: int) -> str:
 @main.command()
 @click.argument("datasets", nargs=-1, type=click.Path(path_type=Path))
 @click.option("--space", default="noise", show_default=True, metavar="SPACE",
-              help="Search space: a YAML file of config keys with ranges, or a shipped space's name (noise).")
+              help="Search space: a YAML file of config keys with ranges, or a shipped space's name (noise, imu-gnss, model).")
 @click.option("--objective", "objectives", multiple=True, metavar="OBJ",
               help="nll or nis (no ground truth needed), a metric key (fused.ape.rmse, fused.rpe_100m.rmse, ...) or a "
                    "weighted sum (0.5*fused.ape.rmse+0.5*fused.rpe_100m.rmse); twice for a multi-objective study.")

@@ -309,3 +309,19 @@ def test_the_first_trial_is_the_default_even_where_the_default_is_auto(tmp_path)
     text = R.default_yaml(s, res)
     assert "no trial" in text and "0.75" in text and "0.82" in text and yaml.safe_load(text) == {}
     assert "no better than the default" in R._generalisation([("training", 0.75, 0.82)])
+
+
+def test_a_study_resumed_with_held_out_drives_scores_the_default_on_them(tmp_path):
+    """Held-out drives given first when the study is resumed: the default is scored on them too (it was scored once,
+    on the training drive, so the report compared the tuned values on the held-out drives with nothing)."""
+    ds = make_slice(tmp_path / "ds", 300)
+    held = make_slice(tmp_path / "held", 300, first=600)
+    out = tmp_path / "tune"
+    args = [str(ds), "--objective", "fused.ape.rmse", "--trials", "2", "-j", "1", "-o", str(out), "--no-plots"]
+    assert _tune(args, tmp_path).exit_code == 0
+    assert json.loads((out / "default.json").read_text())["test"] is None
+    r = _tune(args + ["--test", str(held)], tmp_path)
+    assert r.exit_code == 0, r.output
+    default = json.loads((out / "default.json").read_text())
+    assert default["test"]["status"] == "ok" and {st["dataset"] for st in default["test"]["steps"]} == {str(held.resolve())}
+    assert re.search(r"\| held-out \(mean\) +\| +[0-9.]+ +\| +[0-9.]+ +\|", (out / "tune.md").read_text())

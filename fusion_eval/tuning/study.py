@@ -273,9 +273,16 @@ def _default(s: Setup, ex: Executor) -> dict:
     it also checks that every objective names a metric the runs have."""
     path = s.out_dir / "default.json"
     if path.exists():
-        return json.loads(path.read_text())
-    recs = ex.map([s.job(-1, {}, s.train)] + ([s.job(-1, {}, s.test)] if s.test else []))
-    train, test = recs[0], (recs[1] if s.test else None)
+        body = json.loads(path.read_text())
+        # a study resumed with held-out drives it did not have (or other ones): the default is scored on those
+        # too, or the report would compare the tuned values on them with nothing
+        held = sorted({st["dataset"] for st in (body.get("test") or {}).get("steps", [])})
+        if not s.test or held == sorted(s.test):
+            return body
+        train, test = body["train"], ex.map([s.job(-1, {}, s.test)])[0]
+    else:
+        recs = ex.map([s.job(-1, {}, s.train)] + ([s.job(-1, {}, s.test)] if s.test else []))
+        train, test = recs[0], (recs[1] if s.test else None)
     for part, rec in (("training", train), ("held-out", test)):
         if rec is None:
             continue
