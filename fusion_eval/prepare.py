@@ -381,4 +381,8 @@ def _auto_settled(cfg: dict, resolved: dict, applied: dict) -> dict:
         got["filter.gravity_mps2"] = applied["gravity_mps2"]
     if "lidar_frame" in applied:
         got["lidar.relative_frame"] = applied["lidar_frame"]["frame"]
+    if cfg["lidar"].get("noise_adapt") == "auto" and cfg["filter"].get("lidar_update") == "relative":
+        from .filters.observations.relative_pose import resolved_adapt_mode
+
+        got["lidar.noise_adapt"] = resolved_adapt_mode("auto", bool(cfg["filter"]["use_gnss"]))
     return got

@@ -304,14 +304,25 @@ def _default_point(s: Setup, default: dict) -> dict:
     default run itself."""
     from ..config import schema
 
+    from .. import session
+
     known = schema()
     got = default["train"]["steps"][0].get("resolved") or {}
     resolved, settled = got.get("imu_noise") or {}, got.get("auto_settled") or {}
     out = {}
+    cfg0 = None
     for p in s.space.params:
-        v = (s.base_config or {}).get(p.key.split(".")[0], {}).get(p.key.split(".", 1)[1], known[p.key].default)
+        sect, key = p.key.split(".", 1)
+        v = (s.base_config or {}).get(sect, {}).get(key, known[p.key].default)
         if v == "auto":
-            v = resolved.get(p.key.split(".", 1)[1], settled.get(p.key))
+            v = resolved.get(key, settled.get(p.key))
+        if v is None or v == "auto":
+            # an 'auto' the configuration itself settles for the drive (the constraint on for a car): the value the
+            # default run of the first training drive was resolved to
+            if cfg0 is None:
+                req = session.request(config=s.base_config, sets=s.sets)
+                cfg0 = session.resolve(req, session.dataset(s.train[0]))
+            v = cfg0.get(sect, {}).get(key)
         if p.choices is not None:
             if v in p.choices:
                 out[p.key] = v

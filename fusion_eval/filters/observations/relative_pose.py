@@ -213,10 +213,12 @@ def adapt_mode(s) -> str:
     cannot also carry the odometry's slow rotation drift: with no absolute position source that drift goes
     straight into the heading, and the configured (looser) noise that leans on the gyro is the safer choice.
     With GNSS the drift is observed and short-term consistency is what counts."""
-    mode = s.lidar.noise_adapt
-    if mode != "auto":
-        return mode
-    return "nis" if s.filter.use_gnss else "none"
+    return resolved_adapt_mode(s.lidar.noise_adapt, s.filter.use_gnss)
+
+
+def resolved_adapt_mode(mode: str, use_gnss: bool) -> str:
+    """:func:`adapt_mode` of the two values it depends on (a run's report and a tune's first trial show it)."""
+    return mode if mode != "auto" else ("nis" if use_gnss else "none")
 
 
 class AdaptiveScale:
