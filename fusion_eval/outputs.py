@@ -77,13 +77,30 @@ def resumable_dir(out: Path, markers: tuple[str, ...], what: str, inputs=()) -> 
     refuse_overlap(out, inputs)
     if out.exists() and not out.is_dir():
         raise OutputError(f"{out}: output path exists and is not a directory")
-    if out.is_dir() and any(out.iterdir()) and not any((out / m).exists() for m in markers):
+    if _foreign(out, markers):
         raise OutputError(f"{out}: the folder is not empty and is not a {what}'s (no {' or '.join(markers)} in it): give "
                           f"a new --out, or the folder of the {what} to resume")
     try:
         out.mkdir(parents=True, exist_ok=True)
     except OSError as exc:
         raise OutputError(f"{out}: cannot create output directory ({exc.strerror})") from None
+
+
+def _foreign(folder: Path, markers: tuple[str, ...]) -> bool:
+    """A non-empty folder holding none of ``markers``: not one this kind of command wrote."""
+    return folder.is_dir() and any(folder.iterdir()) and not any((folder / m).exists() for m in markers)
+
+
+def repeated_path(paths) -> tuple | None:
+    """The first of ``paths`` that names a file an earlier one named (a relative and an absolute spelling, a variant
+    by name and by path), as ``(earlier, later)``; None when every path is another file."""
+    seen: dict = {}
+    for p in paths:
+        key = Path(p).resolve()
+        if key in seen:
+            return seen[key], p
+        seen[key] = p
+    return None
 
 
 def dataset_roots(*paths) -> tuple[Path, ...]:
@@ -126,8 +143,7 @@ class StagedDir:
             raise OutputError(f"{self.final}: output path exists and is not a directory")
         if self.final.is_dir() and any(self.final.iterdir()) and not self.overwrite:
             raise OutputError(f"{self.final}: output directory exists and is not empty (use --overwrite, or overwrite=True in Python, to replace it)")
-        if self.overwrite and self.final.is_dir() and any(self.final.iterdir()) and \
-                not any((self.final / m).exists() for m in OUTPUT_MARKERS):
+        if self.overwrite and _foreign(self.final, OUTPUT_MARKERS):
             # --out DATASET/oxts --overwrite once deleted the IMU packets
             raise OutputError(f"{self.final}: --overwrite replaces only a folder fusion-eval wrote (holding "
                               f"{', '.join(OUTPUT_MARKERS)}), and this one holds none of them")

@@ -215,25 +215,27 @@ def check(metrics_path: Path, baseline: Path, rtol: float, atol: float, patterns
         raise ConfigError(f"--rtol and --atol must be finite numbers >= 0, got {rtol} and {atol}")
     from .. import resources
 
+    base_path = resources.find(baseline)          # configs/baselines/... from any directory
     current, kind, delta = load_metrics(metrics_path, trial_stat)
-    base, base_kind, _ = load_metrics(resources.find(baseline), trial_stat)   # configs/baselines/... from any directory
+    base, base_kind, _ = load_metrics(base_path, trial_stat)
     if kind != base_kind:
         raise ConfigError(f"{metrics_path} is a {kind} file but the baseline {baseline} is a {base_kind} file")
-    names = [_dataset_of(p) for p in (metrics_path, resources.find(baseline))]
+    names = [_json_field(p, "dataset") for p in (metrics_path, base_path)]
+    names = [n if isinstance(n, str) else None for n in names]
     if None not in names and names[0] != names[1]:
         log.warning("the metrics are of dataset %r and the baseline of %r: compared all the same", *names)
-    if trial_stat_given and not any(_has_trials(p) for p in (metrics_path, resources.find(baseline))):
+    if trial_stat_given and not any(_json_field(p, "trials") for p in (metrics_path, base_path)):
         raise ConfigError(f"--trial-stat applies to the metrics of a run with --trials N; neither {metrics_path} nor "
                           f"{baseline} has trials")
     pats = tuple(patterns) or default_patterns(kind, delta)
     rows = compare_metrics(current, base, pats, rtol, atol)
     for r in rows:
-        for value, path in ((r.baseline, resources.find(baseline)), (r.current, metrics_path)):
+        for value, path in ((r.baseline, base_path), (r.current, metrics_path)):
             column = r.metric.rsplit(".", 1)[-1] if kind == "csv" else r.metric     # a sweep.csv key: run.column
             if value is not None and _ERROR_FIGURE.search(column) and not 0.0 <= value <= MAX_ERROR_FIGURE:
                 raise DataFormatError(path, None, f"{r.metric} is {value:g}: an error figure lies in 0 .. "
                                                   f"{MAX_ERROR_FIGURE:g} (a hand-edited or corrupted file?)")
-    _refuse_incomplete_baseline(resources.find(baseline), [r.metric for r in rows if r.verdict == "new"])
+    _refuse_incomplete_baseline(base_path, [r.metric for r in rows if r.verdict == "new"])
     evaluated = [(r, *evaluate_rule(r, current)) for r in rules]
     ok = all(r.verdict not in ("REGRESSION", "MISSING") for r in rows) and all(h for _, h, _ in evaluated)
     atomic_write(summary_path or Path(metrics_path).with_name("check.md"), markdown(rows, evaluated, rtol, atol, ok))
@@ -248,25 +250,14 @@ _ERROR_FIGURE = re.compile(r"(^|[._/])(ape|rpe|kitti_drift|t_err|r_err)|_over_")
 MAX_ERROR_FIGURE = 1e9
 
 
-def _has_trials(path: Path) -> bool:
-    """Whether ``path`` is the metrics.json of a run with ``--trials``."""
-    if Path(path).suffix == ".csv":
-        return False
-    try:
-        return bool(json.loads(Path(path).read_text()).get("trials"))
-    except (json.JSONDecodeError, OSError, AttributeError, UnicodeDecodeError):
-        return False
-
-
-def _dataset_of(path: Path) -> str | None:
-    """The dataset a run's metrics.json was computed on (None for a sweep.csv or a file without one)."""
+def _json_field(path: Path, key: str):
+    """``key`` of the metrics.json at ``path`` (None for a sweep.csv or a file that does not hold it)."""
     if Path(path).suffix == ".csv":
         return None
     try:
-        name = json.loads(Path(path).read_text()).get("dataset")
+        return json.loads(Path(path).read_text()).get(key)
     except (json.JSONDecodeError, OSError, AttributeError, UnicodeDecodeError):
         return None
-    return name if isinstance(name, str) else None
 
 
 def _refuse_incomplete_baseline(path: Path, lacking: list[str]) -> None:

@@ -25,7 +25,7 @@ from ..evaluation import keys, span
 from ..evaluation.run_metrics import consistency, segments
 from ..evaluation.trajectory import evaluate, ratio
 from ..filters import observations
-from ..outputs import StagedDir, dataset_roots
+from ..outputs import StagedDir, dataset_roots, repeated_path
 from ..pool import executor
 from ..prepare import prepare, settings_for
 from ..replay import replay
@@ -140,12 +140,10 @@ def compare(dataset_path: Path | None, variants: list[str], variant_dir: Path | 
     if len(set(variants)) != len(variants) or not variants:
         raise ConfigError("--variants needs one or more distinct names")
     paths = [resolve_variant(v, variant_dir) for v in variants]
-    seen: dict = {}
-    for v, p in zip(variants, paths):       # one file named twice (by name and by path) would run and show twice
-        key = Path(p).resolve()
-        if key in seen:
-            raise ConfigError(f"--variants names one variant twice: {seen[key]!r} and {v!r} are both {p}")
-        seen[key] = v
+    twice = repeated_path(paths)            # one file named twice (by name and by path) would run and show twice
+    if twice:
+        a, b = (variants[paths.index(q)] for q in twice)
+        raise ConfigError(f"--variants names one variant twice: {a!r} and {b!r} are both {twice[1]}")
     reqs = [session.request(config=base_config, variant=p, sets=sets) for p in paths]   # all validated before any work
     stages = as_stages(progress)
     stages.start("load")

@@ -17,7 +17,7 @@ from ..datasets.trajectory_file import BY_INDEX, as_series, read_bag_trajectorie
 from ..errors import ConfigError, DataRangeError
 from ..evaluation import keys
 from ..evaluation.estimates import evaluate_series, validate_options
-from ..outputs import StagedDir
+from ..outputs import StagedDir, repeated_path
 from ..report.markdown import drift_section, fmt_stat, segments_section
 from .. import provenance
 from ..provenance import header_line
@@ -39,12 +39,9 @@ def read_inputs(inputs: list, bag: Path | None, ref_topic: str | None, fmt: str,
         raise ConfigError("--ref names a topic: give the bag with --bag")
     if len(inputs) < 2:
         raise ConfigError("give a reference file and at least one estimate file (or --bag FILE --ref TOPIC TOPIC...)")
-    seen: dict = {}
-    for p in inputs[1:]:                 # one file twice would be evaluated twice, as two estimates
-        key = Path(p).resolve()
-        if key in seen:
-            raise ConfigError(f"{p}: given twice as an estimate (as {seen[key]} before)")
-        seen[key] = p
+    twice = repeated_path(inputs[1:])    # one file twice would be evaluated twice, as two estimates
+    if twice:
+        raise ConfigError(f"{twice[1]}: given twice as an estimate (as {twice[0]} before)")
     ref, ests = read_trajectory(inputs[0], ref_times, fmt), [read_trajectory(p, times, fmt) for p in inputs[1:]]
     for f in ests:
         # paired by frame index, one pose missing mid-file would shift every later pair, silently

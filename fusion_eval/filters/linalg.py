@@ -60,7 +60,7 @@ def joseph_update_dense(P, n, H, r, Rm, gate):
 
 def workspace(n_max: int, m_max: int):
     """Scratch arrays of :func:`joseph_update_into` for up to ``n_max`` states and ``m_max`` residual rows."""
-    return (np.zeros((5, m_max, n_max)), np.zeros((3, m_max, m_max)), np.zeros(n_max),
+    return (np.zeros((3, m_max, n_max)), np.zeros((3, m_max, m_max)), np.zeros(n_max),
             np.zeros((m_max, n_max + 1), np.int64))
 
 
@@ -215,7 +215,7 @@ def block_nis(S, lo, hi, r, L, y):
 def joseph_update_s(P, n, H, r, Rm, gate):
     """:func:`joseph_update` that also returns the innovation covariance ``S = H P H^T + R`` it used."""
     m = H.shape[0]
-    wn = np.zeros((5, m, n))
+    wn = np.zeros((3, m, n))
     wm = np.zeros((2, m, m))
     dx = np.zeros(n)
     cols = np.zeros((m, n + 1), np.int64)
