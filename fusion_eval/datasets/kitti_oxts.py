@@ -13,6 +13,7 @@ reader flags them rather than dropping them, and the caller decides.
 
 from __future__ import annotations
 
+import os
 import re
 from dataclasses import dataclass
 from pathlib import Path
@@ -112,33 +113,49 @@ def read_oxts(path: Path) -> OxtsPackets:
     data_dir = oxts / "data"
     if not data_dir.is_dir():
         raise DataFormatError(data_dir, None, "folder not found (expected one OXTS packet file per timestamp)")
-    packet_paths = tuple(sorted(data_dir.glob("*.txt")))
-    if len(packet_paths) != t.size:
-        have = {p.name for p in packet_paths}
+    # names as strings and one open per packet: pathlib's parsing, sorting and two stats per file were most of the
+    # read (0.45 of 0.6 s for kitti-00's 4,544 packets)
+    names = sorted(n for n in os.listdir(data_dir) if n.endswith(".txt"))
+    if len(names) != t.size:
+        have = set(names)
         missing = next((f"{i:010d}.txt" for i in range(t.size) if f"{i:010d}.txt" not in have), None)
-        what = f": {missing} is missing" if missing else f": {len(packet_paths) - t.size} more than the stamps"
+        what = f": {missing} is missing" if missing else f": {len(names) - t.size} more than the stamps"
         raise DataFormatError(data_dir, None, f"expected {t.size} packet files (one per line of timestamps.txt), found "
-                                              f"{len(packet_paths)}{what}")
+                                              f"{len(names)}{what}")
+    packet_paths = tuple(data_dir / n for n in names)
     values = np.empty((t.size, N_FIELDS))
     filled = np.zeros(t.size, bool)
-    for i, p in enumerate(packet_paths):
-        if p.stem != f"{i:010d}":
-            raise DataFormatError(p, None, f"expected packet file {i:010d}.txt at position {i} (packets must be numbered consecutively from 0)")
-        parts = read_text(p, "one OXTS packet of 30 values").split()
+    folder = str(data_dir)
+    for i, name in enumerate(names):
+        if name != f"{i:010d}.txt":
+            raise DataFormatError(packet_paths[i], None, f"expected packet file {i:010d}.txt at position {i} (packets must "
+                                                         "be numbered consecutively from 0)")
+        parts = _packet_tokens(folder, name, packet_paths[i])
         if len(parts) != N_FIELDS:
-            raise DataFormatError(p, 1, f"expected {N_FIELDS} values per OXTS packet, got {len(parts)}")
+            raise DataFormatError(packet_paths[i], 1, f"expected {N_FIELDS} values per OXTS packet, got {len(parts)}")
         try:
-            row = [float(x) for x in parts]
+            values[i] = [float(x) for x in parts]
         except ValueError:
             bad_tok = next(x for x in parts if not is_float(x))
-            raise DataFormatError(p, 1, f"expected a number, got {bad_tok!r}") from None
-        if not np.all(np.isfinite(row)):
-            raise DataFormatError(p, 1, "OXTS values must be finite numbers (found NaN or inf)")
-        values[i] = row
+            raise DataFormatError(packet_paths[i], 1, f"expected a number, got {bad_tok!r}") from None
         # KITTI's filled packets print the integer status fields as floats and set the modes to -1.
-        filled[i] = any("." in x for x in parts[25:]) or min(row[POSMODE:ORIMODE + 1]) < 0
+        filled[i] = any("." in x for x in parts[25:])
+    bad = np.flatnonzero(~np.isfinite(values).all(axis=1))
+    if bad.size:
+        raise DataFormatError(packet_paths[bad[0]], 1, "OXTS values must be finite numbers (found NaN or inf)")
+    filled |= values[:, POSMODE:ORIMODE + 1].min(axis=1) < 0
     _check_plausible(values, lambda i: (packet_paths[i], 1))
     return OxtsPackets(t_s=t, values=values, filled=filled, stamps_path=stamps_path, packet_paths=packet_paths)
+
+
+def _packet_tokens(folder: str, name: str, path: Path) -> list[str]:
+    """The whitespace-separated tokens of one packet file; a file that cannot be opened or decoded is read again by
+    :func:`read_text` for its one-line error."""
+    try:
+        with open(os.path.join(folder, name), "rb") as f:
+            return f.read().decode("utf-8").split()
+    except (OSError, UnicodeDecodeError):
+        return read_text(path, "one OXTS packet of 30 values").split()
 
 
 def _read_packets_csv(path: Path) -> OxtsPackets:
