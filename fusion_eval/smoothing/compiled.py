@@ -103,16 +103,22 @@ def {name}(x_a, aux, c, P_a, n, nc, t, u, gap, prm, k, t0, u0, t_b, xs_x, xs_c, 
         P_end = _assemble(np.ascontiguousarray(A[j]), np.ascontiguousarray(B[j]), D, Dinv) if nb > 0 else A[j].copy()
     e = _boxminus(xs, cs, X[j], c, n)
     dP = P - P_end
-    M = _pinv(np.ascontiguousarray(A[j]), rcond)
     BD_end = np.ascontiguousarray(B[j]) @ Dinv if nb > 0 else np.zeros((nc, 0))
+    # a single step (a 10 Hz IMU with an update at every sample): S^-1 (Phi A) by substitution; a longer interval
+    # accumulates M = S^-1 Phi(j, i) from S's inverse, one product per point
+    M = np.zeros((0, 0)) if j == 1 else _pinv(np.ascontiguousarray(A[j]), rcond)
     for i in range(j - 1, -1, -1):
-        M = M @ np.ascontiguousarray(PH[i])
         Ai = np.ascontiguousarray(A[i])
+        if j == 1:
+            G = _gain_t(np.ascontiguousarray(A[1]), np.ascontiguousarray(PH[0]), Ai, rcond)
+        else:
+            M = M @ np.ascontiguousarray(PH[i])
+            G = M @ Ai
         if nb > 0:
             Pi = P_a if i == 0 else _assemble(Ai, np.ascontiguousarray(B[i]), D, Dinv)
-            d, P = _interval_clone(M, Ai, np.ascontiguousarray(B[i]), Dinv, BD_end, e, dP, Pi)
+            d, P = _interval_clone(G, np.ascontiguousarray(B[i]), Dinv, BD_end, e, dP, Pi)
         else:
-            d, P = _interval_plain(M, Ai, e, dP)
+            d, P = _interval_plain(G, Ai, e, dP)
         _boxplus(xs, cs, X[i], c, d, n)
         if i > 0 and KJ[i] >= 0:
             out_x[KJ[i], :] = xs
@@ -164,7 +170,7 @@ def compiled_pass(cls):
     calls = {"_step": cls._step, "_boxminus": cls._rts_boxminus, "_boxplus": cls._rts_boxplus,
              "_record_cov": cls._record_cov, "_condition": kernels.condition, "_augmented": kernels.augmented,
              "_assemble": kernels.assemble, "_interval_plain": kernels.interval_plain,
-             "_interval_clone": kernels.interval_clone, "_pinv": kernels.pinv_sym,
+             "_interval_clone": kernels.interval_clone, "_pinv": kernels.pinv_sym, "_gain_t": kernels.gain_t,
              "_uncondition": kernels.uncondition, "_unpack": kernels.unpack_upper,
              "_condition_given": kernels.condition_given}
     # the kernels' own callees too: numba's cache of this template checks only the formulation's module

@@ -107,16 +107,31 @@ def _tri_inverse(L):
 
 @njit(cache=True)
 def _solve_factored(d, L, M):
-    """``P^-1 M = D^-1 L^-T L^-1 D^-1 M`` from :func:`chol_scaled`'s ``d, L``: ``L``'s inverse by substitution
-    (n^3/6), then two BLAS products; the substitutions over ``M``'s columns cost twice as much at 15 states."""
+    """``P^-1 M = D^-1 L^-T L^-1 D^-1 M`` from :func:`chol_scaled`'s ``d, L``, by forward and back substitution over
+    ``M``'s columns in place (for the 6-15 columns of the smoother's solves, 15-40 % faster than forming ``L``'s
+    inverse and two BLAS products, measured)."""
     n, r = M.shape
-    Z = np.empty((n, r))
+    X = np.empty((n, r))
     for i in range(n):
         inv = 1.0 / d[i]
         for c in range(r):
-            Z[i, c] = M[i, c] * inv
-    Li = _tri_inverse(L)
-    X = np.ascontiguousarray(Li.T) @ (Li @ Z)
+            X[i, c] = M[i, c] * inv
+    for i in range(n):                               # L y = z
+        for k in range(i):
+            lik = L[i, k]
+            for c in range(r):
+                X[i, c] -= lik * X[k, c]
+        li = 1.0 / L[i, i]
+        for c in range(r):
+            X[i, c] *= li
+    for i in range(n - 1, -1, -1):                   # L^T w = y
+        for k in range(i + 1, n):
+            lki = L[k, i]
+            for c in range(r):
+                X[i, c] -= lki * X[k, c]
+        li = 1.0 / L[i, i]
+        for c in range(r):
+            X[i, c] *= li
     for i in range(n):
         inv = 1.0 / d[i]
         for c in range(r):
@@ -204,24 +219,31 @@ def backward_clone(Ac_j, B_j, Dinv, phi, S_j, e, Ps_next, P_j, P_next, rcond):
 
 
 @njit(cache=True)
-def interval_clone(M, Ac_i, B_i, Dinv, BD_b, e, dP, P_i):
+def interval_clone(CxxT, B_i, Dinv, BD_b, e, dP, P_i):
     """:func:`backward_clone` from a point ``i`` of an interval straight to its end ``b`` (no observation between):
-    the gains of the steps between multiply out to ``C_xx = A_c,i Phi(b,i)^T S_b^-1 = (M A_c,i)^T`` with
-    ``M = S_b^-1 Phi(b,i)`` (accumulated backward, one factorisation of ``S_b`` per interval) and
-    ``C_xc = (B_i - C_xx B_b) D^-1`` (``B_b = Phi(b,i) B_i``); ``e`` and ``dP`` are the end's correction and
-    ``P^s_b - P^-_b`` (``docs/rts_smoother.md``, section 3)."""
-    m = Ac_i.shape[0]
+    the gains of the steps between multiply out to ``C_xx = A_c,i Phi(b,i)^T S_b^-1``, given here transposed
+    (``CxxT = S_b^-1 Phi(b,i) A_c,i``: :func:`gain_t`), and ``C_xc = (B_i - C_xx B_b) D^-1`` (``B_b = Phi(b,i) B_i``);
+    ``e`` and ``dP`` are the end's correction and ``P^s_b - P^-_b`` (``docs/rts_smoother.md``, section 3)."""
+    m = CxxT.shape[0]
     Cx = np.empty((m, P_i.shape[0]))
-    Cx[:, :m] = (M @ Ac_i).T
+    Cx[:, :m] = CxxT.T
     Cx[:, m:] = B_i @ Dinv - np.ascontiguousarray(Cx[:, :m]) @ BD_b
     return _clone_gain_applied(Cx, e, dP, P_i)
 
 
 @njit(cache=True)
-def interval_plain(M, P_i, e, dP):
+def gain_t(S, phi, A, rcond):
+    """``S^-1 Phi A`` for a covariance ``S``: the transposed gain of a single-step interval (``S``: the end's prior,
+    ``A``: the start's covariance), by one factorisation and substitution instead of ``S``'s inverse and two
+    products."""
+    return solve_sym(S, phi @ A, rcond)
+
+
+@njit(cache=True)
+def interval_plain(CT, P_i, e, dP):
     """:func:`backward` from a point ``i`` of an interval straight to its end ``b``: ``C = P_i Phi(b,i)^T
-    (P^-_b)^-1 = (M P_i)^T`` with ``M = (P^-_b)^-1 Phi(b,i)``."""
-    C = np.ascontiguousarray((M @ P_i).T)
+    (P^-_b)^-1``, given transposed (``CT = (P^-_b)^-1 Phi(b,i) P_i``)."""
+    C = np.ascontiguousarray(CT.T)
     Ps = P_i + C @ dP @ C.T
     return C @ e, 0.5 * (Ps + Ps.T)
 
