@@ -295,6 +295,18 @@ def test_a_lidar_pose_far_away(ds, tmp_path):
     _assert_clean_error(r, out, "poses.txt:21:", "from its frame's origin")
 
 
+def test_utm_coordinates_south_of_the_equator_are_not_a_corrupted_pose():
+    """A UTM northing in the southern hemisphere is up to 10,000 km (Quito: 9,980 km): real, not corrupted; beyond
+    the Earth's circumference no Earth-fixed frame reaches."""
+    from fusion_eval.datasets.plausible import check_track
+    from fusion_eval.errors import DataFormatError
+
+    t = np.arange(3.0)
+    check_track("trajectory", "quito.tum", None, t, np.array([[776000.0, 9980000.0, 2862.9]] * 3) + t[:, None])
+    with pytest.raises(DataFormatError, match=r"far.tum:2: .*from its frame's origin \(more than 4e\+07 m"):
+        check_track("trajectory", "far.tum", np.arange(1, 4), t, np.array([[0.0, 0.0, 0.0], [0.0, 5e7, 0.0], [0.0, 0.0, 0.0]]))
+
+
 def test_a_reflection_in_a_lidar_pose(ds, tmp_path):
     p = ds / "lidar" / "poses.txt"
     rows = p.read_text().splitlines()

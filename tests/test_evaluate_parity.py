@@ -211,6 +211,24 @@ def test_a_euroc_csv_with_a_broken_row_names_the_line(tmp_path):
         read_trajectory(f)
 
 
+@pytest.mark.parametrize("edit", [lambda ln: ln + " ", lambda ln: ln.replace(" ", "\t"), lambda ln: ln.replace(" ", "  ")],
+                         ids=["trailing-blank", "tabs", "double-blanks"])
+def test_a_kitti_pose_file_with_other_blanks_reads_as_evo_reads_the_clean_one(tmp_path, edit):
+    """evo's KITTI reader refuses a trailing blank, tabs or double blanks (a traceback before); the same floats are
+    taken, so the poses equal evo's own reading of the clean file."""
+    from evo.tools import file_interface
+
+    from fusion_eval.datasets.trajectory_file import read_trajectory
+
+    rows = shared_path("evo-test-data", "KITTI_00_ORB.txt").read_text().splitlines()[:300]
+    (tmp_path / "clean.txt").write_text("\n".join(rows) + "\n")
+    (tmp_path / "est.txt").write_text("\n".join(edit(ln) for ln in rows) + "\n")
+    got = read_trajectory(tmp_path / "est.txt")
+    want = file_interface.read_kitti_poses_file(str(tmp_path / "clean.txt"))
+    assert got.traj.num_poses == want.num_poses == 300
+    np.testing.assert_array_equal(np.asarray(got.traj.poses_se3), np.asarray(want.poses_se3))
+
+
 def _noisy_estimate(n=2000, seed=8):
     from fusion_eval.so3 import exp_so3, matrix_to_quat_xyzw
     from fusion_eval.types import PoseSeries

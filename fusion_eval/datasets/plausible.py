@@ -2,7 +2,7 @@
 
 What no real drive holds is refused with the file, the line and the value: an IMU stream that stops for more than a
 minute (a corrupted stamp, or two recordings run together), a stream whose time span is tens of times the IMU's (its
-stamps in milliseconds or microseconds), a pose beyond 10,000 km of its frame's origin, or consecutive poses whose
+stamps in milliseconds or microseconds), a pose beyond 40,000 km of its frame's origin, or consecutive poses whose
 implied speed exceeds 10 km/s (faster than a satellite). Each bound is far beyond any vehicle, so that no real data
 is refused; what real data can hold (a lidar odometry failure jumping by metres) is left to the filter's gates.
 """
@@ -22,7 +22,9 @@ LAG_NOTE = (f"a channel lag is a latency of milliseconds (KITTI's OXTS: 0.06 s),
 MAX_IMU_GAP_S = 60.0
 FLAG_IMU_GAP_S = 1.0     # shorter stops are bridged by the filter (imu.gap_factor); longer ones are flagged
 MAX_SPAN_RATIO = 50.0
-MAX_POSITION_M = 1e7
+# the Earth's circumference: more than any Earth-fixed frame holds (ENU, ECEF's 6,400 km, UTM's northings of up to
+# 10,000 km in the southern hemisphere, Web Mercator's 20,000 km)
+MAX_POSITION_M = 4e7
 MAX_SPEED_MPS = 1e4
 # A wheeled ground vehicle's speed with a wide margin (360 km/h): a faster step between consecutive poses of its ground
 # truth, GNSS or lidar odometry is a glitch (a corrupted packet, an odometry failure). Flagged, not refused: a real
@@ -62,8 +64,8 @@ def check_poses(name: str, poses) -> None:
 
 
 def check_track(name: str, source, lines, t_s, p_m) -> None:
-    """:func:`check_poses` on arrays: ``lines`` maps row ``i`` to its line in ``source`` (None: row ``i`` is line
-    ``i + 1``)."""
+    """:func:`check_poses` on arrays: ``lines`` maps row ``i`` to its line in ``source`` (None: a source without lines,
+    a bag's topic)."""
     p = np.asarray(p_m, float)
     if p.size == 0:
         return
@@ -71,8 +73,9 @@ def check_track(name: str, source, lines, t_s, p_m) -> None:
     bad = np.flatnonzero(r > MAX_POSITION_M)
     if bad.size:
         i = int(bad[0])
-        raise DataFormatError(source, line_of(lines, i), f"{name} position {p[i].tolist()} m is {r[i]:.3g} m from its "
-                                                         f"frame's origin (more than {MAX_POSITION_M:.0e} m): a corrupted "
+        raise DataFormatError(source, line_of(lines, i), f"{name} position {p[i].tolist()} m is {r[i]:.4g} m from its "
+                                                         f"frame's origin (more than {MAX_POSITION_M:g} m, the Earth's "
+                                                         "circumference): a corrupted "
                                                          f"pose{_packet(source, line_of(lines, i))}")
     if p.shape[0] > 1:
         dt = np.diff(np.asarray(t_s, float))

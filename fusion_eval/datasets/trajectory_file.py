@@ -145,8 +145,14 @@ def read_trajectory(path: Path, times: Path | None = None, fmt: str = "auto") ->
         traj = file_interface.read_euroc_csv_trajectory(str(path))
         how = "EuRoC stamps (ns)"
     else:
-        kitti_poses.read_kitti_poses(path)                  # the line-accurate checks (12 finite values, a rotation)
-        poses = file_interface.read_kitti_poses_file(str(path))
+        T, klines = kitti_poses.read_kitti_poses(path)           # the line-accurate checks (12 finite values, a rotation)
+        try:
+            poses = file_interface.read_kitti_poses_file(str(path))
+        except file_interface.FileInterfaceException:
+            # as for TUM: evo refuses tabs, double or trailing blanks; these are the same floats its reader takes
+            from evo.core.trajectory import PosePath3D
+
+            poses = PosePath3D(poses_se3=list(T))
         if times is not None:
             t, tlines = kitti_poses.read_times(times)
             if t.size != poses.num_poses:
@@ -156,7 +162,7 @@ def read_trajectory(path: Path, times: Path | None = None, fmt: str = "auto") ->
         else:
             t, how, repeated = np.arange(poses.num_poses, dtype=float), BY_INDEX, 0
         traj = PoseTrajectory3D(poses_se3=poses.poses_se3, timestamps=t)
-        check_track("trajectory", path, None, t, traj.positions_xyz)
+        check_track("trajectory", path, klines, t, traj.positions_xyz)
     traj.meta["name"] = path.stem
     if repeated:
         log.warning("%s: %d repeated stamps (accepted, as evo accepts them)", path, repeated)
