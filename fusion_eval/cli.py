@@ -43,13 +43,14 @@ class _Handler(logging.Handler):
 
 
 def _setup_logging(verbose: int, quiet: int) -> None:
-    level = logging.INFO - 10 * verbose + 10 * quiet
+    # -q: no log below errors (README), warnings included: a script reads the one line on stdout and the exit code
+    level = logging.ERROR if quiet else logging.INFO - 10 * verbose
     root = logging.getLogger()
     root.handlers[:] = [_Handler(verbose)]
-    root.setLevel(logging.WARNING)
+    root.setLevel(logging.ERROR if quiet else logging.WARNING)
     log.setLevel(max(logging.DEBUG, level))
     for noisy in _CHATTY:
-        logging.getLogger(noisy).setLevel(logging.WARNING if verbose < 2 else logging.INFO)
+        logging.getLogger(noisy).setLevel(logging.ERROR if quiet else logging.WARNING if verbose < 2 else logging.INFO)
 
 
 def _given(ctx, *names: str) -> list[str]:
@@ -411,11 +412,14 @@ def track(ctx, input_path, out_dir, sensors, noise_ax, noise_ay, lidar_var, rada
 @click.option("--heading", "heading_deg", type=float, default=0.0, show_default=True, help="Initial heading, deg.")
 @click.option("--speed", "speed_mps", type=float, default=5.0, show_default=True, help="Mean speed, m/s.")
 @click.option("--overwrite", is_flag=True, help="Replace an existing OUT_FILE.")
-def simulate_track_cmd(out_file, duration_s, interval_s, seed, start, heading_deg, speed_mps, overwrite):
+@click.pass_context
+def simulate_track_cmd(ctx, out_file, duration_s, interval_s, seed, start, heading_deg, speed_mps, overwrite):
     """Write a lidar/radar measurement file with known truth (the format `fusion-eval track` reads)."""
     from .commands.track import simulate_track
 
     n = simulate_track(out_file, duration_s, interval_s, seed, start, heading_deg, speed_mps, overwrite)
+    if ctx.obj["quiet"]:
+        click.echo(str(out_file))
     log.info("wrote %s (%d measurements)", out_file, n)
 
 

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import re
 import subprocess
 import sys
 from pathlib import Path
@@ -418,6 +419,17 @@ def test_evaluate_refuses_a_corrupted_pose_evo_would_take(tmp_path, edit, needle
     _assert_clean_error(r, out, needle)
 
 
+def test_evaluate_refuses_segments_in_seconds_on_frame_index_stamps(tmp_path):
+    """KITTI poses without a times file are stamped by frame index: 60 frames were reported as '60 s' segments."""
+    rows = [f"1 0 0 {i * 0.8:.3f} 0 1 0 0 0 0 1 0" for i in range(40)]
+    ref, est = tmp_path / "ref.txt", tmp_path / "est.txt"
+    ref.write_text("\n".join(rows) + "\n")
+    est.write_text("\n".join(rows) + "\n")
+    out = tmp_path / "o"
+    r = CliRunner().invoke(main, ["evaluate", str(ref), str(est), "--segment-s", "10", "-o", str(out)])
+    _assert_clean_error(r, out, "--segment-s needs stamps in seconds", "--ref-times")
+
+
 def test_evaluate_refuses_kitti_files_without_times_of_different_lengths(tmp_path):
     """Paired by frame index, a pose missing mid-file would shift every later pair: refused, naming both counts."""
     rows = [f"1 0 0 {i * 0.8:.3f} 0 1 0 0 0 0 1 0" for i in range(40)]
@@ -572,6 +584,25 @@ def test_a_stamp_beyond_int64_nanoseconds_is_named(tmp_path):
 
     with pytest.raises(DataFormatError, match=r"imu\.csv:14: .*beyond any date"):
         load_table(p, "EuRoC IMU CSV", 7, ",", int_first=True)
+
+
+@pytest.mark.parametrize("edit, needle", [(lambda r: "x" + r, "expected a number, got 'x"),
+                                         (lambda r: r.replace(",", "\t"), "7 to 63 values per row, got 1"),
+                                         (lambda r: r.replace(",", ";"), "7 to 63 values per row, got 1")],
+                         ids=["garbled", "tabs", "semicolons"])
+def test_the_first_data_row_of_a_euroc_csv_is_checked_not_taken_for_a_header(tmp_path, edit, needle):
+    """After the '#' header a line with numbers in it is data: a garbled first row was skipped as a second header
+    (the run went on without it, exit 0), another delimiter was named one line late."""
+    from fusion_eval.datasets.csv_stream import load_table
+    from fusion_eval.errors import DataFormatError
+
+    p = tmp_path / "imu.csv"
+    rows = [f"{1767225600000000000 + i * 10_000_000},0.1,0.2,0.3,0.0,0.0,9.8" for i in range(20)]
+    p.write_text("#timestamp [ns],w_x,w_y,w_z,a_x,a_y,a_z\n" + "\n".join(edit(r) for r in rows) + "\n")
+    with pytest.raises(DataFormatError, match=r"imu\.csv:2: .*" + re.escape(needle)):
+        load_table(p, "EuRoC IMU CSV", 7, ",", int_first=True)
+    p.write_text("t_ns,w_x,w_y,w_z,a_x,a_y,a_z\n" + "\n".join(rows) + "\n")       # a named header is still one
+    assert load_table(p, "EuRoC IMU CSV", 7, ",", int_first=True)[0].shape == (20, 7)
 
 
 def test_a_run_of_column_counts_is_said_as_a_range():

@@ -229,6 +229,22 @@ def test_a_kitti_pose_file_with_other_blanks_reads_as_evo_reads_the_clean_one(tm
     np.testing.assert_array_equal(np.asarray(got.traj.poses_se3), np.asarray(want.poses_se3))
 
 
+@pytest.mark.parametrize("name", ["fr2_desk_ORB.txt", "V102_groundtruth.csv"])
+def test_a_byte_order_mark_is_dropped_as_evo_drops_it(tmp_path, name):
+    """A UTF-8 BOM (Windows editors write one) before a TUM or EuRoC file: refused before ('expected a number');
+    now read as evo reads it, with or without a comment line first."""
+    from fusion_eval.datasets.trajectory_file import read_trajectory
+
+    src = shared_path("evo-test-data", name).read_bytes()
+    plain = read_trajectory(shared_path("evo-test-data", name))
+    for i, head in enumerate((b"", b"# a comment\n")):
+        f = tmp_path / f"bom{i}{Path(name).suffix}"
+        f.write_bytes(b"\xef\xbb\xbf" + head + src)
+        got = read_trajectory(f)
+        np.testing.assert_array_equal(got.traj.positions_xyz, plain.traj.positions_xyz)
+        np.testing.assert_array_equal(got.traj.timestamps, plain.traj.timestamps)
+
+
 def _noisy_estimate(n=2000, seed=8):
     from fusion_eval.so3 import exp_so3, matrix_to_quat_xyzw
     from fusion_eval.types import PoseSeries
@@ -264,6 +280,11 @@ def test_nees_of_an_estimate_with_covariances_from_a_sidecar_and_a_bag(tmp_path)
     # SE(3)-aligned: the alignment's rotation carries the covariance along (the estimate is already aligned here)
     m = run_evaluate([tmp_path / "ref.tum", tmp_path / "est.tum"], tmp_path / "a", alignment="se3", make_plots=False)
     assert 2.8 < m["estimates"]["est"]["nees"]["position"]["mean"] < 3.2
+    # named as the README says, <file>.cov (est.tum.cov), it is read first: here stated 3x too small
+    (tmp_path / "est.tum.cov").write_text("".join(f"{t:.9f} " + " ".join(f"{c / 9:.17g}" for c in C) + "\n"
+                                                  for t in est.t_s))
+    m = run_evaluate([tmp_path / "ref.tum", tmp_path / "est.tum"], tmp_path / "c", make_plots=False)
+    assert 24 < m["estimates"]["est"]["nees"]["position"]["mean"] < 30
     # the same poses in a bag, the covariance on the messages, stated 3x too small
     bag = tmp_path / "run.bag"
     rosbag.write_bag(bag, "rosbag1", [rosbag.BagStream("/gt", "pose", ref, "map"),

@@ -63,6 +63,11 @@ def run_evaluate(inputs: list, out_dir: Path, ref_times: Path | None = None, tim
     staged = StagedDir(out_dir, overwrite=overwrite, inputs=(*(inputs if bag is None else ()), bag, ref_times, times))
     staged.check()
     ref_f, est_fs = read_inputs(list(inputs), bag, ref_topic, fmt, ref_times, times)
+    if segment_s is not None and ref_f.stamps == BY_INDEX:
+        # the frame index would be read as seconds: 60 frames of a 10 Hz drive labelled "60 s"
+        raise ConfigError(f"--segment-s needs stamps in seconds, and the reference {ref_f.source} has none (KITTI poses "
+                          "without a times file are stamped by frame index): give --ref-times and --times, or "
+                          "--segment-m")
     series, about, covs = {}, {}, {}
     names = [Path(f.source).stem if f.format != "bag" else f.traj.meta["name"].strip("/").replace("/", "_") for f in est_fs]
     # files of one name in different folders (run1/fused.tum, run2/fused.tum) are told apart by their folder

@@ -43,7 +43,7 @@ MAX_TRACK_MEASUREMENTS = 10_000_000
 def simulate_track(out_file: Path, duration_s: float, interval_s: float, seed: int, start, heading_deg: float,
                    speed_mps: float, overwrite: bool = False) -> int:
     """Write a measurement file with known truth; returns the number of measurements."""
-    from ..tracking.simulate import simulate_track as sim
+    from ..tracking.simulate import simulate_track_chunks
 
     if not (duration_s > 0 and interval_s > 0 and math.isfinite(duration_s) and math.isfinite(interval_s)):
         raise ConfigError("--duration and --interval must be finite numbers > 0")
@@ -60,14 +60,22 @@ def simulate_track(out_file: Path, duration_s: float, interval_s: float, seed: i
         raise ConfigError(f"{out_file}: is a folder (give a file name)")
     if out_file.exists() and not overwrite:
         raise ConfigError(f"{out_file}: exists (use --overwrite to replace it)")
-    text = sim(duration_s, interval_s, seed, start=tuple(start), speed_mps=speed_mps, heading0_rad=math.radians(heading_deg))
     if not out_file.parent.is_dir():
         raise ConfigError(f"{out_file.parent}: folder not found")
     tmp = out_file.with_name(f".{out_file.name}.tmp")
+    n_lines = 0
     try:
-        tmp.write_text(text)
+        # streamed a chunk at a time (10 million lines are 1.3 GB of text), into a hidden file renamed when complete
+        with open(tmp, "w") as fh:
+            for text in simulate_track_chunks(duration_s, interval_s, seed, start=tuple(start), speed_mps=speed_mps,
+                                              heading0_rad=math.radians(heading_deg)):
+                fh.write(text)
+                n_lines += text.count("\n")
         tmp.replace(out_file)
     except OSError as exc:
         tmp.unlink(missing_ok=True)
         raise OutputError(f"{out_file}: cannot write ({exc.strerror})") from None
-    return text.count("\n")
+    except BaseException:                               # Ctrl-C: no half-written hidden file left behind
+        tmp.unlink(missing_ok=True)
+        raise
+    return n_lines

@@ -18,7 +18,8 @@ def read_text(path: Path, what: str) -> str:
     if path.is_dir():
         raise DataFormatError(path, None, f"is a directory (expected {what})")
     try:
-        return path.read_text(encoding="utf-8", errors="strict")
+        # utf-8-sig: a byte-order mark (Windows editors write one) is dropped, as pandas and evo's readers drop it
+        return path.read_text(encoding="utf-8-sig", errors="strict")
     except (OSError, UnicodeDecodeError) as exc:
         raise DataFormatError(path, None, f"cannot read {what}: {exc}") from None
 

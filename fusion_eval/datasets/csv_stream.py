@@ -20,6 +20,7 @@ the same stamp gives the same float in every layout.
 
 from __future__ import annotations
 
+import re
 from pathlib import Path
 
 import numpy as np
@@ -42,6 +43,9 @@ NAMES = {
 KEYS = frozenset({"columns", "time_unit", "gyro_unit", "accel_unit", "delimiter", "std_m"})
 
 
+_TOKENS = re.compile(r"[\s,;]+")
+
+
 def load_table(path: Path, what: str, ncols_min: int, delimiter: str | None = ",", int_first: bool = False,
                ncols_exact: int | None = None):
     """Numeric rows of a delimited text file, skipping a leading header and ``#`` lines.
@@ -54,16 +58,16 @@ def load_table(path: Path, what: str, ncols_min: int, delimiter: str | None = ",
 
     path = Path(path)
     text = read_text(path, what)
-    # the leading header: '#' lines, blank lines, and at most one line whose first field is not a number (a
-    # second such line is data the reader must refuse with its line, not skip: ISO dates, a wrong delimiter)
+    # the leading header: '#' lines, blank lines, and at most one line with no number in it, whatever the
+    # delimiter (a line with numbers is data the reader must check, not skip: a garbled first row, another
+    # delimiter, ISO dates after a header)
     head, pos, named = 0, 0, False
     while pos < len(text):
         end = text.find("\n", pos)
         end = len(text) if end < 0 else end
         ln = text[pos:end]
-        fields = ln.split(delimiter) if delimiter not in (None, " ") else ln.split()
         if ln.strip() and not ln.lstrip().startswith("#"):
-            if named or is_float(fields[0].strip()):
+            if named or any(is_float(tok) for tok in _TOKENS.split(ln.strip())):
                 break
             named = True
         head, pos = head + 1, end + 1

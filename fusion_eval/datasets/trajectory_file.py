@@ -167,9 +167,11 @@ def read_trajectory(path: Path, times: Path | None = None, fmt: str = "auto") ->
     if repeated:
         log.warning("%s: %d repeated stamps (accepted, as evo accepts them)", path, repeated)
     out = TrajectoryFile(traj=traj, format=fmt, stamps=how, repeated_stamps=repeated, source=str(path))
-    sidecar = path.with_suffix(".cov")
-    if sidecar.exists():
+    # est.tum.cov (the README's <file>.cov) or est.cov, in that order
+    sidecar = next((c for c in (path.with_name(path.name + ".cov"), path.with_suffix(".cov")) if c.exists()), None)
+    if sidecar is not None:
         out.cov_t_s, out.cov = read_covariances(sidecar)
+        log.info("%s: pose covariances from %s", path.name, sidecar.name)
     return out
 
 
