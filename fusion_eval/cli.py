@@ -399,7 +399,7 @@ def track(ctx, input_path, out_dir, sensors, noise_ax, noise_ay, lidar_var, rada
             click.echo(f"smoothed (RTS): RMSE [px, py, vx, vy] = [{r['px']:.4f}, {r['py']:.4f}, {r['vx']:.4f}, "
                        f"{r['vy']:.4f}]")
         for k, d in metrics["nis"].items():
-            click.echo(f"NIS {k}: mean {d['mean']:.2f} (dof {d['dof']}), {d['fraction_above_95'] * 100:.1f} % above the 95 % line")
+            click.echo(f"NIS {k}: mean {d['mean']:.4g} (dof {d['dof']}), {d['fraction_above_95'] * 100:.1f} % above the 95 % line")
         click.echo(f"wrote {out_dir}/")
 
 

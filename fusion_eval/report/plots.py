@@ -73,10 +73,30 @@ def plot_trajectories(path: Path, paths: dict, extent: tuple) -> None:
     _save(fig, path)
 
 
+def _log_floor(errs) -> float:
+    """The floor of a log-scale error plot: half the smallest positive error drawn (an anchored start is exactly 0),
+    not a fixed millimetre that flattened a sub-millimetre estimate onto the axis."""
+    pos = [float(np.min(e[e > 0])) for e in errs if e is not None and np.any(e > 0)]
+    return max(0.5 * min(pos), 1e-9) if pos else 1e-3
+
+
+def _gapped(t: np.ndarray, y: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """``t, y`` with a NaN in each gap of more than five median steps, so that the line breaks there instead of
+    drawing a straight segment across a stretch with no matched pose."""
+    if t.size < 3:
+        return t, y
+    dt = np.diff(t)
+    cut = np.flatnonzero(dt > 5.0 * np.median(dt)) + 1
+    if cut.size == 0:
+        return t, y
+    return np.insert(t.astype(float), cut, np.nan), np.insert(y.astype(float), cut, np.nan)
+
+
 def plot_ape_over_time(path: Path, evals: dict, t0: float) -> None:
     """APE translation of each estimate over time (log scale: dead reckoning grows by orders of magnitude)."""
     fig, ax = plt.subplots(figsize=(10, 4.5))
     known = [n for n in ("imu_only", "gnss", "lidar", "fused", "smoothed") if n in evals]
+    floor = _log_floor([ev.ape_err_m for ev in evals.values()])
     for i, name in enumerate(known + [n for n in evals if n not in known]):
         ev = evals[name]
         if ev.ape_err_m is None:
@@ -84,8 +104,8 @@ def plot_ape_over_time(path: Path, evals: dict, t0: float) -> None:
         rmse = ev.metrics["ape"]["translation_m"]["rmse"]
         style = "." if name == "gnss" else "-"
         k = thin.envelope(ev.ape_err_m)
-        ax.plot(ev.ape_t_s[k] - t0, np.maximum(ev.ape_err_m[k], 1e-3), style, ms=2.5, lw=1.0,
-                color=COLORS.get(name, _VCOLORS[i % len(_VCOLORS)]), label=f"{LABELS.get(name, name)} (RMSE {rmse:.2f} m)")
+        ax.plot(*_gapped(ev.ape_t_s[k] - t0, np.maximum(ev.ape_err_m[k], floor)), style, ms=2.5, lw=1.0,
+                color=COLORS.get(name, _VCOLORS[i % len(_VCOLORS)]), label=f"{LABELS.get(name, name)} (RMSE {rmse:.3g} m)")
     ax.set_yscale("log")
     _no_minor_labels(ax)
     ax.set_xlabel("time since start [s]")
@@ -242,17 +262,19 @@ def plot_att_vel_error_sigma(path: Path, av: dict) -> None:
 def plot_compare_ape(path: Path, runs, evs_unfiltered: dict, t0: float) -> None:
     """APE translation over time of every variant (solid) and of the unfiltered estimates (dotted)."""
     fig, ax = plt.subplots(figsize=(10, 4.5))
+    floor = _log_floor([r.ev.ape_err_m for r in runs] + [ev.ape_err_m for ev in evs_unfiltered.values()])
     for i, r in enumerate(runs):
         rmse = r.ev.metrics["ape"]["translation_m"]["rmse"]
         k = thin.envelope(r.ev.ape_err_m)
-        ax.plot(r.ev.ape_t_s[k] - t0, np.maximum(r.ev.ape_err_m[k], 1e-3), "-", lw=1.0, color=_VCOLORS[i % len(_VCOLORS)],
-                label=f"{r.name} (RMSE {rmse:.2f} m)")
+        ax.plot(*_gapped(r.ev.ape_t_s[k] - t0, np.maximum(r.ev.ape_err_m[k], floor)), "-", lw=1.0,
+                color=_VCOLORS[i % len(_VCOLORS)], label=f"{r.name} (RMSE {rmse:.3g} m)")
     for name in ("lidar", "gnss"):
         ev = evs_unfiltered.get(name)
         if ev is not None and ev.ape_err_m is not None:
             k = thin.envelope(ev.ape_err_m)
-            ax.plot(ev.ape_t_s[k] - t0, np.maximum(ev.ape_err_m[k], 1e-3), ":" if name == "lidar" else ".", ms=2, lw=1.0,
-                    color=COLORS[name], label=f"{LABELS[name]} (RMSE {ev.metrics['ape']['translation_m']['rmse']:.2f} m)")
+            ax.plot(*_gapped(ev.ape_t_s[k] - t0, np.maximum(ev.ape_err_m[k], floor)), ":" if name == "lidar" else ".",
+                    ms=2, lw=1.0, color=COLORS[name],
+                    label=f"{LABELS[name]} (RMSE {ev.metrics['ape']['translation_m']['rmse']:.3g} m)")
     ax.set_yscale("log")
     ax.set_xlabel("time since start [s]")
     ax.set_ylabel("APE translation [m]")
