@@ -329,3 +329,28 @@ def test_tf_trajectory_through_a_static_edge(tmp_path):
     expect = np.asarray(foot.traj.poses_se3) @ T_fb[None]
     assert np.abs(np.asarray(link.traj.poses_se3) - expect).max() < 1e-12
     assert np.abs(link.traj.positions_xyz - foot.traj.positions_xyz).max() > 0.5
+
+
+@pytest.mark.parametrize("alignment", ["se3", "sim3", "scale", "origin"])
+def test_the_trajectory_plot_draws_the_estimate_as_evo_aligned_it(alignment):
+    """evaluate's trajectory plot moves each estimate by its evaluation's alignment parameters: the positions equal
+    evo's own aligned trajectory (it drew the file as read, where a SLAM estimate's frame is arbitrary)."""
+    from evo.core import sync
+    from evo.tools import file_interface
+
+    from fusion_eval.commands.evaluate import _aligned
+    from fusion_eval.datasets.trajectory_file import as_series, read_trajectory
+    from fusion_eval.evaluation.trajectory import evaluate
+
+    ref_p, est_p = shared_path("evo-test-data", "fr2_desk_groundtruth.txt"), shared_path("evo-test-data", "fr2_desk_ORB.txt")
+    ref_f, est_f = read_trajectory(ref_p), read_trajectory(est_p)
+    ev = evaluate(ref_f.traj, est_f.traj, "est", 0.01, 1.0, "nearest", alignment, "arrays")
+    ref, est = sync.associate_trajectories(file_interface.read_tum_trajectory_file(str(ref_p)),
+                                           file_interface.read_tum_trajectory_file(str(est_p)), max_diff=0.01)
+    if alignment == "origin":
+        est.align_origin(ref)
+    else:
+        est.align(ref, correct_scale=alignment in ("sim3", "scale"), correct_only_scale=alignment == "scale")
+    moved = _aligned(as_series(est_f), ev.alignment_params)
+    keep = np.isin(est_f.traj.timestamps, est.timestamps)
+    np.testing.assert_allclose(moved.p_w_m[keep], est.positions_xyz, atol=1e-9)

@@ -98,7 +98,8 @@ def run_evaluate(inputs: list, out_dir: Path, ref_times: Path | None = None, tim
             ref = as_series(ref_f)
             up = up_axis if up_axis != "auto" else detect_up_axis(ref.p_w_m)[0] if len(ref) >= 3 else "z"
             plots.plot_generic_trajectories(out.path("trajectories.png"), ref,
-                                            {k: as_series(f) for k, f in zip(series, est_fs)}, up_axis=up)
+                                            {k: _aligned(as_series(f), evals[k].alignment_params)
+                                             for k, f in zip(series, est_fs)}, up_axis=up, alignment=alignment)
             plots.plot_ape_over_time(out.path("ape_over_time.png"), evals, float(ref.t_s[0]))
             written = ["trajectories.png", "ape_over_time.png"]
             if any(ev.drift for ev in evals.values()):
@@ -115,6 +116,24 @@ def run_evaluate(inputs: list, out_dir: Path, ref_times: Path | None = None, tim
             [(role, p) for role, p in (("reference times", ref_times), ("estimate times", times)) if p is not None]
         out.write_text("report.html", html.page(md, out.path("."), inputs=provenance.files(named)))
     return metrics
+
+
+def _aligned(s, params: dict | None):
+    """The estimate's positions moved as its evaluation aligned it (``p' = s R p + t``; evo's ``--align_origin``: the
+    transform ``T``), for the trajectory plot: an unaligned SLAM estimate drawn beside the reference looked wrong
+    where its aligned error is millimetres."""
+    from dataclasses import replace
+
+    if not params or not ({"T", "rotation", "scale"} & params.keys()):
+        return s
+    if "T" in params:
+        T = np.asarray(params["T"], float)
+        R, t, sc = T[:3, :3], T[:3, 3], 1.0
+    else:
+        R = np.asarray(params.get("rotation", np.eye(3)), float)
+        t = np.asarray(params.get("translation_m", np.zeros(3)), float)
+        sc = float(params.get("scale", 1.0))
+    return replace(s, p_w_m=sc * s.p_w_m @ R.T + t)
 
 
 def _span(f) -> str:

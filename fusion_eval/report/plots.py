@@ -669,8 +669,9 @@ def plot_segment_map(path: Path, evals: dict, seg: dict, up_axis: str = "z") -> 
     _save(segment_map_figure(evals, seg, up_axis), path)
 
 
-def plot_generic_trajectories(path: Path, ref, estimates: dict, up_axis: str = "z") -> None:
-    """Top view: the plane across the reference's gravity axis (x-y for ENU, x-z for KITTI's cam0 poses)."""
+def plot_generic_trajectories(path: Path, ref, estimates: dict, up_axis: str = "z", alignment: str = "none") -> None:
+    """Top view: the plane across the reference's gravity axis (x-y for ENU, x-z for KITTI's cam0 poses);
+    ``estimates`` as the evaluation aligned them (``alignment``, for the title)."""
     i0, i1 = {"z": (0, 1), "y": (0, 2), "x": (1, 2)}[up_axis]
     fig, ax = plt.subplots(figsize=(8, 7))
     ax.plot(ref.p_w_m[:, i0], ref.p_w_m[:, i1], "-", color="black", lw=1.6, label="reference")
@@ -679,7 +680,8 @@ def plot_generic_trajectories(path: Path, ref, estimates: dict, up_axis: str = "
     ax.set_aspect("equal", adjustable="box")
     ax.set_xlabel(f"{'xyz'[i0]} [m]")
     ax.set_ylabel(f"{'xyz'[i1]} [m]")
-    ax.set_title(f"Trajectories ({'xyz'[i0]}-{'xyz'[i1]} plane of the files' frame, as read; not aligned)")
+    how = "as read; not aligned" if alignment == "none" else f"estimates aligned as evaluated: {alignment}"
+    ax.set_title(f"Trajectories ({'xyz'[i0]}-{'xyz'[i1]} plane of the files' frame, {how})")
     ax.grid(alpha=0.3)
     ax.legend(fontsize=8)
     _save(fig, path)
