@@ -416,8 +416,18 @@ def track(ctx, input_path, out_dir, sensors, noise_ax, noise_ay, lidar_var, rada
 def simulate_track_cmd(ctx, out_file, duration_s, interval_s, seed, start, heading_deg, speed_mps, overwrite):
     """Write a lidar/radar measurement file with known truth (the format `fusion-eval track` reads)."""
     from .commands.track import simulate_track
+    from .progress import Counter
+    from .tracking.simulate import CHUNK
 
-    n = simulate_track(out_file, duration_s, interval_s, seed, start, heading_deg, speed_mps, overwrite)
+    # a counter where it takes long enough to wonder (more than one chunk of lines; 10 million: minutes)
+    many = not ctx.obj["quiet"] and interval_s > 0 and duration_s / interval_s > CHUNK
+    bar = Counter("simulate-track (lines)", failures=False) if many else None
+    try:
+        n = simulate_track(out_file, duration_s, interval_s, seed, start, heading_deg, speed_mps, overwrite,
+                           progress=None if bar is None else lambda done, total: bar.update(done, 0, total))
+    finally:
+        if bar is not None:
+            bar.close()
     if ctx.obj["quiet"]:
         click.echo(str(out_file))
     log.info("wrote %s (%d measurements)", out_file, n)

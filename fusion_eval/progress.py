@@ -150,8 +150,9 @@ class Counter:
     """Runs of a sweep or trials of a tune: done, failed, remaining and an ETA, on ``stream``. On a terminal a tqdm
     bar; elsewhere a line at most every ``every_s`` seconds and one at the end."""
 
-    def __init__(self, label: str, stream: TextIO | None = None, tty: bool | None = None, every_s: float = 10.0):
-        self.label, self.stream = label, stream or sys.stderr
+    def __init__(self, label: str, stream: TextIO | None = None, tty: bool | None = None, every_s: float = 10.0,
+                 failures: bool = True):
+        self.label, self.stream, self.failures = label, stream or sys.stderr, failures      # failures: count them
         self.tty = self.stream.isatty() if tty is None else tty
         self.bar, self.every_s, self.t_line, self.t0 = None, every_s, 0.0, time.perf_counter()
 
@@ -165,7 +166,8 @@ class Counter:
                                 bar_format="{desc}: {percentage:3.0f}%|{bar:30}| {n_fmt}/{total_fmt} "
                                            "[{elapsed}<{remaining}]{postfix}")
             self.bar.total = max(total, 1)
-            self.bar.set_postfix_str(f"failed {failed}" + (f", {note}" if note else ""), refresh=False)
+            post = [f"failed {failed}"] if self.failures else []
+            self.bar.set_postfix_str(", ".join(post + ([note] if note else [])), refresh=False)
             self.bar.update(done - self.bar.n)
             return
         now = time.perf_counter()
@@ -177,7 +179,8 @@ class Counter:
     def _line(self, done: int, failed: int, total: int, note: str) -> str:
         el = time.perf_counter() - self.t0
         eta = "" if not done or done >= total else f", ETA {el / done * (total - done):.0f} s"
-        return f"{self.label}: {done}/{total} done, {failed} failed ({el:.0f} s{eta})" + (f"; {note}" if note else "")
+        failed_s = f", {failed} failed" if self.failures else ""
+        return f"{self.label}: {done}/{total} done{failed_s} ({el:.0f} s{eta})" + (f"; {note}" if note else "")
 
     def close(self) -> None:
         if self.bar is not None:

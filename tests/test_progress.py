@@ -96,6 +96,17 @@ def test_counter_says_done_failed_and_eta():
     assert lines[2].startswith("sweep: 4/4 done, 1 failed") and "ETA" not in lines[2] and lines[2].endswith("best 0.7")
 
 
+def test_a_counter_of_work_that_cannot_fail_says_no_failures():
+    """simulate-track's lines: a count and an ETA, no 'failed' column (nothing there fails line by line)."""
+    buf = io.StringIO()
+    c = Counter("simulate-track (lines)", buf, tty=False, every_s=0.0, failures=False)
+    c.update(20000, 0, 60000)
+    c.update(60000, 0, 60000)
+    lines = buf.getvalue().splitlines()
+    assert lines[0].startswith("simulate-track (lines): 20000/60000 done (") and "ETA" in lines[0]
+    assert "failed" not in buf.getvalue() and lines[1].startswith("simulate-track (lines): 60000/60000 done (")
+
+
 def test_quiet_prints_exactly_the_output_path(kitti_slice, tmp_path):
     out = tmp_path / "q"
     r = subprocess.run([sys.executable, "-m", "fusion_eval", "-q", "run", str(kitti_slice), "--out", str(out),

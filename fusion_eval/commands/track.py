@@ -41,8 +41,9 @@ MAX_TRACK_MEASUREMENTS = 10_000_000
 
 
 def simulate_track(out_file: Path, duration_s: float, interval_s: float, seed: int, start, heading_deg: float,
-                   speed_mps: float, overwrite: bool = False) -> int:
-    """Write a measurement file with known truth; returns the number of measurements."""
+                   speed_mps: float, overwrite: bool = False, progress=None) -> int:
+    """Write a measurement file with known truth; returns the number of measurements. ``progress(done, total)`` is
+    called after each chunk of lines (10 million take minutes)."""
     from ..tracking.simulate import simulate_track_chunks
 
     if not (duration_s > 0 and interval_s > 0 and math.isfinite(duration_s) and math.isfinite(interval_s)):
@@ -71,6 +72,8 @@ def simulate_track(out_file: Path, duration_s: float, interval_s: float, seed: i
                                               heading0_rad=math.radians(heading_deg)):
                 fh.write(text)
                 n_lines += text.count("\n")
+                if progress is not None:
+                    progress(n_lines, int(round(n)))
         tmp.replace(out_file)
     except OSError as exc:
         tmp.unlink(missing_ok=True)
