@@ -77,6 +77,24 @@ def test_wrong_value_count_in_oxts_packet(ds, tmp_path):
     _assert_clean_error(r, out, "0000000007.txt:1:", "expected 30 values per OXTS packet, got 29")
 
 
+def test_the_first_bad_oxts_packet_is_named_and_a_byte_order_mark_is_dropped(ds, tmp_path):
+    """NaN in packet 7 and a word in packet 9: packet 7 is named (the finite check runs per packet); a packet written
+    with a byte-order mark reads as without one."""
+    from fusion_eval.datasets.kitti_oxts import read_oxts
+
+    d = ds / "oxts" / "data"
+    before = read_oxts(ds).values
+    p = d / "0000000003.txt"
+    p.write_bytes(b"\xef\xbb\xbf" + p.read_bytes())
+    np.testing.assert_array_equal(read_oxts(ds).values, before)
+    for name, k, v in (("0000000007.txt", 12, "nan"), ("0000000009.txt", 12, "abc")):
+        vals = (d / name).read_text().split()
+        vals[k] = v
+        (d / name).write_text(" ".join(vals) + "\n")
+    r, out = _run(ds, tmp_path)
+    _assert_clean_error(r, out, "0000000007.txt:1:", "finite")
+
+
 def test_nan_value(ds, tmp_path):
     p = ds / "lidar" / "times.txt"
     _edit_line(p, 9, "nan")
@@ -603,6 +621,22 @@ def test_the_first_data_row_of_a_euroc_csv_is_checked_not_taken_for_a_header(tmp
         load_table(p, "EuRoC IMU CSV", 7, ",", int_first=True)
     p.write_text("t_ns,w_x,w_y,w_z,a_x,a_y,a_z\n" + "\n".join(rows) + "\n")       # a named header is still one
     assert load_table(p, "EuRoC IMU CSV", 7, ",", int_first=True)[0].shape == (20, 7)
+
+
+@pytest.mark.parametrize("text, delimiter, lines", [
+    ("1.0|2.0|3.0\n4.0|5.0|6.0\n7|8|9\n", "|", [1, 2, 3]),          # no header, another delimiter: no row lost
+    ("Unnamed: 0,t,ax\n1,2,3\n4,5,6\n", ",", [2, 3]),               # pandas' re-saved index column
+    ("time,imu 2 ax,imu 2 ay\n1,2,3\n4,5,6\n", ",", [2, 3]),        # a digit in a column name
+    ("t,nan,x\n1,2,3\n4,5,6\n", ",", [2, 3]),                       # a column named nan
+    ("t x y\n1 2 3\n4 5 6\n", " ", [2, 3]),
+], ids=["pipe-no-header", "unnamed-0", "imu-2", "nan-column", "whitespace"])
+def test_a_header_is_a_line_without_a_number_in_its_fields(tmp_path, text, delimiter, lines):
+    from fusion_eval.datasets.csv_stream import load_table
+
+    p = tmp_path / "t.csv"
+    p.write_text(text)
+    rows, _, ln = load_table(p, "test", 3, delimiter)
+    assert rows.shape == (len(lines), 3) and list(ln) == lines
 
 
 def test_a_run_of_column_counts_is_said_as_a_range():

@@ -20,6 +20,7 @@ the same stamp gives the same float in every layout.
 
 from __future__ import annotations
 
+import math
 import re
 from pathlib import Path
 
@@ -43,7 +44,22 @@ NAMES = {
 KEYS = frozenset({"columns", "time_unit", "gyro_unit", "accel_unit", "delimiter", "std_m"})
 
 
-_TOKENS = re.compile(r"[\s,;]+")
+_OTHER_DELIMITERS = "[,;\t]"
+
+
+def _has_number(line: str, delimiter: str | None) -> bool:
+    """Whether a field of ``line`` is a finite number: split on the configured delimiter and on the other common
+    ones (a data row in another delimiter is still data), each field whole and unquoted. A header holds none
+    ('Unnamed: 0', 'imu 2 ax', a column named 'nan' are names, not numbers)."""
+    if delimiter in (None, " "):
+        fields = line.split()
+    else:
+        fields = re.split(f"{_OTHER_DELIMITERS}|{re.escape(delimiter)}", line)
+    for f in fields:
+        f = f.strip().strip("\"'")
+        if is_float(f) and math.isfinite(float(f)):
+            return True
+    return False
 
 
 def load_table(path: Path, what: str, ncols_min: int, delimiter: str | None = ",", int_first: bool = False,
@@ -67,7 +83,7 @@ def load_table(path: Path, what: str, ncols_min: int, delimiter: str | None = ",
         end = len(text) if end < 0 else end
         ln = text[pos:end]
         if ln.strip() and not ln.lstrip().startswith("#"):
-            if named or any(is_float(tok) for tok in _TOKENS.split(ln.strip())):
+            if named or _has_number(ln, delimiter):
                 break
             named = True
         head, pos = head + 1, end + 1

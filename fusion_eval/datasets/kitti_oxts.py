@@ -13,6 +13,7 @@ reader flags them rather than dropping them, and the caller decides.
 
 from __future__ import annotations
 
+import math
 import os
 import re
 from dataclasses import dataclass
@@ -134,15 +135,15 @@ def read_oxts(path: Path) -> OxtsPackets:
         if len(parts) != N_FIELDS:
             raise DataFormatError(packet_paths[i], 1, f"expected {N_FIELDS} values per OXTS packet, got {len(parts)}")
         try:
-            values[i] = [float(x) for x in parts]
+            row = [float(x) for x in parts]
         except ValueError:
             bad_tok = next(x for x in parts if not is_float(x))
             raise DataFormatError(packet_paths[i], 1, f"expected a number, got {bad_tok!r}") from None
+        if not all(map(math.isfinite, row)):          # here, not after the loop: the first bad packet is named
+            raise DataFormatError(packet_paths[i], 1, "OXTS values must be finite numbers (found NaN or inf)")
+        values[i] = row
         # KITTI's filled packets print the integer status fields as floats and set the modes to -1.
         filled[i] = any("." in x for x in parts[25:])
-    bad = np.flatnonzero(~np.isfinite(values).all(axis=1))
-    if bad.size:
-        raise DataFormatError(packet_paths[bad[0]], 1, "OXTS values must be finite numbers (found NaN or inf)")
     filled |= values[:, POSMODE:ORIMODE + 1].min(axis=1) < 0
     _check_plausible(values, lambda i: (packet_paths[i], 1))
     return OxtsPackets(t_s=t, values=values, filled=filled, stamps_path=stamps_path, packet_paths=packet_paths)
@@ -153,7 +154,7 @@ def _packet_tokens(folder: str, name: str, path: Path) -> list[str]:
     :func:`read_text` for its one-line error."""
     try:
         with open(os.path.join(folder, name), "rb") as f:
-            return f.read().decode("utf-8").split()
+            return f.read().decode("utf-8-sig").split()        # a byte-order mark dropped, as read_text drops it
     except (OSError, UnicodeDecodeError):
         return read_text(path, "one OXTS packet of 30 values").split()
 

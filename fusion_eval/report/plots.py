@@ -73,6 +73,12 @@ def plot_trajectories(path: Path, paths: dict, extent: tuple) -> None:
     _save(fig, path)
 
 
+def _metres(x: float) -> str:
+    """An RMSE for a legend: three significant digits (0.00812 m), whole metres from 1000 m (dead reckoning's
+    13258 m, not 1.33e+04)."""
+    return f"{x:.0f} m" if abs(x) >= 1000 else f"{x:.3g} m"
+
+
 def _log_floor(errs) -> float:
     """The floor of a log-scale error plot: half the smallest positive error drawn (an anchored start is exactly 0),
     not a fixed millimetre that flattened a sub-millimetre estimate onto the axis."""
@@ -105,7 +111,7 @@ def plot_ape_over_time(path: Path, evals: dict, t0: float) -> None:
         style = "." if name == "gnss" else "-"
         k = thin.envelope(ev.ape_err_m)
         ax.plot(*_gapped(ev.ape_t_s[k] - t0, np.maximum(ev.ape_err_m[k], floor)), style, ms=2.5, lw=1.0,
-                color=COLORS.get(name, _VCOLORS[i % len(_VCOLORS)]), label=f"{LABELS.get(name, name)} (RMSE {rmse:.3g} m)")
+                color=COLORS.get(name, _VCOLORS[i % len(_VCOLORS)]), label=f"{LABELS.get(name, name)} (RMSE {_metres(rmse)})")
     ax.set_yscale("log")
     _no_minor_labels(ax)
     ax.set_xlabel("time since start [s]")
@@ -267,14 +273,14 @@ def plot_compare_ape(path: Path, runs, evs_unfiltered: dict, t0: float) -> None:
         rmse = r.ev.metrics["ape"]["translation_m"]["rmse"]
         k = thin.envelope(r.ev.ape_err_m)
         ax.plot(*_gapped(r.ev.ape_t_s[k] - t0, np.maximum(r.ev.ape_err_m[k], floor)), "-", lw=1.0,
-                color=_VCOLORS[i % len(_VCOLORS)], label=f"{r.name} (RMSE {rmse:.3g} m)")
+                color=_VCOLORS[i % len(_VCOLORS)], label=f"{r.name} (RMSE {_metres(rmse)})")
     for name in ("lidar", "gnss"):
         ev = evs_unfiltered.get(name)
         if ev is not None and ev.ape_err_m is not None:
             k = thin.envelope(ev.ape_err_m)
             ax.plot(*_gapped(ev.ape_t_s[k] - t0, np.maximum(ev.ape_err_m[k], floor)), ":" if name == "lidar" else ".",
                     ms=2, lw=1.0, color=COLORS[name],
-                    label=f"{LABELS[name]} (RMSE {ev.metrics['ape']['translation_m']['rmse']:.3g} m)")
+                    label=f"{LABELS[name]} (RMSE {_metres(ev.metrics['ape']['translation_m']['rmse'])})")
     ax.set_yscale("log")
     ax.set_xlabel("time since start [s]")
     ax.set_ylabel("APE translation [m]")
