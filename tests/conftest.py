@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import logging
 import shutil
 from pathlib import Path
 
@@ -109,3 +110,21 @@ def without_provenance(text: bytes) -> bytes:
 
     text = re.sub(rb"fusion-eval \S+, [^\n]* UTC: `[^\n]*`", b"<header>", text)
     return re.sub(rb'<div class="meta">[^\n]*</div>', b"<header>", text)
+
+
+def _baseline_logging() -> None:
+    logging.getLogger().setLevel(logging.WARNING)
+    for n in ("fusion_eval", "distributed", "dask", "numba", "matplotlib", "evo", "PIL", "optuna", "bokeh", "tornado"):
+        logging.getLogger(n).setLevel(logging.NOTSET)
+
+
+@pytest.fixture(autouse=True)
+def _logging_levels_restored():
+    """The CLI sets the log levels of its process (``-q``: errors only). A test, or a session fixture, that runs it
+    in-process must not leave them to the next test in the same worker, whose ``caplog`` would see no warning: each
+    test starts from Python's defaults (root at WARNING, the others unset) and the root's handlers are put back."""
+    handlers = logging.getLogger().handlers[:]
+    _baseline_logging()
+    yield
+    _baseline_logging()
+    logging.getLogger().handlers[:] = handlers
