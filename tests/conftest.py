@@ -113,8 +113,10 @@ def without_provenance(text: bytes) -> bytes:
 
 
 def _baseline_logging() -> None:
+    from fusion_eval.cli import _CHATTY          # the loggers the CLI sets, besides its own
+
     logging.getLogger().setLevel(logging.WARNING)
-    for n in ("fusion_eval", "distributed", "dask", "numba", "matplotlib", "evo", "PIL", "optuna", "bokeh", "tornado"):
+    for n in ("fusion_eval", *_CHATTY):
         logging.getLogger(n).setLevel(logging.NOTSET)
 
 

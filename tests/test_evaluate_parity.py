@@ -338,9 +338,8 @@ def test_the_trajectory_plot_draws_the_estimate_as_evo_aligned_it(alignment):
     from evo.core import sync
     from evo.tools import file_interface
 
-    from fusion_eval.commands.evaluate import _aligned
     from fusion_eval.datasets.trajectory_file import as_series, read_trajectory
-    from fusion_eval.evaluation.trajectory import evaluate
+    from fusion_eval.evaluation.trajectory import aligned_positions, evaluate
 
     ref_p, est_p = shared_path("evo-test-data", "fr2_desk_groundtruth.txt"), shared_path("evo-test-data", "fr2_desk_ORB.txt")
     ref_f, est_f = read_trajectory(ref_p), read_trajectory(est_p)
@@ -351,6 +350,6 @@ def test_the_trajectory_plot_draws_the_estimate_as_evo_aligned_it(alignment):
         est.align_origin(ref)
     else:
         est.align(ref, correct_scale=alignment in ("sim3", "scale"), correct_only_scale=alignment == "scale")
-    moved = _aligned(as_series(est_f), ev.alignment_params)
+    moved = aligned_positions(as_series(est_f).p_w_m, ev.alignment_params)
     keep = np.isin(est_f.traj.timestamps, est.timestamps)
-    np.testing.assert_allclose(moved.p_w_m[keep], est.positions_xyz, atol=1e-9)
+    np.testing.assert_allclose(moved[keep], est.positions_xyz, atol=1e-9)

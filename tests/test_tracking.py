@@ -147,7 +147,8 @@ def test_the_simulated_track_in_chunks_is_the_same_file():
     whole = simulate_track(duration_s=30.0, interval_s=0.01, seed=4).splitlines()
     parts = "".join(simulate_track_chunks(30.0, 0.01, 4, chunk=7)).splitlines()
     assert len(parts) == len(whole) == 3000
-    a = np.array([[float(v) for v in ln.split("\t")[1:]] for ln in whole if ln[0] == "L"])
-    b = np.array([[float(v) for v in ln.split("\t")[1:]] for ln in parts if ln[0] == "L"])
     assert [ln[:2] for ln in parts] == [ln[:2] for ln in whole]
-    np.testing.assert_allclose(b, a, rtol=2e-6, atol=1e-12)
+    for kind in "LR":                                  # lidar and radar lines: the draws and the motion
+        a = np.array([[float(v) for v in ln.split("\t")[1:]] for ln in whole if ln[0] == kind])
+        b = np.array([[float(v) for v in ln.split("\t")[1:]] for ln in parts if ln[0] == kind])
+        np.testing.assert_allclose(b, a, rtol=2e-6, atol=1e-12)

@@ -211,8 +211,8 @@ def rate_cost_terms(imu: ImuSeries, lidar: PoseSeries, shifts: np.ndarray, grid:
 
 @njit(cache=True)
 def _rate_sums(wl, ok_l, wg, ok_g, shifts, pad, blk, blocks):
-    """:func:`rate_cost_terms`' sums in one pass per shift (in NumPy, ten masked columns per shift and a
-    ``reduceat`` over them were 0.35 s of a kitti-00 run's preparation; here 0.03 s)."""
+    """:func:`rate_cost_terms`' sums in one pass per shift (in NumPy, ten masked columns per shift and a ``reduceat``
+    over them: kitti-00's preparation took 0.56 s, now 0.23 s, of which these sums 0.02 s)."""
     out = np.zeros((shifts.size, blocks, 10))
     for s in range(shifts.size):
         o = pad + shifts[s]

@@ -9,6 +9,7 @@ evo's readers (:mod:`fusion_eval.datasets.trajectory_file`). KITTI files take th
 from __future__ import annotations
 
 import json
+from dataclasses import replace
 from pathlib import Path
 
 import numpy as np
@@ -17,6 +18,7 @@ from ..datasets.trajectory_file import BY_INDEX, as_series, read_bag_trajectorie
 from ..errors import ConfigError, DataRangeError
 from ..evaluation import keys
 from ..evaluation.estimates import evaluate_series, validate_options
+from ..evaluation.trajectory import aligned_positions
 from ..outputs import StagedDir, repeated_path
 from ..report.markdown import drift_section, fmt_stat, segments_section
 from .. import provenance
@@ -98,8 +100,8 @@ def run_evaluate(inputs: list, out_dir: Path, ref_times: Path | None = None, tim
             ref = as_series(ref_f)
             up = up_axis if up_axis != "auto" else detect_up_axis(ref.p_w_m)[0] if len(ref) >= 3 else "z"
             plots.plot_generic_trajectories(out.path("trajectories.png"), ref,
-                                            {k: _aligned(as_series(f), evals[k].alignment_params)
-                                             for k, f in zip(series, est_fs)}, up_axis=up, alignment=alignment)
+                                            {k: _aligned(as_series(f), evals[k]) for k, f in zip(series, est_fs)},
+                                            up_axis=up, alignment=alignment)
             plots.plot_ape_over_time(out.path("ape_over_time.png"), evals, float(ref.t_s[0]))
             written = ["trajectories.png", "ape_over_time.png"]
             if any(ev.drift for ev in evals.values()):
@@ -118,22 +120,10 @@ def run_evaluate(inputs: list, out_dir: Path, ref_times: Path | None = None, tim
     return metrics
 
 
-def _aligned(s, params: dict | None):
-    """The estimate's positions moved as its evaluation aligned it (``p' = s R p + t``; evo's ``--align_origin``: the
-    transform ``T``), for the trajectory plot: an unaligned SLAM estimate drawn beside the reference looked wrong
-    where its aligned error is millimetres."""
-    from dataclasses import replace
-
-    if not params or not ({"T", "rotation", "scale"} & params.keys()):
-        return s
-    if "T" in params:
-        T = np.asarray(params["T"], float)
-        R, t, sc = T[:3, :3], T[:3, 3], 1.0
-    else:
-        R = np.asarray(params.get("rotation", np.eye(3)), float)
-        t = np.asarray(params.get("translation_m", np.zeros(3)), float)
-        sc = float(params.get("scale", 1.0))
-    return replace(s, p_w_m=sc * s.p_w_m @ R.T + t)
+def _aligned(series, ev):
+    """The estimate as its evaluation aligned it, for the trajectory plot: an unaligned SLAM estimate drawn beside the
+    reference looked wrong where its aligned error is millimetres."""
+    return replace(series, p_w_m=aligned_positions(series.p_w_m, ev.alignment_params))
 
 
 def _span(f) -> str:

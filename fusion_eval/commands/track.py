@@ -6,7 +6,7 @@ import math
 from pathlib import Path
 
 from ..errors import ConfigError, OutputError
-from ..outputs import StagedDir
+from ..outputs import StagedDir, atomic_file
 
 
 def _positive(name: str, v: float) -> None:
@@ -63,22 +63,16 @@ def simulate_track(out_file: Path, duration_s: float, interval_s: float, seed: i
         raise ConfigError(f"{out_file}: exists (use --overwrite to replace it)")
     if not out_file.parent.is_dir():
         raise ConfigError(f"{out_file.parent}: folder not found")
-    tmp = out_file.with_name(f".{out_file.name}.tmp")
     n_lines = 0
     try:
-        # streamed a chunk at a time (10 million lines are 1.3 GB of text), into a hidden file renamed when complete
-        with open(tmp, "w") as fh:
+        # streamed a chunk at a time (10 million lines are 1.3 GB of text) into a file that appears when complete
+        with atomic_file(out_file) as fh:
             for text in simulate_track_chunks(duration_s, interval_s, seed, start=tuple(start), speed_mps=speed_mps,
                                               heading0_rad=math.radians(heading_deg)):
-                fh.write(text)
+                fh.write(text.encode())
                 n_lines += text.count("\n")
                 if progress is not None:
                     progress(n_lines, int(round(n)))
-        tmp.replace(out_file)
     except OSError as exc:
-        tmp.unlink(missing_ok=True)
         raise OutputError(f"{out_file}: cannot write ({exc.strerror})") from None
-    except BaseException:                               # Ctrl-C: no half-written hidden file left behind
-        tmp.unlink(missing_ok=True)
-        raise
     return n_lines

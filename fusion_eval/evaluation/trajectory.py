@@ -216,6 +216,21 @@ def _align(est_a, ref_a, alignment: str, arrays: bool, n_to_align: int = -1):
             (np.asarray(r), float(s)))
 
 
+def aligned_positions(p_m: np.ndarray, params: dict | None) -> np.ndarray:
+    """Positions moved by an alignment as :func:`_align` and :func:`_align_4dof` record it (``alignment_params``):
+    ``p' = s R p + t``, or evo's ``--align_origin`` transform ``T``; unchanged without one."""
+    if not params or not ({"T", "rotation", "scale"} & params.keys()):
+        return p_m
+    if "T" in params:
+        T = np.asarray(params["T"], float)
+        R, t, s = T[:3, :3], T[:3, 3], 1.0
+    else:
+        R = np.asarray(params.get("rotation", np.eye(3)), float)
+        t = np.asarray(params.get("translation_m", np.zeros(3)), float)
+        s = float(params.get("scale", 1.0))
+    return s * p_m @ R.T + t
+
+
 def _align_4dof(est_a, ref_a, up_axis: str, n_to_align: int = -1):
     """The estimate rotated about the reference's gravity axis and translated (least squares on the positions)."""
     p_e, p_r = est_a.positions_xyz, ref_a.positions_xyz

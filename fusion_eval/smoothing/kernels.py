@@ -108,8 +108,8 @@ def _tri_inverse(L):
 @njit(cache=True)
 def _solve_factored(d, L, M):
     """``P^-1 M = D^-1 L^-T L^-1 D^-1 M`` from :func:`chol_scaled`'s ``d, L``, by forward and back substitution over
-    ``M``'s columns in place (for the 6-15 columns of the smoother's solves, 15-40 % faster than forming ``L``'s
-    inverse and two BLAS products, measured)."""
+    ``M``'s columns in place: for the smoother's 6-15 columns faster than forming ``L``'s inverse and two BLAS
+    products (15 x 6: 3.0 -> 2.7 us, 15 x 15: 6.5 -> 4.0 us, measured)."""
     n, r = M.shape
     X = np.empty((n, r))
     for i in range(n):

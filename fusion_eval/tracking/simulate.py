@@ -26,6 +26,7 @@ def simulate_track_chunks(duration_s: float = 25.0, interval_s: float = 0.05, se
     sub = 50                                               # fine integration steps per measurement interval
     h = interval_s / sub
     yaw0, px0, py0 = heading0_rad, float(start[0]), float(start[1])
+    lidar_sd, radar_sd = np.sqrt(lidar_var), np.sqrt(radar_var)
     for k0 in range(0, n, chunk):
         k1 = min(k0 + chunk, n)
         tf = np.arange(k0 * sub, k1 * sub + 1) * h             # through the next chunk's first point
@@ -42,13 +43,13 @@ def simulate_track_chunks(duration_s: float = 25.0, interval_s: float = 0.05, se
             gt = (px[j], py[j], vx[j], vy[j])
             t_us = t0_us + int(round(k * interval_s * 1e6))
             if k % 2 == 0:
-                z = np.array([px[j], py[j]]) + rng.standard_normal(2) * np.sqrt(lidar_var)
+                z = np.array([px[j], py[j]]) + rng.standard_normal(2) * lidar_sd
                 lines.append(format_line("L", z, t_us, gt, yaw[j], w[j]))
             else:
                 rho = np.hypot(px[j], py[j])
                 phi = np.arctan2(py[j], px[j])
                 rd = (px[j] * vx[j] + py[j] * vy[j]) / rho
-                z = np.array([rho, phi, rd]) + rng.standard_normal(3) * np.sqrt(radar_var)
+                z = np.array([rho, phi, rd]) + rng.standard_normal(3) * radar_sd
                 z[1] = (z[1] + np.pi) % (2 * np.pi) - np.pi
                 lines.append(format_line("R", z, t_us, gt, yaw[j], w[j]))
         yield "\n".join(lines) + "\n"

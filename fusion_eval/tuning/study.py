@@ -302,9 +302,8 @@ def _default_point(s: Setup, default: dict) -> dict:
     the value the default run settled on (the IMU noise it estimated, the lidar frame it chose, ...). Keys without
     one are sampled: then the first trial is not the default, and the report compares the tuned values with the
     default run itself."""
-    from ..config import schema
-
     from .. import session
+    from ..config import schema
 
     known = schema()
     got = default["train"]["steps"][0].get("resolved") or {}
