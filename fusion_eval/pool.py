@@ -50,6 +50,9 @@ def worker_init(preload: tuple[str, ...] = (), parent: int | None = None) -> Non
     the parent still prepares and filters (matplotlib for a run's plots: about a second per process); ``parent``:
     the pid of the process that made the pool."""
     _worker_dispositions()
+    # a spawned worker is exec'd from the thread that held SIGINT and SIGTERM blocked (signals_held) and inherits
+    # that mask: SIGTERM would stay pending, and the pool's terminate() waited its full second before SIGKILL
+    signal.pthread_sigmask(signal.SIG_UNBLOCK, _FORK_SIGNALS)
     if sys.platform.startswith("linux"):
         try:
             import ctypes
