@@ -79,8 +79,12 @@ def test_a_tune_writes_a_usable_best_config_and_every_trial(tmp_path):
     ds = make_slice(tmp_path / "ds", 400)
     test = make_slice(tmp_path / "held", 300, first=600)
     out = tmp_path / "tune"
+    # a base config and a --set item: best.yaml must carry them (it held only the space's keys, and a run of it
+    # went back to the built-in defaults: GNSS at 1 Hz and the constraint on)
+    (tmp_path / "base.yaml").write_text("gnss:\n  rate_hz: 0.5\n")
+    common = ["-c", str(tmp_path / "base.yaml"), "-s", "filter.nhc=false"]
     r = _tune([str(ds), "--test", str(test), "--objective", "fused.ape.rmse", "--trials", "6", "-j", "1",
-               "-o", str(out), "--no-plots"], tmp_path)
+               "-o", str(out), "--no-plots", *common], tmp_path)
     assert r.exit_code == 0, r.output
     rows = list(csv.DictReader((out / "trials.csv").open()))
     assert len(rows) == 6 and all(r["state"] == "COMPLETE" for r in rows)
@@ -93,6 +97,7 @@ def test_a_tune_writes_a_usable_best_config_and_every_trial(tmp_path):
     assert best["test"]["status"] == "ok"
     cfg = yaml.safe_load((out / "best.yaml").read_text())
     assert cfg["gnss"]["std_scale"] > 0 and set(cfg["imu"]) == {k.split(".")[1] for k in best["params"] if k.startswith("imu.")}
+    assert cfg["gnss"]["rate_hz"] == 0.5 and cfg["filter"]["nhc"] is False
     # the tuned config reproduces its trial's figure in a plain run
     run = CliRunner().invoke(main, ["-q", "run", str(ds), "-c", str(out / "best.yaml"), "--out", str(tmp_path / "r"),
                                     "--no-plots"], catch_exceptions=False)
@@ -101,7 +106,7 @@ def test_a_tune_writes_a_usable_best_config_and_every_trial(tmp_path):
     assert m["estimates"]["fused"]["ape"]["translation_m"]["rmse"] == pytest.approx(best["values"][0], rel=1e-12)
     # the same command again: nothing left to do, the same best
     r2 = _tune([str(ds), "--test", str(test), "--objective", "fused.ape.rmse", "--trials", "6", "-j", "1",
-                "-o", str(out), "--no-plots"], tmp_path)
+                "-o", str(out), "--no-plots", *common], tmp_path)
     assert r2.exit_code == 0 and json.loads((out / "best.json").read_text())["number"] == best["number"]
 
 
@@ -316,9 +321,13 @@ def test_the_first_trial_is_the_default_even_where_the_default_is_auto(tmp_path)
             "train": {"status": "ok", "values": [0.82]}}
     res = {"default": default, "best": best}
     assert R.default_wins(res) and not R.default_wins({**res, "best": {**best, "train": {"status": "ok", "values": [0.7]}}})
-    s = SimpleNamespace(out_dir=tmp_path, train=["kitti-00"], objectives=[SimpleNamespace(name="fused.ape.rmse")])
+    s = SimpleNamespace(out_dir=tmp_path, train=["kitti-00"], objectives=[SimpleNamespace(name="fused.ape.rmse")],
+                        base_config=None, sets=())
     text = R.default_yaml(s, res)
     assert "no trial" in text and "0.75" in text and "0.82" in text and yaml.safe_load(text) == {}
+    # with a base config and --set items, the default is those (what trial 0 ran with)
+    s.base_config, s.sets = {"filter": {"use_gnss": False}}, ("imu.gyro_noise_dps_sqrthz=0.1",)
+    assert yaml.safe_load(R.default_yaml(s, res)) == {"filter": {"use_gnss": False}, "imu": {"gyro_noise_dps_sqrthz": 0.1}}
     assert "no better than the default" in R._generalisation([("training", 0.75, 0.82)])
 
 

@@ -33,19 +33,37 @@ def default_yaml(s: Setup, res: dict) -> str:
     d, t = _obj(res["default"]["train"], 0), _obj(res["best"]["train"], 0)
     return (f"# fusion-eval tune: no trial of {s.out_dir} beat the default configuration on "
             f"{', '.join(Path(x).name for x in s.train)} ({s.objectives[0].name} {d:.6g}, the best trial "
-            f"{res['best']['number']} {t:.6g}): this is the default, nothing overridden (the best trial is in best.json)\n"
-            "# use: fusion-eval run DATASET -c best.yaml\n{}\n")
+            f"{res['best']['number']} {t:.6g}): this is the default (the base config and --set items only; the best trial is in best.json)\n"
+            "# use: fusion-eval run DATASET -c best.yaml\n" + _config_yaml(s, {}))
+
+
+def _plain(v):
+    # the configuration's mappings know their lines (a dict subclass that yaml.safe_dump refuses)
+    if isinstance(v, dict):
+        return {str(k): _plain(x) for k, x in v.items()}
+    if isinstance(v, (list, tuple)):
+        return [_plain(x) for x in v]
+    return v
+
+
+def _config_yaml(s: Setup, overrides: dict) -> str:
+    """What every trial ran with, as one configuration file: the base config (``-c``), the ``--set`` items, then
+    ``overrides`` (a trial's values): ``fusion-eval run -c best.yaml`` replays that trial, not the space's keys on
+    the built-in defaults (a tune of ``-c lidar-imu.yaml`` would otherwise run with GNSS)."""
+    from .. import session
+
+    nested: dict = {}
+    for layer in session.request(config=s.base_config, sets=s.sets, overrides=overrides).layers:
+        for sect, body in layer.body.items():
+            nested.setdefault(str(sect), {}).update(_plain(body))
+    return yaml.safe_dump(nested, sort_keys=True) if nested else "{}\n"
 
 
 def best_yaml(s: Setup, best: dict) -> str:
-    nested: dict = {}
-    for key, v in best["overrides"].items():
-        sect, k = key.split(".", 1)
-        nested.setdefault(sect, {})[k] = v
     head = (f"# fusion-eval tune: trial {best['number']} of {s.out_dir}, objective "
             f"{', '.join(o.name for o in s.objectives)} = {', '.join(f'{v:.6g}' for v in best['values'])} on "
             f"{', '.join(Path(d).name for d in s.train)}\n# use: fusion-eval run DATASET -c best.yaml\n")
-    return head + yaml.safe_dump(nested, sort_keys=True)
+    return head + _config_yaml(s, best["overrides"])
 
 
 def trials_csv(study, s: Setup) -> str:
