@@ -165,6 +165,23 @@ def test_check_accepts_a_sweep_csv(tmp_path):
     assert r.exit_code == 1 and "d/eskf/default.fused_ape_trans_rmse_m" in r.output
 
 
+def test_check_matches_a_sweep_csv_made_in_another_folder_by_dataset_name(tmp_path):
+    """A sweep records each dataset's absolute path; a baseline made in another checkout (CI's workspace) must still
+    match, and rules name the dataset as sweep.md does. Two datasets of one name at two paths keep their paths."""
+    cols = "id,dataset,variant,setting,fused_ape_trans_rmse_m,status,error\n"
+    (tmp_path / "b.csv").write_text(cols + "x,/ci/a/data/kitti-00,eskf,default,1.0,ok,\n")
+    (tmp_path / "c.csv").write_text(cols + "x,/home/me/data/kitti-00,eskf,default,1.5,ok,\n")
+    r = CliRunner().invoke(main, ["check", str(tmp_path / "c.csv"), "--baseline", str(tmp_path / "b.csv")])
+    assert r.exit_code == 1 and "kitti-00/eskf/default.fused_ape_trans_rmse_m" in r.output and "/home" not in r.output
+    r = CliRunner().invoke(main, ["check", str(tmp_path / "c.csv"), "-b", str(tmp_path / "b.csv"), "--rtol", "1",
+                                  "--require", "kitti-00/eskf/default.fused_ape_trans_rmse_m < 2"])
+    assert r.exit_code == 0, r.output
+    (tmp_path / "two.csv").write_text(cols + "x,/p/kitti-00,eskf,default,1.0,ok,\ny,/q/kitti-00,eskf,default,2.0,ok,\n")
+    r = CliRunner().invoke(main, ["check", str(tmp_path / "two.csv"), "-b", str(tmp_path / "two.csv"), "--require",
+                                  "/q/kitti-00/eskf/default.fused_ape_trans_rmse_m > /p/kitti-00/eskf/default.fused_ape_trans_rmse_m"])
+    assert r.exit_code == 0, r.output
+
+
 @pytest.mark.parametrize("body,needle", [
     ("random: 5\n", "'random' must be"),
     ("settings: [a, b]\n", "'settings' must be"),

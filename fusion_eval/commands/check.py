@@ -3,7 +3,7 @@
 Metrics are addressed by dotted paths. From a run's ``metrics.json``: ``<estimate>.<group>.<relation>.<stat>``
 (``fused.ape.translation_m.rmse``, ``lidar.rpe_100m.rotation_deg.max``), with the translation part also as
 ``<estimate>.<group>.<stat>`` (``fused.ape.rmse``), plus ``ratios.fused_over_lidar`` and ``nis.lidar.mean``.
-From a ``sweep.csv``: ``<dataset>/<variant>/<setting>.<column>``. Every compared metric is an error
+From a ``sweep.csv``: ``<dataset>/<variant>/<setting>.<column>`` (the dataset's folder or manifest name). Every compared metric is an error
 (lower is better): a regression is ``current > baseline + atol + rtol * |baseline|``.
 
 ``--require`` rules are parsed by a small grammar, ``operand OP operand`` with OP one of
@@ -20,7 +20,7 @@ import math
 import re
 import xml.etree.ElementTree as ET
 from dataclasses import dataclass
-from pathlib import Path
+from pathlib import Path, PurePath
 
 from ..errors import DataFormatError, FusionEvalError
 from ..outputs import atomic_write
@@ -78,10 +78,17 @@ def _flat_csv(path: Path) -> dict[str, float]:
         raise DataFormatError(path, None, f"not a valid CSV ({exc})") from None
     if not rows or "dataset" not in rows[0] or "setting" not in rows[0]:
         raise DataFormatError(path, 1, "expected a sweep.csv (columns dataset, variant, setting, metrics...)")
+    # a dataset is named as sweep.md names it (its folder or manifest file name), not by the absolute path the
+    # sweep recorded: a baseline made in another checkout or CI workspace must still match; only datasets of the
+    # same name at different paths keep their paths
+    paths_of: dict[str, set] = {}
+    for r in rows:
+        paths_of.setdefault(PurePath(r["dataset"]).name, set()).add(r["dataset"])
     for i, r in enumerate(rows, start=2):
         if r.get("status") != "ok":
             continue
-        key = f"{r['dataset']}/{r.get('variant', '')}/{r['setting']}"
+        name = PurePath(r["dataset"]).name
+        key = f"{name if len(paths_of[name]) == 1 else r['dataset']}/{r.get('variant', '')}/{r['setting']}"
         for c, v in r.items():
             if c in ("id", "dataset", "variant", "setting", "status", "error") or v in ("", None):
                 continue
