@@ -448,6 +448,26 @@ def test_evaluate_refuses_segments_in_seconds_on_frame_index_stamps(tmp_path):
     _assert_clean_error(r, out, "--segment-s needs stamps in seconds", "--ref-times")
 
 
+def test_evaluate_on_frame_index_stamps_labels_frames_not_seconds(tmp_path, monkeypatch):
+    """The segment table's span column and the APE-over-time axis said seconds for frame indices (a 470 s drive
+    shown as 0-4540 s)."""
+    from fusion_eval.report import plots
+
+    labels = []
+    drawn = plots.plot_ape_over_time
+    monkeypatch.setattr(plots, "plot_ape_over_time", lambda *a: (labels.append(a[3:]), drawn(*a))[1])
+    rows = [f"1 0 0 {i * 0.8:.3f} 0 1 0 0 0 0 1 {0.01 * (i % 7):.3f}" for i in range(400)]
+    ref, est = tmp_path / "ref.txt", tmp_path / "est.txt"
+    ref.write_text("\n".join(f"1 0 0 {i * 0.8:.3f} 0 1 0 0 0 0 1 0" for i in range(400)) + "\n")
+    est.write_text("\n".join(rows) + "\n")
+    out = tmp_path / "o"
+    r = CliRunner().invoke(main, ["-q", "evaluate", str(ref), str(est), "--segment-m", "100", "-o", str(out)])
+    assert r.exit_code == 0, r.output
+    md = (out / "report.md").read_text()
+    assert "| frames " in md and "time [s]" not in md
+    assert labels == [("frame since start",)]
+
+
 def test_evaluate_refuses_kitti_files_without_times_of_different_lengths(tmp_path):
     """Paired by frame index, a pose missing mid-file would shift every later pair: refused, naming both counts."""
     rows = [f"1 0 0 {i * 0.8:.3f} 0 1 0 0 0 0 1 0" for i in range(40)]

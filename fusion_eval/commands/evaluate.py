@@ -102,7 +102,8 @@ def run_evaluate(inputs: list, out_dir: Path, ref_times: Path | None = None, tim
             plots.plot_generic_trajectories(out.path("trajectories.png"), ref,
                                             {k: _aligned(as_series(f), evals[k]) for k, f in zip(series, est_fs)},
                                             up_axis=up, alignment=alignment)
-            plots.plot_ape_over_time(out.path("ape_over_time.png"), evals, float(ref.t_s[0]))
+            plots.plot_ape_over_time(out.path("ape_over_time.png"), evals, float(ref.t_s[0]),
+                                     "frame since start" if ref_f.stamps == BY_INDEX else "time since start [s]")
             written = ["trajectories.png", "ape_over_time.png"]
             if any(ev.drift for ev in evals.values()):
                 plots.plot_drift(out.path("kitti_drift.png"), evals)

@@ -60,7 +60,11 @@ def segments_section(m: dict) -> list[str]:
     names = [k for k in seg["segments"][0]["rmse_m"] if k not in skip and any(s["rmse_m"].get(k) is not None for s in seg["segments"])]
     a, b = seg.get("primary", "fused"), seg.get("secondary")
     unit = "m" if seg["by"] == "distance" else "s"
-    header = ["segment", "route [m]", "time [s]"] + [f"{n} APE RMSE [m]" for n in names] + ([f"{a} - {b} [m]"] if b else [])
+    # evaluate's KITTI poses without a times file are stamped by frame index: their "seconds" are frames
+    from ..datasets.trajectory_file import BY_INDEX
+
+    by_frame = m.get("reference_stamps") == BY_INDEX
+    header = ["segment", "route [m]", "frames" if by_frame else "time [s]"] + [f"{n} APE RMSE [m]" for n in names] + ([f"{a} - {b} [m]"] if b else [])
     rows = []
     for s in seg["segments"]:
         r = s["rmse_m"]

@@ -98,8 +98,9 @@ def _gapped(t: np.ndarray, y: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     return np.insert(t.astype(float), cut, np.nan), np.insert(y.astype(float), cut, np.nan)
 
 
-def plot_ape_over_time(path: Path, evals: dict, t0: float) -> None:
-    """APE translation of each estimate over time (log scale: dead reckoning grows by orders of magnitude)."""
+def plot_ape_over_time(path: Path, evals: dict, t0: float, x_label: str = "time since start [s]") -> None:
+    """APE translation of each estimate over time (log scale: dead reckoning grows by orders of magnitude);
+    ``x_label``: what the stamps count (frames, for KITTI poses without a times file)."""
     fig, ax = plt.subplots(figsize=(10, 4.5))
     known = [n for n in ("imu_only", "gnss", "lidar", "fused", "smoothed") if n in evals]
     floor = _log_floor([ev.ape_err_m for ev in evals.values()])
@@ -114,7 +115,7 @@ def plot_ape_over_time(path: Path, evals: dict, t0: float) -> None:
                 color=COLORS.get(name, _VCOLORS[i % len(_VCOLORS)]), label=f"{LABELS.get(name, name)} (RMSE {_metres(rmse)})")
     ax.set_yscale("log")
     _no_minor_labels(ax)
-    ax.set_xlabel("time since start [s]")
+    ax.set_xlabel(x_label)
     ax.set_ylabel("APE translation [m]")
     ax.set_title("Absolute position error against ground truth")
     ax.grid(alpha=0.3, which="both")
