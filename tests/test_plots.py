@@ -310,3 +310,24 @@ def test_evaluation_plots_drawn_from_their_thinned_data_are_the_same_bytes(tmp_p
     assert set(thin.segment_map(evals, seg)) == {"fused", "lidar"}
     assert np.array_equal(thin.envelope(thin.ape_curves(evals)["imu_only"].ape_err_m), np.arange(
         thin.ape_curves(evals)["imu_only"].ape_err_m.size))            # an envelope of an envelope keeps it
+
+
+def test_compare_ape_draws_smoothed_estimates_and_keeps_unfiltered_colours_apart(monkeypatch, tmp_path):
+    """The lidar odometry was drawn in the first variant's blue and the GNSS in the third's green, and a variant's
+    smoothed estimate (a row of compare.md) was not drawn."""
+    from matplotlib.colors import to_hex
+
+    def ev(scale):
+        t = np.arange(50.0)
+        return SimpleNamespace(ape_err_m=scale * (1 + t), ape_t_s=t, metrics={"ape": {"translation_m": {"rmse": scale}}})
+
+    runs = [SimpleNamespace(name=f"v{i}", ev=ev(i + 1.0), ev_smoothed=ev(0.5) if i == 1 else None) for i in range(4)]
+    figs = []
+    monkeypatch.setattr(plots, "_save", lambda fig, path: figs.append(fig))
+    plots.plot_compare_ape(tmp_path / "a.png", runs, {"lidar": ev(7.0), "gnss": ev(2.0)}, 0.0)
+    lines = {ln.get_label().split(" (")[0]: ln for ln in figs[0].axes[0].get_lines()}
+    assert set(lines) == {"v0", "v1", "v1 smoothed", "v2", "v3", "lidar odometry", "GNSS"}
+    assert lines["v1 smoothed"].get_color() == lines["v1"].get_color() and lines["v1 smoothed"].get_linestyle() == "--"
+    variant = {to_hex(lines[f"v{i}"].get_color()) for i in range(4)}
+    assert len(variant) == 4 and not variant & {to_hex(lines[n].get_color()) for n in ("lidar odometry", "GNSS")}
+    plt.close("all")

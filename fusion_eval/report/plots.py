@@ -9,6 +9,7 @@ import matplotlib
 
 matplotlib.use("Agg")
 import matplotlib.pyplot as plt  # noqa: E402
+import matplotlib.colors as mcolors  # noqa: E402
 import numpy as np  # noqa: E402
 
 # A fixed title height: matplotlib otherwise measures every axis' tick labels at each draw to lift titles
@@ -266,21 +267,32 @@ def plot_att_vel_error_sigma(path: Path, av: dict) -> None:
     _save(att_vel_error_figure(av), path)
 
 
+# the unfiltered estimates beside variants: greys, which no variant's colour is (the lidar's blue and the GNSS's green
+# are the first and third variants' colours)
+_UNFILTERED = {"lidar": ("black", ":"), "gnss": ("0.55", ".")}
+_VARIANT_COLORS = [c for c in _VCOLORS if mcolors.to_hex(c) != "#7f7f7f"]
+
+
 def plot_compare_ape(path: Path, runs, evs_unfiltered: dict, t0: float) -> None:
-    """APE translation over time of every variant (solid) and of the unfiltered estimates (dotted)."""
+    """APE translation over time of every variant (solid; a variant's smoothed estimate dashed, in its colour)
+    and of the unfiltered estimates (grey: lidar dotted, GNSS dots)."""
     fig, ax = plt.subplots(figsize=(10, 4.5))
-    floor = _log_floor([r.ev.ape_err_m for r in runs] + [ev.ape_err_m for ev in evs_unfiltered.values()])
+    floor = _log_floor([r.ev.ape_err_m for r in runs] + [r.ev_smoothed.ape_err_m for r in runs if r.ev_smoothed is not None]
+                       + [ev.ape_err_m for ev in evs_unfiltered.values()])
     for i, r in enumerate(runs):
-        rmse = r.ev.metrics["ape"]["translation_m"]["rmse"]
-        k = thin.envelope(r.ev.ape_err_m)
-        ax.plot(*_gapped(r.ev.ape_t_s[k] - t0, np.maximum(r.ev.ape_err_m[k], floor)), "-", lw=1.0,
-                color=_VCOLORS[i % len(_VCOLORS)], label=f"{r.name} (RMSE {_metres(rmse)})")
+        color = _VARIANT_COLORS[i % len(_VARIANT_COLORS)]
+        for ev, style, label in ((r.ev, "-", r.name), (r.ev_smoothed, "--", f"{r.name} smoothed")):
+            if ev is None or ev.ape_err_m is None:
+                continue
+            k = thin.envelope(ev.ape_err_m)
+            ax.plot(*_gapped(ev.ape_t_s[k] - t0, np.maximum(ev.ape_err_m[k], floor)), style, lw=1.0, color=color,
+                    label=f"{label} (RMSE {_metres(ev.metrics['ape']['translation_m']['rmse'])})")
     for name in ("lidar", "gnss"):
         ev = evs_unfiltered.get(name)
         if ev is not None and ev.ape_err_m is not None:
             k = thin.envelope(ev.ape_err_m)
-            ax.plot(*_gapped(ev.ape_t_s[k] - t0, np.maximum(ev.ape_err_m[k], floor)), ":" if name == "lidar" else ".",
-                    ms=2, lw=1.0, color=COLORS[name],
+            color, style = _UNFILTERED[name]
+            ax.plot(*_gapped(ev.ape_t_s[k] - t0, np.maximum(ev.ape_err_m[k], floor)), style, ms=2, lw=1.0, color=color,
                     label=f"{LABELS[name]} (RMSE {_metres(ev.metrics['ape']['translation_m']['rmse'])})")
     ax.set_yscale("log")
     ax.set_xlabel("time since start [s]")
@@ -299,8 +311,8 @@ def plot_compare_biases(path: Path, runs) -> None:
         t = r.filt.fused.t_s - r.filt.fused.t_s[0]
         for k in range(3):
             lab = r.name if k == 0 else None
-            axes[0].plot(t, r.filt.accel_bias_b[:, k], styles[k], lw=0.9, color=_VCOLORS[i % len(_VCOLORS)], label=lab)
-            axes[1].plot(t, np.degrees(r.filt.gyro_bias_b[:, k]) * 3600, styles[k], lw=0.9, color=_VCOLORS[i % len(_VCOLORS)])
+            axes[0].plot(t, r.filt.accel_bias_b[:, k], styles[k], lw=0.9, color=_VARIANT_COLORS[i % len(_VARIANT_COLORS)], label=lab)
+            axes[1].plot(t, np.degrees(r.filt.gyro_bias_b[:, k]) * 3600, styles[k], lw=0.9, color=_VARIANT_COLORS[i % len(_VARIANT_COLORS)])
     axes[0].set_ylabel("accel bias [m/s^2]")
     axes[1].set_ylabel("gyro bias [deg/h]")
     axes[1].set_xlabel("time since start [s]")
@@ -320,7 +332,7 @@ def plot_compare_body_velocity(path: Path, runs, body_v: list, gt, gt_vb) -> Non
             ax.plot(gt.t_s - t0, gt_vb[:, k], color="black", lw=1.2, label="ground truth", zorder=10)
     for i, (r, vb) in enumerate(zip(runs, body_v)):
         for ax, k in zip(axes, (1, 2)):
-            ax.plot(r.filt.fused.t_s - t0, vb[:, k], lw=0.7, alpha=0.7, color=_VCOLORS[i % len(_VCOLORS)], label=r.name)
+            ax.plot(r.filt.fused.t_s - t0, vb[:, k], lw=0.7, alpha=0.7, color=_VARIANT_COLORS[i % len(_VARIANT_COLORS)], label=r.name)
     axes[0].set_ylabel("lateral [m/s]")
     axes[1].set_ylabel("vertical [m/s]")
     axes[1].set_xlabel("time since start [s]")
