@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import json
 from pathlib import Path
 
 import numpy as np
@@ -173,6 +174,15 @@ def test_compare_command_writes_table_and_plots(kitti_slice, tmp_path):
     for v in ("eskf", "nominal", "odometer-nhc", "lidar", "gnss"):
         assert f"| {v} |" in md or f"| {v}" in md
     assert len((out / "compare.csv").read_text().splitlines()) == 1 + 3 + 3
+    # compare.md's columns, one value per cell (the README lists them for both files)
+    import csv
+
+    rows = {r["variant"]: r for r in csv.DictReader((out / "compare.csv").read_text().splitlines()) if r["estimate"] == "fused"}
+    bv = json.loads((out / "compare.json").read_text())["rows"][0]
+    assert float(rows["eskf"]["body_velocity_lateral_rms_mps"]) == pytest.approx(bv["body_velocity_rms_mps"]["lateral"], abs=1e-6)
+    assert float(rows["eskf"]["final_gyro_bias_z_dph"]) == pytest.approx(bv["final_gyro_bias_dph"][2], abs=1e-6)
+    assert float(rows["eskf"]["nis_mean_lidar"]) == pytest.approx(bv["nis_mean"]["lidar"], abs=1e-6)
+    assert rows["odometer-nhc"]["nis_mean_odometer"] != "" and rows["eskf"]["nis_mean_odometer"] == ""
     assert "## Per-segment breakdown" in md and "KITTI drift" in md
     for p in ("ape_over_time.png", "biases.png", "body_velocity.png"):
         assert (out / p).read_bytes()[:4] == b"\x89PNG"

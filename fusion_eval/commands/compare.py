@@ -189,7 +189,7 @@ def compare(dataset_path: Path | None, variants: list[str], variant_dir: Path | 
         if trials_info:
             result["trials"] = trials_info
         out.write_text("compare.json", json.dumps(result, indent=2) + "\n")
-        out.write_text("compare.csv", csv_text(CSV_COLUMNS + (["trials", "ape_trans_rmse_m_std"] if trials_info else []), table))
+        out.write_text("compare.csv", _csv(table, bool(trials_info)))
         md = (_markdown(ds.name, table, truth_body, make_plots, sp, n_trials)
               + "\n".join(segments_section({"segments": seg})) + "\n")
         out.write_text("compare.md", md)
@@ -238,6 +238,27 @@ def _variant_row(r: VariantRun, gt: PoseSeries, evs_u: dict, ev_cfg: dict, estim
 CSV_COLUMNS = ["variant", "estimate", "matched_poses", "ape_trans_rmse_m", "ape_rot_rmse_deg", "rpe_1frame_trans_rmse_m",
                "fused_over_lidar", "fused_over_gnss", "kitti_drift_t_err_pct", "kitti_drift_r_err_deg_per_100m",
                "nees_position_in_95", "runtime_s"]
+
+
+def _csv(rows: list[dict], trials: bool) -> str:
+    """``compare.csv``: compare.md's columns, one value per cell (the body velocity's two axes, the final gyro bias's
+    three, and the mean NIS of each observation a row has, in the registry's order)."""
+    order = [o.name for o in observations.REGISTRY]
+    nis_names = sorted({k for r in rows for k in (r.get("nis_mean") or {})}, key=lambda k: (order.index(k) if k in order else 99, k))
+    extra = (["body_velocity_lateral_rms_mps", "body_velocity_vertical_rms_mps"]
+             + [f"final_gyro_bias_{a}_dph" for a in "xyz"] + [f"nis_mean_{k}" for k in nis_names])
+    flat = []
+    for r in rows:
+        f = dict(r)
+        bv = r.get("body_velocity_rms_mps") or {}
+        f["body_velocity_lateral_rms_mps"], f["body_velocity_vertical_rms_mps"] = bv.get("lateral"), bv.get("vertical")
+        for a, b in zip("xyz", r.get("final_gyro_bias_dph") or []):
+            f[f"final_gyro_bias_{a}_dph"] = float(b)
+        for k, v in (r.get("nis_mean") or {}).items():
+            f[f"nis_mean_{k}"] = v
+        flat.append(f)
+    cols = CSV_COLUMNS[:-1] + extra + CSV_COLUMNS[-1:] + (["trials", "ape_trans_rmse_m_std"] if trials else [])
+    return csv_text(cols, flat)
 
 
 def _pct(x) -> str:
