@@ -41,6 +41,45 @@ def alive(pid: int) -> bool:
     return True
 
 
+@contextlib.contextmanager
+def default_dir(base: Path):
+    """A new, empty output directory for a command run without ``--out``: ``base`` or, when that is taken (another
+    command started in the same second: the second was refused as writing the first one's folder), ``base-2``,
+    ``base-3``... The directory is created here, atomically, so that two commands cannot pick one name; it is
+    removed again (with any parent this made) if the block fails or is interrupted while it is still empty."""
+    base = Path(base)
+    made = [p for p in [base.parent, *base.parent.parents] if not p.exists()]
+    try:
+        base.parent.mkdir(parents=True, exist_ok=True)
+        k = 1
+        while True:
+            d = base if k == 1 else base.with_name(f"{base.name}-{k}")
+            try:
+                d.mkdir()
+                if (d.parent / f".{d.name}.lock").exists():       # an explicit --out of that name is being written
+                    d.rmdir()
+                    raise FileExistsError
+                break
+            except FileExistsError:
+                k += 1
+    except OSError as exc:
+        raise OutputError(f"{base}: cannot create output directory ({exc.strerror or exc})") from None
+
+    def discard() -> None:
+        for p in [d, *made]:             # only empty folders: a finished command's output is never removed
+            try:
+                p.rmdir()
+            except OSError:
+                break
+    token = interrupts.on_abort(discard)
+    try:
+        yield d
+    except BaseException:
+        discard()
+        raise
+    finally:
+        interrupts.forget(token)
+
 
 def write_atomic(target: Path, data: bytes) -> Path:
     """``target`` written whole or not at all (a temporary beside it, then a rename): a reader never sees half a

@@ -7,6 +7,7 @@ import json
 import zipfile
 
 import numpy as np
+import pytest
 import yaml
 from click.testing import CliRunner
 
@@ -101,6 +102,32 @@ def test_existing_output_directory_is_kept_unless_overwrite(kitti_slice, slice_r
     r = CliRunner().invoke(main, ["-q", "run", str(kitti_slice), "--out", str(slice_run)])
     assert r.exit_code == 2 and "--overwrite" in r.output
     assert (slice_run / "metrics.json").read_bytes() == before
+
+
+def test_default_output_folders_are_unique_and_a_failed_run_leaves_none(kitti_slice, tmp_path, monkeypatch):
+    """Two commands started in the same second without --out each get a folder (the second was refused as writing
+    the first one's); a failing run leaves no empty folder behind; --set items show in the name."""
+    import shutil
+
+    from fusion_eval.outputs import default_dir
+
+    base = tmp_path / "r1" / "x-default-20260101-000000"
+    with default_dir(base) as a, default_dir(base) as b:
+        assert (a, b) == (base, base.with_name(base.name + "-2")) and a.is_dir() and b.is_dir()
+    with pytest.raises(KeyboardInterrupt), default_dir(tmp_path / "r2" / "deep" / "y") as c:
+        assert c.is_dir()
+        raise KeyboardInterrupt
+    assert not (tmp_path / "r2").exists()
+
+    bad = tmp_path / "bad"
+    shutil.copytree(kitti_slice, bad)
+    sorted((bad / "oxts" / "data").iterdir())[50].write_text("1 2 3\n")
+    monkeypatch.chdir(tmp_path)
+    r = CliRunner().invoke(main, ["-q", "run", str(bad), "--no-plots"])
+    assert r.exit_code == 2 and not (tmp_path / "results").exists(), r.output
+    r = CliRunner().invoke(main, ["-q", "run", str(kitti_slice), "--no-plots", "--set", "gnss.seed=3"])
+    assert r.exit_code == 0 and [p.name.split("-2")[0] for p in (tmp_path / "results").iterdir()] == \
+        [f"{kitti_slice.name}-default-set"], r.output
 
 
 def test_set_overrides_and_lidar_forms(kitti_slice, tmp_path):

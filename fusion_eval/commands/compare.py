@@ -25,7 +25,7 @@ from ..evaluation import keys, span
 from ..evaluation.run_metrics import consistency, segments
 from ..evaluation.trajectory import evaluate, ratio
 from ..filters import observations
-from ..outputs import StagedDir, dataset_roots, repeated_path
+from ..outputs import StagedDir, dataset_roots, default_dir, repeated_path
 from ..pool import executor
 from ..prepare import prepare, settings_for
 from ..replay import replay
@@ -133,7 +133,16 @@ def trial_table(ds, variants: list[str], cfgs: list[dict]) -> list[dict]:
 def compare(dataset_path: Path | None, variants: list[str], variant_dir: Path | None, base_config: Path | None,
             sets: tuple[str, ...], out_dir: Path | None, overwrite: bool = False, make_plots: bool = True,
             progress: Callable[[float], None] | None = None, trials: int = 1) -> dict:
-    out_dir = out_dir if out_dir is not None else Path("results") / f"compare-{time.strftime('%Y%m%d-%H%M%S')}"
+    args = (dataset_path, variants, variant_dir, base_config, sets)
+    if out_dir is not None:
+        return _compare(*args, out_dir, overwrite, make_plots, progress, trials)
+    with default_dir(Path("results") / f"compare-{time.strftime('%Y%m%d-%H%M%S')}") as out_dir:
+        return _compare(*args, out_dir, overwrite, make_plots, progress, trials)
+
+
+def _compare(dataset_path: Path | None, variants: list[str], variant_dir: Path | None, base_config: Path | None,
+             sets: tuple[str, ...], out_dir: Path, overwrite: bool, make_plots: bool,
+             progress: Callable[[float], None] | None, trials: int) -> dict:
     staged = StagedDir(out_dir, overwrite=overwrite, inputs=dataset_roots(dataset_path))
     staged.check()
     n_trials = mc.check_count(trials)

@@ -7,11 +7,13 @@ from pathlib import Path
 from typing import Callable
 
 from .. import resources, session
+from ..outputs import default_dir
 from ..pipeline import RunResult, run_to_dir
 from ..tables import cell
 
 
 def default_out_dir(dataset: Path, config_name: str) -> Path:
+    """``results/<dataset>-<config>-<time>`` (made unique by :func:`fusion_eval.outputs.default_dir`)."""
     ds_name = dataset.resolve().parent.name if dataset.is_file() else dataset.resolve().name
     return Path("results") / f"{ds_name}-{config_name}-{time.strftime('%Y%m%d-%H%M%S')}"
 
@@ -20,8 +22,13 @@ def run(dataset: Path | None, config: Path | None, sets: tuple[str, ...], out_di
         progress: Callable[[float], None] | None = None, trials: int = 1) -> RunResult:
     req = session.request(config=config, sets=sets)           # a bad configuration fails before any data is read
     dataset = resources.default_dataset() if dataset is None else resources.find(dataset)
-    out_dir = out_dir if out_dir is not None else default_out_dir(dataset, req.source)
-    return run_to_dir(dataset, req, out_dir, overwrite=overwrite, progress=progress, trials=trials)
+    if out_dir is not None:
+        return run_to_dir(dataset, req, out_dir, overwrite=overwrite, progress=progress, trials=trials)
+    # the name says when --set items changed the estimate ("default" alone would claim the defaults; output.* keys,
+    # such as --no-plots, change only what is written)
+    changed = any(not s.strip().startswith("output.") for s in sets)
+    with default_dir(default_out_dir(dataset, req.source + ("-set" if changed else ""))) as out_dir:
+        return run_to_dir(dataset, req, out_dir, overwrite=overwrite, progress=progress, trials=trials)
 
 
 def summary_table(metrics: dict) -> str:
