@@ -230,12 +230,16 @@ def compare(ctx, dataset, variants, variant_dir, config_path, sets, out_dir, ove
     if ctx.obj["quiet"]:
         click.echo(res["out_dir"])
     else:
-        click.echo(f"{'variant':<26} {'estimate':<9} {'APE trans RMSE [m]':>19} {'APE rot RMSE [deg]':>19}")
+        # over trials, the translation's std beside its mean (after the rotation column it read as the rotation's)
+        n_trials = max((r.get("trials") or 1 for r in res["rows"]), default=1)
+        trans = "APE trans RMSE [m]" if n_trials == 1 else f"APE trans RMSE [m], mean +/- std of {n_trials} trials"
+        w = len(trans)
+        click.echo(f"{'variant':<26} {'estimate':<9} {trans:>{w}} {'APE rot RMSE [deg]':>19}")
         for r in res["rows"]:
             rot = r.get("ape_rot_rmse_deg")
             sd = r.get("ape_trans_rmse_m_std")
-            click.echo(f"{r['variant']:<26} {r['estimate']:<9} {r['ape_trans_rmse_m']:>19.3f} "
-                       f"{'n/a' if rot is None else f'{rot:.3f}':>19}" + ("" if sd is None else f"  (+/- {sd:.3f} over {r['trials']} trials)"))
+            t = f"{r['ape_trans_rmse_m']:.3f}" + ("" if sd is None else f" +/- {sd:.3f}")
+            click.echo(f"{r['variant']:<26} {r['estimate']:<9} {t:>{w}} {'n/a' if rot is None else f'{rot:.3f}':>19}")
         click.echo(f"wrote {res['out_dir']}/ ({time.perf_counter() - t0:.1f} s)")
 
 

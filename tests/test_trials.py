@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import csv
 import json
+import re
 
 import numpy as np
 import pytest
@@ -71,10 +72,14 @@ def test_run_with_trials_summarises_every_metric_and_check_gates_on_the_mean(kit
 @pytest.mark.slow
 def test_compare_and_sweep_with_trials_report_means(kitti_slice, tmp_path):
     out = tmp_path / "cmp"
-    r = CliRunner().invoke(main, ["-q", "compare", str(kitti_slice), "--variants", "eskf,constant-bias", "--trials", "2",
+    r = CliRunner().invoke(main, ["compare", str(kitti_slice), "--variants", "eskf,constant-bias", "--trials", "2",
                                   "--out", str(out), "--no-plots"])
     assert r.exit_code == 0, r.output
     c = json.loads((out / "compare.json").read_text())
+    # the terminal's table: the translation's std beside its mean, not after the rotation column
+    e = next(x for x in c["rows"] if x["variant"] == "eskf" and x["estimate"] == "fused")
+    assert re.search(rf"eskf +fused +{e['ape_trans_rmse_m']:.3f} \+/- {e['ape_trans_rmse_m_std']:.3f} +{e['ape_rot_rmse_deg']:.3f}\n",
+                     r.stdout), r.stdout
     assert c["trials"]["n"] == 2 and len(c["trials"]["per_trial"]) == 2
     for row in c["rows"]:
         per = [next(x for x in t if x["variant"] == row["variant"] and x["estimate"] == row["estimate"])["ape_trans_rmse_m"]
