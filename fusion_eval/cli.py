@@ -247,7 +247,7 @@ def compare(ctx, dataset, variants, variant_dir, config_path, sets, out_dir, ove
 @click.argument("datasets", nargs=-1, type=click.Path(path_type=Path))
 @click.option("-g", "--grid", "sweep_file", required=True, metavar="SWEEP",
               help="Sweep file (datasets, variants and the settings to sweep: grid, settings, random), or the name of "
-                   "a shipped sweep (noise5, grid2d).")
+                   "a shipped sweep (noise5, noise64, grid2d).")
 @click.option("-o", "--out", "out_dir", required=True, type=click.Path(path_type=Path),
               help="Sweep directory; running again into it skips the runs already recorded there.")
 @click.option("-j", "--jobs", type=int, default=None, help="Parallel runs (default: all cores).")

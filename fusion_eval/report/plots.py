@@ -531,7 +531,10 @@ def plot_sweep(out_dir: Path, rows: list[dict], keys: list[str], metric: str, ta
             for i in range(len(ys)):
                 for j in range(len(xs)):
                     if np.isfinite(Z[i, j]):
-                        ax.text(j, i, f"{Z[i, j]:.2f}", ha="center", va="center", fontsize=8, color="white")
+                        # dark text on the bright (best, yellow) cells, white on the dark ones
+                        r, g, b, _ = im.cmap(im.norm(Z[i, j]))
+                        ax.text(j, i, f"{Z[i, j]:.2f}", ha="center", va="center", fontsize=8,
+                                color="black" if 0.299 * r + 0.587 * g + 0.114 * b > 0.5 else "white")
             ax.set_xlabel(kx)
             ax.set_ylabel(ky)
             fig.colorbar(im, label="fused APE RMSE [m] (mean over datasets and variants)")
