@@ -229,6 +229,27 @@ def test_a_kitti_pose_file_with_other_blanks_reads_as_evo_reads_the_clean_one(tm
     np.testing.assert_array_equal(np.asarray(got.traj.poses_se3), np.asarray(want.poses_se3))
 
 
+@pytest.mark.parametrize("edit", [lambda t: t + "\n", lambda t: t.replace("\n", "\r\n") + "\r\n",
+                                  lambda t: t.replace("\n", "\n\n", 40).replace("\n\n", "\n", 39),
+                                  lambda t: t.replace(",", ", ")],
+                         ids=["trailing-blank-line", "crlf-blank-line", "blank-line-inside", "blanks-after-commas"])
+def test_a_euroc_csv_with_blank_lines_reads_as_evo_reads_the_clean_one(tmp_path, edit):
+    """evo's EuRoC reader refuses a blank line (a traceback before, found by a new-user review); the same floats
+    are taken, so the trajectory equals evo's own reading of the clean file."""
+    from evo.tools import file_interface
+
+    from fusion_eval.datasets.trajectory_file import read_trajectory
+
+    text = "\n".join(shared_path("evo-test-data", "V102_groundtruth.csv").read_text().splitlines()[:400]) + "\n"
+    (tmp_path / "clean.csv").write_text(text)
+    (tmp_path / "gt.csv").write_bytes(edit(text).encode())
+    got = read_trajectory(tmp_path / "gt.csv")
+    want = file_interface.read_euroc_csv_trajectory(str(tmp_path / "clean.csv"))
+    assert got.traj.num_poses == want.num_poses == 399
+    np.testing.assert_array_equal(got.traj.timestamps, want.timestamps)
+    np.testing.assert_array_equal(np.asarray(got.traj.poses_se3), np.asarray(want.poses_se3))
+
+
 @pytest.mark.parametrize("name", ["fr2_desk_ORB.txt", "V102_groundtruth.csv"])
 def test_a_byte_order_mark_is_dropped_as_evo_drops_it(tmp_path, name):
     """A UTF-8 BOM (Windows editors write one) before a TUM or EuRoC file: refused before ('expected a number');

@@ -142,7 +142,12 @@ def read_trajectory(path: Path, times: Path | None = None, fmt: str = "auto") ->
                                          "q_w,q_x,q_y,q_z,...)", delimiter=",")
         repeated = _stamps_checked(path, rows[:, 0], lines)
         _poses_checked(path, lines, rows[:, 0] * 1e-9, rows[:, 1:4], rows[:, 4:8])
-        traj = file_interface.read_euroc_csv_trajectory(str(path))
+        try:
+            traj = file_interface.read_euroc_csv_trajectory(str(path))
+        except file_interface.FileInterfaceException:
+            # evo refuses a blank line (one at the end, a CRLF file's last one) or blanks around the commas; these
+            # are the floats its reader would take, and its ns -> s division
+            traj = PoseTrajectory3D(rows[:, 1:4], rows[:, 4:8], np.divide(rows[:, 0], 1e9))
         how = "EuRoC stamps (ns)"
     else:
         T, klines = kitti_poses.read_kitti_poses(path)           # the line-accurate checks (12 finite values, a rotation)
