@@ -468,6 +468,21 @@ def test_evaluate_on_frame_index_stamps_labels_frames_not_seconds(tmp_path, monk
     assert labels == [("frame since start",)]
 
 
+@pytest.mark.parametrize("alignment", ["se3", "sim3", "scale"])
+def test_an_alignment_on_degenerate_positions_is_a_one_line_error(tmp_path, alignment):
+    """Umeyama's fit on 2 matched poses, or on an estimate that stood still (a tracker that lost track), ended in
+    evo's GeometryException traceback (exit 1; found by a new-user review)."""
+    ref = tmp_path / "ref.tum"
+    ref.write_text("".join(f"{i * 0.1:.1f} {i * 0.5} {np.sin(i / 5)} 0 0 0 0 1\n" for i in range(50)))
+    for est_name, rows in (("two.tum", [f"{i * 0.1:.1f} {i * 0.5} 0 0 0 0 0 1" for i in range(2)]),
+                           ("still.tum", [f"{i * 0.1:.1f} 1 2 3 0 0 0 1" for i in range(50)])):
+        est = tmp_path / est_name
+        est.write_text("\n".join(rows) + "\n")
+        out = tmp_path / "o"
+        r = CliRunner().invoke(main, ["evaluate", str(ref), str(est), "--alignment", alignment, "-o", str(out)])
+        _assert_clean_error(r, out, f"{est.stem}: the {alignment} alignment is not possible", "matched positions")
+
+
 def test_evaluate_refuses_kitti_files_without_times_of_different_lengths(tmp_path):
     """Paired by frame index, a pose missing mid-file would shift every later pair: refused, naming both counts."""
     rows = [f"1 0 0 {i * 0.8:.3f} 0 1 0 0 0 0 1 0" for i in range(40)]

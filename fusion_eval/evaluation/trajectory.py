@@ -15,11 +15,13 @@ from dataclasses import dataclass, field
 import numpy as np
 from evo.core import metrics, sync
 from evo.core.filters import FilterException
+from evo.core.geometry import GeometryException
 from evo.core.result import Result
 from evo.core.trajectory import PoseTrajectory3D
 from evo.main_ape import ape as evo_ape
 from evo.main_rpe import rpe as evo_rpe
 
+from ..errors import DataRangeError
 from ..so3 import wxyz_to_xyzw, xyzw_to_wxyz
 from ..types import PoseSeries
 from . import engine, keys
@@ -286,7 +288,15 @@ def evaluate(reference, estimate, name: str, t_max_diff_s: float,
     if alignment == "4dof":
         est_a, ev.alignment_params, applied = _align_4dof(est_a, ref_a, up_axis, n_to_align)
     elif alignment in ("se3", "sim3", "scale", "origin"):
-        est_a, ev.alignment_params, applied = _align(est_a, ref_a, alignment, arrays, n_to_align)
+        try:
+            est_a, ev.alignment_params, applied = _align(est_a, ref_a, alignment, arrays, n_to_align)
+        except GeometryException as exc:
+            # Umeyama's fit needs positions that span more than a line: 2 matched poses, or an estimate that
+            # stood still (a tracker that lost track), was a traceback
+            n = ev.matched_poses if n_to_align == -1 else min(n_to_align, ev.matched_poses)
+            raise DataRangeError(f"{name}: the {alignment} alignment is not possible on its {n} matched positions "
+                                 f"(evo: {exc}): it needs at least 3 that do not lie on one line (or one point); "
+                                 "choose another --alignment") from None
     if cov is not None:
         ev.nees = pose_nees_of(ref_a, est_a, cov, applied, t_max_diff_s)
     wanted = ["trans_part", *[r for r in relations if r != "trans_part"]]
