@@ -108,13 +108,14 @@ def _velocity_from_positions(poses, t0: float, half_window_s: float = 0.1) -> np
     return (dt @ (p[k] - p[k].mean(axis=0))) / (dt @ dt)
 
 
-def _flag_data(ds: Dataset, applied: dict) -> None:
+def _flag_data(ds: Dataset, applied: dict, more: list[str] = ()) -> None:
     """What the data hold that no plausibility bound refuses but that makes the figures suspect, said on stderr and
-    in the report: the IMU stopping for seconds, and a wheeled vehicle's streams jumping faster than it can drive."""
+    in the report: the IMU stopping for seconds (in its stamps, or once its filled-in packets are dropped: ``more``),
+    and a wheeled vehicle's streams jumping faster than it can drive."""
     from .filters.observations.nhc import WHEELED
 
     platform = ds.description.get("platform")
-    warnings = plausible.imu_gaps(ds.imu)
+    warnings = plausible.imu_gaps(ds.imu) + list(more)
     if platform in WHEELED:
         warnings += plausible.ground_vehicle_glitches({"groundtruth": ds.groundtruth, "gnss": ds.gnss, "lidar": ds.lidar},
                                                       platform)
@@ -187,7 +188,9 @@ def prepare(ds: Dataset, cfg: dict) -> Prepared:
     applied["time_offset_s"]["imu"] = off
     imu = shifted(imu, off)
     n_filled = int(imu.filled.sum())
+    filled_warnings: list[str] = []
     if cfg["imu"]["filled_packets"] == "drop" and n_filled:
+        filled_warnings = plausible.dropped_gaps(imu, ~imu.filled, "the filled-in packets (imu.filled_packets: drop)")
         imu = imu.select(~imu.filled)
     applied["imu_filled_samples"] = n_filled
     applied["imu_filled_packets"] = cfg["imu"]["filled_packets"]
@@ -352,7 +355,7 @@ def prepare(ds: Dataset, cfg: dict) -> Prepared:
     applied["gravity_mps2"] = float(g)
     applied["t_start_s"] = t0
     _say_models(cfg, ds, applied)
-    _flag_data(ds, applied)
+    _flag_data(ds, applied, filled_warnings)
     prep = Prepared(imu=imu, groundtruth=gt, gnss=gnss, lidar=lidar, k_start=k0, x0=x0, gravity_mps2=float(g),
                     gnss_info=gnss_info, applied=applied, odometer=odo, streams=extra, resolved=resolved)
     if cfg["filter"].get("nhc") and cfg["filter"].get("nhc_travel_pitch_mrad") == "auto":

@@ -774,3 +774,19 @@ def test_stdout_on_a_full_device_and_a_non_utf8_output_name(tmp_path):
                        capture_output=True, stdin=subprocess.DEVNULL)
     assert p.returncode == 0 and b"Traceback" not in p.stderr and os.path.isdir(odd + b"/"), p.stderr
     assert p.stdout.strip() == odd
+
+
+def test_a_long_run_of_filled_packets_is_flagged_after_they_are_dropped(tmp_path):
+    """KITTI's filled-in packets are dropped before the filter; 30 s of them left a hole the raw stamps do not show,
+    and the run reported a 125 deg attitude error with exit 0 and no word (found by a new-user review)."""
+    from fusion_eval import session
+    from fusion_eval.prepare import prepare
+
+    ds_dir = make_slice(tmp_path / "ds", 600)
+    for f in sorted((ds_dir / "oxts" / "data").iterdir())[300:380]:        # 8 s, as KITTI writes a filled packet
+        v = f.read_text().split()
+        f.write_text(" ".join(v[:25] + ["4.0", "9.0", "-1", "-1", "-1"]) + "\n")
+    ds = session.dataset(ds_dir)
+    prep = prepare(ds, session.resolve(session.request(), ds))
+    w = [x for x in prep.applied.get("data_warnings", []) if "after dropping the filled-in packets" in x]
+    assert len(w) == 1 and "80 samples at" in w[0] and "timestamps.txt:301-380" in w[0], prep.applied.get("data_warnings")

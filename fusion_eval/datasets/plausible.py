@@ -117,6 +117,27 @@ def imu_gaps(imu) -> list[str]:
             "alone (a corrupted clock) shifts every stream aligned to the IMU"]
 
 
+def dropped_gaps(imu, kept: np.ndarray, why: str) -> list[str]:
+    """:func:`imu_gaps` of the samples ``kept`` (a mask over ``imu``), naming the dropped samples that open each
+    gap: KITTI's filled-in packets are dropped before the filter, and a long run of them leaves a hole the raw stamps
+    do not show (30 s of them once gave a 125 deg attitude error with no word)."""
+    t = np.asarray(imu.t_s)
+    idx = np.flatnonzero(kept)
+    if idx.size < 3:
+        return []
+    d = np.diff(t[idx])
+    limit = max(FLAG_IMU_GAP_S, 50.0 * float(np.median(d)))
+    bad = np.flatnonzero(d > limit)
+    if not bad.size:
+        return []
+    a, b = int(idx[bad[0]]) + 1, int(idx[bad[0] + 1]) - 1          # the first gap's dropped samples
+    la, lb = line_of(imu.lines, a), line_of(imu.lines, b)
+    where = f"{imu.source}:{la}-{lb}" if la is not None and lb is not None else f"{imu.source} (samples {a}-{b})"
+    return [f"imu: {bad.size} gap(s) longer than {limit:.3g} s after dropping {why}, the longest {d[bad].max():.3g} s, "
+            f"the first of {d[bad[0]]:.3g} s ({b - a + 1} samples at {where}): the filter dead-reckons across a gap "
+            "in one step, so the estimate there means little"]
+
+
 def ground_vehicle_glitches(streams: dict, platform: str) -> list[str]:
     """Per stream (``streams``: name -> pose or GNSS series, or None), the steps between consecutive real (not
     filled-in) samples faster than :data:`MAX_GROUND_SPEED_MPS` (for fixes with a std, beyond 6 sigma of their
