@@ -483,6 +483,21 @@ def test_an_alignment_on_degenerate_positions_is_a_one_line_error(tmp_path, alig
         _assert_clean_error(r, out, f"{est.stem}: the {alignment} alignment is not possible", "matched positions")
 
 
+def test_stamps_1000x_apart_that_match_a_handful_of_poses_are_refused(tmp_path):
+    """Stamps from 0 in milliseconds against seconds matched 2 of 4,541 poses and reported 200 m of 'APE' with exit
+    0; the unit hint compared only the first stamps (0 and 0). Now the spans are compared too, and a run that
+    matches so few poses is refused with the hint (found by a new-user review)."""
+    ref, est = tmp_path / "ref.tum", tmp_path / "est.tum"
+    ref.write_text("".join(f"{i * 0.1:.1f} {i * 0.5} {np.sin(i / 50)} 0 0 0 0 1\n" for i in range(4700)))
+    est.write_text("".join(f"{i * 100.0:.1f} {i * 0.5} {np.sin(i / 50)} 0 0 0 0 1\n" for i in range(4700)))
+    out = tmp_path / "o"
+    r = CliRunner().invoke(main, ["evaluate", str(ref), str(est), "-o", str(out)])
+    lines = r.stderr.strip().splitlines()
+    assert r.exit_code == 2 and all(ln.startswith("warning: ") for ln in lines[:-1]), r.output
+    assert lines[-1].startswith("error: 5 of 4700 poses") and "time span is 1e+3 times the reference's" in lines[-1]
+    assert not out.exists()
+
+
 def test_evaluate_refuses_kitti_files_without_times_of_different_lengths(tmp_path):
     """Paired by frame index, a pose missing mid-file would shift every later pair: refused, naming both counts."""
     rows = [f"1 0 0 {i * 0.8:.3f} 0 1 0 0 0 0 1 0" for i in range(40)]
