@@ -183,6 +183,11 @@ def test_real_process_exit_code_and_single_line(ds, tmp_path):
     ("  gnss:\n    format: kitti_oxts\n    path: oxts\n", "  gnss:\n    format: kitti_oxts\n    path: oxts\n    gyro_lag_s: 0.1\n",
      "unknown key 'gyro_lag_s' in stream 'gnss'"),
     ("T_cam0_velo: {file: lidar/calib.txt, key: Tr}", "T_cam0_velo: [2, 0, 0, 0, 0, 2, 0, 0, 0, 0, 2, 0]", "must be a rotation"),
+    # misspelt keys inside 'times' and a calibration reference were ignored (found by a new-user review)
+    ("index_offset: 0}", "index_offset: 0, smooth: 0.5}", "unknown key 'smooth' in times (known: align_to, file"),
+    ("align_to: imu,", "align_to: lidar,", "times.align_to takes 'imu'"),
+    ("T_velo_imu: {file: calib_imu_to_velo.txt}", "T_velo_imu: {file: calib_imu_to_velo.txt, kye: R}",
+     "unknown key 'kye' in T_velo_imu (known: file, key)"),
 ])
 def test_bad_manifest_values(ds, tmp_path, old, new, needle):
     m = ds / "dataset.yaml"

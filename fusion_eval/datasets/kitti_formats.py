@@ -26,6 +26,9 @@ def _num(v) -> bool:
     return isinstance(v, (int, float)) and not isinstance(v, bool) and bool(np.isfinite(v))
 
 
+TIMES_KEYS = {"file", "align_to", "index_offset", "smooth_s", "t0_s"}
+
+
 def pose_times(entry: dict, ctx: ReadContext, n_poses: int) -> np.ndarray:
     """The stamps of a KITTI pose file: a times file (absolute, or put on the IMU packets' clock with ``align_to``
     or ``t0_s``), or the stamps of the IMU packets themselves (``align_to: imu``, optionally smoothed: the recovered
@@ -34,6 +37,14 @@ def pose_times(entry: dict, ctx: ReadContext, n_poses: int) -> np.ndarray:
     pose_path = ctx.path(entry)
     if not isinstance(times, dict):
         raise ConfigError(f"{ctx.at(entry)}: KITTI poses need 'times': {{file: times.txt}} and/or {{align_to: imu, index_offset: 0}}")
+    # a misspelt key (smooth for smooth_s) was ignored: the run went on without what the user asked for
+    unknown = sorted(set(map(str, times)) - TIMES_KEYS)
+    if unknown:
+        raise ConfigError(f"{ctx.at(times, unknown[0])}: unknown key {unknown[0]!r} in times "
+                          f"(known: {', '.join(sorted(TIMES_KEYS))})")
+    if "align_to" in times and times["align_to"] != "imu":
+        raise ConfigError(f"{ctx.at(times, 'align_to')}: times.align_to takes 'imu' (the IMU packets' clock), "
+                          f"got {times['align_to']!r}")
     if times.get("align_to") == "imu" and raw is None:
         raise ConfigError(f"{ctx.at(times, 'align_to')}: times.align_to: imu needs the IMU as kitti_oxts packets; give times.file instead")
     offset = times.get("index_offset", 0)

@@ -248,6 +248,9 @@ def _is_num(v) -> bool:
 def _transform(spec_value, root: Path, where: str, what: str) -> np.ndarray:
     """A 4x4 transform from a manifest value; ``where``: its place (``file:line``), for messages."""
     if isinstance(spec_value, dict) and isinstance(spec_value.get("file"), str):
+        unknown = sorted(set(map(str, spec_value)) - {"file", "key"})
+        if unknown:               # a misspelt 'key' (or an 'invert' it does not have) was ignored
+            raise ConfigError(f"{where}: unknown key {unknown[0]!r} in {what} (known: file, key)")
         return kitti_poses.calib_transform(root / spec_value["file"], spec_value.get("key"))
     if isinstance(spec_value, (list, tuple)) and len(spec_value) in (12, 16) and all(_is_num(v) for v in spec_value):
         T = np.eye(4)
