@@ -8,6 +8,7 @@ did not come from a file (``--set`` values, built-in layers).
 
 from __future__ import annotations
 
+import re
 from typing import Any
 
 import yaml
@@ -47,6 +48,12 @@ def _mapping(loader: _Loader, node: yaml.MappingNode):
 
 
 _Loader.add_constructor(yaml.resolver.BaseResolver.DEFAULT_MAPPING_TAG, _mapping)
+# YAML 1.2's floats: PyYAML (YAML 1.1) reads 1e-3 (no point) and 1.0e3 (no sign in the exponent) as strings, so a
+# manifest's time_offset_s: 1e-3 was refused while --set took it; every file read here takes them as numbers
+_Loader.add_implicit_resolver(
+    "tag:yaml.org,2002:float",
+    re.compile(r"^[-+]?(?:[0-9][0-9_]*(?:\.[0-9_]*)?|\.[0-9_]+)[eE][-+]?[0-9]+$"),
+    list("-+0123456789."))
 for _d in {yaml.SafeDumper, _SafeDumper}:
     _d.add_representer(LineDict, yaml.representer.SafeRepresenter.represent_dict)
 

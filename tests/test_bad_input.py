@@ -810,3 +810,19 @@ def test_a_long_run_of_filled_packets_is_flagged_after_they_are_dropped(tmp_path
     prep = prepare(ds, session.resolve(session.request(), ds))
     w = [x for x in prep.applied.get("data_warnings", []) if "after dropping the filled-in packets" in x]
     assert len(w) == 1 and "80 samples at" in w[0] and "timestamps.txt:301-380" in w[0], prep.applied.get("data_warnings")
+
+
+def test_numbers_in_exponent_notation_are_numbers_in_every_file(ds):
+    """PyYAML reads 1e-3 (no point) and 1.0e3 (no sign in the exponent) as strings: a manifest's time_offset_s: 1e-3
+    and a geodetic origin's 1.16e2 were refused, while --set and config files took them (found by a new-user
+    review)."""
+    from fusion_eval import session, yaml_lines
+
+    assert yaml_lines.load("a: 1e-3\nb: [49.0, 8.4, 1.16e2]\nc: 1.0e3\nd: '1e-3'\ne: 1e5x\n") == \
+        {"a": 0.001, "b": [49.0, 8.4, 116.0], "c": 1000.0, "d": "1e-3", "e": "1e5x"}
+    m = ds / "dataset.yaml"
+    text = m.read_text()
+    m.write_text(text.replace("    time_offset_s: 0.0\n    # The OXTS", "    time_offset_s: 1e-3\n    # The OXTS", 1)
+                 .replace("geodetic_origin: first_fix", "geodetic_origin: [49.0, 8.4, 1.16e2]", 1))
+    d = session.dataset(ds)
+    assert d.description["streams"]["imu"]["time_offset_s"] == 0.001 and d.geodetic_origin == (49.0, 8.4, 116.0)
