@@ -353,6 +353,8 @@ def evaluate(ctx, inputs, out_dir, fmt, bag, ref_topic, ref_times, times, associ
         _refuse_ignored(ctx, ("up_axis",), f"with --alignment {alignment} (the gravity axis of --alignment 4dof)")
     if alignment == "none":
         _refuse_ignored(ctx, ("n_to_align",), "without an --alignment")
+    if not abs(t_offset) < float("inf"):            # nan or inf: every stamp would be, and nothing would match
+        raise click.UsageError(f"--t-offset must be a finite number of seconds, got {t_offset}")
 
     m = run_evaluate(list(inputs), out_dir, ref_times, times, association, alignment, t_max_diff, rpe_delta_m,
                      segment_m, segment_s, overwrite, not no_plots, engine, bag=bag, ref_topic=ref_topic, fmt=fmt,

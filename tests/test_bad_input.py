@@ -826,3 +826,38 @@ def test_numbers_in_exponent_notation_are_numbers_in_every_file(ds):
                  .replace("geodetic_origin: first_fix", "geodetic_origin: [49.0, 8.4, 1.16e2]", 1))
     d = session.dataset(ds)
     assert d.description["streams"]["imu"]["time_offset_s"] == 0.001 and d.geodetic_origin == (49.0, 8.4, 116.0)
+
+
+def test_a_stream_clock_in_another_unit_blames_the_odd_one():
+    """EuRoC IMU stamps in microseconds (read as nanoseconds: 1000x too short) were blamed on the ground truth: the
+    span check looked at each stream against the IMU only (found by a new-user review)."""
+    from types import SimpleNamespace
+
+    from fusion_eval.datasets import plausible
+    from fusion_eval.errors import DataRangeError
+
+    def series(name, t):
+        return SimpleNamespace(t_s=np.asarray(t, float), source=name, lines=None)
+
+    t = np.arange(0, 60, 0.005)
+    imu_us = SimpleNamespace(t_s=t / 1000, f_b_mps2=np.zeros((t.size, 3)) + [0, 0, 9.8], w_b_rps=np.zeros((t.size, 3)),
+                             source="imu0/data.csv", lines=None, filled=np.zeros(t.size, bool))
+    with pytest.raises(DataRangeError, match=r"the IMU \(imu0/data.csv\) spans .* for groundtruth, lidar .*the IMU's stamps "
+                                             r"are in another unit"):
+        plausible._odd_clock(imu_us, {"groundtruth": series("gt.csv", t), "lidar": series("l.csv", t[::20]), "gnss": None})
+    with pytest.raises(DataRangeError, match=r"groundtruth \(gt.csv\) spans .* against the IMU's \(imu0/data.csv\).*one of "
+                                             r"the two"):
+        plausible._odd_clock(imu_us, {"groundtruth": series("gt.csv", t)})
+    imu = SimpleNamespace(**{**vars(imu_us), "t_s": t})
+    plausible._odd_clock(imu, {"groundtruth": series("gt.csv", t * 1000), "lidar": series("l.csv", t[::20])})  # not all
+    with pytest.raises(DataRangeError, match=r"groundtruth \(gt.csv\) spans .*its stamps are in another unit"):
+        plausible.check_span("groundtruth", series("gt.csv", t * 1000), imu)
+
+
+@pytest.mark.parametrize("value", ["nan", "inf", "-inf"])
+def test_evaluate_refuses_a_non_finite_time_offset(tmp_path, value):
+    """--t-offset nan was taken: every stamp became NaN, evo warned that they were not sorted and the error blamed
+    the files (found by a new-user review)."""
+    out = tmp_path / "o"
+    r = CliRunner().invoke(main, ["evaluate", "a.tum", "b.tum", "-o", str(out), "--t-offset", value])
+    _assert_clean_error(r, out, f"--t-offset must be a finite number of seconds, got {value}")

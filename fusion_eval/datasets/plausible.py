@@ -58,6 +58,30 @@ def check_span(name: str, series, imu) -> None:
                              "the csv format's time_unit)")
 
 
+def _odd_clock(imu, streams: dict) -> None:
+    """Where every other stream spans :data:`MAX_SPAN_RATIO` times the IMU's span, the IMU's stamps are the ones in
+    another unit (EuRoC IMU stamps in microseconds were blamed on the ground truth); with a single other stream the
+    two cannot be told apart, and both are named."""
+    ti = np.asarray(imu.t_s)
+    if ti.size < 2 or not ti[-1] > ti[0]:
+        return
+    span_imu = float(ti[-1] - ti[0])
+    spans = {n: float(np.asarray(s.t_s)[-1] - np.asarray(s.t_s)[0]) for n, s in streams.items()
+             if s is not None and len(s.t_s) >= 2}
+    long = {n: v for n, v in spans.items() if v > MAX_SPAN_RATIO * span_imu}
+    if not long or len(long) < len(spans):
+        return
+    ratio = min(long.values()) / span_imu
+    if len(long) >= 2:
+        raise DataRangeError(f"the IMU ({imu.source}) spans {span_imu:.6g} s against {min(long.values()):.6g} s or more "
+                             f"for {', '.join(long)} ({ratio:.0f}x): the IMU's stamps are in another unit (microseconds "
+                             "read as nanoseconds? give the unit the format expects)")
+    (name, span), = long.items()
+    raise DataRangeError(f"{name} ({streams[name].source}) spans {span:.6g} s against the IMU's ({imu.source}) "
+                         f"{span_imu:.6g} s ({ratio:.0f}x): the stamps of one of the two are in another unit "
+                         "(milliseconds or microseconds? give the unit the format expects)")
+
+
 def check_poses(name: str, poses) -> None:
     """Positions beyond :data:`MAX_POSITION_M` and consecutive poses faster than :data:`MAX_SPEED_MPS`."""
     check_track(name, poses.source, poses.lines, poses.t_s, poses.p_w_m)
@@ -170,6 +194,7 @@ def ground_vehicle_glitches(streams: dict, platform: str) -> list[str]:
 def check_dataset(imu, streams: dict) -> None:
     """Every check on a dataset: ``streams`` maps a stream's name to its series (None when absent)."""
     check_imu(imu)
+    _odd_clock(imu, streams)
     for name, s in streams.items():
         if s is None:
             continue
