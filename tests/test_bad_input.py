@@ -861,3 +861,19 @@ def test_evaluate_refuses_a_non_finite_time_offset(tmp_path, value):
     out = tmp_path / "o"
     r = CliRunner().invoke(main, ["evaluate", "a.tum", "b.tum", "-o", str(out), "--t-offset", value])
     _assert_clean_error(r, out, f"--t-offset must be a finite number of seconds, got {value}")
+
+
+@pytest.mark.parametrize("case,line,needle", [
+    ("empty", 1, "got an empty line"), ("semicolons", 1, "(comma-separated)"), ("garbled", 3, "expected a number, got '1.0x'")])
+def test_an_unreadable_packets_csv_names_its_line(tmp_path, case, line, needle):
+    """pandas' own message named no line, and quoted a whole semicolon-separated line as one value (found by a
+    new-user review)."""
+    from fusion_eval.datasets import kitti_oxts as K
+    from fusion_eval.errors import DataFormatError
+
+    row = ",".join(["1.0"] * 31)
+    text = {"empty": "", "semicolons": K.CSV_HEADER.replace(",", ";") + "\n" + row.replace(",", ";") + "\n",
+            "garbled": K.CSV_HEADER + "\n" + row + "\n" + row[:-4] + "x,1\n"}[case]
+    (tmp_path / "packets.csv").write_text(text)
+    with pytest.raises(DataFormatError, match=rf"packets.csv:{line}: .*{re.escape(needle)}"):
+        K._read_packets_csv(tmp_path / "packets.csv")

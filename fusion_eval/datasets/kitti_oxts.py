@@ -166,7 +166,8 @@ def _read_packets_csv(path: Path) -> OxtsPackets:
     try:
         # round_trip: Python's correctly rounded parse (pandas' default fast parse can be off by one ulp)
         df = pd.read_csv(path, dtype=float, engine="c", **exact_floats())
-    except (ValueError, pd.errors.ParserError) as exc:
+    except (ValueError, pd.errors.ParserError, pd.errors.EmptyDataError) as exc:
+        _locate_csv_error(path)              # pandas names no line (a wrong delimiter: the whole line as one value)
         raise DataFormatError(path, None, f"expected a CSV '{CSV_HEADER[:40]}...' of numbers ({exc})") from None
     if list(df.columns) != CSV_HEADER.split(","):
         raise DataFormatError(path, 1, f"expected the header '{CSV_HEADER}'")
@@ -183,6 +184,21 @@ def _read_packets_csv(path: Path) -> OxtsPackets:
     filled = vals[:, POSMODE:ORIMODE + 1].min(axis=1) < 0
     _check_plausible(vals, lambda i: (path, i + 2))
     return OxtsPackets(t_s=t, values=vals, filled=filled, stamps_path=path, packet_paths=(path,))
+
+
+def _locate_csv_error(path: Path) -> None:
+    """The line of ``packets.csv`` that pandas could not read, as a :class:`DataFormatError`: its header, or the first
+    row that is not 31 numbers (returns where the line-by-line reading finds nothing wrong)."""
+    from ._text import parse_numeric_rows
+
+    text = read_text(path, "a packets.csv")
+    lines = text.splitlines()
+    if not lines or not lines[0].strip():
+        raise DataFormatError(path, 1, f"expected the header '{CSV_HEADER[:40]}...', got an empty line (an empty file?)")
+    if lines[0].strip() != CSV_HEADER:
+        raise DataFormatError(path, 1, f"expected the header '{CSV_HEADER[:40]}...' (comma-separated)")
+    parse_numeric_rows(path, "\n" + "\n".join(lines[1:]), len(CSV_HEADER.split(",")),
+                       "OXTS packets.csv (t_s and the 30 OXTS fields)", delimiter=",")
 
 
 def _check_plausible(values: np.ndarray, locate) -> None:
