@@ -106,6 +106,19 @@ def test_navsatfix_round_trip_drops_no_fix(tmp_path, flavour):
     assert rb._fixed_fields(bag, "/gps/fix", rb.NAVSATFIX)["method"] == "storage"
 
 
+def test_navsatfix_with_a_covariance_that_is_no_variance_names_the_message(tmp_path):
+    """A negative or NaN variance became a NaN std, reported as 'GNSS std must be finite numbers' without the
+    message (found by a new-user review)."""
+    n = 6
+    std = np.ones((n, 3))
+    std[3, 1] = np.nan
+    fixes = rb.FixSeries(t_s=T0 + np.arange(n), lat_deg=np.full(n, 48.0), lon_deg=np.full(n, 11.0), alt_m=np.full(n, 500.0),
+                         std_enu_m=std, status=np.zeros(n, int))
+    bag = _write(tmp_path, FLAVOURS[0], [rb.BagStream("/fix", "navsatfix", fixes, "gps")])
+    with pytest.raises(DataFormatError, match=r"topic '/fix', message 4: position_covariance's diagonal .* must be variances"):
+        rb.read_navsatfix(bag, "/fix", (48.0, 11.0, 500.0))
+
+
 @pytest.mark.parametrize("flavour", FLAVOURS[:2], ids=FLAVOUR_IDS[:2])
 def test_navsatfix_without_covariance(tmp_path, flavour):
     n = 5

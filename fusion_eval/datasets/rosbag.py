@@ -899,6 +899,11 @@ def read_navsatfix(path: str | Path, topic: str, origin_lla: Sequence[float], st
     lla = fields["lla"][idx]
     cov_diag = np.asarray(fields["cov"])[idx][:, [0, 4, 8]]
     known = np.asarray(fields["cov_type"])[idx].astype(int) > 0
+    bad = np.flatnonzero(known & ~np.all(np.isfinite(cov_diag) & (cov_diag >= 0), axis=1))
+    if bad.size:              # a negative variance became a NaN std, reported without its message
+        i = int(bad[0])
+        raise DataFormatError(path, None, f"topic '{topic}', message {int(idx[i]) + 1}: position_covariance's diagonal "
+                                          f"{cov_diag[i].tolist()} must be variances (finite, >= 0; m^2)")
     std = np.sqrt(np.where(known[:, None], cov_diag, np.nan))
     if not np.all(known):
         if default_std_m is None:
