@@ -139,22 +139,43 @@ def _refuse_unmatched(ref_f, est_fs, evals: dict, association: str, t_max_diff_s
     """Fewer than 2 matched poses is no evaluation: exit 2 naming both files and their time spans (a report of
     'n/a' with exit 0 would pass a CI gate that looks at the exit code)."""
     for f, ev in zip(est_fs, evals.values()):
-        hint = _unit_hint(ref_f, f)
         n = min(len(f.traj.timestamps), len(ref_f.traj.timestamps))
-        if hint and ev.matched_poses < 0.1 * n:
+        k = _unit_power(ref_f, f)
+        if k and ev.matched_poses < 0.1 * n:
             # a times file in milliseconds against one in seconds matched 2 of 4,541 poses, and 200 m of "APE" was
-            # reported with exit 0: with the stamps' scales 1000x apart, a handful of matches is that accident
+            # reported with exit 0: where the estimate's stamps barely overlap the reference's as they are and
+            # cover them once scaled by 1000^-k, a handful of matches is that accident
             raise DataRangeError(f"{ev.matched_poses} of {n} poses of {_span(f)} match the reference {_span(ref_f)}: "
-                                 f"{hint.rstrip()} (give the stamps in seconds)")
+                                 f"{_unit_hint(ref_f, f).rstrip()} (its stamps scaled by 1e{-3 * k:+d} would cover the "
+                                 "reference's; give them in seconds)")
         if 2 <= ev.matched_poses < 0.5 * n:
-            log.warning("%s: only %d of its %d poses match the reference (%s, within --t-max-diff %g s): the "
-                        "metrics cover those", ev.name, ev.matched_poses, len(f.traj.timestamps), association,
-                        t_max_diff_s)
+            log.warning("%s: only %d of its %d poses match the reference (%s, within --t-max-diff %g s): the metrics "
+                        "cover those (a time offset? --t-offset; stamps of other rates? --t-max-diff or --association "
+                        "interpolate)", ev.name, ev.matched_poses, len(f.traj.timestamps), association, t_max_diff_s)
         if ev.matched_poses < 2:
             raise DataRangeError(f"{ev.matched_poses} poses of {_span(f)} match the reference {_span(ref_f)} "
                                  f"({association}, within --t-max-diff {t_max_diff_s} s); at least 2 are needed "
                                  f"({_unit_hint(ref_f, f)}a time offset between the files? --t-offset; KITTI files "
                                  "without times? --times)")
+
+
+def _overlap(a0: float, a1: float, b0: float, b1: float) -> float:
+    """The fraction of ``[b0, b1]`` that ``[a0, a1]`` covers."""
+    return max(0.0, min(a1, b1) - max(a0, b0)) / (b1 - b0) if b1 > b0 else 0.0
+
+
+def _unit_power(ref_f, f) -> int:
+    """``k`` where the estimate's stamps look ``1000^k`` times the reference's unit: they overlap the reference's
+    time range by under 10 % as they are, and by over half once scaled by ``1000^-k``; 0 otherwise (an estimate
+    that only starts late, in the same unit, overlaps as it is)."""
+    ta, tb = (np.asarray(x.traj.timestamps, float) for x in (ref_f, f))
+    if ta.size < 2 or tb.size < 2 or _overlap(ta[0], ta[-1], tb[0], tb[-1]) >= 0.1:
+        return 0
+    for k in (1, -1, 2, -2, 3, -3):
+        s = 1000.0 ** -k
+        if _overlap(ta[0], ta[-1], tb[0] * s, tb[-1] * s) > 0.5:
+            return k
+    return 0
 
 
 def _unit_hint(ref_f, f) -> str:
