@@ -174,7 +174,8 @@ def main(ctx, verbose, quiet):
 @click.option("-s", "--set", "sets", multiple=True, metavar="KEY=VALUE",
               help="Override a configuration key, e.g. --set imu.gyro_noise_dps_sqrthz=0.05 (repeatable).")
 @click.option("-o", "--out", "out_dir", type=click.Path(path_type=Path),
-              help="Output directory (default: results/<dataset>-<config>-<time>). Must not exist or be empty.")
+              help="Output directory (default: results/<dataset>-<config>[-set]-<time>[-2, -3...: another run started "
+                   "in the same second]). Must not exist or be empty.")
 @click.option("--overwrite", is_flag=True, help="Replace an existing output directory (only once the new run succeeded).")
 @click.option("--no-plots", is_flag=True, help="Skip the PNG plots.")
 @click.option("--trials", type=click.IntRange(min=1), default=1, show_default=True,
@@ -212,7 +213,7 @@ def run(ctx, dataset, config_path, sets, out_dir, overwrite, no_plots, trials):
               help="Folder of variant files (default: configs/variants, else the shipped variants).")
 @click.option("-c", "--config", "config_path", type=click.Path(path_type=Path), help="Base configuration for every variant.")
 @click.option("-s", "--set", "sets", multiple=True, metavar="KEY=VALUE", help="Override a key in every variant (repeatable).")
-@click.option("-o", "--out", "out_dir", type=click.Path(path_type=Path), help="Output directory (default: results/compare-<time>).")
+@click.option("-o", "--out", "out_dir", type=click.Path(path_type=Path), help="Output directory (default: results/compare-<time>[-2...]).")
 @click.option("--overwrite", is_flag=True, help="Replace an existing output directory once the comparison succeeded.")
 @click.option("--no-plots", is_flag=True, help="Skip the PNG plots.")
 @click.option("--trials", type=click.IntRange(min=1), default=1, show_default=True,

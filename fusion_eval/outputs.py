@@ -55,7 +55,7 @@ def default_dir(base: Path):
         while True:
             d = base if k == 1 else base.with_name(f"{base.name}-{k}")
             try:
-                d.mkdir()
+                d.mkdir(parents=True)          # parents: another command's clean-up may have removed results/ meanwhile
                 if (d.parent / f".{d.name}.lock").exists():       # an explicit --out of that name is being written
                     d.rmdir()
                     raise FileExistsError

@@ -13,7 +13,7 @@ from __future__ import annotations
 import functools
 import logging
 from importlib import resources
-from pathlib import Path
+from pathlib import Path, PurePath
 
 log = logging.getLogger(__name__)
 
@@ -46,6 +46,15 @@ def project_root_of(path: Path) -> Path | None:
         if _is_root(p):
             return p
     return None
+
+
+def dataset_label(path: str | Path) -> str:
+    """A dataset's name in tables, keys and default output folders, from its path alone (a sweep.csv may come
+    from another machine): a folder's name; a manifest file's stem, or its folder's name for a ``dataset.yaml``."""
+    p = PurePath(str(path))
+    if p.suffix in (".yaml", ".yml"):
+        return p.parent.name if p.stem == "dataset" and p.parent.name else p.stem
+    return p.name
 
 
 def find(rel: str | Path, *bases: Path | None) -> Path:

@@ -38,29 +38,47 @@ def _mapping(loader: _Loader, node: yaml.MappingNode):
     data.line = node.start_mark.line + 1
     yield data                                   # as PyYAML's own constructor: anchors may refer to it
     loader.flatten_mapping(node)                 # merge keys (<<) first, as construct_mapping does
-    data.update(loader.construct_mapping(node))
+    items = loader.construct_mapping(node)
+    # a key is a name (a sweep's setting '1e-3'), not a number: YAML 1.2's floats apply to values only
+    names = {loader.construct_object(k): k.value for k, _ in node.value if _exp_only(k)}
+    data.update((names.get(k, k), v) for k, v in items.items())
     for key_node, _ in node.value:
         try:
             key = loader.construct_object(key_node)
-            data.lines[key] = key_node.start_mark.line + 1    # the last one wins, as it does for the value
+            data.lines[names.get(key, key)] = key_node.start_mark.line + 1    # the last one wins, as for the value
         except TypeError:                        # an unhashable key: construct_mapping has already refused it
             pass
 
 
-_Loader.add_constructor(yaml.resolver.BaseResolver.DEFAULT_MAPPING_TAG, _mapping)
 # YAML 1.2's floats: PyYAML (YAML 1.1) reads 1e-3 (no point) and 1.0e3 (no sign in the exponent) as strings, so a
-# manifest's time_offset_s: 1e-3 was refused while --set took it; every file read here takes them as numbers
-_Loader.add_implicit_resolver(
-    "tag:yaml.org,2002:float",
-    re.compile(r"^[-+]?(?:[0-9][0-9_]*(?:\.[0-9_]*)?|\.[0-9_]+)[eE][-+]?[0-9]+$"),
-    list("-+0123456789."))
+# manifest's time_offset_s: 1e-3 was refused while --set took it; every value read here takes them as numbers
+_FLOAT_12 = re.compile(r"^[-+]?(?:[0-9][0-9_]*(?:\.[0-9_]*)?|\.[0-9_]+)[eE][-+]?[0-9]+$")
+_FLOAT_11 = re.compile(r"^[-+]?(?:[0-9][0-9_]*)?\.[0-9_]*(?:[eE][-+][0-9]+)?$")
+
+
+def _exp_only(node) -> bool:
+    """A plain scalar that only YAML 1.2 reads as a float."""
+    return (isinstance(node, yaml.ScalarNode) and not node.style and node.tag == "tag:yaml.org,2002:float"
+            and bool(_FLOAT_12.match(node.value)) and not _FLOAT_11.match(node.value))
+
+
+_Loader.add_constructor(yaml.resolver.BaseResolver.DEFAULT_MAPPING_TAG, _mapping)
+_Loader.add_implicit_resolver("tag:yaml.org,2002:float", _FLOAT_12, list("-+0123456789."))
 for _d in {yaml.SafeDumper, _SafeDumper}:
     _d.add_representer(LineDict, yaml.representer.SafeRepresenter.represent_dict)
 
 
+class _Dumper(_SafeDumper):
+    """The safe dumper that quotes a string :func:`load` would read as a number ('1e5', a commit hash '1234e56')."""
+
+
+_Dumper.add_implicit_resolver("tag:yaml.org,2002:float", _FLOAT_12, list("-+0123456789."))
+
+
 def dump(data: Any, sort_keys: bool = False) -> str:
-    """``yaml.safe_dump(data, sort_keys=sort_keys)``, the same text (by libyaml where available)."""
-    return yaml.dump(data, Dumper=_SafeDumper, sort_keys=sort_keys)
+    """``yaml.safe_dump(data, sort_keys=sort_keys)``, the same text (by libyaml where available), but for the
+    quotes around a string that :func:`load` would read as a number."""
+    return yaml.dump(data, Dumper=_Dumper, sort_keys=sort_keys)
 
 
 def load(text: str) -> Any:

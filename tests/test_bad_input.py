@@ -501,6 +501,14 @@ def test_stamps_1000x_apart_that_match_a_handful_of_poses_are_refused(tmp_path):
     assert r.exit_code == 2 and all(ln.startswith("warning: ") for ln in lines[:-1]), r.output
     assert lines[-1].startswith("error: 5 of 4700 poses") and "time span is 1e+3 times the reference's" in lines[-1]
     assert not out.exists()
+    # the same unit, an estimate that starts late (first stamps 1000x apart) and matches few poses on a jittered
+    # clock: evaluated, with a warning that names the options (it was refused as 'in another unit'; a review found it)
+    rng = np.random.default_rng(0)
+    ref.write_text("".join(f"{x:.3f} {x * 5:.4f} {np.sin(x / 20):.4f} 0 0 0 0 1\n" for x in np.arange(1, 10001) * 0.1))
+    te = 100 + np.arange(9000) * 0.1 + 0.025 + rng.normal(0, 0.01, 9000)
+    est.write_text("".join(f"{x:.4f} {x * 5:.4f} {np.sin(x / 20):.4f} 0 0 0 0 1\n" for x in te))
+    r = CliRunner().invoke(main, ["evaluate", str(ref), str(est), "-o", str(out), "--no-plots"])
+    assert r.exit_code == 0 and "poses match the reference" in r.stderr and "--t-max-diff" in r.stderr, r.output
 
 
 def test_evaluate_refuses_kitti_files_without_times_of_different_lengths(tmp_path):
@@ -810,6 +818,17 @@ def test_a_long_run_of_filled_packets_is_flagged_after_they_are_dropped(tmp_path
     prep = prepare(ds, session.resolve(session.request(), ds))
     w = [x for x in prep.applied.get("data_warnings", []) if "after dropping the filled-in packets" in x]
     assert len(w) == 1 and "80 samples at" in w[0] and "timestamps.txt:301-380" in w[0], prep.applied.get("data_warnings")
+    # a gap in the raw stamps is imu_gaps' to report, not a second time as opened by the dropping (a review found it)
+    from types import SimpleNamespace
+
+    from fusion_eval.datasets import plausible
+
+    t = np.arange(0, 100, 0.01)
+    t = np.concatenate([t[:2000], t[2000:] + 5.0])
+    filled = np.zeros(t.size, bool)
+    filled[6000:6010] = True
+    imu = SimpleNamespace(t_s=t, source="oxts/timestamps.txt", lines=None, filled=filled)
+    assert len(plausible.imu_gaps(imu)) == 1 and plausible.dropped_gaps(imu, ~filled, "filled packets") == []
 
 
 def test_numbers_in_exponent_notation_are_numbers_in_every_file(ds):
@@ -820,6 +839,10 @@ def test_numbers_in_exponent_notation_are_numbers_in_every_file(ds):
 
     assert yaml_lines.load("a: 1e-3\nb: [49.0, 8.4, 1.16e2]\nc: 1.0e3\nd: '1e-3'\ne: 1e5x\n") == \
         {"a": 0.001, "b": [49.0, 8.4, 116.0], "c": 1000.0, "d": "1e-3", "e": "1e5x"}
+    # keys stay names (a sweep's setting '1e-3', in its order), and a string that would read as a number is quoted
+    s = yaml_lines.load("settings:\n  1e-3: {x: 1}\n  b: {x: 2}\n")["settings"]
+    assert list(s) == ["1e-3", "b"] and s.lines == {"1e-3": 2, "b": 3}
+    assert yaml_lines.load(yaml_lines.dump({"commit": "1234e56"})) == {"commit": "1234e56"}
     m = ds / "dataset.yaml"
     text = m.read_text()
     m.write_text(text.replace("    time_offset_s: 0.0\n    # The OXTS", "    time_offset_s: 1e-3\n    # The OXTS", 1)

@@ -176,6 +176,15 @@ def test_check_matches_a_sweep_csv_made_in_another_folder_by_dataset_name(tmp_pa
     r = CliRunner().invoke(main, ["check", str(tmp_path / "c.csv"), "-b", str(tmp_path / "b.csv"), "--rtol", "1",
                                   "--require", "kitti-00/eskf/default.fused_ape_trans_rmse_m < 2"])
     assert r.exit_code == 0, r.output
+    # rules and patterns in the path-style keys of before still work (aliases)
+    r = CliRunner().invoke(main, ["check", str(tmp_path / "c.csv"), "-b", str(tmp_path / "c.csv"), "-m", "/home/me/data/*",
+                                  "--require", "/home/me/data/kitti-00/eskf/default.fused_ape_trans_rmse_m < 2"])
+    assert r.exit_code == 0 and "kitti-00/eskf/default.fused_ape_trans_rmse_m" in r.output, r.output
+    # a manifest file is named by its stem, a folder's dataset.yaml by the folder
+    from fusion_eval.resources import dataset_label
+
+    assert [dataset_label(p) for p in ("/a/configs/datasets/simple-00.yaml", "/a/sims/urban/dataset.yaml", "/a/kitti-00")] \
+        == ["simple-00", "urban", "kitti-00"]
     (tmp_path / "two.csv").write_text(cols + "x,/p/kitti-00,eskf,default,1.0,ok,\ny,/q/kitti-00,eskf,default,2.0,ok,\n")
     r = CliRunner().invoke(main, ["check", str(tmp_path / "two.csv"), "-b", str(tmp_path / "two.csv"), "--require",
                                   "/q/kitti-00/eskf/default.fused_ape_trans_rmse_m > /p/kitti-00/eskf/default.fused_ape_trans_rmse_m"])

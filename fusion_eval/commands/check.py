@@ -20,11 +20,12 @@ import math
 import re
 import xml.etree.ElementTree as ET
 from dataclasses import dataclass
-from pathlib import Path, PurePath
+from pathlib import Path
 
 from ..errors import DataFormatError, FusionEvalError
 from ..outputs import atomic_write
 from ..evaluation import keys
+from ..resources import dataset_label
 from ..tables import markdown as md_table
 
 log = logging.getLogger(__name__)
@@ -68,8 +69,15 @@ def load_metrics(path: Path, trial_stat: str | None = "mean") -> tuple[dict[str,
     return out, "json", keys.rpe_delta_of(body)
 
 
+class Metrics(dict):
+    """``{key: value}`` with ``aliases``: other names of the same keys (a sweep.csv's dataset paths)."""
+
+    def __init__(self, *args, **kwargs):
+        super().__init__(*args, **kwargs)
+        self.aliases: dict[str, str] = {}
+
+
 def _flat_csv(path: Path) -> dict[str, float]:
-    out = {}
     from ..datasets._text import read_text
 
     try:
@@ -78,17 +86,19 @@ def _flat_csv(path: Path) -> dict[str, float]:
         raise DataFormatError(path, None, f"not a valid CSV ({exc})") from None
     if not rows or "dataset" not in rows[0] or "setting" not in rows[0]:
         raise DataFormatError(path, 1, "expected a sweep.csv (columns dataset, variant, setting, metrics...)")
-    # a dataset is named as sweep.md names it (its folder or manifest file name), not by the absolute path the
-    # sweep recorded: a baseline made in another checkout or CI workspace must still match; only datasets of the
-    # same name at different paths keep their paths
+    # a dataset is named as sweep.md names it (dataset_label), not by the absolute path the sweep recorded: a
+    # baseline made in another checkout or CI workspace must still match; only datasets of the same name at
+    # different paths keep their paths. The path-style keys stay usable in rules and patterns (aliases).
     paths_of: dict[str, set] = {}
     for r in rows:
-        paths_of.setdefault(PurePath(r["dataset"]).name, set()).add(r["dataset"])
+        paths_of.setdefault(dataset_label(r["dataset"]), set()).add(r["dataset"])
+    out = Metrics()
     for i, r in enumerate(rows, start=2):
         if r.get("status") != "ok":
             continue
-        name = PurePath(r["dataset"]).name
-        key = f"{name if len(paths_of[name]) == 1 else r['dataset']}/{r.get('variant', '')}/{r['setting']}"
+        name = dataset_label(r["dataset"])
+        tail = f"{r.get('variant', '')}/{r['setting']}"
+        key = f"{name if len(paths_of[name]) == 1 else r['dataset']}/{tail}"
         for c, v in r.items():
             if c in ("id", "dataset", "variant", "setting", "status", "error") or v in ("", None):
                 continue
@@ -96,6 +106,7 @@ def _flat_csv(path: Path) -> dict[str, float]:
                 out[f"{key}.{c}"] = float(v)
             except ValueError:
                 continue
+            out.aliases[f"{r['dataset']}/{tail}.{c}"] = f"{key}.{c}"
     if not out:
         raise DataFormatError(path, None, "no finished runs with numeric metrics")
     return out
@@ -117,8 +128,16 @@ class Row:
         return f"{(self.current - self.baseline) / abs(self.baseline) * 100:+.2f} %"
 
 
+def _matching(metrics: dict, pattern: str) -> set:
+    hits = {k for k in metrics if fnmatch.fnmatchcase(k, pattern)}
+    if not hits:       # a pattern of the path-style keys (a sweep.csv's dataset paths, as check keyed them before)
+        aliases = getattr(metrics, "aliases", {})
+        hits = {aliases[a] for a in aliases if fnmatch.fnmatchcase(a, pattern)}
+    return hits
+
+
 def compare_metrics(current: dict, baseline: dict, patterns: tuple[str, ...], rtol: float, atol: float) -> list[Row]:
-    names = sorted(k for k in set(current) | set(baseline) if any(fnmatch.fnmatchcase(k, p) for p in patterns))
+    names = sorted(set().union(*(_matching(m, p) for m in (current, baseline) for p in patterns)))
     if not names:
         raise CheckUsageError(f"no metric matches {', '.join(patterns)}")
     rows = []
@@ -158,6 +177,7 @@ def evaluate_rule(rule: str, metrics: dict) -> tuple[bool, str]:
             if not math.isfinite(v):        # 'nan' or 'inf' parse as floats; a rule against them cannot be meant
                 raise CheckUsageError(f"--require {rule!r}: {tok!r} is not a finite number")
             return v
+        tok = tok if tok in metrics else getattr(metrics, "aliases", {}).get(tok, tok)
         if tok not in metrics:
             close = [k for k in metrics if k.endswith(tok.split(".")[-1])][:3]
             raise CheckUsageError(f"--require {rule!r}: unknown metric {tok!r}" + (f" (e.g. {', '.join(close)})" if close else ""))

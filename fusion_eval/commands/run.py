@@ -14,7 +14,7 @@ from ..tables import cell
 
 def default_out_dir(dataset: Path, config_name: str) -> Path:
     """``results/<dataset>-<config>-<time>`` (made unique by :func:`fusion_eval.outputs.default_dir`)."""
-    ds_name = dataset.resolve().parent.name if dataset.is_file() else dataset.resolve().name
+    ds_name = resources.dataset_label(dataset.resolve())
     return Path("results") / f"{ds_name}-{config_name}-{time.strftime('%Y%m%d-%H%M%S')}"
 
 
@@ -24,7 +24,7 @@ def run(dataset: Path | None, config: Path | None, sets: tuple[str, ...], out_di
     dataset = resources.default_dataset() if dataset is None else resources.find(dataset)
     if out_dir is not None:
         return run_to_dir(dataset, req, out_dir, overwrite=overwrite, progress=progress, trials=trials)
-    # the name says when --set items changed the estimate ("default" alone would claim the defaults; output.* keys,
+    # the name says when --set items changed the run ("default" alone would claim the defaults; output.* keys,
     # such as --no-plots, change only what is written)
     changed = any(not s.strip().startswith("output.") for s in sets)
     with default_dir(default_out_dir(dataset, req.source + ("-set" if changed else ""))) as out_dir:

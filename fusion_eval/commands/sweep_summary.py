@@ -14,6 +14,7 @@ import yaml
 from ..outputs import atomic_write
 from ..evaluation import keys as mk
 from ..provenance import dataset_files, header_line
+from ..resources import dataset_label
 from ..report import html
 from ..tables import cell, csv_text, markdown
 from .sweep import Task, read_records
@@ -135,7 +136,7 @@ def write_summary(tasks: list[Task], out_dir: Path, keys: list[str], plots: bool
     for ds in datasets:
         sub = sorted((r for r in ok if r["dataset"] == ds), key=lambda r: r[METRIC])
         sd = [r.get(f"{METRIC}_std") for r in sub] if n_trials > 1 else None
-        L += [f"## {Path(ds).name}", "", f"`{ds}`. " + _span_note(sub), ""] + markdown(
+        L += [f"## {dataset_label(ds)}", "", f"`{ds}`. " + _span_note(sub), ""] + markdown(
             ["rank", "variant", "setting", "APE trans RMSE [m]", *(["std [m]"] if sd else []), "APE rot RMSE [deg]",
              "RPE 1 frame [m]", "fused/lidar", "fused/GNSS", "time [s]"],
             [[i, r["variant"], r["setting"], r[METRIC], *([sd[i - 1]] if sd else []), r.get(rot), r.get(rpe),

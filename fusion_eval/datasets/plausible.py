@@ -75,7 +75,7 @@ def _odd_clock(imu, streams: dict) -> None:
     if len(long) >= 2:
         raise DataRangeError(f"the IMU ({imu.source}) spans {span_imu:.6g} s against {min(long.values()):.6g} s or more "
                              f"for {', '.join(long)} ({ratio:.0f}x): the IMU's stamps are in another unit (microseconds "
-                             "read as nanoseconds? give the unit the format expects)")
+                             "read as nanoseconds?), or all of theirs are; give the unit the format expects")
     (name, span), = long.items()
     raise DataRangeError(f"{name} ({streams[name].source}) spans {span:.6g} s against the IMU's ({imu.source}) "
                          f"{span_imu:.6g} s ({ratio:.0f}x): the stamps of one of the two are in another unit "
@@ -152,6 +152,7 @@ def dropped_gaps(imu, kept: np.ndarray, why: str) -> list[str]:
     d = np.diff(t[idx])
     limit = max(FLAG_IMU_GAP_S, 50.0 * float(np.median(d)))
     bad = np.flatnonzero(d > limit)
+    bad = bad[idx[bad + 1] - idx[bad] > 1]            # gaps the dropping opened: those in the stamps, imu_gaps says
     if not bad.size:
         return []
     a, b = int(idx[bad[0]]) + 1, int(idx[bad[0] + 1]) - 1          # the first gap's dropped samples
