@@ -172,6 +172,10 @@ def estimate_metrics(ev: EstimateEvaluation) -> dict:
 # a stream whose median NIS is this many times its dof is not followed at all (a consistent filter: ~1x; a mistuned
 # one: a few x): wrong units or frames, which the divergence check (10^4 x) lets through as plausible-looking numbers
 MISFIT_NIS_RATIO = 20.0
+# an adapted std above this factor of the configured one: the stream, not the noise setting, is suspect (measured
+# medians: kitti-00 0.63 / 0.50, the SiMpLE drives 0.33-0.47 / 0.20-0.31, the simulated drives 1.0 / 1.02, position /
+# rotation; a bag's tf_static given the wrong way round 32 / 5.6)
+MISFIT_ADAPT_STD = 3.0
 
 
 def inconsistent_streams(nis: dict) -> list[str]:
@@ -184,6 +188,15 @@ def inconsistent_streams(nis: dict) -> list[str]:
             out.append(f"{k}: median NIS {np.median(v):.4g} for {d['dof']} dof ({np.median(v) / d['dof']:.0f}x): the filter "
                        "does not follow this stream; check the units and frames of its data and of the IMU (an accelerometer "
                        "in g, gravity's sign, a quaternion's order, degrees for radians)")
+        a = d.get("adapt") or {}
+        grown = {w: a[f"{w}_std_factor_median"] for w in ("pos", "att") if a.get(f"{w}_std_factor_median") is not None}
+        if grown and max(grown.values()) > MISFIT_ADAPT_STD:
+            # the adapted noise keeps the NIS near its dof whatever the cause: a lidar-IMU extrinsic given the
+            # wrong way round was scaled up ~5x in std and ran with no word, 5x the error of the right one
+            out.append(f"{k}: its noise was adapted to the innovations at {grown.get('pos', 1.0):.2g}x (position) and "
+                       f"{grown.get('att', 1.0):.2g}x (rotation) the configured std (median over the second half): this "
+                       "stream disagrees with the IMU far beyond its stated noise; check its extrinsic and frame (a "
+                       "transform given the wrong way round), its time offset, and its noise settings")
     return out
 
 
