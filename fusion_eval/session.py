@@ -50,6 +50,16 @@ def request(config: Path | dict | None = None, variant: Path | None = None, sets
     return ConfigRequest(tuple(layers), source)
 
 
+def config_file(req: ConfigRequest) -> dict:
+    """The request's own layers merged, ``{section: {key: value}}`` without the built-in defaults: what a
+    ``best.yaml`` (of a sweep or a tune) holds, so that ``run -c best.yaml`` runs the same configuration."""
+    out: dict = {}
+    for layer in req.layers:
+        for sect, body in layer.body.items():
+            out.setdefault(sect, {}).update(body)
+    return out
+
+
 def manifest_layer(ds: Dataset) -> tuple[Layer, ...]:
     body = ds.description.get("config")
     # errors name the manifest's line when its 'config' mapping came from a file (it knows its lines); a built-in

@@ -11,6 +11,7 @@ from pathlib import Path
 import numpy as np
 import yaml
 
+from .. import session, yaml_lines
 from ..outputs import atomic_write
 from ..evaluation import keys as mk
 from ..provenance import dataset_files, header_line
@@ -168,14 +169,10 @@ def write_summary(tasks: list[Task], out_dir: Path, keys: list[str], plots: bool
         bt = next(t for t in tasks if t.variant == bv and t.setting == bs)
         best = {"variant": bv, "setting": bs, "mean_fused_ape_trans_rmse_m": bm}
         # a configuration file `fusion-eval run -c best.yaml` takes: the base config, the variant's file, the setting
-        cfg: dict = {}
-        for layer in (bt.base_config or {}, (yaml.safe_load(Path(bt.variant_path).read_text()) if bt.variant_path else {}) or {},
-                      _nest(bt.overrides)):
-            for sect, body in layer.items():
-                cfg.setdefault(sect, {}).update(body)
+        cfg = session.config_file(session.request(config=bt.base_config, variant=bt.variant_path, overrides=bt.overrides))
         atomic_write(out_dir / "best.yaml", f"# best of the sweep: variant {bv}, setting {bs}\n"
                 f"# mean fused APE translation RMSE across datasets: {bm:.6f} m\n"
-                "# use it as: fusion-eval run -c best.yaml\n" + yaml.safe_dump(cfg, sort_keys=False))
+                "# use it as: fusion-eval run -c best.yaml\n" + yaml_lines.dump(cfg))
         L += [f"Best: variant `{bv}`, setting `{bs}` (mean fused APE RMSE {cell(bm)} m); see `best.yaml`.", ""]
     written = []
     if plots and ok:
@@ -217,12 +214,4 @@ def default_values(tasks: list[Task], out_dir: Path, keys: list[str]) -> dict[tu
             if mk.is_number(v):
                 vals[k] = float(v)
         out[(t.dataset, t.variant)] = vals
-    return out
-
-
-def _nest(ov: dict) -> dict:
-    out: dict = {}
-    for k, v in ov.items():
-        s, n = k.split(".")
-        out.setdefault(s, {})[n] = v
     return out

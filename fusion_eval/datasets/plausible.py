@@ -125,33 +125,34 @@ def imu_gaps(imu) -> list[str]:
     """The IMU's stops longer than :data:`FLAG_IMU_GAP_S` (and 50 median steps), shorter than the refused
     :data:`MAX_IMU_GAP_S`, as one sentence for the report: the filter only dead-reckons across them, and a stop
     in the stamps alone (a corrupted clock) shifts every stream aligned to the IMU."""
-    t = np.asarray(imu.t_s)
-    if t.size < 3:
-        return []
-    d = np.diff(t)
-    med = float(np.median(d))
-    bad = np.flatnonzero(d > max(FLAG_IMU_GAP_S, 50.0 * med))
+    idx = np.arange(len(imu.t_s))
+    d, limit, bad = _gaps(imu, idx)
     if not bad.size:
         return []
     i = int(bad[0]) + 1
     line = line_of(imu.lines, i)
     at = f"{imu.source}:{line}" if line is not None else str(imu.source)
-    return [f"imu: {bad.size} gap(s) longer than {max(FLAG_IMU_GAP_S, 50.0 * med):.3g} s, the longest {d[bad].max():.3g} s, "
+    return [f"imu: {bad.size} gap(s) longer than {limit:.3g} s, the longest {d[bad].max():.3g} s, "
             f"the first of {d[bad[0]]:.3g} s before {at}: the filter dead-reckons across a gap, and a gap in the stamps "
             "alone (a corrupted clock) shifts every stream aligned to the IMU"]
+
+
+def _gaps(imu, idx: np.ndarray) -> tuple[np.ndarray, float, np.ndarray]:
+    """Over the samples ``idx`` of ``imu``: their steps, the flagged length (:data:`FLAG_IMU_GAP_S` and 50 median
+    steps) and the steps longer than it (none for fewer than 3 samples)."""
+    if idx.size < 3:
+        return np.zeros(0), np.inf, np.zeros(0, np.int64)
+    d = np.diff(np.asarray(imu.t_s)[idx])
+    limit = max(FLAG_IMU_GAP_S, 50.0 * float(np.median(d)))
+    return d, limit, np.flatnonzero(d > limit)
 
 
 def dropped_gaps(imu, kept: np.ndarray, why: str) -> list[str]:
     """:func:`imu_gaps` of the samples ``kept`` (a mask over ``imu``), naming the dropped samples that open each
     gap: KITTI's filled-in packets are dropped before the filter, and a long run of them leaves a hole the raw stamps
     do not show (30 s of them once gave a 125 deg attitude error with no word)."""
-    t = np.asarray(imu.t_s)
     idx = np.flatnonzero(kept)
-    if idx.size < 3:
-        return []
-    d = np.diff(t[idx])
-    limit = max(FLAG_IMU_GAP_S, 50.0 * float(np.median(d)))
-    bad = np.flatnonzero(d > limit)
+    d, limit, bad = _gaps(imu, idx)
     bad = bad[idx[bad + 1] - idx[bad] > 1]            # gaps the dropping opened: those in the stamps, imu_gaps says
     if not bad.size:
         return []

@@ -9,7 +9,6 @@ import math
 import os
 from pathlib import Path
 
-import yaml
 
 from ..outputs import atomic_write
 from ..provenance import dataset_files, header_line
@@ -37,26 +36,14 @@ def default_yaml(s: Setup, res: dict) -> str:
             "# use: fusion-eval run DATASET -c best.yaml\n" + _config_yaml(s, {}))
 
 
-def _plain(v):
-    # the configuration's mappings know their lines (a dict subclass that yaml.safe_dump refuses)
-    if isinstance(v, dict):
-        return {str(k): _plain(x) for k, x in v.items()}
-    if isinstance(v, (list, tuple)):
-        return [_plain(x) for x in v]
-    return v
-
-
 def _config_yaml(s: Setup, overrides: dict) -> str:
     """What every trial ran with, as one configuration file: the base config (``-c``), the ``--set`` items, then
     ``overrides`` (a trial's values): ``fusion-eval run -c best.yaml`` replays that trial, not the space's keys on
     the built-in defaults (a tune of ``-c lidar-imu.yaml`` would otherwise run with GNSS)."""
-    from .. import session
+    from .. import session, yaml_lines
 
-    nested: dict = {}
-    for layer in session.request(config=s.base_config, sets=s.sets, overrides=overrides).layers:
-        for sect, body in layer.body.items():
-            nested.setdefault(str(sect), {}).update(_plain(body))
-    return yaml.safe_dump(nested, sort_keys=True) if nested else "{}\n"
+    return yaml_lines.dump(session.config_file(session.request(config=s.base_config, sets=s.sets, overrides=overrides)),
+                           sort_keys=True)
 
 
 def best_yaml(s: Setup, best: dict) -> str:
