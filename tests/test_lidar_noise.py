@@ -98,3 +98,19 @@ def test_heading_frame_increments_beat_a_good_odometry_without_gnss():
         ape[frame] = est["fused"]["ape"]["translation_m"]["rmse"]
         lidar = est["lidar"]["ape"]["translation_m"]["rmse"]
     assert ape["auto"] == ape["heading"] and ape["heading"] < 0.6 * lidar < ape["body"], (ape, lidar)
+
+
+def test_the_gate_takes_absolute_lidar_outliers_too(tmp_path):
+    """Map-matching lidar (absolute poses) with the simulator's own outliers: the same ``lidar.gate_prob`` rejects
+    them. It was declared by the relative form only and silently did nothing with ``filter.lidar_update=absolute``
+    (found by a new-user review: a 120 s highway drive with 21 outliers, fused APE 0.166 m with or without it)."""
+    from fusion_eval.simulate.dataset import simulate
+
+    simulate(tmp_path / "sim", "highway", 40.0, 4, "automotive", ("lidar.mode=map_matching", "lidar.outlier_prob=0.05",
+                                                                  "output.layout=csv"), jobs=1)
+    ds = fe.load_dataset(tmp_path / "sim")
+    plain, gated = (fe.run(ds, overrides={"lidar.gate_prob": g}).metrics for g in (None, 0.9999))
+    assert plain["nis"]["lidar"].get("rejected", 0) == 0
+    assert gated["nis"]["lidar"]["rejected"] > 0
+    ape = {k: m["estimates"]["fused"]["ape"]["translation_m"]["rmse"] for k, m in (("plain", plain), ("gated", gated))}
+    assert ape["gated"] < 0.5 * ape["plain"]

@@ -77,6 +77,10 @@ class AbsolutePose(Observation):
         "lidar.absolute_att_std_deg": S(1.0, "absolute update: attitude std, deg", positive=True),
     }
 
+    # the same gate as the relative form (the key is declared there): map matching has outliers of its own (a wrong
+    # match, a changed scene), and the simulator's map-matching lidar makes them (lidar.outlier_prob)
+    gate_key = "lidar.gate_prob"
+
     enable_with = {"filter.lidar_update": "absolute"}
     disable_with = {"filter.lidar_update": "none"}
 
@@ -92,7 +96,8 @@ class AbsolutePose(Observation):
         def model(j):
             return partial(kernel_model, absolute_pose_kernel, row=data[j])
 
-        return Bound(self.name, self.dof, lid.t_s[rows], model, kernel=Kernel(absolute_pose_kernel, np.ascontiguousarray(data)))
+        return Bound(self.name, self.dof, lid.t_s[rows], model, gate=self.gate(s),
+                     kernel=Kernel(absolute_pose_kernel, np.ascontiguousarray(data)))
 
 
 OBSERVATION = AbsolutePose()

@@ -139,8 +139,8 @@ class RelativePose(Observation):
                                           "previous frame's yaw only: horizontal as 'body', vertical as 'world') or "
                                           "'auto' = body when GNSS is fused (or under the batch smoother), else heading",
                                   choices=("auto", *FRAMES)),
-        "lidar.gate_prob": S(None, "reject a relative increment whose NIS is beyond this chi-square probability "
-                                   "(6 dof), e.g. 0.9999; null = no gate", "float", positive=True, below=1.0, nullable=True),
+        "lidar.gate_prob": S(None, "reject a lidar update (a relative increment or an absolute pose) whose NIS is "
+                                   "beyond this chi-square probability (6 dof), e.g. 0.9999; null = no gate", "float", positive=True, below=1.0, nullable=True),
         "lidar.noise_adapt": S("auto", "'nis' = scale the position and rotation noise online so that each block's "
                                        "mean NIS matches its dof (no ground truth); 'nis_position' = the position block "
                                        "only; 'none' = as configured; 'auto' = nis when GNSS is fused, else none",
