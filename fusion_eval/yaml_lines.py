@@ -37,6 +37,7 @@ def _mapping(loader: _Loader, node: yaml.MappingNode):
     data = LineDict()
     data.line = node.start_mark.line + 1
     yield data                                   # as PyYAML's own constructor: anchors may refer to it
+    _refuse_repeated_keys(loader, node)
     loader.flatten_mapping(node)                 # merge keys (<<) first, as construct_mapping does
     items = loader.construct_mapping(node)
     # a key is a name (a sweep's setting '1e-3'), not a number: YAML 1.2's floats apply to values only
@@ -48,6 +49,26 @@ def _mapping(loader: _Loader, node: yaml.MappingNode):
             data.lines[names.get(key, key)] = key_node.start_mark.line + 1    # the last one wins, as for the value
         except TypeError:                        # an unhashable key: construct_mapping has already refused it
             pass
+
+
+def _refuse_repeated_keys(loader: _Loader, node: yaml.MappingNode) -> None:
+    """A key written twice in one mapping is an error: YAML loaders keep the last and drop the first without a
+    word, so a second ``filter:`` section silently threw away the first (GNSS fused although the first said
+    ``use_gnss: false``). Keys brought in by a merge (``<<: *base``) may be overridden, as YAML intends."""
+    first: dict = {}
+    for key_node, _ in node.value:
+        if key_node.tag == "tag:yaml.org,2002:merge" or not isinstance(key_node, yaml.ScalarNode):
+            continue
+        try:
+            key = loader.construct_object(key_node)
+            hash(key)
+        except (TypeError, yaml.YAMLError):      # construct_mapping refuses it in its own words
+            continue
+        if key in first:
+            raise yaml.constructor.ConstructorError(
+                None, None, f"key {key_node.value!r} given twice (first at line {first[key]}; only one may stand)",
+                key_node.start_mark)
+        first[key] = key_node.start_mark.line + 1
 
 
 # YAML 1.2's floats: PyYAML (YAML 1.1) reads 1e-3 (no point) and 1.0e3 (no sign in the exponent) as strings, so a
@@ -62,7 +83,21 @@ def _exp_only(node) -> bool:
             and bool(_FLOAT_12.match(node.value)) and not _FLOAT_11.match(node.value))
 
 
+def _number(loader: _Loader, node: yaml.ScalarNode):
+    """YAML 1.1's integers and floats, but not its base-60 (``1:30`` = 90) and leading-zero octal (``010`` = 8)
+    forms: nobody writing a configuration means those, and they read as plausible numbers (YAML 1.2 dropped them)."""
+    v = node.value.replace("_", "")
+    if ":" in v or re.match(r"^[-+]?0[0-7]+$", v):
+        raise yaml.constructor.ConstructorError(
+            None, None, f"{node.value!r} reads as a YAML 1.1 {'base-60' if ':' in v else 'octal'} number; quote it for "
+            "text, or write the number in decimal", node.start_mark)
+    ctor = _SafeLoader.construct_yaml_int if node.tag.endswith(":int") else _SafeLoader.construct_yaml_float
+    return ctor(loader, node)
+
+
 _Loader.add_constructor(yaml.resolver.BaseResolver.DEFAULT_MAPPING_TAG, _mapping)
+_Loader.add_constructor("tag:yaml.org,2002:int", _number)
+_Loader.add_constructor("tag:yaml.org,2002:float", _number)
 _Loader.add_implicit_resolver("tag:yaml.org,2002:float", _FLOAT_12, list("-+0123456789."))
 for _d in {yaml.SafeDumper, _SafeDumper}:
     _d.add_representer(LineDict, yaml.representer.SafeRepresenter.represent_dict)

@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import re
+
 import numpy as np
 import pytest
 
@@ -103,7 +105,25 @@ def test_yaml_mappings_know_the_lines_of_their_keys():
     assert yaml_lines.at("--set", {"a": 1}, "a") == "--set"            # not from a file: no line
     assert yaml.safe_load(yaml.safe_dump(d)) == d and json.loads(json.dumps(d)) == d
     assert pickle.loads(pickle.dumps(d))["b"].lines == {"c": 3, "d": 5}
-    # the line of the value that counts: a key written again, or after a merge, names its last place
-    d = yaml_lines.load("base: &b\n  x: 1\nderived:\n  <<: *b\n  x: bad\na: 1\na: 2\n")
+    # the line of the value that counts: a key overridden after a merge names its own place
+    d = yaml_lines.load("base: &b\n  x: 1\nderived:\n  <<: *b\n  x: bad\n")
     assert d["derived"]["x"] == "bad" and yaml_lines.at("f", d["derived"], "x") == "f:5"
-    assert d["a"] == 2 and yaml_lines.at("f", d, "a") == "f:7"
+
+
+def test_a_key_given_twice_or_a_yaml_11_oddity_is_refused_with_its_line(tmp_path):
+    """YAML loaders keep the last of two equal keys and drop the first without a word: a config with a second
+    'filter:' section fused GNSS although the first said use_gnss: false (found by a corrupted-input review).
+    YAML 1.1 also reads 1:30 as 90 and 010 as 8; neither is what a configuration means."""
+    from fusion_eval.config import parse_file
+
+    for text, line, what in (("filter:\n  use_gnss: false\nimu:\n  gyro_noise_dps_sqrthz: 1.0\nfilter:\n  nhc: true\n", 5,
+                              "key 'filter' given twice (first at line 1"),
+                             ("gnss:\n  noise_std_m: 1\n  noise_std_m: 2\n", 3, "key 'noise_std_m' given twice (first at line 2"),
+                             ("gnss:\n  noise_std_m: 1:30\n", 2, "base-60"), ("gnss:\n  seed: 010\n", 2, "octal")):
+        f = tmp_path / "c.yaml"
+        f.write_text(text)
+        with pytest.raises(ConfigError, match=rf"c.yaml:{line}: .*{re.escape(what)}"):
+            parse_file(f)
+    f.write_text("gnss:\n  seed: '010'\n  noise_std_m: 0.5\n")             # quoted: text, as asked (then refused by type)
+    with pytest.raises(ConfigError, match="seed"):
+        parse_file(f)

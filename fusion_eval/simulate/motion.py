@@ -26,6 +26,7 @@ import yaml
 from scipy.integrate import cumulative_simpson
 
 from ..errors import ConfigError
+from .. import yaml_lines
 
 PROFILES = ("urban", "figure8", "highway")
 
@@ -94,7 +95,7 @@ def from_waypoints_yaml(path: Path) -> tuple[list[Segment], float, int]:
     its first leg and repeats; an open one ends with a stop. Returns the segments and the initial
     heading (rad) and the number of segments before the part that repeats."""
     try:
-        body = yaml.safe_load(Path(path).read_text())
+        body = yaml_lines.load(Path(path).read_text())        # a waypoint key given twice is refused
     except (OSError, UnicodeDecodeError, yaml.YAMLError) as exc:
         raise ConfigError(f"{path}: cannot read the waypoint profile ({exc})") from None
     if not isinstance(body, dict) or "waypoints" not in body:
