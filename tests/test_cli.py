@@ -5,6 +5,9 @@ from __future__ import annotations
 import re
 import json
 import zipfile
+import subprocess
+import sys
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -60,6 +63,13 @@ def test_every_output_exists_and_parses(slice_run):
     with zipfile.ZipFile(zips[0]) as z:
         assert "stats.json" in z.namelist()
     assert not list(out.parent.glob(".*partial*"))
+    # named by their estimates (evo's defaults made them alike, and `evo_res *.zip` refused them: found by a review)
+    names = [file_interface.load_res_file(out / f"ape_translation_{e}.zip").info["est_name"] for e in ("fused", "lidar", "gnss")]
+    assert names == ["fused", "lidar", "gnss"]
+    r = subprocess.run([str(Path(sys.executable).parent / "evo_res"), *(str(out / f"ape_translation_{e}.zip") for e in
+                                                                         ("fused", "lidar", "gnss"))],
+                       capture_output=True, text=True)
+    assert r.returncode == 0 and "fused" in r.stdout, r.stdout + r.stderr
 
 
 def test_fused_beats_lidar_and_gnss_on_the_slice(slice_run):

@@ -284,3 +284,39 @@ def test_compiled_pose_nees_equals_the_matrix_formula():
         assert np.allclose(n_p, want_p, rtol=1e-9, atol=0) and np.allclose(n_a, want_a, rtol=1e-9, atol=0)
     P[0, :3, :3] = 0.0
     assert not np.isfinite(pose_nees_q(p_est[:1], q_est[:1], p_true[:1], q_true[:1], pack_pose_cov(P[:1]))[0][0])
+
+
+def test_evaluate_scores_a_track_with_placeholder_orientations_as_position_only(slice_run, tmp_path):
+    """A run's own gnss.tum (identity quaternions) given to `evaluate` got a 100 deg rotation error, RPE and a 78 %
+    KITTI drift (its relative translations taken in the placeholder frame) with exit 0 (found by two reviews): it
+    is now scored as the run scores GNSS, APE translation only, with a warning; the APE is unchanged."""
+    out = tmp_path / "o"
+    r = CliRunner().invoke(main, ["evaluate", str(slice_run / "groundtruth.tum"), str(slice_run / "fused.tum"),
+                                  str(slice_run / "gnss.tum"), "--no-plots", "--out", str(out)])
+    assert r.exit_code == 0, r.output
+    assert "gnss.tum: every pose has the same orientation" in r.output
+    est = json.loads((out / "metrics.json").read_text())["estimates"]
+    run = json.loads((slice_run / "metrics.json").read_text())["estimates"]
+    assert set(est["gnss"]["ape"]) == {"translation_m"} and "rpe_1frame" not in est["gnss"]
+    assert not est["gnss"].get("kitti_drift")
+    assert est["gnss"]["ape"]["translation_m"]["rmse"] == pytest.approx(run["gnss"]["ape"]["translation_m"]["rmse"], rel=1e-9)  # TUM text
+    assert "rotation_deg" in est["fused"]["ape"] and est["fused"].get("kitti_drift")     # a real estimate keeps them
+
+
+def test_evaluate_writes_evo_result_files_named_by_their_estimates(slice_run, tmp_path):
+    """`-r` promised an evo result file per pose relation and `evaluate` wrote none (found by a review): one per
+    metric, estimate and relation now, named as a run's, whose statistics are metrics.json's."""
+    from evo.tools import file_interface
+
+    out = tmp_path / "o"
+    r = CliRunner().invoke(main, ["-q", "evaluate", str(slice_run / "groundtruth.tum"), str(slice_run / "fused.tum"),
+                                  str(slice_run / "lidar.tum"), "-r", "trans_part", "-r", "full", "--no-plots",
+                                  "--out", str(out)])
+    assert r.exit_code == 0, r.output
+    est = json.loads((out / "metrics.json").read_text())["estimates"]
+    for e in ("fused", "lidar"):
+        for z, stat in ((f"ape_translation_{e}.zip", est[e]["ape"]["translation_m"]),
+                        (f"ape_full_transformation_{e}.zip", est[e]["ape"]["full_transformation"]),
+                        (f"rpe_1frame_translation_{e}.zip", est[e]["rpe_1frame"]["translation_m"])):
+            res = file_interface.load_res_file(out / z)
+            assert res.info["est_name"] == e and res.stats["rmse"] == pytest.approx(stat["rmse"], rel=1e-12)

@@ -24,7 +24,7 @@ from ..outputs import StagedDir, repeated_path
 from ..report.markdown import drift_section, fmt_stat, segments_section
 from .. import provenance
 from ..provenance import header_line
-from ..report import html
+from ..report import files, html
 from ..tables import latex, latex_document, markdown
 
 log = logging.getLogger(__name__)
@@ -87,14 +87,18 @@ def run_evaluate(inputs: list, out_dir: Path, ref_times: Path | None = None, tim
                        **({"reading": f.note} if f.note else {})}
         if f.cov is not None:
             covs[name] = (f.cov_t_s, f.cov)
+    fixed = frozenset(name for name, f in zip(series, est_fs) if _orientation_placeholder(f, ref_f))
     m, evals = evaluate_series(ref_f.traj, series, association, alignment, t_max_diff_s, rpe_delta_m, segment_m,
                                segment_s, about, ref_stamps=ref_f.stamps, engine=engine, relations=relations,
-                               up_axis=up_axis, n_to_align=n_to_align, t_offset_s=t_offset_s, covariances=covs)
+                               up_axis=up_axis, n_to_align=n_to_align, t_offset_s=t_offset_s, covariances=covs,
+                               position_only=fixed)
     _refuse_unmatched(ref_f, est_fs, evals, association, t_max_diff_s)
     metrics = {"reference": ref_f.source, "reference_format": ref_f.format, "reference_stamps": ref_f.stamps,
                **({"reference_repeated_stamps": ref_f.repeated_stamps} if ref_f.repeated_stamps else {}), **m}
     with staged as out:
         out.write_text("metrics.json", json.dumps(metrics, indent=2) + "\n")
+        for ev in evals.values():          # evo's result files, one per metric and pose relation (evo_res reads them)
+            files.write_evo_zips(ev, out.path("."))
         written = []
         if make_plots:
             from ..evaluation.alignment import detect_up_axis
@@ -122,6 +126,26 @@ def run_evaluate(inputs: list, out_dir: Path, ref_times: Path | None = None, tim
             [(role, p) for role, p in (("reference times", ref_times), ("estimate times", times)) if p is not None]
         out.write_text("report.html", html.page(md, out.path("."), inputs=provenance.files(named)))
     return metrics
+
+
+PLACEHOLDER_TURN_DEG = 5.0      # the reference turning more than this while an estimate never does: placeholders
+
+
+def _orientation_placeholder(f, ref_f) -> bool:
+    """Whether ``f``'s orientations are placeholders: one and the same quaternion on every pose while the reference
+    turns (a GNSS or position-only track written as TUM, e.g. a run's own ``gnss.tum``). Its rotation, RPE and KITTI
+    drift would be numbers about the placeholder (a 100 deg rotation error, 78 % drift: the relative translations
+    taken in the wrong frame), so it is scored as a run scores GNSS, by APE translation only, and a warning says so."""
+    q, qr = f.traj.orientations_quat_wxyz, ref_f.traj.orientations_quat_wxyz
+    if len(q) < 2 or len(qr) < 2 or not np.all(q == q[0]):
+        return False
+    cos_half = np.clip(np.abs(qr @ qr[0]) / (np.linalg.norm(qr, axis=1) * np.linalg.norm(qr[0])), 0.0, 1.0)
+    turn_deg = float(np.degrees(2 * np.arccos(cos_half.min())))
+    if turn_deg <= PLACEHOLDER_TURN_DEG:
+        return False
+    log.warning("%s: every pose has the same orientation while the reference turns by up to %.0f deg: evaluated as "
+                "position only (APE translation; no rotation, RPE or KITTI drift metric)", f.source, turn_deg)
+    return True
 
 
 def _aligned(series, ev):

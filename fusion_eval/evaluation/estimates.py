@@ -50,11 +50,13 @@ def evaluate_series(ref, estimates: dict, association: str = "nearest",
                     about: dict | None = None, ref_stamps: str | None = None,
                     engine: str = "arrays", *, relations: tuple[str, ...] = keys.DEFAULT_RELATIONS,
                     up_axis: str = "auto", n_to_align: int = -1,
-                    t_offset_s: float = 0.0, covariances: dict | None = None) -> tuple[dict, dict[str, EstimateEvaluation]]:
+                    t_offset_s: float = 0.0, covariances: dict | None = None,
+                    position_only: frozenset = frozenset()) -> tuple[dict, dict[str, EstimateEvaluation]]:
     """evo's APE/RPE, the KITTI drift metric and the per-segment breakdown of each estimate against ``ref``:
     the ``metrics.json`` of ``fusion-eval evaluate`` and the evaluations behind it. ``about`` adds, per
     estimate, where it came from (``file``, ``stamps``: how its stamps were obtained); stamps and frame indices
-    are not mixed: matching a stamped trajectory to one matched by index would give meaningless numbers."""
+    are not mixed: matching a stamped trajectory to one matched by index would give meaningless numbers.
+    ``position_only``: the estimates whose orientations are placeholders (APE translation only, as GNSS in a run)."""
     about = about or {}
     for name, a in about.items():
         if ref_stamps is not None and (a.get("stamps") == BY_INDEX) != (ref_stamps == BY_INDEX):
@@ -64,7 +66,7 @@ def evaluate_series(ref, estimates: dict, association: str = "nearest",
     covariances = covariances or {}
     evals = {name: evaluate(ref, est, name, t_max_diff_s, rpe_delta_m, association, alignment, engine,
                             relations=relations, up_axis=up_axis, n_to_align=n_to_align, t_offset_s=t_offset_s,
-                            cov=covariances.get(name))
+                            cov=covariances.get(name), has_orientation=False if name in position_only else None)
              for name, est in estimates.items()}
     if not isinstance(ref, PoseSeries):         # an evo trajectory as read: a series for the segment breakdown
         from .trajectory import from_evo

@@ -318,7 +318,7 @@ def evaluate(reference, estimate, name: str, t_max_diff_s: float,
         ev.drift = None if d is None else d.as_dict()
     if not has_orientation:
         ev.note = "position only: no rotation or relative (RPE) metrics"
-        return ev
+        return _named(ev, reference)
     for label, delta, unit in ((keys.RPE_FRAME, 1.0, metrics.Unit.frames),
                                (keys.rpe_distance_group(rpe_delta_m), rpe_delta_m, metrics.Unit.meters)):
         ev.metrics[label] = {}
@@ -331,6 +331,18 @@ def evaluate(reference, estimate, name: str, t_max_diff_s: float,
                 continue
             ev.metrics[label][key] = _stats(res)
             ev.results[f"{label}_{keys.RESULT_NAMES[key]}"] = res
+    return _named(ev, reference)
+
+
+def _named(ev: EstimateEvaluation, reference) -> EstimateEvaluation:
+    """Each evo result named by its estimate and reference, as ``evo_ape`` names them by their files: evo's
+    defaults ('estimate', 'reference') made every result file of a run alike, and ``evo_res *.zip`` refuses
+    results whose ``est_name`` repeats."""
+    ref = str(getattr(reference, "source", None) or "reference")
+    for res in ev.results.values():
+        old = (res.info.get("ref_name"), res.info.get("est_name"))
+        res.info["ref_name"], res.info["est_name"] = ref, ev.name
+        res.trajectories = {ref if k == old[0] else ev.name if k == old[1] else k: v for k, v in res.trajectories.items()}
     return ev
 
 
