@@ -188,6 +188,14 @@ def test_real_process_exit_code_and_single_line(ds, tmp_path):
     ("align_to: imu,", "align_to: lidar,", "times.align_to takes 'imu'"),
     ("T_velo_imu: {file: calib_imu_to_velo.txt}", "T_velo_imu: {file: calib_imu_to_velo.txt, kye: R}",
      "unknown key 'kye' in T_velo_imu (known: file, key)"),
+    # keys the chosen stamping does not read were ignored too, and a column-major 4x4 went on to a traceback
+    # (found by a corrupted-input review)
+    ("index_offset: 0}", "index_offset: 0, smooth_s: 0.5}", "times.smooth_s smooths the IMU packets' own stamps"),
+    ("align_to: imu, index_offset: 0}", "align_to: imu, index_offset: 0, t0_s: 5}", "times.t0_s shifts a times file"),
+    ("{file: lidar/times.txt, align_to: imu, index_offset: 0}", "{file: lidar/times.txt, index_offset: 2}",
+     "times.index_offset pairs frames with IMU packets"),
+    ("T_cam0_velo: {file: lidar/calib.txt, key: Tr}",
+     "T_cam0_velo: [1, 0, 0, 0, 0, 1, 0, 0, 0, 0, 1, 0, -0.01, -0.07, -0.27, 1]", "the last row of a 4x4 must be 0 0 0 1"),
 ])
 def test_bad_manifest_values(ds, tmp_path, old, new, needle):
     m = ds / "dataset.yaml"

@@ -255,6 +255,12 @@ def _transform(spec_value, root: Path, where: str, what: str) -> np.ndarray:
     if isinstance(spec_value, (list, tuple)) and len(spec_value) in (12, 16) and all(_is_num(v) for v in spec_value):
         T = np.eye(4)
         T[: len(spec_value) // 4, :] = np.asarray(spec_value, float).reshape(-1, 4)
+        if len(spec_value) == 16 and np.abs(T[3] - [0.0, 0.0, 0.0, 1.0]).max() > 1e-9:
+            # a column-major matrix (Eigen's or numpy's .T written out) has its 3x3 block transposed, which is still
+            # a rotation: only the last row tells, and it went on to a traceback
+            raise ConfigError(f"{where}: {what}: the last row of a 4x4 must be 0 0 0 1, got "
+                              f"{' '.join(f'{v:g}' for v in T[3])} (16 numbers are read row by row: a column-major "
+                              "matrix written out? give the 12 numbers of the 3x4 [R | t] row by row)")
         R = T[:3, :3]
         if np.abs(R.T @ R - np.eye(3)).max() > 1e-3 or np.linalg.det(R) < 0:
             raise ConfigError(f"{where}: {what}: the 3x3 block must be a rotation (R^T R = I, det +1)")
@@ -263,7 +269,8 @@ def _transform(spec_value, root: Path, where: str, what: str) -> np.ndarray:
         except DataFormatError as exc:
             raise ConfigError(str(exc)) from None
         return T
-    raise ConfigError(f"{where}: {what} must be {{file: ..., key: ...}} or a list of 12 numbers (3x4 row-major)")
+    raise ConfigError(f"{where}: {what} must be {{file: ..., key: ...}} or a list of 12 numbers (3x4 row-major; 16 "
+                      "for the whole 4x4)")
 
 
 def _extrinsic(spec, root, manifest) -> np.ndarray:
