@@ -223,3 +223,16 @@ def test_compare_keeps_path_variants_inside_the_output(kitti_slice, tmp_path):
     assert r.exit_code == 0, r.output
     assert sorted(p.name for p in (out / "variants").iterdir()) == ["eskf", "mine"]
     assert sorted(p.name for p in (tmp_path / "deep").iterdir()) == ["out"]
+
+
+def test_compare_refuses_variants_scored_differently(kitti_slice, tmp_path):
+    """A variant file's evaluation.* was ignored (every variant scored with the first's settings, its own
+    config.resolved.yaml saying otherwise: the figures changed with the variants' order; found by a review)."""
+    (tmp_path / "aligned.yaml").write_text("evaluation:\n  alignment: se3\n")
+    (tmp_path / "plain.yaml").write_text("filter:\n  bias_model: constant\n")
+    for order in (("plain", "aligned"), ("aligned", "plain")):
+        r = CliRunner().invoke(main, ["-q", "compare", str(kitti_slice), "--variants",
+                                      ",".join(str(tmp_path / f"{v}.yaml") for v in order), "--out",
+                                      str(tmp_path / f"o-{order[0]}"), "--no-plots"])
+        assert r.exit_code == 2 and "evaluation.alignment" in r.output and "Traceback" not in r.output, r.output
+        assert not (tmp_path / f"o-{order[0]}").exists()

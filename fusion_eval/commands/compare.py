@@ -78,6 +78,20 @@ def _replay_all(ds, variants: list[str], cfgs: list[dict], advance=None) -> tupl
     return runs, base_prep
 
 
+def _same_evaluation(variants: list[str], cfgs: list[dict]) -> None:
+    """Every variant is scored one way (the unfiltered estimates and the span are shared): a variant that sets
+    ``evaluation.*`` differently is refused, naming the key. It was scored with the first variant's settings while
+    its own config.resolved.yaml said otherwise, so the figures changed with the variants' order."""
+    first = cfgs[0]["evaluation"]
+    for v, c in zip(variants[1:], cfgs[1:]):
+        diff = sorted(k for k in set(first) | set(c["evaluation"]) if first.get(k) != c["evaluation"].get(k))
+        if diff:
+            k = diff[0]
+            raise ConfigError(f"--variants: {v!r} sets evaluation.{k} = {c['evaluation'].get(k)!r} and {variants[0]!r} "
+                              f"{first.get(k)!r}: compare scores every variant the same way; set evaluation.* for all "
+                              "of them (-c or --set), not in a variant file")
+
+
 def _evaluate_all(runs: list[VariantRun], base_prep, ev_cfg: dict, pool):
     """evo's metrics of every variant and unfiltered estimate, over one span (evaluation.span, the first
     variant's setting); returns the unfiltered series, their evaluations and the span."""
@@ -158,6 +172,7 @@ def _compare(dataset_path: Path | None, variants: list[str], variant_dir: Path |
     stages.start("load")
     ds = session.dataset(dataset_path)
     cfgs = [session.resolve(r, ds) for r in reqs]
+    _same_evaluation(variants, cfgs)
 
     with executor(None) as pool:
         # trials 1.. on the pool (each one a whole comparison) while this process does trial 0 and its files
