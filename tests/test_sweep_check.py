@@ -209,6 +209,10 @@ def test_check_matches_a_sweep_csv_made_in_another_folder_by_dataset_name(tmp_pa
      "the sweep has 160,000 settings, more than 100,000 (a grid of 400 x 400)"),
     ("random:\n  n: 3\n  ranges:\n    imu.gyro_noise_dps_sqrthz: [1.0, 0.01]\n", "bad.yaml:4: random range of"),
     ("random:\n  n: 3\n  ranges:\n    filter.formulation: [0.1, 1]\n", "bad.yaml:4: 'filter.formulation' takes one of"),
+    # a blank or non-text entry was a traceback (found by a corrupted-input review)
+    ("variants:\n  - eskf\n  -\n  - nominal\nsettings: {a: {imu.gyro_noise_dps_sqrthz: 0.1}}\n",
+     "bad.yaml:1: every entry of 'variants' must be a variant name or YAML path, got None"),
+    ("variants: [5]\nsettings: {a: {imu.gyro_noise_dps_sqrthz: 0.1}}\n", "got 5"),
 ])
 def test_malformed_sweep_files_are_one_line_errors(small, tmp_path, body, needle):
     sw = tmp_path / "bad.yaml"
@@ -383,3 +387,17 @@ def test_check_trial_stat_asked_of_runs_without_trials_is_an_error(tmp_path):
     assert r.exit_code == 2 and "--trial-stat applies to the metrics of a run with --trials" in r.stderr
     r = CliRunner().invoke(main, ["check", str(cur), "--baseline", str(cur)])       # the default statistic: fine
     assert r.exit_code == 0
+
+
+@pytest.mark.parametrize("trials", [{"n": 3}, 5, {"stats": {"estimates.fused.ape.translation_m.rmse": 1.0}}])
+def test_check_refuses_a_trials_section_it_cannot_read(tmp_path, trials):
+    """A 'trials' that is not run --trials' section was a KeyError, TypeError or AttributeError traceback (found by a
+    corrupted-input review); --trial-stat none still reads the file's own values."""
+    cur = _metrics(tmp_path, "cur.json", 1.0)
+    body = json.loads(cur.read_text())
+    body["trials"] = trials
+    cur.write_text(json.dumps(body))
+    base = _metrics(tmp_path, "base.json", 1.0)
+    r = CliRunner().invoke(main, ["check", str(cur), "--baseline", str(base)])
+    assert r.exit_code == 2 and "its 'trials' is not the trials section" in r.stderr and "Traceback" not in r.output
+    assert CliRunner().invoke(main, ["check", str(cur), "--baseline", str(base), "--trial-stat", "none"]).exit_code == 0

@@ -62,7 +62,13 @@ def load_metrics(path: Path, trial_stat: str | None = "mean") -> tuple[dict[str,
     out = keys.flatten(body)
     if trial_stat is not None and body.get("trials"):
         # a Monte-Carlo run: every metric is replaced by that statistic over its trials
-        stats = body["trials"]["stats"]
+        tr = body["trials"]
+        stats = tr.get("stats") if isinstance(tr, dict) else None
+        if not isinstance(stats, dict) or not all(isinstance(v, dict) for v in stats.values()):
+            # a hand-edited or foreign file was a traceback (KeyError, TypeError, AttributeError)
+            raise DataFormatError(path, None, "its 'trials' is not the trials section of fusion-eval run --trials N "
+                                              "(a mapping with 'stats': {metric: {mean, std, ...}}); give --trial-stat none "
+                                              "to use the first trial's own values")
         out = {k: float(stats[k][trial_stat]) for k in out if k in stats and keys.is_number(stats[k].get(trial_stat))}
     if not out:
         raise DataFormatError(path, None, "no numeric metrics found")

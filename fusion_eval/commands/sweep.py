@@ -101,6 +101,11 @@ def load_sweep(path: Path) -> dict:
                             ("plots", bool, "true or false"), ("config", str, "a configuration file path")):
         if key in body and body[key] is not None and not isinstance(body[key], kind):
             raise ConfigError(f"{yaml_lines.at(path, body, key)}: '{key}' must be {what}, got {body[key]!r}")
+    for key in ("datasets", "variants"):          # each entry a name or path (a blank '-' entry was a traceback)
+        bad = next((v for v in body.get(key) or () if not isinstance(v, str) or not v.strip()), "ok")
+        if bad != "ok":
+            raise ConfigError(f"{yaml_lines.at(path, body, key)}: every entry of '{key}' must be a "
+                              f"{'variant name or YAML path' if key == 'variants' else 'dataset path'}, got {bad!r}")
     tr = body.get("trials", 1)
     if isinstance(tr, bool) or not isinstance(tr, int) or tr < 1:
         raise ConfigError(f"{yaml_lines.at(path, body, 'trials')}: 'trials' must be a whole number >= 1 (Monte-Carlo trials of every setting), got {tr!r}")
