@@ -320,3 +320,12 @@ def test_evaluate_writes_evo_result_files_named_by_their_estimates(slice_run, tm
                         (f"rpe_1frame_translation_{e}.zip", est[e]["rpe_1frame"]["translation_m"])):
             res = file_interface.load_res_file(out / z)
             assert res.info["est_name"] == e and res.stats["rmse"] == pytest.approx(stat["rmse"], rel=1e-12)
+
+
+def test_evaluate_refuses_the_reference_as_an_estimate(slice_run, tmp_path):
+    """`evaluate REF REF` reported an APE of 0.000 with exit 0 (found by a corrupted-input review)."""
+    ref = slice_run / "groundtruth.tum"
+    r = CliRunner().invoke(main, ["evaluate", str(ref), str(slice_run / ".." / slice_run.name / "groundtruth.tum"),
+                                  "--out", str(tmp_path / "o")])
+    assert r.exit_code == 2 and "given as an estimate and as the reference" in r.stderr
+    assert not (tmp_path / "o").exists()

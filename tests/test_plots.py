@@ -331,3 +331,47 @@ def test_compare_ape_draws_smoothed_estimates_and_keeps_unfiltered_colours_apart
     variant = {to_hex(lines[f"v{i}"].get_color()) for i in range(4)}
     assert len(variant) == 4 and not variant & {to_hex(lines[n].get_color()) for n in ("lidar odometry", "GNSS")}
     plt.close("all")
+
+
+def test_a_log_axis_of_few_decades_labels_its_minor_ticks():
+    """An APE of 1-8 m on a log axis showed only '1', a drift of 0.4-0.9 % no label at all (found by a review);
+    many decades keep the plain major labels only (the cheap case the consistency plot needs)."""
+    import matplotlib.pyplot as plt
+
+    from fusion_eval.report.plots import _no_minor_labels
+
+    def labels(lo, hi):
+        fig, ax = plt.subplots()
+        ax.plot([0, 1], [lo, hi])
+        ax.set_yscale("log")
+        _no_minor_labels(ax)
+        fig.canvas.draw()
+        out = {t.get_text() for t in ax.yaxis.get_ticklabels(minor=True) + ax.yaxis.get_ticklabels() if t.get_text()}
+        plt.close(fig)
+        return out
+
+    assert {"1", "2", "5"} <= labels(1.0, 8.0)
+    assert {"0.5", "0.6", "0.8"} <= labels(0.41, 0.95)
+    assert not {"2", "5", "20"} & labels(1e-4, 1e3)
+
+
+def test_segment_labels_do_not_overlap_and_stay_inside_the_map():
+    """Two worst segments at one place had their labels on each other, and a label at the map's edge ran under the
+    colour bar (found by a review)."""
+    import matplotlib.pyplot as plt
+
+    from fusion_eval.report.plots import _place_labels
+
+    fig, ax = plt.subplots(figsize=(6, 5))
+    ax.plot([0, 100], [0, 100])
+    marks = [("#35 (2.36 m)", (40.0, 10.0)), ("#36 (2.16 m)", (45.0, 12.0)), ("#37 (2.10 m)", (42.0, 11.0)),
+             ("#14 (2.14 m)", (99.0, 50.0))]
+    _place_labels(fig, ax, marks)
+    fig.canvas.draw()
+    r = fig.canvas.get_renderer()
+    boxes = [t.get_window_extent(r) for t in ax.texts]
+    box = ax.get_window_extent(r)
+    assert len(boxes) == 4
+    assert all(box.x0 <= b.x0 and b.x1 <= box.x1 for b in boxes)
+    assert not any(a.overlaps(b) for i, a in enumerate(boxes) for b in boxes[i + 1:])
+    plt.close(fig)

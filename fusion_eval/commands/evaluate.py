@@ -38,6 +38,8 @@ def read_inputs(inputs: list, bag: Path | None, ref_topic: str | None, fmt: str,
             raise ConfigError("--bag needs --ref REF_TOPIC (the reference topic) and one or more estimate topics")
         if ref_times or times or fmt != "auto":
             raise ConfigError("--ref-times, --times and --format apply to trajectory files, not to bag topics")
+        if ref_topic in inputs:
+            raise ConfigError(f"--bag {bag}: topic {ref_topic} given as an estimate and as the reference (--ref)")
         tfs = read_bag_trajectories(bag, [ref_topic, *inputs])
         return tfs[0], tfs[1:]
     if ref_topic:
@@ -47,6 +49,9 @@ def read_inputs(inputs: list, bag: Path | None, ref_topic: str | None, fmt: str,
     twice = repeated_path(inputs[1:])    # one file twice would be evaluated twice, as two estimates
     if twice:
         raise ConfigError(f"{twice[1]}: given twice as an estimate (as {twice[0]} before)")
+    twice = next(((inputs[0], p) for p in inputs[1:] if repeated_path([inputs[0], p])), None)
+    if twice:                            # the reference against itself: an APE of 0.000 with exit 0 says nothing
+        raise ConfigError(f"{twice[1]}: given as an estimate and as the reference ({twice[0]})")
     ref, ests = read_trajectory(inputs[0], ref_times, fmt), [read_trajectory(p, times, fmt) for p in inputs[1:]]
     for f in ests:
         # paired by frame index, one pose missing mid-file would shift every later pair, silently

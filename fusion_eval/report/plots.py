@@ -32,14 +32,36 @@ _VCOLORS = plt.rcParams["axes.prop_cycle"].by_key()["color"]  # no version strin
 
 
 def _no_minor_labels(ax) -> None:
-    """Log axes label their minor ticks, and their major ticks in mathtext (10^k); laying those labels out
-    dominated the drawing time. Plain numbers, and no minor labels; minor ticks at 1, 2 and 5 of each decade only
-    (matplotlib's eight per decade were 150 tick objects on the consistency plot, a quarter of its drawing)."""
-    from matplotlib.ticker import FuncFormatter, LogLocator, NullFormatter
+    """Log axes label their ticks in mathtext (10^k) by default, and label minor ticks; laying those labels out
+    dominated the drawing time. Plain numbers; minor ticks at 1, 2 and 5 of each decade (matplotlib's eight per
+    decade were 150 tick objects on the consistency plot, a quarter of its drawing), labelled only where the axis
+    spans so few decades that its major ticks alone would leave it unreadable (an APE of 1-8 m showed only '1')."""
+    from matplotlib.ticker import FuncFormatter
 
-    ax.yaxis.set_minor_locator(LogLocator(subs=(1.0, 2.0, 5.0)))
-    ax.yaxis.set_minor_formatter(NullFormatter())
+    def minor(v, _pos):
+        lo, hi = sorted(ax.yaxis.get_view_interval())
+        if lo <= 0 or v <= 0:
+            return ""
+        decades = np.log10(hi / lo)
+        digit = round(v / 10 ** np.floor(np.log10(v) + 1e-9))
+        return f"{v:g}" if decades < 1.2 or (decades < 3 and digit in (2, 5)) else ""
+
+    ax.yaxis.set_minor_locator(_LogMinor())
+    ax.yaxis.set_minor_formatter(FuncFormatter(minor))
     ax.yaxis.set_major_formatter(FuncFormatter(lambda v, _pos: f"{v:g}"))
+
+
+class _LogMinor(matplotlib.ticker.LogLocator):
+    """Minor ticks of a log axis: 1, 2 and 5 of each decade, and every digit within an axis of under 1.5 decades
+    (0.6 to 0.9 has no 1, 2 or 5 to show)."""
+
+    def __init__(self):
+        super().__init__(subs=(1.0, 2.0, 5.0))
+
+    def tick_values(self, vmin, vmax):
+        lo, hi = sorted((vmin, vmax))
+        self.set_params(subs=np.arange(1.0, 10.0) if lo > 0 and hi / lo < 10 ** 1.5 else (1.0, 2.0, 5.0))
+        return super().tick_values(vmin, vmax)
 
 
 def _save(fig, path: Path) -> None:
@@ -582,8 +604,9 @@ def plot_drift(path: Path, evals: dict) -> None:
     axes[1].set_ylabel("rotational error [deg/100 m]")
     for ax in axes:
         ax.set_xlabel("segment length [m]")
-        ax.set_yscale("log")
-        _no_minor_labels(ax)
+        if any(np.any(np.asarray(ln.get_ydata()) > 0) for ln in ax.get_lines()):
+            ax.set_yscale("log")       # (an estimate equal to its reference has no error to put on a log axis)
+            _no_minor_labels(ax)
         ax.grid(alpha=0.3, which="both")
         ax.legend(fontsize=7)
     fig.suptitle("KITTI drift metric against segment length")
@@ -646,18 +669,18 @@ def segment_map_figure(evals: dict, seg: dict, up_axis: str = "z"):
     k = thin.every(len(p))
     sc = axes[0, 0].scatter(p[k, i0], p[k, i1], c=f.ape_err_m[k], s=3, cmap="viridis")
     fig.colorbar(sc, ax=axes[0, 0], label=f"{a} APE [m]")
-    axes[0, 0].set_title(f"{a} error along the route")
+    # long estimate names (a file's stem) wrapped: a one-line title ran into the next panel's colour bar
+    axes[0, 0].set_title(textwrap.fill(f"{a} error along the route", 55), fontsize=10)
     if panels == 2:
         diff = f.ape_err_m - np.interp(f.ape_t_s, lid.ape_t_s, lid.ape_err_m)
         lim = float(np.percentile(np.abs(diff), 98)) or 1.0
         sc = axes[0, 1].scatter(p[k, i0], p[k, i1], c=diff[k], s=3, cmap="coolwarm", vmin=-lim, vmax=lim)
         fig.colorbar(sc, ax=axes[0, 1], label=f"{a} APE - {b} APE [m] (blue: {a} better)")
-        axes[0, 1].set_title(f"Where {a} is better (blue) or worse (red) than {b}")
+        axes[0, 1].set_title(textwrap.fill(f"Where {a} is better (blue) or worse (red) than {b}", 55), fontsize=10)
     d = np.concatenate([[0.0], np.cumsum(np.linalg.norm(np.diff(p, axis=0), axis=1))])
     worst = seg.get("worst", [])[:5]  # not a state index
     xy = p[:, [i0, i1]]        # the map's two coordinates of the route
-    span = float(np.ptp(xy, axis=0).max()) or 1.0
-    placed: list[np.ndarray] = []
+    marks = []
     for i in worst:
         s = next(x for x in seg["segments"] if x["index"] == i)
         if seg["by"] == "distance":
@@ -667,11 +690,7 @@ def segment_map_figure(evals: dict, seg: dict, up_axis: str = "z"):
         k = min(k, len(p) - 1)
         axes[0, 0].plot(*xy[k], "o", ms=5, mfc="none", mec="red", mew=1.2)
         rmse = s["rmse_m"].get(a)
-        # a route that passes a place twice puts two worst segments side by side: step their labels down
-        near = sum(np.linalg.norm(q - xy[k]) < 0.15 * span for q in placed)   # a label is ~0.15 of the map wide
-        placed.append(xy[k])
-        axes[0, 0].annotate(f"#{i}" + (f" ({rmse:.2f} m)" if rmse is not None else ""), xy[k],
-                            xytext=(5, 4 - 11 * near), textcoords="offset points", fontsize=8, color="red")
+        marks.append((f"#{i}" + (f" ({rmse:.2f} m)" if rmse is not None else ""), xy[k]))
     for ax in axes[0]:
         ax.set_aspect("equal", adjustable="box")
         ax.set_xlabel(xlabel)
@@ -685,7 +704,30 @@ def segment_map_figure(evals: dict, seg: dict, up_axis: str = "z"):
                    "their middle.")
         fig.text(0.06, 0.015, textwrap.fill(caption, 95 * panels), fontsize=8, color="dimgray")
     fig.subplots_adjust(left=0.1 if panels == 1 else 0.06, right=0.97, top=0.94, bottom=0.14, wspace=0.25)
+    _place_labels(fig, axes[0, 0], marks)
     return fig
+
+
+def _place_labels(fig, ax, marks) -> None:
+    """Each ``(text, xy)`` written beside its point where it overlaps no label placed before and stays inside the
+    axes: right of the point, then left, stepped up and down (two worst segments of a route that passes a place
+    twice stood on each other, and a label at the map's edge ran under the colour bar)."""
+    renderer = fig.canvas.get_renderer()
+    ax.get_xlim(), ax.get_ylim()        # the pending autoscaling done (the data limits are settled at a draw)
+    ax.apply_aspect()                   # the equal-aspect box as it will be drawn
+    box_ax = ax.get_window_extent(renderer)
+    taken = []
+    steps = [(dx, dy) for dy in (4, -9, 17, -22, 30, -35) for dx in (5, -5)]
+    for text, xy in marks:
+        for n, (dx, dy) in enumerate(steps):
+            t = ax.annotate(text, xy, xytext=(dx, dy), textcoords="offset points", fontsize=8, color="red",
+                            ha="left" if dx > 0 else "right", va="bottom", annotation_clip=False)
+            b = t.get_window_extent(renderer)
+            inside = box_ax.x0 <= b.x0 and b.x1 <= box_ax.x1 and box_ax.y0 <= b.y0 and b.y1 <= box_ax.y1
+            if n == len(steps) - 1 or (inside and not any(b.overlaps(o) for o in taken)):
+                taken.append(b)
+                break
+            t.remove()
 
 
 def plot_segment_map(path: Path, evals: dict, seg: dict, up_axis: str = "z") -> None:
@@ -703,6 +745,8 @@ def plot_generic_trajectories(path: Path, ref, estimates: dict, up_axis: str = "
     for i, (name, s) in enumerate(estimates.items()):
         ax.plot(s.p_w_m[:, i0], s.p_w_m[:, i1], "-", lw=1.0, color=_VCOLORS[i % len(_VCOLORS)], label=name)
     ax.set_aspect("equal", adjustable="box")
+    # whole coordinates: georeferenced (UTM) files put an offset '+5.429e6' over the title, and a reader must add it
+    ax.ticklabel_format(useOffset=False, style="plain")
     ax.set_xlabel(f"{'xyz'[i0]} [m]")
     ax.set_ylabel(f"{'xyz'[i1]} [m]")
     how = "as read; not aligned" if alignment == "none" else f"estimates aligned as evaluated: {alignment}"
