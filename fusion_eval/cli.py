@@ -364,13 +364,19 @@ def evaluate(ctx, inputs, out_dir, fmt, bag, ref_topic, ref_times, times, associ
     if ctx.obj["quiet"]:
         click.echo(out_dir)
     else:
-        click.echo(f"{'estimate':<28} {'matched':>8} {'APE trans RMSE [m]':>19} {'KITTI t_err [%]':>16} {'r_err [deg/100m]':>17}")
+        from .evaluation.keys import rpe_distance_group
+
+        delta = m["evaluation"]["rpe_delta_m"]
+        rpe_head = f"RPE {delta:g} m [m]"
+        click.echo(f"{'estimate':<28} {'matched':>8} {'APE trans RMSE [m]':>19} {rpe_head:>15} {'KITTI t_err [%]':>16} "
+                   f"{'r_err [deg/100m]':>17}")
         for k, d in m["estimates"].items():
             ape = (d.get("ape") or {}).get("translation_m")
+            rpe = (d.get(rpe_distance_group(delta)) or {}).get("translation_m")
             dr = d.get("kitti_drift")
-            cells = [_num_or_na(ape and ape["rmse"], 3), _num_or_na(dr and dr["t_err_pct"], 3),
-                     _num_or_na(dr and dr["r_err_deg_per_100m"], 4)]
-            click.echo(f"{k:<28} {d['matched_poses']:>8} {cells[0]:>19} {cells[1]:>16} {cells[2]:>17}")
+            cells = [_num_or_na(ape and ape["rmse"], 3), _num_or_na(rpe and rpe["rmse"], 3),
+                     _num_or_na(dr and dr["t_err_pct"], 3), _num_or_na(dr and dr["r_err_deg_per_100m"], 4)]
+            click.echo(f"{k:<28} {d['matched_poses']:>8} {cells[0]:>19} {cells[1]:>15} {cells[2]:>16} {cells[3]:>17}")
         click.echo(f"wrote {out_dir}/")
 
 

@@ -329,3 +329,21 @@ def test_evaluate_refuses_the_reference_as_an_estimate(slice_run, tmp_path):
                                   "--out", str(tmp_path / "o")])
     assert r.exit_code == 2 and "given as an estimate and as the reference" in r.stderr
     assert not (tmp_path / "o").exists()
+
+
+def test_evaluate_report_shows_what_it_computed(tmp_path):
+    """The per-distance RPE (--rpe-delta-m) was only in metrics.json, metrics.tex lacked the KITTI drift table, a
+    rotation asked for in radians read 'n/a' and the 4-DoF alignment was a JSON dump (found by a review)."""
+    gt, orb, times = (shared_path("evo-test-data", f) for f in ("KITTI_00_gt.txt", "KITTI_00_ORB.txt", "KITTI_00_gt_times.txt"))
+    out = tmp_path / "o"
+    r = CliRunner().invoke(main, ["evaluate", str(gt), str(orb), "--ref-times", str(times), "--times", str(times),
+                                  "--alignment", "4dof", "-r", "trans_part", "-r", "angle_rad", "--rpe-delta-m", "50",
+                                  "--no-plots", "--out", str(out)])
+    assert r.exit_code == 0, r.output
+    m = json.loads((out / "metrics.json").read_text())["estimates"]["KITTI_00_ORB"]
+    md, tex = (out / "report.md").read_text(), (out / "metrics.tex").read_text()
+    assert "RPE trans 50 m RMSE [m]" in md and f"{m['rpe_50m']['translation_m']['rmse']:.3f}" in md
+    assert "RPE 50 m [m]" in r.output
+    assert f"{m['ape']['rotation_rad']['rmse']:.5f} rad" in md
+    assert "KITTI drift metric" in tex and tex.count("begin{tabular}") == 2
+    assert "yaw " in md and "up_axis_detection" not in md

@@ -21,7 +21,7 @@ from ..evaluation import keys
 from ..evaluation.estimates import evaluate_series, validate_options
 from ..evaluation.trajectory import aligned_positions
 from ..outputs import StagedDir, repeated_path
-from ..report.markdown import drift_section, fmt_stat, segments_section
+from ..report.markdown import drift_section, drift_table, fmt_stat, segments_section
 from .. import provenance
 from ..provenance import header_line
 from ..report import files, html
@@ -222,26 +222,42 @@ def _unit_hint(ref_f, f) -> str:
     return ""
 
 
+def _rotation(group: dict, nd: int = 3) -> str:
+    """A group's rotation RMSE in degrees, or in radians where only ``-r angle_rad`` was asked for (it read 'n/a'
+    as if no rotation had been evaluated)."""
+    if group.get("rotation_deg") is not None or group.get("rotation_rad") is None:
+        return fmt_stat(group.get("rotation_deg"), nd=nd)
+    return f"{fmt_stat(group.get('rotation_rad'), nd=nd + 2)} rad"
+
+
 def _summary_table(m: dict) -> tuple[list[str], list[list], str]:
-    """evo's APE and RPE per estimate: header, rows, alignment (report.md and metrics.tex)."""
+    """evo's APE and RPE per estimate (per frame, and per ``--rpe-delta-m``: it was computed but shown only in
+    metrics.json): header, rows, alignment (report.md and metrics.tex)."""
+    delta = m["evaluation"]["rpe_delta_m"]
+    group = keys.rpe_distance_group(delta)
     rows = []
     for k, d in m["estimates"].items():
         ape = d.get("ape") or {}
         rpe = d.get("rpe_1frame") or {}
+        rpe_d = d.get(group) or {}
         rows.append([k, d["stamps"], f"{d['matched_poses']}/{d['poses']}", fmt_stat(ape.get("translation_m")),
                      f"{fmt_stat(ape.get('translation_m'), 'mean')} / {fmt_stat(ape.get('translation_m'), 'max')}",
-                     fmt_stat(ape.get("rotation_deg")), fmt_stat(rpe.get("translation_m"), nd=4),
-                     fmt_stat(rpe.get("rotation_deg"), nd=4)])
+                     _rotation(ape), fmt_stat(rpe.get("translation_m"), nd=4), _rotation(rpe, nd=4),
+                     fmt_stat(rpe_d.get("translation_m"), nd=3), _rotation(rpe_d)])
     return (["estimate", "stamps", "matched poses", "APE trans RMSE [m]", "APE trans mean / max [m]",
-             "APE rot RMSE [deg]", "RPE trans 1 frame RMSE [m]", "RPE rot 1 frame RMSE [deg]"], rows, "llrrrrrr")
+             "APE rot RMSE [deg]", "RPE trans 1 frame RMSE [m]", "RPE rot 1 frame RMSE [deg]",
+             f"RPE trans {delta:g} m RMSE [m]", f"RPE rot {delta:g} m RMSE [deg]"], rows, "llrrrrrrrr")
 
 
 def _latex(m: dict) -> str:
     e, ref = m["evaluation"], Path(m["reference"]).name
     label = "tab:evaluate-" + "".join(c if c.isalnum() else "-" for c in Path(m["reference"]).stem)
-    return latex_document([latex(*_summary_table(m), caption=f"APE and RPE against {ref} (evo; association "
-                                 f"{e['association']}, alignment {e['alignment']}).", label=label)],
-                          f"fusion-eval evaluate: {ref}")
+    tabs = [latex(*_summary_table(m), caption=f"APE and RPE against {ref} (evo; association "
+                  f"{e['association']}, alignment {e['alignment']}).", label=label)]
+    d = drift_table(m)            # the KITTI drift table, as a run's metrics.tex has it
+    if d is not None:
+        tabs.append(latex(*d, decimals=[0, 3, 4, 0], caption=f"KITTI drift metric against {ref}.", label=f"{label}-drift"))
+    return latex_document(tabs, f"fusion-eval evaluate: {ref}")
 
 
 def _alignment(a: dict) -> str:
@@ -261,7 +277,13 @@ def _alignment(a: dict) -> str:
         out.append("translation (" + ", ".join(f"{v:.3f}" for v in a["translation_m"]) + ") m")
     if a.get("scale") is not None:
         out.append(f"scale {a['scale']:.6f}")
-    rest = {k: v for k, v in a.items() if k not in ("rotation", "translation_m", "scale")}
+    if a.get("yaw_deg") is not None:           # the 4-DoF fit: a yaw about the gravity axis (was a JSON dump)
+        det = a.get("up_axis_detection") or {}
+        how = (f", detected: the positions' least-varying direction is {det['angle_deg']:.1f} deg from it"
+               if det.get("angle_deg") is not None else "")
+        out.append(f"yaw {a['yaw_deg']:.3f} deg about {a.get('up_axis', '?')} (the up axis{how})")
+    rest = {k: v for k, v in a.items() if k not in ("rotation", "translation_m", "scale", "yaw_deg", "up_axis",
+                                                      "up_axis_detection")}
     if rest:
         out.append(json.dumps(rest))
     return ", ".join(out) or json.dumps(a)
