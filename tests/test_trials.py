@@ -99,6 +99,9 @@ def test_compare_and_sweep_with_trials_report_means(kitti_slice, tmp_path):
         vals = [float(p["fused_ape_trans_rmse_m"]) for p in per if p["setting"] == row["setting"]]
         assert float(row["fused_ape_trans_rmse_m"]) == pytest.approx(np.mean(vals), rel=1e-5)
         assert row["trials"] == "2"
+    md = (out / "sweep.md").read_text().splitlines()
+    # the header line kept, and the count in settings and runs (it said "2 runs: 2 finished" of 4 runs)
+    assert md[2].startswith("fusion-eval ") and md[4].startswith("2 settings x 2 Monte-Carlo trials") and "4 runs" in md[4]
 
 
 def test_a_trial_keeps_its_informational_log_lines_to_itself(kitti_slice, caplog):

@@ -128,10 +128,12 @@ def write_summary(tasks: list[Task], out_dir: Path, keys: list[str], plots: bool
     L = ["# fusion-eval sweep", "", header_line(), "",
          f"{len(rows)} runs: {sum(r['status'] == 'ok' for r in rows)} finished, {sum(r['status'] == 'diverged' for r in rows)} "
          f"diverged, {sum(r['status'] == 'failed' for r in rows)} failed, {sum(r['status'] == 'pending' for r in rows)} pending. Ranked by fused APE translation RMSE (lower is better).", ""]
-    if n_trials > 1:
-        L[2] = (f"{len(rows)} settings x {n_trials} Monte-Carlo trials (the seeds of every random element); the figures are "
-                f"means over each setting's finished trials (std of the APE RMSE in its own column; every trial in "
-                f"sweep_trials.csv). Ranked by the mean fused APE translation RMSE (lower is better).")
+    if n_trials > 1:       # (it replaced the header line and left "6 runs: 6 finished" after "12 runs done")
+        L[4] = (f"{len(rows)} settings x {n_trials} Monte-Carlo trials (the seeds of every random element; "
+                f"{len(rows) * n_trials} runs): {sum(r['status'] == 'ok' for r in rows)} settings with finished trials, "
+                f"{sum(r['status'] != 'ok' for r in rows)} without. The figures are means over each setting's finished "
+                "trials (std of the APE RMSE in its own column; every trial in sweep_trials.csv). Ranked by the mean "
+                "fused APE translation RMSE (lower is better).")
     datasets = sorted({r["dataset"] for r in rows})
     rot, rpe = mk.column("fused", mk.APE, "rotation_deg", "rmse"), mk.column("fused", mk.RPE_FRAME, "translation_m", "rmse")
     for ds in datasets:

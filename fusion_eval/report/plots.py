@@ -569,15 +569,23 @@ def plot_sweep(out_dir: Path, rows: list[dict], keys: list[str], metric: str, ta
     if best is not None:
         fig, ax = plt.subplots(figsize=(10, 4))
         for name, style in ((best["setting"], "-"), ("default", ":")):
-            t = next((t for t in tasks if t.variant == best["variant"] and t.setting == name), None)
+            # the best setting's own dataset, trial 0 (the curve of one run)
+            t = next((t for t in tasks if t.variant == best["variant"] and t.setting == name and t.trial == 0
+                      and t.dataset == best.get("dataset", t.dataset)), None)
             z = None if t is None else out_dir / "runs" / t.id / "ape_translation_fused.zip"
             if z is None or not z.exists():
                 continue
             res = file_interface.load_res_file(z)
             ts = res.np_arrays["timestamps"]
             k = thin.envelope(res.np_arrays["error_array"])
+            row = next((r for r in ok if (r["dataset"], r["variant"], r["setting"]) == (t.dataset, t.variant, name)), {})
+            # with Monte-Carlo trials the table ranks by their mean: the legend gives it beside this trial's figure
+            # (it showed trial 0's RMSE alone, which contradicted sweep.md)
+            rmse = (f"trial 0 RMSE {res.stats['rmse']:.3f} m, mean of {row['trials']} trials {row[metric]:.3f} m"
+                    if is_number(row.get("trials")) and row["trials"] > 1 and is_number(row.get(metric))
+                    else f"RMSE {res.stats['rmse']:.3f} m")
             ax.plot(ts[k] - ts[0], res.np_arrays["error_array"][k], style, lw=1.0,
-                    label=f"{name} ({Path(t.dataset).name}, RMSE {res.stats['rmse']:.3f} m)")
+                    label=f"{name} ({Path(t.dataset).name}, {rmse})")
         ax.set_xlabel("time since start [s]")
         ax.set_ylabel("APE translation [m]")
         ax.set_title("Best setting against the default")
