@@ -249,6 +249,8 @@ def filter_and_evaluate(ds: Dataset, cfg: dict, sh: Shared, pool, *, dataset_pat
             per_trial.append(f.result())
             stages.advance()
         metrics["trials"] = mc.section(cfg, per_trial)
+        if metrics["trials"]["identical"]:
+            log.warning(mc.NOTHING_RANDOM.format(n=n_trials))
     dataset_path = ds.description.get("path") if dataset_path is None else dataset_path
     resolved_extra = {"dataset": {"path": None if dataset_path is None else str(dataset_path), "name": ds.name,
                                   "manifest": ds.description.get("manifest"),

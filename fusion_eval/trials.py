@@ -100,10 +100,27 @@ def summarize(per_trial: list[dict]) -> dict:
     return {p: stats([f[p] for f in flats if p in f]) for p in paths}
 
 
+NOTHING_RANDOM = ("the {n} trials gave identical figures: nothing in this run is random (a simulated drive's sensor "
+                  "noise is in its files and its GNSS is used as it is: vary it with simulate --seed), so their spread "
+                  "and 95 % intervals say nothing")
+
+
+def _sentence(text: str) -> str:
+    return text[:1].upper() + text[1:]
+
+
+def all_equal(values: list) -> bool:
+    """Whether two or more trials' figures are one and the same (a run with no random element)."""
+    vals = [v for v in values if v is not None]
+    return len(vals) > 1 and all(v == vals[0] for v in vals)
+
+
 def section(cfg: dict, per_trial: list[dict]) -> dict:
-    """The ``trials`` section of a metrics.json (a failed trial is ``{"failed": message}``: listed, not averaged)."""
+    """The ``trials`` section of a metrics.json (a failed trial is ``{"failed": message}``: listed, not averaged);
+    ``identical``: every trial gave the same fused figures (nothing random to vary: said in the report)."""
     ok = [m for m in per_trial if "failed" not in m]
-    return {"n": len(per_trial), "seeds": [trial_overrides(cfg, i) for i in range(len(per_trial))],
+    same = all_equal([keys.flatten(m).get(HEADLINE[0]) for m in ok])
+    return {"n": len(per_trial), "identical": same, "seeds": [trial_overrides(cfg, i) for i in range(len(per_trial))],
             "failed": [{"trial": i, "error": m["failed"]} for i, m in enumerate(per_trial) if "failed" in m],
             "stats": summarize(ok),
             "per_trial": [{"trial": i, **({"failed": m["failed"]} if "failed" in m else
@@ -148,6 +165,8 @@ def markdown(sec: dict) -> list[str]:
          f"{sec['n']} trials over the seeds of every random element (trial i adds i to "
          f"{', '.join(sorted(seeds[0])) or 'the seeds'}); trial 0's outputs are the files of this folder; per trial: "
          "`trials.csv`, `trials.png`.", ""]
+    if sec.get("identical"):
+        L += ["**" + _sentence(NOTHING_RANDOM.format(n=sec["n"])) + ".**", ""]
     if sec.get("failed"):
         L += [f"{len(sec['failed'])} trials failed and are not in the statistics: "
               + "; ".join(f"trial {f['trial']}: {f['error']}" for f in sec["failed"]), ""]

@@ -12,6 +12,7 @@ import pytest
 from click.testing import CliRunner
 from scipy import stats as st
 
+import fusion_eval as fe
 from fusion_eval import trials as mc
 from fusion_eval.cli import main
 from fusion_eval.config import load_config
@@ -130,3 +131,19 @@ def test_the_trials_table_gives_each_row_one_number_format():
     assert [f(v) for v in (0.7631, 0.0367, 0.789)] == ["0.7631", "0.0367", "0.7890"]
     assert _row_format(13258.3, 13258.3, 13258.3)(0.0) == "0"
     assert _row_format(2e-9, 1e-9, 3e-9)(1.5e-9) == "1.500e-09"
+
+
+def test_trials_of_a_run_with_nothing_random_say_so(tmp_path, kitti_slice, caplog):
+    """A simulated drive's noise is in its files and its GNSS is used as it is: N trials were N identical rows
+    and a zero-width '95 % CI' with no word (found by a new-user review)."""
+    import logging
+
+    from fusion_eval.simulate.dataset import simulate
+    from fusion_eval.trials import markdown
+
+    simulate(tmp_path / "sim", "urban", 20.0, 1, "automotive", (), jobs=1)
+    with caplog.at_level(logging.WARNING):
+        sim = fe.run(tmp_path / "sim", trials=2).metrics["trials"]
+    assert sim["identical"] and "nothing in this run is random" in caplog.text
+    assert any(ln.startswith("**The 2 trials gave identical figures: nothing in this run is random") for ln in markdown(sim))
+    assert not fe.run(kitti_slice, trials=2).metrics["trials"]["identical"]       # the GNSS degradation varies

@@ -197,6 +197,9 @@ def _compare(dataset_path: Path | None, variants: list[str], variant_dir: Path |
         trials_info = {"n": n_trials, "seeds": [mc.trial_overrides(cfgs[0], i) for i in range(n_trials)],
                        "per_trial": tables}
         table = mc.aggregate_rows(tables, ("variant", "estimate"))
+        if all(mc.all_equal([r.get("ape_trans_rmse_m") for t in tables for r in t if r["variant"] == v
+                             and r["estimate"] == "fused"]) for v in variants):
+            log.warning(mc.NOTHING_RANDOM.format(n=n_trials))
 
     gt_vb = body_velocity(gt) if gt.v_w_mps is not None else None
     truth_body = None if gt_vb is None else _rms_lateral_vertical(gt_vb)

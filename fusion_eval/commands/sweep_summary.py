@@ -6,6 +6,7 @@ RPE length each run was evaluated with, so a sweep over ``evaluation.rpe_delta_m
 
 from __future__ import annotations
 
+import logging
 from pathlib import Path
 
 import numpy as np
@@ -18,7 +19,10 @@ from ..provenance import dataset_files, header_line
 from ..resources import dataset_label
 from ..report import html
 from ..tables import cell, csv_text, markdown
+from ..trials import NOTHING_RANDOM
 from .sweep import Task, read_records
+
+log = logging.getLogger(__name__)
 
 METRIC = mk.RANK_COLUMN
 
@@ -129,6 +133,9 @@ def write_summary(tasks: list[Task], out_dir: Path, keys: list[str], plots: bool
          f"{len(rows)} runs: {sum(r['status'] == 'ok' for r in rows)} finished, {sum(r['status'] == 'diverged' for r in rows)} "
          f"diverged, {sum(r['status'] == 'failed' for r in rows)} failed, {sum(r['status'] == 'pending' for r in rows)} pending. Ranked by fused APE translation RMSE (lower is better).", ""]
     if n_trials > 1:       # (it replaced the header line and left "6 runs: 6 finished" after "12 runs done")
+        if all(r.get(f"{METRIC}_std") == 0 for r in ok):
+            log.warning(NOTHING_RANDOM.format(n=n_trials))
+            L.insert(5, "\n**" + NOTHING_RANDOM.format(n=n_trials).replace("the", "The", 1) + ".**")
         L[4] = (f"{len(rows)} settings x {n_trials} Monte-Carlo trials (the seeds of every random element; "
                 f"{len(rows) * n_trials} runs): {sum(r['status'] == 'ok' for r in rows)} settings with finished trials, "
                 f"{sum(r['status'] != 'ok' for r in rows)} without. The figures are means over each setting's finished "
