@@ -404,13 +404,12 @@ def track(ctx, input_path, out_dir, sensors, noise_ax, noise_ay, lidar_var, rada
     if ctx.obj["quiet"]:
         click.echo(out_dir)
     else:
-        r = metrics["rmse"]
-        click.echo(f"RMSE [px, py, vx, vy] = [{r['px']:.4f}, {r['py']:.4f}, {r['vx']:.4f}, {r['vy']:.4f}] "
-                   f"({metrics['estimates']} estimates, sensors: {sensors})")
+        def four(r):               # a one-line input has no RMSE (null in metrics.json)
+            return ", ".join("n/a" if r[k] is None else f"{r[k]:.4f}" for k in ("px", "py", "vx", "vy"))
+
+        click.echo(f"RMSE [px, py, vx, vy] = [{four(metrics['rmse'])}] ({metrics['estimates']} estimates, sensors: {sensors})")
         if "smoothed" in metrics:
-            r = metrics["smoothed"]["rmse"]
-            click.echo(f"smoothed (RTS): RMSE [px, py, vx, vy] = [{r['px']:.4f}, {r['py']:.4f}, {r['vx']:.4f}, "
-                       f"{r['vy']:.4f}]")
+            click.echo(f"smoothed (RTS): RMSE [px, py, vx, vy] = [{four(metrics['smoothed']['rmse'])}]")
         for k, d in metrics["nis"].items():
             click.echo(f"NIS {k}: mean {d['mean']:.4g} (dof {d['dof']}), {d['fraction_above_95'] * 100:.1f} % above the 95 % line")
         click.echo(f"wrote {out_dir}/")

@@ -152,3 +152,41 @@ def test_the_simulated_track_in_chunks_is_the_same_file():
         a = np.array([[float(v) for v in ln.split("\t")[1:]] for ln in whole if ln[0] == kind])
         b = np.array([[float(v) for v in ln.split("\t")[1:]] for ln in parts if ln[0] == kind])
         np.testing.assert_allclose(b, a, rtol=2e-6, atol=1e-12)
+
+
+def _rewrite(src, dst, fn):
+    rows = [ln.rstrip("\n").split("\t") for ln in src.read_text().splitlines()]
+    dst.write_text("".join("\t".join(fn(r)) + "\n" for r in rows))
+    return dst
+
+
+def test_a_tracker_that_follows_nothing_or_skips_readings_says_so(tmp_path):
+    """Stamps in ms (read as us) gave 100x the RMSE and a lidar NIS of 1.35e4 for 2 dof with no word; a radar
+    dropout (range 0) as the first reading put the target on the sensor and every later radar update was skipped;
+    a one-line file wrote NaN into metrics.json (found by a corrupted-input review)."""
+    src = _file(tmp_path)
+
+    def ms(r):
+        i = 3 if r[0] == "L" else 4
+        return [*r[:i], str(int(r[i]) // 1000), *r[i + 1:]]
+    first = []
+
+    def dropout(r):
+        if r[0] == "R" and not first:
+            first.append(1)
+            return [r[0], "0", "0", "0", *r[4:]]
+        return r
+    for fn, args, needle in ((ms, [], "the tracker does not follow this sensor"),
+                             (dropout, ["--sensors", "radar"], "1 radar reading(s) not used")):
+        f = _rewrite(src, tmp_path / f"{fn.__name__}.txt", fn)
+        out = tmp_path / f"o-{fn.__name__}"
+        r = CliRunner().invoke(main, ["track", str(f), "--no-plots", "--out", str(out), *args])
+        assert r.exit_code == 0 and needle in r.output, r.output
+        assert any(needle in w for w in json.loads((out / "metrics.json").read_text())["warnings"])
+    m = json.loads((tmp_path / "o-dropout" / "metrics.json").read_text())
+    assert m["rmse"]["px"] < 1.0                       # the tracker starts from the next usable reading
+    one = tmp_path / "one.txt"
+    one.write_text(src.read_text().splitlines()[0] + "\n")
+    r = CliRunner().invoke(main, ["track", str(one), "--smooth", "--out", str(tmp_path / "o-one")])
+    assert r.exit_code == 0 and "RuntimeWarning" not in r.output, r.output
+    json.loads((tmp_path / "o-one" / "metrics.json").read_text(), parse_constant=lambda c: pytest.fail(c))

@@ -19,7 +19,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from ..errors import FilterDivergedError
+from ..errors import DataFormatError, FilterDivergedError
 from ..filters.linalg import joseph_update
 
 
@@ -84,6 +84,7 @@ class TrackResult:
     P_prior: np.ndarray | None = None  # (M, 4, 4)
     x_smoothed: np.ndarray | None = None   # (M, 4) the RTS smoother's estimate (``smooth``)
     P_smoothed: np.ndarray | None = None
+    skipped: int = 0          # radar readings not used (a dropout before the start, or the estimate on the sensor)
 
 
 def run_track(m, p: TrackParams) -> TrackResult:
@@ -100,9 +101,17 @@ def _run_track(m, p: TrackParams) -> TrackResult:
     Ps, Fs, xps, Pps = [], [], [], []
     x = P = None
     t_prev = None
+    first = None
+    skipped = 0                  # radar readings not used: too close to the sensor to linearise (or a dropout)
     for i in idx:
         k, z, t = m.kind[i], m.z[i], int(m.t_us[i])
         if x is None:
+            if k == "R" and not abs(z[0]) >= p.min_range:
+                # a radar dropout (range 0) put the target on the sensor with zero velocity, and every later radar
+                # update was then skipped as too close to linearise: wait for a usable first reading
+                skipped += 1
+                continue
+            first = i
             if k == "L":
                 x = np.array([z[0], z[1], 0.0, 0.0])
             else:
@@ -126,6 +135,7 @@ def _run_track(m, p: TrackParams) -> TrackResult:
             if k == "L":
                 dx, s, _ = joseph_update(P, 4, H_l, z[:2] - H_l @ x, R_l, np.inf)
             elif np.hypot(x[0], x[1]) < p.min_range:
+                skipped += 1
                 xs.append(x.copy())          # too close to the sensor to linearise the radar model
                 nis.append(np.nan)
                 Ps.append(P.copy())
@@ -143,8 +153,11 @@ def _run_track(m, p: TrackParams) -> TrackResult:
         xs.append(x.copy())
         nis.append(float(s))
         Ps.append(P.copy())
-    used = np.array(idx)
-    return TrackResult(t_us=m.t_us[used], x=np.array(xs), gt=m.gt[used], kind=m.kind[used], z=m.z[used],
+    if x is None:
+        raise DataFormatError(m.source, None, "no measurement to start the tracker from (every radar reading is "
+                                              "within 0.1 mm of the sensor, and there is no lidar reading)")
+    used = np.array([i for i in idx if i >= first])
+    return TrackResult(skipped=skipped, t_us=m.t_us[used], x=np.array(xs), gt=m.gt[used], kind=m.kind[used], z=m.z[used],
                        nis=np.array(nis), used=used, P=np.array(Ps), F=np.array(Fs), x_prior=np.array(xps),
                        P_prior=np.array(Pps))
 

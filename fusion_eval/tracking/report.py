@@ -25,18 +25,48 @@ def nis_summary(res: TrackResult) -> dict:
     return out
 
 
+MISFIT_NIS_RATIO = 20.0      # a sensor whose mean NIS is this many times its dof is not followed (as in a run)
+
+
+def warnings_of(res: TrackResult, nis: dict) -> list[str]:
+    """What the user must hear: a sensor the tracker does not follow (a timestamp in ms read as us made every
+    prediction step 1000x short: lidar NIS 1.35e4 for 2 dof, RMSE 100x, and no word), skipped radar readings."""
+    out = []
+    for name, d in nis.items():
+        if d["mean"] > MISFIT_NIS_RATIO * d["dof"]:
+            out.append(f"{name}: mean NIS {d['mean']:.4g} for {d['dof']} dof: the tracker does not follow this sensor; "
+                       "check the units of the file (timestamps in microseconds, positions in m, angles in rad) and the "
+                       "noise settings")
+    if res.skipped:
+        out.append(f"{res.skipped} radar reading(s) not used: a range within 0.1 mm of the sensor (a dropout before "
+                   "the first usable reading, or the estimate on the sensor, where the radar model cannot be linearised)")
+    return out
+
+
+def _finite(v: float) -> float | None:
+    return float(v) if np.isfinite(v) else None        # strict JSON has no NaN (a one-line input has no RMSE)
+
+
 def write_track_outputs(out: StagedDir, res: TrackResult, params, source: str, make_plots: bool) -> dict:
+    import logging
+
     e = rmse(res)
+    nis = nis_summary(res)
+    warns = warnings_of(res, nis)
+    for w in warns:
+        logging.getLogger(__name__).warning(w)
     metrics = {"input": source, "sensors": params.sensors, "estimates": int(len(res.t_us)),
-               "rmse": {"px": float(e[0]), "py": float(e[1]), "vx": float(e[2]), "vy": float(e[3])},
-               "nis": nis_summary(res),
+               "rmse": {"px": _finite(e[0]), "py": _finite(e[1]), "vx": _finite(e[2]), "vy": _finite(e[3])},
+               "nis": nis, "warnings": warns,
                "params": {"noise_ax": params.noise_ax, "noise_ay": params.noise_ay, "lidar_var": list(params.lidar_var),
                           "radar_var": list(params.radar_var)}}
     sm = res.x_smoothed is not None
     if sm:
         es = rmse(res, smoothed=True)
-        metrics["smoothed"] = {"method": "rts", "rmse": dict(zip(("px", "py", "vx", "vy"), map(float, es))),
-                               "over_filter": dict(zip(("px", "py", "vx", "vy"), map(float, es / e)))}
+        with np.errstate(invalid="ignore", divide="ignore"):
+            ratio = es / e
+        metrics["smoothed"] = {"method": "rts", "rmse": dict(zip(("px", "py", "vx", "vy"), map(_finite, es))),
+                               "over_filter": dict(zip(("px", "py", "vx", "vy"), map(_finite, ratio)))}
     rows = ["timestamp_us,sensor,px,py,vx,vy,px_gt,py_gt,vx_gt,vy_gt,nis" + (",px_s,py_s,vx_s,vy_s" if sm else "")]
     for i in range(len(res.t_us)):
         rows.append(",".join([str(int(res.t_us[i])), str(res.kind[i])] + [f"{v:.6f}" for v in res.x[i]] +
@@ -63,12 +93,13 @@ def _plot(out: StagedDir, res: TrackResult, metrics: dict) -> None:
     rz = res.z[rad]
     ax.plot(rz[:, 0] * np.cos(rz[:, 1]), rz[:, 0] * np.sin(rz[:, 1]), "x", ms=3, color="tab:orange", label="radar (to x, y)")
     ax.plot(res.x[:, 0], res.x[:, 1], "-", color="tab:red", lw=1.2, label="estimate")
-    r = metrics["rmse"]
-    title = f"RMSE px {r['px']:.3f}, py {r['py']:.3f}, vx {r['vx']:.3f}, vy {r['vy']:.3f}"
+    def three(r):
+        return ", ".join(f"{k} " + ("n/a" if r[k] is None else f"{r[k]:.3f}") for k in ("px", "py", "vx", "vy"))
+
+    title = f"RMSE {three(metrics['rmse'])}"
     if res.x_smoothed is not None:
         ax.plot(res.x_smoothed[:, 0], res.x_smoothed[:, 1], "-", color="tab:purple", lw=1.2, label="smoothed (RTS)")
-        s = metrics["smoothed"]["rmse"]
-        title += f"\nsmoothed: px {s['px']:.3f}, py {s['py']:.3f}, vx {s['vx']:.3f}, vy {s['vy']:.3f}"
+        title += f"\nsmoothed: {three(metrics['smoothed']['rmse'])}"
     ax.set_title(title, fontsize=10)
     ax.set_xlabel("x [m]")
     ax.set_ylabel("y [m]")
