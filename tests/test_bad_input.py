@@ -895,7 +895,11 @@ def test_evaluate_refuses_a_non_finite_time_offset(tmp_path, value):
 
 
 @pytest.mark.parametrize("case,line,needle", [
-    ("empty", 1, "got an empty line"), ("semicolons", 1, "(comma-separated)"), ("garbled", 3, "expected a number, got '1.0x'")])
+    ("empty", 1, "got an empty line"), ("semicolons", 1, "(comma-separated)"), ("garbled", 3, "expected a number, got '1.0x'"),
+    # a header alone was 'every packet filled in', a blank line moved every later line number by one, a comment
+    # line got pandas' message without one (found by a corrupted-input review)
+    ("header only", 2, "no packets: the file holds only its header"),
+    ("blank then nan", 5, "must be finite numbers"), ("comment", 3, "got a comment line")])
 def test_an_unreadable_packets_csv_names_its_line(tmp_path, case, line, needle):
     """pandas' own message named no line, and quoted a whole semicolon-separated line as one value (found by a
     new-user review)."""
@@ -904,7 +908,11 @@ def test_an_unreadable_packets_csv_names_its_line(tmp_path, case, line, needle):
 
     row = ",".join(["1.0"] * 31)
     text = {"empty": "", "semicolons": K.CSV_HEADER.replace(",", ";") + "\n" + row.replace(",", ";") + "\n",
-            "garbled": K.CSV_HEADER + "\n" + row + "\n" + row[:-4] + "x,1\n"}[case]
+            "garbled": K.CSV_HEADER + "\n" + row + "\n" + row[:-4] + "x,1\n",
+            "header only": K.CSV_HEADER + "\n",
+            "blank then nan": K.CSV_HEADER + "\n" + row + "\n\n" + row.replace("1.0", "2.0", 1) + "\n"
+                              + row.replace("1.0", "3.0", 1).replace(",1.0,", ",nan,", 1) + "\n",
+            "comment": K.CSV_HEADER + "\n" + row + "\n# a note\n" + row + "\n"}[case]
     (tmp_path / "packets.csv").write_text(text)
     with pytest.raises(DataFormatError, match=rf"packets.csv:{line}: .*{re.escape(needle)}"):
         K._read_packets_csv(tmp_path / "packets.csv")

@@ -172,18 +172,35 @@ def _read_packets_csv(path: Path) -> OxtsPackets:
     if list(df.columns) != CSV_HEADER.split(","):
         raise DataFormatError(path, 1, f"expected the header '{CSV_HEADER}'")
     a = df.to_numpy()
+    if a.shape[0] == 0:                  # (it was reported as 'every packet filled in')
+        raise DataFormatError(path, 2, "no packets: the file holds only its header")
     bad = np.flatnonzero(~np.all(np.isfinite(a), axis=1))
     if bad.size:
-        raise DataFormatError(path, int(bad[0]) + 2, "OXTS values must be finite numbers (found NaN, inf or an empty field)")
+        raise DataFormatError(path, _line_of_row(path, int(bad[0])),
+                              "OXTS values must be finite numbers (found NaN, inf or an empty field)")
     t = a[:, 0]
     d = np.diff(t)
     if np.any(d <= 0):
         i = int(np.flatnonzero(d <= 0)[0]) + 1
-        raise DataFormatError(path, i + 2, "timestamps must strictly increase")
+        raise DataFormatError(path, _line_of_row(path, i), "timestamps must strictly increase")
     vals = a[:, 1:]
     filled = vals[:, POSMODE:ORIMODE + 1].min(axis=1) < 0
-    _check_plausible(vals, lambda i: (path, i + 2))
+    _check_plausible(vals, lambda i: (path, _line_of_row(path, i)))
     return OxtsPackets(t_s=t, values=vals, filled=filled, stamps_path=path, packet_paths=(path,))
+
+
+def _line_of_row(path: Path, i: int) -> int:
+    """The file line of data row ``i`` of ``packets.csv`` (pandas skips blank lines, so row + 2 was off by one per
+    blank line before it); read only when a row is refused."""
+    n = -1
+    with open(path, encoding="utf-8-sig", errors="replace") as fh:
+        for line_no, line in enumerate(fh, 1):
+            if line_no == 1 or not line.strip():
+                continue
+            n += 1
+            if n == i:
+                return line_no
+    return i + 2
 
 
 def _locate_csv_error(path: Path) -> None:
@@ -197,6 +214,9 @@ def _locate_csv_error(path: Path) -> None:
         raise DataFormatError(path, 1, f"expected the header '{CSV_HEADER[:40]}...', got an empty line (an empty file?)")
     if lines[0].strip() != CSV_HEADER:
         raise DataFormatError(path, 1, f"expected the header '{CSV_HEADER[:40]}...' (comma-separated)")
+    for n, line in enumerate(lines[1:], 2):
+        if line.lstrip().startswith("#"):
+            raise DataFormatError(path, n, "expected a row of 31 numbers, got a comment line (packets.csv has none)")
     parse_numeric_rows(path, "\n" + "\n".join(lines[1:]), len(CSV_HEADER.split(",")),
                        "OXTS packets.csv (t_s and the 30 OXTS fields)", delimiter=",")
 
