@@ -166,16 +166,23 @@ def offsets_note(applied: dict) -> str:
     return f"(applied: {', '.join(offs)}; a wrong time offset?)" if offs else "(no time offset applied)"
 
 
-def prepare(ds: Dataset, cfg: dict) -> Prepared:
+def check_streams(ds: Dataset, cfg: dict) -> dict:
+    """That ``ds`` has what ``cfg`` reads (ground truth, each enabled observation's stream), before any work (a
+    comparison checks every variant's first); returns the streams needed."""
     check_combination(cfg)
     need = needed_streams(cfg)
-    use_lidar = "lidar" in need
-    use_gnss = "gnss" in need
     if ds.groundtruth is None:
         raise ConfigError(f"dataset {ds.name!r} has no groundtruth stream; fusion-eval run evaluates against ground truth")
     for st, (key, off) in need.items():
         if ds.stream(st) is None:
             raise ConfigError(f"dataset {ds.name!r} has no {st} stream, which {key} needs; set {off}")
+    return need
+
+
+def prepare(ds: Dataset, cfg: dict) -> Prepared:
+    need = check_streams(ds, cfg)
+    use_lidar = "lidar" in need
+    use_gnss = "gnss" in need
 
     for key in ("gyro_lag_s", "accel_lag_s"):
         lag = cfg["imu"].get(key)

@@ -916,3 +916,15 @@ def test_an_unreadable_packets_csv_names_its_line(tmp_path, case, line, needle):
     (tmp_path / "packets.csv").write_text(text)
     with pytest.raises(DataFormatError, match=rf"packets.csv:{line}: .*{re.escape(needle)}"):
         K._read_packets_csv(tmp_path / "packets.csv")
+
+
+def test_compare_checks_every_variants_streams_before_running_any(ds, tmp_path):
+    """A variant needing a stream the dataset lacks (the odometer on a plain raw drive) failed after the variants
+    before it had run (found by a new-user review): refused first, naming the variant."""
+    m = ds / "dataset.yaml"
+    m.write_text(m.read_text().replace("  odometer:                          # OXTS forward speed vf as a wheel odometer "
+                                       "(GPS/INS solution: noise is added)\n    format: kitti_oxts\n    path: oxts\n", ""))
+    out = tmp_path / "o"
+    r = CliRunner().invoke(main, ["-q", "compare", str(ds), "--variants", "eskf,odometer", "--no-plots", "--out", str(out)])
+    _assert_clean_error(r, out, "--variants 'odometer': dataset", "has no odometer stream")
+    assert "variant eskf" not in r.output

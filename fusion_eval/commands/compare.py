@@ -26,6 +26,7 @@ from ..evaluation.run_metrics import consistency, segments
 from ..evaluation.trajectory import evaluate, ratio
 from ..filters import observations
 from ..outputs import StagedDir, dataset_roots, default_dir, repeated_path
+from ..prepare import check_streams
 from ..pool import executor
 from ..prepare import prepare, settings_for
 from ..replay import replay
@@ -173,6 +174,11 @@ def _compare(dataset_path: Path | None, variants: list[str], variant_dir: Path |
     ds = session.dataset(dataset_path)
     cfgs = [session.resolve(r, ds) for r in reqs]
     _same_evaluation(variants, cfgs)
+    for v, c in zip(variants, cfgs):      # every variant's streams before the first runs (one failed after the others)
+        try:
+            check_streams(ds, c)
+        except ConfigError as exc:
+            raise ConfigError(f"--variants {v!r}: {exc}") from None
 
     with executor(None) as pool:
         # trials 1.. on the pool (each one a whole comparison) while this process does trial 0 and its files
