@@ -269,6 +269,10 @@ def compare(ctx, dataset, variants, variant_dir, config_path, sets, out_dir, ove
 def sweep(ctx, datasets, sweep_file, out_dir, jobs, variant_dir, scheduler, dask_mode, retry_failed, summarize_only,
           no_plots, trials, batch):
     """Run DATASET(s) over the settings of a sweep file, in parallel or on Dask, and rank the results."""
+    if not ctx.obj["quiet"]:
+        from . import compile_notice
+
+        compile_notice.install()        # a fresh install's first run says why it takes a minute
     from .commands.sweep import run_sweep
 
     if summarize_only:
@@ -344,6 +348,10 @@ def evaluate(ctx, inputs, out_dir, fmt, bag, ref_topic, ref_times, times, associ
     """Evaluate trajectories against a reference: REFERENCE ESTIMATE... (TUM, KITTI poses with or without times,
     EuRoC CSV), or --bag FILE --ref REF_TOPIC EST_TOPIC...: evo's APE/RPE, the KITTI drift metric and the
     per-segment breakdown."""
+    if not ctx.obj["quiet"]:
+        from . import compile_notice
+
+        compile_notice.install()        # a fresh install's first run says why it takes a minute
     from .commands.evaluate import run_evaluate
     from .evaluation.keys import DEFAULT_RELATIONS
 
@@ -395,6 +403,10 @@ def evaluate(ctx, inputs, out_dir, fmt, bag, ref_topic, ref_times, times, associ
 @click.pass_context
 def track(ctx, input_path, out_dir, sensors, noise_ax, noise_ay, lidar_var, radar_var, smooth, overwrite, no_plots):
     """Track a 2-D target from lidar (KF) and radar (EKF) measurements; RMSE against the file's ground truth."""
+    if not ctx.obj["quiet"]:
+        from . import compile_notice
+
+        compile_notice.install()        # a fresh install's first run says why it takes a minute
     from .commands.track import track as run_track
 
     if sensors != "both":
@@ -503,6 +515,10 @@ def check(ctx, metrics_path, baseline, rtol, atol, patterns, rules, junit_path, 
 @click.pass_context
 def simulate(ctx, out_dir, profile, duration_s, seed, grade, sets, overwrite):
     """Write a synthetic KITTI-style drive with known truth to OUT_DIR."""
+    if not ctx.obj["quiet"]:
+        from . import compile_notice
+
+        compile_notice.install()        # a fresh install's first run says why it takes a minute
     from .commands.simulate import simulate as run_sim
 
     t0 = time.perf_counter()
@@ -546,6 +562,10 @@ def _num_or_na(x, nd: int) -> str:
 def tune(ctx, datasets, space, objectives, n_trials, test, out_dir, sampler, seed, seeds, config_path, sets, jobs, scheduler,
          dask_mode, no_prune, no_plots):
     """Tune the filter's noise settings on DATASET(s) (default: the embedded kitti-00) with Optuna."""
+    if not ctx.obj["quiet"]:
+        from . import compile_notice
+
+        compile_notice.install()        # a fresh install's first run says why it takes a minute
     from .commands.tune import run_tune
 
     from .progress import Counter
@@ -576,8 +596,10 @@ def _display(quiet: bool):
     if quiet:
         yield None
         return
+    from . import compile_notice
     from .progress import Display
 
+    compile_notice.install()            # a fresh install's first run says why it takes a minute
     d = Display()
     try:
         yield d

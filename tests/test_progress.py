@@ -134,3 +134,24 @@ def test_library_chatter_is_hidden_below_minus_vv():
     ours = logging.LogRecord("fusion_eval.prepare", logging.INFO, __file__, 1, "gyro lag", None, None)
     assert not quiet.filter(info) and quiet.filter(warn) and quiet.filter(ours)
     assert loud.filter(info)
+
+
+def test_a_compilation_says_so_once(caplog):
+    """A fresh install's first run sat on 'prepare ...' for 48 s with no hint (found by a new-user review): numba's
+    first compilation in a command logs one line; later ones, and a warm run, nothing."""
+    import logging
+
+    from numba import njit
+
+    from fusion_eval import compile_notice
+
+    compile_notice.install()
+    compile_notice.install()                  # idempotent: one listener
+    compile_notice._listener.told = False     # as in a fresh process
+    with caplog.at_level(logging.INFO, logger="fusion_eval"):
+        njit(lambda x: x + 1)(1)
+        njit(lambda x: x + 2)(1)
+        assert caplog.text.count("compiling the numerical kernels") == 1
+        caplog.clear()
+        njit(lambda x: x + 3)(1)
+    assert "compiling" not in caplog.text
