@@ -269,6 +269,11 @@ def prepare(ds: Dataset, cfg: dict) -> Prepared:
                                  f"{off:g} s) and IMU ({ds.imu.source}, {t0:.3f}..{imu.t_s[-1]:.3f} s) do not overlap in time")
         g = g.select((g.t_s >= t0) & (g.t_s <= imu.t_s[-1]))
         c = cfg["gnss"]
+        span_s = float(imu.t_s[-1] - t0)
+        for a, b in c["outages_s"]:
+            if b <= 0.0 or a >= span_s:      # (a window in ms did nothing, and only '0 fixes removed' hinted at it)
+                log.warning("gnss.outages_s window [%g, %g] s lies outside the run's 0..%.1f s (seconds from the filter's "
+                            "start): it removes no fix", a, b, span_s)
         if ds.description.get("gnss_degrade", True):
             gnss, gnss_info = degrade_gnss(g, t0, c["rate_hz"], c["noise_std_m"], c["outages_s"], c["seed"], c["std_m"])
         else:

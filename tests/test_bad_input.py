@@ -928,3 +928,16 @@ def test_compare_checks_every_variants_streams_before_running_any(ds, tmp_path):
     r = CliRunner().invoke(main, ["-q", "compare", str(ds), "--variants", "eskf,odometer", "--no-plots", "--out", str(out)])
     _assert_clean_error(r, out, "--variants 'odometer': dataset", "has no odometer stream")
     assert "variant eskf" not in r.output
+
+
+def test_a_gnss_outage_outside_the_run_is_a_warning(ds, tmp_path, caplog):
+    """A window given in ms ([[100000, 160000]]) removed nothing and only '0 fixes removed' hinted at it (found by a
+    corrupted-input review)."""
+    import logging
+
+    import fusion_eval as fe
+
+    with caplog.at_level(logging.WARNING):
+        m = fe.run(ds, overrides={"gnss.outages_s": [[100000, 160000]]}).metrics
+    assert "gnss.outages_s window [100000, 160000] s lies outside the run's" in caplog.text
+    assert m["gnss_degradation"]["fixes_in_outages"] == 0
