@@ -941,3 +941,25 @@ def test_a_gnss_outage_outside_the_run_is_a_warning(ds, tmp_path, caplog):
         m = fe.run(ds, overrides={"gnss.outages_s": [[100000, 160000]]}).metrics
     assert "gnss.outages_s window [100000, 160000] s lies outside the run's" in caplog.text
     assert m["gnss_degradation"]["fixes_in_outages"] == 0
+
+
+def test_a_compressed_file_or_a_link_loop_is_named_as_such(tmp_path):
+    """A gzip'd file got a UTF-8 codec's message about byte 0x8b, a loop of links 'file not found' (found by a
+    corrupted-input review)."""
+    import gzip
+
+    from fusion_eval.datasets._text import read_text
+    from fusion_eval.errors import DataFormatError
+
+    z = tmp_path / "poses.txt"
+    z.write_bytes(gzip.compress(b"1 0 0 0 0 1 0 0 0 0 1 0\n"))
+    with pytest.raises(DataFormatError, match="a gzip-compressed file: decompress it first"):
+        read_text(z, "KITTI poses")
+    (tmp_path / "a").symlink_to(tmp_path / "b")
+    (tmp_path / "b").symlink_to(tmp_path / "a")
+    with pytest.raises(DataFormatError, match="a symbolic link that leads to no file"):
+        read_text(tmp_path / "a", "KITTI poses")
+    bad = tmp_path / "latin1.txt"
+    bad.write_bytes("1 2 3 \xb0\n".encode("latin-1"))
+    with pytest.raises(DataFormatError, match=r"not UTF-8 text \(invalid start byte at byte 6\)"):
+        read_text(bad, "KITTI poses")

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import os
 import warnings
 from pathlib import Path
 
@@ -14,14 +15,27 @@ def read_text(path: Path, what: str) -> str:
     """Read a whole text file, turning a missing or unreadable file into a one-line error."""
     path = Path(path)
     if not path.exists():
+        if path.is_symlink():            # a link to nowhere, or a loop of links, exists() calls missing
+            raise DataFormatError(path, None, f"a symbolic link that leads to no file (a loop, or a missing target: "
+                                              f"{os.readlink(path)}); expected {what}")
         raise DataFormatError(path, None, f"file not found (expected {what})")
     if path.is_dir():
         raise DataFormatError(path, None, f"is a directory (expected {what})")
     try:
         # utf-8-sig: a byte-order mark (Windows editors write one) is dropped, as pandas and evo's readers drop it
         return path.read_text(encoding="utf-8-sig", errors="strict")
-    except (OSError, UnicodeDecodeError) as exc:
+    except UnicodeDecodeError as exc:
+        head = path.read_bytes()[:4]
+        kind = next((k for magic, k in _COMPRESSED if head.startswith(magic)), None)
+        if kind is not None:             # (it was a codec's message about byte 0x8b)
+            raise DataFormatError(path, None, f"a {kind}-compressed file: decompress it first (expected {what})") from None
+        raise DataFormatError(path, None, f"cannot read {what}: not UTF-8 text ({exc.reason} at byte {exc.start})") from None
+    except OSError as exc:
         raise DataFormatError(path, None, f"cannot read {what}: {exc}") from None
+
+
+_COMPRESSED = ((b"\x1f\x8b", "gzip"), (b"BZh", "bzip2"), (b"\xfd7zXZ", "xz"), (b"PK\x03\x04", "zip"),
+               (b"\x28\xb5\x2f\xfd", "zstd"))
 
 
 def parse_numeric_rows(path: Path, text: str, ncols: int | tuple[int, ...], what: str,
