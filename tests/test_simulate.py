@@ -199,6 +199,10 @@ def test_the_kitti_layout_writer_pool_workers_take_the_projects_signal_dispositi
     (("-d", "30", "--seed", "-1"), "--seed must be >= 0"),
     (("-d", "30", "--set", "imu.accel_noise_mps2_sqrthz=1e6"), "the simulated IMU's specific force reaches"),
     (("-d", "30", "--set", "odometer.noise_std_mps=1e12"), "is too large for its 6 decimals"),   # once a traceback
+    # a height of 1e9 m was blamed on the imu.* settings; an outage over the whole drive wrote a GNSS file `run`
+    # refused (found by a corrupted-input review)
+    (("-d", "30", "--set", "origin.alt_m=1e9"), "origin.alt_m must be < 100000"),
+    (("-d", "30", "--set", "gnss.outages_s=[[0, 1000]]"), "the simulated GNSS has 0 fixes over the 30 s drive"),
 ])
 def test_absurd_simulator_settings_are_one_line_errors(tmp_path, args, needle):
     from click.testing import CliRunner

@@ -140,6 +140,9 @@ def simulate(out_dir: Path, profile: str, duration_s: float, seed: int, grade: s
             raise ConfigError(f"the simulated IMU's {what} reaches {peak:.3g} {unit}, beyond the {lim:g} {unit} a reader "
                               f"accepts: an imu.* noise, bias or scale-factor setting is implausible")
     gt_t, gps_p, gps_std = sensors.gnss(m, c["gnss"], rng)
+    if gt_t.size < 2:             # a GNSS file without fixes is one `run` refuses: refused here, where it is made
+        raise ConfigError(f"the simulated GNSS has {gt_t.size} fixes over the {duration_s:g} s drive: gnss.outages_s "
+                          f"{c['gnss']['outages_s']} (s from the start) or gnss.rate_hz leave too few")
     odo_t, odo_v = sensors.odometer(m, c["odometer"], rng)
     lc = c["lidar"]
     if lc["mode"] == "odometry":

@@ -50,7 +50,7 @@ SIM_SCHEMA: dict[str, Spec] = {
     "lidar.outlier_std_m": S(3.0, "map matching: position std of outliers, m", nonneg=True),
     "origin.lat_deg": S(49.0, "geodetic origin of the local ENU frame: latitude, deg"),
     "origin.lon_deg": S(8.4, "longitude, deg"),
-    "origin.alt_m": S(116.0, "ellipsoidal height, m"),
+    "origin.alt_m": S(116.0, "ellipsoidal height, m (under 100 km: a height of 1e9 m was blamed on the IMU settings)", below=1e5),
     "start.posix_s": S(1767225600.0, "time of the first sample, POSIX seconds, 0 to 4e9 (written as a KITTI local-clock stamp)",
                        nonneg=True),
     "output.layout": S("kitti", "'kitti' (one file per OXTS packet, as KITTI raw), 'csv' (all packets in oxts/packets.csv), "
