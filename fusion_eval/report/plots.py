@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import textwrap
+import warnings
 from pathlib import Path
 
 import matplotlib
@@ -613,7 +614,9 @@ def plot_drift(path: Path, evals: dict) -> None:
     for ax in axes:
         ax.set_xlabel("segment length [m]")
         if any(np.any(np.asarray(ln.get_ydata()) > 0) for ln in ax.get_lines()):
-            ax.set_yscale("log")       # (an estimate equal to its reference has no error to put on a log axis)
+            with warnings.catch_warnings():     # one segment length: equal limits, which matplotlib widens itself
+                warnings.filterwarnings("ignore", "Attempting to set identical low and high ylims")
+                ax.set_yscale("log")   # (an estimate equal to its reference has no error to put on a log axis)
             _no_minor_labels(ax)
         ax.grid(alpha=0.3, which="both")
         ax.legend(fontsize=7)
