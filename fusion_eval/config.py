@@ -331,9 +331,10 @@ def parse_sets(sets: tuple[str, ...], schema_: dict[str, Spec] | None = None) ->
             raise ConfigError(f"--set {item!r}: expected section.key=value, e.g. imu.gyro_noise_dps_sqrthz=0.05")
         shown = item if len(item) <= 200 else item[:200] + f"... ({len(item):,} characters)"
         try:
-            value = yaml.safe_load(raw)
-        except yaml.YAMLError:
-            raise ConfigError(f"--set {shown!r}: value is not valid YAML") from None
+            value = yaml_lines.load(raw)       # as a file's values: YAML 1.2 floats, no 1.1 octal or base-60
+        except yaml.YAMLError as exc:
+            why = getattr(exc, "problem", None) or ""
+            raise ConfigError(f"--set {shown!r}: " + (why if "YAML 1.1" in why else "value is not valid YAML")) from None
         except ValueError:       # an integer of thousands of digits (Python's int limit): no setting's value
             raise ConfigError(f"--set {shown!r}: the value is not a plausible number") from None
         sect, _, name = key.partition(".")

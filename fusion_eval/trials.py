@@ -100,9 +100,9 @@ def summarize(per_trial: list[dict]) -> dict:
     return {p: stats([f[p] for f in flats if p in f]) for p in paths}
 
 
-NOTHING_RANDOM = ("the {n} trials gave identical figures: nothing in this run is random (a simulated drive's sensor "
-                  "noise is in its files and its GNSS is used as it is: vary it with simulate --seed), so their spread "
-                  "and 95 % intervals say nothing")
+NOTHING_RANDOM = ("the fused estimate's figures are identical over the {n} trials: nothing it uses depends on a seed "
+                  "(no degraded GNSS or odometer is fused; a simulated drive's sensor noise is in its files: vary it with "
+                  "simulate --seed), so its spread and 95 % intervals say nothing")
 
 
 def _sentence(text: str) -> str:

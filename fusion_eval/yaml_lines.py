@@ -59,16 +59,20 @@ def _refuse_repeated_keys(loader: _Loader, node: yaml.MappingNode) -> None:
     for key_node, _ in node.value:
         if key_node.tag == "tag:yaml.org,2002:merge" or not isinstance(key_node, yaml.ScalarNode):
             continue
+        if _yaml11_only(key_node):
+            key_node.tag = "tag:yaml.org,2002:str"      # a key is a name: a sweep's setting '01' stays '01'
+        key = loader.construct_object(key_node)
         try:
-            key = loader.construct_object(key_node)
             hash(key)
-        except (TypeError, yaml.YAMLError):      # construct_mapping refuses it in its own words
+        except TypeError:                        # construct_mapping refuses it in its own words
             continue
         if key in first:
+            line, text = first[key]
+            same = "" if text == key_node.value else f" as {text!r}, the same key once read"
             raise yaml.constructor.ConstructorError(
-                None, None, f"key {key_node.value!r} given twice (first at line {first[key]}; only one may stand)",
+                None, None, f"key {key_node.value!r} given twice (first at line {line}{same}; only one may stand)",
                 key_node.start_mark)
-        first[key] = key_node.start_mark.line + 1
+        first[key] = (key_node.start_mark.line + 1, key_node.value)
 
 
 # YAML 1.2's floats: PyYAML (YAML 1.1) reads 1e-3 (no point) and 1.0e3 (no sign in the exponent) as strings, so a
@@ -83,11 +87,20 @@ def _exp_only(node) -> bool:
             and bool(_FLOAT_12.match(node.value)) and not _FLOAT_11.match(node.value))
 
 
+def _yaml11_only(node) -> bool:
+    """A plain scalar in YAML 1.1's base-60 (``1:30``) or leading-zero octal (``010``) form."""
+    if not (isinstance(node, yaml.ScalarNode) and not node.style and node.tag.rsplit(":", 1)[-1] in ("int", "float")):
+        return False
+    v = node.value.replace("_", "")
+    return ":" in v or bool(re.match(r"^[-+]?0[0-7]+$", v))
+
+
 def _number(loader: _Loader, node: yaml.ScalarNode):
     """YAML 1.1's integers and floats, but not its base-60 (``1:30`` = 90) and leading-zero octal (``010`` = 8)
-    forms: nobody writing a configuration means those, and they read as plausible numbers (YAML 1.2 dropped them)."""
+    forms as values: nobody writing a configuration means those, and they read as plausible numbers (YAML 1.2
+    dropped them); as keys they are names (:func:`_refuse_repeated_keys`)."""
     v = node.value.replace("_", "")
-    if ":" in v or re.match(r"^[-+]?0[0-7]+$", v):
+    if _yaml11_only(node):
         raise yaml.constructor.ConstructorError(
             None, None, f"{node.value!r} reads as a YAML 1.1 {'base-60' if ':' in v else 'octal'} number; quote it for "
             "text, or write the number in decimal", node.start_mark)

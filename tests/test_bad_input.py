@@ -927,7 +927,8 @@ def test_compare_checks_every_variants_streams_before_running_any(ds, tmp_path):
     out = tmp_path / "o"
     r = CliRunner().invoke(main, ["-q", "compare", str(ds), "--variants", "eskf,odometer", "--no-plots", "--out", str(out)])
     _assert_clean_error(r, out, "--variants 'odometer': dataset", "has no odometer stream")
-    assert "variant eskf" not in r.output
+    r = CliRunner().invoke(main, ["compare", str(ds), "--variants", "eskf,odometer", "--no-plots", "--out", str(out)])
+    assert r.exit_code == 2 and "variant eskf: filtered" not in r.output, r.output     # nothing ran first
 
 
 def test_a_gnss_outage_outside_the_run_is_a_warning(ds, tmp_path, caplog):

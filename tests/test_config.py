@@ -127,3 +127,13 @@ def test_a_key_given_twice_or_a_yaml_11_oddity_is_refused_with_its_line(tmp_path
     f.write_text("gnss:\n  seed: '010'\n  noise_std_m: 0.5\n")             # quoted: text, as asked (then refused by type)
     with pytest.raises(ConfigError, match="seed"):
         parse_file(f)
+    # the same on the command line (a review found --set still read 010 as 8); as keys they are names ('01')
+    from fusion_eval import yaml_lines
+    from fusion_eval.config import parse_sets
+
+    for item, what in (("gnss.seed=010", "octal"), ("gnss.outages_s=[[1:30, 2:00]]", "base-60")):
+        with pytest.raises(ConfigError, match=rf"--set '{re.escape(item)}': .* YAML 1.1 {what} number"):
+            parse_sets((item,))
+    assert yaml_lines.load("settings:\n  01: {a: 1}\n  02: {a: 2}\n") == {"settings": {"01": {"a": 1}, "02": {"a": 2}}}
+    with pytest.raises(Exception, match="key 'true' given twice .*as '1', the same key once read"):
+        yaml_lines.load("a:\n  1: x\n  true: y\n")

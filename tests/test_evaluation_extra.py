@@ -301,6 +301,7 @@ def test_evaluate_scores_a_track_with_placeholder_orientations_as_position_only(
     assert not est["gnss"].get("kitti_drift")
     assert est["gnss"]["ape"]["translation_m"]["rmse"] == pytest.approx(run["gnss"]["ape"]["translation_m"]["rmse"], rel=1e-9)  # TUM text
     assert "rotation_deg" in est["fused"]["ape"] and est["fused"].get("kitti_drift")     # a real estimate keeps them
+    assert "one and the same orientation on every pose" in (out / "report.md").read_text()   # why, in the report
 
 
 def test_evaluate_writes_evo_result_files_named_by_their_estimates(slice_run, tmp_path):
@@ -329,6 +330,10 @@ def test_evaluate_refuses_the_reference_as_an_estimate(slice_run, tmp_path):
                                   "--out", str(tmp_path / "o")])
     assert r.exit_code == 2 and "given as an estimate and as the reference" in r.stderr
     assert not (tmp_path / "o").exists()
+    # with an offset it is a test of the offset's effect, and runs
+    r = CliRunner().invoke(main, ["-q", "evaluate", str(ref), str(ref), "--t-offset", "0.1", "--t-max-diff", "0.02",
+                                  "--no-plots", "--out", str(tmp_path / "o2")])
+    assert r.exit_code == 0, r.output
 
 
 def test_evaluate_report_shows_what_it_computed(tmp_path):

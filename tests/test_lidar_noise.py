@@ -123,7 +123,7 @@ def test_a_stream_far_more_precise_than_its_stated_noise_is_a_data_warning():
     from fusion_eval.evaluation.run_metrics import inconsistent_streams
 
     w = inconsistent_streams({"gnss": {"values": [5e-6] * 30, "dof": 3}})
-    assert len(w) == 1 and "far more precise than its stated noise" in w[0] and "mm given as m" in w[0]
+    assert len(w) == 1 and "far more precise than its stated noise" in w[0] and "a std in mm given as m" in w[0]
     assert inconsistent_streams({"nhc": {"values": [1e-4] * 30, "dof": 2}}) == []
     assert inconsistent_streams({"odometer": {"values": [0.19] * 30, "dof": 1},
                                  "lidar": {"values": [1.1] * 30, "dof": 6}}) == []     # measured on KITTI: no alarm

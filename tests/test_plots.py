@@ -372,6 +372,6 @@ def test_segment_labels_do_not_overlap_and_stay_inside_the_map():
     boxes = [t.get_window_extent(r) for t in ax.texts]
     box = ax.get_window_extent(r)
     assert len(boxes) == 4
-    assert all(box.x0 <= b.x0 and b.x1 <= box.x1 for b in boxes)
+    assert all(box.x0 <= b.x0 and b.x1 <= box.x1 and box.y0 <= b.y0 and b.y1 <= box.y1 for b in boxes)
     assert not any(a.overlaps(b) for i, a in enumerate(boxes) for b in boxes[i + 1:])
     plt.close(fig)

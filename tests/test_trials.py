@@ -144,6 +144,6 @@ def test_trials_of_a_run_with_nothing_random_say_so(tmp_path, kitti_slice, caplo
     simulate(tmp_path / "sim", "urban", 20.0, 1, "automotive", (), jobs=1)
     with caplog.at_level(logging.WARNING):
         sim = fe.run(tmp_path / "sim", trials=2).metrics["trials"]
-    assert sim["identical"] and "nothing in this run is random" in caplog.text
-    assert any(ln.startswith("**The 2 trials gave identical figures: nothing in this run is random") for ln in markdown(sim))
+    assert sim["identical"] and "nothing it uses depends on a seed" in caplog.text
+    assert any(ln.startswith("**The fused estimate's figures are identical over the 2 trials") for ln in markdown(sim))
     assert not fe.run(kitti_slice, trials=2).metrics["trials"]["identical"]       # the GNSS degradation varies

@@ -31,14 +31,14 @@ log = logging.getLogger(__name__)
 
 
 def read_inputs(inputs: list, bag: Path | None, ref_topic: str | None, fmt: str, ref_times: Path | None,
-                times: Path | None) -> tuple:
+                times: Path | None, t_offset_s: float = 0.0) -> tuple:
     """The reference and the estimates (``TrajectoryFile``) of ``evaluate``'s arguments: files, or bag topics."""
     if bag is not None:
         if not ref_topic:
             raise ConfigError("--bag needs --ref REF_TOPIC (the reference topic) and one or more estimate topics")
         if ref_times or times or fmt != "auto":
             raise ConfigError("--ref-times, --times and --format apply to trajectory files, not to bag topics")
-        if ref_topic in inputs:
+        if ref_topic in inputs and t_offset_s == 0.0:
             raise ConfigError(f"--bag {bag}: topic {ref_topic} given as an estimate and as the reference (--ref)")
         tfs = read_bag_trajectories(bag, [ref_topic, *inputs])
         return tfs[0], tfs[1:]
@@ -50,8 +50,11 @@ def read_inputs(inputs: list, bag: Path | None, ref_topic: str | None, fmt: str,
     if twice:
         raise ConfigError(f"{twice[1]}: given twice as an estimate (as {twice[0]} before)")
     twice = next(((inputs[0], p) for p in inputs[1:] if repeated_path([inputs[0], p])), None)
-    if twice:                            # the reference against itself: an APE of 0.000 with exit 0 says nothing
-        raise ConfigError(f"{twice[1]}: given as an estimate and as the reference ({twice[0]})")
+    same_times = (ref_times is None) == (times is None) and (times is None or repeated_path([ref_times, times]))
+    if twice and same_times and t_offset_s == 0.0:
+        # the reference against itself: an APE of 0.000 with exit 0 says nothing (with other times or an offset it
+        # is a test of their effect, and is run)
+        raise ConfigError(f"{twice[1]}: given as an estimate and as the reference ({twice[0]}), with the same stamps")
     ref, ests = read_trajectory(inputs[0], ref_times, fmt), [read_trajectory(p, times, fmt) for p in inputs[1:]]
     for f in ests:
         # paired by frame index, one pose missing mid-file would shift every later pair, silently
@@ -72,7 +75,7 @@ def run_evaluate(inputs: list, out_dir: Path, ref_times: Path | None = None, tim
                      up_axis, n_to_align)
     staged = StagedDir(out_dir, overwrite=overwrite, inputs=(*(inputs if bag is None else ()), bag, ref_times, times))
     staged.check()
-    ref_f, est_fs = read_inputs(list(inputs), bag, ref_topic, fmt, ref_times, times)
+    ref_f, est_fs = read_inputs(list(inputs), bag, ref_topic, fmt, ref_times, times, t_offset_s)
     if segment_s is not None and ref_f.stamps == BY_INDEX:
         # the frame index would be read as seconds: 60 frames of a 10 Hz drive labelled "60 s"
         raise ConfigError(f"--segment-s needs stamps in seconds, and the reference {ref_f.source} has none (KITTI poses "
@@ -92,12 +95,18 @@ def run_evaluate(inputs: list, out_dir: Path, ref_times: Path | None = None, tim
                        **({"reading": f.note} if f.note else {})}
         if f.cov is not None:
             covs[name] = (f.cov_t_s, f.cov)
-    fixed = frozenset(name for name, f in zip(series, est_fs) if _orientation_placeholder(f, ref_f))
+    turns = {name: _orientation_placeholder(f, ref_f) for name, f in zip(series, est_fs)}
+    fixed = frozenset(name for name, turn in turns.items() if turn is not None)
     m, evals = evaluate_series(ref_f.traj, series, association, alignment, t_max_diff_s, rpe_delta_m, segment_m,
                                segment_s, about, ref_stamps=ref_f.stamps, engine=engine, relations=relations,
                                up_axis=up_axis, n_to_align=n_to_align, t_offset_s=t_offset_s, covariances=covs,
-                               position_only=fixed)
+                               position_only=fixed,
+                               ref_name=ref_topic if bag is not None else Path(ref_f.source).name)
     _refuse_unmatched(ref_f, est_fs, evals, association, t_max_diff_s)
+    for name in fixed:                   # why, in the report too (it was on stderr only)
+        m["estimates"][name]["note"] = (f"position only (one and the same orientation on every pose, while the reference "
+                                        f"turns by up to {turns[name]:.0f} deg: placeholders): no rotation, relative (RPE) "
+                                        "or KITTI drift metric")
     metrics = {"reference": ref_f.source, "reference_format": ref_f.format, "reference_stamps": ref_f.stamps,
                **({"reference_repeated_stamps": ref_f.repeated_stamps} if ref_f.repeated_stamps else {}), **m}
     with staged as out:
@@ -136,21 +145,22 @@ def run_evaluate(inputs: list, out_dir: Path, ref_times: Path | None = None, tim
 PLACEHOLDER_TURN_DEG = 5.0      # the reference turning more than this while an estimate never does: placeholders
 
 
-def _orientation_placeholder(f, ref_f) -> bool:
+def _orientation_placeholder(f, ref_f) -> float | None:
     """Whether ``f``'s orientations are placeholders: one and the same quaternion on every pose while the reference
     turns (a GNSS or position-only track written as TUM, e.g. a run's own ``gnss.tum``). Its rotation, RPE and KITTI
     drift would be numbers about the placeholder (a 100 deg rotation error, 78 % drift: the relative translations
-    taken in the wrong frame), so it is scored as a run scores GNSS, by APE translation only, and a warning says so."""
+    taken in the wrong frame), so it is scored as a run scores GNSS, by APE translation only, and a warning says so.
+    Returns the reference's largest turn (deg) for such an estimate, else None."""
     q, qr = f.traj.orientations_quat_wxyz, ref_f.traj.orientations_quat_wxyz
     if len(q) < 2 or len(qr) < 2 or not np.all(q == q[0]):
-        return False
+        return None
     cos_half = np.clip(np.abs(qr @ qr[0]) / (np.linalg.norm(qr, axis=1) * np.linalg.norm(qr[0])), 0.0, 1.0)
     turn_deg = float(np.degrees(2 * np.arccos(cos_half.min())))
     if turn_deg <= PLACEHOLDER_TURN_DEG:
-        return False
+        return None
     log.warning("%s: every pose has the same orientation while the reference turns by up to %.0f deg: evaluated as "
                 "position only (APE translation; no rotation, RPE or KITTI drift metric)", f.source, turn_deg)
-    return True
+    return turn_deg
 
 
 def _aligned(series, ev):

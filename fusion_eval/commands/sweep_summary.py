@@ -133,7 +133,8 @@ def write_summary(tasks: list[Task], out_dir: Path, keys: list[str], plots: bool
          f"{len(rows)} runs: {sum(r['status'] == 'ok' for r in rows)} finished, {sum(r['status'] == 'diverged' for r in rows)} "
          f"diverged, {sum(r['status'] == 'failed' for r in rows)} failed, {sum(r['status'] == 'pending' for r in rows)} pending. Ranked by fused APE translation RMSE (lower is better).", ""]
     if n_trials > 1:       # (it replaced the header line and left "6 runs: 6 finished" after "12 runs done")
-        if all(r.get(f"{METRIC}_std") == 0 for r in ok):
+        multi = [r for r in ok if (r.get("trials") or 0) > 1]      # (one finished trial has a std of 0 too)
+        if multi and all(r.get(f"{METRIC}_std") == 0 for r in multi):
             log.warning(NOTHING_RANDOM.format(n=n_trials))
             L.insert(5, "\n**" + NOTHING_RANDOM.format(n=n_trials).replace("the", "The", 1) + ".**")
         L[4] = (f"{len(rows)} settings x {n_trials} Monte-Carlo trials (the seeds of every random element; "

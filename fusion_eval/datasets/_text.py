@@ -25,11 +25,15 @@ def read_text(path: Path, what: str) -> str:
         # utf-8-sig: a byte-order mark (Windows editors write one) is dropped, as pandas and evo's readers drop it
         return path.read_text(encoding="utf-8-sig", errors="strict")
     except UnicodeDecodeError as exc:
-        head = path.read_bytes()[:4]
+        with open(path, "rb") as fh:
+            head = fh.read(4)
         kind = next((k for magic, k in _COMPRESSED if head.startswith(magic)), None)
         if kind is not None:             # (it was a codec's message about byte 0x8b)
             raise DataFormatError(path, None, f"a {kind}-compressed file: decompress it first (expected {what})") from None
-        raise DataFormatError(path, None, f"cannot read {what}: not UTF-8 text ({exc.reason} at byte {exc.start})") from None
+        if head[:2] in (b"\xff\xfe", b"\xfe\xff"):      # Windows Notepad's 'Unicode'
+            raise DataFormatError(path, None, f"UTF-16 text: save it as UTF-8 (expected {what})") from None
+        at = exc.start + (3 if head.startswith(b"\xef\xbb\xbf") else 0)     # the byte in the file, its BOM counted
+        raise DataFormatError(path, None, f"cannot read {what}: not UTF-8 text ({exc.reason} at byte {at})") from None
     except OSError as exc:
         raise DataFormatError(path, None, f"cannot read {what}: {exc}") from None
 

@@ -44,13 +44,14 @@ def pose_times(entry: dict, ctx: ReadContext, n_poses: int) -> np.ndarray:
                           f"(known: {', '.join(sorted(TIMES_KEYS))})")
     # keys that the chosen way of stamping does not read were ignored as silently as misspelt ones
     ignored = (("smooth_s", "file", "times.smooth_s smooths the IMU packets' own stamps (align_to: imu without a file); "
-                                    "a times file's stamps are used as they are"),
-               ("t0_s", "align_to", "times.t0_s shifts a times file that has no other clock; with align_to: imu the "
-                                    "file is put on the IMU packets' clock instead"),
-               ("index_offset", None, "times.index_offset pairs frames with IMU packets and applies with align_to: imu only"))
+                                    "a times file's stamps are used as they are: remove one of the two"),
+               ("t0_s", "align_to", "times.t0_s shifts a times file; with align_to: imu the stamps are on the IMU "
+                                    "packets' clock already: remove one of the two"),
+               ("index_offset", None, "times.index_offset pairs frames with IMU packets and applies with align_to: imu "
+                                      "only: remove it, or add align_to: imu"))
     for key, other, why in ignored:
         if key in times and (other in times if other else "align_to" not in times):
-            raise ConfigError(f"{ctx.at(times, key)}: {why}: remove one of the two")
+            raise ConfigError(f"{ctx.at(times, key)}: {why}")
     if "align_to" in times and times["align_to"] != "imu":
         raise ConfigError(f"{ctx.at(times, 'align_to')}: times.align_to takes 'imu' (the IMU packets' clock), "
                           f"got {times['align_to']!r}")

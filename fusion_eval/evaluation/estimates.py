@@ -51,12 +51,14 @@ def evaluate_series(ref, estimates: dict, association: str = "nearest",
                     engine: str = "arrays", *, relations: tuple[str, ...] = keys.DEFAULT_RELATIONS,
                     up_axis: str = "auto", n_to_align: int = -1,
                     t_offset_s: float = 0.0, covariances: dict | None = None,
-                    position_only: frozenset = frozenset()) -> tuple[dict, dict[str, EstimateEvaluation]]:
+                    position_only: frozenset = frozenset(), ref_name: str = "reference"
+                    ) -> tuple[dict, dict[str, EstimateEvaluation]]:
     """evo's APE/RPE, the KITTI drift metric and the per-segment breakdown of each estimate against ``ref``:
     the ``metrics.json`` of ``fusion-eval evaluate`` and the evaluations behind it. ``about`` adds, per
     estimate, where it came from (``file``, ``stamps``: how its stamps were obtained); stamps and frame indices
     are not mixed: matching a stamped trajectory to one matched by index would give meaningless numbers.
-    ``position_only``: the estimates whose orientations are placeholders (APE translation only, as GNSS in a run)."""
+    ``position_only``: the estimates whose orientations are placeholders (APE translation only, as GNSS in a run);
+    ``ref_name``: the reference's name in the evo result files."""
     about = about or {}
     for name, a in about.items():
         if ref_stamps is not None and (a.get("stamps") == BY_INDEX) != (ref_stamps == BY_INDEX):
@@ -66,7 +68,8 @@ def evaluate_series(ref, estimates: dict, association: str = "nearest",
     covariances = covariances or {}
     evals = {name: evaluate(ref, est, name, t_max_diff_s, rpe_delta_m, association, alignment, engine,
                             relations=relations, up_axis=up_axis, n_to_align=n_to_align, t_offset_s=t_offset_s,
-                            cov=covariances.get(name), has_orientation=False if name in position_only else None)
+                            cov=covariances.get(name), has_orientation=False if name in position_only else None,
+                            ref_name=ref_name)
              for name, est in estimates.items()}
     if not isinstance(ref, PoseSeries):         # an evo trajectory as read: a series for the segment breakdown
         from .trajectory import from_evo

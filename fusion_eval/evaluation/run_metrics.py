@@ -206,7 +206,8 @@ def inconsistent_streams(nis: dict) -> list[str]:
             # plausible but badly weighted result (fused 1.48 m instead of 0.69 m on a simulated drive, no word)
             out.append(f"{k}: mean NIS {np.mean(v):.3g} for {d['dof']} dof: this stream is far more precise than "
                        f"its stated noise (the std about {np.sqrt(d['dof'] / max(np.mean(v), 1e-300)):.3g}x too large); "
-                       "check the unit of its std or noise settings (mm given as m?)")
+                       "check the unit of its std or noise settings (a std in mm given as m? or noise-free, "
+                       "simulated data)")
         a = d.get("adapt") or {}
         grown = {w: a[f"{w}_std_factor_median"] for w in ("pos", "att") if a.get(f"{w}_std_factor_median") is not None}
         if grown and max(grown.values()) > MISFIT_ADAPT_STD:

@@ -252,7 +252,8 @@ def evaluate(reference, estimate, name: str, t_max_diff_s: float,
              rpe_delta_m: float, association: str = "nearest", alignment: str = "none",
              engine_name: str = "arrays", *, relations: tuple[str, ...] = keys.DEFAULT_RELATIONS, up_axis: str = "auto",
              n_to_align: int = -1, t_offset_s: float = 0.0, has_orientation: bool | None = None,
-             cov: tuple[np.ndarray, np.ndarray] | None = None, rpe_trajectories: bool = True) -> EstimateEvaluation:
+             cov: tuple[np.ndarray, np.ndarray] | None = None, rpe_trajectories: bool = True,
+             ref_name: str = "groundtruth") -> EstimateEvaluation:
     """APE and RPE (per frame, per ``rpe_delta_m`` metres) under each pose relation, and the KITTI drift metric
     of one estimate. ``reference`` and ``estimate``: pose series, or evo trajectories as evo's readers give them.
 
@@ -265,7 +266,8 @@ def evaluate(reference, estimate, name: str, t_max_diff_s: float,
     per-pose loops; both give the same numbers and result files. ``cov``: the estimate's pose covariances
     ``(t_s, (N, 6, 6))`` in ROS's order and frames: the NEES of position and attitude (:func:`pose_nees_of`).
     ``rpe_trajectories``: False leaves the reduced trajectories out of the arrays engine's RPE results (see
-    :func:`engine.rpe_result`; evo's loops always make them).
+    :func:`engine.rpe_result`; evo's loops always make them). ``ref_name``: the reference's name in the result
+    files (``name`` is the estimate's).
     """
     if engine_name not in ENGINES:
         raise ValueError(f"evaluation engine {engine_name!r}: expected one of {', '.join(ENGINES)}")
@@ -318,7 +320,7 @@ def evaluate(reference, estimate, name: str, t_max_diff_s: float,
         ev.drift = None if d is None else d.as_dict()
     if not has_orientation:
         ev.note = "position only: no rotation or relative (RPE) metrics"
-        return _named(ev, reference)
+        return _named(ev, ref_name)
     for label, delta, unit in ((keys.RPE_FRAME, 1.0, metrics.Unit.frames),
                                (keys.rpe_distance_group(rpe_delta_m), rpe_delta_m, metrics.Unit.meters)):
         ev.metrics[label] = {}
@@ -331,14 +333,13 @@ def evaluate(reference, estimate, name: str, t_max_diff_s: float,
                 continue
             ev.metrics[label][key] = _stats(res)
             ev.results[f"{label}_{keys.RESULT_NAMES[key]}"] = res
-    return _named(ev, reference)
+    return _named(ev, ref_name)
 
 
-def _named(ev: EstimateEvaluation, reference) -> EstimateEvaluation:
+def _named(ev: EstimateEvaluation, ref: str) -> EstimateEvaluation:
     """Each evo result named by its estimate and reference, as ``evo_ape`` names them by their files: evo's
     defaults ('estimate', 'reference') made every result file of a run alike, and ``evo_res *.zip`` refuses
-    results whose ``est_name`` repeats."""
-    ref = str(getattr(reference, "source", None) or "reference")
+    results whose ``est_name`` repeats. Names, not paths: a run's files are the same bytes in any checkout."""
     for res in ev.results.values():
         old = (res.info.get("ref_name"), res.info.get("est_name"))
         res.info["ref_name"], res.info["est_name"] = ref, ev.name

@@ -154,8 +154,11 @@ def _run_track(m, p: TrackParams) -> TrackResult:
         nis.append(float(s))
         Ps.append(P.copy())
     if x is None:
-        raise DataFormatError(m.source, None, "no measurement to start the tracker from (every radar reading is "
-                                              "within 0.1 mm of the sensor, and there is no lidar reading)")
+        what = {"both": "lidar or radar", "lidar": "lidar", "radar": "radar"}[p.sensors]
+        raise DataFormatError(m.source, None, f"no measurement to start the tracker from: no {what} reading in the "
+                                              f"file (--sensors {p.sensors})" if not idx else
+                              "no measurement to start the tracker from: every radar reading is within 0.1 mm of the "
+                              "sensor (a range of 0: dropouts)")
     used = np.array([i for i in idx if i >= first])
     return TrackResult(skipped=skipped, t_us=m.t_us[used], x=np.array(xs), gt=m.gt[used], kind=m.kind[used], z=m.z[used],
                        nis=np.array(nis), used=used, P=np.array(Ps), F=np.array(Fs), x_prior=np.array(xps),
