@@ -93,6 +93,18 @@ def test_the_lidar_extrinsic_from_tf_static(drives, tmp_path):
     (tmp_path / "dataset.yaml").write_text(yaml.safe_dump(man))
     with pytest.raises(ConfigError, match="no /tf_static transform imu_link -> nope"):
         load_dataset(tmp_path / "dataset.yaml")
+    # keys the bag streams do not read were ignored: an 'invert: true' (the transform taken as written), an IMU's
+    # std_m, a GNSS child_frame (found by a review with its own bags)
+    lidar["T_imu_cam0"] = {"tf_static": ["cam0", "imu_link"], "bag": str(drives["rosbag1"] / "drive.bag"), "invert": True}
+    man["streams"]["lidar"] = {**lidar, "path": str(drives["rosbag1"] / "drive.bag")}
+    (tmp_path / "dataset.yaml").write_text(yaml.safe_dump(man))
+    with pytest.raises(ConfigError, match="unknown key 'invert' in T_imu_cam0 .*swap the two frames"):
+        load_dataset(tmp_path / "dataset.yaml")
+    man["streams"]["lidar"]["T_imu_cam0"].pop("invert")
+    man["streams"]["imu"]["std_m"] = 0.5
+    (tmp_path / "dataset.yaml").write_text(yaml.safe_dump(man))
+    with pytest.raises(ConfigError, match="unknown key 'std_m' in stream 'imu'"):
+        load_dataset(tmp_path / "dataset.yaml")
 
 
 def test_a_plain_euroc_folder_needs_no_manifest(drives, tmp_path):

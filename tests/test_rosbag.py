@@ -124,12 +124,30 @@ def test_navsatfix_without_covariance(tmp_path, flavour):
     n = 5
     fixes = {"t_s": T0 + np.arange(n), "lat_deg": np.full(n, 48.0), "lon_deg": np.full(n, 11.0), "alt_m": np.full(n, 500.0)}
     bag = _write(tmp_path, flavour, [rb.BagStream("/fix", "navsatfix", fixes, "gps")])
-    with pytest.raises(DataFormatError, match=r"5 of 5 fixes have no covariance .*must give std_m") as err:
+    with pytest.raises(DataFormatError, match=r"5 of 5 fixes have no usable covariance \(the first: message 1, "
+                                              r"position_covariance_type 0.*must give std_m") as err:
         rb.read_navsatfix(bag, "/fix", (48.0, 11.0, 500.0))
     assert err.value.path == str(bag)
     g = rb.read_navsatfix(bag, "/fix", (48.0, 11.0, 500.0), default_std_m=[1.0, 2.0, 4.0])
     np.testing.assert_array_equal(g.std_w_m, np.tile([1.0, 2.0, 4.0], (n, 1)))
     np.testing.assert_allclose(g.p_w_m, 0.0, atol=1e-9)
+
+
+def test_navsatfix_with_zero_variances_takes_std_m(tmp_path):
+    """Receivers publish a known covariance type with zeros before their first accuracy estimate: one such fix of
+    601 refused the whole run with 'GNSS position std must be > 0', and std_m could not override it (found by a
+    review with its own bags). Such fixes take std_m like fixes of unknown type."""
+    n = 6
+    std = np.ones((n, 3))
+    std[0] = 0.0
+    fixes = rb.FixSeries(t_s=T0 + np.arange(n), lat_deg=np.full(n, 48.0), lon_deg=np.full(n, 11.0), alt_m=np.full(n, 500.0),
+                         std_enu_m=std, status=np.zeros(n, int))
+    bag = _write(tmp_path, FLAVOURS[0], [rb.BagStream("/fix", "navsatfix", fixes, "gps")])
+    with pytest.raises(DataFormatError, match=r"1 of 6 fixes have no usable covariance \(the first: message 1"):
+        rb.read_navsatfix(bag, "/fix", (48.0, 11.0, 500.0))
+    g = rb.read_navsatfix(bag, "/fix", (48.0, 11.0, 500.0), default_std_m=[2.0, 2.0, 3.0])
+    np.testing.assert_array_equal(g.std_w_m[0], [2.0, 2.0, 3.0])
+    np.testing.assert_allclose(g.std_w_m[1:], 1.0, rtol=1e-12)
 
 
 @pytest.mark.parametrize("flavour", FLAVOURS[:2], ids=FLAVOUR_IDS[:2])

@@ -18,10 +18,15 @@ from typing import Callable
 class StreamFormat:
     name: str
     readers: dict                                       # stream name -> reader(entry, ctx) -> series
-    keys: frozenset = frozenset()
+    keys: frozenset | dict = frozenset()                # the keys it reads, or per stream: {stream: keys}
     first_fix: Callable | None = None                   # (entry, ctx) -> (lat, lon, alt) | None
     description: str = ""
     notes: dict = field(default_factory=dict)
+
+    def keys_for(self, stream: str) -> frozenset:
+        """The manifest keys this format reads for ``stream`` (a key it does not read there is refused, not
+        ignored: a bag's IMU given ``std_m`` or a GNSS ``child_frame`` ran as if they were not there)."""
+        return self.keys.get(stream, frozenset()) if isinstance(self.keys, dict) else self.keys
 
 
 def _formats() -> dict[str, StreamFormat]:

@@ -118,7 +118,7 @@ def _from_manifest_dict(body: dict, root: Path, manifest: Path, extra: dict | No
         allowed = STREAM_KEYS[name] if name in STREAMS else extra[name].keys
         formats = tuple(registered) if name in STREAMS else tuple(extra[name].readers)
         if spec.get("format") in registered:
-            allowed = allowed | registered[spec["format"]].keys
+            allowed = allowed | registered[spec["format"]].keys_for(name)
         fmt = spec.get("format")
         if fmt not in formats:
             raise ConfigError(f"{at(manifest, spec, 'format')}: stream {name!r} has unknown format {fmt!r} (known for {name}: {', '.join(formats)})")
@@ -286,6 +286,10 @@ def _extrinsic(spec, root, manifest) -> np.ndarray:
     if key in spec:
         v = spec[key]
         if isinstance(v, dict) and "tf_static" in v:
+            unknown = sorted(set(map(str, v)) - {"tf_static", "bag"})
+            if unknown:           # an 'invert: true' was ignored: the transform taken the way it was written
+                raise ConfigError(f"{at(manifest, spec, key)}: unknown key {unknown[0]!r} in {key} (known: tf_static, "
+                                  "bag; to invert, swap the two frames)")
             pair = v["tf_static"]
             if not (isinstance(pair, list) and len(pair) == 2 and all(isinstance(x, str) for x in pair)):
                 raise ConfigError(f"{at(manifest, spec, key)}: {key}: tf_static must be [imu_frame, {frame}_frame]")

@@ -873,7 +873,8 @@ def read_navsatfix(path: str | Path, topic: str, origin_lla: Sequence[float], st
     stamps : {"header", "record"}
         Time of a fix: ``header.stamp`` (default) or the bag's record time.
     default_std_m : float or (3,) array, optional
-        1-sigma (m, east/north/up) for fixes whose ``position_covariance_type`` is COVARIANCE_TYPE_UNKNOWN (0).
+        1-sigma (m, east/north/up) for fixes whose ``position_covariance_type`` is COVARIANCE_TYPE_UNKNOWN (0) or
+        whose covariance has a zero variance.
         Without it such fixes are an error.
 
     Returns
@@ -904,13 +905,19 @@ def read_navsatfix(path: str | Path, topic: str, origin_lla: Sequence[float], st
         i = int(bad[0])
         raise DataFormatError(path, None, f"topic '{topic}', message {int(idx[i]) + 1}: position_covariance's diagonal "
                                           f"{cov_diag[i].tolist()} must be variances (finite, >= 0; m^2)")
-    std = np.sqrt(np.where(known[:, None], cov_diag, np.nan))
-    if not np.all(known):
+    # a known type with a zero variance is no accuracy either (receivers publish zeros before their first estimate,
+    # or always): such fixes take std_m like those of unknown type (one of 601 refused the whole run)
+    usable = known & np.all(cov_diag > 0, axis=1)
+    std = np.sqrt(np.where(usable[:, None], cov_diag, np.nan))
+    if not np.all(usable):
         if default_std_m is None:
+            i = int(np.flatnonzero(~usable)[0])
             raise DataFormatError(path, None,
-                                  f"topic '{topic}': {int(np.sum(~known))} of {known.size} fixes have no covariance "
-                                  "(position_covariance_type 0); the manifest must give std_m")
-        std[~known] = np.broadcast_to(np.asarray(default_std_m, float), (3,))
+                                  f"topic '{topic}': {int(np.sum(~usable))} of {usable.size} fixes have no usable "
+                                  f"covariance (the first: message {int(idx[i]) + 1}, position_covariance_type "
+                                  f"{int(np.asarray(fields['cov_type'])[idx][i])}, diagonal {cov_diag[i].tolist()}); "
+                                  "the stream's entry in the manifest must give std_m")
+        std[~usable] = np.broadcast_to(np.asarray(default_std_m, float), (3,))
     p = geodetic_to_enu(lla[:, 0], lla[:, 1], lla[:, 2], *[float(x) for x in origin_lla], source=_source(path, topic),
                         lines=idx + 1)        # the message's number in the topic, for the message
     return GnssSeries(t_s=t[idx], p_w_m=p, std_w_m=std, source=_source(path, topic))

@@ -20,7 +20,9 @@ from ..errors import ConfigError
 from ..types import SpeedSeries
 from .streams import ReadContext
 
-KEYS = frozenset({"topic", "stamps", "std_m", "child_frame", "parent_frame"})
+_POSE_TOPIC = frozenset({"topic", "stamps", "child_frame", "parent_frame"})    # a /tf topic names its frames
+KEYS = {"imu": frozenset({"topic", "stamps"}), "gnss": frozenset({"topic", "stamps", "std_m"}),
+        "groundtruth": _POSE_TOPIC, "lidar": _POSE_TOPIC, "odometer": _POSE_TOPIC}
 
 
 def _topic(entry: dict, ctx: ReadContext) -> str:
