@@ -124,3 +124,16 @@ def test_a_run_applies_and_reports_the_lever_arm_on_request(kitti_slice, tmp_pat
     assert x["lever_arm_error_m"][2] == 0.0 and abs(x["lever_arm_error_m"][0]) < 0.6
     assert "lever-arm error (x, y):" in (out / "report.md").read_text() and "applied to the lidar poses: lever_arm" in \
         (out / "report.md").read_text()
+
+
+def test_an_imu_without_regular_intervals_names_the_stream_and_the_settings():
+    """A driver stamping two samples per transfer 20 us apart left no equal intervals, and the error named neither
+    the stream nor the keys that avoid the estimate (found by a review with its own bags)."""
+    from fusion_eval.calibration.imu_noise import white_noise_density
+    from fusion_eval.errors import DataRangeError
+
+    n = np.arange(400)
+    t = (n // 2) * 0.01 + (n % 2) * 20e-6
+    with pytest.raises(DataRangeError, match=r"drive.bag \(topic /imu\): too few regularly spaced samples .*give "
+                                             r"imu.accel_noise_mps2_sqrthz and imu.gyro_noise_dps_sqrthz"):
+        white_noise_density(t, np.zeros((t.size, 3)), "drive.bag (topic /imu)")

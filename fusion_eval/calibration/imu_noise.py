@@ -18,13 +18,18 @@ from ..errors import DataRangeError
 from ..types import ImuSeries
 
 
-def white_noise_density(t_s: np.ndarray, x: np.ndarray) -> float:
+def white_noise_density(t_s: np.ndarray, x: np.ndarray, source: str = "the IMU") -> float:
     """The white-noise density (units of x per sqrt(Hz)) of a 3-axis channel; see the module docstring."""
     dt = np.diff(t_s)
     T = float(np.median(dt))
     regular = (np.abs(dt[:-1] - T) < 0.1 * T) & (np.abs(dt[1:] - T) < 0.1 * T)
     if regular.sum() < 20:
-        raise DataRangeError(f"too few regularly spaced IMU samples ({int(regular.sum())}) to estimate the noise from")
+        # (a driver stamping two samples per transfer 20 us apart has no two equal intervals in a row; the message
+        # named neither the stream nor the settings that avoid the estimate)
+        raise DataRangeError(f"{source}: too few regularly spaced samples ({int(regular.sum())} of {max(dt.size - 1, 0)} "
+                             f"pairs of equal intervals; median interval {T * 1e3:.3g} ms) to estimate the IMU's noise "
+                             "from: give imu.accel_noise_mps2_sqrthz and imu.gyro_noise_dps_sqrthz (a datasheet's "
+                             "densities) instead of 'auto'")
     d2 = (x[2:] - 2 * x[1:-1] + x[:-2])[regular]
     mad = 1.4826 * np.median(np.abs(d2 - np.median(d2, axis=0)), axis=0)
     sigma = mad / np.sqrt(6.0)
@@ -33,5 +38,5 @@ def white_noise_density(t_s: np.ndarray, x: np.ndarray) -> float:
 
 def estimate(imu: ImuSeries) -> dict[str, float]:
     """``accel_mps2_sqrthz`` and ``gyro_rps_sqrthz`` of the (filled-packet-free) IMU stream."""
-    return {"accel_mps2_sqrthz": white_noise_density(imu.t_s, imu.f_b_mps2),
-            "gyro_rps_sqrthz": white_noise_density(imu.t_s, imu.w_b_rps)}
+    return {"accel_mps2_sqrthz": white_noise_density(imu.t_s, imu.f_b_mps2, imu.source),
+            "gyro_rps_sqrthz": white_noise_density(imu.t_s, imu.w_b_rps, imu.source)}
