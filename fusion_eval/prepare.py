@@ -115,7 +115,7 @@ def _flag_data(ds: Dataset, applied: dict, more: list[str] = ()) -> None:
     from .filters.observations.nhc import WHEELED
 
     platform = ds.description.get("platform")
-    warnings = plausible.imu_gaps(ds.imu) + list(more)
+    warnings = plausible.imu_gaps(ds.imu) + list(more) + plausible.imu_units(ds.imu, platform, platform in WHEELED)
     if platform in WHEELED:
         warnings += plausible.ground_vehicle_glitches({"groundtruth": ds.groundtruth, "gnss": ds.gnss, "lidar": ds.lidar},
                                                       platform)

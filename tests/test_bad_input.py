@@ -964,3 +964,25 @@ def test_a_compressed_file_or_a_link_loop_is_named_as_such(tmp_path):
     bad.write_bytes("1 2 3 \xb0\n".encode("latin-1"))
     with pytest.raises(DataFormatError, match=r"not UTF-8 text \(invalid start byte at byte 6\)"):
         read_text(bad, "KITTI poses")
+
+
+def test_imu_units_that_read_as_plausible_numbers_are_flagged():
+    """A gyro in deg/s read as rad/s diverged with a hint at the process noise, and a driver's gravity-free
+    acceleration ran to 38 m with no word (found by a review with its own bags); KITTI's OXTS is not flagged."""
+    from types import SimpleNamespace
+
+    from fusion_eval.datasets.plausible import imu_units
+
+    rng = np.random.default_rng(0)
+    n = 2000
+    w = rng.normal(0, 0.1, (n, 3))
+    f = np.column_stack([rng.normal(0, 0.5, (n, 2)), 9.81 + rng.normal(0, 0.2, n)])
+
+    def imu(w, f):
+        return SimpleNamespace(w_b_rps=w, f_b_mps2=f, source="imu.csv")
+    assert imu_units(imu(w, f), "car", True) == []
+    warn = imu_units(imu(np.degrees(w), f), "car", True)
+    assert len(warn) == 1 and "a gyro in deg/s read as rad/s?" in warn[0] and "imu.csv" in warn[0]
+    assert imu_units(imu(np.degrees(w), f), "aerial", False) == []      # a drone may spin that fast
+    assert "gravity removed" in imu_units(imu(w, f - [0, 0, 9.81]), None, False)[0]
+    assert "in g?" in imu_units(imu(w, f / 9.81), None, False)[0]

@@ -164,6 +164,38 @@ def dropped_gaps(imu, kept: np.ndarray, why: str) -> list[str]:
             "in one step, so the estimate there means little"]
 
 
+# IMU units that read as plausible numbers. A wheeled vehicle turns at under 1 rad/s (a car's tightest turn at walking
+# pace); a platform not declared is taken to be no acrobat (10 rad/s at its 99th percentile is 570 deg/s); a drone,
+# a hand or legs may spin up to a 2000 deg/s gyro's range. Above: a rate in deg/s read as rad/s. Any platform's
+# accelerometer reads gravity.
+MAX_RATE_RPS = {"wheeled": 5.0, None: 10.0, "other": 10.0, "agile": 35.0}
+MIN_SPECIFIC_FORCE_MPS2, MAX_SPECIFIC_FORCE_G = 4.0, 1.15
+
+
+def imu_units(imu, platform: str | None, wheeled: bool) -> list[str]:
+    """The IMU's units where its values say they are wrong though each is a plausible number, one sentence each:
+    angular rates in deg/s read as rad/s (a car 'turning' at 20 rad/s: the run diverged with a hint at the process
+    noise), specific force without gravity (a driver's free acceleration: 38 m of error and no word) or in g."""
+    out = []
+    w = np.linalg.norm(np.asarray(imu.w_b_rps, float), axis=1)
+    f = np.linalg.norm(np.asarray(imu.f_b_mps2, float), axis=1)
+    if w.size < 100:
+        return out
+    w99, f50 = float(np.percentile(w, 99)), float(np.median(f))
+    kind = "wheeled" if wheeled else platform if platform in (None, "other") else "agile"
+    if w99 > MAX_RATE_RPS[kind]:
+        who = f"platform '{platform}'" if platform else "a platform not declared (the manifest's platform)"
+        out.append(f"imu: angular rate {w99:.3g} rad/s (99th percentile) for {who}: a gyro in deg/s read as rad/s? "
+                   f"({imu.source}; a CSV stream's gyro_unit, a bag driver's units)")
+    if f50 < MIN_SPECIFIC_FORCE_MPS2:
+        out.append(f"imu: specific force {f50:.3g} m/s^2 (median) where gravity alone gives 9.8: "
+                   + ("in g? (a CSV stream's accel_unit)" if 0.85 < f50 < MAX_SPECIFIC_FORCE_G else
+                      "gravity removed (a driver's 'free' or linear acceleration)? The filter needs the specific force, "
+                      "gravity included")
+                   + f" ({imu.source})")
+    return out
+
+
 def ground_vehicle_glitches(streams: dict, platform: str) -> list[str]:
     """Per stream (``streams``: name -> pose or GNSS series, or None), the steps between consecutive real (not
     filled-in) samples faster than :data:`MAX_GROUND_SPEED_MPS` (for fixes with a std, beyond 6 sigma of their
