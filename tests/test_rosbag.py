@@ -150,6 +150,19 @@ def test_navsatfix_with_zero_variances_takes_std_m(tmp_path):
     np.testing.assert_allclose(g.std_w_m[1:], 1.0, rtol=1e-12)
 
 
+def test_a_zero_header_stamp_names_its_message(tmp_path):
+    """A driver publishing before its clock was set (header.stamp 0 on the first message) was blamed on milliseconds
+    or on recordings run together (found by a review with its own bags)."""
+    from dataclasses import replace
+
+    imu = _imu(np.random.default_rng(1))
+    t = imu.t_s.copy()
+    t[0] = 0.0
+    bag = _write(tmp_path, FLAVOURS[0], [rb.BagStream("/imu/data", "imu", replace(imu, t_s=t), "imu_link")])
+    with pytest.raises(DataFormatError, match=r"topic '/imu/data', message 1: header stamp 0 among stamps .*stamps: record"):
+        rb.read_imu(bag, "/imu/data")
+
+
 @pytest.mark.parametrize("flavour", FLAVOURS[:2], ids=FLAVOUR_IDS[:2])
 def test_odometry_round_trip_with_velocity_and_covariance(tmp_path, flavour):
     poses = _poses(np.random.default_rng(3))

@@ -789,7 +789,13 @@ def _stamp_s(sec: np.ndarray, nsec: np.ndarray) -> np.ndarray:
 
 def _order(t_s: np.ndarray, path, topic: str) -> np.ndarray | slice:
     """Indices that sort by stamp and keep the first of repeated stamps (logged); a no-op slice when the stamps
-    already increase."""
+    already increase. A zero header stamp among real ones is refused with its message (a driver publishing before
+    its clock was set was blamed on milliseconds, or on recordings run together)."""
+    zero = np.flatnonzero(t_s <= 0.0)
+    if zero.size and zero.size < t_s.size and float(np.max(t_s)) > 1e6:
+        raise DataFormatError(path, None, f"topic '{topic}', message {int(zero[0]) + 1}: header stamp 0 among stamps "
+                              f"of {float(np.max(t_s)):.0f} s ({zero.size} such messages; a driver publishing before its "
+                              "clock was set): drop them, or read the bag's record times (stamps: record)")
     if t_s.size < 2 or np.all(t_s[1:] > t_s[:-1]):
         return slice(None)
     order = np.argsort(t_s, kind="stable")
