@@ -15,6 +15,17 @@ class FusionEvalError(Exception):
     exit_code = 2
 
 
+def place(source: str, line: int | str | None) -> str:
+    """Where in an input: ``file:line``, or for a bag topic (``drive.bag (topic /imu)``) its message number,
+    ``drive.bag (topic /imu, message 5000)``: a bag's refusals named the topic alone, unusable in an hour's bag."""
+    source = str(source)
+    if line is None:
+        return source
+    if source.endswith(")") and " (topic " in source:
+        return f"{source[:-1]}, message {line})"
+    return f"{source}:{line}"
+
+
 class DataFormatError(FusionEvalError):
     """An input file does not have the expected content.
 
@@ -26,10 +37,7 @@ class DataFormatError(FusionEvalError):
         self.path = None if path is None else str(path)
         self.line = line
         self.expected = expected
-        where = self.path or "<input>"
-        if line is not None:
-            where = f"{where}:{line}"
-        super().__init__(f"{where}: {expected}")
+        super().__init__(f"{place(self.path or '<input>', line)}: {expected}")
 
     def __reduce__(self):
         # rebuilt from its three fields, not from the message alone: raised in a worker, it travels back through the

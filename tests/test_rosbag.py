@@ -234,8 +234,41 @@ def test_tf_round_trip_picks_the_child_frame_and_static_transforms(tmp_path, fla
     np.testing.assert_allclose(rb.static_transform(bag, "base_link", "imu"), T_base_imu, atol=1e-12)
     np.testing.assert_allclose(rb.static_transform(bag, "imu", "base_link") @ T_base_imu, np.eye(4), atol=1e-12)
     np.testing.assert_allclose(rb.static_transform(bag, "map", "odom"), T_map_odom, atol=1e-12)
-    assert rb.static_transform(bag, "map", "imu") is None          # no chaining
+    assert rb.static_transform(bag, "map", "imu") is None          # no chain of static edges joins them
     assert rb.static_transform(bag, "odom", "base_link") is None   # dynamic edges are not static
+
+
+def test_a_refused_bag_value_names_its_message(tmp_path):
+    """A NaN in an IMU message 5000 of an hour's bag was refused naming the topic alone (found by a review with its
+    own bags): the message number is named as a CSV's line is."""
+    import dataclasses
+
+    imu = _imu(np.random.default_rng(2))
+    f = imu.f_b_mps2.copy()
+    f[57, 0] = np.nan              # written as it is: a series made without its checks (which would refuse it here)
+    bad = object.__new__(ImuSeries)
+    for fld in dataclasses.fields(ImuSeries):
+        object.__setattr__(bad, fld.name, f if fld.name == "f_b_mps2" else getattr(imu, fld.name))
+    bag = _write(tmp_path, FLAVOURS[0], [rb.BagStream("/imu/data", "imu", bad, "imu_link")])
+    with pytest.raises(DataFormatError, match=r"\(topic /imu/data, message 58\): IMU specific force must be finite"):
+        rb.read_imu(bag, "/imu/data")
+
+
+def test_a_static_transform_through_a_common_parent_is_composed():
+    """A robot's TF tree holds base_link -> imu_link and base_link -> lidar, never imu_link -> lidar: the extrinsic
+    was refused (found by a review with its own bags); the chain through the frames between is composed."""
+    rng = np.random.default_rng(5)
+
+    def T(n):
+        q = rng.normal(size=(1, 4)) / 2 + [0, 0, 0, 1.0]
+        return make_T(quat_xyzw_to_matrix(q / np.linalg.norm(q)), rng.normal(size=(1, 3)))[0]
+    T_base_imu, T_base_lidar, T_lidar_cam = T(0), T(1), T(2)
+    edges = {("base_link", "imu_link"): T_base_imu, ("base_link", "lidar"): T_base_lidar, ("lidar", "cam"): T_lidar_cam,
+             ("map", "odom"): T(3)}
+    want = np.linalg.inv(T_base_imu) @ T_base_lidar @ T_lidar_cam
+    np.testing.assert_allclose(rb.transform_between(edges, "imu_link", "cam"), want, atol=1e-12)
+    np.testing.assert_allclose(rb.transform_between(edges, "/cam", "imu_link") @ want, np.eye(4), atol=1e-12)
+    assert rb.transform_between(edges, "imu_link", "odom") is None
 
 
 def test_messages_interleaved_in_time_order(tmp_path):

@@ -298,7 +298,9 @@ def _extrinsic(spec, root, manifest) -> np.ndarray:
             bag = root / v.get("bag", spec["path"])
             T = rosbag.static_transform(bag, pair[0], pair[1])
             if T is None:
-                raise ConfigError(f"{at(manifest, spec, key)}: {key}: no /tf_static transform {pair[0]} -> {pair[1]} in {bag}")
+                have = ", ".join(f"{a}->{b}" for a, b in rosbag.static_edges(bag)) or "none"
+                raise ConfigError(f"{at(manifest, spec, key)}: {key}: no /tf_static transform {pair[0]} -> {pair[1]} in "
+                                  f"{bag}, directly or through other frames (its static edges: {have})")
         else:
             T = _transform(v, root, at(manifest, spec, key), key)
         return np.linalg.inv(T)

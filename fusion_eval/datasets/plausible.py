@@ -13,7 +13,7 @@ from pathlib import Path
 
 import numpy as np
 
-from ..errors import DataFormatError, DataRangeError
+from ..errors import DataFormatError, DataRangeError, place
 from ..types import line_of
 
 MAX_LAG_S = 1.0          # an IMU channel's latency: beyond a second it is a clock offset (or a typo), not a lag
@@ -131,7 +131,7 @@ def imu_gaps(imu) -> list[str]:
         return []
     i = int(bad[0]) + 1
     line = line_of(imu.lines, i)
-    at = f"{imu.source}:{line}" if line is not None else str(imu.source)
+    at = place(imu.source, line)
     return [f"imu: {bad.size} gap(s) longer than {limit:.3g} s, the longest {d[bad].max():.3g} s, "
             f"the first of {d[bad[0]]:.3g} s before {at}: the filter dead-reckons across a gap, and a gap in the stamps "
             "alone (a corrupted clock) shifts every stream aligned to the IMU"]
@@ -158,7 +158,7 @@ def dropped_gaps(imu, kept: np.ndarray, why: str) -> list[str]:
         return []
     a, b = int(idx[bad[0]]) + 1, int(idx[bad[0] + 1]) - 1          # the first gap's dropped samples
     la, lb = line_of(imu.lines, a), line_of(imu.lines, b)
-    where = f"{imu.source}:{la}-{lb}" if la is not None and lb is not None else f"{imu.source} (samples {a}-{b})"
+    where = place(imu.source, f"{la}-{lb}") if la is not None and lb is not None else f"{imu.source} (samples {a}-{b})"
     return [f"imu: {bad.size} gap(s) longer than {limit:.3g} s after dropping {why}, the longest {d[bad].max():.3g} s, "
             f"the first of {d[bad[0]]:.3g} s ({b - a + 1} samples at {where}): the filter dead-reckons across a gap "
             "in one step, so the estimate there means little"]
@@ -218,7 +218,7 @@ def ground_vehicle_glitches(streams: dict, platform: str) -> list[str]:
         if bad.size:
             i = int(idx[bad[0] + 1])
             line = line_of(s.lines, i)
-            at = f"{s.source}:{line}" if line is not None else str(s.source)
+            at = place(s.source, line)
             out.append(f"{name}: {bad.size} step(s) faster than {MAX_GROUND_SPEED_MPS:g} m/s for a {platform}, the first "
                        f"{v[bad[0]]:.3g} m/s at {at}{_packet(s.source, line)}: a glitch in the data, whose figures "
                        "are suspect")

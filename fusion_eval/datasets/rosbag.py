@@ -847,7 +847,8 @@ def read_imu(path: str | Path, topic: str, stamps: str = "header") -> ImuSeries:
     t = _times(fields, stamps)
     keep = _order(t, path, topic)
     log.debug("%s: %d IMU messages of %s (%s route)", path, t.size, topic, fields["method"])
-    return ImuSeries(t_s=t[keep], f_b_mps2=fields["f"][keep], w_b_rps=fields["w"][keep], source=_source(path, topic))
+    return ImuSeries(t_s=t[keep], f_b_mps2=fields["f"][keep], w_b_rps=fields["w"][keep], source=_source(path, topic),
+                     lines=np.arange(1, t.size + 1)[keep])        # message numbers: refusals name them
 
 
 def _valid_fixes(fields: dict, path, topic: str) -> np.ndarray:
@@ -926,7 +927,7 @@ def read_navsatfix(path: str | Path, topic: str, origin_lla: Sequence[float], st
         std[~usable] = np.broadcast_to(np.asarray(default_std_m, float), (3,))
     p = geodetic_to_enu(lla[:, 0], lla[:, 1], lla[:, 2], *[float(x) for x in origin_lla], source=_source(path, topic),
                         lines=idx + 1)        # the message's number in the topic, for the message
-    return GnssSeries(t_s=t[idx], p_w_m=p, std_w_m=std, source=_source(path, topic))
+    return GnssSeries(t_s=t[idx], p_w_m=p, std_w_m=std, source=_source(path, topic), lines=idx + 1)
 
 
 def first_fix(path: str | Path, topic: str) -> tuple[float, float, float]:
@@ -1061,7 +1062,8 @@ def read_poses(path: str | Path, topic: str, stamps: str = "header", child_frame
     if v:
         v_b = np.array(v)[keep]
         v_w = np.einsum("nij,nj->ni", quat_xyzw_to_matrix(q_arr).reshape(-1, 3, 3), v_b)
-    return PoseSeries(t_s=t[keep], p_w_m=np.array(p)[keep], q_wb_xyzw=q_arr, v_w_mps=v_w, source=_source(path, topic))
+    return PoseSeries(t_s=t[keep], p_w_m=np.array(p)[keep], q_wb_xyzw=q_arr, v_w_mps=v_w, source=_source(path, topic),
+                      lines=np.arange(1, t.size + 1)[keep])
 
 
 def read_pose_covariances(path: str | Path, topic: str, stamps: str = "header") -> tuple[np.ndarray, np.ndarray]:
@@ -1102,16 +1104,35 @@ def static_transform(path: str | Path, parent: str, child: str, topic: str = "/t
     -------
     (4, 4) array or None
         The transform that maps child-frame points into the parent frame: the direct edge parent -> child, or
-        the inverse of a child -> parent edge (the last one published wins). None when the bag has no such
-        edge or no static TF topic. Chains of edges are not composed.
+        the inverse of a child -> parent edge (the last one published wins), or else the chain of static edges
+        that joins the two frames, composed (a robot's TF tree holds ``base_link -> imu_link`` and
+        ``base_link -> lidar``, rarely ``imu_link -> lidar``). None when no chain of static edges joins them or
+        the bag has no static TF topic.
     """
-    edges = static_edges(path, topic)
+    return transform_between(static_edges(path, topic), parent, child)
+
+
+def transform_between(edges: dict[tuple[str, str], np.ndarray], parent: str, child: str) -> np.ndarray | None:
+    """``T_parent_child`` from ``(parent, child) -> T`` edges: a direct edge (either way round), else the shortest
+    chain of edges through the frames between (each edge taken either way), composed; None when none joins them."""
     parent, child = _strip(parent), _strip(child)
     if (parent, child) in edges:
         return edges[(parent, child)]
     if (child, parent) in edges:
         return inv_T(edges[(child, parent)])
-    return None
+    adj: dict[str, list] = {}
+    for (a, b), T in edges.items():
+        adj.setdefault(a, []).append((b, T))
+        adj.setdefault(b, []).append((a, None))        # the inverse, taken when the edge is walked
+    reached = {parent: np.eye(4)}                        # frame -> T_parent_frame
+    queue = [parent]
+    while queue:
+        a = queue.pop(0)
+        for b, T in adj.get(a, ()):
+            if b not in reached:
+                reached[b] = reached[a] @ (T if T is not None else inv_T(edges[(b, a)]))
+                queue.append(b)
+    return reached.get(child)
 
 
 def static_edges(path: str | Path, topic: str = "/tf_static") -> dict[tuple[str, str], np.ndarray]:
