@@ -119,6 +119,8 @@ def _flag_data(ds: Dataset, applied: dict, more: list[str] = ()) -> None:
     if platform in WHEELED:
         warnings += plausible.ground_vehicle_glitches({"groundtruth": ds.groundtruth, "gnss": ds.gnss, "lidar": ds.lidar},
                                                       platform)
+    else:                 # the GNSS of any platform: a fix kilometres off is a glitch (a pose stream's frame may jump)
+        warnings += plausible.ground_vehicle_glitches({"gnss": ds.gnss}, platform, plausible.MAX_ANY_SPEED_MPS)
     for w in warnings:
         log.warning("%s", w)
     if warnings:
