@@ -269,10 +269,7 @@ def compare(ctx, dataset, variants, variant_dir, config_path, sets, out_dir, ove
 def sweep(ctx, datasets, sweep_file, out_dir, jobs, variant_dir, scheduler, dask_mode, retry_failed, summarize_only,
           no_plots, trials, batch):
     """Run DATASET(s) over the settings of a sweep file, in parallel or on Dask, and rank the results."""
-    if not ctx.obj["quiet"]:
-        from . import compile_notice
-
-        compile_notice.install()        # a fresh install's first run says why it takes a minute
+    _say_compiling(ctx.obj["quiet"])
     from .commands.sweep import run_sweep
 
     if summarize_only:
@@ -348,10 +345,7 @@ def evaluate(ctx, inputs, out_dir, fmt, bag, ref_topic, ref_times, times, associ
     """Evaluate trajectories against a reference: REFERENCE ESTIMATE... (TUM, KITTI poses with or without times,
     EuRoC CSV), or --bag FILE --ref REF_TOPIC EST_TOPIC...: evo's APE/RPE, the KITTI drift metric and the
     per-segment breakdown."""
-    if not ctx.obj["quiet"]:
-        from . import compile_notice
-
-        compile_notice.install()        # a fresh install's first run says why it takes a minute
+    _say_compiling(ctx.obj["quiet"])
     from .commands.evaluate import run_evaluate
     from .evaluation.keys import DEFAULT_RELATIONS
 
@@ -403,10 +397,7 @@ def evaluate(ctx, inputs, out_dir, fmt, bag, ref_topic, ref_times, times, associ
 @click.pass_context
 def track(ctx, input_path, out_dir, sensors, noise_ax, noise_ay, lidar_var, radar_var, smooth, overwrite, no_plots):
     """Track a 2-D target from lidar (KF) and radar (EKF) measurements; RMSE against the file's ground truth."""
-    if not ctx.obj["quiet"]:
-        from . import compile_notice
-
-        compile_notice.install()        # a fresh install's first run says why it takes a minute
+    _say_compiling(ctx.obj["quiet"])
     from .commands.track import track as run_track
 
     if sensors != "both":
@@ -515,10 +506,7 @@ def check(ctx, metrics_path, baseline, rtol, atol, patterns, rules, junit_path, 
 @click.pass_context
 def simulate(ctx, out_dir, profile, duration_s, seed, grade, sets, overwrite):
     """Write a synthetic KITTI-style drive with known truth to OUT_DIR."""
-    if not ctx.obj["quiet"]:
-        from . import compile_notice
-
-        compile_notice.install()        # a fresh install's first run says why it takes a minute
+    _say_compiling(ctx.obj["quiet"])
     from .commands.simulate import simulate as run_sim
 
     t0 = time.perf_counter()
@@ -562,10 +550,7 @@ def _num_or_na(x, nd: int) -> str:
 def tune(ctx, datasets, space, objectives, n_trials, test, out_dir, sampler, seed, seeds, config_path, sets, jobs, scheduler,
          dask_mode, no_prune, no_plots):
     """Tune the filter's noise settings on DATASET(s) (default: the embedded kitti-00) with Optuna."""
-    if not ctx.obj["quiet"]:
-        from . import compile_notice
-
-        compile_notice.install()        # a fresh install's first run says why it takes a minute
+    _say_compiling(ctx.obj["quiet"])
     from .commands.tune import run_tune
 
     from .progress import Counter
@@ -590,16 +575,23 @@ def tune(ctx, datasets, space, objectives, n_trials, test, out_dir, sampler, see
         click.echo(f"wrote {res['setup'].out_dir}/ ({res['runtime_s']:.1f} s)")
 
 
+def _say_compiling(quiet: bool) -> None:
+    """A fresh install's first run says why it takes a minute (:mod:`fusion_eval.compile_notice`); -q says nothing."""
+    if not quiet:
+        from . import compile_notice
+
+        compile_notice.install()
+
+
 @contextlib.contextmanager
 def _display(quiet: bool):
     """The stages of a run drawn on stderr (:class:`fusion_eval.progress.Display`), or nothing with -q."""
     if quiet:
         yield None
         return
-    from . import compile_notice
     from .progress import Display
 
-    compile_notice.install()            # a fresh install's first run says why it takes a minute
+    _say_compiling(quiet)
     d = Display()
     try:
         yield d

@@ -117,10 +117,10 @@ def _flag_data(ds: Dataset, applied: dict, more: list[str] = ()) -> None:
     platform = ds.description.get("platform")
     warnings = plausible.imu_gaps(ds.imu) + list(more) + plausible.imu_units(ds.imu, platform, platform in WHEELED)
     if platform in WHEELED:
-        warnings += plausible.ground_vehicle_glitches({"groundtruth": ds.groundtruth, "gnss": ds.gnss, "lidar": ds.lidar},
+        warnings += plausible.speed_glitches({"groundtruth": ds.groundtruth, "gnss": ds.gnss, "lidar": ds.lidar},
                                                       platform)
     else:                 # the GNSS of any platform: a fix kilometres off is a glitch (a pose stream's frame may jump)
-        warnings += plausible.ground_vehicle_glitches({"gnss": ds.gnss}, platform, plausible.MAX_ANY_SPEED_MPS)
+        warnings += plausible.speed_glitches({"gnss": ds.gnss}, platform, plausible.MAX_ANY_SPEED_MPS)
     for w in warnings:
         log.warning("%s", w)
     if warnings:

@@ -105,8 +105,10 @@ NOTHING_RANDOM = ("the fused estimate's figures are identical over the {n} trial
                   "simulate --seed), so its spread and 95 % intervals say nothing")
 
 
-def _sentence(text: str) -> str:
-    return text[:1].upper() + text[1:]
+def nothing_random_line(n: int) -> str:
+    """:data:`NOTHING_RANDOM` as a report's bold sentence (run's report.md, sweep.md)."""
+    text = NOTHING_RANDOM.format(n=n)
+    return f"**{text[:1].upper()}{text[1:]}.**"
 
 
 def all_equal(values: list) -> bool:
@@ -166,7 +168,7 @@ def markdown(sec: dict) -> list[str]:
          f"{', '.join(sorted(seeds[0])) or 'the seeds'}); trial 0's outputs are the files of this folder; per trial: "
          "`trials.csv`, `trials.png`.", ""]
     if sec.get("identical"):
-        L += ["**" + _sentence(NOTHING_RANDOM.format(n=sec["n"])) + ".**", ""]
+        L += [nothing_random_line(sec["n"]), ""]
     if sec.get("failed"):
         L += [f"{len(sec['failed'])} trials failed and are not in the statistics: "
               + "; ".join(f"trial {f['trial']}: {f['error']}" for f in sec["failed"]), ""]

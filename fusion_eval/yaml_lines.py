@@ -39,14 +39,11 @@ def _mapping(loader: _Loader, node: yaml.MappingNode):
     yield data                                   # as PyYAML's own constructor: anchors may refer to it
     _refuse_repeated_keys(loader, node)
     loader.flatten_mapping(node)                 # merge keys (<<) first, as construct_mapping does
-    items = loader.construct_mapping(node)
-    # a key is a name (a sweep's setting '1e-3'), not a number: YAML 1.2's floats apply to values only
-    names = {loader.construct_object(k): k.value for k, _ in node.value if _exp_only(k)}
-    data.update((names.get(k, k), v) for k, v in items.items())
+    data.update(loader.construct_mapping(node))
     for key_node, _ in node.value:
         try:
             key = loader.construct_object(key_node)
-            data.lines[names.get(key, key)] = key_node.start_mark.line + 1    # the last one wins, as for the value
+            data.lines[key] = key_node.start_mark.line + 1    # the last one wins, as for the value
         except TypeError:                        # an unhashable key: construct_mapping has already refused it
             pass
 
@@ -59,8 +56,10 @@ def _refuse_repeated_keys(loader: _Loader, node: yaml.MappingNode) -> None:
     for key_node, _ in node.value:
         if key_node.tag == "tag:yaml.org,2002:merge" or not isinstance(key_node, yaml.ScalarNode):
             continue
-        if _yaml11_only(key_node):
-            key_node.tag = "tag:yaml.org,2002:str"      # a key is a name: a sweep's setting '01' stays '01'
+        if _exp_only(key_node) or _yaml11_only(key_node):
+            # a key is a name, not a number: a sweep's setting '1e-3' or '01' stays as written (YAML 1.2's floats
+            # and the refusal of 1.1's octal and base-60 forms apply to values)
+            key_node.tag = "tag:yaml.org,2002:str"
         key = loader.construct_object(key_node)
         try:
             hash(key)

@@ -992,17 +992,17 @@ def test_a_gnss_fix_kilometres_off_is_flagged_whatever_the_platform():
     """One multipath fix 1.1 km off moved a simulated drive's fused APE from 0.46 to 6.0 m with no word: the 100 m/s
     step check ran only with platform: car (found by a review with its own bags). Any platform's GNSS is held to
     300 m/s; a drive's own fixes are not flagged."""
-    from fusion_eval.datasets.plausible import MAX_ANY_SPEED_MPS, ground_vehicle_glitches
+    from fusion_eval.datasets.plausible import MAX_ANY_SPEED_MPS, speed_glitches
     from fusion_eval.types import GnssSeries
 
     t = np.arange(0.0, 60.0, 0.2)
     p = np.column_stack([15.0 * t, np.zeros_like(t), np.zeros_like(t)])
     g = GnssSeries(t_s=t, p_w_m=p, std_w_m=np.ones((t.size, 3)), source="drive.bag (topic /gps/fix)",
                    lines=np.arange(1, t.size + 1))
-    assert ground_vehicle_glitches({"gnss": g}, None, MAX_ANY_SPEED_MPS) == []
+    assert speed_glitches({"gnss": g}, None, MAX_ANY_SPEED_MPS) == []
     p2 = p.copy()
     p2[150, 1] += 1100.0
-    w = ground_vehicle_glitches({"gnss": GnssSeries(t_s=t, p_w_m=p2, std_w_m=g.std_w_m, source=g.source, lines=g.lines)},
+    w = speed_glitches({"gnss": GnssSeries(t_s=t, p_w_m=p2, std_w_m=g.std_w_m, source=g.source, lines=g.lines)},
                                 None, MAX_ANY_SPEED_MPS)
     assert len(w) == 1 and "faster than 300 m/s for any platform (none declared)" in w[0]
     assert "(topic /gps/fix, message 151)" in w[0]

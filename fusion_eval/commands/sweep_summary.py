@@ -19,7 +19,7 @@ from ..provenance import dataset_files, header_line
 from ..resources import dataset_label
 from ..report import html
 from ..tables import cell, csv_text, markdown
-from ..trials import NOTHING_RANDOM
+from ..trials import NOTHING_RANDOM, nothing_random_line
 from .sweep import Task, read_records
 
 log = logging.getLogger(__name__)
@@ -136,7 +136,7 @@ def write_summary(tasks: list[Task], out_dir: Path, keys: list[str], plots: bool
         multi = [r for r in ok if (r.get("trials") or 0) > 1]      # (one finished trial has a std of 0 too)
         if multi and all(r.get(f"{METRIC}_std") == 0 for r in multi):
             log.warning(NOTHING_RANDOM.format(n=n_trials))
-            L.insert(5, "\n**" + NOTHING_RANDOM.format(n=n_trials).replace("the", "The", 1) + ".**")
+            L.insert(5, "\n" + nothing_random_line(n_trials))
         L[4] = (f"{len(rows)} settings x {n_trials} Monte-Carlo trials (the seeds of every random element; "
                 f"{len(rows) * n_trials} runs): {sum(r['status'] == 'ok' for r in rows)} settings with finished trials, "
                 f"{sum(r['status'] != 'ok' for r in rows)} without. The figures are means over each setting's finished "

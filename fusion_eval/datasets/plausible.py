@@ -200,7 +200,7 @@ def imu_units(imu, platform: str | None, wheeled: bool) -> list[str]:
     return out
 
 
-def ground_vehicle_glitches(streams: dict, platform: str | None, max_speed_mps: float = MAX_GROUND_SPEED_MPS) -> list[str]:
+def speed_glitches(streams: dict, platform: str | None, max_speed_mps: float = MAX_GROUND_SPEED_MPS) -> list[str]:
     """Per stream (``streams``: name -> pose or GNSS series, or None), the steps between consecutive real (not
     filled-in) samples faster than ``max_speed_mps`` (for fixes with a std, beyond 6 sigma of their difference), as
     one sentence each for the report."""
