@@ -586,3 +586,21 @@ def test_a_bag_garbled_in_the_middle_is_a_one_line_error(tmp_path):
     bag.write_bytes(bytes(data))
     with pytest.raises(DataFormatError, match=r"damaged: reading topic '/imu/data' failed after \d+ messages"):
         rb.read_imu(bag, "/imu/data")
+
+
+@pytest.mark.parametrize("flavour", FLAVOURS, ids=FLAVOUR_IDS)
+def test_nan_in_first_and_last_fix_keeps_the_fast_path(tmp_path, flavour):
+    """A no-fix message carries NaN coordinates (REP 145); the check of the first and last messages against the
+    typestore must read NaN as equal to NaN, or a 1 h bag falls back to per-message deserialization."""
+    rng = np.random.default_rng(12)
+    n = 8
+    lat = rng.uniform(40, 50, n)
+    lat[[0, -1]] = np.nan
+    fixes = rb.FixSeries(t_s=T0 + np.arange(n) * 0.1, lat_deg=lat, lon_deg=rng.uniform(0, 10, n),
+                         alt_m=rng.normal(100, 5, n), std_enu_m=np.full((n, 3), 1.0),
+                         status=np.where(np.isnan(lat), -1, 0))
+    bag = _write(tmp_path, flavour, [rb.BagStream("/imu", "imu", _imu(rng, n=30), "imu"),
+                                     rb.BagStream("/fix", "navsatfix", fixes, "gps")])
+    got = rb._fixed_fields(bag, "/fix", rb.NAVSATFIX)
+    assert got["method"] == "storage"
+    np.testing.assert_array_equal(got["lla"][:, 0], lat)

@@ -301,7 +301,7 @@ def _verify(raws: Sequence[bytes], idx: Sequence[int], fields: dict, msgtype: st
         msg = store.deserialize_cdr(raw, msgtype) if cdr else store.deserialize_ros1(raw, msgtype)
         ref = _fields_of(msg, msgtype)
         for name in _READ_FIELDS[msgtype]:
-            if not np.array_equal(np.asarray(ref[name]), fields[name][i]):
+            if not np.array_equal(np.asarray(ref[name]), fields[name][i], equal_nan=True):
                 raise _NoFastPath(f"field {name} of message {i} differs from the typestore's decoding")
 
 
