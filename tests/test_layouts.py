@@ -93,6 +93,12 @@ def test_the_lidar_extrinsic_from_tf_static(drives, tmp_path):
     (tmp_path / "dataset.yaml").write_text(yaml.safe_dump(man))
     with pytest.raises(ConfigError, match="no /tf_static transform imu_link -> nope"):
         load_dataset(tmp_path / "dataset.yaml")
+    # a bag that is not there: the manifest's line of the key, not only the missing file
+    lidar["T_imu_cam0"] = {"tf_static": ["imu_link", "cam0"], "bag": str(tmp_path / "missing.bag")}
+    man["streams"]["lidar"] = {**lidar, "path": str(drives["rosbag1"] / "drive.bag")}
+    (tmp_path / "dataset.yaml").write_text(yaml.safe_dump(man))
+    with pytest.raises(ConfigError, match=r"dataset\.yaml:\d+: T_imu_cam0: .*missing\.bag: no such file"):
+        load_dataset(tmp_path / "dataset.yaml")
     # keys the bag streams do not read were ignored: an 'invert: true' (the transform taken as written), an IMU's
     # std_m, a GNSS child_frame (found by a review with its own bags)
     lidar["T_imu_cam0"] = {"tf_static": ["cam0", "imu_link"], "bag": str(drives["rosbag1"] / "drive.bag"), "invert": True}

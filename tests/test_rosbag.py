@@ -604,3 +604,14 @@ def test_nan_in_first_and_last_fix_keeps_the_fast_path(tmp_path, flavour):
     got = rb._fixed_fields(bag, "/fix", rb.NAVSATFIX)
     assert got["method"] == "storage"
     np.testing.assert_array_equal(got["lla"][:, 0], lat)
+
+
+@pytest.mark.parametrize("flavour", FLAVOURS, ids=FLAVOUR_IDS)
+def test_a_bag_given_as_the_dataset_says_what_to_write(tmp_path, flavour):
+    """'fusion-eval run drive.bag' read the bag as a YAML manifest ('not UTF-8 text'): now it lists the topics."""
+    from fusion_eval.datasets.manifest import load_dataset
+
+    bag = _write(tmp_path, flavour, [rb.BagStream("/imu", "imu", _imu(np.random.default_rng(3), n=30), "imu")])
+    with pytest.raises(DataFormatError, match=r"a ROS bag, not a dataset: write a dataset.yaml .*its topics: /imu "
+                                              r"\[sensor_msgs/msg/Imu\]"):
+        load_dataset(bag)

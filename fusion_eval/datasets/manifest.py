@@ -16,7 +16,7 @@ from typing import Any
 import numpy as np
 import yaml
 
-from ..errors import ConfigError, DataFormatError
+from ..errors import ConfigError, DataFormatError, FusionEvalError
 from ..geo import MAX_ORIGIN_DISTANCE_M, great_circle_m
 from .. import yaml_lines
 from ..yaml_lines import at
@@ -57,10 +57,12 @@ def load_dataset(path: str | Path, extra_streams: tuple[StreamSpec, ...] | None 
     if not path.exists():
         raise DataFormatError(path, None, "dataset not found (expected a folder with dataset.yaml, a dataset.yaml, a KITTI raw "
                                           "drive folder or a EuRoC / TUM-VI folder)")
-    if path.is_file():
+    if path.is_file() and path.suffix not in (".bag", ".db3", ".mcap"):
         return _from_manifest(path, extra)
     if (path / "dataset.yaml").exists():
         return _from_manifest(path / "dataset.yaml", extra)
+    if path.suffix in (".bag", ".db3", ".mcap") or (path / "metadata.yaml").is_file():
+        raise DataFormatError(path, None, _a_bag_is_not_a_dataset(path))
     from . import euroc
 
     asl = euroc.implicit_streams(path)
@@ -82,6 +84,19 @@ def load_dataset(path: str | Path, extra_streams: tuple[StreamSpec, ...] | None 
         return _from_manifest_dict(body, path, path / "(implicit manifest)", extra)
     raise DataFormatError(path, None, "expected dataset.yaml, an oxts/ folder (KITTI raw drive) or mav0/imu0/data.csv "
                                       "(EuRoC / TUM-VI) in this folder")
+
+
+def _a_bag_is_not_a_dataset(path: Path) -> str:
+    """What to write for a bag given where a dataset is due: which topic is which stream is the user's to say."""
+    from . import rosbag
+
+    try:
+        listed = "; its topics: " + ", ".join(f"{name} [{typ}]" for name, (typ, _) in sorted(rosbag.topics(path).items()))
+    except FusionEvalError as exc:
+        listed = f" (and it does not read as one: {exc})"
+    return ("a ROS bag, not a dataset: write a dataset.yaml whose streams name its topics ({format: rosbag, path: "
+            f"{path.name}, topic: ...}}; README 'Your own data') and run that, or score its pose topics with fusion-eval "
+            f"evaluate --bag{listed}")
 
 
 def _from_manifest(manifest: Path, extra: dict) -> Dataset:
@@ -296,7 +311,10 @@ def _extrinsic(spec, root, manifest) -> np.ndarray:
             from . import rosbag
 
             bag = root / v.get("bag", spec["path"])
-            T = rosbag.static_transform(bag, pair[0], pair[1])
+            try:
+                T = rosbag.static_transform(bag, pair[0], pair[1])
+            except DataFormatError as exc:   # the bag's own message, placed at the manifest key that named it
+                raise ConfigError(f"{at(manifest, spec, key)}: {key}: {exc}") from None
             if T is None:
                 have = ", ".join(f"{a}->{b}" for a, b in rosbag.static_edges(bag)) or "none"
                 raise ConfigError(f"{at(manifest, spec, key)}: {key}: no /tf_static transform {pair[0]} -> {pair[1]} in "
