@@ -24,6 +24,7 @@ from evo.tools import file_interface
 from fusion_eval.commands.evaluate import read_inputs, run_evaluate
 from fusion_eval.evaluation import keys
 from fusion_eval.evaluation.estimates import evaluate_series
+from fusion_eval.errors import DataFormatError
 
 TOL = 1e-6
 ALL_RELATIONS = tuple(keys.RELATION_KEYS)
@@ -332,6 +333,11 @@ def test_tf_trajectories_without_ros_tf2(tmp_path, bag):
     assert e["ape"]["translation_m"]["max"] == pytest.approx(lever, abs=1e-9)
     if "reading" in e:
         assert "tf2_py" in e["reading"]
+    # an edge the bag does not hold: the error names the frames asked for (it named base_footprint, the one
+    # tried through the static edge)
+    with pytest.raises(DataFormatError, match=r"no TF edge map -> base_link: .* map -> base_footprint followed by "
+                                              r"the /tf_static edge base_footprint -> base_link .*odom->base_footprint"):
+        run_evaluate(["/tf:odom.base_link"], tmp_path / "o2", bag=path, ref_topic="/tf:map.base_link", make_plots=False)
 
 
 def test_tf_trajectory_through_a_static_edge(tmp_path):

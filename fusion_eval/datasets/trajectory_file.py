@@ -268,7 +268,13 @@ def _tf_trajectory(bag: Path, identifier: str):
         via = next(((a, Tab) for (a, b), Tab in statics.items() if b == child.strip("/")), None)
         if via is None:
             raise
-        poses = rosbag.read_poses(bag, tf_topic, child_frame=via[0], parent_frame=parent)
+        try:
+            poses = rosbag.read_poses(bag, tf_topic, child_frame=via[0], parent_frame=parent)
+        except DataFormatError as exc:    # name the frames asked for, not the intermediate one tried last
+            present = str(exc).partition("(frames present: ")[2].removesuffix(")")
+            raise DataFormatError(bag, None, f"no TF edge {parent} -> {child}: not on '{tf_topic}' directly, nor as "
+                                             f"{parent} -> {via[0]} followed by the /tf_static edge {via[0]} -> "
+                                             f"{child} ('{tf_topic}' holds: {present})") from None
         T = make_T(poses.R_wb(), poses.p_w_m) @ via[1][None]
     if T is None:
         return PoseTrajectory3D(np.array(poses.p_w_m), xyzw_to_wxyz(poses.q_wb_xyzw), np.array(poses.t_s))
