@@ -18,6 +18,7 @@ from .datasets import plausible
 from .calibration import imu_noise
 from .config import Settings
 from .calibration.extrinsic import apply_extrinsic, estimate_extrinsic
+from .calibration.mount import across_travel
 from .calibration.travel import MIN_STRETCHES, estimate_travel_pitch, pitch_from_smoothed_pass, uncertain
 from .degrade import degrade_gnss
 from .errors import ConfigError, DataRangeError
@@ -110,8 +111,9 @@ def _velocity_from_positions(poses, t0: float, half_window_s: float = 0.1) -> np
 
 def _flag_data(ds: Dataset, applied: dict, more: list[str] = ()) -> None:
     """What the data hold that no plausibility bound refuses but that makes the figures suspect, said on stderr and
-    in the report: the IMU stopping for seconds (in its stamps, or once its filled-in packets are dropped: ``more``),
-    and a wheeled vehicle's streams jumping faster than it can drive."""
+    in the report: the IMU stopping for seconds (in its stamps, or once its filled-in packets are dropped), a wheeled
+    vehicle's streams jumping faster than it can drive, the GNSS a constant distance off the ground truth (a datum),
+    and what the preparation found (``more``)."""
     from .filters.observations.nhc import WHEELED
 
     platform = ds.description.get("platform")
@@ -121,20 +123,23 @@ def _flag_data(ds: Dataset, applied: dict, more: list[str] = ()) -> None:
                                                       platform)
     else:                 # the GNSS of any platform: a fix kilometres off is a glitch (a pose stream's frame may jump)
         warnings += plausible.speed_glitches({"gnss": ds.gnss}, platform, plausible.MAX_ANY_SPEED_MPS)
+    warnings += [w for w in [plausible.gnss_offset(ds.gnss, ds.groundtruth)] if w]
     for w in warnings:
         log.warning("%s", w)
     if warnings:
         applied["data_warnings"] = warnings
 
 
-def _say_models(cfg: dict, ds: Dataset, applied: dict) -> None:
+def _say_models(cfg: dict, ds: Dataset, applied: dict, across: str = "") -> None:
     """For the report: the non-holonomic constraint (on or off, and why) and the lidar increments' frame, where the
-    configuration left them to the data ('auto')."""
+    configuration left them to the data ('auto'). ``across``: why the IMU's mount left the constraint out."""
     from .filters.observations.nhc import WHEELED
     from .filters.observations.relative_pose import frame_of
 
     f, platform = cfg["filter"], ds.description.get("platform")
-    if f["nhc"]:
+    if across:
+        applied["nhc"] = "off: the IMU is not mounted along the direction of travel (see the data warnings)"
+    elif f["nhc"]:
         pitch = f.get("nhc_travel_pitch_mrad")
         rows = "lateral row only" if pitch is None else "lateral and vertical rows"
         why = f"the dataset's platform is a {platform}" if platform in WHEELED else "filter.nhc=true"
@@ -197,9 +202,9 @@ def prepare(ds: Dataset, cfg: dict) -> Prepared:
     applied["time_offset_s"]["imu"] = off
     imu = shifted(imu, off)
     n_filled = int(imu.filled.sum())
-    filled_warnings: list[str] = []
+    more_warnings: list[str] = []
     if cfg["imu"]["filled_packets"] == "drop" and n_filled:
-        filled_warnings = plausible.dropped_gaps(imu, ~imu.filled, "the filled-in packets (imu.filled_packets: drop)")
+        more_warnings = plausible.dropped_gaps(imu, ~imu.filled, "the filled-in packets (imu.filled_packets: drop)")
         imu = imu.select(~imu.filled)
     applied["imu_filled_samples"] = n_filled
     applied["imu_filled_packets"] = cfg["imu"]["filled_packets"]
@@ -239,7 +244,7 @@ def prepare(ds: Dataset, cfg: dict) -> Prepared:
         if ds.description.get("lidar_clock"):
             applied["lidar_clock"] = ds.description["lidar_clock"]
         if cfg["filter"].get("nhc") and cfg["filter"].get("nhc_travel_pitch_mrad") == "auto":
-            travel = estimate_travel_pitch(lid.select(~lid.filled))
+            travel = estimate_travel_pitch(lid.select(~lid.filled), cfg["filter"]["nhc_travel_yaw_mrad"] * 1e-3)
         if cfg["lidar"]["interpolate_to_imu"]:
             lid = snap_to_stamps(lid, imu.t_s)
         lidar = lid
@@ -336,6 +341,11 @@ def prepare(ds: Dataset, cfg: dict) -> Prepared:
         v0 = (gnss.p_w_m[1] - gnss.p_w_m[0]) / (gnss.t_s[1] - gnss.t_s[0])
     else:
         _, _, v0 = interpolate_pose_at(gt, t0)
+        mismatch = plausible.velocity_mismatch(gt) if v0 is not None else ""
+        if mismatch:            # its velocities are not its positions' rate of change: a twist in the wrong frame
+            more_warnings = [*more_warnings, mismatch]
+            v0 = _velocity_from_positions(gt, t0)
+            applied["init_velocity"] = "the ground truth's positions differenced (its velocities disagree with them)"
         if v0 is None:          # a ground truth of poses only (TUM, EuRoC's motion capture): its positions differenced
             v0 = _velocity_from_positions(gt, t0)
             applied["init_velocity"] = "the ground truth's positions differenced (it has no velocity)"
@@ -368,11 +378,15 @@ def prepare(ds: Dataset, cfg: dict) -> Prepared:
                           f"to {GRAVITY_RANGE_MPS2[1]:g} m/s^2; 'auto' takes WGS84's at the geodetic origin)")
     applied["gravity_mps2"] = float(g)
     applied["t_start_s"] = t0
-    _say_models(cfg, ds, applied)
-    _flag_data(ds, applied, filled_warnings)
+    across = across_travel(imu.select(imu.t_s >= t0), cfg["filter"]["nhc_travel_yaw_mrad"]) if cfg["filter"]["nhc"] else ""
+    if across:            # the constraint would hold the forward velocity at zero: left out, and said
+        resolved.setdefault("filter", {})["nhc"] = False
+        more_warnings = [*more_warnings, across]
+    _say_models(cfg, ds, applied, across)
+    _flag_data(ds, applied, more_warnings)
     prep = Prepared(imu=imu, groundtruth=gt, gnss=gnss, lidar=lidar, k_start=k0, x0=x0, gravity_mps2=float(g),
                     gnss_info=gnss_info, applied=applied, odometer=odo, streams=extra, resolved=resolved)
-    if cfg["filter"].get("nhc") and cfg["filter"].get("nhc_travel_pitch_mrad") == "auto":
+    if cfg["filter"].get("nhc") and not across and cfg["filter"].get("nhc_travel_pitch_mrad") == "auto":
         # the IMU's pitch against the direction of travel: from the lidar, else from a smoothed IMU + GNSS pass;
         # without an estimate the constraint's vertical row is left out
         why = "no lidar stream" if ds.lidar is None else f"under {MIN_STRETCHES} s of straight driving in the lidar"

@@ -221,3 +221,20 @@ def test_a_bad_value_is_refused_naming_every_value_the_key_takes(sets, message):
 
     with pytest.raises(ConfigError, match=re.escape(message)):
         load_config(None, sets)
+
+
+@pytest.mark.parametrize("yaw_mrad", [1570.8, -1570.8, 400.0])
+def test_travel_pitch_in_a_yawed_imu_is_recovered_with_the_mounts_yaw_either_sign(yaw_mrad):
+    """An IMU yawed against the car: the increments are taken in the vehicle's axes; a yaw given 180 deg off (its
+    sign is not seen in the IMU's data) gives the pitch negated, and the constraint's vertical row the same."""
+    base = _drive(12.0, 300.0, np.random.default_rng(4))
+    Rz = exp_so3(np.array([0.0, 0.0, yaw_mrad * 1e-3]))        # the IMU's axes: the vehicle's turned by -yaw
+    R = base.R_wb() @ Rz.T
+    poses = PoseSeries(t_s=base.t_s, p_w_m=base.p_w_m, q_wb_xyzw=matrix_to_quat_xyzw(R))
+    assert estimate_travel_pitch(poses, yaw_mrad * 1e-3).pitch_mrad == pytest.approx(12.0, abs=0.5)
+    flipped = estimate_travel_pitch(poses, yaw_mrad * 1e-3 + np.pi)
+    assert flipped.pitch_mrad == pytest.approx(-12.0, abs=0.5)
+    np.testing.assert_allclose(vehicle_axes(flipped.pitch_mrad * 1e-3, yaw_mrad * 1e-3 + np.pi)[2],
+                               vehicle_axes(12e-3, yaw_mrad * 1e-3)[2], atol=1e-3)
+    if abs(yaw_mrad) > 1000:          # along the IMU's own x axis there is no straight driving at all
+        assert estimate_travel_pitch(poses) is None

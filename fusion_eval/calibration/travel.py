@@ -53,9 +53,11 @@ class TravelEstimate:
                 "seconds": self.seconds, "method": self.method}
 
 
-def estimate_travel_pitch(poses: PoseSeries) -> TravelEstimate | None:
+def estimate_travel_pitch(poses: PoseSeries, yaw_rad: float = 0.0) -> TravelEstimate | None:
     """The pitch of the direction of travel in the IMU frame from IMU poses (the lidar-derived ones, or an
-    estimate's), or None when the drive holds too little straight driving (under :data:`MIN_STRETCHES` s)."""
+    estimate's), or None when the drive holds too little straight driving (under :data:`MIN_STRETCHES` s).
+    ``yaw_rad``: the direction of travel's yaw from the IMU's x axis (``filter.nhc_travel_yaw_mrad``; an IMU
+    mounted across the car)."""
     t, p, R = poses.t_s, poses.p_w_m, poses.R_wb()
     if t.size < 3:
         return None
@@ -65,7 +67,13 @@ def estimate_travel_pitch(poses: PoseSeries) -> TravelEstimate | None:
     if i.size == 0:
         return None
     d = np.einsum("nji,nj->ni", R[i], p[j] - p[i])                  # increment in the first frame's body axes
+    if yaw_rad:                                                        # ... and in the vehicle's (yawed) axes
+        d = d @ vehicle_axes(0.0, yaw_rad).T
     turn = np.linalg.norm(log_so3(np.einsum("nji,njk->nik", R[i], R[j])), axis=1)
+    # along the axis either way: reversing climbs the same axis, and a yaw given 180 deg off (its sign is not seen
+    # in the IMU's data, fusion_eval.calibration.mount) flips the axis and the pitch together, the constraint's
+    # vertical row staying the same
+    d *= np.sign(d[:, :1])
     ok = (d[:, 0] > MIN_FORWARD_M) & (turn < MAX_TURN_RAD)
     seconds = float(np.sum(np.diff(t)[np.clip(i[ok], 0, t.size - 2)]))
     if seconds < MIN_STRETCHES * WINDOW_S:
@@ -127,7 +135,7 @@ def pitch_from_smoothed_pass(prep, cfg: dict) -> tuple[TravelEstimate | None, st
         # the run's own filter meets the same trouble and says so; this pass only gives up its estimate
         log.info("direction of travel not estimated: the IMU + GNSS pass failed (%s)", e)
         return None, "the smoothed IMU + GNSS pass failed"
-    got = estimate_travel_pitch(out.smoothed.fused)
+    got = estimate_travel_pitch(out.smoothed.fused, cfg["filter"]["nhc_travel_yaw_mrad"] * 1e-3)
     if got is None:
         return None, f"under {MIN_STRETCHES * WINDOW_S:.0f} s of straight driving in the smoothed IMU + GNSS pass"
     why = uncertain(got)

@@ -240,3 +240,65 @@ def check_dataset(imu, streams: dict) -> None:
         check_span(name, s, imu)
         if hasattr(s, "q_wb_xyzw") or name == "gnss":
             check_poses(name, s)
+
+
+MIN_TWIST_SPEED_MPS = 1.0      # slower, a pose's noise over one step is a large part of its differenced velocity
+MAX_TWIST_MISMATCH = 0.3       # median |v - dp/dt| / |dp/dt| beyond this is a convention, not noise
+
+
+def velocity_mismatch(poses) -> str:
+    """Why the velocities a pose stream carries (an Odometry twist, KITTI's vn/ve/vu) are not its positions'
+    rate of change, or '' when they agree (or it has none, or never moves fast enough to tell). ROS's
+    ``nav_msgs/Odometry`` twist is in ``child_frame_id``; written in the parent frame (a common mistake), it is read
+    rotated by the heading, and the filter started with it runs off before any aiding corrects it."""
+    v = getattr(poses, "v_w_mps", None)
+    if v is None or len(poses) < 3:
+        return ""
+    real = ~np.asarray(poses.filled, bool) if getattr(poses, "filled", None) is not None else np.ones(len(poses), bool)
+    t, p, v = np.asarray(poses.t_s)[real], np.asarray(poses.p_w_m)[real], np.asarray(v)[real]
+    if t.size < 3 or np.any(np.diff(t) <= 0):
+        return ""
+    dp = np.gradient(p, t, axis=0)
+    speed = np.linalg.norm(dp, axis=1)
+    moving = speed > MIN_TWIST_SPEED_MPS
+    if moving.sum() < 10:
+        return ""
+    rel = np.linalg.norm(v[moving] - dp[moving], axis=1) / speed[moving]
+    med = float(np.median(rel))
+    if not med > MAX_TWIST_MISMATCH:
+        return ""
+    return (f"{poses.source}: its velocities differ from its positions' rate of change by {med:.0%} of the speed (median "
+            f"over {int(moving.sum())} samples above {MIN_TWIST_SPEED_MPS:g} m/s): a nav_msgs/Odometry twist in the "
+            "parent frame rather than child_frame_id, or its axes or units mixed up; the filter's initial velocity is "
+            "taken from the positions instead")
+
+
+MAX_GNSS_OFFSET_M = 10.0       # a constant offset of the GNSS from the ground truth beyond this is a datum, not noise
+
+
+def gnss_offset(gnss, groundtruth) -> str:
+    """Why the GNSS sits a constant distance from the ground truth (median over the fixes inside the truth's span,
+    per ENU axis, beyond :data:`MAX_GNSS_OFFSET_M` and three times the residuals' spread about it), or ''. The usual
+    cause is a datum: an altitude above mean sea level (NavSatFix's is the ellipsoid's; the geoid lies 20-50 m
+    from it in Europe) against a geodetic origin or ground truth on the ellipsoid; horizontally, another origin."""
+    if gnss is None or groundtruth is None or len(gnss) < 10 or len(groundtruth) < 2:
+        return ""
+    t_gt = np.asarray(groundtruth.t_s)
+    inside = (gnss.t_s >= t_gt[0]) & (gnss.t_s <= t_gt[-1])
+    if getattr(gnss, "filled", None) is not None:
+        inside &= ~np.asarray(gnss.filled, bool)
+    if inside.sum() < 10 or np.any(np.diff(t_gt) <= 0):
+        return ""
+    ref = np.stack([np.interp(gnss.t_s[inside], t_gt, groundtruth.p_w_m[:, i]) for i in range(3)], axis=1)
+    d = gnss.p_w_m[inside] - ref
+    off = np.median(d, axis=0)
+    spread = np.median(np.abs(d - off), axis=0) * 1.4826
+    big = (np.abs(off) > MAX_GNSS_OFFSET_M) & (np.abs(off) > 3.0 * spread)
+    if not big.any():
+        return ""
+    what = ("an altitude above mean sea level against an ellipsoidal origin, or the other way round (the geoid lies "
+            "-100 to +85 m from WGS84's ellipsoid; NavSatFix's altitude is the ellipsoid's)" if big[2] and not big[:2].any()
+            else "another origin or datum than the ground truth's (the manifest's geodetic_origin)")
+    return (f"{gnss.source}: the GNSS sits a constant east, north, up {off[0]:+.1f}, {off[1]:+.1f}, {off[2]:+.1f} m from "
+            f"the ground truth (median over {int(inside.sum())} fixes; their spread about it {spread.max():.1f} m): "
+            f"{what}; the filter, started on the ground truth, is pulled there and every figure carries the offset")

@@ -1,0 +1,62 @@
+"""An IMU mounted across the car (fusion_eval.calibration.mount): seen from the IMU alone, and the non-holonomic
+constraint, which would hold the forward velocity at zero, left out and said."""
+
+from __future__ import annotations
+
+from dataclasses import replace
+
+import numpy as np
+import pytest
+
+import fusion_eval as fe
+from conftest import shared_path
+from fusion_eval import prepare
+from fusion_eval.calibration.mount import across_travel, longitudinal_axis
+from fusion_eval.so3 import matrix_to_quat_xyzw
+
+DRIVES = [("2011_09_30", "2011_09_30_drive_0018_sync"), ("2011_09_30", "2011_09_30_drive_0020_sync"),
+          ("2011_09_30", "2011_09_30_drive_0027_sync"), ("2011_10_03", "2011_10_03_drive_0027_sync")]
+# the IMU's axes in the vehicle's: its x axis along the vehicle's y (a robot's imu_link yawed 90 deg)
+R_VI = np.array([[0.0, -1.0, 0.0], [1.0, 0.0, 0.0], [0.0, 0.0, 1.0]])
+
+
+def _yawed(ds):
+    """The drive as an IMU yawed by 90 deg would have recorded it (and the ground truth of that IMU)."""
+    imu = replace(ds.imu, f_b_mps2=ds.imu.f_b_mps2 @ R_VI, w_b_rps=ds.imu.w_b_rps @ R_VI)
+    gt = replace(ds.groundtruth, q_wb_xyzw=matrix_to_quat_xyzw(ds.groundtruth.R_wb() @ R_VI))
+    return replace(ds, imu=imu, groundtruth=gt)
+
+
+@pytest.mark.parametrize("day,drive", DRIVES, ids=[d[1][17:21] + d[0][5:] for d in DRIVES])
+def test_the_longitudinal_axis_of_every_kitti_drive_is_the_oxts_x_axis_and_a_yawed_imus_is_not(day, drive):
+    ds = fe.load_dataset(shared_path("kitti-raw", day, drive))
+    ax = longitudinal_axis(ds.imu)
+    assert abs(ax.yaw_deg) < 5 and ax.anisotropy > 5 and ax.straight_s > 60, ax
+    assert across_travel(ds.imu, 0.0) == ""
+    turned = longitudinal_axis(_yawed(ds).imu)
+    assert abs(abs(turned.yaw_deg) - 90) < 5, turned
+    assert "looks mounted" in across_travel(_yawed(ds).imu, 0.0)
+    assert across_travel(_yawed(ds).imu, -1570.8) == "" and across_travel(_yawed(ds).imu, 1570.8) == ""
+
+
+def test_a_yawed_imu_on_a_car_runs_without_the_constraint_and_says_so(monkeypatch):
+    ds = fe.load_dataset(shared_path("kitti-raw", *DRIVES[0]))
+    as_is = fe.run(ds).metrics
+    yawed = _yawed(ds)
+    m = fe.run(yawed).metrics
+    pre = m["preprocessing"]
+    assert pre["nhc"].startswith("off: the IMU is not mounted along the direction of travel")
+    assert any("looks mounted 8" in w and "filter.nhc_travel_yaw_mrad" in w for w in pre["data_warnings"])
+    assert "nhc" not in m["nis"]
+    ape = m["estimates"]["fused"]["ape"]["translation_m"]["rmse"]
+    # the same drive without the check: the constraint along the IMU's axes holds the car's forward velocity at zero
+    with monkeypatch.context() as mp:
+        mp.setattr(prepare, "across_travel", lambda imu, yaw: "")
+        wrong = fe.run(yawed).metrics["estimates"]["fused"]["ape"]["translation_m"]["rmse"]
+    assert wrong > 10 * ape and ape < 2.0, (wrong, ape)
+    # the mount's yaw given, either sign: the constraint applies along the vehicle's axes, as on the drive as recorded
+    ref = as_is["estimates"]["fused"]["ape"]["translation_m"]["rmse"]
+    for yaw in (-1570.8, 1570.8):
+        got = fe.run(yawed, overrides={"filter.nhc_travel_yaw_mrad": yaw}).metrics
+        assert got["preprocessing"]["nhc"].startswith("on")
+        assert got["estimates"]["fused"]["ape"]["translation_m"]["rmse"] == pytest.approx(ref, abs=2e-3)

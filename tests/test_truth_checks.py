@@ -1,0 +1,59 @@
+"""Streams that disagree with the ground truth by a convention, not by noise: velocities that are not the positions'
+rate of change (an Odometry twist written in the parent frame, read as nav_msgs/Odometry says, in child_frame_id),
+flagged and the filter started from the positions; a GNSS a constant distance off (an altitude above mean sea level
+against an ellipsoidal origin), flagged."""
+
+from __future__ import annotations
+
+from dataclasses import replace
+
+import numpy as np
+import pytest
+
+import fusion_eval as fe
+from fusion_eval.datasets import plausible
+
+
+def _ape(m: dict) -> float:
+    return m["estimates"]["fused"]["ape"]["translation_m"]["rmse"]
+
+
+def test_a_twist_in_the_parent_frame_is_flagged_and_the_start_takes_the_positions(monkeypatch):
+    drive = fe.load_dataset(None)                # kitti-00: the car is at 7 m/s when the filter starts
+    gt = drive.groundtruth
+    assert plausible.velocity_mismatch(gt) == ""
+    # the reader's R_wb @ twist applied to a twist that was already in the world (parent) frame
+    wrong = replace(drive, groundtruth=replace(gt, v_w_mps=np.einsum("nij,nj->ni", gt.R_wb(), gt.v_w_mps)))
+    why = plausible.velocity_mismatch(wrong.groundtruth)
+    assert "twist in the parent frame rather than child_frame_id" in why and str(gt.source) in why
+    ref = fe.run(drive).metrics
+    m = fe.run(wrong).metrics
+    assert any("twist in the parent frame" in w for w in m["preprocessing"]["data_warnings"])
+    assert "its velocities disagree" in m["preprocessing"]["init_velocity"]
+    assert _ape(m) == pytest.approx(_ape(ref), rel=0.01)
+    with monkeypatch.context() as mp:            # started with the twist as read: 0.867 m against 0.757
+        mp.setattr(plausible, "velocity_mismatch", lambda poses: "")
+        assert _ape(fe.run(wrong).metrics) > 1.08 * _ape(ref)
+
+
+def test_slow_or_still_poses_say_nothing():
+    gt = fe.load_dataset(None).groundtruth
+    still = replace(gt, p_w_m=np.zeros_like(gt.p_w_m), v_w_mps=np.ones_like(gt.v_w_mps))
+    assert plausible.velocity_mismatch(still) == ""
+    assert plausible.velocity_mismatch(replace(gt, v_w_mps=None)) == ""
+
+
+def test_a_gnss_on_another_vertical_datum_is_flagged():
+    drive = fe.load_dataset(None)
+    assert plausible.gnss_offset(drive.gnss, drive.groundtruth) == ""
+    g = drive.gnss
+    msl = replace(drive, gnss=replace(g, p_w_m=g.p_w_m - [0.0, 0.0, 47.9]))     # the geoid's height near Karlsruhe
+    m = fe.run(msl).metrics
+    (w,) = [w for w in m["preprocessing"]["data_warnings"] if "constant" in w]
+    assert "east, north, up +0.0, +0.0, -47.9 m" in w and "above mean sea level" in w
+    east = replace(drive, gnss=replace(g, p_w_m=g.p_w_m + [120.0, 0.0, 0.0]))
+    assert "another origin or datum" in plausible.gnss_offset(east.gnss, east.groundtruth)
+    # noise is no offset: 1 Hz fixes with 30 m of noise about the truth
+    rng = np.random.default_rng(0)
+    noisy = replace(g, p_w_m=g.p_w_m + rng.normal(scale=30.0, size=g.p_w_m.shape))
+    assert plausible.gnss_offset(noisy, drive.groundtruth) == ""
