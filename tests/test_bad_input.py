@@ -650,6 +650,15 @@ def test_a_stream_the_filter_does_not_follow_is_flagged(ds, tmp_path):
     warnings = json.loads((out / "metrics.json").read_text())["preprocessing"]["data_warnings"]
     assert any("median NIS" in w and "does not follow this stream" in w for w in warnings), warnings
     assert "median NIS" in r.stderr and "an accelerometer in g" in (out / "report.md").read_text()
+    # compare said none of it: its table showed the same figures with no word (found by a review with its own bags)
+    r = CliRunner().invoke(main, ["compare", str(ds), "--variants", "eskf,no-nhc", "--out", str(tmp_path / "cmp"),
+                                  "--no-plots"])
+    assert r.exit_code == 0, r.output
+    assert "variant no-nhc: " in r.stderr and "does not follow this stream" in r.stderr
+    got = json.loads((tmp_path / "cmp" / "compare.json").read_text())["warnings"]
+    assert set(got) == {"eskf", "no-nhc"} and any("does not follow this stream" in w for w in got["no-nhc"])
+    md = (tmp_path / "cmp" / "compare.md").read_text()
+    assert "## Warnings" in md and "- **no-nhc**: " in md
 
 
 def test_a_library_message_of_several_lines_is_one_line(tmp_path):

@@ -22,7 +22,7 @@ from ..datasets.tum import format_tum
 from ..errors import ConfigError
 from .. import trials as mc
 from ..evaluation import keys, span
-from ..evaluation.run_metrics import consistency, segments
+from ..evaluation.run_metrics import consistency, inconsistent_streams, segments
 from ..evaluation.trajectory import evaluate, ratio
 from ..filters import observations
 from ..outputs import StagedDir, dataset_roots, default_dir, repeated_path
@@ -51,6 +51,7 @@ class VariantRun:
     ev: object
     runtime_s: float
     ev_smoothed: object = None      # the smoother's estimate, when the variant selects one
+    warnings: tuple[str, ...] = ()  # the data's and the filter's, as a run of this variant reports them
 
 
 def body_velocity(poses: PoseSeries) -> np.ndarray:
@@ -72,11 +73,22 @@ def _replay_all(ds, variants: list[str], cfgs: list[dict], advance=None) -> tupl
         base_prep = base_prep or prep
         with np.errstate(over="ignore", invalid="ignore"):
             filt = replay(prep, settings_for(cfg, prep), imu_only=runs[0].filt.imu_only if runs else None)
-        runs.append(VariantRun(name, cfg, filt, None, time.perf_counter() - t0))
+        runs.append(VariantRun(name, cfg, filt, None, time.perf_counter() - t0, warnings=_warnings(name, prep, filt)))
         log.info("variant %s: filtered in %.2f s", name, runs[-1].runtime_s)
         if advance:
             advance()
     return runs, base_prep
+
+
+def _warnings(name: str, prep, filt) -> tuple[str, ...]:
+    """What ``run`` would warn of for this variant: the prepared data's warnings (already said on stderr by the
+    preparation) and the streams its filter does not follow (said here: an accelerometer in g gave 184 m in the
+    table with no word, where run named four streams)."""
+    misfit = inconsistent_streams({k: {"values": d["nis"], "dof": d["dof"], **({"adapt": d["adapt"]} if "adapt" in d else {})}
+                                   for k, d in filt.nis.items()})
+    for w in misfit:
+        log.warning("variant %s: %s", name, w)
+    return (*prep.applied.get("data_warnings", ()), *misfit)
 
 
 def _same_evaluation(variants: list[str], cfgs: list[dict]) -> None:
@@ -221,9 +233,12 @@ def _compare(dataset_path: Path | None, variants: list[str], variant_dir: Path |
                   "rows": table, "groundtruth_body_velocity_rms_mps": truth_body, "segments": seg}
         if trials_info:
             result["trials"] = trials_info
+        warned = {r.name: list(r.warnings) for r in runs if r.warnings}
+        if warned:
+            result["warnings"] = warned
         out.write_text("compare.json", json.dumps(result, indent=2) + "\n")
         out.write_text("compare.csv", _csv(table, bool(trials_info)))
-        md = (_markdown(ds.name, table, truth_body, make_plots, sp, n_trials)
+        md = (_markdown(ds.name, table, truth_body, make_plots, sp, n_trials, warned)
               + "\n".join(segments_section({"segments": seg})) + "\n")
         out.write_text("compare.md", md)
         out.write_text("compare.tex", _latex(ds.name, table, n_trials))
@@ -312,7 +327,8 @@ def _latex(name: str, rows: list[dict], n_trials: int) -> str:
                           f"fusion-eval compare: {name}")
 
 
-def _markdown(name: str, rows: list[dict], truth_body, plots: bool, sp: dict | None = None, n_trials: int = 1) -> str:
+def _markdown(name: str, rows: list[dict], truth_body, plots: bool, sp: dict | None = None, n_trials: int = 1,
+              warned: dict | None = None) -> str:
     order = [o.name for o in observations.REGISTRY]
     header = ["variant", "estimate", "APE trans RMSE [m]", "APE rot RMSE [deg]", "RPE trans 1 frame [m]", "estimate/lidar",
               "estimate/GNSS", "KITTI drift [%] / [deg/100 m]", "NEES pos in 95 %", "lateral / vertical body velocity RMS [m/s]",
@@ -334,6 +350,8 @@ def _markdown(name: str, rows: list[dict], truth_body, plots: bool, sp: dict | N
         L += [f"Means over {n_trials} Monte-Carlo trials (the seeds of every random element; APE: mean +/- std); the "
               "plots and trajectories are trial 0's, every trial's table is in compare.json.", ""]
     L += ["## Summary against ground truth", ""] + markdown(header, body, align="llrrrrrlllllr")
+    if warned:            # as a run's report says them, per variant: the figures above are suspect where they apply
+        L += ["", "## Warnings", ""] + [f"- **{v}**: {w}." for v, ws in warned.items() for w in ws]
     if truth_body:
         L += ["", f"Ground truth body velocity RMS: lateral {truth_body['lateral']:.3f} m/s, vertical {truth_body['vertical']:.3f} m/s."]
     if plots:
