@@ -681,7 +681,7 @@ def test_a_stamp_beyond_int64_nanoseconds_is_named(tmp_path):
     from fusion_eval.errors import DataFormatError
 
     with pytest.raises(DataFormatError, match=r"imu\.csv:14: .*beyond any date"):
-        load_table(p, "EuRoC IMU CSV", 7, ",", int_first=True)
+        load_table(p, "EuRoC IMU CSV", 7, ",", stamp_col=0)
 
 
 @pytest.mark.parametrize("edit, needle", [(lambda r: "x" + r, "expected a number, got 'x"),
@@ -698,9 +698,9 @@ def test_the_first_data_row_of_a_euroc_csv_is_checked_not_taken_for_a_header(tmp
     rows = [f"{1767225600000000000 + i * 10_000_000},0.1,0.2,0.3,0.0,0.0,9.8" for i in range(20)]
     p.write_text("#timestamp [ns],w_x,w_y,w_z,a_x,a_y,a_z\n" + "\n".join(edit(r) for r in rows) + "\n")
     with pytest.raises(DataFormatError, match=r"imu\.csv:2: .*" + re.escape(needle)):
-        load_table(p, "EuRoC IMU CSV", 7, ",", int_first=True)
+        load_table(p, "EuRoC IMU CSV", 7, ",", stamp_col=0)
     p.write_text("t_ns,w_x,w_y,w_z,a_x,a_y,a_z\n" + "\n".join(rows) + "\n")       # a named header is still one
-    assert load_table(p, "EuRoC IMU CSV", 7, ",", int_first=True)[0].shape == (20, 7)
+    assert load_table(p, "EuRoC IMU CSV", 7, ",", stamp_col=0)[0].shape == (20, 7)
 
 
 @pytest.mark.parametrize("text, delimiter, lines", [

@@ -160,6 +160,34 @@ def test_csv_streams_units_time_units_and_frames(drives, tmp_path):
     assert np.abs(ds.lidar.p_w_m - src.lidar.p_w_m).max() < 1e-9
 
 
+@pytest.mark.parametrize("unit,per_ns", [("ms", 1_000_000), ("us", 1_000)])
+@pytest.mark.parametrize("t_first", [True, False], ids=["t_first", "t_last"])
+def test_csv_stamps_in_decimal_milliseconds_and_microseconds_are_read_exactly(tmp_path, unit, per_ns, t_first):
+    """A 400 Hz logger in ms writes 0, 2.5, 5, 7.5: with t first such a file was refused ('the stamp must be an
+    integer number of nanoseconds'), with t elsewhere its stamps were rounded to whole ms with no word (found by a
+    review with its own CSV logs)."""
+    from fusion_eval.datasets._text import ns_to_s
+
+    n = 40
+    ns = 1_700_000_000_000_000_000 + np.arange(n, dtype=np.int64) * 2_500_000 + 123      # epoch, 2.5 ms apart
+    stamps = [f"{v // per_ns}.{v % per_ns:0{len(str(per_ns)) - 1}d}" for v in ns.tolist()]
+    body = ["0,0,9.8,0,0,0"] * n
+    rows = [f"{t},{b}" if t_first else f"{b},{t}" for t, b in zip(stamps, body)]
+    (tmp_path / "imu.csv").write_text("\n".join(rows) + "\n")
+    cols = ["ax", "ay", "az", "wx", "wy", "wz"]
+    imu = {"format": "csv", "path": "imu.csv", "time_unit": unit, "columns": ["t", *cols] if t_first else [*cols, "t"]}
+    ds = load_dataset(_manifest(tmp_path, {"imu": imu}))
+    assert np.array_equal(ds.imu.t_s, ns_to_s(ns)), (ds.imu.t_s - ns_to_s(ns))
+    assert np.allclose(ds.imu.f_b_mps2[:, 2], 9.8)
+    rows[7] = rows[7].replace(stamps[7], f"{ns[7] / per_ns:.15e}")        # an exponent: read as a float
+    (tmp_path / "imu.csv").write_text("\n".join(rows) + "\n")
+    assert abs(load_dataset(_manifest(tmp_path, {"imu": imu})).imu.t_s[7] - ns_to_s(ns[7:8])[0]) < 1e-6
+    rows[7] = rows[7].replace(f"{ns[7] / per_ns:.15e}", "soon")
+    (tmp_path / "imu.csv").write_text("\n".join(rows) + "\n")
+    with pytest.raises(DataFormatError, match=r"imu.csv:8: .*expected a number, got 'soon'"):
+        load_dataset(_manifest(tmp_path, {"imu": imu}))
+
+
 def test_csv_stream_errors_name_the_file_line_and_expectation(tmp_path):
     (tmp_path / "imu.csv").write_text("t,ax,ay,az,wx,wy,wz\n1,0,0,9.8,0,0,0\n2,0,0,9.8,0,x,0\n")
     imu = {"format": "csv", "path": "imu.csv", "columns": ["t", "ax", "ay", "az", "wx", "wy", "wz"]}

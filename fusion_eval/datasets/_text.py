@@ -154,3 +154,22 @@ def _counts(allowed) -> str:
         return f"{a[0]} to {a[-1]}"
     return " or ".join(map(str, a))
 
+
+
+def decimal_to_ns(text: np.ndarray, per_ns: int) -> tuple[np.ndarray, np.ndarray]:
+    """Integer nanoseconds of decimal stamps written in a unit of ``per_ns`` ns (ms: 10^6, us: 10^3), from their
+    text, exactly (a float's product of epoch milliseconds is off by up to 0.24 us): ``(ns, bad)``, where ``bad``
+    marks entries that are no plain decimal (an exponent, a sign alone, words). Digits finer than a nanosecond are
+    rounded half up."""
+    s = np.char.strip(np.asarray(text, dtype=str))
+    neg = np.char.startswith(s, "-")
+    s = np.where(neg | np.char.startswith(s, "+"), np.char.lstrip(s, "+-"), s)
+    parts = np.char.partition(s, ".")
+    ip, fp = parts[..., 0], parts[..., 2]
+    digits = len(str(per_ns)) - 1                     # fraction digits down to the nanosecond
+    bad = ~((np.char.isdigit(ip) | (ip == "")) & (np.char.isdigit(fp) | (fp == "")) & ((ip != "") | (fp != "")))
+    ip = np.where(bad | (ip == ""), "0", ip)
+    # the fraction to one digit past the nanosecond (a unicode cast to fewer characters truncates), then rounded
+    first = np.char.ljust(np.where(bad, "", fp), digits + 1, "0").astype(f"U{digits + 1}").astype(np.int64)
+    ns = ip.astype(np.int64) * per_ns + first // 10 + (first % 10 >= 5)
+    return np.where(neg, -ns, ns), bad

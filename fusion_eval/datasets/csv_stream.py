@@ -14,8 +14,9 @@ Column names per stream: IMU ``t ax ay az wx wy wz`` (body frame); GNSS ``t lat 
 ``t x y z`` (local ENU metres), and ``std_e std_n std_u`` or ``std`` (1-sigma, m) or the entry's ``std_m``;
 poses (ground truth, lidar) ``t x y z qx qy qz qw`` and optionally ``vx vy vz`` (world frame); odometer ``t v``.
 Leading lines that are not numbers (a header) and ``#`` lines are skipped. Stamps are read exactly: integer
-nanoseconds (``time_unit: ns``) are converted with :func:`_text.ns_to_s`, decimal seconds with Python's parse, so
-the same stamp gives the same float in every layout.
+nanoseconds (``time_unit: ns``), and milliseconds or microseconds with or without decimals (read from their text),
+are converted with :func:`_text.ns_to_s`, decimal seconds with Python's parse, so the same stamp gives the same float
+in every layout.
 """
 
 from __future__ import annotations
@@ -29,7 +30,7 @@ import numpy as np
 from ..errors import ConfigError, DataFormatError
 from ..geo import geodetic_to_enu
 from ..types import GnssSeries, ImuSeries, PoseSeries, SpeedSeries
-from ._text import exact_floats, is_float, ns_to_s, parse_numeric_rows, read_text
+from ._text import decimal_to_ns, exact_floats, is_float, ns_to_s, parse_numeric_rows, read_text
 from .streams import ReadContext
 
 TIME_UNITS = {"s": None, "ms": 1_000_000, "us": 1_000, "ns": 1}     # nanoseconds per unit (None: decimal seconds)
@@ -62,13 +63,14 @@ def _has_number(line: str, delimiter: str | None) -> bool:
     return False
 
 
-def load_table(path: Path, what: str, ncols_min: int, delimiter: str | None = ",", int_first: bool = False,
-               ncols_exact: int | None = None):
+def load_table(path: Path, what: str, ncols_min: int, delimiter: str | None = ",", stamp_col: int | None = None,
+               ncols_exact: int | None = None, per_ns: int = 1):
     """Numeric rows of a delimited text file, skipping a leading header and ``#`` lines.
 
-    Returns ``(rows (N, k) float, first column as int64 or None, 1-based line of each row)``. pandas' C parser
-    reads it (with Python's correctly rounded float parse); anything it cannot read as a clean numeric table is
-    re-read line by line to name the line and what was expected.
+    Returns ``(rows (N, k) float, the stamps of column ``stamp_col`` as int64 nanoseconds or None, 1-based line of
+    each row)``; the stamps are written in a unit of ``per_ns`` ns: integers for ns, decimals read from their
+    text for ms and us. pandas' C parser reads it (with Python's correctly rounded float parse); anything it cannot
+    read as a clean numeric table is re-read line by line to name the line and what was expected.
     """
     import pandas as pd
 
@@ -103,27 +105,43 @@ def load_table(path: Path, what: str, ncols_min: int, delimiter: str | None = ",
     if line_no.size == 0:
         raise DataFormatError(path, None, f"no data rows (expected {what})")
     sep = r"\s+" if delimiter in (None, " ") else delimiter
+
+    def read(dtype):
+        return pd.read_csv(path, header=None, sep=sep, skiprows=skip, engine="c", skip_blank_lines=True,
+                           **exact_floats(), **({} if dtype is None else {"dtype": {stamp_col: dtype}}))
+
+    first_col = None
     try:
-        kw = {"dtype": {0: np.int64}} if int_first else {}
-        df = pd.read_csv(path, header=None, sep=sep, skiprows=skip, engine="c", skip_blank_lines=True,
-                         **exact_floats(), **kw)
-        first_col = df.iloc[:, 0].to_numpy(np.int64) if int_first else None
+        if stamp_col is None or per_ns == 1:
+            df = read(None if stamp_col is None else np.int64)
+            if stamp_col is not None:
+                first_col = df.iloc[:, stamp_col].to_numpy(np.int64)
+        else:
+            # milliseconds or microseconds, whole or decimal (a 400 Hz log: 2.5 ms apart), from their text: pandas'
+            # int64 read of '1700000000000000.123' drops the fraction with no error
+            df = read(str)
+            stamps = df.iloc[:, stamp_col].to_numpy(str)
+            first_col, bad = decimal_to_ns(stamps, per_ns)
+            if bad.any():                   # '1.7e12': a number, though not a plain decimal (words: the slow reader)
+                first_col[bad] = np.round(pd.to_numeric(stamps[bad]).astype(float) * per_ns).astype(np.int64)
+            df[df.columns[stamp_col]] = 0.0
         rows = df.to_numpy(float)
         ok = rows.shape == (line_no.size, rows.shape[1]) and rows.shape[1] >= ncols_min and np.isfinite(rows).all()
-    except (ValueError, TypeError, OverflowError, pd.errors.ParserError):
+    except (ValueError, TypeError, OverflowError, IndexError, pd.errors.ParserError):
         ok = False
     if not ok:                               # name the line: the slow reader raises on the first bad row
         lines = text.splitlines()
         masked = "\n".join("#" if i < head else ln for i, ln in enumerate(lines))
         rows, ln = parse_numeric_rows(path, masked, ncols_exact or tuple(range(ncols_min, 64)), what,
                                       delimiter=None if sep == r"\s+" else sep)
-        if int_first:
-            bad = np.flatnonzero(rows[:, 0] != np.round(rows[:, 0]))
+        if stamp_col is not None:
+            t = rows[:, stamp_col]
+            bad = np.flatnonzero(t != np.round(t)) if per_ns == 1 else np.array([], int)
             if bad.size:
                 raise DataFormatError(path, int(ln[bad[0]]), f"{what}: the stamp must be an integer number of nanoseconds")
-            bad = np.flatnonzero(np.abs(rows[:, 0]) >= 2.0 ** 63)
+            bad = np.flatnonzero(np.abs(t) * per_ns >= 2.0 ** 63)
             if bad.size:
-                raise DataFormatError(path, int(ln[bad[0]]), f"{what}: the stamp {rows[bad[0], 0]:.6g} ns is beyond any "
+                raise DataFormatError(path, int(ln[bad[0]]), f"{what}: the stamp {t[bad[0]] * per_ns:.6g} ns is beyond any "
                                                              "date (int64 nanoseconds end in 2262): a corrupted stamp")
         raise DataFormatError(path, None, f"{what}: rows of unequal length or an empty field")
     return rows, first_col, line_no
@@ -164,17 +182,13 @@ def _table(entry: dict, kind: str, ctx: ReadContext, what: str):
     named = _columns(entry, kind, ctx)
     per_ns = _choice(entry, "time_unit", TIME_UNITS, "s", ctx)
     path = ctx.path(entry)
-    rows, first, lines = load_table(path, f"{what[:-1]}: {' '.join(entry['columns'])})", len(entry["columns"]),
-                                    entry.get("delimiter", ","), int_first=per_ns is not None and named["t"] == 0,
-                                    ncols_exact=len(entry["columns"]))
+    rows, ns, lines = load_table(path, f"{what[:-1]}: {' '.join(entry['columns'])})", len(entry["columns"]),
+                                 entry.get("delimiter", ","), stamp_col=None if per_ns is None else named["t"],
+                                 ncols_exact=len(entry["columns"]), per_ns=per_ns or 1)
     if rows.shape[1] != len(entry["columns"]):
         raise DataFormatError(path, int(lines[0]), f"{what}: expected {len(entry['columns'])} columns (as 'columns' names), "
                                                    f"got {rows.shape[1]}")
-    if per_ns is None:
-        t = rows[:, named["t"]]
-    else:
-        ns = first if first is not None else np.round(rows[:, named["t"]]).astype(np.int64)
-        t = ns_to_s(ns * per_ns)
+    t = rows[:, named["t"]] if per_ns is None else ns_to_s(ns)
     return named, rows, t, lines, str(path)
 
 

@@ -51,7 +51,7 @@ def implicit_streams(folder: Path) -> dict | None:
 
 
 def _rows(path: Path, what: str, ncols: int, exact: bool = False):
-    rows, ns, lines = load_table(path, what, ncols, ",", int_first=True, ncols_exact=ncols if exact else None)
+    rows, ns, lines = load_table(path, what, ncols, ",", stamp_col=0, ncols_exact=ncols if exact else None)
     return rows, ns_to_s(ns), lines
 
 
