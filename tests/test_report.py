@@ -218,3 +218,20 @@ def test_no_verdict_between_errors_under_a_millimetre(tmp_path):
     assert r.exit_code == 0, r.output
     md = (tmp_path / "o" / "report.md").read_text()
     assert "no verdict" in md and "% higher" not in md and "% lower" not in md
+
+
+def test_the_summary_heading_and_captions_name_the_alignment_used(kitti_slice, tmp_path):
+    """'Summary against ground truth (evo, no alignment)' headed se3-aligned figures (found by a new-user review)."""
+    from click.testing import CliRunner
+
+    import fusion_eval as fe
+    from fusion_eval.cli import main
+
+    fe.run(kitti_slice, overrides={"evaluation.alignment": "se3"}).write(tmp_path / "o")
+    assert "## Summary against ground truth (evo, SE(3) alignment (Umeyama))" in (tmp_path / "o" / "report.md").read_text()
+    assert "(evo, SE(3) alignment (Umeyama))." in (tmp_path / "o" / "metrics.tex").read_text()
+    r = CliRunner().invoke(main, ["-q", "compare", str(kitti_slice), "--variants", "eskf", "--set",
+                                  "evaluation.alignment=sim3", "--out", str(tmp_path / "c"), "--no-plots"])
+    assert r.exit_code == 0, r.output
+    assert "(evo, Sim(3) alignment (Umeyama, with scale))" in (tmp_path / "c" / "compare.md").read_text()
+    assert "Sim(3) alignment" in (tmp_path / "c" / "compare.tex").read_text()

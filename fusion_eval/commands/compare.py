@@ -238,10 +238,10 @@ def _compare(dataset_path: Path | None, variants: list[str], variant_dir: Path |
             result["warnings"] = warned
         out.write_text("compare.json", json.dumps(result, indent=2) + "\n")
         out.write_text("compare.csv", _csv(table, bool(trials_info)))
-        md = (_markdown(ds.name, table, truth_body, make_plots, sp, n_trials, warned)
+        md = (_markdown(ds.name, table, truth_body, make_plots, sp, n_trials, warned, ev_cfg["alignment"])
               + "\n".join(segments_section({"segments": seg})) + "\n")
         out.write_text("compare.md", md)
-        out.write_text("compare.tex", _latex(ds.name, table, n_trials))
+        out.write_text("compare.tex", _latex(ds.name, table, n_trials, ev_cfg["alignment"]))
         taken: set = set()
         for r in runs:
             folder = folder_name(r.name, taken)
@@ -313,7 +313,7 @@ def _pct(x) -> str:
     return "" if x is None else f"{x * 100:.1f} %"
 
 
-def _latex(name: str, rows: list[dict], n_trials: int) -> str:
+def _latex(name: str, rows: list[dict], n_trials: int, alignment: str = "none") -> str:
     """``compare.tex``: the accuracy columns of the comparison, booktabs, for a paper."""
     header = ["variant", "estimate", "APE trans RMSE [m]", "APE rot RMSE [deg]", "RPE trans 1 frame [m]",
               "estimate/lidar", "estimate/GNSS"]
@@ -323,12 +323,12 @@ def _latex(name: str, rows: list[dict], n_trials: int) -> str:
              r.get("fused_over_gnss")] for r in rows]
     mean = f", mean over {n_trials} Monte-Carlo trials" if n_trials > 1 else ""
     return latex_document([latex(header, body, align="llrrrrr", caption=f"{name}: filter variants against ground truth "
-                                 f"(evo, no alignment{mean}).", label=f"tab:{name.replace('/', '-')}-compare")],
+                                 f"(evo, {keys.alignment_words(alignment)}{mean}).", label=f"tab:{name.replace('/', '-')}-compare")],
                           f"fusion-eval compare: {name}")
 
 
 def _markdown(name: str, rows: list[dict], truth_body, plots: bool, sp: dict | None = None, n_trials: int = 1,
-              warned: dict | None = None) -> str:
+              warned: dict | None = None, alignment: str = "none") -> str:
     order = [o.name for o in observations.REGISTRY]
     header = ["variant", "estimate", "APE trans RMSE [m]", "APE rot RMSE [deg]", "RPE trans 1 frame [m]", "estimate/lidar",
               "estimate/GNSS", "KITTI drift [%] / [deg/100 m]", "NEES pos in 95 %", "lateral / vertical body velocity RMS [m/s]",
@@ -349,7 +349,7 @@ def _markdown(name: str, rows: list[dict], truth_body, plots: bool, sp: dict | N
     if n_trials > 1:
         L += [f"Means over {n_trials} Monte-Carlo trials (the seeds of every random element; APE: mean +/- std); the "
               "plots and trajectories are trial 0's, every trial's table is in compare.json.", ""]
-    L += ["## Summary against ground truth", ""] + markdown(header, body, align="llrrrrrlllllr")
+    L += [f"## Summary against ground truth (evo, {keys.alignment_words(alignment)})", ""] + markdown(header, body, align="llrrrrrlllllr")
     if warned:            # as a run's report says them, per variant: the figures above are suspect where they apply
         L += ["", "## Warnings", ""] + [f"- **{v}**: {w}." for v, ws in warned.items() for w in ws]
     if truth_body:

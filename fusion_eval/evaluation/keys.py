@@ -25,6 +25,17 @@ DEFAULT_RELATIONS = ("trans_part", "angle_deg")
 DEFAULT_RPE_DELTA_M = 100.0
 
 
+# how each evaluation.alignment reads in a table's heading or caption
+ALIGNMENT_WORDS = {"none": "no alignment", "origin": "aligned at the first pose", "se3": "SE(3) alignment (Umeyama)",
+                   "sim3": "Sim(3) alignment (Umeyama, with scale)", "scale": "scale alignment",
+                   "4dof": "4-DoF alignment (yaw and translation)"}
+
+
+def alignment_words(alignment: str) -> str:
+    """'no alignment', 'SE(3) alignment (Umeyama)', ... for ``evaluation.alignment``."""
+    return ALIGNMENT_WORDS.get(alignment, f"{alignment} alignment")
+
+
 def rpe_distance_group(delta_m: float) -> str:
     """``rpe_100m`` for 100 m: the group of the per-distance RPE."""
     return f"rpe_{float(delta_m):g}m"

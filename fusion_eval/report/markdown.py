@@ -6,6 +6,7 @@ Everything is formatted from numbers the evaluation layer computed; nothing here
 from __future__ import annotations
 
 from .. import yaml_lines
+from ..evaluation import keys
 from ..evaluation.keys import rpe_distance_group
 from ..evaluation.run_metrics import ESTIMATES
 from ..evaluation.span import describe as describe_span
@@ -190,7 +191,8 @@ def metrics_tex(dataset: str, evals: dict, cfg: dict, metrics: dict) -> str:
     from ..tables import latex, latex_document
 
     name = dataset.replace("/", "-")
-    tabs = [latex(*summary_table(evals, cfg), caption=f"{dataset}: APE and RPE against ground truth (evo, no alignment).",
+    tabs = [latex(*summary_table(evals, cfg), caption=f"{dataset}: APE and RPE against ground truth (evo, "
+                  f"{keys.alignment_words(cfg['evaluation']['alignment'])}).",
                   label=f"tab:{name}-metrics")]
     d = drift_table(metrics)
     if d is not None:
@@ -203,7 +205,7 @@ def report_md(dataset: str, config_name: str, evals: dict, ratios: dict, cfg: di
     L = [f"# fusion-eval run: {dataset}", "", header_line(), "", f"Configuration: `{config_name}`; lidar update: "
          f"**{cfg['filter']['lidar_update']}**, GNSS fused: **{'yes' if cfg['filter']['use_gnss'] else 'no'}**, "
          f"bias model: **{cfg['filter']['bias_model']}**.", "",
-         "## Summary against ground truth (evo, no alignment)", ""] + markdown(*summary_table(evals, cfg))
+         f"## Summary against ground truth (evo, {keys.alignment_words(cfg['evaluation']['alignment'])})", ""] + markdown(*summary_table(evals, cfg))
     L += ["", f"RPE over one frame pairs each estimate's consecutive poses at its own rate (the fused estimate and "
           f"dead reckoning at the IMU's, the lidar at its frames'): across estimates of different rates it is not "
           f"like for like; RPE over {cfg['evaluation']['rpe_delta_m']:g} m is."]
