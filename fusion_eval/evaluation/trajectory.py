@@ -289,6 +289,17 @@ def evaluate(reference, estimate, name: str, t_max_diff_s: float,
     applied = (np.eye(3), 1.0)             # the rotation and scale the alignment applied (none: identity)
     if alignment == "4dof":
         est_a, ev.alignment_params, applied = _align_4dof(est_a, ref_a, up_axis, n_to_align)
+    elif alignment == "origin" and not has_orientation:
+        # evo's --align_origin moves the first pose onto the reference's, rotation included: a GNSS track's placeholder
+        # orientation turned kitti-00's by 61 deg (APE 298 m for 2.45); its first position is all it has
+        T = np.eye(4)
+        T[:3, 3] = np.asarray(ref_a.positions_xyz[0]) - np.asarray(est_a.positions_xyz[0])
+        if arrays:
+            est_a = engine.with_poses(est_a, T @ engine.traj_se3(est_a))
+        else:
+            est_a = copy.deepcopy(est_a)
+            est_a.transform(T)
+        ev.alignment_params = {"T": T.tolist(), "note": "position only: aligned at its first position (no rotation)"}
     elif alignment in ("se3", "sim3", "scale", "origin"):
         try:
             est_a, ev.alignment_params, applied = _align(est_a, ref_a, alignment, arrays, n_to_align)
@@ -319,7 +330,8 @@ def evaluate(reference, estimate, name: str, t_max_diff_s: float,
         d = kitti_drift(*calc.se3())
         ev.drift = None if d is None else d.as_dict()
     if not has_orientation:
-        ev.note = "position only: no rotation or relative (RPE) metrics"
+        ev.note = "position only: no rotation or relative (RPE) metrics" + (
+            "; aligned at its first position, not its (placeholder) orientation" if alignment == "origin" else "")
         return _named(ev, ref_name)
     for label, delta, unit in ((keys.RPE_FRAME, 1.0, metrics.Unit.frames),
                                (keys.rpe_distance_group(rpe_delta_m), rpe_delta_m, metrics.Unit.meters)):
