@@ -213,6 +213,7 @@ def prepare(ds: Dataset, cfg: dict) -> Prepared:
     # --- time alignment: the IMU channel lags and the lidar clock offset, given or estimated from the data
     imu_recorded = imu         # as recorded: the lag correction interpolates, which would smooth the noise estimate
     imu, lidar_off, timing_applied = timing.align(ds, cfg, imu, _offset(cfg, ds, "lidar", auto=True))
+    more_warnings += timing_applied.pop("time_warnings", [])
     applied.update(timing_applied)
 
     # --- ground truth: the same clock as its source; filled-in packets are not truth

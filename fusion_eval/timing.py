@@ -26,6 +26,7 @@ MIN_OVERLAP_S = 20.0    # below this, too few turns to find a shift of a few ms
 # and GNSS) on the five drives (kitti-00 KISS-ICP; SiMpLE 00, 05, 06, 07), combined by inverse-variance weights:
 # accel 65.8, 63.9, 66.3, 58.3, 62.0 ms (+/- 2.2, 2.4, 2.8, 4.7, 6.0) -> 64.6; gyro 58.8, 60.0, 59.9, 58.9,
 # 59.3 ms (+/- 0.4, 0.4, 0.5, 1.2, 1.0) -> 59.5 (kitti-00 and SiMpLE 00 share one drive's IMU).
+MAX_LEAD_S = 0.02        # an estimated lag below -20 ms (beyond 3 sigma) is no latency: flagged
 DEVICE_LAGS_S = {"kitti_oxts": {"accel_lag_s": 0.0646, "gyro_lag_s": 0.0595}}
 
 
@@ -74,6 +75,14 @@ def align(ds: Dataset, cfg: dict, imu: ImuSeries, lidar_offset_given) -> tuple[I
                     raise DataRangeError(f"imu.{k}_s=auto comes out at {est[k].value_s:+.3f} s from the data, given the lidar's "
                                          f"time offset of {off:g} s (lidar.time_offset_s or the manifest's); {LAG_NOTE}: "
                                          "that offset is probably wrong")
+                if k in est and est[k].value_s < -MAX_LEAD_S and est[k].value_s + 3 * (est[k].std_s or 0.0) < 0:
+                    # a channel cannot report a rate before it happens: the estimate took up an error of the lidar
+                    # offset given (0.3 s once became a gyro lag of -241 ms and a fused APE of 2.0 m with no word)
+                    applied.setdefault("time_warnings", []).append(
+                        f"imu.{k}_s=auto comes out at {est[k].value_s * 1e3:+.0f} +/- {(est[k].std_s or 0.0) * 1e3:.0f} ms: the IMU "
+                        f"would report its {'rates' if k == 'gyro_lag' else 'accelerations'} before they happen; the "
+                        f"lidar's time offset of {off:g} s (lidar.time_offset_s or the manifest's) is the likely error "
+                        "(try lidar.time_offset_s=auto with the lag given)")
             for k, v in est.items():
                 log.info("%s estimated from the data: %.1f +/- %.1f ms", k.replace("_", " "), v.value_s * 1e3, v.std_s * 1e3)
         else:

@@ -247,6 +247,8 @@ def test_failed_run_leaves_no_parent_folders(ds, tmp_path):
     (2, "1e12", "altitude 1000000000000.0 m is outside [-1000, 100000]"),          # once a hang in pymap3d
     (17, "1000000.0", "angular rate"),                                              # wx: 1e6 rad/s
     (11, "-50000", "acceleration"),
+    (5, "-123.4", "yaw -123.4 rad is outside +/-3.142 rad (an angle in degrees?)"),     # 46.6 m with exit 0 once
+    (4, "1.7", "pitch 1.7 rad is outside +/-1.571 rad"),
 ])
 def test_implausible_oxts_values(ds, tmp_path, field, value, needle):
     p = ds / "oxts" / "data" / "0000000031.txt"

@@ -137,3 +137,16 @@ def test_an_imu_without_regular_intervals_names_the_stream_and_the_settings():
     with pytest.raises(DataRangeError, match=r"drive.bag \(topic /imu\): too few regularly spaced samples .*give "
                                              r"imu.accel_noise_mps2_sqrthz and imu.gyro_noise_dps_sqrthz"):
         white_noise_density(t, np.zeros((t.size, 3)), "drive.bag (topic /imu)")
+
+
+def test_a_negative_auto_lag_is_flagged_as_the_lidar_offsets_error():
+    """A wrong lidar time offset given (0.3 s) became an auto gyro lag of -241 ms, applied, with a fused APE of
+    2.0 m and no word (found by a corrupted-input review): a lag cannot lead its stamp, so that is a data warning."""
+    import fusion_eval as fe
+
+    ds = fe.load_dataset(None)
+    ok = fe.run(ds).metrics["preprocessing"]
+    assert not any("comes out at" in w for w in ok.get("data_warnings", ()))
+    m = fe.run(ds, overrides={"lidar.time_offset_s": 0.3}).metrics["preprocessing"]
+    (w,) = [w for w in m["data_warnings"] if "comes out at" in w]
+    assert "imu.gyro_lag_s=auto comes out at -24" in w and "time offset of 0.3 s" in w

@@ -240,6 +240,14 @@ def _check_plausible(values: np.ndarray, locate) -> None:
             v = values[bad[0], cols]
             raise DataFormatError(f, ln, f"OXTS {name} {v.tolist()} {unit} exceeds {lim:g} {unit} (no vehicle IMU measures "
                                          "that: a corrupted packet)")
+    # the attitude in radians within its range (yaw in degrees ran to a fused APE of 46.6 m with exit 0: the ground
+    # truth's heading, and so the start and the lidar's anchoring, turned by up to 180 rad)
+    for name, col, lim in (("roll", ROLL, np.pi), ("pitch", PITCH, np.pi / 2), ("yaw", YAW, np.pi)):
+        bad = np.flatnonzero(np.abs(values[:, col]) > lim + 1e-6)
+        if bad.size:
+            f, ln = locate(int(bad[0]))
+            raise DataFormatError(f, ln, f"OXTS {name} {values[bad[0], col]:g} rad is outside +/-{lim:.4g} rad (an angle in "
+                                         "degrees?)")
 
 
 def imu_from_oxts(pk: OxtsPackets) -> ImuSeries:
