@@ -75,7 +75,8 @@ CORE: dict[str, Spec] = {
     "imu.gyro_noise_scale": S(1.0, "factor on the gyroscope white noise (given or estimated)", positive=True),
     "imu.accel_bias_rw_mps3_sqrthz": S(1e-4, "accelerometer bias random walk, m/s^3/sqrt(Hz)", nonneg=True),
     "imu.gyro_bias_rw_dps2_sqrthz": S(1e-5, "gyroscope bias random walk, deg/s^2/sqrt(Hz)", nonneg=True),
-    "imu.gap_factor": S(1.5, "an IMU interval longer than gap_factor x the median interval is a gap", positive=True),
+    "imu.gap_factor": S(1.5, "an IMU interval longer than gap_factor x the median interval is a gap (above 1: at 1 or "
+                             "below every interval is one)", above=1.0),
     "imu.gap_noise_scale": S(10.0, "process noise std multiplier on intervals that are gaps", positive=True),
     "lidar.time_offset_s": S(None, "added to lidar stamps; 'auto' = estimated from the data (accelerometer vs lidar "
                                    "acceleration; not together with imu.accel_lag_s=auto); null = the manifest's value "
@@ -222,6 +223,8 @@ def _checked(key: str, spec: Spec, value: Any, where: str) -> Any:
     v = _number(key, value, where, positive=spec.positive, nonneg=spec.nonneg)
     if spec.below is not None and not v < spec.below:
         raise ConfigError(f"{where}: {key} must be < {spec.below:g}, got {value!r}")
+    if spec.above is not None and not v > spec.above:
+        raise ConfigError(f"{where}: {key} must be > {spec.above:g}, got {value!r}")
     return v
 
 
@@ -291,6 +294,8 @@ def validate(body: Any, where: str, schema_: dict[str, Spec] | None = None, info
             if key not in schema_:
                 known = ", ".join(k.split(".")[1] for k in schema_ if k.startswith(sect + "."))
                 raise ConfigError(f"{at}: unknown key {key!r} (known in {sect}: {known})")
+            if name in getattr(keys, "empty", ()):     # 'rate_hz:' with nothing after it: null, by YAML's rule
+                raise ConfigError(f"{at}: {key} has no value (write null for null)")
             out.setdefault(sect, {})[name] = check_value(key, schema_[key], value, at)
     return Layer(out, where)
 
@@ -330,6 +335,8 @@ def parse_sets(sets: tuple[str, ...], schema_: dict[str, Spec] | None = None) ->
         if not sep or "." not in key:
             raise ConfigError(f"--set {item!r}: expected section.key=value, e.g. imu.gyro_noise_dps_sqrthz=0.05")
         shown = item if len(item) <= 200 else item[:200] + f"... ({len(item):,} characters)"
+        if not raw.strip():      # YAML reads nothing as null: an empty shell variable kept every GNSS fix, with no word
+            raise ConfigError(f"--set {shown!r}: no value (write {key}=null for null)")
         try:
             value = yaml_lines.load(raw)       # as a file's values: YAML 1.2 floats, no 1.1 octal or base-60
         except yaml.YAMLError as exc:

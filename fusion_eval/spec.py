@@ -14,7 +14,7 @@ class Spec(NamedTuple):
 
     ``kind``: ``choice`` (one of ``choices``), ``bool``, ``int``, ``float``, ``vec3`` (3 numbers, or one
     number for all three), ``windows`` (list of ``[start, end]``), ``jumps``. ``auto`` admits the string
-    'auto', ``nullable`` admits null; ``positive``/``nonneg``/``below`` bound numbers (``below``: strictly less).
+    'auto', ``nullable`` admits null; ``positive``/``nonneg``/``below``/``above`` bound numbers (strictly).
     """
 
     default: Any
@@ -26,6 +26,7 @@ class Spec(NamedTuple):
     nullable: bool = False
     auto: bool = False
     below: float | None = None
+    above: float | None = None
 
 
 def S(default, doc, kind=None, *, below_one: bool = False, **kw) -> Spec:

@@ -21,6 +21,7 @@ class LineDict(dict):
         super().__init__(*args, **kwargs)
         self.line: int | None = None
         self.lines: dict = {}
+        self.empty: set = set()                  # keys written with no value at all (YAML's null, rarely meant)
 
 
 # libyaml's parser and emitter where PyYAML was built with it (the wheels are): the same documents and the same
@@ -40,10 +41,12 @@ def _mapping(loader: _Loader, node: yaml.MappingNode):
     _refuse_repeated_keys(loader, node)
     loader.flatten_mapping(node)                 # merge keys (<<) first, as construct_mapping does
     data.update(loader.construct_mapping(node))
-    for key_node, _ in node.value:
+    for key_node, value_node in node.value:
         try:
             key = loader.construct_object(key_node)
             data.lines[key] = key_node.start_mark.line + 1    # the last one wins, as for the value
+            if isinstance(value_node, yaml.ScalarNode) and value_node.value == "" and not value_node.style:
+                data.empty.add(key)
         except TypeError:                        # an unhashable key: construct_mapping has already refused it
             pass
 

@@ -38,6 +38,10 @@ def test_set_overrides_yaml_and_parses_values(tmp_path):
     ("gnss.outages_s=[[5, 1]]", "end > start"),
     ("filter.use_gnss=maybe", "true or false"),
     ("novalue", "section.key=value"),
+    # an empty value was null: an empty shell variable kept every GNSS fix (found by a corrupted-input review)
+    ("gnss.rate_hz=", r"no value \(write gnss.rate_hz=null for null\)"),
+    ("gnss.rate_hz=  ", "no value"),
+    ("imu.gap_factor=0.5", "must be > 1"),      # every IMU step a gap, 10x the process noise, no word
 ])
 def test_invalid_settings_are_rejected_with_the_key(item, msg):
     with pytest.raises(ConfigError, match=msg):
@@ -137,3 +141,11 @@ def test_a_key_given_twice_or_a_yaml_11_oddity_is_refused_with_its_line(tmp_path
     assert yaml_lines.load("settings:\n  01: {a: 1}\n  02: {a: 2}\n") == {"settings": {"01": {"a": 1}, "02": {"a": 2}}}
     with pytest.raises(Exception, match="key 'true' given twice .*as '1', the same key once read"):
         yaml_lines.load("a:\n  1: x\n  true: y\n")
+
+
+def test_a_key_with_no_value_in_a_file_is_refused_with_its_line(tmp_path):
+    (tmp_path / "c.yaml").write_text("gnss:\n  rate_hz:\n")
+    with pytest.raises(ConfigError, match=r"c.yaml:2: gnss.rate_hz has no value \(write null for null\)"):
+        load_config(tmp_path / "c.yaml")
+    (tmp_path / "c.yaml").write_text("gnss:\n  rate_hz: null\n")
+    assert load_config(tmp_path / "c.yaml")["gnss"]["rate_hz"] is None
