@@ -351,6 +351,9 @@ def prepare(ds: Dataset, cfg: dict) -> Prepared:
             v0 = _velocity_from_positions(gt, t0)
             applied["init_velocity"] = "the ground truth's positions differenced (it has no velocity)"
     x0 = NominalState(p_w_m=np.array(p0), v_w_mps=np.array(v0), R_wb=np.array(R0), ba_b=np.zeros(3), bg_b=np.zeros(3))
+    tilted = plausible.gravity_against_attitude(imu, k0, R0)
+    if tilted:
+        more_warnings = [*more_warnings, tilted]
 
     # --- the enabled observations' own streams: offset, filled packets, the run's span, degradation
     extra: dict = {}

@@ -130,17 +130,21 @@ def check_divergence(out: FilterOutput) -> None:
     if len(bad):
         raise FilterDivergedError(f"filter diverged at t={out.fused.t_s[bad[0]]:.3f} s: the position/attitude covariance is "
                                   "non-finite or has a negative variance")
+    tails = {}
     for name, d in out.nis.items():
         nis = np.asarray(d["nis"], float)
-        if nis.size < MIN_UPDATES_FOR_NIS:
-            continue
-        tail = nis[-max(MIN_UPDATES_FOR_NIS, nis.size // 4):]
-        med = float(np.median(tail))
+        if nis.size >= MIN_UPDATES_FOR_NIS:
+            tail = nis[-max(MIN_UPDATES_FOR_NIS, nis.size // 4):]
+            tails[name] = (tail, float(np.median(tail)), d)
+    for name, (tail, med, d) in tails.items():
         if not np.isfinite(med) or med > NIS_DIVERGED_PER_DOF * d["dof"]:
+            others = ", ".join(f"{k} {m / e['dof']:.3g}x" for k, (_, m, e) in tails.items() if k != name)
             raise FilterDivergedError(
                 f"filter diverged: the {name} innovations are {med / d['dof']:.3g} times their predicted variance over the "
-                f"last {tail.size} updates (median NIS {med:.3g} for {d['dof']} dof, from t={d['t_s'][-tail.size]:.3f} s); "
-                "the filter trusts its prediction far more than the data (process noise or initial uncertainty too small?)")
+                f"last {tail.size} updates (median NIS {med:.3g} for {d['dof']} dof, from t={d['t_s'][-tail.size]:.3f} s"
+                + (f"; the other streams: {others}" if others else "") + "); the filter trusts its prediction far "
+                "more than the data: a stream in another frame or unit than the IMU's (an IMU mounted rotated without its "
+                "extrinsic, NED for ENU, km/h, g), or process noise or initial uncertainty too small")
 
 
 def _replay_python(kf, bound, times, which, index, order, smoother, it, tol, progress) -> dict:

@@ -57,3 +57,31 @@ def test_a_gnss_on_another_vertical_datum_is_flagged():
     rng = np.random.default_rng(0)
     noisy = replace(g, p_w_m=g.p_w_m + rng.normal(scale=30.0, size=g.p_w_m.shape))
     assert plausible.gnss_offset(noisy, drive.groundtruth) == ""
+
+
+def test_an_imu_upside_down_against_the_initial_attitude_is_flagged(caplog):
+    """An IMU rolled 180 deg against the ground truth's frame (its extrinsic not declared) diverged with a hint at
+    the process noise only (found by a review with its own bags): the specific force at the start points down in
+    the attitude the filter starts with, which is said, and the divergence names frames and units too."""
+    from fusion_eval.errors import FilterDivergedError
+    from fusion_eval.so3 import exp_so3
+
+    drive = fe.load_dataset(None)
+    R = exp_so3(np.array([np.pi, 0.0, 0.0]))                     # the IMU's axes: x forward, y right, z down
+    imu = replace(drive.imu, f_b_mps2=drive.imu.f_b_mps2 @ R, w_b_rps=drive.imu.w_b_rps @ R)
+    k0 = int(np.searchsorted(drive.imu.t_s, drive.groundtruth.t_s[0]))
+    assert plausible.gravity_against_attitude(drive.imu, k0, drive.groundtruth.R_wb()[0]) == ""
+    why = plausible.gravity_against_attitude(imu, k0, drive.groundtruth.R_wb()[0])
+    assert "points 1" in why and "different frames" in why
+    # the lag's search against the lidar fails first: its error names the axes as well as the clocks
+    from fusion_eval.errors import DataRangeError
+
+    with pytest.raises(DataRangeError, match="or do not share axes"):
+        fe.run(replace(drive, imu=imu))
+    with caplog.at_level("WARNING"):
+        try:
+            m = fe.run(replace(drive, imu=imu), overrides={"imu.gyro_lag_s": 0.06}).metrics
+            assert any("different frames" in w for w in m["preprocessing"]["data_warnings"])
+        except FilterDivergedError as exc:
+            assert "a stream in another frame or unit than the IMU's" in str(exc)
+    assert "different frames" in caplog.text

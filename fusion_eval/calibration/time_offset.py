@@ -307,7 +307,9 @@ def measure_shifts(imu: ImuSeries, lidar: PoseSeries, max_shift_s: float = MAX_S
         if np.isfinite(v) and abs(v) >= max_shift_s - 2 * GRID_S:
             raise DataRangeError(f"the {name} of {imu.source} matches the lidar of {lidar.source} best at the end of the "
                                  f"searched range (+/-{max_shift_s * 1000:.0f} ms): the streams do not share one clock "
-                                 "to within that; set the offsets by hand")
+                                 "to within that, or do not share axes (the IMU's frame not the one the lidar's "
+                                 "extrinsic assumes: an IMU mounted rotated, FRD for FLU, a transform transposed); "
+                                 "set the offsets by hand to see which")
     return Shifts(acc, rt, acc_loo, rate_loo, max(n_a, n_r))
 
 

@@ -302,3 +302,29 @@ def gnss_offset(gnss, groundtruth) -> str:
     return (f"{gnss.source}: the GNSS sits a constant east, north, up {off[0]:+.1f}, {off[1]:+.1f}, {off[2]:+.1f} m from "
             f"the ground truth (median over {int(inside.sum())} fixes; their spread about it {spread.max():.1f} m): "
             f"{what}; the filter, started on the ground truth, is pulled there and every figure carries the offset")
+
+
+MAX_TILT_DEG = 30.0       # the specific force's angle from up at the start: a car's acceleration tilts it by under 20 deg
+
+
+def gravity_against_attitude(imu, k0: int, R_wb0: np.ndarray, window_s: float = 1.0) -> str:
+    """Why the IMU's specific force at the start disagrees with the initial attitude (from the ground truth or the
+    lidar), or ''. Over the first second it points up, give or take the vehicle's acceleration; pointing elsewhere
+    in the attitude the filter starts with, the IMU and that attitude are in different frames (an IMU mounted upside
+    down or rotated without its extrinsic, a ground truth in NED), and the filter diverges or drifts with a hint at
+    its noise."""
+    t = np.asarray(imu.t_s)
+    k1 = int(np.searchsorted(t, t[k0] + window_s))
+    if k1 - k0 < 2:
+        return ""
+    f = np.asarray(imu.f_b_mps2[k0:k1]).mean(axis=0)
+    up = np.asarray(R_wb0) @ f
+    n = float(np.linalg.norm(up))
+    if not n > 1.0:                                    # gravity-free data: imu_units says so
+        return ""
+    tilt = float(np.degrees(np.arccos(np.clip(up[2] / n, -1.0, 1.0))))
+    if tilt <= MAX_TILT_DEG:
+        return ""
+    return (f"{imu.source}: over the first second the IMU's specific force points {tilt:.0f} deg from up in the initial "
+            "attitude (the ground truth's or the lidar's, z up): the IMU and that attitude are in different frames (an "
+            "IMU mounted rotated or upside down without its extrinsic, a ground truth in NED rather than ENU)")
