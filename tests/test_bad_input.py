@@ -51,7 +51,8 @@ def test_missing_dataset(tmp_path):
 def test_missing_file(ds, tmp_path):
     (ds / "lidar" / "poses.txt").unlink()
     r, out = _run(ds, tmp_path)
-    _assert_clean_error(r, out, "poses.txt", "file not found")
+    # named with the manifest's line (a missing oxts folder read 'expected a KITTI raw drive folder')
+    _assert_clean_error(r, out, "dataset.yaml:", "stream 'lidar': path 'lidar/poses.txt' does not exist")
 
 
 def test_wrong_column_count(ds, tmp_path):

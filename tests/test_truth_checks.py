@@ -85,3 +85,28 @@ def test_an_imu_upside_down_against_the_initial_attitude_is_flagged(caplog):
         except FilterDivergedError as exc:
             assert "a stream in another frame or unit than the IMU's" in str(exc)
     assert "different frames" in caplog.text
+
+
+def test_a_pose_stream_in_a_sensor_frame_keeps_its_velocity_moved_to_the_imu():
+    """A ground truth given in its own frame (frame: base_link with T_imu_base_link) lost its twist: the filter
+    started from the positions and the report said it had none (found by a review with its own bags)."""
+    from pathlib import Path
+
+    from fusion_eval.datasets.manifest import _in_imu_frame
+    from fusion_eval.so3 import exp_so3, matrix_to_quat_xyzw
+    from fusion_eval.types import PoseSeries
+
+    t = np.arange(0.0, 20.0, 0.01)
+    yaw = 0.2 * t
+    p = np.stack([10 * np.sin(yaw), 10 * (1 - np.cos(yaw)), 0 * t], axis=1)       # 2 m/s on a 10 m circle
+    v = np.stack([2 * np.cos(yaw), 2 * np.sin(yaw), 0 * t], axis=1)
+    q = matrix_to_quat_xyzw(np.stack([exp_so3(np.array([0, 0, y])) for y in yaw]))
+    base = PoseSeries(t_s=t, p_w_m=p, q_wb_xyzw=q, v_w_mps=v)
+    T_imu_base = np.eye(4)
+    T_imu_base[:3, 3] = [-1.2, 0.4, -0.3]                # the IMU 1.2 m ahead of base_link: it moves faster outside
+    imu = _in_imu_frame(base, {"frame": "base_link", "T_imu_base_link": T_imu_base[:3].ravel().tolist()}, Path("."),
+                        Path("dataset.yaml"))
+    assert imu.v_w_mps is not None
+    k = slice(5, -5)
+    np.testing.assert_allclose(imu.v_w_mps[k], np.gradient(imu.p_w_m, t, axis=0)[k], atol=1e-4)
+    assert plausible.velocity_mismatch(imu) == ""

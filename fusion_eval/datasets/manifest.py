@@ -148,6 +148,11 @@ def _from_manifest_dict(body: dict, root: Path, manifest: Path, extra: dict | No
                               f"set frame: {extr[0][6:]} (the poses are of that sensor)")
         if not isinstance(spec.get("path"), str) or not spec["path"]:
             raise ConfigError(f"{at(manifest, spec, 'path')}: stream {name!r} needs a 'path' (a file or folder name)")
+        if not (root / spec["path"]).exists():
+            # named with the manifest's line: a reader's 'expected a KITTI raw drive folder' read as if the folder
+            # held the wrong files (a shipped manifest's ../shared paths, run from an installed copy)
+            raise ConfigError(f"{at(manifest, spec, 'path')}: stream {name!r}: path {spec['path']!r} does not exist "
+                              f"(looked for {root / spec['path']})")
         if fmt != "kitti_poses" and "times" in spec:
             raise ConfigError(f"{at(manifest, spec, 'times')}: 'times' applies to kitti_poses streams only (stream {name!r} is {fmt}: "
                               "its file has its own timestamps)")
@@ -341,5 +346,12 @@ def _in_imu_frame(poses: PoseSeries, spec: dict, root: Path, manifest: Path) -> 
     if np.allclose(T_c_b, np.eye(4)):
         return poses
     T_b = make_T(poses.R_wb(), poses.p_w_m) @ T_c_b[None]
-    return PoseSeries(t_s=poses.t_s, p_w_m=T_b[:, :3, 3], q_wb_xyzw=matrix_to_quat_xyzw(T_b[:, :3, :3]),
+    v_w = None
+    if poses.v_w_mps is not None:
+        # the IMU point's velocity: the sensor's plus the lever arm's turn, d/dt (R_wc t_cb) (was dropped: the
+        # filter then started from the positions and the report said the stream had no velocity)
+        arm_w = np.einsum("nij,j->ni", poses.R_wb(), T_c_b[:3, 3])
+        turn = np.gradient(arm_w, poses.t_s, axis=0) if len(poses) > 1 and np.all(np.diff(poses.t_s) > 0) else 0.0
+        v_w = poses.v_w_mps + turn
+    return PoseSeries(t_s=poses.t_s, p_w_m=T_b[:, :3, 3], q_wb_xyzw=matrix_to_quat_xyzw(T_b[:, :3, :3]), v_w_mps=v_w,
                       source=poses.source, lines=poses.lines)
