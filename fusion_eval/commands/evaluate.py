@@ -107,6 +107,15 @@ def run_evaluate(inputs: list, out_dir: Path, ref_times: Path | None = None, tim
         m["estimates"][name]["note"] = (f"position only (one and the same orientation on every pose, while the reference "
                                         f"turns by up to {turns[name]:.0f} deg: placeholders): no rotation, relative (RPE) "
                                         "or KITTI drift metric")
+    if alignment == "none":              # bag topics in other frames, compared as they are (317 m with exit 0 once)
+        for name, f in zip(series, est_fs):
+            a, b = (x.strip("/") if x else None for x in (f.frame_id, ref_f.frame_id))
+            if a and b and a != b:
+                why = (f"its poses are in frame '{a}', the reference's in '{b}': without an alignment (--alignment se3, "
+                       "or origin) their positions are compared across two frames")
+                log.warning("%s: %s", name, why)
+                e = m["estimates"][name]
+                e["note"] = f"{e['note']}; {why}" if e.get("note") else why
     metrics = {"reference": ref_f.source, "reference_format": ref_f.format, "reference_stamps": ref_f.stamps,
                **({"reference_repeated_stamps": ref_f.repeated_stamps} if ref_f.repeated_stamps else {}), **m}
     with staged as out:
