@@ -401,3 +401,22 @@ def test_check_refuses_a_trials_section_it_cannot_read(tmp_path, trials):
     r = CliRunner().invoke(main, ["check", str(cur), "--baseline", str(base)])
     assert r.exit_code == 2 and "its 'trials' is not the trials section" in r.stderr and "Traceback" not in r.output
     assert CliRunner().invoke(main, ["check", str(cur), "--baseline", str(base), "--trial-stat", "none"]).exit_code == 0
+
+
+def test_a_sweeps_warnings_name_their_run_and_setting(tmp_path):
+    """Warnings of a sweep's runs went to stderr with no setting, and sweep.md had none (found by a new-user
+    review): each names its run and setting now, and sweep.md lists them by setting."""
+    sw = tmp_path / "sweep.yaml"
+    sw.write_text("variants: [eskf]\nsettings:\n  frozen: {imu.gyro_noise_dps_sqrthz: 1.0e-9, "
+                  "imu.accel_noise_mps2_sqrthz: 1.0e-9}\n")
+    out = tmp_path / "s"
+    drive = Path(__file__).resolve().parents[1] / "data" / "kitti-00"       # long enough for the NIS to tell
+    r = CliRunner().invoke(main, ["sweep", str(drive), "--grid", str(sw), "--out", str(out), "--jobs", "1", "--no-plots"])
+    assert r.exit_code == 0, r.output
+    assert _rows(out)["frozen"]["status"] == "ok", _rows(out)["frozen"]
+    said = [ln for ln in r.stderr.splitlines() if "does not follow this stream" in ln]
+    assert said and all(re.search(r"warning: run \w+ \(.*kitti-00, eskf, frozen\): ", ln) for ln in said), said
+    assert "noise settings far below the data's" in said[0]
+    md = (out / "sweep.md").read_text()
+    assert "## Warnings" in md and re.search(r"- `.*kitti-00` eskf / frozen: .*does not follow this stream", md)
+    assert "eskf / default:" not in md

@@ -49,6 +49,7 @@ from .. import resources, session, yaml_lines
 from .. import trials as mc
 from ..config import check_value, read_yaml, schema
 from ..errors import ConfigError, FilterDivergedError, FusionEvalError
+from ..log_context import prefixed
 from ..batch import FILTER_ONLY_KEYS, batch_key  # noqa: F401 - FILTER_ONLY_KEYS: part of this module's API
 from ..outputs import dataset_roots, resumable_dir
 from ..variants import resolve_variant
@@ -296,8 +297,9 @@ def _record(task: Task, work: Callable, extra_s: float = 0.0) -> dict:
     t0 = time.perf_counter()
     rec = {"id": task.id, "dataset": task.dataset, "variant": task.variant, "setting": task.setting,
            "overrides": task.overrides, "trial": task.trial}
+    label = f"run {task.id} ({task.dataset}, {task.variant}, {task.setting}" + (f", trial {task.trial})" if task.trial else ")")
     try:
-        with np.errstate(all="ignore"):
+        with np.errstate(all="ignore"), prefixed(label):
             res = work()
         rec.update(status="ok", error=None, metrics=res.metrics)
     except FilterDivergedError as exc:     # its own status: a setting that makes the filter diverge is a finding

@@ -173,6 +173,10 @@ def write_summary(tasks: list[Task], out_dir: Path, keys: list[str], plots: bool
                                                [[r["dataset"], r["variant"], r["setting"], r["error"]] for r in bad],
                                                align="llll")
             L.append("")
+    warned = _warnings(tasks, out_dir)
+    if warned:            # each run's report has them; here they say which setting raised which
+        L += ["## Warnings", "", "As each run's report gives them (the data's, and the streams its filter did not "
+              "follow: with a swept noise setting, often the setting's doing):", ""] + warned + [""]
     best = None
     if ranked:
         (bv, bs), bm = ranked[0]
@@ -195,6 +199,29 @@ def write_summary(tasks: list[Task], out_dir: Path, keys: list[str], plots: bool
     atomic_write(out_dir / "sweep.md", md)
     atomic_write(out_dir / "report.html", html.page(md, out_dir, inputs=dataset_files(t.dataset for t in tasks)))
     return {"rows": rows, "best": best, "plots": written}
+
+
+def _warnings(tasks: list[Task], out_dir: Path) -> list[str]:
+    """One line per warning of a finished run, naming the run's dataset, variant, setting (and trial); a warning of
+    the data that every run of a dataset gives is listed once, for the dataset."""
+    recs = read_records(out_dir)
+    per_run: list[tuple[Task, list[str]]] = []
+    seen = set()
+    for t in tasks:
+        r = recs.get(t.id)
+        if r is None or t.id in seen or r.get("status") != "ok":
+            continue
+        seen.add(t.id)
+        per_run.append((t, list(((r.get("metrics") or {}).get("preprocessing") or {}).get("data_warnings") or [])))
+    out = []
+    for ds in dict.fromkeys(t.dataset for t, _ in per_run):
+        runs = [(t, ws) for t, ws in per_run if t.dataset == ds]
+        common = set.intersection(*(set(ws) for _, ws in runs)) if runs else set()
+        out += [f"- `{ds}` (every run): {w}" for w in sorted(common)]
+        for t, ws in runs:
+            trial = f", trial {t.trial}" if t.trial else ""
+            out += [f"- `{ds}` {t.variant} / {t.setting}{trial}: {w}" for w in ws if w not in common]
+    return out
 
 
 def default_values(tasks: list[Task], out_dir: Path, keys: list[str]) -> dict[tuple[str, str], dict]:

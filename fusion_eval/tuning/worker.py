@@ -15,6 +15,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from ..log_context import prefixed
 from .objectives import Objective, flatten
 
 # Pruning reports. Each (drive, seed) step reports the objective's running mean at its end; where the objective is
@@ -150,7 +151,8 @@ def score(job: Job) -> dict:
     for i, (path, seed) in enumerate(pairs):
         before = [s["values"][0] for s in steps]
         watch = _NllWatch(weight, before, i, thresholds) if weight is not None else None
-        st = _step(job, path, seed, watch)
+        with prefixed(f"trial {job.number} ({path}" + (f", seed {seed})" if job.seeds > 1 else ")")):
+            st = _step(job, path, seed, watch)
         steps.append(st)
         if st["status"] != "ok":
             return {"number": job.number, "status": st["status"], "error": st["error"], "steps": steps, "values": None}
