@@ -90,6 +90,26 @@ def files(named: list[tuple[str, str | Path]]) -> list[dict]:
     return list(seen.values())
 
 
+def fingerprint(description: dict) -> str:
+    """A cheap digest of a dataset's input files as they are now: each file's name, size and modification time
+    (no content read), for the folders the manifest names, every file under them. A sweep's run id folds it in,
+    so that a sweep resumed after the data changed runs again rather than keeping the old figures."""
+    base = Path(description.get("path") or ".")
+    base = base.parent if base.is_file() else base
+    h = hashlib.sha256()
+    man = description.get("path")
+    paths = sorted({*(str(p) for entry in (description.get("streams") or {}).values() for p in _paths(entry, base)),
+                    *([str(man)] if man and Path(man).is_file() else [])})
+    for p in map(Path, paths):
+        for f in (sorted(x for x in p.rglob("*") if x.is_file()) if p.is_dir() else [p]):
+            try:
+                st = f.stat()
+            except OSError:
+                continue
+            h.update(f"{f}\0{st.st_size}\0{st.st_mtime_ns}\n".encode())
+    return h.hexdigest()[:16]
+
+
 def input_files(description: dict) -> list[dict]:
     """The input files a dataset's manifest names (its ``streams``, relative to its ``path``), as :func:`files`."""
     base = Path(description.get("path") or ".")

@@ -420,3 +420,33 @@ def test_a_sweeps_warnings_name_their_run_and_setting(tmp_path):
     md = (out / "sweep.md").read_text()
     assert "## Warnings" in md and re.search(r"- `.*kitti-00` eskf / frozen: .*does not follow this stream", md)
     assert "eskf / default:" not in md
+
+
+def test_a_sweep_resumed_after_its_data_changed_runs_again(small, tmp_path):
+    """The run id hashed the dataset's path and the configuration only: a sweep resumed after the lidar poses were
+    corrupted kept the old figures ('2 already recorded'; found by a corrupted-input review)."""
+    import shutil
+
+    drive = tmp_path / "d"
+    shutil.copytree(small, drive)
+    sw = tmp_path / "sweep.yaml"
+    sw.write_text("variants: [eskf]\nsettings:\n  a: {imu.gyro_noise_dps_sqrthz: 0.05}\n")
+    out = tmp_path / "s"
+    args = ["sweep", str(drive), "--grid", str(sw), "--out", str(out), "--jobs", "1", "--no-plots"]
+    r = CliRunner().invoke(main, args)
+    assert r.exit_code == 0, r.output
+    first = _rows(out)
+    r = CliRunner().invoke(main, args)
+    assert "2 already recorded" in r.output
+    poses = drive / "lidar" / "poses.txt"
+    lines = poses.read_text().splitlines()
+    v = lines[50].split()
+    v[3] = f"{float(v[3]) + 5.0:.6f}"                      # one pose 5 m off
+    lines[50] = " ".join(v)
+    poses.write_text("\n".join(lines) + "\n")
+    r = CliRunner().invoke(main, args)
+    assert r.exit_code == 0, r.output
+    assert "0 already recorded" in r.output
+    again = _rows(out)
+    assert {k: v["id"] for k, v in again.items()}.keys() == first.keys()
+    assert all(again[k]["id"] != first[k]["id"] for k in first)

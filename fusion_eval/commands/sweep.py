@@ -52,6 +52,7 @@ from ..errors import ConfigError, FilterDivergedError, FusionEvalError
 from ..log_context import prefixed
 from ..batch import FILTER_ONLY_KEYS, batch_key  # noqa: F401 - FILTER_ONLY_KEYS: part of this module's API
 from ..outputs import dataset_roots, resumable_dir
+from ..provenance import fingerprint
 from ..variants import resolve_variant
 
 log = logging.getLogger(__name__)
@@ -228,13 +229,14 @@ def plan(sweep_path: Path, datasets: list[str], out_dir: Path, variant_dir: Path
     for ds_path in paths:
         ds = session.dataset(ds_path)
         ds_abs = str(Path(ds_path).resolve())
+        data = fingerprint(ds.description)      # the files as they are: changed data is not a recorded run
         for v in variants:
             for name, ov in settings:
                 cfg0 = session.resolve(session.request(config=base, variant=vpaths[v], overrides=ov), ds)
                 for i in range(n_trials):
                     ov_i = {**ov, **mc.trial_overrides(cfg0, i)} if i else ov
                     cfg = mc.apply(cfg0, i)
-                    key = json.dumps({"dataset": ds_abs, "config": cfg}, sort_keys=True)
+                    key = json.dumps({"dataset": ds_abs, "data": data, "config": cfg}, sort_keys=True)
                     rid = hashlib.sha256(key.encode()).hexdigest()[:12]
                     tasks.append(Task(rid, ds_abs, v, vpaths[v], name, ov_i, base, bool(body.get("plots", False)), out_root,
                                       i, batch_key(ds_abs, cfg)))
