@@ -11,7 +11,7 @@ import numpy as np
 import pytest
 from click.testing import CliRunner
 
-from conftest import make_slice
+from conftest import make_slice, shared_path
 from fusion_eval.cli import main
 
 
@@ -634,6 +634,19 @@ def test_evaluate_says_when_the_stamps_differ_by_a_unit(tmp_path):
     out = tmp_path / "o"
     r = CliRunner().invoke(main, ["evaluate", str(ref), str(ns), "-o", str(out)])
     _assert_clean_error(r, out, "0 poses of", "the estimate's stamps are 1e+9 times the reference's: in another unit?")
+
+
+def test_evaluate_says_the_unit_before_an_alignment_fails_on_it(tmp_path):
+    """KITTI times in ms with --alignment se3: the 2 poses the mistake matched failed the alignment, and the error
+    said 'choose another --alignment' (found by a corrupted-input review)."""
+    gt, est, t = (shared_path("evo-test-data", f) for f in ("KITTI_00_gt.txt", "KITTI_00_ORB.txt", "KITTI_00_gt_times.txt"))
+    ms = tmp_path / "times_ms.txt"
+    ms.write_text("".join(f"{float(x) * 1000:.3f}\n" for x in t.read_text().split()))
+    out = tmp_path / "o"
+    r = CliRunner().invoke(main, ["evaluate", str(gt), str(est), "--ref-times", str(t), "--times", str(ms),
+                                  "--alignment", "se3", "-o", str(out), "--no-plots"])
+    _assert_clean_error(r, out, "KITTI_00_ORB.txt", "time span is 1e+3 times the reference's: in another unit?")
+    assert "--alignment" not in r.stderr
 
 
 def test_a_stream_the_filter_does_not_follow_is_flagged(ds, tmp_path):

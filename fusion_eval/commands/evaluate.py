@@ -97,11 +97,21 @@ def run_evaluate(inputs: list, out_dir: Path, ref_times: Path | None = None, tim
             covs[name] = (f.cov_t_s, f.cov)
     turns = {name: _orientation_placeholder(f, ref_f) for name, f in zip(series, est_fs)}
     fixed = frozenset(name for name, turn in turns.items() if turn is not None)
-    m, evals = evaluate_series(ref_f.traj, series, association, alignment, t_max_diff_s, rpe_delta_m, segment_m,
-                               segment_s, about, ref_stamps=ref_f.stamps, engine=engine, relations=relations,
-                               up_axis=up_axis, n_to_align=n_to_align, t_offset_s=t_offset_s, covariances=covs,
-                               position_only=fixed,
-                               ref_name=ref_topic if bag is not None else Path(ref_f.source).name)
+    try:
+        m, evals = evaluate_series(ref_f.traj, series, association, alignment, t_max_diff_s, rpe_delta_m, segment_m,
+                                   segment_s, about, ref_stamps=ref_f.stamps, engine=engine, relations=relations,
+                                   up_axis=up_axis, n_to_align=n_to_align, t_offset_s=t_offset_s, covariances=covs,
+                                   position_only=fixed,
+                                   ref_name=ref_topic if bag is not None else Path(ref_f.source).name)
+    except DataRangeError:
+        # an alignment that failed on the 2 poses a stamp unit mistake matched: the unit is the news, not the
+        # alignment ('choose another --alignment' for a times file in ms)
+        for f in est_fs:
+            if _unit_power(ref_f, f):
+                raise DataRangeError(f"{_span(f)} against the reference {_span(ref_f)}: {_unit_hint(ref_f, f).rstrip()} "
+                                     f"(its stamps scaled by 1e{-3 * _unit_power(ref_f, f):+d} would cover the "
+                                     "reference's; give them in seconds)") from None
+        raise
     _refuse_unmatched(ref_f, est_fs, evals, association, t_max_diff_s)
     for name in fixed:                   # why, in the report too (it was on stderr only)
         m["estimates"][name]["note"] = (f"position only (one and the same orientation on every pose, while the reference "
