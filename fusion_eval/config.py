@@ -303,6 +303,8 @@ def validate(body: Any, where: str, schema_: dict[str, Spec] | None = None, info
 def read_yaml(path: Path, what: str = "config file") -> Any:
     """A YAML file's content; a missing file or bad YAML is a one-line error naming the file (and line)."""
     path = Path(path)
+    if path.is_dir():
+        raise ConfigError(f"{path}: is a folder; expected a YAML {what}")
     if not path.is_file():
         raise ConfigError(f"{path}: {what} not found")
     try:

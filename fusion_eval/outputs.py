@@ -63,7 +63,7 @@ def default_dir(base: Path):
             except FileExistsError:
                 k += 1
     except OSError as exc:
-        raise OutputError(f"{base}: cannot create output directory ({exc.strerror or exc})") from None
+        raise OutputError(f"{base}: cannot create output directory ({_why(base, exc)})") from None
 
     def discard() -> None:
         for p in [d, *made]:             # only empty folders: a finished command's output is never removed
@@ -122,7 +122,15 @@ def resumable_dir(out: Path, markers: tuple[str, ...], what: str, inputs=()) -> 
     try:
         out.mkdir(parents=True, exist_ok=True)
     except OSError as exc:
-        raise OutputError(f"{out}: cannot create output directory ({exc.strerror})") from None
+        raise OutputError(f"{out}: cannot create output directory ({_why(out, exc)})") from None
+
+
+def _why(path: Path, exc: OSError) -> str:
+    """The OS's reason, or which part of the path is a file where a folder is due ('File exists' said nothing)."""
+    for parent in Path(path).parents:
+        if parent.exists():
+            return exc.strerror or str(exc) if parent.is_dir() else f"{parent} is a file, not a folder"
+    return exc.strerror or str(exc)
 
 
 def _foreign(folder: Path, markers: tuple[str, ...]) -> bool:
@@ -205,7 +213,7 @@ class StagedDir:
             self.staging.mkdir()
             self._abort_token = interrupts.on_abort(self._abandon)
         except OSError as exc:
-            raise OutputError(f"{self.final}: cannot create output directory ({exc.strerror})") from None
+            raise OutputError(f"{self.final}: cannot create output directory ({_why(self.final, exc)})") from None
         return self
 
     def path(self, name: str) -> Path:

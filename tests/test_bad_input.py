@@ -1031,3 +1031,12 @@ def test_a_gnss_fix_kilometres_off_is_flagged_whatever_the_platform():
                                 None, MAX_ANY_SPEED_MPS)
     assert len(w) == 1 and "faster than 300 m/s for any platform (none declared)" in w[0]
     assert "(topic /gps/fix, message 151)" in w[0]
+
+
+def test_an_output_under_a_file_and_a_config_that_is_a_folder_say_so(tmp_path):
+    """'--out afile/sub' said 'File exists' and '-c SOMEDIR' 'config file not found' (a corrupted-input review)."""
+    (tmp_path / "afile").write_text("x")
+    r = CliRunner().invoke(main, ["-q", "run", "--out", str(tmp_path / "afile" / "sub"), "--no-plots"])
+    assert r.exit_code != 0 and f"{tmp_path / 'afile'} is a file, not a folder" in r.stderr
+    r = CliRunner().invoke(main, ["-q", "run", "-c", str(tmp_path), "--out", str(tmp_path / "o"), "--no-plots"])
+    assert r.exit_code == 2 and "is a folder; expected a YAML config file" in r.stderr
