@@ -18,7 +18,7 @@ from .datasets import plausible
 from .calibration import imu_noise
 from .config import Settings
 from .calibration.extrinsic import apply_extrinsic, estimate_extrinsic
-from .calibration.mount import across_travel
+from .calibration.mount import HINT as MOUNT_HINT, across_travel
 from .calibration.travel import MIN_STRETCHES, estimate_travel_pitch, pitch_from_smoothed_pass, uncertain
 from .degrade import degrade_gnss
 from .errors import ConfigError, DataRangeError
@@ -382,10 +382,16 @@ def prepare(ds: Dataset, cfg: dict) -> Prepared:
                           f"to {GRAVITY_RANGE_MPS2[1]:g} m/s^2; 'auto' takes WGS84's at the geodetic origin)")
     applied["gravity_mps2"] = float(g)
     applied["t_start_s"] = t0
-    across = across_travel(imu.select(imu.t_s >= t0), cfg["filter"]["nhc_travel_yaw_mrad"]) if cfg["filter"]["nhc"] else ""
-    if across:            # the constraint would hold the forward velocity at zero: left out, and said
-        resolved.setdefault("filter", {})["nhc"] = False
-        more_warnings = [*more_warnings, across]
+    f = cfg["filter"]
+    along = [w for w, on in (("non-holonomic constraint", f["nhc"]), ("odometer", f.get("odometer_update"))) if on]
+    across = across_travel(imu.select(imu.t_s >= t0), f["nhc_travel_yaw_mrad"]) if along else ""
+    if across:
+        if f["nhc"]:      # it would hold the forward velocity at zero: left out
+            resolved.setdefault("filter", {})["nhc"] = False
+            across += "; the non-holonomic constraint is left out"
+        if f.get("odometer_update"):      # fused as configured (a process model may rest on it), but said
+            across += "; the odometer's speed is fused along that direction as configured"
+        more_warnings = [*more_warnings, f"{across}: {MOUNT_HINT}"]
     _say_models(cfg, ds, applied, across)
     _flag_data(ds, applied, more_warnings)
     prep = Prepared(imu=imu, groundtruth=gt, gnss=gnss, lidar=lidar, k_start=k0, x0=x0, gravity_mps2=float(g),

@@ -72,7 +72,9 @@ def across_travel(imu: ImuSeries, travel_yaw_mrad: float) -> str:
         return ""
     return (f"{imu.source}: while driving straight the IMU's specific force varies most along an axis {ax.yaw_deg:+.0f} deg "
             f"from its x axis ({ax.anisotropy:.0f}x the variance across it, over {ax.straight_s:.0f} s): the IMU looks "
-            f"mounted {abs(off):.0f} deg from the direction of travel the non-holonomic constraint assumes "
-            f"(filter.nhc_travel_yaw_mrad={travel_yaw_mrad:g}), so it is left out: give the mount's yaw as "
-            f"filter.nhc_travel_yaw_mrad (from the mount's drawing or its tf_static; this axis is only good to a few "
-            f"degrees, and its sign is not seen), or set filter.nhc=false")
+            f"mounted {abs(off):.0f} deg from the direction of travel configured (filter.nhc_travel_yaw_mrad="
+            f"{travel_yaw_mrad:g})")
+
+
+HINT = ("give the mount's yaw as filter.nhc_travel_yaw_mrad (from the mount's drawing or its tf_static; this axis is "
+        "only good to a few degrees, and its sign is not seen)")

@@ -58,7 +58,9 @@ class NonHolonomic(Observation):
                                                   "else from a smoothed IMU + GNSS pass; null (or no estimate) = the "
                                                   "vertical row is left out", "float", auto=True, nullable=True),
         "filter.nhc_travel_yaw_mrad": S(0.0, "yaw of the direction of travel to the left of the IMU's x axis, mrad (not "
-                                             "estimated: the lidar's increments carry its own mount's yaw error)"),
+                                             "estimated: the lidar's increments carry its own mount's yaw error); the "
+                                             "odometer's speed update is along it too (the odometer + gyro process model "
+                                             "drives along the IMU's x axis)"),
     }
 
     def resolve_for(self, cfg: dict, description: dict) -> None:

@@ -8,6 +8,7 @@ import numpy as np
 from numba import njit
 
 from ...spec import S
+from ...calibration.travel import vehicle_axes
 from .base import BODY_VELOCITY_ROW, IDENTITY_AXES, Bound, Kernel, Observation, body_velocity_rows, kernel_model, rows_inside
 
 
@@ -38,8 +39,12 @@ class Odometer(Observation):
         n = rows.size
         v = np.zeros((n, 3))
         v[:, 0] = odo.v_mps[rows]                     # forward
+        # along the vehicle's forward axis: the IMU's x axis, or turned by the direction of travel's yaw where the
+        # IMU is mounted yawed on the vehicle (filter.nhc_travel_yaw_mrad, which the constraint shares)
+        yaw = s.filter.nhc_travel_yaw_mrad * 1e-3
+        axes = IDENTITY_AXES if yaw == 0.0 else vehicle_axes(0.0, yaw).ravel()
         data = BODY_VELOCITY_ROW.columns(v=v, std=np.full((n, 3), s.odometer.speed_std_mps),
-                                         used=np.tile([1.0, 0.0, 0.0], (n, 1)), axes=np.tile(IDENTITY_AXES, (n, 1)))
+                                         used=np.tile([1.0, 0.0, 0.0], (n, 1)), axes=np.tile(axes, (n, 1)))
 
         def model(j):
             return partial(kernel_model, odometer_kernel, row=data[j])
