@@ -1040,3 +1040,24 @@ def test_an_output_under_a_file_and_a_config_that_is_a_folder_say_so(tmp_path):
     assert r.exit_code != 0 and f"{tmp_path / 'afile'} is a file, not a folder" in r.stderr
     r = CliRunner().invoke(main, ["-q", "run", "-c", str(tmp_path), "--out", str(tmp_path / "o"), "--no-plots"])
     assert r.exit_code == 2 and "is a folder; expected a YAML config file" in r.stderr
+
+
+def test_evaluate_flags_positions_in_mm_and_quaternions_in_wxyz_order(tmp_path):
+    """fr2/desk ORB in mm gave 1758 m with se3 alignment, its quaternions in w x y z order a 149 deg rotation error
+    beside 8 mm, both with exit 0 and no word (found by a corrupted-input review); the as-written file says nothing."""
+    import json
+
+    gt, orb = shared_path("evo-test-data", "fr2_desk_groundtruth.txt"), shared_path("evo-test-data", "fr2_desk_ORB.txt")
+    rows = [ln.split() for ln in orb.read_text().splitlines() if ln.strip() and not ln.startswith("#")]
+    (tmp_path / "mm.txt").write_text("".join(f"{r[0]} {float(r[1]) * 1e3:.6f} {float(r[2]) * 1e3:.6f} "
+                                             f"{float(r[3]) * 1e3:.6f} {' '.join(r[4:8])}\n" for r in rows))
+    (tmp_path / "wxyz.txt").write_text("".join(f"{' '.join(r[:4])} {r[7]} {' '.join(r[4:7])}\n" for r in rows))
+    out = tmp_path / "o"
+    r = CliRunner().invoke(main, ["evaluate", str(gt), str(orb), str(tmp_path / "mm.txt"), str(tmp_path / "wxyz.txt"),
+                                  "--alignment", "se3", "--no-plots", "-o", str(out)])
+    assert r.exit_code == 0, r.output
+    est = json.loads((out / "metrics.json").read_text())["estimates"]
+    assert "positions in another unit (mm for m?)" in est["mm"]["note"]
+    assert "written w x y z where the format wants x y z w?" in est["wxyz"]["note"]
+    assert not est["fr2_desk_ORB"].get("note")
+    assert "mm: its path is" in r.stderr and "wxyz: its body-frame turns" in r.stderr

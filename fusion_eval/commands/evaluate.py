@@ -117,6 +117,11 @@ def run_evaluate(inputs: list, out_dir: Path, ref_times: Path | None = None, tim
         m["estimates"][name]["note"] = (f"position only (one and the same orientation on every pose, while the reference "
                                         f"turns by up to {turns[name]:.0f} deg: placeholders): no rotation, relative (RPE) "
                                         "or KITTI drift metric")
+    for name, f in zip(series, est_fs):
+        for why in convention_hints(f, ref_f, alignment):
+            log.warning("%s: %s", name, why)
+            e = m["estimates"][name]
+            e["note"] = f"{e['note']}; {why}" if e.get("note") else why
     if alignment == "none":              # bag topics in other frames, compared as they are (317 m with exit 0 once)
         for name, f in zip(series, est_fs):
             a, b = (x.strip("/") if x else None for x in (f.frame_id, ref_f.frame_id))
@@ -180,6 +185,59 @@ def _orientation_placeholder(f, ref_f) -> float | None:
     log.warning("%s: every pose has the same orientation while the reference turns by up to %.0f deg: evaluated as "
                 "position only (APE translation; no rotation, RPE or KITTI drift metric)", f.source, turn_deg)
     return turn_deg
+
+
+def _body_turns(q_wxyz: np.ndarray, step: int) -> np.ndarray:
+    """Rotation vectors of the orientation's increments over ``step`` poses, in the body frame (rad)."""
+    from ..so3 import log_so3, quat_xyzw_to_matrix
+
+    R = quat_xyzw_to_matrix(np.asarray(q_wxyz, float)[:, [1, 2, 3, 0]]).reshape(-1, 3, 3)
+    return log_so3(np.einsum("nji,njk->nik", R[:-step:step], R[step::step]))
+
+
+def _misfit(a: np.ndarray, b: np.ndarray) -> float:
+    """How far body-frame turns ``b`` are from ``a`` under the best constant rotation (a mount): the residual's RMS
+    over ``a``'s (Kabsch's fit)."""
+    U, _, Vt = np.linalg.svd(b.T @ a)
+    D = np.diag([1.0, 1.0, np.sign(np.linalg.det(U @ Vt))])
+    R = Vt.T @ D @ U.T
+    return float(np.sqrt(np.mean(np.sum((a - b @ R.T) ** 2, axis=1)) / max(np.mean(np.sum(a ** 2, axis=1)), 1e-300)))
+
+
+def convention_hints(f, ref_f, alignment: str) -> list[str]:
+    """Mistakes of convention that read as plausible numbers: positions 1000^k times the reference's (mm for m:
+    1758 m of APE on a desk-sized track once, with se3 alignment), and quaternions written w x y z where the format
+    wants x y z w (a 149 deg rotation error beside a translation error of millimetres). Each is a sentence for a
+    warning and the report; the figures are left as they are."""
+    out = []
+    t, tr = np.asarray(f.traj.timestamps, float), np.asarray(ref_f.traj.timestamps, float)
+    if t.size < 3 or tr.size < 3:
+        return out
+    j = np.clip(np.searchsorted(tr, t), 1, tr.size - 1)
+    j -= (np.abs(tr[j - 1] - t) < np.abs(tr[j] - t))          # the reference's nearest pose to each estimated one
+    if alignment not in ("sim3", "scale"):
+        le = float(np.sum(np.linalg.norm(np.diff(f.traj.positions_xyz, axis=0), axis=1)))
+        lr = float(np.sum(np.linalg.norm(np.diff(ref_f.traj.positions_xyz[j], axis=0), axis=1)))
+        if le > 0 and lr > 0:
+            k = np.log10(le / lr) / 3
+            if round(k) != 0 and abs(k - round(k)) < 0.1:
+                out.append(f"its path is {le / lr:.4g} times the reference's over the same stamps: positions in another "
+                           f"unit ({'mm' if round(k) == 1 else 'km' if round(k) == -1 else f'1e{3 * round(k):+d}'} for m?)")
+    q = np.asarray(f.traj.orientations_quat_wxyz, float)
+    step = max(1, int(round(0.5 / max(float(np.median(np.diff(t))), 1e-9))))   # turns over about half a second
+    if not np.all(q == q[0]) and t.size > 4 * step:
+        a = _body_turns(np.asarray(ref_f.traj.orientations_quat_wxyz, float)[j], step)
+        near = np.abs(tr[j] - t) < 0.02                           # both ends matched (a gap in the reference: not)
+        turning = (np.linalg.norm(a, axis=1) > np.radians(1.0)) & near[:-step:step] & near[step::step]
+        if turning.sum() >= 10:
+            # a file's w x y z read as x y z w: evo's (w, x, y, z) is the file's (z, w, x, y)
+            as_read = _misfit(a[turning], _body_turns(q, step)[turning])
+            swapped = _misfit(a[turning], _body_turns(q[:, [1, 2, 3, 0]], step)[turning])
+            if as_read > 0.5 and swapped < 0.25 * as_read:
+                out.append(f"its body-frame turns match the reference's to {as_read:.0%} of their size under any mount "
+                           f"rotation, to {swapped:.0%} with its quaternions read in the other order: written w x y z "
+                           "where the format wants x y z w?")
+    return out
 
 
 def _aligned(series, ev):
