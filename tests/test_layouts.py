@@ -254,9 +254,7 @@ def test_the_readmes_manifests(drives):
 ], ids=["empty-delimiter", "repeated-column"])
 def test_a_csv_entry_that_cannot_be_read_is_named_with_its_line(drives, tmp_path, edit, needle):
     man = yaml.safe_load((drives["csv_log"] / "dataset.yaml").read_text())
-    for f in drives["csv_log"].iterdir():
-        if f.is_file() and f.name != "dataset.yaml":
-            shutil.copy(f, tmp_path / f.name)
+    shutil.copytree(drives["csv_log"], tmp_path, dirs_exist_ok=True)      # every stream's file is there
     edit(man["streams"]["imu"])
     (tmp_path / "dataset.yaml").write_text(yaml.safe_dump(man, sort_keys=False))
     with pytest.raises(ConfigError, match=r"dataset\.yaml:\d+: " + re.escape(needle)):
