@@ -112,8 +112,8 @@ def _velocity_from_positions(poses, t0: float, half_window_s: float = 0.1) -> np
 def _flag_data(ds: Dataset, applied: dict, more: list[str] = ()) -> None:
     """What the data hold that no plausibility bound refuses but that makes the figures suspect, said on stderr and
     in the report: the IMU stopping for seconds (in its stamps, or once its filled-in packets are dropped), a wheeled
-    vehicle's streams jumping faster than it can drive, the GNSS a constant distance off the ground truth (a datum),
-    and what the preparation found (``more``)."""
+    vehicle's streams jumping faster than it can drive, and what the preparation found (``more``: the GNSS a constant
+    distance off the ground truth, a datum, among them)."""
     from .filters.observations.nhc import WHEELED
 
     platform = ds.description.get("platform")
@@ -123,7 +123,6 @@ def _flag_data(ds: Dataset, applied: dict, more: list[str] = ()) -> None:
                                                       platform)
     else:                 # the GNSS of any platform: a fix kilometres off is a glitch (a pose stream's frame may jump)
         warnings += plausible.speed_glitches({"gnss": ds.gnss}, platform, plausible.MAX_ANY_SPEED_MPS)
-    warnings += [w for w in [plausible.gnss_offset(ds.gnss, ds.groundtruth)] if w]
     for w in warnings:
         log.warning("%s", w)
     if warnings:
@@ -272,6 +271,9 @@ def prepare(ds: Dataset, cfg: dict) -> Prepared:
         applied["time_offset_s"]["gnss"] = off
         g = shifted(ds.gnss, off)
         g = g.select(~g.filled)
+        datum = plausible.gnss_offset(g, gt)      # on the stamps as configured (a late receiver is no datum)
+        if datum:
+            more_warnings = [*more_warnings, datum]
         if len(g) and (g.t_s[-1] < t0 or g.t_s[0] > imu.t_s[-1]):
             raise DataRangeError(f"GNSS ({ds.gnss.source}, {g.t_s[0]:.3f}..{g.t_s[-1]:.3f} s after its time_offset_s of "
                                  f"{off:g} s) and IMU ({ds.imu.source}, {t0:.3f}..{imu.t_s[-1]:.3f} s) do not overlap in time")

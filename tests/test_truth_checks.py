@@ -110,3 +110,20 @@ def test_a_pose_stream_in_a_sensor_frame_keeps_its_velocity_moved_to_the_imu():
     k = slice(5, -5)
     np.testing.assert_allclose(imu.v_w_mps[k], np.gradient(imu.p_w_m, t, axis=0)[k], atol=1e-4)
     assert plausible.velocity_mismatch(imu) == ""
+
+
+def test_the_gnss_datum_check_reads_the_stamps_as_configured():
+    """A receiver stamped late, its offset given (gnss.time_offset_s), was compared on its raw stamps and called a
+    datum offset (found by a review of the diff)."""
+    from fusion_eval.simulate.dataset import simulate
+    import tempfile
+    from pathlib import Path
+
+    with tempfile.TemporaryDirectory() as tmp:          # a straight highway at 33 m/s: 0.5 s late is 16 m behind
+        simulate(Path(tmp) / "hw", "highway", 60.0, seed=1, grade="automotive", jobs=1)
+        drive = fe.load_dataset(Path(tmp) / "hw")
+        late = replace(drive, gnss=replace(drive.gnss, t_s=drive.gnss.t_s + 0.5))
+        said = [fe.run(late, overrides=o).metrics["preprocessing"].get("data_warnings", ())
+                for o in ({}, {"gnss.time_offset_s": -0.5})]
+    assert any("sits a constant east" in w for w in said[0])               # uncorrected, it is an offset
+    assert not any("sits a constant" in w for w in said[1])
