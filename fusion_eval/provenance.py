@@ -97,16 +97,19 @@ def fingerprint(description: dict) -> str:
     base = Path(description.get("path") or ".")
     base = base.parent if base.is_file() else base
     h = hashlib.sha256()
+    root = base.resolve()
     man = description.get("path")
     paths = sorted({*(str(p) for entry in (description.get("streams") or {}).values() for p in _paths(entry, base)),
                     *([str(man)] if man and Path(man).is_file() else [])})
-    for p in map(Path, paths):
+    for p in (Path(x).resolve() for x in paths):
         for f in (sorted(x for x in p.rglob("*") if x.is_file()) if p.is_dir() else [p]):
             try:
                 st = f.stat()
             except OSError:
                 continue
-            h.update(f"{f}\0{st.st_size}\0{st.st_mtime_ns}\n".encode())
+            # names relative to the dataset's folder: the same files however the path was written, from anywhere
+            rel = f.relative_to(root) if f.is_relative_to(root) else f
+            h.update(f"{rel}\0{st.st_size}\0{st.st_mtime_ns}\n".encode())
     return h.hexdigest()[:16]
 
 

@@ -450,3 +450,15 @@ def test_a_sweep_resumed_after_its_data_changed_runs_again(small, tmp_path):
     again = _rows(out)
     assert {k: v["id"] for k, v in again.items()}.keys() == first.keys()
     assert all(again[k]["id"] != first[k]["id"] for k in first)
+
+
+def test_the_data_fingerprint_is_the_same_however_the_path_is_written(small, monkeypatch):
+    """It hashed the paths as written: 'data/kitti-00', its absolute path and 'kitti-00' from data/ gave three run
+    ids, so a sweep resumed from elsewhere ran everything again (found by a review of the diff)."""
+    from fusion_eval import session
+    from fusion_eval.provenance import fingerprint
+
+    a = fingerprint(session.dataset(small).description)
+    monkeypatch.chdir(small.parent)
+    assert fingerprint(session.dataset(small.name).description) == a
+    assert fingerprint(session.dataset(Path(small.name) / ".." / small.name).description) == a
