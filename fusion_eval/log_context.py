@@ -13,12 +13,12 @@ def prefixed(label: str) -> Iterator[None]:
     """Warnings (and worse) of fusion-eval's loggers inside the block begin with ``label: ``. The record factory is
     process-wide, as the block is: one run at a time per process (a pool worker's, or the main process's)."""
     old = logging.getLogRecordFactory()
-    tag = label.replace("%", "%%") + ": "
-
     def factory(*args, **kwargs):
         rec = old(*args, **kwargs)
-        if rec.levelno >= logging.WARNING and rec.name.startswith("fusion_eval") and isinstance(rec.msg, str):
-            rec.msg = tag + rec.msg
+        if rec.levelno >= logging.WARNING and rec.name.startswith("fusion_eval"):
+            # the message made now, its arguments spent: a label's '%' stays one (a message without arguments is
+            # not %-formatted, so escaping it showed '%%')
+            rec.msg, rec.args = f"{label}: {rec.getMessage()}", None
         return rec
 
     logging.setLogRecordFactory(factory)

@@ -241,6 +241,15 @@ def test_failed_run_leaves_no_parent_folders(ds, tmp_path):
     assert not (tmp_path / "deep").exists()
 
 
+def test_oxts_angles_written_to_4_decimals_or_as_a_heading_in_0_to_2pi_pass(ds, tmp_path):
+    p = ds / "oxts" / "data" / "0000000031.txt"
+    vals = p.read_text().split()
+    vals[5], vals[3] = "3.1416", "6.0"
+    p.write_text(" ".join(vals) + "\n")
+    r, out = _run(ds, tmp_path)
+    assert r.exit_code == 0, r.output
+
+
 # ---- implausible values: refused with the file, the line, the value and the accepted range (issue 15)
 @pytest.mark.parametrize("field,value,needle", [
     (0, "91.5", "latitude 91.5 deg is outside [-90, 90]"),
@@ -248,7 +257,7 @@ def test_failed_run_leaves_no_parent_folders(ds, tmp_path):
     (2, "1e12", "altitude 1000000000000.0 m is outside [-1000, 100000]"),          # once a hang in pymap3d
     (17, "1000000.0", "angular rate"),                                              # wx: 1e6 rad/s
     (11, "-50000", "acceleration"),
-    (5, "-123.4", "yaw -123.4 rad is outside +/-3.142 rad (an angle in degrees?)"),     # 46.6 m with exit 0 once
+    (5, "-123.4", "yaw -123.4 rad is outside +/-6.283 rad (an angle in degrees?)"),     # 46.6 m with exit 0 once
     (4, "1.7", "pitch 1.7 rad is outside +/-1.571 rad"),
 ])
 def test_implausible_oxts_values(ds, tmp_path, field, value, needle):

@@ -149,3 +149,18 @@ def test_a_key_with_no_value_in_a_file_is_refused_with_its_line(tmp_path):
         load_config(tmp_path / "c.yaml")
     (tmp_path / "c.yaml").write_text("gnss:\n  rate_hz: null\n")
     assert load_config(tmp_path / "c.yaml")["gnss"]["rate_hz"] is None
+
+
+def test_a_run_label_with_a_percent_sign_is_said_as_written(caplog):
+    """The label was %-escaped, and a warning without arguments is not %-formatted: '50%%' came out (a review)."""
+    import logging
+
+    from fusion_eval.log_context import prefixed
+
+    log = logging.getLogger("fusion_eval.test")
+    with caplog.at_level("WARNING"), prefixed("run x (gnss 50% outage)"):
+        log.warning("plain")
+        log.warning("with %s", "args")
+    log.warning("after")
+    assert [r.getMessage() for r in caplog.records] == ["run x (gnss 50% outage): plain",
+                                                        "run x (gnss 50% outage): with args", "after"]

@@ -186,6 +186,12 @@ def test_csv_stamps_in_decimal_milliseconds_and_microseconds_are_read_exactly(tm
     (tmp_path / "imu.csv").write_text("\n".join(rows) + "\n")
     with pytest.raises(DataFormatError, match=r"imu.csv:8: .*expected a number, got 'soon'"):
         load_dataset(_manifest(tmp_path, {"imu": imu}))
+    # an inf or a stamp beyond int64's nanoseconds: named, not wrapped (a review of the diff)
+    for bad, why in (("inf", "values must be finite numbers"), ("99999999999999999", "beyond any date")):
+        rows[7] = ",".join(bad if i == (0 if t_first else 6) else x for i, x in enumerate(rows[7].split(",")))
+        (tmp_path / "imu.csv").write_text("\n".join(rows) + "\n")
+        with pytest.raises(DataFormatError, match=rf"imu.csv:8: .*{why}"):
+            load_dataset(_manifest(tmp_path, {"imu": imu}))
 
 
 def test_csv_stream_errors_name_the_file_line_and_expectation(tmp_path):

@@ -213,6 +213,9 @@ def test_check_matches_a_sweep_csv_made_in_another_folder_by_dataset_name(tmp_pa
     ("variants:\n  - eskf\n  -\n  - nominal\nsettings: {a: {imu.gyro_noise_dps_sqrthz: 0.1}}\n",
      "bad.yaml:1: every entry of 'variants' must be a variant name or YAML path, got None"),
     ("variants: [5]\nsettings: {a: {imu.gyro_noise_dps_sqrthz: 0.1}}\n", "got 5"),
+    # an empty value was null, as in a configuration file once (found by a review of the diff)
+    ("settings:\n  lowrate:\n    gnss.rate_hz:\n", "bad.yaml:3: gnss.rate_hz has no value (write null for null)"),
+    ("settings: {lowrate: {gnss.rate_hz: }}\n", "gnss.rate_hz has no value"),
 ])
 def test_malformed_sweep_files_are_one_line_errors(small, tmp_path, body, needle):
     sw = tmp_path / "bad.yaml"

@@ -139,6 +139,8 @@ def settings_of(body: dict, where: str) -> list[tuple[str, dict]]:
         at = yaml_lines.at(where, mapping, key)            # the line of the key in the sweep file
         if key not in known:
             raise ConfigError(f"{at}: unknown configuration key {key!r} in the sweep")
+        if key in getattr(mapping, "empty", ()):     # 'gnss.rate_hz:' with nothing after it: YAML's null
+            raise ConfigError(f"{at}: {key} has no value (write null for null)")
         return check_value(key, known[key], value, at)
 
     for name, ov in (body.get("settings") or {}).items():

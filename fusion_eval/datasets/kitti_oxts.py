@@ -242,8 +242,10 @@ def _check_plausible(values: np.ndarray, locate) -> None:
                                          "that: a corrupted packet)")
     # the attitude in radians within its range (yaw in degrees ran to a fused APE of 46.6 m with exit 0: the ground
     # truth's heading, and so the start and the lidar's anchoring, turned by up to 180 rad)
-    for name, col, lim in (("roll", ROLL, np.pi), ("pitch", PITCH, np.pi / 2), ("yaw", YAW, np.pi)):
-        bad = np.flatnonzero(np.abs(values[:, col]) > lim + 1e-6)
+    # (2 pi for roll and yaw: a converter's heading in 0..2 pi is an angle in radians; 1e-3 for a value written to 4
+    # decimals, 3.1416)
+    for name, col, lim in (("roll", ROLL, 2 * np.pi), ("pitch", PITCH, np.pi / 2), ("yaw", YAW, 2 * np.pi)):
+        bad = np.flatnonzero(np.abs(values[:, col]) > lim + 1e-3)
         if bad.size:
             f, ln = locate(int(bad[0]))
             raise DataFormatError(f, ln, f"OXTS {name} {values[bad[0], col]:g} rad is outside +/-{lim:.4g} rad (an angle in "
