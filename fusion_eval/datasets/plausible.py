@@ -309,7 +309,8 @@ MAX_TILT_DEG = 30.0       # the specific force's angle from up at the start: a c
 
 def gravity_against_attitude(imu, k0: int, R_wb0: np.ndarray, window_s: float = 1.0) -> str:
     """Why the IMU's specific force at the start disagrees with the initial attitude (from the ground truth or the
-    lidar), or ''. Over the first second it points up, give or take the vehicle's acceleration; pointing elsewhere
+    lidar), or ''. Over the stillest second of the first ten it points up, give or take the vehicle's acceleration;
+    pointing elsewhere
     in the attitude the filter starts with, the IMU and that attitude are in different frames (an IMU mounted upside
     down or rotated without its extrinsic, a ground truth in NED), and the filter diverges or drifts with a hint at
     its noise."""
@@ -317,7 +318,22 @@ def gravity_against_attitude(imu, k0: int, R_wb0: np.ndarray, window_s: float = 
     k1 = int(np.searchsorted(t, t[k0] + window_s))
     if k1 - k0 < 2:
         return ""
-    f = np.asarray(imu.f_b_mps2[k0:k1]).mean(axis=0)
+    # the stillest second of the first ten: the one whose mean specific force is nearest gravity's size (an
+    # acceleration adds to it in quadrature) with the least spread; a drone mid-manoeuvre or a car braking hard at
+    # the start tilts the first second's mean by more than the bound
+    k_end = int(np.searchsorted(t, t[k0] + 10.0))
+    n = k1 - k0
+    f_all = np.asarray(imu.f_b_mps2[k0:max(k_end, k1)], float)
+    if f_all.shape[0] > n:
+        c1 = np.cumsum(np.vstack([np.zeros((1, 3)), f_all]), axis=0)
+        c2 = np.cumsum(np.concatenate([[0.0], np.sum(f_all ** 2, axis=1)]))
+        mean = (c1[n:] - c1[:-n]) / n
+        spread = (c2[n:] - c2[:-n]) / n - np.sum(mean ** 2, axis=1)
+        g = float(np.nanmedian(np.linalg.norm(f_all, axis=1)))
+        score = (np.linalg.norm(mean, axis=1) - g) ** 2 + spread
+        f = mean[int(np.nanargmin(score))] if np.isfinite(score).any() else mean[0]
+    else:
+        f = f_all.mean(axis=0)
     up = np.asarray(R_wb0) @ f
     n = float(np.linalg.norm(up))
     if not n > 1.0:                                    # gravity-free data: imu_units says so
@@ -325,6 +341,6 @@ def gravity_against_attitude(imu, k0: int, R_wb0: np.ndarray, window_s: float = 
     tilt = float(np.degrees(np.arccos(np.clip(up[2] / n, -1.0, 1.0))))
     if tilt <= MAX_TILT_DEG:
         return ""
-    return (f"{imu.source}: over the first second the IMU's specific force points {tilt:.0f} deg from up in the initial "
+    return (f"{imu.source}: at the start the IMU's specific force points {tilt:.0f} deg from up in the initial "
             "attitude (the ground truth's or the lidar's, z up): the IMU and that attitude are in different frames (an "
             "IMU mounted rotated or upside down without its extrinsic, a ground truth in NED rather than ENU)")
