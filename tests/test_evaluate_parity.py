@@ -391,3 +391,18 @@ def test_bag_topics_in_other_frames_without_an_alignment_are_said(tmp_path):
     m = run_evaluate(["ORB-SLAM"], tmp_path / "a", bag=path, ref_topic="groundtruth", alignment="sim3",
                      make_plots=False)
     assert "frame" not in (m["estimates"]["ORB-SLAM"].get("note") or "")
+
+
+def test_two_names_of_one_frame_joined_by_an_identity_static_edge_are_not_warned(tmp_path):
+    """Frames named differently but joined by an identity /tf_static edge (map -> world) are one frame: no warning
+    (a review of the diff); another edge, or none, is."""
+    from fusion_eval.datasets import rosbag
+
+    ref, est, _ = _noisy_estimate(n=300)
+    for T, warned in ((np.eye(4), False), (np.diag([1.0, 1.0, 1.0, 1.0]) + np.eye(4, k=3) * 5.0, True)):
+        bag = tmp_path / f"b{int(warned)}.bag"
+        rosbag.write_bag(bag, "rosbag1", [rosbag.BagStream("/gt", "pose", ref, "map"),
+                                          rosbag.BagStream("/est", "pose", est, "world")],
+                         tf_static=[("map", "world", T)])
+        m = run_evaluate(["/est"], tmp_path / f"o{int(warned)}", bag=bag, ref_topic="/gt", make_plots=False)
+        assert ("compared across two frames" in (m["estimates"]["est"].get("note") or "")) == warned
