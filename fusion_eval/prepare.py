@@ -203,7 +203,7 @@ def prepare(ds: Dataset, cfg: dict) -> Prepared:
     n_filled = int(imu.filled.sum())
     more_warnings: list[str] = []
     if cfg["imu"]["filled_packets"] == "drop" and n_filled:
-        more_warnings = plausible.dropped_gaps(imu, ~imu.filled, "the filled-in packets (imu.filled_packets: drop)")
+        more_warnings += plausible.dropped_gaps(imu, ~imu.filled, "the filled-in packets (imu.filled_packets: drop)")
         imu = imu.select(~imu.filled)
     applied["imu_filled_samples"] = n_filled
     applied["imu_filled_packets"] = cfg["imu"]["filled_packets"]
@@ -271,9 +271,7 @@ def prepare(ds: Dataset, cfg: dict) -> Prepared:
         applied["time_offset_s"]["gnss"] = off
         g = shifted(ds.gnss, off)
         g = g.select(~g.filled)
-        datum = plausible.gnss_offset(g, gt)      # on the stamps as configured (a late receiver is no datum)
-        if datum:
-            more_warnings = [*more_warnings, datum]
+        more_warnings += filter(None, [plausible.gnss_offset(g, gt)])     # on the stamps as configured
         if len(g) and (g.t_s[-1] < t0 or g.t_s[0] > imu.t_s[-1]):
             raise DataRangeError(f"GNSS ({ds.gnss.source}, {g.t_s[0]:.3f}..{g.t_s[-1]:.3f} s after its time_offset_s of "
                                  f"{off:g} s) and IMU ({ds.imu.source}, {t0:.3f}..{imu.t_s[-1]:.3f} s) do not overlap in time")
@@ -346,16 +344,14 @@ def prepare(ds: Dataset, cfg: dict) -> Prepared:
         _, _, v0 = interpolate_pose_at(gt, t0)
         mismatch = plausible.velocity_mismatch(gt) if v0 is not None else ""
         if mismatch:            # its velocities are not its positions' rate of change: a twist in the wrong frame
-            more_warnings = [*more_warnings, mismatch]
+            more_warnings.append(mismatch)
             v0 = _velocity_from_positions(gt, t0)
             applied["init_velocity"] = "the ground truth's positions differenced (its velocities disagree with them)"
         if v0 is None:          # a ground truth of poses only (TUM, EuRoC's motion capture): its positions differenced
             v0 = _velocity_from_positions(gt, t0)
             applied["init_velocity"] = "the ground truth's positions differenced (it has no velocity)"
     x0 = NominalState(p_w_m=np.array(p0), v_w_mps=np.array(v0), R_wb=np.array(R0), ba_b=np.zeros(3), bg_b=np.zeros(3))
-    tilted = plausible.gravity_against_attitude(imu, k0, R0)
-    if tilted:
-        more_warnings = [*more_warnings, tilted]
+    more_warnings += filter(None, [plausible.gravity_against_attitude(imu, k0, R0)])
 
     # --- the enabled observations' own streams: offset, filled packets, the run's span, degradation
     extra: dict = {}
@@ -385,15 +381,14 @@ def prepare(ds: Dataset, cfg: dict) -> Prepared:
     applied["gravity_mps2"] = float(g)
     applied["t_start_s"] = t0
     f = cfg["filter"]
-    along = [w for w, on in (("non-holonomic constraint", f["nhc"]), ("odometer", f.get("odometer_update"))) if on]
-    across = across_travel(imu.select(imu.t_s >= t0), f["nhc_travel_yaw_mrad"]) if along else ""
+    across = across_travel(imu.select(imu.t_s >= t0), f["nhc_travel_yaw_mrad"]) if f["nhc"] or f.get("odometer_update") else ""
     if across:
         if f["nhc"]:      # it would hold the forward velocity at zero: left out
             resolved.setdefault("filter", {})["nhc"] = False
             across += "; the non-holonomic constraint is left out"
         if f.get("odometer_update"):      # fused as configured (a process model may rest on it), but said
             across += "; the odometer's speed is fused along that direction as configured"
-        more_warnings = [*more_warnings, f"{across}: {MOUNT_HINT}"]
+        more_warnings.append(f"{across}: {MOUNT_HINT}")
     _say_models(cfg, ds, applied, across)
     _flag_data(ds, applied, more_warnings)
     prep = Prepared(imu=imu, groundtruth=gt, gnss=gnss, lidar=lidar, k_start=k0, x0=x0, gravity_mps2=float(g),

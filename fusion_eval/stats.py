@@ -1,4 +1,5 @@
-"""Chi-square quantiles without importing ``scipy.stats`` (half a second of start-up on these machines).
+"""Chi-square quantiles without importing ``scipy.stats`` (half a second of start-up on these machines), and the
+moving mean the data checks average an IMU stream with.
 
 ``scipy.stats.chi2.ppf(q, k)`` is ``2 * gammaincinv(k / 2, q)``; this is that expression, so the values are
 the same to the last bit (``tests/test_config.py`` compares them).
@@ -14,3 +15,10 @@ def chi2_ppf(q, dof):
     from scipy.special import gammaincinv
 
     return 2.0 * gammaincinv(np.asarray(dof, float) / 2.0, q)
+
+
+def moving_mean(x: np.ndarray, n: int) -> np.ndarray:
+    """The mean of every ``n`` consecutive rows of ``x`` (``len(x) - n + 1`` rows), by one cumulative sum."""
+    x = np.asarray(x, float)
+    c = np.cumsum(np.concatenate([np.zeros((1,) + x.shape[1:]), x]), axis=0)
+    return (c[n:] - c[:-n]) / n

@@ -26,6 +26,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from ..stats import moving_mean
 from ..types import ImuSeries
 
 WINDOW_S = 1.0               # averaging of the specific force and the rates: vibration and road noise out
@@ -42,20 +43,23 @@ class LongitudinalAxis:
     straight_s: float        # straight driving used
 
 
+def _window(imu: ImuSeries) -> tuple[int | None, float]:
+    """Samples in :data:`WINDOW_S` and the median step, or (None, step) for a stream too short to average."""
+    t = np.asarray(imu.t_s)
+    if t.size < 3:
+        return None, float("nan")
+    dt = float(np.median(np.diff(t)))
+    n = max(1, int(round(WINDOW_S / dt))) if dt > 0 else 1
+    return (n if t.size > n + 2 else None), dt
+
+
 def longitudinal_axis(imu: ImuSeries) -> LongitudinalAxis | None:
     """The horizontal IMU axis along which the specific force varies most while not turning, or None (too little
     straight driving, or no clear axis)."""
-    t, f, w = imu.t_s, imu.f_b_mps2, imu.w_b_rps
-    if t.size < 3:
+    n, dt = _window(imu)
+    if n is None:
         return None
-    dt = float(np.median(np.diff(t)))
-    n = max(1, int(round(WINDOW_S / dt))) if dt > 0 else 1
-    if t.size <= n:
-        return None
-    c_f = np.cumsum(np.vstack([np.zeros((1, 3)), f]), axis=0)
-    c_w = np.cumsum(np.concatenate([[0.0], np.linalg.norm(w, axis=1)]))
-    f_mean = (c_f[n:] - c_f[:-n]) / n
-    rate = (c_w[n:] - c_w[:-n]) / n
+    f_mean, rate = moving_mean(imu.f_b_mps2, n), moving_mean(np.linalg.norm(imu.w_b_rps, axis=1), n)
     ok = np.isfinite(rate) & np.all(np.isfinite(f_mean), axis=1) & (rate < MAX_RATE_RPS)
     straight_s = float(ok.sum() * dt)
     if straight_s < MIN_STRAIGHT_S:
@@ -77,17 +81,10 @@ def lateral_axis_yaw_deg(imu: ImuSeries) -> float | None:
     """The direction of travel's yaw from the IMU's x axis (deg, signed), from the horizontal specific force's
     regression on the yaw rate (averaged over a second): the centripetal acceleration points to the car's left in a
     left turn. None when the drive turns too little or the regression is not clear."""
-    t, f, w = imu.t_s, imu.f_b_mps2, imu.w_b_rps
-    if t.size < 3:
+    n, _ = _window(imu)
+    if n is None:
         return None
-    dt = float(np.median(np.diff(t)))
-    n = max(1, int(round(WINDOW_S / dt))) if dt > 0 else 1
-    if t.size <= n + 2:
-        return None
-    c_f = np.cumsum(np.vstack([np.zeros((1, 3)), f]), axis=0)
-    c_w = np.cumsum(np.concatenate([[0.0], w[:, 2]]))
-    h = (c_f[n:, :2] - c_f[:-n, :2]) / n
-    wz = (c_w[n:] - c_w[:-n]) / n
+    h, wz = moving_mean(imu.f_b_mps2[:, :2], n), moving_mean(imu.w_b_rps[:, 2], n)
     ok = np.isfinite(wz) & np.all(np.isfinite(h), axis=1)
     h, wz = h[ok] - h[ok].mean(axis=0), wz[ok] - wz[ok].mean()
     if wz.size < 3 or not wz.std() > MIN_RATE_STD_RPS:

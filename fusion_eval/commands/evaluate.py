@@ -196,9 +196,9 @@ def _orientation_placeholder(f, ref_f) -> float | None:
 
 def _body_turns(q_wxyz: np.ndarray, step: int) -> np.ndarray:
     """Rotation vectors of the orientation's increments over ``step`` poses, in the body frame (rad)."""
-    from ..so3 import log_so3, quat_xyzw_to_matrix
+    from ..so3 import log_so3, quat_xyzw_to_matrix, wxyz_to_xyzw
 
-    R = quat_xyzw_to_matrix(np.asarray(q_wxyz, float)[:, [1, 2, 3, 0]]).reshape(-1, 3, 3)
+    R = quat_xyzw_to_matrix(wxyz_to_xyzw(np.asarray(q_wxyz, float))).reshape(-1, 3, 3)
     return log_so3(np.einsum("nji,njk->nik", R[:-step:step], R[step::step]))
 
 
@@ -216,26 +216,29 @@ def convention_hints(f, ref_f, alignment: str) -> list[str]:
     1758 m of APE on a desk-sized track once, with se3 alignment), and quaternions written w x y z where the format
     wants x y z w (a 149 deg rotation error beside a translation error of millimetres). Each is a sentence for a
     warning and the report; the figures are left as they are."""
+    from evo.core import sync
+
+    from ..evaluation.trajectory import associate_nearest
+
     out = []
-    t, tr = np.asarray(f.traj.timestamps, float), np.asarray(ref_f.traj.timestamps, float)
-    if t.size < 3 or tr.size < 3:
+    try:                                  # pairs as the evaluation makes them (nearest stamp, 20 ms)
+        ref_a, est_a = associate_nearest(ref_f.traj, f.traj, 0.02)
+    except sync.SyncException:
         return out
-    j = np.clip(np.searchsorted(tr, t), 1, tr.size - 1)
-    j -= (np.abs(tr[j - 1] - t) < np.abs(tr[j] - t))          # the reference's nearest pose to each estimated one
+    if est_a.num_poses < 3:
+        return out
     if alignment not in ("sim3", "scale"):
-        le = float(np.sum(np.linalg.norm(np.diff(f.traj.positions_xyz, axis=0), axis=1)))
-        lr = float(np.sum(np.linalg.norm(np.diff(ref_f.traj.positions_xyz[j], axis=0), axis=1)))
+        le, lr = (float(np.sum(np.linalg.norm(np.diff(x.positions_xyz, axis=0), axis=1))) for x in (est_a, ref_a))
         if le > 0 and lr > 0:
             k = np.log10(le / lr) / 3
             if round(k) != 0 and abs(k - round(k)) < 0.1:
                 out.append(f"its path is {le / lr:.4g} times the reference's over the same stamps: positions in another "
                            f"unit ({'mm' if round(k) == 1 else 'km' if round(k) == -1 else f'1e{3 * round(k):+d}'} for m?)")
-    q = np.asarray(f.traj.orientations_quat_wxyz, float)
-    step = max(1, int(round(0.5 / max(float(np.median(np.diff(t))), 1e-9))))   # turns over about half a second
-    if not np.all(q == q[0]) and t.size > 4 * step:
-        a = _body_turns(np.asarray(ref_f.traj.orientations_quat_wxyz, float)[j], step)
-        near = np.abs(tr[j] - t) < 0.02                           # both ends matched (a gap in the reference: not)
-        turning = (np.linalg.norm(a, axis=1) > np.radians(1.0)) & near[:-step:step] & near[step::step]
+    q = np.asarray(est_a.orientations_quat_wxyz, float)
+    step = max(1, int(round(0.5 / max(float(np.median(np.diff(est_a.timestamps))), 1e-9))))   # turns over ~0.5 s
+    if not np.all(q == q[0]) and q.shape[0] > 4 * step:
+        a = _body_turns(np.asarray(ref_a.orientations_quat_wxyz, float), step)
+        turning = np.linalg.norm(a, axis=1) > np.radians(1.0)
         if turning.sum() >= 10:
             # a file's w x y z read as x y z w: evo's (w, x, y, z) is the file's (z, w, x, y)
             as_read = _misfit(a[turning], _body_turns(q, step)[turning])

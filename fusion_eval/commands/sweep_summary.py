@@ -36,9 +36,8 @@ def _get(m: dict, path: tuple):
     return d
 
 
-def rows_of(tasks: list[Task], out_dir: Path, keys: list[str]) -> tuple[list[dict], list[str]]:
-    """One row per run (and the metric columns found, in order)."""
-    recs = read_records(out_dir)
+def rows_of(tasks: list[Task], recs: dict[str, dict], keys: list[str]) -> tuple[list[dict], list[str]]:
+    """One row per run (and the metric columns found, in order), from the sweep's records."""
     rows, metric_cols = [], []
     seen = set()
     for t in tasks:
@@ -117,7 +116,8 @@ def write_summary(tasks: list[Task], out_dir: Path, keys: list[str], plots: bool
                   grid_keys: list[str] | None = None) -> dict:
     out_dir = Path(out_dir)
     out_dir.mkdir(parents=True, exist_ok=True)
-    rows, metric_cols = rows_of(tasks, out_dir, keys)
+    recs = read_records(out_dir)          # once: the table and the warnings read the same records
+    rows, metric_cols = rows_of(tasks, recs, keys)
     cols = ["id", "dataset", "variant", "setting", *keys, *metric_cols, "fused_over_lidar", "fused_over_gnss", "runtime_s",
             "status", "error"]
     n_trials = 1 + max((t.trial for t in tasks), default=0)
@@ -173,7 +173,7 @@ def write_summary(tasks: list[Task], out_dir: Path, keys: list[str], plots: bool
                                                [[r["dataset"], r["variant"], r["setting"], r["error"]] for r in bad],
                                                align="llll")
             L.append("")
-    warned = _warnings(tasks, out_dir)
+    warned = _warnings(tasks, recs)
     if warned:            # each run's report has them; here they say which setting raised which
         L += ["## Warnings", "", "As each run's report gives them (the data's, and the streams its filter did not "
               "follow: with a swept noise setting, often the setting's doing):", ""] + warned + [""]
@@ -201,10 +201,9 @@ def write_summary(tasks: list[Task], out_dir: Path, keys: list[str], plots: bool
     return {"rows": rows, "best": best, "plots": written}
 
 
-def _warnings(tasks: list[Task], out_dir: Path) -> list[str]:
+def _warnings(tasks: list[Task], recs: dict[str, dict]) -> list[str]:
     """One line per warning of a finished run, naming the run's dataset, variant, setting (and trial); a warning of
     the data that every run of a dataset gives is listed once, for the dataset."""
-    recs = read_records(out_dir)
     per_run: list[tuple[Task, list[str]]] = []
     seen = set()
     for t in tasks:

@@ -14,6 +14,7 @@ from pathlib import Path
 import numpy as np
 
 from ..errors import DataFormatError, DataRangeError, place
+from ..stats import moving_mean
 from ..types import line_of
 
 MAX_LAG_S = 1.0          # an IMU channel's latency: beyond a second it is a clock offset (or a typo), not a lag
@@ -200,6 +201,12 @@ def imu_units(imu, platform: str | None, wheeled: bool) -> list[str]:
     return out
 
 
+def _real(s) -> np.ndarray:
+    """The samples of a stream that are not filled-in packets (all of them for a stream without the flag)."""
+    filled = getattr(s, "filled", None)
+    return ~np.asarray(filled, bool) if filled is not None else np.ones(len(s), bool)
+
+
 def speed_glitches(streams: dict, platform: str | None, max_speed_mps: float = MAX_GROUND_SPEED_MPS) -> list[str]:
     """Per stream (``streams``: name -> pose or GNSS series, or None), the steps between consecutive real (not
     filled-in) samples faster than ``max_speed_mps`` (for fixes with a std, beyond 6 sigma of their difference), as
@@ -209,8 +216,7 @@ def speed_glitches(streams: dict, platform: str | None, max_speed_mps: float = M
     for name, s in streams.items():
         if s is None or len(s) < 2:
             continue
-        real = ~np.asarray(s.filled, bool) if getattr(s, "filled", None) is not None else np.ones(len(s), bool)
-        idx = np.flatnonzero(real)
+        idx = np.flatnonzero(_real(s))
         p, t = np.asarray(s.p_w_m)[idx], np.asarray(s.t_s)[idx]
         dt = np.diff(t)
         step = np.linalg.norm(np.diff(p, axis=0), axis=1)
@@ -254,7 +260,7 @@ def velocity_mismatch(poses) -> str:
     v = getattr(poses, "v_w_mps", None)
     if v is None or len(poses) < 3:
         return ""
-    real = ~np.asarray(poses.filled, bool) if getattr(poses, "filled", None) is not None else np.ones(len(poses), bool)
+    real = _real(poses)
     t, p, v = np.asarray(poses.t_s)[real], np.asarray(poses.p_w_m)[real], np.asarray(v)[real]
     if t.size < 3 or np.any(np.diff(t) <= 0):
         return ""
@@ -283,14 +289,13 @@ def gnss_offset(gnss, groundtruth) -> str:
     from it in Europe) against a geodetic origin or ground truth on the ellipsoid; horizontally, another origin."""
     if gnss is None or groundtruth is None or len(gnss) < 10 or len(groundtruth) < 2:
         return ""
+    from ..interp import interpolate_poses
+
     t_gt = np.asarray(groundtruth.t_s)
-    inside = (gnss.t_s >= t_gt[0]) & (gnss.t_s <= t_gt[-1])
-    if getattr(gnss, "filled", None) is not None:
-        inside &= ~np.asarray(gnss.filled, bool)
+    inside = (gnss.t_s >= t_gt[0]) & (gnss.t_s <= t_gt[-1]) & _real(gnss)
     if inside.sum() < 10 or np.any(np.diff(t_gt) <= 0):
         return ""
-    ref = np.stack([np.interp(gnss.t_s[inside], t_gt, groundtruth.p_w_m[:, i]) for i in range(3)], axis=1)
-    d = gnss.p_w_m[inside] - ref
+    d = gnss.p_w_m[inside] - interpolate_poses(groundtruth, gnss.t_s[inside]).p_w_m
     off = np.median(d, axis=0)
     spread = np.median(np.abs(d - off), axis=0) * 1.4826
     big = (np.abs(off) > MAX_GNSS_OFFSET_M) & (np.abs(off) > 3.0 * spread)
@@ -325,10 +330,8 @@ def gravity_against_attitude(imu, k0: int, R_wb0: np.ndarray, window_s: float = 
     n = k1 - k0
     f_all = np.asarray(imu.f_b_mps2[k0:max(k_end, k1)], float)
     if f_all.shape[0] > n:
-        c1 = np.cumsum(np.vstack([np.zeros((1, 3)), f_all]), axis=0)
-        c2 = np.cumsum(np.concatenate([[0.0], np.sum(f_all ** 2, axis=1)]))
-        mean = (c1[n:] - c1[:-n]) / n
-        spread = (c2[n:] - c2[:-n]) / n - np.sum(mean ** 2, axis=1)
+        mean = moving_mean(f_all, n)
+        spread = moving_mean(np.sum(f_all ** 2, axis=1), n) - np.sum(mean ** 2, axis=1)
         g = float(np.nanmedian(np.linalg.norm(f_all, axis=1)))
         score = (np.linalg.norm(mean, axis=1) - g) ** 2 + spread
         f = mean[int(np.nanargmin(score))] if np.isfinite(score).any() else mean[0]
