@@ -199,3 +199,43 @@ def test_relative_pose_binds_with_fewer_than_two_frames(n_frames):
     b = OBSERVATION.bind(run, s)
     assert b.t_s.size == n_frames and b.kernel.data.shape == (n_frames, 16)
     assert not b.kernel.data[:, 0].any()          # a lone frame only starts the chain of clones
+
+
+def test_no_compiled_caller_passes_the_steps_covariance_flag_as_a_constant():
+    """Numba types a constant ``True``/``False`` argument as a literal and compiles the callee once more for it: the
+    ESKF's step and loop, most of a first run's compilation, were compiled twice by a default run (the Python callers'
+    ``bool`` and the compiled replay's ``Literal[bool](True)``) and twice more by the compiled RTS pass. Every compiled
+    function and generated loop of the package (its source, read here) passes ``cov`` as a plain bool
+    (fusion_eval/filters/propagate.py). A cold cache cannot be had in a quick test, hence the source check."""
+    import ast
+    import importlib
+    import pkgutil
+    import re
+
+    import fusion_eval
+
+    steps = re.compile(r"^_?(step|predict|predict_to)(_\w+)?$")
+    sources = []
+    for m in pkgutil.walk_packages(fusion_eval.__path__, "fusion_eval."):
+        if m.name.endswith("__main__"):
+            continue
+        mod = importlib.import_module(m.name)
+        sources.append((m.name, ast.parse(open(mod.__file__).read()), False))
+        template = getattr(mod, "_LOOP", None)            # the loops generated from a template (propagate, replay)
+        if isinstance(template, str):
+            template = re.sub(r"\{(\w+)\}", r"\1", re.sub(r"^\{\w+\}$", "        pass", template, flags=re.M))
+            sources.append((f"{m.name}._LOOP", ast.parse(template), True))
+    assert sum(generated for *_, generated in sources) == 2
+    found = []
+    for name, tree, generated in sources:
+        for fn in ast.walk(tree):
+            if not (isinstance(fn, ast.FunctionDef)
+                    and (generated or any("jit" in ast.unparse(d) for d in fn.decorator_list))):
+                continue
+            for call in ast.walk(fn):
+                callee = getattr(call, "func", None)
+                callee = getattr(callee, "id", getattr(callee, "attr", ""))
+                if (isinstance(call, ast.Call) and steps.match(callee)
+                        and any(isinstance(a, ast.Constant) and isinstance(a.value, bool) for a in call.args)):
+                    found.append(f"{name}:{call.lineno}: {ast.unparse(call)}")
+    assert not found, found

@@ -50,7 +50,7 @@ def {name}(a, st, xc, clone_t, times, kinds, index, j0, j1, gates, clone_after, 
         kind = kinds[j]
         i = index[j]
         n = st[{st_n}]
-        st[{st_k}] = _predict(a, n, st[{st_k}], max(t, a.last[0]), True)
+        st[{st_k}] = _predict(a, n, st[{st_k}], max(t, a.last[0]), np.bool_(True))   # plain bool: propagate's note
         if rec_on:                # the smoother's record of the prior of the epoch this stamp opens
             store_prior(a.P, n, n_max, ep_t, rst[0], a.last[0], pr_P, pr_ok, a.aux, pr_phi)
 {dispatch}

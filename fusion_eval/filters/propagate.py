@@ -18,6 +18,10 @@ function that receives another compiled function as an argument once per argumen
 it (and converting it costs ~45 us per call), so the loop is written here once, as source, and each
 formulation instantiates it with its own step and recording (:func:`compiled_loop`); each copy is
 cached in its formulation's module.
+
+Compiled callers pass ``cov`` as ``np.bool_(True)``, not ``True``: numba types a constant argument as a literal
+and compiles the callee again for it, and the ESKF's step and loop are most of a first run's compilation (a
+default run's cold start compiled each twice; ``tests/test_smoother.py`` holds every compiled caller to it).
 """
 
 from __future__ import annotations

@@ -65,7 +65,7 @@ def {name}(x_a, aux, c, P_a, n, nc, t, u, gap, prm, k, t0, u0, t_b, xs_x, xs_c, 
             if pr_has and (ks < 0 or t[k] == t_b):
                 # the step into epoch b, whose prior and transition the forward pass kept: only the state
                 PH[j] = phi_row.reshape((nc, nc))
-                _step(x, A[j], 0, uu0, u1, dt, qs, prm, aux, False)
+                _step(x, A[j], 0, uu0, u1, dt, qs, prm, aux, np.bool_(False))  # plain bool: propagate's note
                 j += 1
                 P_end = _unpack(pr_row, n_max, n)
                 j_kept = j
@@ -78,7 +78,7 @@ def {name}(x_a, aux, c, P_a, n, nc, t, u, gap, prm, k, t0, u0, t_b, xs_x, xs_c, 
                     A[j] = P_end
             else:
                 Pa = _augmented(A[j], nc)
-                _step(x, Pa, 2 * nc, uu0, u1, dt, qs, prm, aux, True)
+                _step(x, Pa, 2 * nc, uu0, u1, dt, qs, prm, aux, np.bool_(True))
                 j += 1
                 A[j] = Pa[:nc, :nc]
                 PH[j - 1] = Pa[:nc, nc:]
