@@ -114,6 +114,11 @@ class Group(click.Group):
                 sys.exit(exc.exit_code)
             if isinstance(exc, click.UsageError):   # a command's options, an unknown command
                 _usage_error(exc)
+            if isinstance(exc, RuntimeError) and str(exc).startswith("Symlink loop from "):
+                # pathlib's resolve() on a loop of links (Python < 3.13; later ones raise OSError ELOOP, below)
+                click.echo(f"error: {str(exc)[len('Symlink loop from '):].strip(chr(39))}: a loop of symbolic links "
+                           "(the link leads, through others, back to itself)", err=True)
+                sys.exit(2)
             if isinstance(exc, OSError) and not isinstance(exc, BrokenPipeError):
                 # the system refused a read or write no check foresaw (stdout on a full device): one line, not a
                 # traceback; the output folder was written atomically or not at all
@@ -294,6 +299,12 @@ def sweep(ctx, datasets, sweep_file, out_dir, jobs, variant_dir, scheduler, dask
     finally:
         for bar in bars:
             bar.close()
+    rows = res["summary"]["rows"]
+    if not summarize_only and rows and not any(r["status"] == "ok" for r in rows):
+        # a sweep with nothing to rank has failed, whatever its records say: exit 0 and "wrote best.yaml" hid it
+        first = next((r for r in rows if r.get("error")), rows[0])
+        raise FusionEvalError(f"no run of the sweep finished ({len(rows)} failed or diverged; every error is in "
+                              f"{out_dir}/sweep.md); the first, {first['id']}: {first.get('error') or first['status']}")
     if ctx.obj["quiet"]:
         click.echo(out_dir)
     else:
@@ -308,7 +319,7 @@ def sweep(ctx, datasets, sweep_file, out_dir, jobs, variant_dir, scheduler, dask
         if best:
             click.echo(f"best: variant {best['variant']}, setting {best['setting']}: mean fused APE RMSE "
                        f"{best['mean_fused_ape_trans_rmse_m']:.3f} m")
-        click.echo(f"wrote {out_dir}/sweep.csv, sweep.md, report.html, best.yaml")
+        click.echo(f"wrote {out_dir}/sweep.csv, sweep.md, report.html" + (", best.yaml" if best else ""))
 
 
 @main.command()

@@ -99,10 +99,13 @@ def atomic_file(target: Path):
     try:
         with open(tmp, "wb") as fh:
             yield fh
+        os.replace(tmp, target)
+    except OSError as exc:             # a full device: the file it was writing, not a bare "No space left on device"
+        tmp.unlink(missing_ok=True)
+        raise OutputError(f"{target}: cannot write ({exc.strerror or exc})") from None
     except BaseException:
         tmp.unlink(missing_ok=True)
         raise
-    os.replace(tmp, target)
 
 
 OUTPUT_MARKERS = ("metrics.json", "report.html", "compare.json", "dataset.yaml")   # what a command's folder holds

@@ -140,6 +140,10 @@ def share(ds: Dataset, cfg: dict, pool, zip_dir: Path | None = None) -> Shared:
         sp = span.span_for(ev_cfg["span"], gt, spans)
     except DataRangeError as exc:
         raise DataRangeError(f"{exc} {offsets_note(prep.applied)}".rstrip()) from None
+    short = span.short_span_warning(sp, gt, (float(prep.imu.t_s[0]), float(prep.imu.t_s[-1])))
+    if short:            # said with the data's warnings (stderr, report.md, metrics.json)
+        log.warning("%s", short)
+        prep.applied["data_warnings"] = [*prep.applied.get("data_warnings", ()), short]
     ref = span.crop(gt, sp)              # as evo's --t_start/--t_end: the reference reduced to the span
     series["imu_only"] = dead_reckoning(prep, settings_for(cfg, prep))
     # before the first job, which forks the workers: they hold these already (pool.share)

@@ -241,6 +241,7 @@ def prepare(ds: Dataset, cfg: dict) -> Prepared:
         if ds.description.get("lidar_anchor", "groundtruth") == "groundtruth":
             lid, t_anchor = anchor_lidar(lid, gt)
             applied["lidar_anchor_t_s"] = t_anchor
+            more_warnings += filter(None, [plausible.clock_shift("the lidar", lid, gt)])
         if ds.description.get("lidar_clock"):
             applied["lidar_clock"] = ds.description["lidar_clock"]
         if cfg["filter"].get("nhc") and cfg["filter"].get("nhc_travel_pitch_mrad") == "auto":
@@ -271,7 +272,7 @@ def prepare(ds: Dataset, cfg: dict) -> Prepared:
         applied["time_offset_s"]["gnss"] = off
         g = shifted(ds.gnss, off)
         g = g.select(~g.filled)
-        more_warnings += filter(None, [plausible.gnss_offset(g, gt)])     # on the stamps as configured
+        more_warnings += filter(None, [plausible.gnss_offset(g, gt), plausible.clock_shift("GNSS", g, gt)])  # as configured
         if len(g) and (g.t_s[-1] < t0 or g.t_s[0] > imu.t_s[-1]):
             raise DataRangeError(f"GNSS ({ds.gnss.source}, {g.t_s[0]:.3f}..{g.t_s[-1]:.3f} s after its time_offset_s of "
                                  f"{off:g} s) and IMU ({ds.imu.source}, {t0:.3f}..{imu.t_s[-1]:.3f} s) do not overlap in time")

@@ -15,6 +15,7 @@ from dataclasses import dataclass
 from pathlib import Path
 
 from . import yaml_lines
+from .errors import ConfigError
 from .config import Layer, merge_layers, parse_file, parse_overrides, parse_sets, validate
 from .types import Dataset
 
@@ -88,3 +89,16 @@ def dataset(path: str | Path | None = None) -> Dataset:
     ds = load_dataset(p)
     ds.description.setdefault("path", str(p))
     return ds
+
+
+def same_evaluation(labels: list[str], cfgs: list[dict], where: str, why: str) -> None:
+    """Refuse configurations that are ranked against each other but scored differently (``evaluation.*``), naming
+    the first key and the two labels (``compare``'s variants, a ``sweep``'s runs of one dataset): such a ranking
+    compared an aligned APE with an unaligned one."""
+    first = cfgs[0]["evaluation"]
+    for label, c in zip(labels[1:], cfgs[1:]):
+        diff = sorted(k for k in set(first) | set(c["evaluation"]) if first.get(k) != c["evaluation"].get(k))
+        if diff:
+            k = diff[0]
+            raise ConfigError(f"{where}: {label} sets evaluation.{k} = {c['evaluation'].get(k)!r} and {labels[0]} "
+                              f"{first.get(k)!r}: {why}")

@@ -364,6 +364,22 @@ def test_check_says_when_the_baseline_is_of_another_dataset(tmp_path):
     assert r.exit_code == 0 and "of dataset 'simple-05' and the baseline of 'kitti-00'" in r.stderr, r.output
 
 
+def test_check_refuses_metrics_scored_otherwise_than_the_baseline(tmp_path):
+    """An aligned APE checked against an unaligned baseline passed (found by a corrupted-input review); the same
+    scoring with another engine or span bounds compares."""
+    ev = {"association": "nearest", "alignment": "none", "t_max_diff_s": 0.01, "rpe_delta_m": 100.0, "engine": "arrays",
+          "span": {"mode": "common", "t0_s": 0.0}}
+    base, cur = _metrics(tmp_path, "base.json", 1.0), _metrics(tmp_path, "cur.json", 0.5)
+    for p, e in ((base, ev), (cur, {**ev, "engine": "evo", "span": {"mode": "common", "t0_s": 0.1}})):
+        p.write_text(json.dumps({**json.loads(p.read_text()), "evaluation": e}))
+    assert CliRunner().invoke(main, ["check", str(cur), "--baseline", str(base)]).exit_code == 0
+    cur.write_text(json.dumps({**json.loads(cur.read_text()), "evaluation": {**ev, "alignment": "se3"}}))
+    r = CliRunner().invoke(main, ["check", str(cur), "--baseline", str(base)])
+    assert r.exit_code == 2, r.output
+    assert (f"error: {cur} was evaluated with evaluation.alignment = 'se3' and the baseline {base} with 'none': their "
+            "figures do not compare") in r.output
+
+
 @pytest.mark.parametrize("value,name", [(-1.0, "base.json"), (1e300, "base.json"), (-0.2, "cur.json")])
 def test_check_refuses_an_impossible_error_figure(tmp_path, value, name):
     """A negative APE or one beyond a million km gates nothing (1e300 lets every regression pass): exit 2 naming the
@@ -465,3 +481,31 @@ def test_the_data_fingerprint_is_the_same_however_the_path_is_written(small, mon
     monkeypatch.chdir(small.parent)
     assert fingerprint(session.dataset(small.name).description) == a
     assert fingerprint(session.dataset(Path(small.name) / ".." / small.name).description) == a
+
+
+def test_a_sweep_in_which_no_run_finished_fails_and_writes_no_best_yaml(small, tmp_path):
+    """Every run failed (here the base config's lidar clock leaves no overlap with the IMU): the summary still
+    lists each error, but the sweep exits non-zero, naming the first, and neither writes nor announces a best.yaml."""
+    base = tmp_path / "base.yaml"
+    base.write_text("lidar:\n  time_offset_s: 300.0\n")
+    sw = tmp_path / "sweep.yaml"
+    sw.write_text(f"config: {base}\nsettings:\n  a: {{imu.gyro_noise_dps_sqrthz: 0.2}}\n")
+    out = tmp_path / "s"
+    r = CliRunner().invoke(main, ["sweep", str(small), "--grid", str(sw), "--out", str(out), "--jobs", "1"])
+    assert r.exit_code == 2, r.output
+    last = r.output.strip().splitlines()[-1]
+    assert last.startswith("error: no run of the sweep finished (2 failed or diverged") and "best.yaml" not in r.output
+    assert f"{out}/sweep.md" in last and "the first, " in last
+    assert not (out / "best.yaml").exists() and "## Failed runs" in (out / "sweep.md").read_text()
+
+
+def test_a_sweep_refuses_settings_scored_differently(small, tmp_path):
+    """A setting {evaluation.alignment: se3} was ranked against unaligned runs and won as 'best' (best.yaml held only
+    the alignment; found by a corrupted-input review); compare and tune refused it already."""
+    sw = tmp_path / "sweep.yaml"
+    sw.write_text("settings:\n  a: {evaluation.alignment: se3}\n")
+    r = CliRunner().invoke(main, ["sweep", str(small), "--grid", str(sw), "--out", str(tmp_path / "s")])
+    assert r.exit_code == 2, r.output
+    assert (f"error: {sw}: variant 'default' setting 'a' sets evaluation.alignment = 'se3' and variant 'default' "
+            "setting 'default' 'none': a sweep ranks its runs of a dataset against each other") in r.output
+    assert not (tmp_path / "s").exists()

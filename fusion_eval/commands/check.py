@@ -257,6 +257,7 @@ def check(metrics_path: Path, baseline: Path, rtol: float, atol: float, patterns
     names = [n if isinstance(n, str) else None for n in names]
     if None not in names and names[0] != names[1]:
         log.warning("the metrics are of dataset %r and the baseline of %r: compared all the same", *names)
+    _refuse_other_scoring(metrics_path, base_path)
     if trial_stat_given and not any(_json_field(p, "trials") for p in (metrics_path, base_path)):
         raise ConfigError(f"--trial-stat applies to the metrics of a run with --trials N; neither {metrics_path} nor "
                           f"{baseline} has trials")
@@ -281,6 +282,28 @@ def check(metrics_path: Path, baseline: Path, rtol: float, atol: float, patterns
 # one reaches (a million km): a baseline outside it gates nothing (1e300 lets every regression pass)
 _ERROR_FIGURE = re.compile(r"(^|[._/])(ape|rpe|kitti_drift|t_err|r_err)|_over_")
 MAX_ERROR_FIGURE = 1e9
+
+
+# how a run's figures were scored (metrics.json's "evaluation"); the engine is not among them (its figures equal evo's)
+_SCORING = ("association", "alignment", "t_max_diff_s", "rpe_delta_m")
+
+
+def _refuse_other_scoring(metrics_path: Path, base_path: Path) -> None:
+    """A metrics file scored otherwise than its baseline (an aligned APE against an unaligned one: the check
+    passed) is refused, naming the first setting that differs."""
+    from ..errors import ConfigError
+
+    ev = [_json_field(p, "evaluation") for p in (metrics_path, base_path)]
+    if not all(isinstance(e, dict) for e in ev):
+        return
+    scoring = [{**{k: e.get(k) for k in _SCORING}, "span": (e.get("span") or {}).get("mode", "own")
+                if isinstance(e.get("span"), dict) else e.get("span")} for e in ev]
+    diff = [k for k in scoring[0] if scoring[0][k] != scoring[1][k]]
+    if diff:
+        k = diff[0]
+        raise ConfigError(f"{metrics_path} was evaluated with evaluation.{k} = {scoring[0][k]!r} and the baseline "
+                          f"{base_path} with {scoring[1][k]!r}: their figures do not compare; run both with the same "
+                          "evaluation settings, or make a new baseline")
 
 
 def _json_field(path: Path, key: str):

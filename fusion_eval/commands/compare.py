@@ -91,20 +91,6 @@ def _warnings(name: str, prep, filt) -> tuple[str, ...]:
     return (*prep.applied.get("data_warnings", ()), *misfit)
 
 
-def _same_evaluation(variants: list[str], cfgs: list[dict]) -> None:
-    """Every variant is scored one way (the unfiltered estimates and the span are shared): a variant that sets
-    ``evaluation.*`` differently is refused, naming the key. It was scored with the first variant's settings while
-    its own config.resolved.yaml said otherwise, so the figures changed with the variants' order."""
-    first = cfgs[0]["evaluation"]
-    for v, c in zip(variants[1:], cfgs[1:]):
-        diff = sorted(k for k in set(first) | set(c["evaluation"]) if first.get(k) != c["evaluation"].get(k))
-        if diff:
-            k = diff[0]
-            raise ConfigError(f"--variants: {v!r} sets evaluation.{k} = {c['evaluation'].get(k)!r} and {variants[0]!r} "
-                              f"{first.get(k)!r}: compare scores every variant the same way; set evaluation.* for all "
-                              "of them (-c or --set), not in a variant file")
-
-
 def _evaluate_all(runs: list[VariantRun], base_prep, ev_cfg: dict, pool):
     """evo's metrics of every variant and unfiltered estimate, over one span (evaluation.span, the first
     variant's setting); returns the unfiltered series, their evaluations and the span."""
@@ -117,6 +103,11 @@ def _evaluate_all(runs: list[VariantRun], base_prep, ev_cfg: dict, pool):
     spans = {r.name: span.coverage(r.filt.fused) for r in runs}
     spans.update({k: span.coverage(s) for k, s in unfiltered.items()})
     sp = span.span_for(ev_cfg["span"], gt, spans)
+    short = span.short_span_warning(sp, gt, (float(base_prep.imu.t_s[0]), float(base_prep.imu.t_s[-1])))
+    if short:            # of the data, so of every variant (compare.md and compare.json list each one's warnings)
+        log.warning("%s", short)
+        for r in runs:
+            r.warnings = (*r.warnings, short)
     ref = span.crop(gt, sp)              # as evo's --t_start/--t_end: the reference reduced to the span
     args = (ev_cfg["t_max_diff_s"], ev_cfg["rpe_delta_m"], ev_cfg["association"], ev_cfg["alignment"])
     fut_v = [pool.submit(evaluate, ref, r.filt.fused, r.name, *args) for r in runs]
@@ -185,7 +176,8 @@ def _compare(dataset_path: Path | None, variants: list[str], variant_dir: Path |
     stages.start("load")
     ds = session.dataset(dataset_path)
     cfgs = [session.resolve(r, ds) for r in reqs]
-    _same_evaluation(variants, cfgs)
+    session.same_evaluation([f"{v!r}" for v in variants], cfgs, "--variants", "compare scores every variant the same "
+                            "way; set evaluation.* for all of them (-c or --set), not in a variant file")
     for v, c in zip(variants, cfgs):      # every variant's streams before the first runs (one failed after the others)
         try:
             check_streams(ds, c)

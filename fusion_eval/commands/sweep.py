@@ -232,9 +232,11 @@ def plan(sweep_path: Path, datasets: list[str], out_dir: Path, variant_dir: Path
         ds = session.dataset(ds_path)
         ds_abs = str(Path(ds_path).resolve())
         data = fingerprint(ds.description)      # the files as they are: changed data is not a recorded run
+        scored: list[tuple[str, dict]] = []     # every run of a dataset is ranked against the others: scored alike
         for v in variants:
             for name, ov in settings:
                 cfg0 = session.resolve(session.request(config=base, variant=vpaths[v], overrides=ov), ds)
+                scored.append((f"variant {v!r} setting {name!r}", cfg0))
                 for i in range(n_trials):
                     ov_i = {**ov, **mc.trial_overrides(cfg0, i)} if i else ov
                     cfg = mc.apply(cfg0, i)
@@ -242,6 +244,8 @@ def plan(sweep_path: Path, datasets: list[str], out_dir: Path, variant_dir: Path
                     rid = hashlib.sha256(key.encode()).hexdigest()[:12]
                     tasks.append(Task(rid, ds_abs, v, vpaths[v], name, ov_i, base, bool(body.get("plots", False)), out_root,
                                       i, batch_key(ds_abs, cfg)))
+        session.same_evaluation(*zip(*scored), str(sweep_path), "a sweep ranks its runs of a dataset against each "
+                                "other; set evaluation.* for all of them (the sweep's config:), not in a setting or variant")
     ids = [t.id for t in tasks]
     if len(set(ids)) != len(ids):
         log.warning("some settings resolve to the same configuration; they share one run")

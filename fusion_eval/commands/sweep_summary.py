@@ -188,6 +188,8 @@ def write_summary(tasks: list[Task], out_dir: Path, keys: list[str], plots: bool
                 f"# mean fused APE translation RMSE across datasets: {bm:.6f} m\n"
                 "# use it as: fusion-eval run -c best.yaml\n" + yaml_lines.dump(cfg))
         L += [f"Best: variant `{bv}`, setting `{bs}` (mean fused APE RMSE {cell(bm)} m); see `best.yaml`.", ""]
+    else:                 # nothing ranked (every run failed): an earlier summary's best.yaml would name a run of no record
+        (out_dir / "best.yaml").unlink(missing_ok=True)
     written = []
     if plots and ok:
         from ..report import plots as P

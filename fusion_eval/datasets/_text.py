@@ -21,6 +21,9 @@ def read_text(path: Path, what: str) -> str:
         raise DataFormatError(path, None, f"file not found (expected {what})")
     if path.is_dir():
         raise DataFormatError(path, None, f"is a directory (expected {what})")
+    if path.is_char_device() or path.is_block_device() or path.is_socket():
+        # /dev/zero filled the memory; a pipe is read (a shell's <(zcat est.txt.gz) is one), to its writer's end
+        raise DataFormatError(path, None, f"a device or socket, not a file (expected {what})")
     try:
         # utf-8-sig: a byte-order mark (Windows editors write one) is dropped, as pandas and evo's readers drop it
         return path.read_text(encoding="utf-8-sig", errors="strict")

@@ -55,6 +55,7 @@ def read_kitti_calib(path: Path) -> dict[str, np.ndarray]:
     """All ``key: numbers`` entries of a KITTI calibration file (non-numeric entries are skipped)."""
     path = Path(path)
     out: dict[str, np.ndarray] = {}
+    seen: dict[str, int] = {}
     for lineno, raw in enumerate(read_text(path, "KITTI calibration 'key: values' lines").splitlines(), start=1):
         if ":" not in raw:
             continue
@@ -65,7 +66,12 @@ def read_kitti_calib(path: Path) -> dict[str, np.ndarray]:
             continue  # e.g. 'calib_time: 25-May-2012 16:47:16'
         if vals.size and not np.all(np.isfinite(vals)):
             raise DataFormatError(path, lineno, f"calibration entry {key.strip()!r} must be finite numbers")
-        out[key.strip()] = vals
+        key = key.strip()
+        if key in seen:       # the last one silently won: two calibration files pasted into one (found by a review)
+            raise DataFormatError(path, lineno, f"calibration entry {key!r} given twice (first on line {seen[key]}): "
+                                                "one entry per key expected")
+        seen[key] = lineno
+        out[key] = vals
     return out
 
 

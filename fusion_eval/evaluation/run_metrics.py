@@ -200,8 +200,9 @@ def inconsistent_streams(nis: dict) -> list[str]:
         if v.size >= 10 and np.median(v) > MISFIT_NIS_RATIO * d["dof"]:
             out.append(f"{k}: median NIS {np.median(v):.4g} for {d['dof']} dof ({np.median(v) / d['dof']:.0f}x): the filter "
                        "does not follow this stream; check the units and frames of its data and of the IMU (an accelerometer "
-                       "in g, gravity's sign, a quaternion's order, degrees for radians), or noise settings far below the "
-                       "data's (a swept or tuned value)")
+                       "in g, gravity's sign, a quaternion's order, degrees for radians), its clock against the IMU's (a time "
+                       "offset of seconds: GPS against UNIX time is 18 s), or noise settings far below the data's (a "
+                       "swept or tuned value)")
         elif v.size >= 10 and np.mean(v) < d["dof"] / MISFIT_LOW_NIS_RATIO and k in _measured():
             # the other way: a stated std far above the data's (a receiver's accuracy in mm read as m) reads as a
             # plausible but badly weighted result (fused 1.48 m instead of 0.69 m on a simulated drive, no word)
