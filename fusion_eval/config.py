@@ -14,6 +14,7 @@ from __future__ import annotations
 
 import copy
 import functools
+import math
 from pathlib import Path
 from typing import Any, NamedTuple
 
@@ -241,7 +242,8 @@ def _number(key, value, where, positive=False, nonneg=False) -> float:
             value = float(value)
         except ValueError:
             pass
-    if isinstance(value, bool) or not isinstance(value, (int, float)) or not np.isfinite(value):
+    if isinstance(value, bool) or not isinstance(value, (int, float)) or (isinstance(value, float) and not math.isfinite(value)):
+        # (an integer is finite, and is not handed to numpy: one beyond int64, 99999999999999999999999, was a traceback)
         raise ConfigError(f"{where}: {key} must be a number, got {value!r}")
     if abs(value) > MAX_MAGNITUDE:
         raise ConfigError(f"{where}: {key} = {value!r} is beyond any plausible value of it (|value| <= {MAX_MAGNITUDE:.0e})")

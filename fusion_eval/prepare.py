@@ -238,10 +238,14 @@ def prepare(ds: Dataset, cfg: dict) -> Prepared:
                                                                                       ("lever_arm", arm_auto)) if on]}
             log.info("lidar mount correction estimated: roll, pitch, yaw %s mrad; lever arm x, y %s cm",
                      np.round(est.rpy_mrad, 2), np.round(est.t_E_m[:2] * 100, 1))
+        other_frame = ""
         if ds.description.get("lidar_anchor", "groundtruth") == "groundtruth":
             lid, t_anchor = anchor_lidar(lid, gt)
             applied["lidar_anchor_t_s"] = t_anchor
-            more_warnings += filter(None, [plausible.clock_shift("the lidar", lid, gt)])
+        else:
+            other_frame = plausible.unanchored_lidar(lid, gt)
+        # (positions in another frame fit the truth at no time shift: the frame is the warning then)
+        more_warnings += filter(None, [other_frame or plausible.clock_shift("the lidar", lid, gt)])
         if ds.description.get("lidar_clock"):
             applied["lidar_clock"] = ds.description["lidar_clock"]
         if cfg["filter"].get("nhc") and cfg["filter"].get("nhc_travel_pitch_mrad") == "auto":
