@@ -68,17 +68,17 @@ CORE: dict[str, Spec] = {
                                "without lidar); null = the manifest's value (default 0)", "float", nullable=True, auto=True),
     "imu.filled_packets": S("drop", "provider-filled IMU samples: 'drop' (default) or 'keep'", choices=("drop", "keep")),
     "imu.accel_noise_mps2_sqrthz": S("auto", "accelerometer white noise density (velocity random walk), m/s^2/sqrt(Hz); "
-                                          "'auto' = from the stream's second differences", "float", nonneg=True, auto=True),
+                                          "'auto' = from the stream's second differences", "float", nonneg=True, auto=True, reads="filter"),
     "imu.gyro_noise_dps_sqrthz": S("auto", "gyroscope white noise density (angle random walk), deg/s/sqrt(Hz); 'auto' = from "
-                                        "the stream's second differences", "float", nonneg=True, auto=True),
+                                        "the stream's second differences", "float", nonneg=True, auto=True, reads="filter"),
     "imu.accel_noise_scale": S(1.0, "factor on the accelerometer white noise (given or estimated): a tuned value that "
-                                    "carries over to drives whose noise is estimated from their own data", positive=True),
-    "imu.gyro_noise_scale": S(1.0, "factor on the gyroscope white noise (given or estimated)", positive=True),
-    "imu.accel_bias_rw_mps3_sqrthz": S(1e-4, "accelerometer bias random walk, m/s^3/sqrt(Hz)", nonneg=True),
-    "imu.gyro_bias_rw_dps2_sqrthz": S(1e-5, "gyroscope bias random walk, deg/s^2/sqrt(Hz)", nonneg=True),
+                                    "carries over to drives whose noise is estimated from their own data", positive=True, reads="filter"),
+    "imu.gyro_noise_scale": S(1.0, "factor on the gyroscope white noise (given or estimated)", positive=True, reads="filter"),
+    "imu.accel_bias_rw_mps3_sqrthz": S(1e-4, "accelerometer bias random walk, m/s^3/sqrt(Hz)", nonneg=True, reads="filter"),
+    "imu.gyro_bias_rw_dps2_sqrthz": S(1e-5, "gyroscope bias random walk, deg/s^2/sqrt(Hz)", nonneg=True, reads="filter"),
     "imu.gap_factor": S(1.5, "an IMU interval longer than gap_factor x the median interval is a gap (above 1: at 1 or "
                              "below every interval is one)", above=1.0),
-    "imu.gap_noise_scale": S(10.0, "process noise std multiplier on intervals that are gaps", positive=True),
+    "imu.gap_noise_scale": S(10.0, "process noise std multiplier on intervals that are gaps", positive=True, reads="filter"),
     "lidar.time_offset_s": S(None, "added to lidar stamps; 'auto' = estimated from the data (accelerometer vs lidar "
                                    "acceleration; not together with imu.accel_lag_s=auto); null = the manifest's value "
                                    "(default 0)", "float", nullable=True, auto=True),
@@ -91,20 +91,20 @@ CORE: dict[str, Spec] = {
     "lidar.interpolate_to_imu": S(True, "resample the lidar poses onto the IMU stamps (SLERP) before fusing"),
     "gnss.time_offset_s": S(None, "added to GNSS stamps; null = the manifest's value (default 0)", "float", nullable=True),
     "gnss.rate_hz": S(1.0, "decimate GNSS to this rate (null = keep every fix); only for streams the manifest marks 'degrade'",
-                      "float", positive=True, nullable=True),
-    "gnss.noise_std_m": S([1.0, 1.0, 2.0], "white noise added per axis E/N/U, m ([0, 0, 0] = none)", nonneg=True),
+                      "float", positive=True, nullable=True, reads="data"),
+    "gnss.noise_std_m": S([1.0, 1.0, 2.0], "white noise added per axis E/N/U, m ([0, 0, 0] = none)", nonneg=True, reads="data"),
     "gnss.outages_s": S([], "outage windows [[start, end], ...] in seconds from the filter's start (the first IMU sample it "
-                            "uses); applied to a receiver's stream too (which gets no noise and keeps its rate)", "windows"),
-    "gnss.seed": S(0, "seed of the GNSS noise", nonneg=True),
+                            "uses); applied to a receiver's stream too (which gets no noise and keeps its rate)", "windows", reads="data"),
+    "gnss.seed": S(0, "seed of the GNSS noise", nonneg=True, reads="data"),
     "odometer.time_offset_s": S(None, "added to odometer stamps; null = the manifest's value (default 0)", "float", nullable=True),
     "odometer.added_noise_std_mps": S(0.05, "white noise added to an odometer stream the manifest marks 'degrade' "
-                                            "(KITTI's OXTS vf is the GPS/INS solution), m/s", nonneg=True),
-    "init.pos_std_m": S(0.1, "initial position std, m", positive=True),
-    "init.vel_std_mps": S(0.1, "initial velocity std, m/s", positive=True),
-    "init.roll_pitch_std_deg": S(0.1, "initial roll and pitch std, deg", positive=True),
-    "init.yaw_std_deg": S(0.01, "initial yaw std, deg (unobservable from relative lidar alone: keep it tight)", positive=True),
-    "init.accel_bias_std_mps2": S(0.01, "initial accelerometer bias std, m/s^2", nonneg=True),
-    "init.gyro_bias_std_dps": S(0.005, "initial gyroscope bias std, deg/s", nonneg=True),
+                                            "(KITTI's OXTS vf is the GPS/INS solution), m/s", nonneg=True, reads="data"),
+    "init.pos_std_m": S(0.1, "initial position std, m", positive=True, reads="filter"),
+    "init.vel_std_mps": S(0.1, "initial velocity std, m/s", positive=True, reads="filter"),
+    "init.roll_pitch_std_deg": S(0.1, "initial roll and pitch std, deg", positive=True, reads="filter"),
+    "init.yaw_std_deg": S(0.01, "initial yaw std, deg (unobservable from relative lidar alone: keep it tight)", positive=True, reads="filter"),
+    "init.accel_bias_std_mps2": S(0.01, "initial accelerometer bias std, m/s^2", nonneg=True, reads="filter"),
+    "init.gyro_bias_std_dps": S(0.005, "initial gyroscope bias std, deg/s", nonneg=True, reads="filter"),
     "evaluation.t_max_diff_s": S(0.01, "max stamp difference when evo associates estimate and reference poses, s", positive=True),
     "evaluation.association": S("nearest", "pose association: 'nearest' stamp within t_max_diff_s (evo's) or 'interpolate' "
                                            "the reference at the estimate's stamps (linear position, SLERP rotation)",

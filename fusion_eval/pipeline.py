@@ -27,7 +27,7 @@ from .memory import release_free_heap
 from .outputs import StagedDir, dataset_roots
 from .pool import executor
 from .progress import as_stages
-from .prepare import Prepared, offsets_note, prepare, settings_for
+from .prepare import Prepared, auto_settled, offsets_note, prepare, settings_for
 from .replay import FilterOutput, dead_reckoning, replay
 from .types import Dataset, PoseSeries
 
@@ -243,7 +243,9 @@ def filter_and_evaluate(ds: Dataset, cfg: dict, sh: Shared, pool, *, dataset_pat
                              f"{offsets_note(prep.applied)}".rstrip())
     ratios = ratio_metrics(evals)
     seg = segments(gt, evals, ev_cfg)
-    metrics = run_metrics(ds.name, evals, ratios, ev_cfg, prep.applied, prep.gnss_info, cons, seg, sh.span,
+    # this run's: a batch's runs share the preparation's record but not their noise scales
+    applied = {**prep.applied, "auto_settled": auto_settled(cfg, prep.resolved, prep.applied)}
+    metrics = run_metrics(ds.name, evals, ratios, ev_cfg, applied, prep.gnss_info, cons, seg, sh.span,
                           smoother=smoother_section(filt))
     if n_trials > 1:
         stages.start("trials", n_trials)
@@ -260,7 +262,7 @@ def filter_and_evaluate(ds: Dataset, cfg: dict, sh: Shared, pool, *, dataset_pat
                                   "manifest": ds.description.get("manifest"),
                                   "attribution": ds.description.get("attribution"),
                                   "streams": ds.description.get("streams")},
-                      "applied": prep.applied, "config_source": config_source}
+                      "applied": applied, "config_source": config_source}
     res = RunResult(ds.name, cfg, config_source, prep, filt, series, evals, ratios, cons, seg, err, metrics,
                     resolved_extra, timings, truth_biases=truth_b)
     if out is not None:

@@ -409,13 +409,13 @@ def prepare(ds: Dataset, cfg: dict) -> Prepared:
             why = f"{why}; {why_not}"
         resolved.setdefault("filter", {})["nhc_travel_pitch_mrad"] = None if travel is None else travel.pitch_mrad
         applied["nhc_travel"] = travel.as_dict() if travel is not None else {"pitch_mrad": None, "method": why}
-    applied["auto_settled"] = _auto_settled(cfg, resolved, applied)
     return prep
 
 
-def _auto_settled(cfg: dict, resolved: dict, applied: dict) -> dict:
+def auto_settled(cfg: dict, resolved: dict, applied: dict) -> dict:
     """``{section.key: value}`` for each configuration key left to the data ('auto') that the preparation settled
-    to one value for the whole run: the report's configuration block shows it beside the 'auto'."""
+    to one value for the whole run: the report's configuration block shows it beside the 'auto'. Of one run's
+    ``cfg``: runs that share a preparation (a sweep's batch) differ in the noise scales applied here."""
     got = {f"{sect}.{k}": v for sect, body in resolved.items() for k, v in body.items() if cfg[sect].get(k) == "auto"}
     for key, scale in NOISE_SCALES:
         if f"imu.{key}" in got:                      # what the filter runs with (settings_for): the estimate x scale

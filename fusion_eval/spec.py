@@ -15,6 +15,10 @@ class Spec(NamedTuple):
     ``kind``: ``choice`` (one of ``choices``), ``bool``, ``int``, ``float``, ``vec3`` (3 numbers, or one
     number for all three), ``windows`` (list of ``[start, end]``), ``jumps``. ``auto`` admits the string
     'auto', ``nullable`` admits null; ``positive``/``nonneg``/``below``/``above`` bound numbers (strictly).
+    ``reads``: who reads the key, where that decides how runs may share work. ``filter``: only the filter (its noise,
+    gates, initial uncertainty), so a sweep's runs differing only in such keys share one preparation of the data
+    (:func:`fusion_eval.batch.batch_key`); ``data``: it changes the data the filter is given (a simulated degradation
+    of a stream), so ``tune`` refuses to tune it. Empty: the preparation or the evaluation reads it too.
     """
 
     default: Any
@@ -27,6 +31,7 @@ class Spec(NamedTuple):
     auto: bool = False
     below: float | None = None
     above: float | None = None
+    reads: str = ""
 
 
 def S(default, doc, kind=None, *, below_one: bool = False, **kw) -> Spec:

@@ -509,3 +509,35 @@ def test_a_sweep_refuses_settings_scored_differently(small, tmp_path):
     assert (f"error: {sw}: variant 'default' setting 'a' sets evaluation.alignment = 'se3' and variant 'default' "
             "setting 'default' 'none': a sweep ranks its runs of a dataset against each other") in r.output
     assert not (tmp_path / "s").exists()
+
+
+def test_every_key_declared_filter_only_leaves_the_prepared_data_as_it_is(small):
+    """A sweep's runs that differ only in keys declared ``reads="filter"`` share one preparation of the data
+    (fusion_eval/batch.py, derived from the declarations): each such key, set to two values, gives the same prepared
+    data, byte for byte. A key the preparation reads, declared so by mistake, would score every run of a batch on the
+    first one's data."""
+    import pickle
+
+    from fusion_eval import session
+    from fusion_eval.batch import FILTER_ONLY_KEYS
+    from fusion_eval.config import schema
+    from fusion_eval.prepare import prepare
+
+    assert {"imu.gyro_noise_dps_sqrthz", "lidar.relative_pos_std_m", "gnss.std_scale", "init.pos_std_m"} <= set(FILTER_ONLY_KEYS)
+    ds = session.dataset(small)
+    specs = schema()
+
+    def two_values(spec):
+        if spec.kind == "choice":
+            return [c for c in spec.choices if c != "auto"][:2]
+        if spec.kind == "bool":
+            return [True, False]
+        v = spec.default if isinstance(spec.default, (int, float)) and spec.default else 0.05
+        v = v[0] if isinstance(v, list) else v
+        return ([v] * 3, [2 * v] * 3) if spec.kind == "vec3" else (v, 2 * v if spec.below is None else v / 2)
+
+    def prepared(key, value):
+        return pickle.dumps(prepare(ds, session.resolve(session.request(overrides={key: value}), ds)))
+    for key in FILTER_ONLY_KEYS:
+        a, b = two_values(specs[key])
+        assert prepared(key, a) == prepared(key, b), key

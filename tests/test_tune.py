@@ -315,7 +315,7 @@ def test_the_first_trial_is_the_default_even_where_the_default_is_auto(tmp_path)
 
     ds = session.dataset("data/kitti-00")
     cfg = session.resolve(session.request(), ds)
-    assert prepare._auto_settled(cfg, {}, {"gravity_mps2": 9.81})["lidar.noise_adapt"] == "nis"
+    assert prepare.auto_settled(cfg, {}, {"gravity_mps2": 9.81})["lidar.noise_adapt"] == "nis"
 
     best = {"number": 7, "values": [0.82], "overrides": {"lidar.relative_frame": "world"},
             "train": {"status": "ok", "values": [0.82]}}

@@ -110,7 +110,7 @@ def write_evaluation(out: StagedDir, res, plots_written: list[str], pool=None, a
         else:
             futures.append(pool.submit(*j))
             futures[-1].add_done_callback(lambda _f: advance())
-    md = report_md(res.dataset, res.config_source, res.evals, res.ratios, res.cfg, res.prep.applied, res.prep.gnss_info,
+    md = report_md(res.dataset, res.config_source, res.evals, res.ratios, res.cfg, res.resolved_extra["applied"], res.prep.gnss_info,
                    res.metrics, plots_written)
     out.write_text("report.md", md)
     inputs = inputs.result() if inputs is not None else input_files(dataset)

@@ -24,9 +24,9 @@ from .. import yaml_lines
 from ..config import check_value, read_yaml, schema
 from ..errors import ConfigError
 
-# keys that change the data or its scoring, not the filter's belief (see the module docstring)
-DATA_KEYS = ("gnss.noise_std_m", "gnss.rate_hz", "gnss.outages_s", "gnss.seed", "gnss_velocity.noise_std_mps",
-             "gnss_velocity.rate_hz", "gnss_velocity.outages_s", "gnss_velocity.seed", "odometer.added_noise_std_mps")
+# keys that change the data or its scoring, not the filter's belief (see the module docstring): declared with
+# reads="data" beside their defaults
+DATA_KEYS = tuple(k for k, spec in schema().items() if spec.reads == "data")
 DATA_SECTIONS = ("evaluation", "output")
 
 

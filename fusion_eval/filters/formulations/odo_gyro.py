@@ -106,11 +106,11 @@ class OdometerGyroKF(ErrorStateBase):
         x.v_w_mps[:] = x.R_wb[:, 0] * (1 - x.k_odo) * self.arrays.last[LAST_U + UV]
 
     keys = {
-        "odometer.speed_noise_mps_sqrthz": S(0.05, "odometer + gyro model: speed noise density, m/s/sqrt(Hz)", positive=True),
+        "odometer.speed_noise_mps_sqrthz": S(0.05, "odometer + gyro model: speed noise density, m/s/sqrt(Hz)", positive=True, reads="filter"),
         "odometer.slip_noise_mps_sqrthz": S(0.05, "odometer + gyro model: lateral/vertical slip noise density, m/s/sqrt(Hz)",
-                                            positive=True),
-        "odometer.scale_rw_per_sqrts": S(1e-5, "odometer + gyro model: random walk of the scale error, 1/sqrt(s)", nonneg=True),
-        "init.odometer_scale_std": S(0.01, "initial std of the odometer scale error (odometer + gyro model)", nonneg=True),
+                                            positive=True, reads="filter"),
+        "odometer.scale_rw_per_sqrts": S(1e-5, "odometer + gyro model: random walk of the scale error, 1/sqrt(s)", nonneg=True, reads="filter"),
+        "init.odometer_scale_std": S(0.01, "initial std of the odometer scale error (odometer + gyro model)", nonneg=True, reads="filter"),
     }
     streams = ("odometer",)
 

@@ -59,7 +59,7 @@ class GnssPosition(Observation):
         "gnss.std_m": S("auto", "GNSS std given to the filter per axis, m; 'auto' = sqrt(reported accuracy^2 + added noise^2)",
                         "vec3", positive=True, auto=True),
         "gnss.std_scale": S(1.0, "factor on the GNSS std given to the filter (after gnss.std_m): one number to tune "
-                                 "that keeps the per-fix accuracy the receiver reports", positive=True),
+                                 "that keeps the per-fix accuracy the receiver reports", positive=True, reads="filter"),
         "gnss.lever_arm_b_m": S([0.0, 0.0, 0.0], "antenna position in the body frame, m"),
         "gnss.gate_prob": S(None, "reject a fix whose NIS lies beyond this chi-square probability (e.g. 0.999); "
                                   "null = no gating", "float", positive=True, nullable=True, below_one=True),

@@ -119,13 +119,13 @@ class GnssVelocity(Observation):
                                          "float", nullable=True),
         "gnss_velocity.rate_hz": S("auto", "decimate the GNSS velocity to this rate; 'auto' = gnss.rate_hz (the receiver's "
                                            "epochs); null = keep every one; only for streams the manifest marks 'degrade'",
-                                   "float", positive=True, nullable=True, auto=True),
+                                   "float", positive=True, nullable=True, auto=True, reads="data"),
         "gnss_velocity.noise_std_mps": S([0.05, 0.05, 0.1], "white noise added to the GNSS velocity per axis E/N/U, m/s",
-                                         nonneg=True),
+                                         nonneg=True, reads="data"),
         "gnss_velocity.outages_s": S("auto", "GNSS velocity outage windows [[start, end], ...], s from the filter's start; "
-                                             "'auto' = gnss.outages_s", "windows", auto=True),
+                                             "'auto' = gnss.outages_s", "windows", auto=True, reads="data"),
         "gnss_velocity.seed": S(None, "seed of the GNSS velocity noise; null = gnss.seed (drawn independently of the "
-                                      "position noise)", "int", nullable=True, nonneg=True),
+                                      "position noise)", "int", nullable=True, nonneg=True, reads="data"),
         "gnss_velocity.std_mps": S("auto", "GNSS velocity std given to the filter per axis, m/s; 'auto' = "
                                            "sqrt(reported accuracy^2 + added noise^2)", "vec3", positive=True, auto=True),
         "gnss_velocity.components": S("enu", "components fused: 'enu', or 'en' (horizontal only: a vertical rate made by "

@@ -52,7 +52,7 @@ class NonHolonomic(Observation):
         "filter.nhc_max_turn_rate_rps": S(0.13, "apply the constraint only while |angular rate| is below this, rad/s",
                                           positive=True),
         "filter.nhc_rate_hz": S(10.0, "rate of the constraint's pseudo-observations, Hz", positive=True),
-        "filter.nhc_std_mps": S(0.1, "std of the constraint (lateral and vertical slip), m/s", positive=True),
+        "filter.nhc_std_mps": S(0.1, "std of the constraint (lateral and vertical slip), m/s", positive=True, reads="filter"),
         "filter.nhc_travel_pitch_mrad": S("auto", "pitch of the direction of travel above the IMU's x-y plane, mrad; 'auto' "
                                                   "= from the lidar odometry's body-frame increments on straight stretches, "
                                                   "else from a smoothed IMU + GNSS pass; null (or no estimate) = the "

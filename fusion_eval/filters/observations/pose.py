@@ -73,8 +73,8 @@ class AbsolutePose(Observation):
     keys = {
         "filter.lidar_update": S("relative", "lidar odometry as 'relative' pose increments (stochastic cloning), "
                                              "'absolute' poses, or 'none'", choices=LIDAR_FORMS),
-        "lidar.absolute_pos_std_m": S(1.0, "absolute update: position std, m", positive=True),
-        "lidar.absolute_att_std_deg": S(1.0, "absolute update: attitude std, deg", positive=True),
+        "lidar.absolute_pos_std_m": S(1.0, "absolute update: position std, m", positive=True, reads="filter"),
+        "lidar.absolute_att_std_deg": S(1.0, "absolute update: attitude std, deg", positive=True, reads="filter"),
     }
 
     # the same gate as the relative form (the key is declared there): map matching has outliers of its own (a wrong

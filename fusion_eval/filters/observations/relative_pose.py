@@ -128,25 +128,25 @@ class RelativePose(Observation):
     blocks = frozenset({"P", "TH", "CP", "CTH"})
     enabled_by = "filter.lidar_update"
     keys = {
-        "lidar.relative_pos_std_m": S(0.02, "relative update: position increment std, constant part, m", nonneg=True),
+        "lidar.relative_pos_std_m": S(0.02, "relative update: position increment std, constant part, m", nonneg=True, reads="filter"),
         "lidar.relative_pos_std_frac": S(0.01, "relative update: position increment std per metre travelled (0.01 = 1 %)",
-                                         nonneg=True),
-        "lidar.relative_att_std_deg": S(0.05, "relative update: rotation increment std, constant part, deg", positive=True),
+                                         nonneg=True, reads="filter"),
+        "lidar.relative_att_std_deg": S(0.05, "relative update: rotation increment std, constant part, deg", positive=True, reads="filter"),
         "lidar.relative_att_std_frac": S(0.0, "relative update: rotation increment std per radian turned (0.02 = 2 %: "
-                                              "an odometry that under- or over-rotates turns)", nonneg=True),
+                                              "an odometry that under- or over-rotates turns)", nonneg=True, reads="filter"),
         "lidar.relative_frame": S("auto", "frame of the position increment: 'body' (the previous frame's, rotated by the "
                                           "filter's attitude), 'world' (the odometry's own map frame), 'heading' (the "
                                           "previous frame's yaw only: horizontal as 'body', vertical as 'world') or "
                                           "'auto' = body when GNSS is fused (or under the batch smoother), else heading",
                                   choices=("auto", *FRAMES)),
         "lidar.gate_prob": S(None, "reject a lidar update (a relative increment or an absolute pose) whose NIS is "
-                                   "beyond this chi-square probability (6 dof), e.g. 0.9999; null = no gate", "float", positive=True, below=1.0, nullable=True),
+                                   "beyond this chi-square probability (6 dof), e.g. 0.9999; null = no gate", "float", positive=True, below=1.0, nullable=True, reads="filter"),
         "lidar.noise_adapt": S("auto", "'nis' = scale the position and rotation noise online so that each block's "
                                        "mean NIS matches its dof (no ground truth); 'nis_position' = the position block "
                                        "only; 'none' = as configured; 'auto' = nis when GNSS is fused, else none",
-                               choices=("auto", "none", "nis", "nis_position")),
+                               choices=("auto", "none", "nis", "nis_position"), reads="filter"),
         "lidar.adapt_rate": S(0.02, "adaptive noise: forgetting rate per update (0.02 = about 50 updates)", positive=True,
-                              below=1.0),
+                              below=1.0, reads="filter"),
     }
     gate_key = "lidar.gate_prob"
 
