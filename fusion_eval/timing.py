@@ -27,6 +27,8 @@ MIN_OVERLAP_S = 20.0    # below this, too few turns to find a shift of a few ms
 # accel 65.8, 63.9, 66.3, 58.3, 62.0 ms (+/- 2.2, 2.4, 2.8, 4.7, 6.0) -> 64.6; gyro 58.8, 60.0, 59.9, 58.9,
 # 59.3 ms (+/- 0.4, 0.4, 0.5, 1.2, 1.0) -> 59.5 (kitti-00 and SiMpLE 00 share one drive's IMU).
 MAX_LEAD_S = 0.02        # an estimated lag below -20 ms (beyond 3 sigma) is no latency: flagged
+# a jackknife std of an estimated lag or offset beyond this: the drive's blocks disagree (the real drives: 0.4-2.1 ms)
+MAX_TIME_STD_S = 0.01
 DEVICE_LAGS_S = {"kitti_oxts": {"accel_lag_s": 0.0646, "gyro_lag_s": 0.0595}}
 
 
@@ -85,6 +87,14 @@ def align(ds: Dataset, cfg: dict, imu: ImuSeries, lidar_offset_given) -> tuple[I
                         "(try lidar.time_offset_s=auto with the lag given)")
             for k, v in est.items():
                 log.info("%s estimated from the data: %.1f +/- %.1f ms", k.replace("_", " "), v.value_s * 1e3, v.std_s * 1e3)
+                if v.std_s is not None and v.std_s > MAX_TIME_STD_S:
+                    # one lidar frame missing or repeated where its stamps are the IMU's by index shifts every later
+                    # frame: the lag came out at 121.6 +/- 18.2 ms (59.9 +/- 0.5 recorded) and 0.44 -> 0.67 m, no word
+                    applied.setdefault("time_warnings", []).append(
+                        f"{k.replace('_', ' ')} estimated from the data: {v.value_s * 1e3:+.1f} +/- {v.std_s * 1e3:.1f} ms, "
+                        f"a spread over {MAX_TIME_STD_S * 1e3:.0f} ms: parts of the drive disagree on it, as when the "
+                        "lidar's stamps shift partway (a frame missing or repeated where they are the IMU's by index, "
+                        "times: align_to: imu); check the lidar's frames against its stamps")
         else:
             fmt = ds.description.get("streams", {}).get("imu", {}).get("format")
             known = DEVICE_LAGS_S.get(fmt)

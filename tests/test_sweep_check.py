@@ -541,3 +541,17 @@ def test_every_key_declared_filter_only_leaves_the_prepared_data_as_it_is(small)
     for key in FILTER_ONLY_KEYS:
         a, b = two_values(specs[key])
         assert prepared(key, a) == prepared(key, b), key
+
+
+def test_a_json_key_given_twice_and_a_setting_named_default_are_refused(tmp_path):
+    """A baseline whose second "ratios" held 99 passed every check (json keeps the last of two keys), and a sweep
+    setting named 'default' was "setting names must be unique" with no line (found by a corrupted-input review)."""
+    base = _metrics(tmp_path, "base.json", 1.0)
+    cur = _metrics(tmp_path, "cur.json", 1.0)
+    base.write_text(base.read_text()[:-1] + ', "ratios": {"fused_over_lidar": 99.0}}')
+    r = CliRunner().invoke(main, ["check", str(cur), "--baseline", str(base)])
+    assert r.exit_code == 2 and f"error: {base}: key 'ratios' given twice in one JSON object" in r.output, r.output
+    sw = tmp_path / "sweep.yaml"
+    sw.write_text("settings:\n  default: {imu.gyro_noise_dps_sqrthz: 0.2}\n")
+    r = CliRunner().invoke(main, ["sweep", str(tmp_path), "--grid", str(sw), "--out", str(tmp_path / "s")])
+    assert r.exit_code == 2 and f"error: {sw}:2: 'default' is the name of the run with no setting" in r.output, r.output

@@ -45,6 +45,8 @@ def test_the_space_refuses_keys_that_change_the_data_and_bad_ranges(tmp_path):
         ("params:\n  imu.nope: {low: 0.1, high: 1}\n", "unknown configuration key 'imu.nope'"),
         ("params:\n  imu.gyro_noise_dps_sqrthz: {low: 0.0, high: 1, log: true}\n", "low > 0"),
         ("params:\n  imu.gyro_noise_dps_sqrthz: {low: 1, high: 0.1}\n", "low < high"),
+        ("params:\n  imu.gyro_noise_dps_sqrthz: {low: 0.1, high: .inf}\n", "low and high must be finite numbers"),
+        ("params:\n  filter.discretization: {choices: [van_loan, first_order, van_loan]}\n", "lists a value twice"),
         ("params:\n  imu.gyro_noise_dps_sqrthz: {low: 0.1, high: 1, step: 2}\n", "unknown field 'step'"),
         ("params:\n  filter.discretization: {choices: [first_order, bogus]}\n", "discretization"),
         ("params: {}\n", "'params'"),

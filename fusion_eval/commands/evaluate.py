@@ -40,6 +40,9 @@ def read_inputs(inputs: list, bag: Path | None, ref_topic: str | None, fmt: str,
             raise ConfigError("--ref-times, --times and --format apply to trajectory files, not to bag topics")
         if ref_topic in inputs and t_offset_s == 0.0:
             raise ConfigError(f"--bag {bag}: topic {ref_topic} given as an estimate and as the reference (--ref)")
+        twice = next((t for i, t in enumerate(inputs) if t in inputs[:i]), None)
+        if twice is not None:            # (as one file given twice: it would be evaluated twice, as two estimates)
+            raise ConfigError(f"--bag {bag}: topic {twice} given twice as an estimate")
         tfs = read_bag_trajectories(bag, [ref_topic, *inputs])
         return tfs[0], tfs[1:]
     if ref_topic:
@@ -75,72 +78,73 @@ def run_evaluate(inputs: list, out_dir: Path, ref_times: Path | None = None, tim
                      up_axis, n_to_align)
     staged = StagedDir(out_dir, overwrite=overwrite, inputs=(*(inputs if bag is None else ()), bag, ref_times, times))
     staged.check()
-    ref_f, est_fs = read_inputs(list(inputs), bag, ref_topic, fmt, ref_times, times, t_offset_s)
-    if segment_s is not None and ref_f.stamps == BY_INDEX:
-        # the frame index would be read as seconds: 60 frames of a 10 Hz drive labelled "60 s"
-        raise ConfigError(f"--segment-s needs stamps in seconds, and the reference {ref_f.source} has none (KITTI poses "
-                          "without a times file are stamped by frame index): give --ref-times and --times, or "
-                          "--segment-m")
-    series, about, covs = {}, {}, {}
-    names = [Path(f.source).stem if f.format != "bag" else f.traj.meta["name"].strip("/").replace("/", "_") for f in est_fs]
-    # files of one name in different folders (run1/fused.tum, run2/fused.tum) are told apart by their folder
-    names = [f"{Path(f.source).parent.name}-{n}" if f.format != "bag" and names.count(n) > 1 and Path(f.source).parent.name
-             else n for f, n in zip(est_fs, names)]
-    for f, name in zip(est_fs, names):
-        while name in series or name == "groundtruth":
-            name += "_"
-        series[name] = f.traj
-        about[name] = {"file": f.source, "format": f.format, "stamps": f.stamps,
-                       **({"repeated_stamps": f.repeated_stamps} if f.repeated_stamps else {}),
-                       **({"reading": f.note} if f.note else {})}
-        if f.cov is not None:
-            covs[name] = (f.cov_t_s, f.cov)
-    turns = {name: _orientation_placeholder(f, ref_f) for name, f in zip(series, est_fs)}
-    fixed = frozenset(name for name, turn in turns.items() if turn is not None)
-    try:
-        m, evals = evaluate_series(ref_f.traj, series, association, alignment, t_max_diff_s, rpe_delta_m, segment_m,
-                                   segment_s, about, ref_stamps=ref_f.stamps, engine=engine, relations=relations,
-                                   up_axis=up_axis, n_to_align=n_to_align, t_offset_s=t_offset_s, covariances=covs,
-                                   position_only=fixed,
-                                   ref_name=ref_topic if bag is not None else Path(ref_f.source).name)
-    except DataRangeError:
-        # an alignment that failed on the 2 poses a stamp unit mistake matched: the unit is the news, not the
-        # alignment ('choose another --alignment' for a times file in ms)
-        for f in est_fs:
-            if _unit_power(ref_f, f):
-                raise DataRangeError(f"{_span(f)} against the reference {_span(ref_f)}: {_unit_hint(ref_f, f).rstrip()} "
-                                     f"(its stamps scaled by 1e{-3 * _unit_power(ref_f, f):+d} would cover the "
-                                     "reference's; give them in seconds)") from None
-        raise
-    _refuse_unmatched(ref_f, est_fs, evals, association, t_max_diff_s)
-    for name in fixed:                   # why, in the report too (it was on stderr only)
-        m["estimates"][name]["note"] = (f"position only (one and the same orientation on every pose, while the reference "
-                                        f"turns by up to {turns[name]:.0f} deg: placeholders): no rotation, relative (RPE) "
-                                        "or KITTI drift metric")
-    for name, f in zip(series, est_fs):
-        for why in convention_hints(f, ref_f, alignment):
-            log.warning("%s: %s", name, why)
-            e = m["estimates"][name]
-            e["note"] = f"{e['note']}; {why}" if e.get("note") else why
-    if alignment == "none":              # bag topics in other frames, compared as they are (317 m with exit 0 once)
-        edges = None
+    # the output folder (its staging) is made before the work: an --out that cannot be created was said only after it
+    with staged as out:
+        ref_f, est_fs = read_inputs(list(inputs), bag, ref_topic, fmt, ref_times, times, t_offset_s)
+        if segment_s is not None and ref_f.stamps == BY_INDEX:
+            # the frame index would be read as seconds: 60 frames of a 10 Hz drive labelled "60 s"
+            raise ConfigError(f"--segment-s needs stamps in seconds, and the reference {ref_f.source} has none (KITTI poses "
+                              "without a times file are stamped by frame index): give --ref-times and --times, or "
+                              "--segment-m")
+        series, about, covs = {}, {}, {}
+        names = [Path(f.source).stem if f.format != "bag" else f.traj.meta["name"].strip("/").replace("/", "_") for f in est_fs]
+        # files of one name in different folders (run1/fused.tum, run2/fused.tum) are told apart by their folder
+        names = [f"{Path(f.source).parent.name}-{n}" if f.format != "bag" and names.count(n) > 1 and Path(f.source).parent.name
+                 else n for f, n in zip(est_fs, names)]
+        for f, name in zip(est_fs, names):
+            while name in series or name == "groundtruth":
+                name += "_"
+            series[name] = f.traj
+            about[name] = {"file": f.source, "format": f.format, "stamps": f.stamps,
+                           **({"repeated_stamps": f.repeated_stamps} if f.repeated_stamps else {}),
+                           **({"reading": f.note} if f.note else {})}
+            if f.cov is not None:
+                covs[name] = (f.cov_t_s, f.cov)
+        turns = {name: _orientation_placeholder(f, ref_f) for name, f in zip(series, est_fs)}
+        fixed = frozenset(name for name, turn in turns.items() if turn is not None)
+        try:
+            m, evals = evaluate_series(ref_f.traj, series, association, alignment, t_max_diff_s, rpe_delta_m, segment_m,
+                                       segment_s, about, ref_stamps=ref_f.stamps, engine=engine, relations=relations,
+                                       up_axis=up_axis, n_to_align=n_to_align, t_offset_s=t_offset_s, covariances=covs,
+                                       position_only=fixed,
+                                       ref_name=ref_topic if bag is not None else Path(ref_f.source).name)
+        except DataRangeError:
+            # an alignment that failed on the 2 poses a stamp unit mistake matched: the unit is the news, not the
+            # alignment ('choose another --alignment' for a times file in ms)
+            for f in est_fs:
+                if _unit_power(ref_f, f):
+                    raise DataRangeError(f"{_span(f)} against the reference {_span(ref_f)}: {_unit_hint(ref_f, f).rstrip()} "
+                                         f"(its stamps scaled by 1e{-3 * _unit_power(ref_f, f):+d} would cover the "
+                                         "reference's; give them in seconds)") from None
+            raise
+        _refuse_unmatched(ref_f, est_fs, evals, association, t_max_diff_s)
+        for name in fixed:                   # why, in the report too (it was on stderr only)
+            m["estimates"][name]["note"] = (f"position only (one and the same orientation on every pose, while the reference "
+                                            f"turns by up to {turns[name]:.0f} deg: placeholders): no rotation, relative (RPE) "
+                                            "or KITTI drift metric")
         for name, f in zip(series, est_fs):
-            a, b = (x.strip("/") if x else None for x in (f.frame_id, ref_f.frame_id))
-            if a and b and a != b:
-                from ..datasets import rosbag
-
-                edges = rosbag.static_edges(bag) if edges is None else edges
-                T = rosbag.transform_between(edges, b, a)
-                if T is not None and np.allclose(T, np.eye(4), atol=1e-9):
-                    continue              # two names of one frame (map -> world as an identity /tf_static edge)
-                why = (f"its poses are in frame '{a}', the reference's in '{b}': without an alignment (--alignment se3, "
-                       "or origin) their positions are compared across two frames")
+            for why in convention_hints(f, ref_f, alignment):
                 log.warning("%s: %s", name, why)
                 e = m["estimates"][name]
                 e["note"] = f"{e['note']}; {why}" if e.get("note") else why
-    metrics = {"reference": ref_f.source, "reference_format": ref_f.format, "reference_stamps": ref_f.stamps,
-               **({"reference_repeated_stamps": ref_f.repeated_stamps} if ref_f.repeated_stamps else {}), **m}
-    with staged as out:
+        if alignment == "none":              # bag topics in other frames, compared as they are (317 m with exit 0 once)
+            edges = None
+            for name, f in zip(series, est_fs):
+                a, b = (x.strip("/") if x else None for x in (f.frame_id, ref_f.frame_id))
+                if a and b and a != b:
+                    from ..datasets import rosbag
+
+                    edges = rosbag.static_edges(bag) if edges is None else edges
+                    T = rosbag.transform_between(edges, b, a)
+                    if T is not None and np.allclose(T, np.eye(4), atol=1e-9):
+                        continue              # two names of one frame (map -> world as an identity /tf_static edge)
+                    why = (f"its poses are in frame '{a}', the reference's in '{b}': without an alignment (--alignment se3, "
+                           "or origin) their positions are compared across two frames")
+                    log.warning("%s: %s", name, why)
+                    e = m["estimates"][name]
+                    e["note"] = f"{e['note']}; {why}" if e.get("note") else why
+        metrics = {"reference": ref_f.source, "reference_format": ref_f.format, "reference_stamps": ref_f.stamps,
+                   **({"reference_repeated_stamps": ref_f.repeated_stamps} if ref_f.repeated_stamps else {}), **m}
         out.write_text("metrics.json", json.dumps(metrics, indent=2) + "\n")
         for ev in evals.values():          # evo's result files, one per metric and pose relation (evo_res reads them)
             files.write_evo_zips(ev, out.path("."))

@@ -144,6 +144,9 @@ def settings_of(body: dict, where: str) -> list[tuple[str, dict]]:
         return check_value(key, known[key], value, at)
 
     for name, ov in (body.get("settings") or {}).items():
+        if str(name) == "default":          # it was "setting names must be unique", with no line
+            raise ConfigError(f"{yaml_lines.at(where, body.get('settings'), name)}: 'default' is the name of the run "
+                              "with no setting, which every sweep makes; name this setting otherwise")
         if not isinstance(ov, dict):
             raise ConfigError(f"{yaml_lines.at(where, body.get('settings'), name)}: setting {name!r} must map configuration "
                               "keys to values")
@@ -184,7 +187,9 @@ def settings_of(body: dict, where: str) -> list[tuple[str, dict]]:
             out.append((f"random-{i:03d}", ov))
     names = [n for n, _ in out]
     if len(set(names)) != len(names):
-        raise ConfigError(f"{where}: setting names must be unique")
+        twice = next(n for n in names if names.count(n) > 1)
+        raise ConfigError(f"{where}: setting names must be unique: {twice!r} is made twice (a named setting and a grid "
+                          "or random one)")
     if len(out) == 1:
         raise ConfigError(f"{where}: nothing to sweep (give grid, settings or random)")
     return out

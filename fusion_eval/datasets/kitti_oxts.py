@@ -120,7 +120,9 @@ def read_oxts(path: Path) -> OxtsPackets:
     if len(names) != t.size:
         have = set(names)
         missing = next((f"{i:010d}.txt" for i in range(t.size) if f"{i:010d}.txt" not in have), None)
-        what = f": {missing} is missing" if missing else f": {len(names) - t.size} more than the stamps"
+        extra = [n for n in names if not (n[:-4].isdigit() and int(n[:-4]) < t.size)]    # notes.txt, 0000004544.txt
+        what = (f": {missing} is missing" if missing else f": {len(names) - t.size} more than the stamps"
+                + (f" ({', '.join(extra[:3])}{', ...' if len(extra) > 3 else ''})" if extra else ""))
         raise DataFormatError(data_dir, None, f"expected {t.size} packet files (one per line of timestamps.txt), found "
                                               f"{len(names)}{what}")
     packet_paths = tuple(data_dir / n for n in names)
@@ -132,7 +134,9 @@ def read_oxts(path: Path) -> OxtsPackets:
                                                          "be numbered consecutively from 0)")
         parts = _packet_tokens(packet_paths[i])
         if len(parts) != N_FIELDS:
-            raise DataFormatError(packet_paths[i], 1, f"expected {N_FIELDS} values per OXTS packet, got {len(parts)}")
+            twice = len(parts) % N_FIELDS == 0 and len(parts) > N_FIELDS
+            raise DataFormatError(packet_paths[i], 1, f"expected {N_FIELDS} values per OXTS packet, got {len(parts)}"
+                                                      + (f" ({len(parts) // N_FIELDS} packets in one file?)" if twice else ""))
         try:
             row = [float(x) for x in parts]
         except ValueError:

@@ -93,7 +93,10 @@ def load_space(path: Path) -> Space:
             ch = spec["choices"]
             if not isinstance(ch, list) or len(ch) < 2 or set(spec) - {"choices"}:
                 raise ConfigError(f"{at}: {key}: 'choices' must be a list of at least two values, alone")
-            params.append(Param(key, choices=tuple(check_value(key, known[key], c, at) for c in ch)))
+            choices = tuple(check_value(key, known[key], c, at) for c in ch)
+            if len(set(map(repr, choices))) != len(choices):    # (a sweep's grid refuses them too)
+                raise ConfigError(f"{at}: {key}: 'choices' lists a value twice: {ch!r}")
+            params.append(Param(key, choices=choices))
             continue
         if set(spec) - {"low", "high", "log", "shape"}:
             raise ConfigError(f"{at}: {key}: unknown field {sorted(set(spec) - {'low', 'high', 'log', 'shape'})[0]!r} "
@@ -105,7 +108,9 @@ def load_space(path: Path) -> Space:
         log = spec.get("log", False)
         if not isinstance(log, bool):
             raise ConfigError(f"{at}: {key}: log must be true or false, got {log!r}")
-        if not (math.isfinite(low) and math.isfinite(high) and low < high and (low > 0 or not log)):
+        if not (math.isfinite(low) and math.isfinite(high)):
+            raise ConfigError(f"{at}: {key}: low and high must be finite numbers, got [{low:g}, {high:g}]")
+        if not (low < high and (low > 0 or not log)):
             raise ConfigError(f"{at}: {key}: the range must be low < high{' with low > 0 (log scale)' if log else ''}, "
                               f"got [{low:g}, {high:g}]")
         shape = spec.get("shape")
