@@ -115,7 +115,8 @@ class Group(click.Group):
             if isinstance(exc, click.UsageError):   # a command's options, an unknown command
                 _usage_error(exc)
             if isinstance(exc, RuntimeError) and str(exc).startswith("Symlink loop from "):
-                # pathlib's resolve() on a loop of links (Python < 3.13; later ones raise OSError ELOOP, below)
+                # pathlib's resolve() on a loop of links (up to Python 3.12) where no check saw it first
+                # (outputs.refuse_link_loop sees the dataset and --out of every command)
                 click.echo(f"error: {str(exc)[len('Symlink loop from '):].strip(chr(39))}: a loop of symbolic links "
                            "(the link leads, through others, back to itself)", err=True)
                 sys.exit(2)

@@ -5,6 +5,7 @@ leaves a half-written output directory and never destroys an earlier one."""
 from __future__ import annotations
 
 import contextlib
+import errno
 import os
 import shutil
 import socket
@@ -159,10 +160,23 @@ def dataset_roots(*paths) -> tuple[Path, ...]:
     return tuple(Path(p) for p in paths if p is not None)
 
 
+def refuse_link_loop(path) -> None:
+    """A path that is or lies under a loop of symbolic links, as one line: pathlib's ``resolve`` raised it as a
+    RuntimeError traceback up to Python 3.12, and from 3.13 passes it on as a path that later reads fail on."""
+    try:
+        os.stat(path)
+    except OSError as exc:
+        if exc.errno == errno.ELOOP:
+            raise OutputError(f"{path}: a loop of symbolic links (the link leads, through others, back to "
+                              "itself)") from None
+
+
 def refuse_overlap(out: Path, inputs=()) -> None:
     """An output folder that is or holds an input, or the current directory: replacing it (``--overwrite``)
     deleted the inputs (a run with ``--out`` its own dataset folder exited 0 with the dataset gone). A folder inside
     a dataset's is allowed (``results/`` beside a manifest, or in a dataset folder one works in)."""
+    for p in (out, *inputs):
+        refuse_link_loop(p)
     final = Path(out).resolve()
     for p in inputs:
         q = Path(p).resolve()

@@ -134,7 +134,7 @@ def share(ds: Dataset, cfg: dict, pool, zip_dir: Path | None = None) -> Shared:
     ev_cfg = cfg["evaluation"]
     gt = prep.groundtruth
     # the fused estimate and dead reckoning cover the IMU samples from the start on
-    spans = {n: span.coverage(series[n]) for n in ("lidar", "gnss") if n in series}
+    spans = {n: span.stream_coverage(n, series[n], prep.applied) for n in ("lidar", "gnss") if n in series}
     spans["fused"] = (float(prep.imu.t_s[prep.k_start]), float(prep.imu.t_s[-1]))
     try:
         sp = span.span_for(ev_cfg["span"], gt, spans)

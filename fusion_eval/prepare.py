@@ -245,7 +245,7 @@ def prepare(ds: Dataset, cfg: dict) -> Prepared:
         else:
             other_frame = plausible.unanchored_lidar(lid, gt)
         # (positions in another frame fit the truth at no time shift: the frame is the warning then)
-        more_warnings += filter(None, [other_frame or plausible.clock_shift("the lidar", lid, gt)])
+        more_warnings += filter(None, [other_frame or plausible.clock_shift("the lidar", lid, gt, "lidar.time_offset_s", lidar_off)])
         if ds.description.get("lidar_clock"):
             applied["lidar_clock"] = ds.description["lidar_clock"]
         if cfg["filter"].get("nhc") and cfg["filter"].get("nhc_travel_pitch_mrad") == "auto":
@@ -276,11 +276,13 @@ def prepare(ds: Dataset, cfg: dict) -> Prepared:
         applied["time_offset_s"]["gnss"] = off
         g = shifted(ds.gnss, off)
         g = g.select(~g.filled)
-        more_warnings += filter(None, [plausible.gnss_offset(g, gt), plausible.clock_shift("GNSS", g, gt)])  # as configured
+        more_warnings += filter(None, [plausible.gnss_offset(g, gt), plausible.clock_shift("GNSS", g, gt, "gnss.time_offset_s", off)])  # as configured
         if len(g) and (g.t_s[-1] < t0 or g.t_s[0] > imu.t_s[-1]):
             raise DataRangeError(f"GNSS ({ds.gnss.source}, {g.t_s[0]:.3f}..{g.t_s[-1]:.3f} s after its time_offset_s of "
                                  f"{off:g} s) and IMU ({ds.imu.source}, {t0:.3f}..{imu.t_s[-1]:.3f} s) do not overlap in time")
         g = g.select((g.t_s >= t0) & (g.t_s <= imu.t_s[-1]))
+        if len(g):      # the stream's extent before the outages and rate set: what the scores' common span takes
+            applied["gnss_coverage_s"] = [float(g.t_s[0]), float(g.t_s[-1])]
         c = cfg["gnss"]
         span_s = float(imu.t_s[-1] - t0)
         for a, b in c["outages_s"]:

@@ -221,11 +221,12 @@ def test_no_compiled_caller_passes_the_steps_covariance_flag_as_a_constant():
             continue
         mod = importlib.import_module(m.name)
         sources.append((m.name, ast.parse(open(mod.__file__).read()), False))
-        template = getattr(mod, "_LOOP", None)            # the loops generated from a template (propagate, replay)
-        if isinstance(template, str):
-            template = re.sub(r"\{(\w+)\}", r"\1", re.sub(r"^\{\w+\}$", "        pass", template, flags=re.M))
-            sources.append((f"{m.name}._LOOP", ast.parse(template), True))
-    assert sum(generated for *_, generated in sources) == 2
+        for attr in ("_LOOP", "_SEGMENT"):                # the loops generated from templates (propagate, replay, RTS)
+            template = getattr(mod, attr, None)
+            if isinstance(template, str):
+                template = re.sub(r"\{(\w+)\}", r"\1", re.sub(r"^\{\w+\}$", "        pass", template, flags=re.M))
+                sources.append((f"{m.name}.{attr}", ast.parse(template), True))
+    assert sum(generated for *_, generated in sources) == 3
     found = []
     for name, tree, generated in sources:
         for fn in ast.walk(tree):

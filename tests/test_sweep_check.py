@@ -378,6 +378,17 @@ def test_check_refuses_metrics_scored_otherwise_than_the_baseline(tmp_path):
     assert r.exit_code == 2, r.output
     assert (f"error: {cur} was evaluated with evaluation.alignment = 'se3' and the baseline {base} with 'none': their "
             "figures do not compare") in r.output
+    # the baseline CI gates on records its scoring too (it once held none, and nothing was compared)
+    from conftest import ROOT
+
+    shipped = ROOT / "configs" / "baselines" / "kitti-00.json"
+    assert json.loads(shipped.read_text())["evaluation"]["alignment"] == "none"
+    r = CliRunner().invoke(main, ["check", str(cur), "--baseline", str(shipped)])
+    assert r.exit_code == 2 and "evaluation.alignment = 'se3'" in r.output, r.output
+    # a setting only one file records is not compared
+    base.write_text(json.dumps({**json.loads(base.read_text()), "evaluation": {"association": "nearest"}}))
+    r = CliRunner().invoke(main, ["check", str(cur), "--baseline", str(base)])
+    assert r.exit_code == 0, r.output
 
 
 @pytest.mark.parametrize("value,name", [(-1.0, "base.json"), (1e300, "base.json"), (-0.2, "cur.json")])
@@ -555,3 +566,17 @@ def test_a_json_key_given_twice_and_a_setting_named_default_are_refused(tmp_path
     sw.write_text("settings:\n  default: {imu.gyro_noise_dps_sqrthz: 0.2}\n")
     r = CliRunner().invoke(main, ["sweep", str(tmp_path), "--grid", str(sw), "--out", str(tmp_path / "s")])
     assert r.exit_code == 2 and f"error: {sw}:2: 'default' is the name of the run with no setting" in r.output, r.output
+
+
+def test_each_run_of_a_batch_reports_its_own_noise_scale(small, tmp_path):
+    """Runs that share a preparation (a batch) differ in the filter's noise scales: the IMU noise each one runs with
+    (the estimate times its scale, metrics.json's preprocessing.auto_settled and report.md) is its own; it was the
+    first run's, recorded by the shared preparation (found by a review of the Spec.reads change)."""
+    sw = tmp_path / "sweep.yaml"
+    sw.write_text("settings:\n  g: {imu.accel_noise_scale: 2.0}\n")
+    out = tmp_path / "s"
+    r = CliRunner().invoke(main, ["sweep", str(small), "--grid", str(sw), "--out", str(out), "--jobs", "1"])
+    assert r.exit_code == 0 and "2 of 2 runs differ only in filter settings: 1 batch," in r.output, r.output
+    recs = {r["setting"]: r for r in (json.loads(p.read_text()) for p in (out / "records").glob("*.json"))}
+    settled = {k: v["metrics"]["preprocessing"]["auto_settled"]["imu.accel_noise_mps2_sqrthz"] for k, v in recs.items()}
+    assert settled["g"] == pytest.approx(2.0 * settled["default"], rel=1e-12), settled

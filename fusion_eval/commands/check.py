@@ -296,26 +296,26 @@ _ERROR_FIGURE = re.compile(r"(^|[._/])(ape|rpe|kitti_drift|t_err|r_err)|_over_")
 MAX_ERROR_FIGURE = 1e9
 
 
-# how a run's figures were scored (metrics.json's "evaluation"); the engine is not among them (its figures equal evo's)
-_SCORING = ("association", "alignment", "t_max_diff_s", "rpe_delta_m")
+# how the figures were scored (metrics.json's "evaluation", of run or evaluate); not the engine (its figures equal evo's)
+_SCORING = ("association", "alignment", "t_max_diff_s", "rpe_delta_m", "t_offset_s", "n_to_align", "up_axis", "span")
 
 
 def _refuse_other_scoring(metrics_path: Path, base_path: Path) -> None:
     """A metrics file scored otherwise than its baseline (an aligned APE against an unaligned one: the check
-    passed) is refused, naming the first setting that differs."""
+    passed) is refused, naming the first setting that differs; a setting only one file records is not compared (a
+    baseline trimmed to its gated figures, or written before the setting was recorded)."""
     from ..errors import ConfigError
 
     ev = [_json_field(p, "evaluation") for p in (metrics_path, base_path)]
     if not all(isinstance(e, dict) for e in ev):
         return
-    scoring = [{**{k: e.get(k) for k in _SCORING}, "span": (e.get("span") or {}).get("mode", "own")
-                if isinstance(e.get("span"), dict) else e.get("span")} for e in ev]
-    diff = [k for k in scoring[0] if scoring[0][k] != scoring[1][k]]
-    if diff:
-        k = diff[0]
-        raise ConfigError(f"{metrics_path} was evaluated with evaluation.{k} = {scoring[0][k]!r} and the baseline "
-                          f"{base_path} with {scoring[1][k]!r}: their figures do not compare; run both with the same "
-                          "evaluation settings, or make a new baseline")
+    # a span is compared by its mode: its bounds follow the data, and a new run's may move by a sample
+    mode = [{**e, **({"span": e["span"].get("mode")} if isinstance(e.get("span"), dict) else {})} for e in ev]
+    for k in _SCORING:
+        if k in mode[0] and k in mode[1] and mode[0][k] != mode[1][k]:
+            raise ConfigError(f"{metrics_path} was evaluated with evaluation.{k} = {mode[0][k]!r} and the baseline "
+                              f"{base_path} with {mode[1][k]!r}: their figures do not compare; run both with the same "
+                              "evaluation settings, or make a new baseline")
 
 
 def _json_field(path: Path, key: str):

@@ -459,8 +459,8 @@ def execute(tasks: list[Task], out_dir: Path, jobs: int | None, scheduler: str |
     work = batches(todo, jobs) if batch else [[t] for t in todo]
     shared = [w for w in work if len(w) > 1]
     if shared:
-        log.info("%d of %d runs differ only in filter settings: %d batches, each loading and preparing the data once",
-                 sum(map(len, shared)), len(todo), len(shared))
+        log.info("%d of %d runs differ only in filter settings: %s, each loading and preparing the data once",
+                 sum(map(len, shared)), len(todo), "1 batch" if len(shared) == 1 else f"{len(shared)} batches")
     if scheduler or dask_local:
         from dask.distributed import Client, LocalCluster, as_completed
 

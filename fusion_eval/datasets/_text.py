@@ -11,8 +11,10 @@ import numpy as np
 from ..errors import DataFormatError
 
 
-def read_text(path: Path, what: str) -> str:
-    """Read a whole text file, turning a missing or unreadable file into a one-line error."""
+def check_file(path: Path, what: str) -> Path:
+    """``path`` as a readable regular file, or a one-line error: missing, a dangling link or a loop of them, a
+    directory, a device, a socket or a pipe (/dev/zero filled the memory; a pipe blocks a reader that opens the file
+    twice, as several do: save its content to a file)."""
     path = Path(path)
     if not path.exists():
         if path.is_symlink():            # a link to nowhere, or a loop of links, exists() calls missing
@@ -21,9 +23,15 @@ def read_text(path: Path, what: str) -> str:
         raise DataFormatError(path, None, f"file not found (expected {what})")
     if path.is_dir():
         raise DataFormatError(path, None, f"is a directory (expected {what})")
-    if path.is_char_device() or path.is_block_device() or path.is_socket():
-        # /dev/zero filled the memory; a pipe is read (a shell's <(zcat est.txt.gz) is one), to its writer's end
-        raise DataFormatError(path, None, f"a device or socket, not a file (expected {what})")
+    if not path.is_file():
+        raise DataFormatError(path, None, f"a pipe, device or socket, not a file (expected {what}; save the content to a "
+                                          "file)")
+    return path
+
+
+def read_text(path: Path, what: str) -> str:
+    """Read a whole text file, turning a missing or unreadable file into a one-line error."""
+    path = check_file(path, what)
     try:
         # utf-8-sig: a byte-order mark (Windows editors write one) is dropped, as pandas and evo's readers drop it
         return path.read_text(encoding="utf-8-sig", errors="strict")

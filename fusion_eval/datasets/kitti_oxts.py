@@ -25,7 +25,7 @@ from ..errors import DataFormatError
 from ..geo import geodetic_to_enu
 from ..so3 import euler_rpy_to_matrix, matrix_to_quat_xyzw
 from ..types import GnssSeries, ImuSeries, PoseSeries, SpeedSeries
-from ._text import exact_floats, is_float, read_text
+from ._text import check_file, exact_floats, is_float, read_text
 
 N_FIELDS = 30
 FIELDS = ("lat", "lon", "alt", "roll", "pitch", "yaw", "vn", "ve", "vf", "vl", "vu", "ax", "ay", "az", "af", "al", "au",
@@ -167,6 +167,7 @@ def _read_packets_csv(path: Path) -> OxtsPackets:
     simulated drives, read with pandas' C parser instead of one file per packet."""
     import pandas as pd
 
+    check_file(path, "a packets.csv of OXTS packets")
     try:
         # round_trip: Python's correctly rounded parse (pandas' default fast parse can be off by one ulp)
         df = pd.read_csv(path, dtype=float, engine="c", **exact_floats())

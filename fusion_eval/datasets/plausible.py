@@ -309,30 +309,47 @@ def gnss_offset(gnss, groundtruth) -> str:
             f"{what}; the filter, started on the ground truth, is pulled there and every figure carries the offset")
 
 
-# a stream matching the ground truth best this far from its stamps, with half the position error or less there, is a
-# clock offset: the search reaches +/- MAX_CLOCK_SHIFT_S (GPS against UNIX time is 18 s); a lag of the odometry or
-# a receiver's latency is tens of milliseconds
+# A stream matching the ground truth best this far from its stamps, with at most a third of the position error
+# there and a metre less, is a clock offset: the search reaches +/- MAX_CLOCK_SHIFT_S (GPS against UNIX time is 18 s);
+# a lag of the odometry or a receiver's latency is tens of milliseconds. A third, not a half: an odometry whose scale
+# is off by a constant factor drifts along the track linearly, and the best constant shift halves that exactly.
 MIN_CLOCK_SHIFT_S, MAX_CLOCK_SHIFT_S = 0.15, 30.0
+MAX_CLOCK_FIT, MIN_CLOCK_GAIN_M = 1.0 / 3.0, 1.0
 
 
-def _rms_at_shifts(t: np.ndarray, p: np.ndarray, t_gt: np.ndarray, p_gt: np.ndarray, shifts: np.ndarray) -> np.ndarray:
-    """The RMS of ``|p(t) - p_gt(t + shift)|`` for each shift, over the points whose shifted time the ground truth
-    covers (NaN where fewer than half of them are); every shift in one interpolation per axis."""
+def _rms_at_shifts(t: np.ndarray, p: np.ndarray, t_gt: np.ndarray, p_gt: np.ndarray, shifts: np.ndarray,
+                   e0: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """For each shift, the RMS of ``|p(t) - p_gt(t + shift)|`` and, over the same points (those whose shifted time
+    the ground truth covers), the RMS of the errors as stamped ``e0``: a shift is never credited with dropping the
+    points it cannot reach (a receiver settling in the first seconds). NaN where under half the points are covered.
+    Every shift in one interpolation per axis."""
     ts = t[None, :] + shifts[:, None]
     m = (ts >= t_gt[0]) & (ts <= t_gt[-1])
     e2 = sum((p[None, :, a] - np.interp(ts, t_gt, p_gt[:, a])) ** 2 for a in range(3))
     n = m.sum(axis=1)
     with np.errstate(invalid="ignore", divide="ignore"):
         rms = np.sqrt(np.where(m, e2, 0.0).sum(axis=1) / n)
-    return np.where(2 * n >= t.size, rms, np.nan)
+        rms0 = np.sqrt(np.where(m, e0[None, :] ** 2, 0.0).sum(axis=1) / n)
+    few = 2 * n < t.size
+    return np.where(few, np.nan, rms), np.where(few, np.nan, rms0)
 
 
-def clock_shift(name: str, series, groundtruth, max_points: int = 1000) -> str:
+def _best(shifts: np.ndarray, rms: np.ndarray) -> int:
+    """The shift of least RMS, the one nearest zero among equals (a parked vehicle fits every shift alike)."""
+    low = np.nanmin(rms)
+    tied = np.flatnonzero(rms <= low + 1e-9 + 1e-6 * low)
+    return int(tied[np.argmin(np.abs(shifts[tied]))])
+
+
+def clock_shift(name: str, series, groundtruth, offset_key: str = "", offset_s: float = 0.0,
+                max_points: int = 1000) -> str:
     """Why a stream's positions (GNSS fixes, the lidar odometry anchored on the ground truth) match the ground truth
     best at another time than their stamps say, or ''. A GNSS 1 s late gave 5.99 m for 0.84 (its NIS mean 28.5 for 3
     dof, no warning) and a ground truth 1 s late 9.86 m for 0.69; an 18 s offset (GPS against UNIX time) was blamed
     on units and frames. Searched over +/- MAX_CLOCK_SHIFT_S on at most ``max_points`` positions (coarse, then to
-    10 ms); said when the best shift is over MIN_CLOCK_SHIFT_S and halves the RMS position difference or more."""
+    10 ms); said when the best shift is over MIN_CLOCK_SHIFT_S and leaves at most MAX_CLOCK_FIT of the RMS position
+    difference, MIN_CLOCK_GAIN_M less, over the same points. ``offset_key``, ``offset_s``: the time offset the stream
+    was given, so that the message can say which value fits."""
     if series is None or groundtruth is None or len(series) < 10 or len(groundtruth) < 2:
         return ""
     t_gt, p_gt = np.asarray(groundtruth.t_s), np.asarray(groundtruth.p_w_m)
@@ -345,22 +362,24 @@ def clock_shift(name: str, series, groundtruth, max_points: int = 1000) -> str:
     if t.size > max_points:
         k = np.linspace(0, t.size - 1, max_points).round().astype(int)
         t, p = t[k], p[k]
+    e0 = np.linalg.norm(p - np.column_stack([np.interp(t, t_gt, p_gt[:, a]) for a in range(3)]), axis=1)
     coarse = np.arange(-MAX_CLOCK_SHIFT_S, MAX_CLOCK_SHIFT_S + 1e-9, 0.25)
-    rms = _rms_at_shifts(t, p, t_gt, p_gt, coarse)
-    at_zero = _rms_at_shifts(t, p, t_gt, p_gt, np.zeros(1))[0]
-    if not np.isfinite(rms).any() or not np.isfinite(at_zero):
+    rms, _ = _rms_at_shifts(t, p, t_gt, p_gt, coarse, e0)
+    if not np.isfinite(rms).any():
         return ""
-    fine = coarse[int(np.nanargmin(rms))] + np.arange(-0.25, 0.25 + 1e-9, 0.01)
-    rms_fine = _rms_at_shifts(t, p, t_gt, p_gt, fine)
+    fine = coarse[_best(coarse, rms)] + np.arange(-0.25, 0.25 + 1e-9, 0.01)
+    fine = fine[np.abs(fine) <= MAX_CLOCK_SHIFT_S + 1e-9]
+    rms_fine, rms0_fine = _rms_at_shifts(t, p, t_gt, p_gt, fine, e0)
     if not np.isfinite(rms_fine).any():
         return ""
-    i = int(np.nanargmin(rms_fine))
-    best, at_best = float(fine[i]), float(rms_fine[i])
-    if abs(best) < MIN_CLOCK_SHIFT_S or not at_best <= 0.5 * at_zero:
+    i = _best(fine, rms_fine)
+    best, at_best, at_zero = float(fine[i]), float(rms_fine[i]), float(rms0_fine[i])
+    if abs(best) < MIN_CLOCK_SHIFT_S or not (at_best <= MAX_CLOCK_FIT * at_zero and at_zero - at_best >= MIN_CLOCK_GAIN_M):
         return ""
+    fix = f" ({offset_key} {best:+.2f} s fits: {offset_s + best:.3f} s for the {offset_s:.3f} s given)" if offset_key else ""
     return (f"{name} ({series.source}) matches the ground truth best {abs(best):.2f} s {'later' if best > 0 else 'earlier'} "
             f"than stamped (RMS position difference {at_best:.2f} m there, {at_zero:.2f} m as stamped): a clock offset "
-            f"between {name} and the ground truth (its time_offset_s, or the ground truth's), which every figure carries")
+            f"between {name} and the ground truth{fix}, or in the ground truth's own stamps; every figure carries it")
 
 
 # a lidar odometry given in the ground truth's frame (``anchor: none``) starts within these of the truth's pose

@@ -25,6 +25,16 @@ def coverage(series: PoseSeries) -> tuple[float, float]:
     return float(series.t_s[0]), float(series.t_s[-1])
 
 
+def stream_coverage(name: str, series: PoseSeries, applied: dict) -> tuple[float, float]:
+    """A stream's extent for the common span: the GNSS's before the configured outages and rate (an outage to the
+    end of the drive is the GNSS-denied stretch a user means to score, not the end of the stream; it had every
+    estimate scored without it)."""
+    if name == "gnss" and applied.get("gnss_coverage_s"):
+        a, b = applied["gnss_coverage_s"]
+        return float(a), float(b)
+    return coverage(series)
+
+
 def common_span(gt: PoseSeries, spans: dict[str, tuple[float, float]]) -> dict:
     """The intersection of the estimates' spans (``name -> (t0, t1)``) with the ground truth's, and which
     estimate limits each end."""

@@ -21,7 +21,7 @@ cached in its formulation's module.
 
 Compiled callers pass ``cov`` as ``np.bool_(True)``, not ``True``: numba types a constant argument as a literal
 and compiles the callee again for it, and the ESKF's step and loop are most of a first run's compilation (a
-default run's cold start compiled each twice; ``tests/test_smoother.py`` holds every compiled caller to it).
+default run's cold start compiled each twice; ``tests/test_compiled_replay.py`` holds every compiled caller to it).
 """
 
 from __future__ import annotations
