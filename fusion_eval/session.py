@@ -91,13 +91,15 @@ def dataset(path: str | Path | None = None) -> Dataset:
     return ds
 
 
-def same_evaluation(labels: list[str], cfgs: list[dict], where: str, why: str) -> None:
-    """Refuse configurations that are ranked against each other but scored differently (``evaluation.*``), naming
-    the first key and the two labels (``compare``'s variants, a ``sweep``'s runs of one dataset): such a ranking
-    compared an aligned APE with an unaligned one."""
+def same_evaluation(labels: list[str], cfgs: list[dict], where: str, why: str, keys: tuple[str, ...] | None = None
+                    ) -> None:
+    """Refuse configurations that are ranked against each other but scored differently (``evaluation.*``, or only
+    its ``keys``), naming the first key and the two labels (``compare``'s variants, a ``sweep``'s runs of one
+    dataset): such a ranking compared an aligned APE with an unaligned one."""
     first = cfgs[0]["evaluation"]
     for label, c in zip(labels[1:], cfgs[1:]):
-        diff = sorted(k for k in set(first) | set(c["evaluation"]) if first.get(k) != c["evaluation"].get(k))
+        diff = sorted(k for k in set(first) | set(c["evaluation"])
+                      if (keys is None or k in keys) and first.get(k) != c["evaluation"].get(k))
         if diff:
             k = diff[0]
             raise ConfigError(f"{where}: {label} sets evaluation.{k} = {c['evaluation'].get(k)!r} and {labels[0]} "

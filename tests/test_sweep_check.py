@@ -518,7 +518,7 @@ def test_a_sweep_refuses_settings_scored_differently(small, tmp_path):
     r = CliRunner().invoke(main, ["sweep", str(small), "--grid", str(sw), "--out", str(tmp_path / "s")])
     assert r.exit_code == 2, r.output
     assert (f"error: {sw}: variant 'default' setting 'a' sets evaluation.alignment = 'se3' and variant 'default' "
-            "setting 'default' 'none': a sweep ranks its runs of a dataset against each other") in r.output
+            "setting 'default' 'none': a sweep ranks its runs of a dataset by their APE") in r.output
     assert not (tmp_path / "s").exists()
 
 

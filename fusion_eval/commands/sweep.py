@@ -249,8 +249,11 @@ def plan(sweep_path: Path, datasets: list[str], out_dir: Path, variant_dir: Path
                     rid = hashlib.sha256(key.encode()).hexdigest()[:12]
                     tasks.append(Task(rid, ds_abs, v, vpaths[v], name, ov_i, base, bool(body.get("plots", False)), out_root,
                                       i, batch_key(ds_abs, cfg)))
-        session.same_evaluation(*zip(*scored), str(sweep_path), "a sweep ranks its runs of a dataset against each "
-                                "other; set evaluation.* for all of them (the sweep's config:), not in a setting or variant")
+        # what the ranked figure (the fused APE) depends on; an RPE distance or a segment length may be swept (their
+        # columns are named by it)
+        session.same_evaluation(*zip(*scored), str(sweep_path), "a sweep ranks its runs of a dataset by their APE; "
+                                "set these evaluation keys for all of them (the sweep's config:), not in a setting or "
+                                "variant", keys=("association", "alignment", "t_max_diff_s", "span"))
     ids = [t.id for t in tasks]
     if len(set(ids)) != len(ids):
         log.warning("some settings resolve to the same configuration; they share one run")
