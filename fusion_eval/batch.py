@@ -5,17 +5,13 @@ from __future__ import annotations
 import hashlib
 import json
 
-def _keys_read_by(role: str) -> tuple[str, ...]:
-    from .config import schema
-
-    return tuple(k for k, spec in schema().items() if spec.reads == role)
-
+from .config import keys_read_by
 
 # Keys that only the filter reads (declared with ``reads="filter"`` beside their default, in the module of the
 # formulation or observation that reads them): not the data preparation, not the evaluation. Runs of one dataset
 # whose configurations differ only in these are one batch: the data is loaded and prepared once, the unfiltered
 # estimates evaluated once, and each run replays and evaluates its own filter.
-FILTER_ONLY_KEYS = _keys_read_by("filter")
+FILTER_ONLY_KEYS = keys_read_by("filter")
 
 
 def batch_key(dataset: str, cfg: dict) -> str:

@@ -149,6 +149,12 @@ def schema() -> dict[str, Spec]:
     return dict(sorted(keys.items(), key=lambda kv: order.get(kv[0].split(".")[0], len(order))))
 
 
+def keys_read_by(role: str) -> tuple[str, ...]:
+    """The keys declared ``reads=role`` (:class:`~fusion_eval.spec.Spec`): ``filter`` (a sweep batches runs that
+    differ only in these), ``data`` (``tune`` refuses to tune these)."""
+    return tuple(k for k, spec in schema().items() if spec.reads == role)
+
+
 def defaults_of(schema_: dict[str, Spec]) -> dict:
     out: dict = {}
     for key, spec in schema_.items():

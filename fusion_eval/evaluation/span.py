@@ -2,8 +2,9 @@
 
 A ratio "fused / lidar" compares like with like only on the same stretch of road: the fused estimate runs from
 the first IMU sample to the last, the lidar from its anchor to its last scan, the GNSS stream from its first fix
-to its last (before the rate and outages a run configures: :func:`stream_coverage`). ``evaluation.span: common`` (the default) scores every estimate over the intersection of their coverage
-with the ground truth; ``own`` scores each over its own poses.
+to its last (before the rate and outages a run configures: :func:`stream_coverage`). ``evaluation.span: common``
+(the default) scores every estimate over the intersection of their coverage with the ground truth; ``own`` scores
+each over its own poses.
 
 The span is applied as evo's ``--t_start``/``--t_end`` are: the reference is reduced to the time range
 (``reduce_to_time_range``) before association, so ``evo_ape tum groundtruth.tum fused.tum --t_start T0 --t_end T1``

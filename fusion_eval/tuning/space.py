@@ -21,12 +21,12 @@ from dataclasses import dataclass
 from pathlib import Path
 
 from .. import yaml_lines
-from ..config import check_value, read_yaml, schema
+from ..config import check_value, keys_read_by, read_yaml, schema
 from ..errors import ConfigError
 
 # keys that change the data or its scoring, not the filter's belief (see the module docstring): declared with
 # reads="data" beside their defaults
-DATA_KEYS = tuple(k for k, spec in schema().items() if spec.reads == "data")
+DATA_KEYS = keys_read_by("data")
 DATA_SECTIONS = ("evaluation", "output")
 
 
