@@ -305,3 +305,24 @@ def test_structured_van_loan_each_block_against_integrals_in_closed_form(gT):
         got = Qd[r[0]:r[1], c[0]:c[1]]
         assert np.abs(got - want).max() <= 1e-13 * np.abs(want).max(), (r, c, np.abs(got - want).max() / np.abs(want).max())
         assert np.array_equal(Qd[c[0]:c[1], r[0]:r[1]], got.T)
+
+
+@pytest.mark.parametrize("n_extra", [0, 6])
+def test_sparse_propagation_equals_the_dense_products(n_extra):
+    """``discretize.propagate`` (Phi's non-zeros, the upper triangle mirrored) against the dense products, on the
+    ESKF's Van Loan transition, with and without a pose clone after the core; exactly symmetric."""
+    rng = np.random.default_rng(5)
+    R = Rotation.random(random_state=7).as_matrix()
+    prm = imu_params(9.81, 0.05, 0.002, 1e-3, 1e-5, "van_loan", 0.0, 0.0)
+    Ft, Qc = eskf.continuous_model(R, np.array([0.3, 0.1, 9.8]), np.array([0.01, 0.02, 0.2]), prm, 1.0)
+    Phi, Qd = discretize.transition(Ft, Qc, 0.1, discretize.VAN_LOAN)
+    assert (Phi == 0.0).sum() > 100           # the structure the sparse product skips
+    n = N + n_extra
+    A = rng.standard_normal((n, n)) * 0.1
+    P = A @ A.T
+    sparse, dense = P.copy(), P.copy()
+    discretize.propagate(sparse, n, Phi, Qd)
+    discretize.propagate_dense(dense, n, Phi, Qd)
+    assert np.abs(sparse - dense).max() < 1e-14 * np.abs(dense).max()
+    assert np.array_equal(sparse, sparse.T)
+    assert np.array_equal(sparse[N:, N:], P[N:, N:])

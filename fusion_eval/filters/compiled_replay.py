@@ -136,7 +136,7 @@ def {name}(a, st, xc, clone_t, times, kinds, index, j0, j1, gates, clone_after, 
 # cache would not see a change there
 STEP_CALLEES = (discretize.transition, discretize.transition_full, discretize.van_loan,
                 discretize._csr, discretize._csr_row, discretize.second_order, discretize._phi_second,
-                discretize.propagate_dense, mech.mech_step, mech.log3, mech.mul_tn, mech.rmul_exp3, mech.exp3, mech.skew3,
+                discretize.propagate, mech.mech_step, mech.log3, mech.mul_tn, mech.rmul_exp3, mech.exp3, mech.skew3,
                 *eskf_van_loan.CALLEES)
 
 

@@ -230,8 +230,40 @@ def transition(Ft, Qc, dt, method):
 
 
 @njit(cache=True)
+def propagate(P, n, Phi, Qd):
+    """``P <- Phi P Phi^T + Q_d`` as :func:`propagate_dense` computes it, on ``Phi``'s non-zeros: an error state's
+    transition is mostly zero blocks (the ESKF's: 87 non-zeros of 225; identity on the position and bias
+    blocks), so both products go through ``Phi``'s rows (:func:`_csr`) and only the upper triangle of the
+    symmetric result is formed, then mirrored (exactly symmetric, as :func:`linalg.symmetrize_into` leaves the
+    dense one). About a third of the dense products' work, and no BLAS call on 15 x 15 blocks, whose dispatch
+    costs as much as their arithmetic."""
+    m = Phi.shape[0]
+    ptr, cols, vals = _csr(Phi)
+    T = np.zeros((m, n))                      # Phi P[:m, :n]
+    for i in range(m):
+        for e in range(ptr[i], ptr[i + 1]):
+            v = vals[e]
+            src = cols[e]
+            for j in range(n):
+                T[i, j] += v * P[src, j]
+    for i in range(m):                        # (Phi P) Phi^T + Q_d, the upper triangle, mirrored
+        for j in range(i, m):
+            s = 0.0
+            for e in range(ptr[j], ptr[j + 1]):
+                s += T[i, cols[e]] * vals[e]
+            v = s + 0.5 * (Qd[i, j] + Qd[j, i])
+            P[i, j] = v
+            P[j, i] = v
+    for i in range(m):                        # the constant states after the leading ones (a pose clone)
+        for j in range(m, n):
+            v = T[i, j]
+            P[i, j] = v
+            P[j, i] = v
+
+
+@njit(cache=True)
 def propagate_dense(P, n, Phi, Qd):
-    """``P <- Phi P Phi^T + Q_d`` on the leading ``m = Phi.shape[0]`` states of the first ``n``; the states after
+    """``P <- Phi P Phi^T + Q_d`` by dense products (the tests' oracle of :func:`propagate`) on the leading ``m = Phi.shape[0]`` states of the first ``n``; the states after
     them (a pose clone) are constant, so only their cross-covariance with the leading states changes."""
     m = Phi.shape[0]
     newc = Phi @ np.ascontiguousarray(P[:m, :m]) @ np.ascontiguousarray(Phi.T) + Qd

@@ -192,7 +192,7 @@ def step(x, P, n, u0, u1, dt, qscale, prm, aux, cov):
             if not (method == discretize.VAN_LOAN and van_loan_eskf(R, fm, wm, dt, prm, qscale, Phi, Qd)):
                 Ft, Qc = continuous_model(R, fm, wm, prm, qscale)
                 Phi, Qd = discretize.transition(Ft, Qc, dt, method)
-            discretize.propagate_dense(P, n, Phi, Qd)
+            discretize.propagate(P, n, Phi, Qd)
             if aux.shape[0] == AUX_OWN + N_CORE * N_CORE:     # the RTS smoother's room: it keeps the one into each epoch
                 q = AUX_OWN
                 for i in range(N_CORE):

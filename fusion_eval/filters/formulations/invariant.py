@@ -90,7 +90,7 @@ def step(x, P, n, u0, u1, dt, qscale, prm, aux, cov):
     if cov:
         A, Qc = continuous_model(attitude(x), x[XV:XV + 3].copy(), x[XP:XP + 3].copy(), prm, qscale)
         Phi, Qd = discretize.transition_full(A, Qc, dt, int(prm[PRM_DISC]))
-        discretize.propagate_dense(P, n, Phi, Qd)
+        discretize.propagate(P, n, Phi, Qd)
     mech_step(x, u0[UF:UF + 3], u0[UW:UW + 3], u1[UF:UF + 3], u1[UW:UW + 3], dt, prm[PRM_G])
     decay_biases(x, dt, prm)
 
