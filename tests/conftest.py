@@ -23,6 +23,27 @@ KITTI00 = ROOT / "data" / "kitti-00"
 SHARED = ROOT.parent / "shared" / "data"
 
 
+def pytest_sessionstart(session) -> None:
+    """Under pytest-xdist, numba's cache is filled once, in the controller, before the workers start.
+
+    In a fresh clone every process that first needs the default run's compiled kernels compiles them itself
+    (about a minute each): both xdist workers, the CLI subprocesses, the Dask workers of the cluster test,
+    all at once in the first minutes (four tests took 80-145 s each in CI). One default run on a 20 s slice,
+    here, compiles them once into the on-disk cache that every later process loads (a few seconds when the cache
+    is already warm). A failure is left to the tests themselves to report."""
+    import subprocess
+    import sys
+    import tempfile
+
+    if hasattr(session.config, "workerinput") or not getattr(session.config.option, "numprocesses", None):
+        return
+    with tempfile.TemporaryDirectory() as d:
+        make_slice(Path(d) / "ds", 200)
+        subprocess.run([sys.executable, "-m", "fusion_eval", "-q", "run", str(Path(d) / "ds"), "--out",
+                        str(Path(d) / "out"), "--no-plots"], stdin=subprocess.DEVNULL, stdout=subprocess.DEVNULL,
+                       stderr=subprocess.DEVNULL, check=False)
+
+
 def wait_for(pred, timeout_s: float, step_s: float = 0.05) -> bool:
     """Poll ``pred`` until it holds (True) or ``timeout_s`` passes (False): for tests that watch another process."""
     import time
