@@ -388,13 +388,17 @@ def prepare(ds: Dataset, cfg: dict) -> Prepared:
     applied["gravity_mps2"] = float(g)
     applied["t_start_s"] = t0
     f = cfg["filter"]
-    across = across_travel(imu.select(imu.t_s >= t0), f["nhc_travel_yaw_mrad"]) if f["nhc"] or f.get("odometer_update") else ""
+    odo_model = f.get("process_model") == "odometer_gyro"       # it drives along the direction of travel too
+    along = f["nhc"] or f.get("odometer_update") or odo_model
+    across = across_travel(imu.select(imu.t_s >= t0), f["nhc_travel_yaw_mrad"]) if along else ""
     if across:
         if f["nhc"]:      # it would hold the forward velocity at zero: left out
             resolved.setdefault("filter", {})["nhc"] = False
             across += "; the non-holonomic constraint is left out"
         if f.get("odometer_update"):      # fused as configured (a process model may rest on it), but said
             across += "; the odometer's speed is fused along that direction as configured"
+        if odo_model:
+            across += "; the odometer + gyro process model drives along that direction as configured"
         more_warnings.append(f"{across}: {MOUNT_HINT}")
     _say_models(cfg, ds, applied, across)
     _flag_data(ds, applied, more_warnings)

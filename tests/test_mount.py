@@ -100,3 +100,20 @@ def test_a_steady_drive_through_gentle_bends_is_not_called_mounted_across():
     assert across_travel(ImuSeries(t_s=t, f_b_mps2=f2, w_b_rps=w, source="s.csv"), 0.0) == ""
     turned = ImuSeries(t_s=t, f_b_mps2=f2 @ R_VI, w_b_rps=w @ R_VI, source="s.csv")
     assert "looks mounted 9" in across_travel(turned, 0.0) and "at -90 deg" in across_travel(turned, 0.0)
+
+
+def test_the_odometer_gyro_model_drives_along_the_direction_of_travels_yaw():
+    """The odometer + gyro process model moved the car along the IMU's x axis whatever the mount, with no check of
+    the mount (an IMU yawed 90 deg drove the estimate sideways, with no word); it follows filter.nhc_travel_yaw_mrad,
+    as the constraint and the odometer observation do, and a mount across the configured direction is said."""
+    ds = fe.load_dataset(None)                          # kitti-00: the OXTS forward speed drives the model
+    sets = {"filter.process_model": "odometer_gyro", "filter.lidar_update": "none", "imu.gyro_lag_s": 0.06}
+    ref = fe.run(ds, overrides=sets).metrics["estimates"]["fused"]["ape"]["translation_m"]["rmse"]
+    yawed = _yawed(ds)
+    m = fe.run(yawed, overrides=sets).metrics
+    (w,) = [w for w in m["preprocessing"]["data_warnings"] if "looks mounted" in w]
+    assert "the odometer + gyro process model drives along that direction as configured" in w
+    assert m["estimates"]["fused"]["ape"]["translation_m"]["rmse"] > 5 * ref
+    got = fe.run(yawed, overrides={**sets, "filter.nhc_travel_yaw_mrad": -1570.796327}).metrics
+    assert got["estimates"]["fused"]["ape"]["translation_m"]["rmse"] == pytest.approx(ref, abs=1e-4)
+    assert not any("looks mounted" in w for w in got["preprocessing"].get("data_warnings", ()))
