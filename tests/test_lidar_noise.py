@@ -127,3 +127,31 @@ def test_a_stream_far_more_precise_than_its_stated_noise_is_a_data_warning():
     assert inconsistent_streams({"nhc": {"values": [1e-4] * 30, "dof": 2}}) == []
     assert inconsistent_streams({"odometer": {"values": [0.19] * 30, "dof": 1},
                                  "lidar": {"values": [1.1] * 30, "dof": 6}}) == []     # measured on KITTI: no alarm
+
+
+def test_an_adapted_noise_scaled_down_on_one_block_is_not_called_beyond_its_stated_noise():
+    """A tune trial's lidar noise adapted to 4.3x (position) and 0.032x (rotation) was all called 'disagrees with the
+    IMU far beyond its stated noise' (a student's review): the block scaled down is said the other way round."""
+    from fusion_eval.evaluation.run_metrics import inconsistent_streams
+
+    d = {"values": [6.0] * 30, "dof": 6, "adapt": {"pos_std_factor_median": 4.3, "att_std_factor_median": 0.032}}
+    (w,) = inconsistent_streams({"lidar": d})
+    assert "at 4.3x (position)" in w and "far beyond its stated noise" in w
+    assert "its rotation std 0.032x went the other way: stated far above the data's" in w
+    d["adapt"]["att_std_factor_median"] = 0.9
+    (w,) = inconsistent_streams({"lidar": d})
+    assert "other way" not in w
+
+
+def test_the_consistency_table_states_its_verdict():
+    """A mean NEES of 6.95 for 3 dof sat in the table with the rule in prose only, beside plots that read as fine
+    (a student's review): each row now says it."""
+    from fusion_eval.report.markdown import consistency_verdict
+
+    row = {"epochs": 4405, "dof": 3, "mean": 6.95, "bounds_95": [0.2, 9.3], "fraction_in_95": 0.673}
+    assert consistency_verdict(row) == "overconfident (2.3x the dof)"
+    assert consistency_verdict({**row, "mean": 0.54, "dof": 2}) == "conservative (0.27x the dof)"
+    assert consistency_verdict({**row, "mean": 3.3, "fraction_in_95": 0.96}) == "consistent"
+    assert consistency_verdict({**row, "mean": 3.3, "fraction_in_95": 0.8}) == "consistent but heavy-tailed"
+    text = "\n".join(consistency_section({"nees": {"position": row}}))
+    assert "| verdict" in text and "overconfident (2.3x the dof)" in text

@@ -215,10 +215,18 @@ def inconsistent_streams(nis: dict) -> list[str]:
         if grown and max(grown.values()) > MISFIT_ADAPT_STD:
             # the adapted noise keeps the NIS near its dof whatever the cause: a lidar-IMU extrinsic given the
             # wrong way round was scaled up ~5x in std and ran with no word, 5x the error of the right one
-            out.append(f"{k}: its noise was adapted to the innovations at {grown.get('pos', 1.0):.2g}x (position) and "
-                       f"{grown.get('att', 1.0):.2g}x (rotation) the configured std (median over the second half): this "
-                       "stream disagrees with the IMU far beyond its stated noise; check its extrinsic and frame (a "
-                       "transform given the wrong way round), its time offset, and its noise settings")
+            w = (f"{k}: its noise was adapted to the innovations at {grown.get('pos', 1.0):.2g}x (position) and "
+                 f"{grown.get('att', 1.0):.2g}x (rotation) the configured std (median over the second half): this "
+                 "stream disagrees with the IMU far beyond its stated noise; check its extrinsic and frame (a "
+                 "transform given the wrong way round), its time offset, and its noise settings (a swept or tuned std "
+                 "far below the data's)")
+            # a block scaled down at the same time is the other way round (a review's tune trial: 4.3x position and
+            # 0.032x rotation, all of it called 'beyond its stated noise')
+            low = [f"{name} std {grown[b]:.2g}x" for b, name in (("pos", "position"), ("att", "rotation"))
+                   if b in grown and grown[b] < 1.0 / MISFIT_ADAPT_STD]
+            if low:
+                w += f"; its {', '.join(low)} went the other way: stated far above the data's"
+            out.append(w)
     return out
 
 

@@ -5,6 +5,8 @@ Everything is formatted from numbers the evaluation layer computed; nothing here
 
 from __future__ import annotations
 
+import numpy as np
+
 from .. import yaml_lines
 from ..evaluation import keys
 from ..evaluation.keys import rpe_distance_group
@@ -35,14 +37,35 @@ def drift_section(m: dict) -> list[str]:
             "definition).", ""] + markdown(*t, decimals=[0, 3, 4, 0])
 
 
+# the verdict's bounds on mean / dof: the text's 'well above' and 'well below' made a rule (a mean NEES of 6.95 for 3
+# dof was left for the reader to judge, next to plots that read as fine)
+VERDICT_RATIO = 1.5
+VERDICT_MIN_INSIDE = 0.9          # a mean near the dof with fewer inside the interval: heavy tails
+
+
+def consistency_verdict(d: dict) -> str:
+    """``consistent``, ``overconfident`` or ``conservative`` (mean against dof, :data:`VERDICT_RATIO`), with heavy tails
+    said where a fitting mean has under :data:`VERDICT_MIN_INSIDE` of the epochs inside the 95 % interval."""
+    mean, dof, inside = d.get("mean"), d.get("dof"), d.get("fraction_in_95")
+    if mean is None or not dof or not np.isfinite(mean):
+        return "n/a"
+    r = mean / dof
+    if r > VERDICT_RATIO:
+        return f"overconfident ({r:.1f}x the dof)"
+    if r < 1.0 / VERDICT_RATIO:
+        return f"conservative ({r:.2f}x the dof)"
+    return "consistent" + (" but heavy-tailed" if inside is not None and inside < VERDICT_MIN_INSIDE else "")
+
+
 def consistency_section(m: dict) -> list[str]:
     rows = [[f"{label} {k}", d["epochs"], d["dof"], d["mean"], f"[{d['bounds_95'][0]:.2f}, {d['bounds_95'][1]:.2f}]",
-             f"{d['fraction_in_95'] * 100:.1f} %"]
+             f"{d['fraction_in_95'] * 100:.1f} %", consistency_verdict(d)]
             for label, group in (("NEES", m.get("nees") or {}), ("NEES smoothed", m.get("nees_smoothed") or {}),
                                  ("NIS", m.get("nis") or {}))
             for k, d in group.items()]
     L = ["", "## Filter consistency", ""] + markdown(
-        ["quantity", "epochs", "dof", "mean", "95 % interval", "fraction inside"], rows, align="lrrrlr", decimals=2)
+        ["quantity", "epochs", "dof", "mean", "95 % interval", "fraction inside", "verdict"], rows, align="lrrrlrl",
+        decimals=2)
     for k, d in (m.get("nis") or {}).items():
         if d.get("rejected"):
             L.append(f"\n{d['rejected']} {k} update(s) rejected by the chi-square gate (not in the NIS above).")
@@ -52,7 +75,10 @@ def consistency_section(m: dict) -> list[str]:
                      f"rotation std x {a['att_std_factor_median']:.2f} (median over the second half of the drive).")
     L += ["", "NEES uses the filter's covariance and its error against the ground truth; NIS the innovations alone. A "
           "consistent filter has a mean near the dof and about 95 % inside; a mean well below means the filter is "
-          "conservative (noise too large), well above overconfident."]
+          f"conservative (noise too large), well above overconfident. The verdict: a mean above {VERDICT_RATIO:g}x the "
+          f"dof is overconfident, below 1/{VERDICT_RATIO:g} of it conservative, and a mean between with under "
+          f"{VERDICT_MIN_INSIDE * 100:.0f} % inside heavy-tailed (outliers, or a model error at some epochs). A pseudo-"
+          "observation (the non-holonomic constraint) is conservative wherever the car does not slip."]
     return L
 
 
