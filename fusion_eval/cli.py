@@ -320,6 +320,8 @@ def sweep(ctx, datasets, sweep_file, out_dir, jobs, variant_dir, scheduler, dask
         if best:
             click.echo(f"best: variant {best['variant']}, setting {best['setting']}: mean fused APE RMSE "
                        f"{best['mean_fused_ape_trans_rmse_m']:.3f} m")
+            if best.get("note"):
+                click.echo(best["note"])
         click.echo(f"wrote {out_dir}/sweep.csv, sweep.md, report.html" + (", best.yaml" if best else ""))
 
 

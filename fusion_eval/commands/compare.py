@@ -342,6 +342,11 @@ def _markdown(name: str, rows: list[dict], truth_body, plots: bool, sp: dict | N
         L += [f"Means over {n_trials} Monte-Carlo trials (the seeds of every random element; APE: mean +/- std); the "
               "plots and trajectories are trial 0's, every trial's table is in compare.json.", ""]
     L += [f"## Summary against ground truth (evo, {keys.alignment_words(alignment)})", ""] + markdown(header, body, align="llrrrrrlllllr")
+    fused = sorted(r["ape_trans_rmse_m"] for r in rows if r["estimate"] == "fused" and r.get("ape_trans_rmse_m") is not None)
+    note = mc.one_draw_note(fused[0], fused[1], n_trials, "The best variant's fused APE leads the next by") \
+        if len(fused) > 1 else None
+    if note:
+        L += ["", note]
     if warned:            # as a run's report says them, per variant: the figures above are suspect where they apply
         L += ["", "## Warnings", ""] + [f"- **{v}**: {w}." for v, ws in warned.items() for w in ws]
     if truth_body:

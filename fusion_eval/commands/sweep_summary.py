@@ -19,7 +19,7 @@ from ..provenance import dataset_files, header_line
 from ..resources import dataset_label
 from ..report import html
 from ..tables import cell, csv_text, markdown
-from ..trials import NOTHING_RANDOM, nothing_random_line
+from ..trials import NOTHING_RANDOM, nothing_random_line, one_draw_note
 from .sweep import Task, read_records
 
 log = logging.getLogger(__name__)
@@ -188,6 +188,10 @@ def write_summary(tasks: list[Task], out_dir: Path, keys: list[str], plots: bool
                 f"# mean fused APE translation RMSE across datasets: {bm:.6f} m\n"
                 "# use it as: fusion-eval run -c best.yaml\n" + yaml_lines.dump(cfg))
         L += [f"Best: variant `{bv}`, setting `{bs}` (mean fused APE RMSE {cell(bm)} m); see `best.yaml`.", ""]
+        note = one_draw_note(bm, ranked[1][1], n_trials, "The best leads the next by") if len(ranked) > 1 else None
+        if note:
+            L += [note, ""]
+            best["note"] = note
     else:                 # nothing ranked (every run failed): an earlier summary's best.yaml would name a run of no record
         (out_dir / "best.yaml").unlink(missing_ok=True)
     written = []

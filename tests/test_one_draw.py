@@ -1,0 +1,46 @@
+"""Rankings from one run of each entry say when their lead is inside what one seed moves (a student's review: noise
+settings 0.754-0.758 m apart ranked and 'best.yaml' written, with a seed spread of 0.08 m on the drive)."""
+
+from __future__ import annotations
+
+import math
+
+from fusion_eval import trials
+
+
+def test_a_small_lead_from_one_run_each_is_said_with_the_way_to_rank_over_seeds():
+    note = trials.one_draw_note(0.754, 0.758, 1, "The best leads the next by")
+    assert note.startswith("The best leads the next by 0.53 % from one run each") and "`--trials 5`" in note
+    assert "0.773 +/- 0.082 m over 5 seeds" in note
+    assert "`--seeds 3`" in trials.one_draw_note(0.728, 0.757, 1, "x", "--seeds 3")
+
+
+def test_no_note_on_means_over_trials_a_clear_lead_or_no_figures():
+    assert trials.one_draw_note(0.754, 0.758, 5, "x") is None          # ranked on means over seeds
+    assert trials.one_draw_note(0.70, 0.80, 1, "x") is None            # a 14 % lead
+    assert trials.one_draw_note(math.nan, 0.8, 1, "x") is None
+    assert trials.one_draw_note(0.8, 0.7, 1, "x") is None              # not a lead
+
+
+def test_the_sweep_summary_and_the_compare_report_carry_it(kitti_slice, tmp_path):
+    from click.testing import CliRunner
+
+    from fusion_eval.cli import main
+
+    (tmp_path / "grid.yaml").write_text("settings:\n  a: {gnss.noise_std_m: [1.0, 1.0, 2.0]}\n"
+                                        "  b: {gnss.noise_std_m: [1.01, 1.01, 2.0]}\n")
+    r = CliRunner().invoke(main, ["sweep", str(kitti_slice), "--grid", str(tmp_path / "grid.yaml"), "--out",
+                                  str(tmp_path / "sw"), "--no-plots", "--jobs", "1"])
+    assert r.exit_code == 0, r.output
+    assert "from one run each" in r.output
+    assert "The best leads the next by" in (tmp_path / "sw" / "sweep.md").read_text()
+
+
+def test_the_compare_report_carries_it():
+    from fusion_eval.commands.compare import _markdown
+
+    rows = [{"variant": v, "estimate": e, "ape_trans_rmse_m": a} for v, e, a in
+            (("eskf", "fused", 0.757), ("iekf", "fused", 0.759), ("eskf", "lidar", 7.18))]
+    text = _markdown("kitti-00", rows, None, False)
+    assert "The best variant's fused APE leads the next by 0.26 % from one run each" in text
+    assert "leads the next" not in _markdown("kitti-00", rows, None, False, n_trials=5)
