@@ -235,3 +235,17 @@ def test_the_summary_heading_and_captions_name_the_alignment_used(kitti_slice, t
     assert r.exit_code == 0, r.output
     assert "(evo, Sim(3) alignment (Umeyama, with scale))" in (tmp_path / "c" / "compare.md").read_text()
     assert "Sim(3) alignment" in (tmp_path / "c" / "compare.tex").read_text()
+
+
+def test_a_run_without_gnss_fusion_says_its_gnss_fixes_were_not_fused(kitti_slice, tmp_path):
+    """lidar-imu.yaml's report said '464 fixes used' and 'std given to the filter' in its GNSS section, read as fused
+    (a student's review), though its header said 'GNSS fused: no'."""
+    from click.testing import CliRunner
+
+    from fusion_eval.cli import main
+
+    r = CliRunner().invoke(main, ["-q", "run", str(kitti_slice), "--out", str(tmp_path / "o"), "--no-plots",
+                                  "--set", "filter.use_gnss=false"])
+    assert r.exit_code == 0, r.output
+    text = (tmp_path / "o" / "report.md").read_text()
+    assert "The filter does not fuse GNSS in this run (`filter.use_gnss: false`)" in text

@@ -17,7 +17,7 @@ from typing import Callable
 
 import numpy as np
 
-from .. import session
+from .. import compile_notice, session
 from ..datasets.tum import format_tum
 from ..errors import ConfigError
 from .. import trials as mc
@@ -52,6 +52,7 @@ class VariantRun:
     runtime_s: float
     ev_smoothed: object = None      # the smoother's estimate, when the variant selects one
     warnings: tuple[str, ...] = ()  # the data's and the filter's, as a run of this variant reports them
+    compile_s: float = 0.0          # numba's compilation inside the variant's first run (not in runtime_s)
 
 
 def body_velocity(poses: PoseSeries) -> np.ndarray:
@@ -68,13 +69,16 @@ def _replay_all(ds, variants: list[str], cfgs: list[dict], advance=None) -> tupl
     runs: list[VariantRun] = []
     base_prep = None
     for i, (name, cfg) in enumerate(zip(variants, cfgs)):
-        t0 = time.perf_counter()
+        t0, c0 = time.perf_counter(), compile_notice.compile_seconds()
         prep = prepare(ds, cfg)
         base_prep = base_prep or prep
         with np.errstate(over="ignore", invalid="ignore"):
             filt = replay(prep, settings_for(cfg, prep), imu_only=runs[0].filt.imu_only if runs else None)
-        runs.append(VariantRun(name, cfg, filt, None, time.perf_counter() - t0, warnings=_warnings(name, prep, filt)))
-        log.info("variant %s: filtered in %.2f s", name, runs[-1].runtime_s)
+        compiled = compile_notice.compile_seconds() - c0       # numba's first compilation of this variant's kernels
+        runs.append(VariantRun(name, cfg, filt, None, time.perf_counter() - t0 - compiled, warnings=_warnings(name, prep, filt),
+                               compile_s=compiled))
+        log.info("variant %s: filtered in %.2f s%s", name, runs[-1].runtime_s,
+                 f" (and {compiled:.1f} s compiling)" if compiled > 0 else "")
         if advance:
             advance()
     return runs, base_prep
@@ -128,7 +132,8 @@ def _table(runs: list[VariantRun], evs_u: dict, gt: PoseSeries, ev_cfg: dict) ->
     for r in runs:
         table.append(_variant_row(r, gt, evs_u, ev_cfg))
         if r.ev_smoothed is not None:
-            table.append(_variant_row(VariantRun(r.name, r.cfg, r.filt.smoothed, r.ev_smoothed, r.runtime_s), gt, evs_u,
+            table.append(_variant_row(VariantRun(r.name, r.cfg, r.filt.smoothed, r.ev_smoothed, r.runtime_s,
+                                                 compile_s=r.compile_s), gt, evs_u,
                                       ev_cfg, estimate="smoothed"))
     for k, ev in evs_u.items():
         m = ev.metrics
@@ -271,6 +276,8 @@ def _variant_row(r: VariantRun, gt: PoseSeries, evs_u: dict, ev_cfg: dict, estim
            "kitti_drift_r_err_deg_per_100m": (r.ev.drift or {}).get("r_err_deg_per_100m"),
            "nees_position_in_95": None if not nees else nees["fraction_in_95"],
            "runtime_s": round(r.runtime_s, 3)}
+    if r.compile_s > 0:
+        row["compile_s"] = round(r.compile_s, 3)
     row["body_velocity_rms_mps"] = _rms_lateral_vertical(body_velocity(r.filt.fused))
     return row
 
@@ -336,7 +343,7 @@ def _markdown(name: str, rows: list[dict], truth_body, plots: bool, sp: dict | N
                      _pct(r.get("nees_position_in_95")), "" if not bv else f"{bv['lateral']:.3f} / {bv['vertical']:.3f}",
                      ", ".join(f"{b:.1f}" for b in r.get("final_gyro_bias_dph", [])),
                      ", ".join(f"{k} {nis[k]:.2f}" for k in sorted(nis, key=lambda k: order.index(k) if k in order else 99)),
-                     cell(r.get("runtime_s"), 2)])
+                     cell(r.get("runtime_s"), 2) + (f" (+{r['compile_s']:.1f} compiling)" if r.get("compile_s") else "")])
     L = [f"# fusion-eval compare: {name}", "", header_line(), "", f"Span: {span.describe(sp)}.", ""]
     if n_trials > 1:
         L += [f"Means over {n_trials} Monte-Carlo trials (the seeds of every random element; APE: mean +/- std); the "
@@ -347,6 +354,9 @@ def _markdown(name: str, rows: list[dict], truth_body, plots: bool, sp: dict | N
         if len(fused) > 1 else None
     if note:
         L += ["", note]
+    if any(r.get("compile_s") for r in rows):
+        L += ["", "Filter time: the variant's preparation and replay, without numba's compilation of its kernels on their "
+              "first use in this installation (given apart; a later compare loads them from the cache)."]
     if warned:            # as a run's report says them, per variant: the figures above are suspect where they apply
         L += ["", "## Warnings", ""] + [f"- **{v}**: {w}." for v, ws in warned.items() for w in ws]
     if truth_body:

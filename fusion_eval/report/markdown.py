@@ -295,6 +295,11 @@ def report_md(dataset: str, config_name: str, evals: dict, ratios: dict, cfg: di
                  f"{gnss_info['noise_std_m']} m (E, N, U; seed {gnss_info['seed']}), "
                  f"{_outages(gnss_info['outages_s'], gnss_info['fixes_in_outages'], 'fixes')}; {gnss_info['fixes_used']} fixes used. "
                  f"Std given to the filter: {gnss_info['std_given_to_filter_m']}.")
+    if gnss_info is not None and not cfg["filter"]["use_gnss"]:
+        # 'fixes used' and 'std given to the filter' read as fused in a run that fuses no GNSS (a review of lidar-imu.yaml)
+        L.append("")
+        L.append("The filter does not fuse GNSS in this run (`filter.use_gnss: false`): these fixes are only the "
+                 "unfiltered GNSS estimate scored above, and the std is what the filter would have been given.")
     for name, info in applied.items():   # the enabled observations' own streams (e.g. gnss_velocity)
         if isinstance(info, dict) and "degraded" in info:
             L.append("")
