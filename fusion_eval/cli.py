@@ -346,6 +346,10 @@ def sweep(ctx, datasets, sweep_file, out_dir, jobs, variant_dir, scheduler, dask
               help="evo's pose relations to report (repeatable; default trans_part and angle_deg).")
 @click.option("--t-max-diff", type=float, default=0.01, show_default=True, help="Max stamp difference, s.")
 @click.option("--t-offset", type=float, default=0.0, show_default=True, help="Added to the estimates' stamps for matching, s.")
+@click.option("--t-start", type=float, default=None,
+              help="evo's --t_start: the reference's poses before this stamp are left out, s (with --t-end: a run's "
+                   "common span, as its report prints it).")
+@click.option("--t-end", type=float, default=None, help="evo's --t_end: the reference's poses after this stamp are left out, s.")
 @click.option("--rpe-delta-m", type=float, default=100.0, show_default=True, help="RPE segment length, m.")
 @click.option("--segment-m", type=float, default=100.0, show_default=True, help="Per-segment window along the route, m.")
 @click.option("--segment-s", type=float, default=None, help="Per-segment window in time instead, s.")
@@ -355,7 +359,7 @@ def sweep(ctx, datasets, sweep_file, out_dir, jobs, variant_dir, scheduler, dask
               help="evo's metrics on whole arrays, or evo's own per-pose loops (same numbers, ~10x slower).")
 @click.pass_context
 def evaluate(ctx, inputs, out_dir, fmt, bag, ref_topic, ref_times, times, association, alignment, up_axis, n_to_align,
-             relations, t_max_diff, t_offset, rpe_delta_m, segment_m, segment_s, overwrite, no_plots, engine):
+             relations, t_max_diff, t_offset, t_start, t_end, rpe_delta_m, segment_m, segment_s, overwrite, no_plots, engine):
     """Evaluate trajectories against a reference: REFERENCE ESTIMATE... (TUM, KITTI poses with or without times,
     EuRoC CSV), or --bag FILE --ref REF_TOPIC EST_TOPIC...: evo's APE/RPE, the KITTI drift metric and the
     per-segment breakdown."""
@@ -372,11 +376,16 @@ def evaluate(ctx, inputs, out_dir, fmt, bag, ref_topic, ref_times, times, associ
         _refuse_ignored(ctx, ("n_to_align",), "without an --alignment")
     if not abs(t_offset) < float("inf"):            # nan or inf: every stamp would be, and nothing would match
         raise click.UsageError(f"--t-offset must be a finite number of seconds, got {t_offset}")
+    for name, v in (("--t-start", t_start), ("--t-end", t_end)):
+        if v is not None and not abs(v) < float("inf"):
+            raise click.UsageError(f"{name} must be a finite stamp in seconds, got {v}")
+    if t_start is not None and t_end is not None and t_start >= t_end:
+        raise click.UsageError(f"--t-start {t_start} is not before --t-end {t_end}")
 
     m = run_evaluate(list(inputs), out_dir, ref_times, times, association, alignment, t_max_diff, rpe_delta_m,
                      segment_m, segment_s, overwrite, not no_plots, engine, bag=bag, ref_topic=ref_topic, fmt=fmt,
                      relations=tuple(relations) or DEFAULT_RELATIONS, up_axis=up_axis, n_to_align=n_to_align,
-                     t_offset_s=t_offset)
+                     t_offset_s=t_offset, t_range_s=(t_start, t_end))
     if ctx.obj["quiet"]:
         click.echo(out_dir)
     else:

@@ -375,3 +375,32 @@ def test_origin_alignment_of_a_position_only_track_moves_it_by_its_first_positio
     expected = np.sqrt(np.mean(np.sum((noise - noise[0]) ** 2, axis=1)))
     assert ev.metrics["ape"]["translation_m"]["rmse"] == pytest.approx(expected, rel=1e-12)
     assert "aligned at its first position" in ev.note and "rotation_deg" not in ev.metrics["ape"]
+
+
+def test_evaluate_scores_a_runs_files_over_its_common_span_with_t_start_and_t_end(slice_run, tmp_path):
+    """A run scores every estimate over a common span, and evaluate on its own files could not (a student's review:
+    GNSS 2.454 against the run's 2.450 m, with no option to match): --t-start/--t-end reduce the reference as evo's
+    --t_start/--t_end do, and give the run's figures."""
+    import json
+
+    from click.testing import CliRunner
+
+    from fusion_eval.cli import main
+
+    run = json.loads((slice_run / "metrics.json").read_text())
+    sp = run["evaluation"]["span"]
+    files = [str(slice_run / f) for f in ("groundtruth.tum", "gnss.tum", "fused.tum")]
+    r = CliRunner().invoke(main, ["-q", "evaluate", *files, "--out", str(tmp_path / "e"), "--no-plots",
+                                 "--t-start", f"{sp['t0_s']:.6f}", "--t-end", f"{sp['t1_s']:.6f}"])
+    assert r.exit_code == 0, r.output
+    m = json.loads((tmp_path / "e" / "metrics.json").read_text())
+    for k in ("gnss", "fused"):
+        assert m["estimates"][k]["ape"]["translation_m"]["rmse"] == pytest.approx(
+            run["estimates"][k]["ape"]["translation_m"]["rmse"], abs=1e-6)
+    assert m["evaluation"]["time_range_s"] == [round(sp["t0_s"], 6), round(sp["t1_s"], 6)]
+    assert "(evo's --t_start/--t_end)" in (tmp_path / "e" / "report.md").read_text()
+    assert f"fusion-eval evaluate: `--t-start {sp['t0_s']:.6f}" in (slice_run / "report.md").read_text()
+    r = CliRunner().invoke(main, ["evaluate", *files, "--out", str(tmp_path / "e2"), "--t-start", "5", "--t-end", "4"])
+    assert r.exit_code == 2 and "--t-start 5.0 is not before --t-end 4.0" in r.output
+    r = CliRunner().invoke(main, ["evaluate", *files, "--out", str(tmp_path / "e3"), "--t-start", "1", "--t-end", "2"])
+    assert r.exit_code == 2 and "0 of its poses in --t-start 1.0 .. --t-end 2.0" in r.output and not (tmp_path / "e3").exists()

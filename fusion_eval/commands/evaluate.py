@@ -73,7 +73,8 @@ def run_evaluate(inputs: list, out_dir: Path, ref_times: Path | None = None, tim
                  rpe_delta_m: float = 100.0, segment_m: float = 100.0, segment_s: float | None = None,
                  overwrite: bool = False, make_plots: bool = True, engine: str = "arrays", *, bag: Path | None = None,
                  ref_topic: str | None = None, fmt: str = "auto", relations: tuple[str, ...] = keys.DEFAULT_RELATIONS,
-                 up_axis: str = "auto", n_to_align: int = -1, t_offset_s: float = 0.0) -> dict:
+                 up_axis: str = "auto", n_to_align: int = -1, t_offset_s: float = 0.0,
+                 t_range_s: tuple[float | None, float | None] = (None, None)) -> dict:
     validate_options(association, alignment, t_max_diff_s, rpe_delta_m, segment_m, segment_s, engine, relations,
                      up_axis, n_to_align)
     staged = StagedDir(out_dir, overwrite=overwrite, inputs=(*(inputs if bag is None else ()), bag, ref_times, times))
@@ -86,6 +87,7 @@ def run_evaluate(inputs: list, out_dir: Path, ref_times: Path | None = None, tim
             raise ConfigError(f"--segment-s needs stamps in seconds, and the reference {ref_f.source} has none (KITTI poses "
                               "without a times file are stamped by frame index): give --ref-times and --times, or "
                               "--segment-m")
+        ref_traj = _time_range(ref_f, t_range_s)
         series, about, covs = {}, {}, {}
         names = [Path(f.source).stem if f.format != "bag" else f.traj.meta["name"].strip("/").replace("/", "_") for f in est_fs]
         # files of one name in different folders (run1/fused.tum, run2/fused.tum) are told apart by their folder
@@ -103,7 +105,7 @@ def run_evaluate(inputs: list, out_dir: Path, ref_times: Path | None = None, tim
         turns = {name: _orientation_placeholder(f, ref_f) for name, f in zip(series, est_fs)}
         fixed = frozenset(name for name, turn in turns.items() if turn is not None)
         try:
-            m, evals = evaluate_series(ref_f.traj, series, association, alignment, t_max_diff_s, rpe_delta_m, segment_m,
+            m, evals = evaluate_series(ref_traj, series, association, alignment, t_max_diff_s, rpe_delta_m, segment_m,
                                        segment_s, about, ref_stamps=ref_f.stamps, engine=engine, relations=relations,
                                        up_axis=up_axis, n_to_align=n_to_align, t_offset_s=t_offset_s, covariances=covs,
                                        position_only=fixed,
@@ -143,6 +145,8 @@ def run_evaluate(inputs: list, out_dir: Path, ref_times: Path | None = None, tim
                     log.warning("%s: %s", name, why)
                     e = m["estimates"][name]
                     e["note"] = f"{e['note']}; {why}" if e.get("note") else why
+        if t_range_s != (None, None):
+            m["evaluation"]["time_range_s"] = list(t_range_s)
         metrics = {"reference": ref_f.source, "reference_format": ref_f.format, "reference_stamps": ref_f.stamps,
                    **({"reference_repeated_stamps": ref_f.repeated_stamps} if ref_f.repeated_stamps else {}), **m}
         out.write_text("metrics.json", json.dumps(metrics, indent=2) + "\n")
@@ -390,12 +394,36 @@ def _alignment(a: dict) -> str:
     return ", ".join(out) or json.dumps(a)
 
 
+def _time_range(ref_f, t_range_s):
+    """The reference reduced to ``--t-start``/``--t-end`` as evo's ``--t_start``/``--t_end`` reduce it (the estimates are
+    then matched to what is left): a run's common span, from its report's evo options, scored again."""
+    t0, t1 = t_range_s
+    if t0 is None and t1 is None:
+        return ref_f.traj
+    if ref_f.stamps == BY_INDEX:
+        raise ConfigError(f"--t-start/--t-end need stamps in seconds, and the reference {ref_f.source} has none (KITTI "
+                          "poses without a times file are stamped by frame index): give --ref-times and --times")
+    import copy
+
+    ts = ref_f.traj.timestamps
+    keep = int(np.count_nonzero((ts >= (ts[0] if t0 is None else t0)) & (ts <= (ts[-1] if t1 is None else t1))))
+    if keep < 2:
+        raise DataRangeError(f"{ref_f.source}: {keep} of its poses in --t-start {t0} .. --t-end {t1} (its stamps run from "
+                             f"{ts[0]:.6f} to {ts[-1]:.6f} s): nothing to score there")
+    traj = copy.deepcopy(ref_f.traj)
+    traj.reduce_to_time_range(t0, t1)
+    return traj
+
+
 def _report(m: dict, plots: list[str]) -> str:
     e = m["evaluation"]
+    rng = e.get("time_range_s")
     L = [f"# fusion-eval evaluate: {Path(m['reference']).name}", "", header_line(), "",
          f"Reference stamps: {m['reference_stamps']}. Association: **{e['association']}**"
          + (f" (within {e['t_max_diff_s']} s)" if e["association"] == "nearest" else " (reference interpolated at the estimate's stamps)")
-         + f"; alignment: **{e['alignment']}**.", ""]
+         + f"; alignment: **{e['alignment']}**"
+         + ("" if not rng else f"; the reference's poses from {'its start' if rng[0] is None else f'{rng[0]:.6f} s'} to "
+            f"{'its end' if rng[1] is None else f'{rng[1]:.6f} s'} (evo's --t_start/--t_end)") + ".", ""]
     L += markdown(*_summary_table(m))
     nees = [(k, d["nees"]) for k, d in m["estimates"].items() if d.get("nees")]
     if nees:

@@ -74,7 +74,7 @@ def describe(span: dict | None) -> str:
     a, b = span["from_groundtruth_start_s"]
     return (f"every estimate over the same {span['duration_s']:.1f} s, {a:.2f} .. {b:.2f} s after the ground truth's first "
             f"pose (start set by {span['start_set_by']}, end by {span['end_set_by']}; evaluation.span=common; evo_ape / evo_rpe "
-            f"on the written files: `{evo_options(span)}`)")
+            f"on the written files: `{evo_options(span)}`; fusion-eval evaluate: `{evo_options(span).replace('_', '-')}`)")
 
 
 def span_for(mode: str, gt: PoseSeries, spans: dict[str, tuple[float, float]]) -> dict | None:
