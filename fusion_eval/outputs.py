@@ -110,6 +110,9 @@ def atomic_file(target: Path):
 
 
 OUTPUT_MARKERS = ("metrics.json", "report.html", "compare.json", "dataset.yaml")   # what a command's folder holds
+# the first line of the manifest `simulate` writes: a dataset.yaml without it is a user's own dataset, which --overwrite
+# once deleted whole (its OXTS packets, lidar poses and calibration) because any dataset.yaml counted as ours
+SIMULATED_MANIFEST_HEADER = "# fusion-eval dataset manifest of a simulated drive"
 
 
 def resumable_dir(out: Path, markers: tuple[str, ...], what: str, inputs=()) -> None:
@@ -138,8 +141,19 @@ def _why(path: Path, exc: OSError) -> str:
 
 
 def _foreign(folder: Path, markers: tuple[str, ...]) -> bool:
-    """A non-empty folder holding none of ``markers``: not one this kind of command wrote."""
-    return folder.is_dir() and any(folder.iterdir()) and not any((folder / m).exists() for m in markers)
+    """A non-empty folder holding none of ``markers``: not one this kind of command wrote (a ``dataset.yaml`` counts
+    only as `simulate` writes it, under :data:`SIMULATED_MANIFEST_HEADER`)."""
+    return folder.is_dir() and any(folder.iterdir()) and not any(_ours(folder / m) for m in markers)
+
+
+def _ours(path: Path) -> bool:
+    if path.name != "dataset.yaml":
+        return path.exists()
+    try:
+        with open(path, encoding="utf-8", errors="replace") as f:
+            return path.is_file() and f.readline().rstrip("\r\n") == SIMULATED_MANIFEST_HEADER
+    except OSError:
+        return False
 
 
 def repeated_path(paths) -> tuple | None:
@@ -210,7 +224,8 @@ class StagedDir:
         if self.overwrite and _foreign(self.final, OUTPUT_MARKERS):
             # --out DATASET/oxts --overwrite once deleted the IMU packets
             raise OutputError(f"{self.final}: --overwrite replaces only a folder fusion-eval wrote (holding "
-                              f"{', '.join(OUTPUT_MARKERS)}), and this one holds none of them")
+                              f"{', '.join(OUTPUT_MARKERS[:-1])}, or a simulated drive's dataset.yaml), and this one "
+                              "holds none of them (a dataset of your own is never replaced)")
 
     def __enter__(self) -> "StagedDir":
         self.check()

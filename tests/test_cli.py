@@ -223,3 +223,22 @@ def test_compare_refuses_one_variant_named_twice(tmp_path):
     r = CliRunner().invoke(main, ["compare", "--variants", f"eskf,{resources.variant_dir() / 'eskf.yaml'}", "-o",
                                   str(tmp_path / "c")], prog_name="fusion-eval")
     assert r.exit_code == 2 and "names one variant twice: 'eskf' and" in r.stderr and not (tmp_path / "c").exists()
+
+
+def test_overwrite_never_replaces_a_users_dataset(kitti_slice, tmp_path):
+    """--overwrite deleted a user's own dataset folder, OXTS packets, lidar poses and calibration (a corrupted-input
+    review), because any dataset.yaml counted as a folder fusion-eval wrote: only a simulated drive's does now."""
+    import shutil
+
+    victim = tmp_path / "my-drive"
+    shutil.copytree(kitti_slice, victim)
+    before = sorted(p.relative_to(victim) for p in victim.rglob("*"))
+    r = CliRunner().invoke(main, ["-q", "run", str(kitti_slice), "--out", str(victim), "--overwrite", "--no-plots"])
+    assert r.exit_code == 2 and "a dataset of your own is never replaced" in r.stderr
+    assert sorted(p.relative_to(victim) for p in victim.rglob("*")) == before
+    # a drive `simulate` wrote is its output, and simulate --overwrite replaces it
+    sim = tmp_path / "sim"
+    assert CliRunner().invoke(main, ["-q", "simulate", str(sim), "--duration", "20"]).exit_code == 0
+    r = CliRunner().invoke(main, ["-q", "simulate", str(sim), "--duration", "20", "--seed", "1", "--overwrite"])
+    assert r.exit_code == 0, r.output
+    assert "name: sim-urban-automotive-s1" in (sim / "dataset.yaml").read_text()

@@ -26,6 +26,7 @@ import pymap3d
 import yaml
 
 from .. import __version__
+from ..outputs import SIMULATED_MANIFEST_HEADER
 from ..config import load_config
 from ..datasets.gnss_csv import format_gnss_csv
 from ..datasets.kitti_oxts import CSV_HEADER
@@ -274,7 +275,7 @@ def simulate(out_dir: Path, profile: str, duration_s: float, seed: int, grade: s
             "config": _merged(suggested_config(c), extra_config),
             "truth": {"imu_biases": "truth/imu_biases.csv", "poses": "truth/poses.tum", "sensors": "truth/sensors.yaml"},
         }
-        out.write_text("dataset.yaml", "# fusion-eval dataset manifest of a simulated drive\n" +
+        out.write_text("dataset.yaml", SIMULATED_MANIFEST_HEADER + "\n" +
                        yaml.safe_dump(manifest, sort_keys=False))
     return {"name": name, "samples": n, "distance_m": truth["distance_m"], "lidar_frames": int(l_idx.size),
             "gnss_fixes": int(gt_t.size)}
