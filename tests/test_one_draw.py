@@ -68,3 +68,24 @@ def test_compare_gives_numbas_compilation_apart_from_the_filter_time():
     text = _markdown("kitti-00", rows, None, False)
     assert "1.97 (+15.0 compiling)" in text and "without numba's compilation" in text
     assert "compiling" not in _markdown("kitti-00", rows[:1], None, False)
+
+
+def test_metrics_json_is_strict_json_with_null_for_figures_not_computed(tmp_path):
+    """An iterated update's run wrote a bare NaN for the innovations' likelihood it does not compute: no JSON for jq or
+    JSON.parse (a corrupted-input review). Such figures are null; a tune on them names why."""
+    import json
+
+    import pytest
+
+    from fusion_eval.errors import ConfigError
+    from fusion_eval.report.files import metrics_json
+    from fusion_eval.tuning.objectives import parse
+
+    text = metrics_json({"innovations": {"nll_per_update": float("nan"), "nis_calibration": float("inf"), "updates": 3},
+                         "nis": {"lidar": {"nll_mean": float("nan"), "mean": 6.1}}, "list": [1.0, float("-inf")]})
+    assert "NaN" not in text and "Infinity" not in text
+    body = json.loads(text, parse_constant=lambda c: pytest.fail(f"non-standard JSON constant {c}"))
+    assert body["innovations"]["nll_per_update"] is None and body["nis"]["lidar"]["mean"] == 6.1
+    assert body["list"] == [1.0, None]
+    with pytest.raises(ConfigError, match=r"ln det S .*filter.iterations > 1, or the odometer \+ gyro model"):
+        parse("nll").check({"innovations.nis_calibration": 1.0, "fused.ape.rmse": 0.7}, "kitti-00")

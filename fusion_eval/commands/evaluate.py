@@ -149,7 +149,7 @@ def run_evaluate(inputs: list, out_dir: Path, ref_times: Path | None = None, tim
             m["evaluation"]["time_range_s"] = list(t_range_s)
         metrics = {"reference": ref_f.source, "reference_format": ref_f.format, "reference_stamps": ref_f.stamps,
                    **({"reference_repeated_stamps": ref_f.repeated_stamps} if ref_f.repeated_stamps else {}), **m}
-        out.write_text("metrics.json", json.dumps(metrics, indent=2) + "\n")
+        out.write_text("metrics.json", files.metrics_json(metrics))
         for ev in evals.values():          # evo's result files, one per metric and pose relation (evo_res reads them)
             files.write_evo_zips(ev, out.path("."))
         written = []

@@ -10,6 +10,7 @@ import copy
 import functools
 import io
 import json
+import math
 import platform
 import zipfile
 from pathlib import Path
@@ -63,7 +64,21 @@ def write_tum(path: Path, name: str, s: PoseSeries) -> None:
 
 
 def metrics_json(metrics: dict) -> str:
-    return json.dumps(metrics, indent=2, sort_keys=False) + "\n"
+    """``metrics.json``'s text: strict JSON, a figure that is not a finite number written as ``null`` (Python's bare
+    ``NaN`` is no JSON: an iterated update's innovation likelihood, which it does not compute, made the file unreadable
+    for jq and JSON.parse; found by a corrupted-input review)."""
+    return json.dumps(finite_or_null(metrics), indent=2, sort_keys=False, allow_nan=False) + "\n"
+
+
+def finite_or_null(obj):
+    """``obj`` with every float that is NaN or infinite replaced by None (dicts, lists and tuples walked)."""
+    if isinstance(obj, float):
+        return obj if math.isfinite(obj) else None
+    if isinstance(obj, dict):
+        return {k: finite_or_null(v) for k, v in obj.items()}
+    if isinstance(obj, (list, tuple)):
+        return [finite_or_null(v) for v in obj]
+    return obj
 
 
 def metrics_csv(evals: dict[str, EstimateEvaluation], ratios: dict) -> str:

@@ -53,7 +53,10 @@ class Objective:
             if k not in flat:
                 close = difflib.get_close_matches(k, list(flat), n=3)
                 truth = any(key.startswith("fused.ape.") for key in flat)
-                hint = (f" (did you mean {', '.join(close)}?)" if close else
+                hint = (" (the innovations' likelihood needs ln det S from the compiled replay, which a filter stepped from "
+                        "Python does not record: an iterated update, filter.iterations > 1, or the odometer + gyro model; "
+                        "use the nis objective, or a metric with ground truth)" if k == "innovations.nll_per_update" else
+                        f" (did you mean {', '.join(close)}?)" if close else
                         " (ground-truth metrics need a dataset with ground truth)" if k not in NO_TRUTH and not truth else
                         " (e.g. nll, nis, fused.ape.rmse, fused.rpe_100m.rmse, fused.kitti_drift.t_err_pct; "
                         "`fusion-eval check --help` names the keys)")
