@@ -175,6 +175,9 @@ def dropped_gaps(imu, kept: np.ndarray, why: str) -> list[str]:
 # accelerometer reads gravity.
 MAX_RATE_RPS = {"wheeled": 5.0, None: 10.0, "other": 10.0, "agile": 35.0}
 MIN_SPECIFIC_FORCE_MPS2, MAX_SPECIFIC_FORCE_G = 4.0, 1.15
+# the median above which no vehicle's specific force lies (gravity plus a car's or a drone's typical thrust: under 2 g);
+# m/s^2 declared as g read 96 m/s^2 and dead-reckoned 278 km with only "no observation is enabled" (a review)
+MAX_MEDIAN_SPECIFIC_FORCE_MPS2 = 20.0
 
 
 def imu_units(imu, platform: str | None, wheeled: bool) -> list[str]:
@@ -197,6 +200,12 @@ def imu_units(imu, platform: str | None, wheeled: bool) -> list[str]:
                    + ("in g? (a CSV stream's accel_unit)" if 0.85 < f50 < MAX_SPECIFIC_FORCE_G else
                       "gravity removed (a driver's 'free' or linear acceleration)? The filter needs the specific force, "
                       "gravity included")
+                   + f" ({imu.source})")
+    elif f50 > MAX_MEDIAN_SPECIFIC_FORCE_MPS2:
+        g_read = 0.85 * 9.81 ** 2 < f50 < MAX_SPECIFIC_FORCE_G * 9.81 ** 2
+        out.append(f"imu: specific force {f50:.3g} m/s^2 (median) where gravity alone gives 9.8: "
+                   + ("values in m/s^2 read as g? (a CSV stream's accel_unit: g)" if g_read else
+                      "another unit (mg, cm/s^2, raw counts)? The filter needs m/s^2")
                    + f" ({imu.source})")
     return out
 
