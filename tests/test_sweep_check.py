@@ -580,3 +580,14 @@ def test_each_run_of_a_batch_reports_its_own_noise_scale(small, tmp_path):
     recs = {r["setting"]: r for r in (json.loads(p.read_text()) for p in (out / "records").glob("*.json"))}
     settled = {k: v["metrics"]["preprocessing"]["auto_settled"]["imu.accel_noise_mps2_sqrthz"] for k, v in recs.items()}
     assert settled["g"] == pytest.approx(2.0 * settled["default"], rel=1e-12), settled
+
+
+def test_a_dataset_given_as_its_folder_and_as_its_manifest_is_swept_once(kitti_slice, tmp_path, caplog):
+    """A sweep given a drive's folder and its dataset.yaml ran everything twice and counted the drive twice in its
+    cross-dataset mean (a corrupted-input review)."""
+    from fusion_eval.commands.sweep import plan
+
+    (tmp_path / "g.yaml").write_text("settings:\n  a: {gnss.noise_std_m: [1.0, 1.0, 2.0]}\n")
+    tasks, _ = plan(tmp_path / "g.yaml", [str(kitti_slice), str(kitti_slice / "dataset.yaml")], tmp_path / "out")
+    assert len({t.dataset for t in tasks}) == 1 and len(tasks) == 2          # the default and the setting
+    assert "is the dataset" in caplog.text and "swept once" in caplog.text

@@ -205,6 +205,22 @@ def swept_keys(body: dict) -> list[str]:
     return keys
 
 
+def _distinct(paths: list) -> list:
+    """The datasets once each: a folder and its own manifest are one dataset (a sweep given both ran every setting twice
+    and counted the drive twice in its cross-dataset mean; found by a corrupted-input review)."""
+    seen: dict = {}
+    out = []
+    for p in paths:
+        r = Path(p).resolve()
+        key = r / "dataset.yaml" if r.is_dir() and (r / "dataset.yaml").is_file() else r
+        if key in seen:
+            log.warning("%s is the dataset %s again: swept once", p, seen[key])
+            continue
+        seen[key] = p
+        out.append(p)
+    return out
+
+
 def plan(sweep_path: Path, datasets: list[str], out_dir: Path, variant_dir: Path | None = None,
          trials: int | None = None) -> tuple[list[Task], dict]:
     """Every (dataset, variant, setting, trial) run of a sweep, each with absolute paths. ``trials``: Monte-Carlo
@@ -218,7 +234,7 @@ def plan(sweep_path: Path, datasets: list[str], out_dir: Path, variant_dir: Path
     if not datasets:
         raise ConfigError(f"{sweep_path}: no datasets (give them in the sweep file or on the command line)")
     # datasets on the command line are the user's (working directory); those in the file are the file's
-    paths = [resources.find(d) if given else resources.find(d, here, project) for d in datasets]
+    paths = _distinct([resources.find(d) if given else resources.find(d, here, project) for d in datasets])
     base = None
     if body.get("config"):
         base = load_sweep_config(resources.find(body["config"], here, project))
