@@ -16,7 +16,7 @@ import numpy as np
 from . import timing
 from .datasets import plausible
 from .calibration import imu_noise
-from .config import Settings
+from .config import Settings, schema
 from .calibration.extrinsic import apply_extrinsic, estimate_extrinsic
 from .calibration.mount import HINT as MOUNT_HINT, across_travel
 from .calibration.travel import MIN_STRETCHES, estimate_travel_pitch, pitch_from_smoothed_pass, uncertain
@@ -302,6 +302,14 @@ def prepare(ds: Dataset, cfg: dict) -> Prepared:
             gnss_info = {"degraded": False, "fixes_used": len(gnss), "outages_s": [list(map(float, w)) for w in c["outages_s"]],
                          "fixes_in_outages": int(out.sum()),
                          "std_given_to_filter_m": "as the stream reports" if c["std_m"] == "auto" else c["std_m"]}
+            # the degradation's own keys do nothing here: a sweep over gnss.rate_hz gave identical rows and ranked a
+            # 'best' among them with no word (a corrupted-input review)
+            unused = [f"gnss.{k}={c[k]}" for k in ("rate_hz", "noise_std_m") if c[k] != schema()[f"gnss.{k}"].default]
+            if unused:
+                more_warnings.append(f"{' and '.join(unused)} appl{'y' if len(unused) > 1 else 'ies'} only to a GNSS stream marked for degradation (the "
+                                     f"manifest's gnss degrade: true; KITTI's OXTS solution is): {ds.gnss.source} is a "
+                                     "receiver's output, used at its own rate and noise (gnss.outages_s and gnss.std_m "
+                                     "do apply)")
         if use_gnss and len(gnss) == 0:
             raise DataRangeError(f"no GNSS fix of {ds.gnss.source} is left inside the IMU span after degradation")
 

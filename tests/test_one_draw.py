@@ -89,3 +89,19 @@ def test_metrics_json_is_strict_json_with_null_for_figures_not_computed(tmp_path
     assert body["list"] == [1.0, None]
     with pytest.raises(ConfigError, match=r"ln det S .*filter.iterations > 1, or the odometer \+ gyro model"):
         parse("nll").check({"innovations.nis_calibration": 1.0, "fused.ape.rmse": 0.7}, "kitti-00")
+
+
+def test_gnss_degradation_keys_on_a_receivers_stream_are_said_to_do_nothing(tmp_path):
+    """gnss.rate_hz and gnss.noise_std_m do nothing to a stream the manifest does not mark for degradation (every
+    simulated drive's, a CSV or bag receiver's): a sweep over them gave identical rows and a 'best' with no word (a
+    corrupted-input review). It is a data warning now; the defaults raise none."""
+    import fusion_eval as fe
+    from fusion_eval.simulate.dataset import simulate
+
+    simulate(tmp_path / "s", "urban", 30.0, 0, "automotive", (), jobs=1)
+    ds = fe.load_dataset(tmp_path / "s")
+    w = fe.run(ds, overrides={"gnss.rate_hz": 0.1, "gnss.noise_std_m": [10.0, 10.0, 20.0]}).metrics
+    (msg,) = [x for x in w["preprocessing"]["data_warnings"] if "marked for degradation" in x]
+    assert msg.startswith("gnss.rate_hz=0.1 and gnss.noise_std_m=[10.0, 10.0, 20.0] apply only to a GNSS stream")
+    plain = fe.run(ds).metrics["preprocessing"].get("data_warnings", [])
+    assert not [x for x in plain if "marked for degradation" in x]
