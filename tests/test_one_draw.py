@@ -105,3 +105,32 @@ def test_gnss_degradation_keys_on_a_receivers_stream_are_said_to_do_nothing(tmp_
     assert msg.startswith("gnss.rate_hz=0.1 and gnss.noise_std_m=[10.0, 10.0, 20.0] apply only to a GNSS stream")
     plain = fe.run(ds).metrics["preprocessing"].get("data_warnings", [])
     assert not [x for x in plain if "marked for degradation" in x]
+
+
+def test_a_reference_or_truth_of_placeholder_orientations_is_said(slice_run, tmp_path):
+    """A run's own gnss.tum as evaluate's reference gave a 100 deg rotation APE and 75 % drift about its identity
+    placeholders, and a truth with identity quaternions a 114 deg fused rotation APE in a run, both with no word (a
+    corrupted-input review)."""
+    import json
+    from dataclasses import replace
+
+    import numpy as np
+    from click.testing import CliRunner
+
+    from fusion_eval.cli import main
+    from fusion_eval.datasets.plausible import truth_orientation_placeholder
+
+    r = CliRunner().invoke(main, ["evaluate", str(slice_run / "gnss.tum"), str(slice_run / "fused.tum"), "--out",
+                                  str(tmp_path / "e"), "--no-plots"])
+    assert r.exit_code == 0, r.output
+    assert "has the same orientation on every pose" in r.stderr and "evaluated as position only" in r.stderr
+    m = json.loads((tmp_path / "e" / "metrics.json").read_text())["estimates"]["fused"]
+    assert m["note"].startswith("position only (the reference has one and the same orientation")
+    assert "rotation_deg" not in m["ape"]
+
+    import fusion_eval as fe
+
+    gt = fe.load_dataset(None).groundtruth
+    flat = replace(gt, q_wb_xyzw=np.tile([0.0, 0.0, 0.0, 1.0], (len(gt), 1)))
+    assert "one and the same orientation on every pose" in truth_orientation_placeholder(flat)
+    assert truth_orientation_placeholder(gt) is None

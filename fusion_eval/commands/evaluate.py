@@ -103,7 +103,11 @@ def run_evaluate(inputs: list, out_dir: Path, ref_times: Path | None = None, tim
             if f.cov is not None:
                 covs[name] = (f.cov_t_s, f.cov)
         turns = {name: _orientation_placeholder(f, ref_f) for name, f in zip(series, est_fs)}
-        fixed = frozenset(name for name, turn in turns.items() if turn is not None)
+        # the other way round: a reference of placeholders (an RTK or GNSS truth written as TUM) made every estimate's
+        # rotation, RPE and drift figures about the placeholder, with no word (a corrupted-input review)
+        ref_turns = {name: _orientation_placeholder(ref_f, f, reference=True) for name, f in zip(series, est_fs)
+                     if turns[name] is None}
+        fixed = frozenset(name for name, turn in {**turns, **ref_turns}.items() if turn is not None)
         try:
             m, evals = evaluate_series(ref_traj, series, association, alignment, t_max_diff_s, rpe_delta_m, segment_m,
                                        segment_s, about, ref_stamps=ref_f.stamps, engine=engine, relations=relations,
@@ -121,9 +125,12 @@ def run_evaluate(inputs: list, out_dir: Path, ref_times: Path | None = None, tim
             raise
         _refuse_unmatched(ref_f, est_fs, evals, association, t_max_diff_s)
         for name in fixed:                   # why, in the report too (it was on stderr only)
-            m["estimates"][name]["note"] = (f"position only (one and the same orientation on every pose, while the reference "
-                                            f"turns by up to {turns[name]:.0f} deg: placeholders): no rotation, relative (RPE) "
-                                            "or KITTI drift metric")
+            m["estimates"][name]["note"] = (
+                f"position only (one and the same orientation on every pose, while the reference turns by up to "
+                f"{turns[name]:.0f} deg: placeholders): no rotation, relative (RPE) or KITTI drift metric"
+                if turns[name] is not None else
+                f"position only (the reference has one and the same orientation on every pose, while this estimate turns "
+                f"by up to {ref_turns[name]:.0f} deg: placeholders): no rotation, relative (RPE) or KITTI drift metric")
         for name, f in zip(series, est_fs):
             for why in convention_hints(f, ref_f, alignment):
                 log.warning("%s: %s", name, why)
@@ -184,7 +191,7 @@ def run_evaluate(inputs: list, out_dir: Path, ref_times: Path | None = None, tim
 PLACEHOLDER_TURN_DEG = 5.0      # the reference turning more than this while an estimate never does: placeholders
 
 
-def _orientation_placeholder(f, ref_f) -> float | None:
+def _orientation_placeholder(f, ref_f, reference: bool = False) -> float | None:
     """Whether ``f``'s orientations are placeholders: one and the same quaternion on every pose while the reference
     turns (a GNSS or position-only track written as TUM, e.g. a run's own ``gnss.tum``). Its rotation, RPE and KITTI
     drift would be numbers about the placeholder (a 100 deg rotation error, 78 % drift: the relative translations
@@ -197,6 +204,11 @@ def _orientation_placeholder(f, ref_f) -> float | None:
     turn_deg = float(np.degrees(2 * np.arccos(cos_half.min())))
     if turn_deg <= PLACEHOLDER_TURN_DEG:
         return None
+    if reference:        # ``f`` is the reference, ``ref_f`` the estimate that turns
+        log.warning("the reference %s has the same orientation on every pose while %s turns by up to %.0f deg: "
+                    "placeholders; %s evaluated as position only (APE translation; no rotation, RPE or KITTI drift "
+                    "metric)", f.source, ref_f.source, turn_deg, ref_f.source)
+        return turn_deg
     log.warning("%s: every pose has the same orientation while the reference turns by up to %.0f deg: evaluated as "
                 "position only (APE translation; no rotation, RPE or KITTI drift metric)", f.source, turn_deg)
     return turn_deg
