@@ -112,11 +112,12 @@ def markdown(s: Setup, res: dict, runtime_s: float) -> str:
         return "\n".join(L + ["No trial completed: nothing is tuned.", ""])
     rows = []
     resolved = ((default["train"]["steps"][0].get("resolved") or {}).get("imu_noise") or {})
-    from ..config import schema
+    from .study import default_config
 
-    base = {k: spec.default for k, spec in schema().items()}      # the built-in defaults (a manifest may suggest others)
+    cfg0 = default_config(s)          # the default run's (the manifest's suggested settings included)
     for key, v in best["overrides"].items():
-        d = base.get(key)
+        sect, k = key.split(".", 1)
+        d = cfg0.get(sect, {}).get(k)
         if d == "auto" and key.split(".", 1)[1] in resolved:
             d = f"auto ({resolved[key.split('.', 1)[1]]:.4g} from the data)"
         fixed = " (fixed)" if key in s.space.fixed else ""
