@@ -371,3 +371,17 @@ def test_the_first_trial_is_the_default_run_with_the_manifests_suggested_setting
     default = json.loads((tmp_path / "t" / "default.json").read_text())
     assert float(row["fused.ape.rmse"]) == pytest.approx(default["train"]["values"][0], abs=1e-9)
     assert "| imu.accel_bias_rw_mps3_sqrthz |     3e-05 |" in (tmp_path / "t" / "tune.md").read_text()
+
+
+def test_an_objective_no_tuned_key_moves_is_said(kitti_slice, tmp_path):
+    """--objective gnss.ape.rmse ran every trial at one value and tune.md suggested more trials (a corrupted-input
+    review): it says that no key of the space moves the objective."""
+    from click.testing import CliRunner
+
+    from fusion_eval.cli import main
+
+    r = CliRunner().invoke(main, ["tune", str(kitti_slice), "--objective", "gnss.ape.rmse", "--trials", "3",
+                                  "--out", str(tmp_path / "t"), "--no-plots", "--jobs", "1", "--no-prune"])
+    assert r.exit_code == 0, r.output
+    text = (tmp_path / "t" / "tune.md").read_text()
+    assert "Every one of the 3 complete trials scored the same objective" in text and "no key of the space" in text

@@ -110,6 +110,12 @@ def markdown(s: Setup, res: dict, runtime_s: float) -> str:
          f"({runtime_s:.0f} s in this session).", ""]
     if best is None:
         return "\n".join(L + ["No trial completed: nothing is tuned.", ""])
+    done = [t.values[0] for t in study.get_trials(deepcopy=False) if t.state == S.COMPLETE and t.values]
+    if len(done) >= 3 and max(done) - min(done) <= 1e-12 * max(abs(max(done)), 1.0):
+        # gnss.ape.rmse as the objective: every trial scored 2.30298 and the report suggested more trials (a review)
+        L += [f"**Every one of the {len(done)} complete trials scored the same objective ({_f(done[0])})**: no key of the "
+              f"space moves `{s.objectives[0].name}` (the unfiltered GNSS's APE depends on no filter setting, say): "
+              "choose an objective of the filter's estimate (fused.ape.rmse, nll, nis).", ""]
     rows = []
     resolved = ((default["train"]["steps"][0].get("resolved") or {}).get("imu_noise") or {})
     from .study import default_config
