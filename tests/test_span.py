@@ -60,3 +60,12 @@ def test_compare_scores_every_variant_on_one_span(kitti_slice, tmp_path):
     fused = [row for row in c["rows"] if row["estimate"] == "fused"]
     assert len({row["matched_poses"] for row in fused}) == 1, [row["matched_poses"] for row in fused]
     assert "Span: every estimate over the same" in (out / "compare.md").read_text()
+
+
+def test_a_start_a_rounding_before_the_truth_reads_as_zero():
+    """'-0.00 .. 114.85 s' on a raw drive's report (a student's review)."""
+    from fusion_eval.evaluation.span import describe
+
+    text = describe({"from_groundtruth_start_s": [-0.001, 114.85], "duration_s": 114.9, "start_set_by": "gnss",
+                     "end_set_by": "gnss", "t0_s": 1.0, "t1_s": 2.0})
+    assert "0.00 .. 114.85 s after" in text and "-0.00" not in text

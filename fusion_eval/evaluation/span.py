@@ -71,7 +71,8 @@ def evo_options(span: dict | None) -> str:
 def describe(span: dict | None) -> str:
     if span is None:
         return "each estimate over its own poses (evaluation.span=own)"
-    a, b = span["from_groundtruth_start_s"]
+    # a start a rounding before the truth's read "-0.00 .. 114.85 s" (a review): rounded first, then +0.0 drops the sign
+    a, b = (round(v, 2) + 0.0 for v in span["from_groundtruth_start_s"])
     return (f"every estimate over the same {span['duration_s']:.1f} s, {a:.2f} .. {b:.2f} s after the ground truth's first "
             f"pose (start set by {span['start_set_by']}, end by {span['end_set_by']}; evaluation.span=common; evo_ape / evo_rpe "
             f"on the written files: `{evo_options(span)}`; fusion-eval evaluate: `{evo_options(span).replace('_', '-')}`)")

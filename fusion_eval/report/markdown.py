@@ -202,7 +202,8 @@ def _outages(outages_s, removed: int, what: str) -> str:
 def _offsets(offsets_s: dict) -> str:
     nonzero = {k: v for k, v in offsets_s.items() if v}
     if not nonzero:
-        return f"none (all {len(offsets_s)} streams on the IMU clock as stamped)"
+        n = len(offsets_s)
+        return f"none ({'both streams' if n == 2 else f'all {n} streams' if n > 2 else 'the stream'} on the IMU clock as stamped)"
     return ", ".join(f"{k} {v * 1000:+.1f} ms" for k, v in nonzero.items()) + "; the other streams none"
 
 
