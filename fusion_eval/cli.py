@@ -315,8 +315,13 @@ def sweep(ctx, datasets, sweep_file, out_dir, jobs, variant_dir, scheduler, dask
             click.echo(f"summary of {st.count('ok')} finished, {st.count('failed')} failed and {st.count('pending')} "
                        f"pending runs ({time.perf_counter() - t0:.1f} s)")
         else:
+            n_rows = len(res["summary"]["rows"])
+            shared = n_rows - (counts["run"] + counts["failed"] + counts["skipped"])
+            # "5 runs done" beside sweep.md's "6 runs: 6 finished" read as a lost run (a student's review)
             click.echo(f"{counts['run']} runs done, {counts['failed']} failed, {counts['skipped']} already recorded "
-                       f"({time.perf_counter() - t0:.1f} s)")
+                       f"({time.perf_counter() - t0:.1f} s)"
+                       + (f"; {n_rows} settings in sweep.md, {shared} of them the same configuration as another, "
+                          "which share its run" if shared > 0 else ""))
         if best:
             click.echo(f"best: variant {best['variant']}, setting {best['setting']}: mean fused APE RMSE "
                        f"{best['mean_fused_ape_trans_rmse_m']:.3f} m")

@@ -33,6 +33,8 @@ def test_the_sweep_summary_and_the_compare_report_carry_it(kitti_slice, tmp_path
                                   str(tmp_path / "sw"), "--no-plots", "--jobs", "1"])
     assert r.exit_code == 0, r.output
     assert "from one run each" in r.output
+    # setting a is the default's configuration: they share one run, and the console says so beside sweep.md's count
+    assert "2 runs done" in r.output and "3 settings in sweep.md, 1 of them the same configuration as another" in r.output
     assert "The best leads the next by" in (tmp_path / "sw" / "sweep.md").read_text()
 
 
