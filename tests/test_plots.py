@@ -375,3 +375,21 @@ def test_segment_labels_do_not_overlap_and_stay_inside_the_map():
     assert all(box.x0 <= b.x0 and b.x1 <= box.x1 and box.y0 <= b.y0 and b.y1 <= box.y1 for b in boxes)
     assert not any(a.overlaps(b) for i, a in enumerate(boxes) for b in boxes[i + 1:])
     plt.close(fig)
+
+
+def test_the_ape_plot_shades_the_gnss_outages_and_the_imus_gaps(tmp_path):
+    """Where on the route the error grows and why (a GNSS outage, a hole where the IMU's filled packets were dropped)
+    was only in the report's text (a student's review): ape_over_time.png shades both."""
+    from types import SimpleNamespace as NS
+
+    from fusion_eval.report import route_spans
+
+    t = np.r_[np.arange(0.0, 30.0, 0.1), np.arange(31.7, 60.0, 0.1)] + 1000.0
+    res = NS(metrics={"gnss_degradation": {"outages_s": [[10.0, 20.0]]}}, cfg={"filter": {"use_gnss": True}},
+             filt=NS(fused=NS(t_s=t)))
+    spans = route_spans(res)
+    assert spans[0] == (10.0, 20.0, "GNSS outage")
+    (gap,) = spans[1:]
+    assert gap[2] == "no IMU data (gap)" and gap[0] == pytest.approx(29.9) and gap[1] == pytest.approx(31.7)
+    res.cfg["filter"]["use_gnss"] = False            # no GNSS fused: its outages are not the filter's
+    assert [s[2] for s in route_spans(res)] == ["no IMU data (gap)"]

@@ -10,6 +10,8 @@ the metrics, the report). :func:`write_run` does both. Every file goes through
 
 from __future__ import annotations
 
+import numpy as np
+
 from ..outputs import StagedDir
 from ..provenance import input_files
 from . import files, html, thin
@@ -63,6 +65,24 @@ def filter_plots(make_plots: bool) -> list[str]:
     return list(FILTER_PLOTS) if make_plots else []
 
 
+IMU_GAP_MIN_S = 1.0        # a hole in the fused record this long is shaded (KITTI's dropped packets: 1.6-1.8 s)
+
+
+def route_spans(res) -> list[tuple[float, float, str]]:
+    """The spans of a run to shade on its time plots, in seconds from the filter's start: the configured GNSS outages
+    and the holes in the fused record (the IMU's dropped packets), each ``(start, end, label)``."""
+    out = []
+    gd = res.metrics.get("gnss_degradation") or {}
+    if res.cfg["filter"].get("use_gnss"):
+        out += [(float(a), float(b), "GNSS outage") for a, b in gd.get("outages_s") or []]
+    t = np.asarray(res.filt.fused.t_s, float)
+    if t.size > 2:
+        dt = np.diff(t)
+        for i in np.flatnonzero(dt > max(IMU_GAP_MIN_S, 5 * float(np.median(dt)))):
+            out.append((float(t[i] - t[0]), float(t[i + 1] - t[0]), "no IMU data (gap)"))
+    return out
+
+
 def write_evaluation(out: StagedDir, res, plots_written: list[str], pool=None, advance=None) -> None:
     """Result zips, metrics (JSON, CSV, LaTeX), the resolved configuration, the plots that need the metrics (on
     ``pool`` when given, while this process writes the rest), and the reports (Markdown, HTML). ``advance()`` is
@@ -88,7 +108,8 @@ def write_evaluation(out: StagedDir, res, plots_written: list[str], pool=None, a
     plots_written = list(plots_written)
     if plots_written:
         t0 = float(res.filt.fused.t_s[0])
-        jobs.append((draw, "plot_ape_over_time", out.path("ape_over_time.png"), thin.ape_curves(res.evals), t0))
+        jobs.append((draw, "plot_ape_over_time", out.path("ape_over_time.png"), thin.ape_curves(res.evals), t0,
+                     "time since start [s]", route_spans(res)))
         if any(ev.drift for ev in res.evals.values()):
             jobs.append((draw, "plot_drift", out.path("kitti_drift.png"), thin.drift_only(res.evals)))
             plots_written.append("kitti_drift.png")

@@ -124,10 +124,17 @@ def _gapped(t: np.ndarray, y: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     return np.insert(t.astype(float), cut, np.nan), np.insert(y.astype(float), cut, np.nan)
 
 
-def plot_ape_over_time(path: Path, evals: dict, t0: float, x_label: str = "time since start [s]") -> None:
+def plot_ape_over_time(path: Path, evals: dict, t0: float, x_label: str = "time since start [s]", spans=()) -> None:
     """APE translation of each estimate over time (log scale: dead reckoning grows by orders of magnitude);
-    ``x_label``: what the stamps count (frames, for KITTI poses without a times file)."""
+    ``x_label``: what the stamps count (frames, for KITTI poses without a times file); ``spans``: ``(start, end,
+    label)`` on the plot's time axis, shaded (the GNSS outages, the IMU's gaps: where on the route the error grows and
+    why, which a reader had to find in the report's text)."""
     fig, ax = plt.subplots(figsize=(10, 4.5))
+    shaded: set = set()
+    for a, b, label in spans:
+        color = "tab:orange" if label.startswith("GNSS") else "0.5"
+        ax.axvspan(a, b, color=color, alpha=0.15, lw=0, label=None if label in shaded else label)
+        shaded.add(label)
     known = [n for n in ("imu_only", "gnss", "lidar", "fused", "smoothed") if n in evals]
     floor = _log_floor([ev.ape_err_m for ev in evals.values()])
     for i, name in enumerate(known + [n for n in evals if n not in known]):
