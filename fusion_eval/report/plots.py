@@ -373,7 +373,10 @@ def plot_compare_body_velocity(path: Path, runs, body_v: list, gt, gt_vb) -> Non
     axes[0].set_title("Body-frame velocity across the direction of travel")
     for ax in axes:
         ax.grid(alpha=0.3)
-    axes[0].legend(loc="upper right", fontsize=7)
+    # below the axes, one row: inside, the legend covered the data and hid a variant behind the truth (a review)
+    handles, labels = axes[0].get_legend_handles_labels()
+    fig.legend(handles, labels, loc="lower center", ncol=min(len(labels), 6), fontsize=8, frameon=False)
+    fig.subplots_adjust(bottom=0.16, top=0.93, hspace=0.12)
     _save(fig, path)
 
 
