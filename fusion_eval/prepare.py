@@ -307,7 +307,8 @@ def prepare(ds: Dataset, cfg: dict) -> Prepared:
             # 'best' among them with no word (a corrupted-input review)
             unused = [f"gnss.{k}={c[k]}" for k in ("rate_hz", "noise_std_m") if c[k] != schema()[f"gnss.{k}"].default]
             if unused:
-                more_warnings.append(f"{' and '.join(unused)} appl{'y' if len(unused) > 1 else 'ies'} only to a GNSS stream marked for degradation (the "
+                verb = "apply" if len(unused) > 1 else "applies"
+                more_warnings.append(f"{' and '.join(unused)} {verb} only to a GNSS stream marked for degradation (the "
                                      f"manifest's gnss degrade: true; KITTI's OXTS solution is): {ds.gnss.source} is a "
                                      "receiver's output, used at its own rate and noise (gnss.outages_s and gnss.std_m "
                                      "do apply)")

@@ -232,7 +232,7 @@ def transition(Ft, Qc, dt, method):
 @njit(cache=True)
 def propagate(P, n, Phi, Qd):
     """``P <- Phi P Phi^T + Q_d`` as :func:`propagate_dense` computes it, on ``Phi``'s non-zeros: an error state's
-    transition is mostly zero blocks (the ESKF's: 87 non-zeros of 225; identity on the position and bias
+    transition is mostly zero blocks (the ESKF's: 75-87 non-zeros of 225; identity on the position and bias
     blocks), so both products go through ``Phi``'s rows (:func:`_csr`) and only the upper triangle of the
     symmetric result is formed, then mirrored (exactly symmetric, as :func:`linalg.symmetrize_into` leaves the
     dense one). About a third of the dense products' work, and no BLAS call on 15 x 15 blocks, whose dispatch
@@ -263,8 +263,9 @@ def propagate(P, n, Phi, Qd):
 
 @njit(cache=True)
 def propagate_dense(P, n, Phi, Qd):
-    """``P <- Phi P Phi^T + Q_d`` by dense products (the tests' oracle of :func:`propagate`) on the leading ``m = Phi.shape[0]`` states of the first ``n``; the states after
-    them (a pose clone) are constant, so only their cross-covariance with the leading states changes."""
+    """``P <- Phi P Phi^T + Q_d`` by dense products (the tests' oracle of :func:`propagate`) on the leading
+    ``m = Phi.shape[0]`` states of the first ``n``; the states after them (a pose clone) are constant, so only their
+    cross-covariance with the leading states changes."""
     m = Phi.shape[0]
     newc = Phi @ np.ascontiguousarray(P[:m, :m]) @ np.ascontiguousarray(Phi.T) + Qd
     if n > m:

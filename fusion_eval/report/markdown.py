@@ -5,7 +5,7 @@ Everything is formatted from numbers the evaluation layer computed; nothing here
 
 from __future__ import annotations
 
-import numpy as np
+import math
 
 from .. import yaml_lines
 from ..evaluation import keys
@@ -68,7 +68,7 @@ def consistency_verdict(d: dict) -> str:
     """``consistent``, ``overconfident`` or ``conservative`` (mean against dof, :data:`VERDICT_RATIO`), with heavy tails
     said where a fitting mean has under :data:`VERDICT_MIN_INSIDE` of the epochs inside the 95 % interval."""
     mean, dof, inside = d.get("mean"), d.get("dof"), d.get("fraction_in_95")
-    if mean is None or not dof or not np.isfinite(mean):
+    if mean is None or not dof or not math.isfinite(mean):
         return "n/a"
     r = mean / dof
     if r > VERDICT_RATIO:

@@ -15,7 +15,7 @@ from ..provenance import dataset_files, header_line
 from ..report import html
 from ..tables import markdown as markdown_table
 from ..trials import one_draw_note
-from .study import Setup, write_json
+from .study import Setup, default_config, write_json
 
 FUSED_APE = "fused.ape.rmse"
 
@@ -118,14 +118,12 @@ def markdown(s: Setup, res: dict, runtime_s: float) -> str:
               "choose an objective of the filter's estimate (fused.ape.rmse, nll, nis).", ""]
     rows = []
     resolved = ((default["train"]["steps"][0].get("resolved") or {}).get("imu_noise") or {})
-    from .study import default_config
-
-    cfg0 = default_config(s)          # the default run's (the manifest's suggested settings included)
+    cfg0 = res.get("default_config") or default_config(s)      # the default run's (the manifest's suggestions included)
     for key, v in best["overrides"].items():
         sect, k = key.split(".", 1)
         d = cfg0.get(sect, {}).get(k)
-        if d == "auto" and key.split(".", 1)[1] in resolved:
-            d = f"auto ({resolved[key.split('.', 1)[1]]:.4g} from the data)"
+        if d == "auto" and k in resolved:
+            d = f"auto ({resolved[k]:.4g} from the data)"
         fixed = " (fixed)" if key in s.space.fixed else ""
         rows.append([f"{key}{fixed}", _v(d), _v(v)])
     L += ["## Tuned values", ""] + markdown_table(["key", "default", "tuned"], rows) + [""]

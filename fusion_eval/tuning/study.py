@@ -227,10 +227,11 @@ def run_study(s: Setup, progress: Callable[[int, int, float | None], None] | Non
     stale = _requeue_stale(study)
     if stale:
         log.info("%d trials interrupted by a killed tune are run again", stale)
+    cfg0 = default_config(s)      # once: the first trial's values and the report's default column (a dataset load)
     with Executor(s) as ex:
         default = _default(s, ex)
         if not study.trials:
-            start = _default_point(s, default)
+            start = _default_point(s, default, cfg0)
             if start:       # the first trial is the default configuration (as far as the space holds it)
                 study.enqueue_trial(start)
         n_steps = len(s.train) * s.seeds
@@ -265,7 +266,7 @@ def run_study(s: Setup, progress: Callable[[int, int, float | None], None] | Non
         best = _best(study, s)
         if best is not None and s.test:
             best["test"] = ex.map([s.job(best["number"], best["overrides"], s.test)])[0]
-    return {"study": study, "default": default, "best": best}
+    return {"study": study, "default": default, "best": best, "default_config": cfg0}
 
 
 def _default(s: Setup, ex: Executor) -> dict:
@@ -307,7 +308,7 @@ def default_config(s: Setup) -> dict:
     return session.resolve(session.request(config=s.base_config, sets=s.sets), session.dataset(s.train[0]))
 
 
-def _default_point(s: Setup, default: dict) -> dict:
+def _default_point(s: Setup, default: dict, cfg0: dict | None = None) -> dict:
     """The default configuration's value of every tuned key inside its range (:func:`default_config`), or for an 'auto'
     the value the default run settled on (the IMU noise it estimated, the lidar frame it chose, ...). Keys without
     one are sampled: then the first trial is not the default, and the report compares the tuned values with the
@@ -315,7 +316,7 @@ def _default_point(s: Setup, default: dict) -> dict:
     got = default["train"]["steps"][0].get("resolved") or {}
     resolved, settled = got.get("imu_noise") or {}, got.get("auto_settled") or {}
     out = {}
-    cfg0 = default_config(s)
+    cfg0 = default_config(s) if cfg0 is None else cfg0
     for p in s.space.params:
         sect, key = p.key.split(".", 1)
         v = cfg0.get(sect, {}).get(key)

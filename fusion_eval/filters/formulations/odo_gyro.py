@@ -12,7 +12,7 @@ process noise). Per step (midpoint)::
 and the error dynamics ``dp' = dp + T (-R [v_b]x dtheta - R c v dk)``, ``dtheta' = (I - [w]x T) dtheta - T dbg``,
 ``v_b = c (1 - k) v``.
 It fuses the same position and pose observations as the IMU filters; it has no velocity or accelerometer
-bias state (its velocity is the odometer's, ``R e1 (1 - k) v``, kept in the nominal vector for reports),
+bias state (its velocity is the odometer's, ``R c (1 - k) v``, kept in the nominal vector for reports),
 so velocity observations are refused with it. Derivation: ``docs/odometer_gyro.md``.
 """
 
@@ -79,7 +79,8 @@ def step(x, P, n, u0, u1, dt, qscale, prm, aux, cov):
         # speed noise along the direction of travel, slip across it, both mapped to the world by R (diag(qv^2,
         # qslip^2, qslip^2) exactly when c = e1)
         c = np.array([cx, cy, 0.0])
-        Qb = (prm[PRM_QV] ** 2 * np.outer(c, c) + prm[PRM_QSLIP] ** 2 * (np.eye(3) - np.outer(c, c))) * dt * qscale
+        cc = np.outer(c, c)
+        Qb = (prm[PRM_QV] ** 2 * cc + prm[PRM_QSLIP] ** 2 * (np.eye(3) - cc)) * dt * qscale
         newP[OP_ID:OP_ID + 3, OP_ID:OP_ID + 3] += R @ Qb @ R.T
         for i in range(3):
             newP[OTH_ID + i, OTH_ID + i] += prm[PRM_QG] ** 2 * dt * qscale
