@@ -271,9 +271,14 @@ def compare(ctx, dataset, variants, variant_dir, config_path, sets, out_dir, ove
 @click.option("--batch/--no-batch", default=True, show_default=True,
               help="Runs that differ only in the filter's noise settings share one loading and preparation of the "
                    "data and one evaluation of the unfiltered estimates (the same results); --no-batch runs each alone.")
+@click.option("--objective", default=None, metavar="OBJ",
+              help="What the summary ranks by, lower is better (default: the sweep file's 'objective', else "
+                   "fused.ape.rmse): a metric key as check names them (fused.rpe_100m.rmse, fused.kitti_drift.t_err_pct, "
+                   "smoothed.ape.rmse, ...), nll or nis (no ground truth), or a weighted sum as tune takes it. With "
+                   "--summarize-only it ranks the recorded runs again.")
 @click.pass_context
 def sweep(ctx, datasets, sweep_file, out_dir, jobs, variant_dir, scheduler, dask_mode, retry_failed, summarize_only,
-          no_plots, trials, batch):
+          no_plots, trials, batch, objective):
     """Run DATASET(s) over the settings of a sweep file, in parallel or on Dask, and rank the results."""
     _say_compiling(ctx.obj["quiet"])
     from .commands.sweep import run_sweep
@@ -296,7 +301,7 @@ def sweep(ctx, datasets, sweep_file, out_dir, jobs, variant_dir, scheduler, dask
 
     try:
         res = run_sweep(sweep_file, [str(d) for d in datasets], out_dir, jobs, variant_dir, scheduler, dask_mode == "local",
-                        retry_failed, summarize_only, not no_plots, progress_for, trials, batch)
+                        retry_failed, summarize_only, not no_plots, progress_for, trials, batch, objective)
     finally:
         for bar in bars:
             bar.close()
@@ -323,8 +328,9 @@ def sweep(ctx, datasets, sweep_file, out_dir, jobs, variant_dir, scheduler, dask
                        + (f"; {n_rows} settings in sweep.md, {shared} of them the same configuration as another, "
                           "which share its run" if shared > 0 else ""))
         if best:
-            click.echo(f"best: variant {best['variant']}, setting {best['setting']}: mean fused APE RMSE "
-                       f"{best['mean_fused_ape_trans_rmse_m']:.3f} m")
+            what = ("fused APE RMSE" if "mean_fused_ape_trans_rmse_m" in best else best["objective"])
+            click.echo(f"best: variant {best['variant']}, setting {best['setting']}: mean {what} "
+                       f"{best['mean_objective']:.4g}" + (" m" if "mean_fused_ape_trans_rmse_m" in best else ""))
             if best.get("note"):
                 click.echo(best["note"])
         click.echo(f"wrote {out_dir}/sweep.csv, sweep.md, report.html" + (", best.yaml" if best else ""))

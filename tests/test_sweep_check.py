@@ -591,3 +591,45 @@ def test_a_dataset_given_as_its_folder_and_as_its_manifest_is_swept_once(kitti_s
     tasks, _ = plan(tmp_path / "g.yaml", [str(kitti_slice), str(kitti_slice / "dataset.yaml")], tmp_path / "out")
     assert len({t.dataset for t in tasks}) == 1 and len(tasks) == 2          # the default and the setting
     assert "is the dataset" in caplog.text and "swept once" in caplog.text
+
+
+@pytest.mark.slow
+def test_a_sweep_ranks_by_the_objective_it_is_given(small, tmp_path):
+    """sweep ranked by the fused APE alone; a user tuning for drift or smoothness needs another figure. The
+    objective (tune's syntax) is its own column, orders the table and picks best.yaml; --summarize-only ranks the
+    recorded runs again; a key no run has is refused without touching the summary."""
+    sw = tmp_path / "sweep.yaml"
+    sw.write_text("variants: [eskf]\ntrials: 2\nsettings:\n  a: {imu.gyro_noise_dps_sqrthz: 0.05}\n"
+                  "  b: {imu.gyro_noise_dps_sqrthz: 0.6}\n")
+    out = tmp_path / "s"
+    obj = "fused.rpe_1frame.rmse"
+    r = CliRunner().invoke(main, ["sweep", str(small), "--grid", str(sw), "--out", str(out), "--jobs", "1",
+                                  "--no-plots", "--objective", obj])
+    assert r.exit_code == 0, r.output
+    rows = _rows(out)
+    col = "fused_rpe_1frame_trans_rmse_m"
+    for row in rows.values():           # the objective's column is the mean of the trials' own figure
+        assert abs(float(row[obj]) - float(row[col])) <= 1e-6 * float(row[col]) and row["trials"] == "2"
+        assert float(row[f"{obj}_std"]) >= 0
+    order = sorted(rows, key=lambda s: float(rows[s][obj]))
+    md = (out / "sweep.md").read_text()
+    assert f"Ranked by the mean {obj} (lower is better)" in md
+    table = [ln.split("|")[3].strip() for ln in md.splitlines() if re.match(r"\|\s+\d+ \| eskf", ln)]
+    assert table == order
+    assert f"setting {order[0]}" in (out / "best.yaml").read_text().splitlines()[0]
+    assert f"best: variant eskf, setting {order[0]}: mean {obj} " in r.output
+    # again from the records, by the APE: the default's column and wording, no objective column
+    before = (out / "sweep.csv").read_text()
+    r = CliRunner().invoke(main, ["-q", "sweep", str(small), "--grid", str(sw), "--out", str(out), "--summarize-only",
+                                  "--no-plots", "--objective", "smoothed.ape.rmse"])
+    assert r.exit_code == 2 and "no finished run has the metric 'smoothed.ape.rmse'" in r.stderr
+    assert (out / "sweep.csv").read_text() == before
+    sw.write_text(sw.read_text() + "objective: fused.ape.rmse\n")
+    r = CliRunner().invoke(main, ["-q", "sweep", str(small), "--grid", str(sw), "--out", str(out), "--summarize-only",
+                                  "--no-plots"])
+    assert r.exit_code == 0, r.output
+    assert obj not in (out / "sweep.csv").read_text().splitlines()[0]
+    assert "Ranked by the mean fused APE translation RMSE" in (out / "sweep.md").read_text()
+    r = CliRunner().invoke(main, ["-q", "sweep", str(small), "--grid", str(sw), "--out", str(tmp_path / "t"),
+                                  "--objective", "fsued.ape.rmse"])
+    assert r.exit_code == 2 and "'fsued.ape.rmse' is no metric key" in r.stderr and not (tmp_path / "t").exists()

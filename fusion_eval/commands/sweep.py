@@ -58,7 +58,7 @@ from ..variants import resolve_variant
 log = logging.getLogger(__name__)
 
 MAX_SETTINGS = 100_000      # a sweep's settings: beyond, a typo (a 400^3 grid once filled 600 MB before running anything)
-SWEEP_KEYS = {"datasets", "variants", "config", "plots", "grid", "settings", "random", "trials"}
+SWEEP_KEYS = {"datasets", "variants", "config", "plots", "grid", "settings", "random", "trials", "objective"}
 
 
 @dataclass(frozen=True)
@@ -100,7 +100,8 @@ def load_sweep(path: Path) -> dict:
                             ("settings", dict, "a mapping of setting names to {key: value}"),
                             ("random", dict, "a mapping with n, seed and ranges"),
                             ("datasets", list, "a list of dataset paths"), ("variants", list, "a list of variant names"),
-                            ("plots", bool, "true or false"), ("config", str, "a configuration file path")):
+                            ("plots", bool, "true or false"), ("config", str, "a configuration file path"),
+                            ("objective", str, "what the summary ranks by, as --objective (fused.rpe_100m.rmse, ...)")):
         if key in body and body[key] is not None and not isinstance(body[key], kind):
             raise ConfigError(f"{yaml_lines.at(path, body, key)}: '{key}' must be {what}, got {body[key]!r}")
     for key in ("datasets", "variants"):          # each entry a name or path (a blank '-' entry was a traceback)
@@ -536,10 +537,11 @@ def run_sweep(sweep: str | Path, datasets: list[str], out_dir: Path, jobs: int |
               scheduler: str | None = None, dask_local: bool = False, retry_failed: bool = False,
               summarize_only: bool = False, plots: bool = True,
               progress_for: Callable[[int], Callable | None] | None = None, trials: int | None = None,
-              batch: bool = True) -> dict:
+              batch: bool = True, objective: str | None = None) -> dict:
     """Plan, run (unless ``summarize_only``) and summarise a sweep; ``sweep`` a file or a shipped sweep's name.
-    ``progress_for(total)`` gives the progress callback of :func:`execute`. Returns the counts and the summary."""
-    from .sweep_summary import write_summary
+    ``progress_for(total)`` gives the progress callback of :func:`execute`; ``objective``: what the summary ranks
+    by (default: the sweep file's ``objective``, else the fused APE RMSE). Returns the counts and the summary."""
+    from .sweep_summary import ranking, write_summary
 
     if scheduler and dask_local:
         raise ConfigError("give either --scheduler or --dask local, not both")
@@ -547,6 +549,8 @@ def run_sweep(sweep: str | Path, datasets: list[str], out_dir: Path, jobs: int |
         raise ConfigError("--jobs must be >= 1")
     sweep_path = resources.sweep_file(str(sweep))
     tasks, body = plan(sweep_path, datasets, out_dir, variant_dir, trials)
+    objective = objective or body.get("objective")
+    ranking(objective)                # a malformed objective is refused before any run
     if not summarize_only:
         resumable_dir(out_dir, ("records", "runs"), "sweep", dataset_roots(*{t.dataset for t in tasks}))
     counts = {"run": 0, "failed": 0, "skipped": 0}
@@ -556,5 +560,6 @@ def run_sweep(sweep: str | Path, datasets: list[str], out_dir: Path, jobs: int |
     else:
         progress = progress_for(len({t.id for t in tasks})) if progress_for else None
         counts = execute(tasks, out_dir, jobs, scheduler, dask_local, retry_failed, progress=progress, batch=batch)
-    summary = write_summary(tasks, out_dir, swept_keys(body), plots=plots, grid_keys=list(body.get("grid") or {}))
+    summary = write_summary(tasks, out_dir, swept_keys(body), plots=plots, grid_keys=list(body.get("grid") or {}),
+                            objective=objective)
     return {"counts": counts, "summary": summary, "tasks": tasks}

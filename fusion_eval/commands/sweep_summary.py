@@ -6,7 +6,10 @@ RPE length each run was evaluated with, so a sweep over ``evaluation.rpe_delta_m
 
 from __future__ import annotations
 
+import difflib
 import logging
+import math
+from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
@@ -25,6 +28,64 @@ from .sweep import Task, read_records
 log = logging.getLogger(__name__)
 
 METRIC = mk.RANK_COLUMN
+DEFAULT_OBJECTIVE = "fused.ape.rmse"
+_DEFAULT_TERMS = {((1.0, "fused.ape.rmse"),), ((1.0, "fused.ape.translation_m.rmse"),)}
+
+
+@dataclass(frozen=True)
+class Ranking:
+    """What a sweep ranks its settings by: an objective as ``tune`` takes it (a metric key of ``metrics.json``,
+    ``nll``, ``nis`` or a weighted sum), lower is better. ``column``: its column in ``sweep.csv`` (the fused APE's
+    own column for the default), ``label``: how the tables and plots name it."""
+
+    objective: object                       # fusion_eval.tuning.objectives.Objective
+    column: str
+    label: str
+
+    @property
+    def is_default(self) -> bool:
+        return self.column == METRIC
+
+    def value(self, metrics: dict):
+        """The objective of one run's metrics; None where the run lacks a term (a smoother's key in a run with none)."""
+        v = self.objective.value(mk.flatten(metrics))
+        return None if math.isnan(v) else v
+
+
+def ranking(text: str | None) -> Ranking:
+    """The :class:`Ranking` of ``--objective`` (or the sweep file's ``objective:``; default the fused APE RMSE)."""
+    from ..errors import ConfigError
+    from ..evaluation.run_metrics import ESTIMATES
+    from ..tuning import objectives
+
+    obj = objectives.parse(text or DEFAULT_OBJECTIVE)
+    # the first word of a key is checked now (a sweep would otherwise run to its end before the summary refuses it)
+    families = (*ESTIMATES, "ratios", "innovations", "nis", "nees", "nees_smoothed")
+    for _, key in obj.terms:
+        if key.split(".")[0] not in families:
+            raise ConfigError(f"--objective {obj.name!r}: {key!r} is no metric key: a key starts with one of "
+                              f"{', '.join(families)} (e.g. fused.ape.rmse, fused.rpe_100m.rmse; or nll, nis)")
+    if obj.terms in _DEFAULT_TERMS:
+        return Ranking(obj, METRIC, "fused APE translation RMSE [m]")
+    name = "".join(obj.name.split())
+    spelled = "+".join(k if w == 1 else f"{w:g}*{k}" for w, k in obj.terms)
+    return Ranking(obj, name, name if spelled == name else f"{name} ({spelled})")
+
+
+def _check_ranked(rank: Ranking, rows: list[dict], recs: dict[str, dict]) -> None:
+    """Refuse an objective that no finished run has (a typo, a smoother's key without a smoother), naming close
+    keys: the records stay, and ``--summarize-only --objective`` ranks them again without running anything."""
+    from ..errors import ConfigError
+
+    done = [recs[r["id"]] for r in rows if r["status"] == "ok" and recs.get(r["id"], {}).get("metrics")]
+    if not done or any(r.get(rank.column) is not None for r in rows if r["status"] == "ok"):
+        return
+    flat = mk.flatten(done[0]["metrics"])
+    missing = next(k for _, k in rank.objective.terms if k not in flat)
+    close = difflib.get_close_matches(missing, list(flat), n=3)
+    hint = f"did you mean {', '.join(close)}?" if close else "`fusion-eval check --help` names the keys"
+    raise ConfigError(f"--objective {rank.objective.name!r}: no finished run has the metric {missing!r} ({hint}); the "
+                      f"{len(done)} runs are recorded: `--summarize-only --objective KEY` ranks them without running again")
 
 
 def _get(m: dict, path: tuple):
@@ -36,8 +97,10 @@ def _get(m: dict, path: tuple):
     return d
 
 
-def rows_of(tasks: list[Task], recs: dict[str, dict], keys: list[str]) -> tuple[list[dict], list[str]]:
-    """One row per run (and the metric columns found, in order), from the sweep's records."""
+def rows_of(tasks: list[Task], recs: dict[str, dict], keys: list[str], rank: Ranking | None = None
+            ) -> tuple[list[dict], list[str]]:
+    """One row per run (and the metric columns found, in order), from the sweep's records; with a ``rank`` other
+    than the default, its objective in its own column (the first metric column)."""
     rows, metric_cols = [], []
     seen = set()
     for t in tasks:
@@ -62,6 +125,10 @@ def rows_of(tasks: list[Task], recs: dict[str, dict], keys: list[str]) -> tuple[
                     row[col] = _get(m, path)
                     if col not in metric_cols:
                         metric_cols.append(col)
+            if rank is not None and not rank.is_default:
+                row[rank.column] = rank.value(m) if r["status"] == "ok" and m else None
+                if rank.column not in metric_cols:
+                    metric_cols.insert(0, rank.column)
             ratios = m.get("ratios") or {}
             row["fused_over_lidar"] = ratios.get("fused_over_lidar")
             row["fused_over_gnss"] = ratios.get("fused_over_gnss")
@@ -71,12 +138,14 @@ def rows_of(tasks: list[Task], recs: dict[str, dict], keys: list[str]) -> tuple[
         rows.append(row)
     if not metric_cols:
         metric_cols = [c for c, _ in mk.summary_columns(mk.DEFAULT_RPE_DELTA_M)]
+        if rank is not None and not rank.is_default:
+            metric_cols.insert(0, rank.column)
     return rows, metric_cols
 
 
-def _over_trials(rows: list[dict], keys: list[str]) -> list[dict]:
-    """One row per (dataset, variant, setting): the means of its finished trials (``trials``, the rank metric's
-    std, ``failed_trials``); a setting none of whose trials finished keeps its first trial's status."""
+def _over_trials(rows: list[dict], keys: list[str], metric: str = METRIC) -> list[dict]:
+    """One row per (dataset, variant, setting): the means of its finished trials (``trials``, the std of the
+    ranked ``metric``, ``failed_trials``); a setting none of whose trials finished keeps its first trial's status."""
     from ..trials import aggregate_rows
 
     by = ("dataset", "variant", "setting")
@@ -85,15 +154,15 @@ def _over_trials(rows: list[dict], keys: list[str]) -> list[dict]:
         groups.setdefault(tuple(r[b] for b in by), []).append(r)
     out = []
     for group in groups.values():
-        ok = [r for r in group if r["status"] == "ok" and r.get(METRIC) is not None]
+        ok = [r for r in group if r["status"] == "ok" and r.get(metric) is not None]
         n_failed = sum(r["status"] in ("failed", "diverged") for r in group)
         if not ok:
             out.append({**group[0], "trials": 0, "failed_trials": n_failed})
             continue
-        agg = aggregate_rows([[r] for r in ok], by, spread=METRIC)[0]
+        agg = aggregate_rows([[r] for r in ok], by, spread=metric)[0]
         agg.update(id=ok[0]["id"], trial="mean", failed_trials=n_failed, status="ok",
                    error="; ".join(r["error"] for r in group if r["status"] == "failed"))
-        agg.pop(f"{METRIC}_ci95", None)
+        agg.pop(f"{metric}_ci95", None)
         out.append(agg)
     return out
 
@@ -113,56 +182,71 @@ def _span_note(rows: list[dict]) -> str:
 
 
 def write_summary(tasks: list[Task], out_dir: Path, keys: list[str], plots: bool = True,
-                  grid_keys: list[str] | None = None) -> dict:
+                  grid_keys: list[str] | None = None, objective: str | None = None) -> dict:
+    """``sweep.csv``, ``sweep.md``, ``report.html``, ``best.yaml`` and the plots, from the records. ``objective``:
+    what the settings are ranked by (:func:`ranking`; default the fused APE translation RMSE)."""
     out_dir = Path(out_dir)
     out_dir.mkdir(parents=True, exist_ok=True)
+    rank = ranking(objective)
+    metric = rank.column
     recs = read_records(out_dir)          # once: the table and the warnings read the same records
-    rows, metric_cols = rows_of(tasks, recs, keys)
+    rows, metric_cols = rows_of(tasks, recs, keys, rank)
+    _check_ranked(rank, rows, recs)
     cols = ["id", "dataset", "variant", "setting", *keys, *metric_cols, "fused_over_lidar", "fused_over_gnss", "runtime_s",
             "status", "error"]
     n_trials = 1 + max((t.trial for t in tasks), default=0)
     if n_trials > 1:
         # every trial in sweep_trials.csv; everything below is over the means of each setting's trials
         atomic_write(out_dir / "sweep_trials.csv", csv_text(["trial", *cols], rows, float_format="{:.6g}"))
-        rows = _over_trials(rows, keys)
-        cols = [*cols[:-2], "trials", f"{METRIC}_std", "failed_trials", "status", "error"]
+        rows = _over_trials(rows, keys, metric)
+        cols = [*cols[:-2], "trials", f"{metric}_std", "failed_trials", "status", "error"]
     atomic_write(out_dir / "sweep.csv", csv_text(cols, rows, float_format="{:.6g}"))
 
-    ok = [r for r in rows if r["status"] == "ok" and r.get(METRIC) is not None]
+    finished = [r for r in rows if r["status"] == "ok"]
+    ok = [r for r in finished if r.get(metric) is not None]
+    ranked_by = f"Ranked by {'the mean ' if n_trials > 1 else ''}{rank.label if not rank.is_default else 'fused APE translation RMSE'} (lower is better)."
     L = ["# fusion-eval sweep", "", header_line(), "",
-         f"{len(rows)} runs: {sum(r['status'] == 'ok' for r in rows)} finished, {sum(r['status'] == 'diverged' for r in rows)} "
-         f"diverged, {sum(r['status'] == 'failed' for r in rows)} failed, {sum(r['status'] == 'pending' for r in rows)} pending. Ranked by fused APE translation RMSE (lower is better).", ""]
+         f"{len(rows)} runs: {len(finished)} finished, {sum(r['status'] == 'diverged' for r in rows)} "
+         f"diverged, {sum(r['status'] == 'failed' for r in rows)} failed, {sum(r['status'] == 'pending' for r in rows)} pending. {ranked_by}", ""]
     if n_trials > 1:       # (it replaced the header line and left "6 runs: 6 finished" after "12 runs done")
         multi = [r for r in ok if (r.get("trials") or 0) > 1]      # (one finished trial has a std of 0 too)
-        if multi and all(r.get(f"{METRIC}_std") == 0 for r in multi):
+        if multi and all(r.get(f"{metric}_std") == 0 for r in multi):
             log.warning(NOTHING_RANDOM.format(n=n_trials))
             L.insert(5, "\n" + nothing_random_line(n_trials))
         L[4] = (f"{len(rows)} settings x {n_trials} Monte-Carlo trials (the seeds of every random element; "
-                f"{len(rows) * n_trials} runs): {sum(r['status'] == 'ok' for r in rows)} settings with finished trials, "
-                f"{sum(r['status'] != 'ok' for r in rows)} without. The figures are means over each setting's finished "
-                "trials (std of the APE RMSE in its own column; every trial in sweep_trials.csv). Ranked by the mean "
-                "fused APE translation RMSE (lower is better).")
+                f"{len(rows) * n_trials} runs): {len(finished)} settings with finished trials, "
+                f"{len(rows) - len(finished)} without. The figures are means over each setting's finished "
+                f"trials (std of the ranked figure in its own column; every trial in sweep_trials.csv). {ranked_by}")
+    unranked = len(finished) - len(ok)
+    if unranked:        # a run whose metrics lack a term of the objective: listed, never ranked as if it were best
+        L += [f"{unranked} finished runs have no {rank.objective.name} and are not ranked (their figures are in "
+              "sweep.csv).", ""]
     datasets = sorted({r["dataset"] for r in rows})
     rot, rpe = mk.column("fused", mk.APE, "rotation_deg", "rmse"), mk.column("fused", mk.RPE_FRAME, "translation_m", "rmse")
+    own = [] if rank.is_default else [rank.objective.name]     # the ranked figure, where it is not the APE column
     for ds in datasets:
-        sub = sorted((r for r in ok if r["dataset"] == ds), key=lambda r: r[METRIC])
-        sd = [r.get(f"{METRIC}_std") for r in sub] if n_trials > 1 else None
+        sub = sorted((r for r in ok if r["dataset"] == ds), key=lambda r: r[metric])
+        sd = [r.get(f"{metric}_std") for r in sub] if n_trials > 1 else None
         L += [f"## {dataset_label(ds)}", "", f"`{ds}`. " + _span_note(sub), ""] + markdown(
-            ["rank", "variant", "setting", "APE trans RMSE [m]", *(["std [m]"] if sd else []), "APE rot RMSE [deg]",
-             "RPE 1 frame [m]", "fused/lidar", "fused/GNSS", "time [s]"],
-            [[i, r["variant"], r["setting"], r[METRIC], *([sd[i - 1]] if sd else []), r.get(rot), r.get(rpe),
-              r["fused_over_lidar"], r["fused_over_gnss"], r["runtime_s"]] for i, r in enumerate(sub, 1)],
-            align="rllr" + ("r" if sd else "") + "rrrrr", decimals=[0, 0, 0, 3, *([3] if sd else []), 3, 4, 3, 3, 1])
+            ["rank", "variant", "setting", *own, *(["std"] if sd and own else []), "APE trans RMSE [m]",
+             *(["std [m]"] if sd and not own else []), "APE rot RMSE [deg]", "RPE 1 frame [m]", "fused/lidar",
+             "fused/GNSS", "time [s]"],
+            [[i, r["variant"], r["setting"], *([r[metric]] if own else []), *([sd[i - 1]] if sd else []),
+              *([r[METRIC]] if own else []), r.get(rot), r.get(rpe), r["fused_over_lidar"], r["fused_over_gnss"],
+              r["runtime_s"]] for i, r in enumerate(sub, 1)],
+            align="rll" + "r" * len(own) + ("r" if sd else "") + "rrrrrr",
+            decimals=[0, 0, 0, *([4] * len(own)), *([3] if sd else []), 3, 3, 4, 3, 3, 1])
         L.append("")
     # averaged across datasets: only settings that finished on every dataset
     avg: dict = {}
     for r in ok:
-        avg.setdefault((r["variant"], r["setting"]), []).append(r[METRIC])
+        avg.setdefault((r["variant"], r["setting"]), []).append(r[metric])
     full = {k: float(np.mean(v)) for k, v in avg.items() if len(v) == len(datasets)}
     ranked = sorted(full.items(), key=lambda kv: kv[1])
+    mean_label = "mean APE trans RMSE [m]" if rank.is_default else f"mean {rank.objective.name}"
     if len(datasets) > 1:
         L += ["## Averaged across datasets", ""] + markdown(
-            ["rank", "variant", "setting", "mean APE trans RMSE [m]"],
+            ["rank", "variant", "setting", mean_label],
             [[i, v, s, m] for i, ((v, s), m) in enumerate(ranked, 1)], align="rllr")
         L.append("")
     for status, title in (("diverged", "Diverged runs (exit 3 for run: the settings make the filter lose the data)"),
@@ -181,13 +265,17 @@ def write_summary(tasks: list[Task], out_dir: Path, keys: list[str], plots: bool
     if ranked:
         (bv, bs), bm = ranked[0]
         bt = next(t for t in tasks if t.variant == bv and t.setting == bs)
-        best = {"variant": bv, "setting": bs, "mean_fused_ape_trans_rmse_m": bm}
+        best = {"variant": bv, "setting": bs, "objective": rank.objective.name, "mean_objective": bm}
+        if rank.is_default:
+            best["mean_fused_ape_trans_rmse_m"] = bm
+        what = "fused APE translation RMSE" if rank.is_default else rank.objective.name
+        unit = " m" if rank.is_default else ""
         # a configuration file `fusion-eval run -c best.yaml` takes: the base config, the variant's file, the setting
         cfg = session.config_file(session.request(config=bt.base_config, variant=bt.variant_path, overrides=bt.overrides))
         atomic_write(out_dir / "best.yaml", f"# best of the sweep: variant {bv}, setting {bs}\n"
-                f"# mean fused APE translation RMSE across datasets: {bm:.6f} m\n"
+                f"# mean {what} across datasets: {bm:.6f}{unit}\n"
                 "# use it as: fusion-eval run -c best.yaml\n" + yaml_lines.dump(cfg))
-        L += [f"Best: variant `{bv}`, setting `{bs}` (mean fused APE RMSE {cell(bm)} m); see `best.yaml`.", ""]
+        L += [f"Best: variant `{bv}`, setting `{bs}` (mean {what} {cell(bm)}{unit}); see `best.yaml`.", ""]
         note = one_draw_note(bm, ranked[1][1], n_trials, "The best leads the next by") if len(ranked) > 1 else None
         if note:
             L += [note, ""]
@@ -198,13 +286,14 @@ def write_summary(tasks: list[Task], out_dir: Path, keys: list[str], plots: bool
     if plots and ok:
         from ..report import plots as P
 
-        written = P.plot_sweep(out_dir, rows, keys, METRIC, tasks, best, grid_keys or [],
-                               defaults=default_values(tasks, out_dir, keys))
+        written = P.plot_sweep(out_dir, rows, keys, metric, tasks, best, grid_keys or [],
+                               defaults=default_values(tasks, out_dir, keys),
+                               metric_label=None if rank.is_default else rank.label)
         L += [f"![{p}]({p})" for p in written]
     md = "\n".join(L) + "\n"
     atomic_write(out_dir / "sweep.md", md)
     atomic_write(out_dir / "report.html", html.page(md, out_dir, inputs=dataset_files(t.dataset for t in tasks)))
-    return {"rows": rows, "best": best, "plots": written}
+    return {"rows": rows, "best": best, "plots": written, "ranking": rank}
 
 
 def _warnings(tasks: list[Task], recs: dict[str, dict]) -> list[str]:

@@ -17,7 +17,7 @@ import numpy as np  # noqa: E402
 # over them (none of these plots has ticks on top), which was a third of the drawing time.
 matplotlib.rcParams["axes.titley"] = 1.0
 
-from ..evaluation.keys import is_number  # noqa: E402
+from ..evaluation.keys import RANK_COLUMN, is_number  # noqa: E402
 from ..filters.layout import CANONICAL  # noqa: E402
 from . import thin  # noqa: E402
 
@@ -426,13 +426,18 @@ def _grid_keys_of(names) -> list[str]:
 OVERVIEW_MAX_SETTINGS = 40     # not a state index: beyond, the names of every setting would not fit one panel (a big grid: the heatmap)
 
 
-def sweep_params_figure(rows: list[dict], keys: list[str], metric: str, defaults: dict | None = None):
+def sweep_params_figure(rows: list[dict], keys: list[str], metric: str, defaults: dict | None = None,
+                        metric_label: str | None = None):
     """The figure of ``sweep_params.png`` (None when no swept key is numeric): a first panel with every setting
     ranked by ``metric`` (up to :data:`OVERVIEW_MAX_SETTINGS`), then, for each numeric swept key, ``metric``
     against the key's value over the settings that set it, and the default configuration as a star at its own
     value of the key (``defaults[(dataset, variant)][key]``, :func:`fusion_eval.commands.sweep_summary.default_values`)
-    and as a dotted line at its metric. Artists carry ``gid`` "settings" and "default" (one marker per run)."""
+    and as a dotted line at its metric. Artists carry ``gid`` "settings" and "default" (one marker per run).
+    ``metric_label``: how the axes name ``metric`` (default: the fused APE translation RMSE's label)."""
     from matplotlib.lines import Line2D
+
+    label = metric_label or "fused APE translation RMSE [m]"
+    short = "APE RMSE" if metric_label is None else "figure"
 
     defaults = defaults or {}
     ok = [r for r in rows if r["status"] == "ok" and is_number(r.get(metric))]
@@ -478,7 +483,7 @@ def sweep_params_figure(rows: list[dict], keys: list[str], metric: str, defaults
             if lab.get_text() == "default":
                 lab.set_fontweight("bold")
         _value_axis(ax, [r[metric] for r in ok], axis="x", at_values=False)
-        ax.set_xlabel("fused APE translation RMSE [m]")
+        ax.set_xlabel(label)
         gk = _grid_keys_of(names)
         if gk:
             ax.set_ylabel("grid settings: " + " / ".join(gk), fontsize=8)
@@ -513,25 +518,27 @@ def sweep_params_figure(rows: list[dict], keys: list[str], metric: str, defaults
             ax.annotate(nm, (x, y), xytext=(-5 if right else 5, 4), textcoords="offset points", fontsize=7,
                         color="dimgray", ha="right" if right else "left")
         ax.set_xlabel(k, fontsize=9)
-        ax.set_ylabel("fused APE translation RMSE [m]", fontsize=8)
+        ax.set_ylabel(label, fontsize=8)
         ax.grid(alpha=0.3, which="major")
     handles = [Line2D([], [], ls="", marker="o", color="gray", label="a setting of the sweep"),
                Line2D([], [], ls="", marker="*", ms=12, mfc="gray", mec="black", label="the default configuration"),
-               Line2D([], [], ls=":", color="gray", label="the default's APE RMSE")]
+               Line2D([], [], ls=":", color="gray", label=f"the default's {short}")]
     if len(series) > 1:
         handles += [Line2D([], [], ls="", marker="s", color=_VCOLORS[j % len(_VCOLORS)], label=label_of(*sv))
                     for j, sv in enumerate(series)]
     fig.legend(handles=handles, loc="lower center", ncol=min(len(handles), 4), fontsize=8, frameon=False)
-    fig.suptitle("Fused APE against the sweep's settings" + ("" if len(series) > 1 else f" ({label_of(*series[0])})"))
+    fig.suptitle(("Fused APE" if metric_label is None else metric_label) + " against the sweep's settings"
+                 + ("" if len(series) > 1 else f" ({label_of(*series[0])})"))
     fig.tight_layout(rect=(0, 0.55 / height * (1 + (len(handles) > 4)), 1, 1 - 0.35 / height))
     return fig
 
 
 def plot_sweep(out_dir: Path, rows: list[dict], keys: list[str], metric: str, tasks, best, grid_keys=(),
-               defaults: dict | None = None) -> list[str]:
+               defaults: dict | None = None, metric_label: str | None = None) -> list[str]:
     """Metric against each swept parameter (:func:`sweep_params_figure`; ``defaults``: the default run's value of
     each swept key per (dataset, variant)), a heatmap for a 2-D grid, and the best run's APE over time against
-    the default's. Returns the file names written."""
+    the default's. ``metric_label``: the name of a ranked ``metric`` other than the fused APE RMSE. Returns the
+    file names written."""
     import os
 
     from evo.tools import file_interface
@@ -545,7 +552,7 @@ def plot_sweep(out_dir: Path, rows: list[dict], keys: list[str], metric: str, ta
 
     written: list[str] = []
     ok = [r for r in rows if r["status"] == "ok"]
-    fig = sweep_params_figure(rows, keys, metric, defaults)
+    fig = sweep_params_figure(rows, keys, metric, defaults, metric_label)
     numeric = [k for k in keys if any(is_number(r.get(k)) for r in ok)]
     if fig is not None:
         save(fig, "sweep_params.png")
@@ -574,7 +581,7 @@ def plot_sweep(out_dir: Path, rows: list[dict], keys: list[str], metric: str, ta
                                 color="black" if 0.299 * r + 0.587 * g + 0.114 * b > 0.5 else "white")
             ax.set_xlabel(kx)
             ax.set_ylabel(ky)
-            fig.colorbar(im, label="fused APE RMSE [m] (mean over datasets and variants)")
+            fig.colorbar(im, label=f"{metric_label or 'fused APE RMSE [m]'} (mean over datasets and variants)")
             ax.set_title("2-D grid")
             fig.tight_layout()
             save(fig, "sweep_heatmap.png")
@@ -593,14 +600,14 @@ def plot_sweep(out_dir: Path, rows: list[dict], keys: list[str], metric: str, ta
             row = next((r for r in ok if (r["dataset"], r["variant"], r["setting"]) == (t.dataset, t.variant, name)), {})
             # with Monte-Carlo trials the table ranks by their mean: the legend gives it beside this trial's figure
             # (it showed trial 0's RMSE alone, which contradicted sweep.md)
-            rmse = (f"trial 0 RMSE {res.stats['rmse']:.3f} m, mean of {row['trials']} trials {row[metric]:.3f} m"
-                    if is_number(row.get("trials")) and row["trials"] > 1 and is_number(row.get(metric))
+            rmse = (f"trial 0 RMSE {res.stats['rmse']:.3f} m, mean of {row['trials']} trials {row[RANK_COLUMN]:.3f} m"
+                    if is_number(row.get("trials")) and row["trials"] > 1 and is_number(row.get(RANK_COLUMN))
                     else f"RMSE {res.stats['rmse']:.3f} m")
             ax.plot(ts[k] - ts[0], res.np_arrays["error_array"][k], style, lw=1.0,
                     label=f"{name} ({Path(t.dataset).name}, {rmse})")
         ax.set_xlabel("time since start [s]")
         ax.set_ylabel("APE translation [m]")
-        ax.set_title("Best setting against the default")
+        ax.set_title("Best setting against the default" + (f" (ranked by {metric_label})" if metric_label else ""))
         ax.grid(alpha=0.3)
         ax.legend(fontsize=8)
         save(fig, "sweep_best_vs_default.png")
