@@ -398,6 +398,14 @@ def test_evaluate_scores_a_runs_files_over_its_common_span_with_t_start_and_t_en
         assert m["estimates"][k]["ape"]["translation_m"]["rmse"] == pytest.approx(
             run["estimates"][k]["ape"]["translation_m"]["rmse"], abs=1e-6)
     assert m["evaluation"]["time_range_s"] == [round(sp["t0_s"], 6), round(sp["t1_s"], 6)]
+    # the per-segment windows too: the run cut them along the whole truth (a last window to 3712 m in a report over
+    # a span ending at 3707 m; an audit), evaluate along the span; and the NEES counts the span's epochs
+    segs_run, segs_ev = run["segments"]["segments"], m["segments"]["segments"]
+    assert np.allclose([(s["start_m"], s["end_m"]) for s in segs_run], [(s["start_m"], s["end_m"]) for s in segs_ev], atol=1e-6)
+    for a, b in zip(segs_run, segs_ev):
+        for k in ("gnss", "fused"):
+            assert a["rmse_m"][k] == pytest.approx(b["rmse_m"][k], abs=1e-6), (a["index"], k)
+    assert run["nees"]["position"]["epochs"] == run["estimates"]["fused"]["matched_poses"]
     assert "(evo's --t_start/--t_end)" in (tmp_path / "e" / "report.md").read_text()
     assert f"fusion-eval evaluate: `--t-start {sp['t0_s']:.6f}" in (slice_run / "report.md").read_text()
     r = CliRunner().invoke(main, ["evaluate", *files, "--out", str(tmp_path / "e2"), "--t-start", "5", "--t-end", "4"])

@@ -393,3 +393,19 @@ def test_the_ape_plot_shades_the_gnss_outages_and_the_imus_gaps(tmp_path):
     assert gap[2] == "no IMU data (gap)" and gap[0] == pytest.approx(29.9) and gap[1] == pytest.approx(31.7)
     res.cfg["filter"]["use_gnss"] = False            # no GNSS fused: its outages are not the filter's
     assert [s[2] for s in route_spans(res)] == ["no IMU data (gap)"]
+
+
+@pytest.mark.parametrize("n", [0, 1, 2499, 2500, 2501, 5000, 5001, 30001])
+def test_thinning_keeps_the_last_point(n):
+    """A stride of 13 over 30001 samples kept index 29991: the bias plot's "final" values were 0.09 s old (an
+    audit: 76.4 against the filter's final 76.29 deg/h)."""
+    from fusion_eval.report import thin
+
+    idx = np.arange(n)[thin.every(n)]
+    assert (idx.size == 0) == (n == 0) and idx.size <= 2501
+    if n:
+        assert idx[0] == 0 and idx[-1] == n - 1 and np.all(np.diff(idx) > 0)
+        t = np.arange(n, dtype=float)
+        b = np.c_[t, -t, 2 * t]
+        tt, ba, _bg, _s, _ = thin.biases(t, b, b, np.ones((n, 15)))
+        assert ba[-1, 0] == n - 1 and tt[-1] == n - 1

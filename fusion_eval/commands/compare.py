@@ -128,6 +128,7 @@ def _evaluate_all(runs: list[VariantRun], base_prep, ev_cfg: dict, pool):
 
 
 def _table(runs: list[VariantRun], evs_u: dict, gt: PoseSeries, ev_cfg: dict) -> list[dict]:
+    """compare's rows; ``gt``: the ground truth over the evaluated span (each variant's NEES is taken over it)."""
     table = []
     for r in runs:
         table.append(_variant_row(r, gt, evs_u, ev_cfg))
@@ -149,8 +150,8 @@ def _table(runs: list[VariantRun], evs_u: dict, gt: PoseSeries, ev_cfg: dict) ->
 def trial_table(ds, variants: list[str], cfgs: list[dict]) -> list[dict]:
     """One Monte-Carlo trial of a comparison: its table only (in a worker)."""
     runs, base_prep = _replay_all(ds, variants, cfgs)
-    _, evs_u, _ = _evaluate_all(runs, base_prep, cfgs[0]["evaluation"], executor(1))
-    return _table(runs, evs_u, base_prep.groundtruth, cfgs[0]["evaluation"])
+    _, evs_u, sp = _evaluate_all(runs, base_prep, cfgs[0]["evaluation"], executor(1))
+    return _table(runs, evs_u, span.crop(base_prep.groundtruth, sp), cfgs[0]["evaluation"])
 
 
 def compare(dataset_path: Path | None, variants: list[str], variant_dir: Path | None, base_config: Path | None,
@@ -198,7 +199,8 @@ def _compare(dataset_path: Path | None, variants: list[str], variant_dir: Path |
         ev_cfg = cfgs[0]["evaluation"]
         stages.start("evaluate")
         unfiltered, evs_u, sp = _evaluate_all(runs, base_prep, ev_cfg, pool)
-        table = _table(runs, evs_u, gt, ev_cfg)
+        ref = span.crop(gt, sp)          # the evaluated span: the NEES and the segments as the metrics
+        table = _table(runs, evs_u, ref, ev_cfg)
         tables = [table]
         if trial_futs:
             stages.start("trials", n_trials)
@@ -223,7 +225,7 @@ def _compare(dataset_path: Path | None, variants: list[str], variant_dir: Path |
     seg_evals = {r.name: r.ev for r in runs}
     seg_evals.update({f"{r.name} smoothed": r.ev_smoothed for r in runs if r.ev_smoothed is not None})
     seg_evals.update({k: ev for k, ev in evs_u.items() if k != "imu_only"})
-    seg = segments(gt, seg_evals, ev_cfg, primary=runs[0].name, secondary="lidar" if "lidar" in seg_evals else None)
+    seg = segments(ref, seg_evals, ev_cfg, primary=runs[0].name, secondary="lidar" if "lidar" in seg_evals else None)
 
     with staged as out:
         result = {"dataset": ds.name, "variants": variants, "span": sp if sp is not None else {"mode": "own"},
