@@ -86,7 +86,10 @@ def test_compare_and_sweep_with_trials_report_means(kitti_slice, tmp_path):
         per = [next(x for x in t if x["variant"] == row["variant"] and x["estimate"] == row["estimate"])["ape_trans_rmse_m"]
                for t in c["trials"]["per_trial"]]
         assert row["ape_trans_rmse_m"] == pytest.approx(np.mean(per)) and row["trials"] == 2
-    assert "Means over 2 Monte-Carlo trials" in (out / "compare.md").read_text()
+    md = (out / "compare.md").read_text()
+    assert "Means over 2 Monte-Carlo trials" in md
+    lo, hi = e["ape_trans_rmse_m_ci95"]          # the 95 % interval of the mean, as the README says (an audit)
+    assert lo <= e["ape_trans_rmse_m"] <= hi and f" [{lo:.3f}, {hi:.3f}]" in md
 
     sweep = tmp_path / "s.yaml"
     sweep.write_text(f"datasets: [{kitti_slice}]\nvariants: [eskf]\ntrials: 2\nsettings:\n  quiet: {{imu.accel_noise_mps2_sqrthz: 0.1}}\n")

@@ -339,6 +339,9 @@ def _markdown(name: str, rows: list[dict], truth_body, plots: bool, sp: dict | N
         bv = r.get("body_velocity_rms_mps")
         nis = r.get("nis_mean") or {}
         ape = cell(r["ape_trans_rmse_m"]) + (f" +/- {cell(r['ape_trans_rmse_m_std'])}" if "ape_trans_rmse_m_std" in r else "")
+        ci = r.get("ape_trans_rmse_m_ci95")
+        if ci and all(v is not None for v in ci):        # the README promised it; only compare.json had it (an audit)
+            ape += f" [{cell(ci[0])}, {cell(ci[1])}]"
         body.append([r["variant"], r["estimate"], ape, cell(r.get("ape_rot_rmse_deg")),
                      cell(r.get("rpe_1frame_trans_rmse_m"), 4), cell(r.get("fused_over_lidar")), cell(r.get("fused_over_gnss")),
                      f"{cell(r.get('kitti_drift_t_err_pct'))} / {cell(r.get('kitti_drift_r_err_deg_per_100m'))}",
@@ -348,7 +351,8 @@ def _markdown(name: str, rows: list[dict], truth_body, plots: bool, sp: dict | N
                      cell(r.get("runtime_s"), 2) + (f" (+{r['compile_s']:.1f} compiling)" if r.get("compile_s") else "")])
     L = [f"# fusion-eval compare: {name}", "", header_line(), "", f"Span: {span.describe(sp)}.", ""]
     if n_trials > 1:
-        L += [f"Means over {n_trials} Monte-Carlo trials (the seeds of every random element; APE: mean +/- std); the "
+        L += [f"Means over {n_trials} Monte-Carlo trials (the seeds of every random element; APE: mean +/- std "
+              "[95 % interval of the mean, Student's t]); the "
               "plots and trajectories are trial 0's, every trial's table is in compare.json.", ""]
     L += [f"## Summary against ground truth (evo, {keys.alignment_words(alignment)})", ""] + markdown(header, body, align="llrrrrrlllllr")
     fused = sorted(r["ape_trans_rmse_m"] for r in rows if r["estimate"] == "fused" and r.get("ape_trans_rmse_m") is not None)

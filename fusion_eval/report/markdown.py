@@ -256,7 +256,10 @@ def report_md(dataset: str, config_name: str, evals: dict, ratios: dict, cfg: di
          f"## Summary against ground truth (evo, {keys.alignment_words(cfg['evaluation']['alignment'])})", ""] + markdown(*summary_table(evals, cfg))
     L += ["", f"RPE over one frame pairs each estimate's consecutive poses at its own rate (the fused estimate and "
           f"dead reckoning at the IMU's, the lidar at its frames'): across estimates of different rates it is not "
-          f"like for like; RPE over {cfg['evaluation']['rpe_delta_m']:g} m is."]
+          f"like for like. RPE over {cfg['evaluation']['rpe_delta_m']:g} m takes its pairs "
+          f"{cfg['evaluation']['rpe_delta_m']:g} m apart along each estimate's own path (evo's default): like for like "
+          "between estimates that follow the route, not for one whose path runs away (dead reckoning: its pairs are "
+          "metres of its own path, not of the route)."]
     L.append("")
     for k, v in ratios.items():
         if v is None:
