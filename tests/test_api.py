@@ -33,10 +33,12 @@ def api_result(kitti_slice):
     return fe.run(fe.load_dataset(kitti_slice))
 
 
+@pytest.mark.slow
 def test_run_returns_the_metrics_of_the_command_line(api_result, slice_run):
     _close(json.loads(json.dumps(api_result.metrics)), json.loads((slice_run / "metrics.json").read_text()))
 
 
+@pytest.mark.slow
 def test_write_produces_exactly_the_files_of_run_out(api_result, slice_run, tmp_path):
     out = api_result.write(tmp_path / "out")
     cli = sorted(p.name for p in slice_run.iterdir() if p.name != "check.md")
@@ -57,6 +59,7 @@ def test_trajectories_are_evo_trajectories(api_result):
     assert np.allclose(tr["fused"].positions_xyz, api_result.series["fused"].p_w_m)
 
 
+@pytest.mark.slow
 def test_overrides_are_plain_python_values(kitti_slice):
     ds = fe.load_dataset(kitti_slice)
     a = fe.run(ds, overrides={"gnss.rate_hz": 2.0, "gnss.noise_std_m": [2.0, 2.0, 4.0]})
@@ -77,6 +80,7 @@ def test_errors_are_the_packages_exceptions_with_one_line_messages(tmp_path):
     assert "dataset not found" in str(e.value) and "\n" not in str(e.value)
 
 
+@pytest.mark.slow
 def test_evaluate_matches_evo_on_kitti_00(tmp_path):
     gt = shared_path("kitti-odometry", "00", "00_gt_kitti.txt")
     est = shared_path("kitti-odometry", "00", "00_poses_kitti.txt")

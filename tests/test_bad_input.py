@@ -171,6 +171,7 @@ def test_unknown_config_key_and_bad_value(ds, tmp_path):
         _assert_clean_error(r, out, needle)
 
 
+@pytest.mark.slow
 def test_real_process_exit_code_and_single_line(ds, tmp_path):
     p = ds / "lidar" / "poses.txt"
     _edit_line(p, 3, "1 2 3")
@@ -229,6 +230,7 @@ def test_gnss_outside_the_run_is_an_error_not_silence(ds, tmp_path):
     ("imu.accel_noise_mps2_sqrthz=1e-12", "imu.gyro_noise_dps_sqrthz=1e-12", "imu.accel_bias_rw_mps3_sqrthz=1e-12",
      "imu.gyro_bias_rw_dps2_sqrthz=1e-12", "init.pos_std_m=1e-9", "init.vel_std_mps=1e-9", "init.roll_pitch_std_deg=1e-9",
      "init.yaw_std_deg=1e-9", "init.accel_bias_std_mps2=1e-9", "init.gyro_bias_std_dps=1e-9")])
+@pytest.mark.slow
 def test_diverging_filter_exits_3_without_output(ds, tmp_path, sets):
     # the second case needs updates to build up: the embedded default drive (kitti-00, 470 s) rather than the slice
     out = tmp_path / "out"
@@ -248,6 +250,7 @@ def test_failed_run_leaves_no_parent_folders(ds, tmp_path):
     assert not (tmp_path / "deep").exists()
 
 
+@pytest.mark.slow
 def test_oxts_angles_written_to_4_decimals_or_as_a_heading_in_0_to_2pi_pass(ds, tmp_path):
     p = ds / "oxts" / "data" / "0000000031.txt"
     vals = p.read_text().split()
@@ -481,6 +484,7 @@ def test_evaluate_refuses_segments_in_seconds_on_frame_index_stamps(tmp_path):
     _assert_clean_error(r, out, "--segment-s needs stamps in seconds", "--ref-times")
 
 
+@pytest.mark.slow
 def test_evaluate_on_frame_index_stamps_labels_frames_not_seconds(tmp_path, monkeypatch):
     """The segment table's span column and the APE-over-time axis said seconds for frame indices (a 470 s drive
     shown as 0-4540 s)."""
@@ -550,6 +554,7 @@ def test_evaluate_refuses_kitti_files_without_times_of_different_lengths(tmp_pat
     _assert_clean_error(r, out, "est.txt has 39 poses and the reference", "ref.txt 40", "paired by frame index")
 
 
+@pytest.mark.slow
 def test_an_auto_gyro_lag_beyond_a_second_blames_the_given_lidar_offset(tmp_path):
     """The data fix lidar offset + gyro lag; with a lidar offset of 5 s given, auto once applied a lag of -4.94 s
     (fused APE 27 m) although a lag of 5 s set by hand is refused."""
@@ -820,6 +825,7 @@ def test_tune_refuses_one_drive_as_training_folder_and_held_out_manifest(kitti_s
     assert r.exit_code == 2 and "is both a training and a held-out drive" in r.stderr, r.output
 
 
+@pytest.mark.slow
 def test_a_run_with_stderr_closed_still_runs(tmp_path):
     out = tmp_path / "o"
     p = subprocess.run([sys.executable, "-m", "fusion_eval", "run", "--no-plots", "--out", str(out)], stderr=subprocess.DEVNULL,
@@ -843,6 +849,7 @@ def test_evaluate_refuses_one_estimate_given_twice(tmp_path):
         assert r.exit_code == 2 and "cannot create output directory" in r.stderr, r.output
 
 
+@pytest.mark.slow
 @pytest.mark.skipif(not Path("/dev/full").exists(), reason="needs Linux's /dev/full")
 def test_stdout_on_a_full_device_and_a_non_utf8_output_name(tmp_path):
     """Both once traced back after the work was done: an OSError at the final echo, and a UnicodeEncodeError on a
@@ -862,6 +869,7 @@ def test_stdout_on_a_full_device_and_a_non_utf8_output_name(tmp_path):
     assert p.stdout.strip() == odd
 
 
+@pytest.mark.slow
 def test_a_long_run_of_filled_packets_is_flagged_after_they_are_dropped(tmp_path):
     """KITTI's filled-in packets are dropped before the filter; 30 s of them left a hole the raw stamps do not show,
     and the run reported a 125 deg attitude error with exit 0 and no word (found by a new-user review)."""
@@ -1110,6 +1118,7 @@ def test_an_output_under_a_file_and_a_config_that_is_a_folder_say_so(tmp_path):
     assert r.exit_code == 2 and "is a folder; expected a YAML config file" in r.stderr
 
 
+@pytest.mark.slow
 def test_evaluate_flags_positions_in_mm_and_quaternions_in_wxyz_order(tmp_path):
     """fr2/desk ORB in mm gave 1758 m with se3 alignment, its quaternions in w x y z order a 149 deg rotation error
     beside 8 mm, both with exit 0 and no word (found by a corrupted-input review); the as-written file says nothing."""
@@ -1131,6 +1140,7 @@ def test_evaluate_flags_positions_in_mm_and_quaternions_in_wxyz_order(tmp_path):
     assert "mm: its path is" in r.stderr and "wxyz: its body-frame turns" in r.stderr
 
 
+@pytest.mark.slow
 def test_a_stream_that_overlaps_part_of_the_drive_is_said_to_cut_the_scored_span(tmp_path):
     """A lidar clock 8 s late (its first scans before the IMU's) cut every figure to the part of the drive it
     overlaps, said only in the report's span line (found by a corrupted-input review: 2.1 s of 470); now a data

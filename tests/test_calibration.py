@@ -59,6 +59,7 @@ def test_lidar_offset_and_accel_lag_cannot_both_be_estimated():
 KITTI00 = ROOT / "data" / "kitti-00"
 
 
+@pytest.mark.slow
 def test_kitti_oxts_channels_lag_the_packet_clock_by_about_60_ms():
     """On the real drive: accelerometer and gyro both trail the lidar (on the packet clock) by 55-75 ms, with a
     jackknife error of a few ms; the documented OXTS lag of the rates (../shared/data/README.md)."""
@@ -139,6 +140,7 @@ def test_an_imu_without_regular_intervals_names_the_stream_and_the_settings():
         white_noise_density(t, np.zeros((t.size, 3)), "drive.bag (topic /imu)")
 
 
+@pytest.mark.slow
 def test_a_negative_auto_lag_is_flagged_as_the_lidar_offsets_error():
     """A wrong lidar time offset given (0.3 s) became an auto gyro lag of -241 ms, applied, with a fused APE of
     2.0 m and no word (found by a corrupted-input review): a lag cannot lead its stamp, so that is a data warning."""

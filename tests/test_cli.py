@@ -32,6 +32,7 @@ def test_help_and_version():
     assert r.exit_code == 0 and "--set" in r.output and "--out" in r.output
 
 
+@pytest.mark.slow
 def test_every_output_exists_and_parses(slice_run):
     out = slice_run
     for name in TUMS:
@@ -79,6 +80,7 @@ def test_fused_beats_lidar_and_gnss_on_the_slice(slice_run):
     assert ape["imu_only"] > ape["fused"]
 
 
+@pytest.mark.slow
 def test_same_inputs_give_the_same_bytes(kitti_slice, slice_run, tmp_path):
     out2 = tmp_path / "again"
     res = CliRunner().invoke(main, ["-q", "run", str(kitti_slice), "--out", str(out2)])
@@ -114,6 +116,7 @@ def test_existing_output_directory_is_kept_unless_overwrite(kitti_slice, slice_r
     assert (slice_run / "metrics.json").read_bytes() == before
 
 
+@pytest.mark.slow
 def test_default_output_folders_are_unique_and_a_failed_run_leaves_none(kitti_slice, tmp_path, monkeypatch):
     """Two commands started in the same second without --out each get a folder (the second was refused as writing
     the first one's); a failing run leaves no empty folder behind; --set items show in the name."""
@@ -140,6 +143,7 @@ def test_default_output_folders_are_unique_and_a_failed_run_leaves_none(kitti_sl
         [f"{kitti_slice.name}-default-set"], r.output
 
 
+@pytest.mark.slow
 def test_set_overrides_and_lidar_forms(kitti_slice, tmp_path):
     for form, extra in (("absolute", []), ("none", []), ("relative", ["--set", "lidar.interpolate_to_imu=false"]),
                         ("relative", ["--set", "filter.init_pose_from=lidar", "--set", "filter.init_velocity_from=gnss",
@@ -177,6 +181,7 @@ def _loaded(*args) -> tuple[int, list[str]]:
     return int(code or 0), [m for m in mods.split(",") if m]
 
 
+@pytest.mark.slow
 def test_help_and_check_import_no_plotting_dask_or_pandas(slice_run):
     """Start-up stays light: `--help` and `check` (a CI gate) load none of the heavy libraries."""
     assert _loaded("--help") == (0, [])
@@ -225,6 +230,7 @@ def test_compare_refuses_one_variant_named_twice(tmp_path):
     assert r.exit_code == 2 and "names one variant twice: 'eskf' and" in r.stderr and not (tmp_path / "c").exists()
 
 
+@pytest.mark.slow
 def test_overwrite_never_replaces_a_users_dataset(kitti_slice, tmp_path):
     """--overwrite deleted a user's own dataset folder, OXTS packets, lidar poses and calibration (a corrupted-input
     review), because any dataset.yaml counted as a folder fusion-eval wrote: only a simulated drive's does now."""

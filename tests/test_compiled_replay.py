@@ -46,6 +46,7 @@ CASES = [
 ]
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("sets", CASES, ids=["default", "gated", "absolute", "no-gnss-adapt-position", "odometer-nhc"])
 def test_compiled_replay_equals_the_python_loop(sets):
     prep, s = _prepared(*sets)
@@ -71,6 +72,7 @@ def test_compiled_replay_equals_the_python_loop(sets):
         assert ref.nis["lidar"]["rejected"] > 0          # the case exercises the gate
 
 
+@pytest.mark.slow
 def test_the_compiled_loop_is_not_used_where_it_does_not_apply(default_run):
     prep, s = default_run
     kf = make_filter(prep, s)
@@ -88,6 +90,7 @@ def test_the_compiled_loop_is_not_used_where_it_does_not_apply(default_run):
                                           "auto")
 
 
+@pytest.mark.slow
 def test_every_registered_kernel_is_dispatched():
     # the loop is built over the registry's kernels: a new observation with a kernel is one module, one line;
     # each kernel its own slot, and every kernel a bound observation carries is its class's declared one
@@ -168,6 +171,7 @@ def test_structured_reset_equals_the_dense_form(n):
     assert np.max(np.abs(x1 - x2)) < 1e-15 and np.max(np.abs(c1 - c2)) < 1e-15
 
 
+@pytest.mark.slow
 def test_every_increment_gated_out_with_adaptive_noise():
     """No accepted update: the adaptive noise keeps its prior scales on both paths (nothing to summarise)."""
     prep, s = _prepared("lidar.gate_prob=1e-6")
@@ -201,6 +205,7 @@ def test_relative_pose_binds_with_fewer_than_two_frames(n_frames):
     assert not b.kernel.data[:, 0].any()          # a lone frame only starts the chain of clones
 
 
+@pytest.mark.slow
 def test_no_compiled_caller_passes_the_steps_covariance_flag_as_a_constant():
     """Numba types a constant ``True``/``False`` argument as a literal and compiles the callee once more for it: the
     ESKF's step and loop, most of a first run's compilation, were compiled twice by a default run (the Python callers'

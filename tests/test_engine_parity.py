@@ -82,6 +82,7 @@ def pairs():
     return get
 
 
+@pytest.mark.slow
 def test_se3_stack_equals_evos_matrices(pairs):
     for name in DATASETS:
         ref, est, ref_T, est_T = pairs(name, "none")
@@ -89,6 +90,7 @@ def test_se3_stack_equals_evos_matrices(pairs):
         assert np.max(np.abs(est_T - np.array(est.poses_se3))) <= TOL
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("alignment", ALIGNMENTS)
 @pytest.mark.parametrize("name", DATASETS)
 def test_alignment_equals_evos(pairs, name, alignment):
@@ -96,6 +98,7 @@ def test_alignment_equals_evos(pairs, name, alignment):
     assert np.max(np.abs(est_T - np.array(est.poses_se3))) <= TOL
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("relation", APE_RELATIONS, ids=lambda r: r.name)
 @pytest.mark.parametrize("alignment", ALIGNMENTS)
 @pytest.mark.parametrize("name", DATASETS)
@@ -113,6 +116,7 @@ def test_ape_equals_evos_class(pairs, name, alignment, relation):
                          ids=[f"{d}{u.name[0]}{'-all' if a else ''}{'-ref' if r else ''}" for d, u, a, r in DELTAS])
 @pytest.mark.parametrize("name,alignment", [("kitti", "none"), ("tum", "sim3"), ("tum-drift", "none"),
                                             ("euroc", "se3")])
+@pytest.mark.slow
 def test_rpe_equals_evos_class(pairs, name, alignment, relation, delta, unit, all_pairs, from_ref):
     ref, est, ref_T, est_T = pairs(name, alignment)
     m = metrics.RPE(relation, delta, unit, 0.1, all_pairs, from_ref)
@@ -172,6 +176,7 @@ def test_invalid_rotation_refused_as_evo_refuses_it(pairs):
         engine.ape_error(ref_T, bad, Rel.rotation_angle_deg)
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("alignment", ("none", "se3", "sim3", "origin", "4dof"))
 def test_run_evaluation_equal_with_either_engine(slice_run, alignment):
     """A run's estimates evaluated both ways: every metric, the drift figures and every result file."""
@@ -291,6 +296,7 @@ def _full(name: str):
             file_interface.read_tum_trajectory_file(shared_path(*d, "V102.txt")))
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("name", DATASETS)
 def test_stamp_matching_equals_evos(name):
     """evo's association (nearest stamp) on whole arrays: the same index pairs as evo's loop, for several

@@ -106,6 +106,7 @@ def _check(case, association, alignment):
         assert ours["matched_poses"] == len(res.np_arrays["error_array"])
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("case", [c for c in CASES if c[0] in QUICK], ids=lambda c: c[0])
 def test_one_alignment_per_file_equals_evo(case):
     _check(case, "nearest", QUICK[case[0]])
@@ -132,6 +133,7 @@ def _evo_cli(tmp_path, *args) -> float:
     return float(file_interface.load_res_file(str(res)).stats["rmse"])
 
 
+@pytest.mark.slow
 def test_reference_figures_from_evos_command_line(tmp_path):
     D = shared_path("evo-test-data")
     m = run_evaluate([D / "V102_groundtruth.csv", D / "V102.txt"], tmp_path / "a", alignment="se3", make_plots=False)
@@ -156,6 +158,7 @@ def test_interpolation_does_not_bridge_a_gap_in_the_reference(tmp_path):
     assert rmse == pytest.approx(0.008099, abs=5e-7)
 
 
+@pytest.mark.slow
 def test_4dof_finds_the_gravity_axis_of_kitti_cam0_poses(tmp_path):
     """KITTI's cam0 frame has y pointing down: the 4-DoF fit rotates about y, and can only be worse than
     SE(3) (it has fewer degrees of freedom); fitting about z (the old assumption: 4.698 m) or x is worse."""
@@ -184,6 +187,7 @@ def test_4dof_recovers_a_rotation_about_any_axis():
         assert np.allclose(R_fit, R, atol=1e-12) and np.allclose(t_fit, t, atol=1e-10) and yaw == pytest.approx(0.8)
 
 
+@pytest.mark.slow
 def test_cli_reads_a_bag_and_names_a_missing_topic(tmp_path):
     from click.testing import CliRunner
     from fusion_eval.cli import main
@@ -251,6 +255,7 @@ def test_a_euroc_csv_with_blank_lines_reads_as_evo_reads_the_clean_one(tmp_path,
     np.testing.assert_array_equal(np.asarray(got.traj.poses_se3), np.asarray(want.poses_se3))
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("name", ["fr2_desk_ORB.txt", "V102_groundtruth.csv"])
 def test_a_byte_order_mark_is_dropped_as_evo_drops_it(tmp_path, name):
     """A UTF-8 BOM (Windows editors write one) before a TUM or EuRoC file: refused before ('expected a number');
@@ -282,6 +287,7 @@ def _noisy_estimate(n=2000, seed=8):
     return ref, est, std
 
 
+@pytest.mark.slow
 def test_nees_of_an_estimate_with_covariances_from_a_sidecar_and_a_bag(tmp_path):
     """An estimate whose errors follow its stated covariance has a mean NEES of ~3 (3 dof), ~95 % inside the bounds;
     one that claims 3x less sigma is flagged (~27). The same from a .cov sidecar and from PoseWithCovarianceStamped."""
@@ -382,6 +388,7 @@ def test_the_trajectory_plot_draws_the_estimate_as_evo_aligned_it(alignment):
     np.testing.assert_allclose(moved[keep], est.positions_xyz, atol=1e-9)
 
 
+@pytest.mark.slow
 def test_bag_topics_in_other_frames_without_an_alignment_are_said(tmp_path):
     """A lidar odometry in its own odom frame against a map-frame ground truth, compared as they are, gave 317 m
     with exit 0 and no word (found by a review with its own bags); the frames are in the header of every message."""

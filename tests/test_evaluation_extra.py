@@ -143,6 +143,7 @@ def test_default_report_carries_every_section(slice_run):
         assert (slice_run / p).exists()
 
 
+@pytest.mark.slow
 def test_evaluate_command_on_kitti_and_tum_files(tmp_path):
     gt = shared_path("kitti-odometry", "00", "00_gt_kitti.txt")
     est = shared_path("kitti-odometry", "00", "00_poses_kitti.txt")
@@ -336,6 +337,7 @@ def test_evaluate_refuses_the_reference_as_an_estimate(slice_run, tmp_path):
     assert r.exit_code == 0, r.output
 
 
+@pytest.mark.slow
 def test_evaluate_report_shows_what_it_computed(tmp_path):
     """The per-distance RPE (--rpe-delta-m) was only in metrics.json, metrics.tex lacked the KITTI drift table, a
     rotation asked for in radians read 'n/a' and the 4-DoF alignment was a JSON dump (found by a review)."""

@@ -47,6 +47,7 @@ CASES = [
 ]
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("estimate", ["fused", "lidar"])
 @pytest.mark.parametrize("key,tool,extra", CASES, ids=["-".join(c[0]) for c in CASES])
 def test_metrics_equal_evo_command_line(slice_run, tmp_path, estimate, key, tool, extra):
@@ -57,6 +58,7 @@ def test_metrics_equal_evo_command_line(slice_run, tmp_path, estimate, key, tool
         assert abs(ours[s] - stats[s]) <= 1e-6, (s, ours[s], stats[s])
 
 
+@pytest.mark.slow
 def test_gnss_ape_equals_evo_command_line(slice_run, tmp_path):
     ours = json.loads((slice_run / "metrics.json").read_text())["estimates"]["gnss"]["ape"]["translation_m"]
     stats = _run(tmp_path, "evo_ape", [str(slice_run / "groundtruth.tum"), str(slice_run / "gnss.tum"),

@@ -141,6 +141,7 @@ def _mutate_tokens(text: str, data, n_max: int = 3) -> str:
     return "\n".join(lines) + "\n"
 
 
+@pytest.mark.slow
 @given(data=st.data())
 def test_oxts_packets(fresh, tmp_path, data):
     ds = fresh()
@@ -188,6 +189,7 @@ def test_pose_times(fresh, tmp_path, data):
     _run(ds, tmp_path, names=("times.txt", "lidar"))
 
 
+@pytest.mark.slow
 @given(data=st.data())
 def test_calibration(fresh, tmp_path, data):
     ds = fresh()
@@ -201,6 +203,7 @@ YAML_VALUES = st.one_of(st.none(), st.booleans(), st.integers(-10**6, 10**6), st
                         st.dictionaries(st.text(max_size=5), st.integers(), max_size=2))
 
 
+@pytest.mark.slow
 @given(data=st.data())
 def test_manifest(fresh, tmp_path, data):
     ds = fresh()
@@ -221,6 +224,7 @@ def test_manifest(fresh, tmp_path, data):
     _run(ds, tmp_path, names=("dataset.yaml", "manifest"))
 
 
+@pytest.mark.slow
 @given(data=st.data())
 def test_config_set(fresh, tmp_path, data):
     ds = fresh()
@@ -231,6 +235,7 @@ def test_config_set(fresh, tmp_path, data):
     _run(ds, tmp_path, "--set", f"{key}={value}", names=("--set", key))
 
 
+@pytest.mark.slow
 @given(data=st.data())
 def test_sweep_grid(fresh, tmp_path, data):
     ds = fresh()
@@ -284,6 +289,7 @@ def test_tum_trajectory_for_evaluate(tmp_path, data):
     contract(["-q", "evaluate", str(ref), str(est), "--out", str(out), "--no-plots"], out, ("est.tum",))
 
 
+@pytest.mark.slow
 @given(data=st.data())
 def test_generic_csv_stream(fresh, tmp_path, data):
     ds = fresh()

@@ -222,6 +222,7 @@ def test_overwrite_with_a_failing_run_keeps_the_old_output(tmp_path):
     assert {p.name: p.read_bytes() for p in out.iterdir()} == before
 
 
+@pytest.mark.slow
 def test_a_pool_killed_while_a_worker_sends_its_result_lets_the_process_exit(tmp_path):
     """Found while reviewing: a worker killed in the middle of sending a large result left the executor's manager
     thread blocked on the rest of the message, and the interpreter hung at exit joining it."""
@@ -307,6 +308,7 @@ def _run_with_fake_llvmlite(tmp_path: Path, inside_body: str, main: str) -> subp
                           preexec_fn=_default_sigint)
 
 
+@pytest.mark.slow
 def test_a_signal_held_in_a_long_llvmlite_call_ends_the_process_after_the_clean_ups(tmp_path):
     """A compilation step can keep the main thread in one LLVM call for seconds: after ABORT_AFTER_S the watcher runs
     the registered clean-ups (newest first) and exits with the signal's code."""
@@ -325,6 +327,7 @@ def test_a_signal_held_in_a_long_llvmlite_call_ends_the_process_after_the_clean_
     assert marker.read_text().split() == ["pool", "staging"]
 
 
+@pytest.mark.slow
 def test_a_signal_already_raised_is_not_acted_on_again_by_the_watcher(tmp_path):
     """The handler can run before the watcher reads the signal's byte: a signal raised and handled must not end the
     command later, when the code spends a second in llvmlite (a numba compilation after a caught interrupt)."""

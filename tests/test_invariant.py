@@ -30,6 +30,7 @@ def test_core_map_is_the_derivative_of_the_canonical_error():
     assert np.allclose(D[9:, 9:], np.eye(6))
 
 
+@pytest.mark.slow
 def test_gauss_markov_with_an_infinite_correlation_time_is_the_random_walk(kitti_slice):
     ds = fe.load_dataset(kitti_slice)
     for f in ("error_state", "invariant"):
@@ -43,6 +44,7 @@ def test_gauss_markov_with_an_infinite_correlation_time_is_the_random_walk(kitti
         assert short["estimates"]["fused"]["ape"]["translation_m"]["rmse"] != pytest.approx(a, rel=1e-6)
 
 
+@pytest.mark.slow
 def test_invariant_matches_the_eskf_on_kitti_with_gnss(kitti_slice):
     ds = fe.load_dataset(kitti_slice)
     a = fe.run(ds).metrics["estimates"]["fused"]["ape"]["translation_m"]["rmse"]

@@ -45,6 +45,7 @@ def _stats(m: dict):
                     yield (est, group, rel, k), v
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("layout", LAYOUTS)
 def test_same_drive_same_data_and_metrics_through_every_layout(drives, reference_metrics, layout):
     a, b = load_dataset(drives["kitti"]), load_dataset(drives[layout])
@@ -62,6 +63,7 @@ def test_same_drive_same_data_and_metrics_through_every_layout(drives, reference
         assert got[k] == pytest.approx(v, abs=1e-9), (layout, k)
 
 
+@pytest.mark.slow
 def test_map_matching_lidar_through_a_bag_and_euroc(tmp_path):
     ms = {}
     for layout in ("kitti", "euroc", "rosbag2"):
@@ -73,6 +75,7 @@ def test_map_matching_lidar_through_a_bag_and_euroc(tmp_path):
             assert ms[layout][k] == pytest.approx(v, abs=1e-9), (layout, k)
 
 
+@pytest.mark.slow
 def test_the_lidar_extrinsic_from_tf_static(drives, tmp_path):
     """The bag's /tf_static holds the IMU -> cam0 extrinsic; read from there it is the rigid version of the
     calibration files' chain (whose 6-digit rotation is orthonormal only to ~1e-6)."""

@@ -39,6 +39,7 @@ def test_the_longitudinal_axis_of_every_kitti_drive_is_the_oxts_x_axis_and_a_yaw
     assert across_travel(_yawed(ds).imu, -1570.8) == "" and across_travel(_yawed(ds).imu, 1570.8) == ""
 
 
+@pytest.mark.slow
 def test_a_yawed_imu_on_a_car_runs_without_the_constraint_and_says_so(monkeypatch):
     ds = fe.load_dataset(shared_path("kitti-raw", *DRIVES[0]))
     as_is = fe.run(ds).metrics
@@ -102,6 +103,7 @@ def test_a_steady_drive_through_gentle_bends_is_not_called_mounted_across():
     assert "looks mounted 9" in across_travel(turned, 0.0) and "at -90 deg" in across_travel(turned, 0.0)
 
 
+@pytest.mark.slow
 def test_the_odometer_gyro_model_drives_along_the_direction_of_travels_yaw():
     """The odometer + gyro process model moved the car along the IMU's x axis whatever the mount, with no check of
     the mount (an IMU yawed 90 deg drove the estimate sideways, with no word); it follows filter.nhc_travel_yaw_mrad,

@@ -277,6 +277,7 @@ def test_default_values_read_from_the_default_run(tmp_path):
     assert default_values(tasks, tmp_path / "elsewhere", [key_set]) == {}
 
 
+@pytest.mark.slow
 def test_evaluation_plots_drawn_from_their_thinned_data_are_the_same_bytes(tmp_path):
     """The run sends the metric plots only what they draw (``thin.ape_curves``, ``drift_only``, ``segment_map``,
     ``consistency``): a simulated hour's evaluations were tens of MB per plot in pickles. Same PNG bytes."""

@@ -38,6 +38,7 @@ def test_a_shared_object_reaches_forked_workers_without_a_pickle():
     assert pool.Inline().share(early.obj) is early.obj
 
 
+@pytest.mark.slow
 def test_a_run_draws_its_plots_in_workers_that_preloaded_matplotlib(kitti_slice, tmp_path):
     """The run's plots are drawn by its workers, which import matplotlib as they start (while the main process
     prepares and filters); the main process, which only submits them, never imports it (about a second)."""

@@ -7,6 +7,8 @@ import logging
 import subprocess
 import sys
 
+import pytest
+
 from fusion_eval.progress import Counter, Display, Stages, as_stages
 
 
@@ -24,6 +26,7 @@ class _Record(Stages):
         self.events.append(("fraction", fraction))
 
 
+@pytest.mark.slow
 def test_a_run_reports_every_stage_in_order(kitti_slice, tmp_path):
     from fusion_eval import session
     from fusion_eval.pipeline import run_to_dir
@@ -107,6 +110,7 @@ def test_a_counter_of_work_that_cannot_fail_says_no_failures():
     assert "failed" not in buf.getvalue() and lines[1].startswith("simulate-track (lines): 60000/60000 done (")
 
 
+@pytest.mark.slow
 def test_quiet_prints_exactly_the_output_path(kitti_slice, tmp_path):
     out = tmp_path / "q"
     r = subprocess.run([sys.executable, "-m", "fusion_eval", "-q", "run", str(kitti_slice), "--out", str(out),
@@ -116,6 +120,7 @@ def test_quiet_prints_exactly_the_output_path(kitti_slice, tmp_path):
     assert (out / "metrics.json").exists()
 
 
+@pytest.mark.slow
 def test_non_tty_run_shows_its_stages_on_stderr(kitti_slice, tmp_path):
     r = subprocess.run([sys.executable, "-m", "fusion_eval", "run", str(kitti_slice), "--out", str(tmp_path / "o"),
                         "--no-plots"], capture_output=True, text=True, timeout=300)

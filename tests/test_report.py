@@ -220,6 +220,7 @@ def test_no_verdict_between_errors_under_a_millimetre(tmp_path):
     assert "no verdict" in md and "% higher" not in md and "% lower" not in md
 
 
+@pytest.mark.slow
 def test_the_summary_heading_and_captions_name_the_alignment_used(kitti_slice, tmp_path):
     """'Summary against ground truth (evo, no alignment)' headed se3-aligned figures (found by a new-user review)."""
     from click.testing import CliRunner

@@ -351,6 +351,7 @@ def test_fast_imu_serializer_equals_typestore(ros1, frame_id):
     assert fast == [b.serialize(b.imu(int(ns[i]), frame_id, i, f[i], w[i]), rb.IMU) for i in range(n)]
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("frame_id", ["", "gps", "gps_ant", "gps_ante", "navsat_link_1"])
 @pytest.mark.parametrize("flavour", FLAVOURS, ids=FLAVOUR_IDS)
 def test_fast_path_equals_typestore_deserialization(tmp_path, flavour, frame_id):

@@ -130,6 +130,7 @@ def test_sweep_tasks_carry_absolute_paths_and_run_from_another_directory(small, 
     assert r.exit_code == 2 and "unknown variant 'tight'" in r.stderr
 
 
+@pytest.mark.slow
 def test_shipped_sweeps_variants_and_dataset_are_found_from_any_directory(tmp_path, monkeypatch):
     from fusion_eval import resources
     from fusion_eval.commands.sweep import plan

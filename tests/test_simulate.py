@@ -55,6 +55,7 @@ def test_noise_free_imu_follows_the_true_trajectory(tmp_path):
     assert err[-1] < 0.1 and err.max() < 0.1, err.max()
 
 
+@pytest.mark.slow
 def test_same_seed_same_bytes(tmp_path):
     def digest(d: Path) -> str:
         h = hashlib.sha256()

@@ -250,6 +250,7 @@ def test_the_priors_kept_forward_give_the_estimate_of_every_interval_recomputed(
     np.testing.assert_allclose(a.rec_Pdiag, b.rec_Pdiag, rtol=1e-6, atol=1e-15)
 
 
+@pytest.mark.slow
 def test_the_compiled_event_loop_keeps_the_smoothers_forward_record(kitti_slice, monkeypatch):
     """With an RTS smoother the ESKF's replay stays in the compiled event loop, which keeps the epochs and the
     states before each clone itself; the record, the filtered and the smoothed estimates equal those of the loop
@@ -281,6 +282,7 @@ def test_the_compiled_event_loop_keeps_the_smoothers_forward_record(kitti_slice,
         np.testing.assert_array_equal(runs["auto"].series[est].p_w_m, runs["python"].series[est].p_w_m)
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("formulation", ["error_state", "invariant"])
 def test_the_recomputed_intervals_are_the_filters_own(kitti_slice, monkeypatch, formulation):
     """Between GNSS epochs the backward pass recomputes each IMU interval with the formulation's compiled step (and
@@ -351,6 +353,7 @@ def test_the_smoother_is_consistent_and_better_than_the_filter_on_a_simulation(w
         assert e["smoothed"]["ape"][rel]["rmse"] < 0.8 * e["fused"]["ape"][rel]["rmse"], (formulation, rel)
 
 
+@pytest.mark.slow
 def test_the_batch_estimate_runs_and_says_what_it_built(kitti_slice, tmp_path):
     pytest.importorskip("gtsam", reason="the 'smoother' extra (gtsam) is not installed")
     res = fe.run(fe.load_dataset(kitti_slice), overrides={"smoother.method": "batch"})

@@ -312,6 +312,7 @@ def test_a_batch_whose_preparation_fails_records_each_run_as_failed(small, tmp_p
     assert all("ValueError: a bug in the preparation" in r["error"] for r in recs)
 
 
+@pytest.mark.slow
 def test_the_batches_of_one_key_prepare_once_per_worker(small, tmp_path, monkeypatch):
     """A key's runs cut into several batches (BATCH_MAX) load and prepare the data once per worker process, not
     once per batch; the records are those of runs made alone, and nothing is kept once the sweep ends."""
@@ -433,6 +434,7 @@ def test_check_refuses_a_trials_section_it_cannot_read(tmp_path, trials):
     assert CliRunner().invoke(main, ["check", str(cur), "--baseline", str(base), "--trial-stat", "none"]).exit_code == 0
 
 
+@pytest.mark.slow
 def test_a_sweeps_warnings_name_their_run_and_setting(tmp_path):
     """Warnings of a sweep's runs went to stderr with no setting, and sweep.md had none (found by a new-user
     review): each names its run and setting now, and sweep.md lists them by setting."""
@@ -452,6 +454,7 @@ def test_a_sweeps_warnings_name_their_run_and_setting(tmp_path):
     assert "eskf / default:" not in md
 
 
+@pytest.mark.slow
 def test_a_sweep_resumed_after_its_data_changed_runs_again(small, tmp_path):
     """The run id hashed the dataset's path and the configuration only: a sweep resumed after the lidar poses were
     corrupted kept the old figures ('2 already recorded'; found by a corrupted-input review)."""
@@ -522,6 +525,7 @@ def test_a_sweep_refuses_settings_scored_differently(small, tmp_path):
     assert not (tmp_path / "s").exists()
 
 
+@pytest.mark.slow
 def test_every_key_declared_filter_only_leaves_the_prepared_data_as_it_is(small):
     """A sweep's runs that differ only in keys declared ``reads="filter"`` share one preparation of the data
     (fusion_eval/batch.py, derived from the declarations): each such key, set to two values, gives the same prepared
@@ -568,6 +572,7 @@ def test_a_json_key_given_twice_and_a_setting_named_default_are_refused(tmp_path
     assert r.exit_code == 2 and f"error: {sw}:2: 'default' is the name of the run with no setting" in r.output, r.output
 
 
+@pytest.mark.slow
 def test_each_run_of_a_batch_reports_its_own_noise_scale(small, tmp_path):
     """Runs that share a preparation (a batch) differ in the filter's noise scales: the IMU noise each one runs with
     (the estimate times its scale, metrics.json's preprocessing.auto_settled and report.md) is its own; it was the

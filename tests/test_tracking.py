@@ -127,6 +127,7 @@ def test_the_rts_smoother_equals_the_batch_solution_with_lidar_alone(tmp_path):
     np.testing.assert_allclose(res.x_smoothed, sol, rtol=1e-9, atol=1e-10)   # the batch inverse of 80x80 loses more
 
 
+@pytest.mark.slow
 def test_track_smooth_reports_both_and_beats_the_filter_on_velocity(tmp_path):
     p = _file(tmp_path)
     out = tmp_path / "out"

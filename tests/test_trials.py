@@ -136,6 +136,7 @@ def test_the_trials_table_gives_each_row_one_number_format():
     assert _row_format(2e-9, 1e-9, 3e-9)(1.5e-9) == "1.500e-09"
 
 
+@pytest.mark.slow
 def test_trials_of_a_run_with_nothing_random_say_so(tmp_path, kitti_slice, caplog):
     """A simulated drive's noise is in its files and its GNSS is used as it is: N trials were N identical rows
     and a zero-width '95 % CI' with no word (found by a new-user review)."""

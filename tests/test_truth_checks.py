@@ -18,6 +18,7 @@ def _ape(m: dict) -> float:
     return m["estimates"]["fused"]["ape"]["translation_m"]["rmse"]
 
 
+@pytest.mark.slow
 def test_a_twist_in_the_parent_frame_is_flagged_and_the_start_takes_the_positions(monkeypatch):
     drive = fe.load_dataset(None)                # kitti-00: the car is at 7 m/s when the filter starts
     gt = drive.groundtruth
@@ -112,6 +113,7 @@ def test_a_pose_stream_in_a_sensor_frame_keeps_its_velocity_moved_to_the_imu():
     assert plausible.velocity_mismatch(imu) == ""
 
 
+@pytest.mark.slow
 def test_the_gnss_datum_check_reads_the_stamps_as_configured():
     """A receiver stamped late, its offset given (gnss.time_offset_s), was compared on its raw stamps and called a
     datum offset (found by a review of the diff)."""

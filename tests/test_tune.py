@@ -77,6 +77,7 @@ def _tune(args, tmp_path, **kw):
     return CliRunner().invoke(main, ["-q", "tune", *args], catch_exceptions=False, **kw)
 
 
+@pytest.mark.slow
 def test_a_tune_writes_a_usable_best_config_and_every_trial(tmp_path):
     ds = make_slice(tmp_path / "ds", 400)
     test = make_slice(tmp_path / "held", 300, first=600)
@@ -291,6 +292,7 @@ def test_prune_thresholds_are_medians_per_report_index():
     assert S.prune_thresholds(SimpleNamespace(get_trials=lambda deepcopy=False, states=None: trials[:4]), 2) == ()
 
 
+@pytest.mark.slow
 def test_the_first_trial_is_the_default_even_where_the_default_is_auto(tmp_path):
     """An 'auto' key of the space starts from what the default run settled on (the lidar frame it chose), so trial 0
     is the default configuration; if the space cannot hold a default value and no trial beats the default, the
@@ -349,6 +351,7 @@ def test_a_study_resumed_with_held_out_drives_scores_the_default_on_them(tmp_pat
     assert re.search(r"\| held-out \(mean\) +\| +[0-9.]+ +\| +[0-9.]+ +\|", (out / "tune.md").read_text())
 
 
+@pytest.mark.slow
 def test_the_first_trial_is_the_default_run_with_the_manifests_suggested_settings(tmp_path):
     """Trial 0 took the built-in values where a simulated drive's manifest suggests its datasheet noise (0.7025 against
     the default run's 0.7165), and tune.md called the tuned values the default's while its own table moved (a

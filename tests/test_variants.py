@@ -165,6 +165,7 @@ def test_odometer_gyro_model_tracks_a_simulated_drive(sim_urban):
     assert abs(out.odometer_scale[-1] - k_true) < 3e-3, (out.odometer_scale[-1], k_true)
 
 
+@pytest.mark.slow
 def test_compare_command_writes_table_and_plots(kitti_slice, tmp_path):
     out = tmp_path / "cmp"
     r = CliRunner().invoke(main, ["-q", "compare", str(kitti_slice), "--variants", "eskf,nominal,odometer-nhc",
