@@ -223,7 +223,8 @@ def prepare(ds: Dataset, cfg: dict) -> Prepared:
         raise DataRangeError(f"IMU ({ds.imu.source}, {imu.t_s[0]:.3f}..{imu.t_s[-1]:.3f} s after imu.time_offset_s = "
                              f"{applied['time_offset_s']['imu']:g} s) and ground truth ({gt.source}, "
                              f"{gt.t_s[0] if len(gt) else float('nan'):.3f}..{gt.t_s[-1] if len(gt) else float('nan'):.3f} s) "
-                             "do not overlap in time")
+                             "do not overlap in time"
+                             + (plausible.clock_hint("IMU", float(imu.t_s[0]), "ground-truth", float(gt.t_s[0])) if len(gt) else ""))
 
     # --- lidar: offset, anchor in the world frame, resample on the IMU stamps
     lidar = travel = None
@@ -255,7 +256,9 @@ def prepare(ds: Dataset, cfg: dict) -> Prepared:
             lid = snap_to_stamps(lid, imu.t_s)
         lidar = lid
         if use_lidar and (len(lidar) < 2 or lidar.t_s[-1] <= imu.t_s[0] or lidar.t_s[0] >= imu.t_s[-1]):
-            raise DataRangeError(f"lidar ({ds.lidar.source}) and IMU ({ds.imu.source}) do not overlap in time {offsets_note(applied)}")
+            raise DataRangeError(f"lidar ({ds.lidar.source}) and IMU ({ds.imu.source}) do not overlap in time {offsets_note(applied)}"
+                                 + (plausible.clock_hint("lidar", float(lidar.t_s[0]), "IMU", float(imu.t_s[0]))
+                                    if len(lidar) else ""))
 
     # --- start: first IMU sample covered by the ground truth (and the lidar, when it is fused)
     t_min = gt.t_s[0]
@@ -280,7 +283,8 @@ def prepare(ds: Dataset, cfg: dict) -> Prepared:
         more_warnings += filter(None, [plausible.gnss_offset(g, gt), plausible.clock_shift("GNSS", g, gt, "gnss.time_offset_s", off)])  # as configured
         if len(g) and (g.t_s[-1] < t0 or g.t_s[0] > imu.t_s[-1]):
             raise DataRangeError(f"GNSS ({ds.gnss.source}, {g.t_s[0]:.3f}..{g.t_s[-1]:.3f} s after its time_offset_s of "
-                                 f"{off:g} s) and IMU ({ds.imu.source}, {t0:.3f}..{imu.t_s[-1]:.3f} s) do not overlap in time")
+                                 f"{off:g} s) and IMU ({ds.imu.source}, {t0:.3f}..{imu.t_s[-1]:.3f} s) do not overlap in time"
+                                 + plausible.clock_hint("GNSS", float(g.t_s[0]), "IMU", t0))
         g = g.select((g.t_s >= t0) & (g.t_s <= imu.t_s[-1]))
         if len(g):      # the stream's extent before the outages and rate set: what the scores' common span takes
             applied["gnss_coverage_s"] = [float(g.t_s[0]), float(g.t_s[-1])]
@@ -329,7 +333,8 @@ def prepare(ds: Dataset, cfg: dict) -> Prepared:
             applied["odometer_added_noise_std_mps"] = cfg["odometer"]["added_noise_std_mps"]
         if needs_odo and (odo.t_s[-1] <= imu.t_s[k0] or odo.t_s[0] >= imu.t_s[-1]):
             raise DataRangeError(f"odometer ({ds.odometer.source}) and IMU ({ds.imu.source}) do not overlap in time "
-                                 f"{offsets_note(applied)}")
+                                 f"{offsets_note(applied)}"
+                                 + plausible.clock_hint("odometer", float(odo.t_s[0]), "IMU", float(imu.t_s[k0])))
 
     # --- IMU white noise: given, or from the stream's own second differences (no ground truth), estimated
     #     once the streams are known to overlap

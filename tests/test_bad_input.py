@@ -1273,3 +1273,52 @@ def test_a_write_that_fails_on_the_device_names_the_file_and_leaves_no_temporary
             fh.write(b"1 2 3\n")
             raise OSError(errno.ENOSPC, "No space left on device")
     assert list(tmp_path.iterdir()) == []
+
+
+def _stream(t, source="s.csv"):
+    from types import SimpleNamespace
+
+    return SimpleNamespace(t_s=np.asarray(t, float), source=source, lines=np.arange(2, len(t) + 2))
+
+
+@pytest.mark.parametrize("scale,unit", [(1e9, "nanoseconds"), (1e6, "microseconds"), (1e3, "milliseconds")])
+def test_posix_stamps_in_another_unit_are_named_by_their_magnitude(scale, unit):
+    """Every stream stamped in ns read as seconds passed the span checks (all alike): the filter 'diverged at
+    t=1767225636000000000.000 s' (a user's review). The magnitude names the unit; a 100 Hz IMU in ms read as s is
+    10 s per sample; an IMU on its boot clock beside POSIX streams is said to be one."""
+    from fusion_eval.datasets import plausible
+    from fusion_eval.errors import DataFormatError
+
+    t = 1.7672256e9 + np.arange(0.0, 120.0, 0.01)
+    with pytest.raises(DataFormatError, match=rf"imu.csv:2: imu: the first stamp is .* POSIX time in {unit} read as "):
+        plausible.check_dataset(_stream(t * scale, "imu.csv"), {"gnss": None})
+    plausible.check_dataset(_stream(t, "imu.csv"), {"gnss": None})            # seconds: nothing to say
+
+
+def test_an_imu_sampled_seconds_apart_is_refused_as_another_unit():
+    from fusion_eval.datasets import plausible
+    from fusion_eval.errors import DataFormatError
+
+    with pytest.raises(DataFormatError, match=r"imu.csv:2: the IMU's samples are 10 s apart .* \(milliseconds read as seconds"):
+        plausible.check_imu(_stream(np.arange(0.0, 120000.0, 10.0), "imu.csv"))
+    plausible.check_imu(_stream(np.arange(0.0, 120.0, 0.1), "imu.csv"))     # KITTI's 10 Hz OXTS passes
+
+
+def test_a_boot_clock_beside_posix_time_is_named():
+    from fusion_eval.datasets.plausible import clock_hint
+
+    hint = clock_hint("IMU", 812.5, "ground-truth", 1767225600.0)
+    assert "the IMU stamps count from a device's boot (812.500 s)" in hint and "about 1767224787.500 s" in hint
+    assert clock_hint("IMU", 1767225600.0, "GNSS", 1767225900.0) == "" and clock_hint("a", 5.0, "b", 9.0) == ""
+
+
+def test_evaluate_names_a_tum_file_stamped_in_nanoseconds(tmp_path):
+    """evo reads such a file and matches no pose within 0.01 of its units: 'matches 0 poses' named no unit."""
+    t = 1305031102.16 + np.arange(50) * 0.1
+    rows = np.c_[t * 1e9, np.cumsum(np.ones((50, 3)) * 0.05, axis=0), np.zeros((50, 3)), np.ones(50)]
+    for name in ("ref.tum", "est.tum"):
+        np.savetxt(tmp_path / name, rows, fmt="%.9f")
+    r = CliRunner().invoke(main, ["-q", "evaluate", str(tmp_path / "ref.tum"), str(tmp_path / "est.tum"),
+                                  "--out", str(tmp_path / "o")])
+    _assert_clean_error(r, tmp_path / "o", "ref.tum:1:", "POSIX time in nanoseconds read as seconds", "in seconds")
+    assert not (tmp_path / "o").exists()

@@ -21,6 +21,7 @@ MAX_LAG_S = 1.0          # an IMU channel's latency: beyond a second it is a clo
 LAG_NOTE = (f"a channel lag is a latency of milliseconds (KITTI's OXTS: 0.06 s), at most {MAX_LAG_S:g} s here; a clock "
             "offset between streams goes in time_offset_s")
 MAX_IMU_GAP_S = 60.0
+MAX_IMU_STEP_S = 1.0     # a median step above this is no IMU's (KITTI's OXTS, the slowest here: 0.1 s)
 FLAG_IMU_GAP_S = 1.0     # shorter stops are bridged by the filter (imu.gap_factor); longer ones are flagged
 MAX_SPAN_RATIO = 50.0
 # the Earth's circumference: more than any Earth-fixed frame holds (ENU, ECEF's 6,400 km, UTM's northings of up to
@@ -43,6 +44,13 @@ def check_imu(imu) -> None:
         return
     d = np.diff(t)
     med = float(np.median(d))
+    if med > MAX_IMU_STEP_S:
+        # no IMU a filter integrates samples this slowly: its stamps are in another unit (ms read as s: a 100 Hz IMU
+        # 10 s apart; the others' spans then did not meet it and nothing named the unit, a user's review)
+        raise DataFormatError(imu.source, line_of(imu.lines, 0),
+                              f"the IMU's samples are {med:.6g} s apart (median step), where an IMU gives 1 to 1000 "
+                              "per second: its stamps are in another unit (milliseconds read as seconds?); give seconds, "
+                              "or the unit (csv format: time_unit: ms)")
     bad = np.flatnonzero(d > max(MAX_IMU_GAP_S, 1000.0 * med))
     if bad.size:
         i = int(bad[0]) + 1
@@ -245,8 +253,57 @@ def speed_glitches(streams: dict, platform: str | None, max_speed_mps: float = M
     return out
 
 
+# Seconds beyond this (year 5138) are no clock's: POSIX time in ms, us or ns read as seconds. The unit is told by
+# the magnitude of a 21st-century POSIX stamp (1.0e9..4.1e9 s) in each unit.
+MAX_STAMP_S = 1e11
+_UNIT_OF_MAGNITUDE = ((1e17, "nanoseconds", "ns"), (1e14, "microseconds", "us"), (1e11, "milliseconds", "ms"))
+
+
+def check_stamp_magnitude(name: str, series) -> None:
+    """Refuse stamps no clock gives in seconds, naming the unit their magnitude points at: every stream in ns read as
+    seconds passed every span check (all alike) and the filter 'diverged at t=1767225636000000000.000 s' (a user's
+    review)."""
+    check_stamps_in_seconds(name, series.source, series.lines, series.t_s)
+
+
+def check_stamps_in_seconds(name: str, source, lines, t_s, how: str = "csv format: time_unit: {unit}") -> None:
+    """:func:`check_stamp_magnitude` on arrays (``how``: where the unit is given, ``{unit}`` its short name)."""
+    t = np.asarray(t_s)
+    if t.size == 0 or not abs(float(t[0])) > MAX_STAMP_S:
+        return
+    big = abs(float(t[0]))
+    word, unit = next((w, u) for lim, w, u in _UNIT_OF_MAGNITUDE if big >= lim)
+    raise DataFormatError(source, line_of(lines, 0),
+                          f"{name}: the first stamp is {float(t[0]):.6g} s, beyond any clock in seconds: POSIX time in "
+                          f"{word} read as seconds? Give seconds ({how.format(unit=unit)})")
+
+
+# a clock below this counts from a device's boot (12 days), one between the two bounds is POSIX time (1973-2100)
+BOOT_CLOCK_MAX_S = 1e6
+POSIX_RANGE_S = (1e8, 4.1e9)
+
+
+def clock_hint(a: str, a_t0: float, b: str, b_t0: float) -> str:
+    """Why two streams' stamps do not meet, where their starts tell: one clock counts from a device's boot and the
+    other is POSIX time (a bag's IMU on its driver's boot clock). '' otherwise."""
+    def kind(t):
+        return ("boot" if 0 <= t < BOOT_CLOCK_MAX_S else
+                "posix" if POSIX_RANGE_S[0] <= t <= POSIX_RANGE_S[1] else "")
+    ka, kb = kind(a_t0), kind(b_t0)
+    if {ka, kb} != {"boot", "posix"}:
+        return ""
+    boot, posix = (a, b) if ka == "boot" else (b, a)
+    d = (b_t0 - a_t0) if ka == "boot" else (a_t0 - b_t0)
+    return (f": the {boot} stamps count from a device's boot ({min(a_t0, b_t0):.3f} s), the {posix} stamps are POSIX "
+            f"time: give the {boot} stream's time_offset_s (its start against the other's: about {d:.3f} s), or "
+            "stamp both on one clock")
+
+
 def check_dataset(imu, streams: dict) -> None:
     """Every check on a dataset: ``streams`` maps a stream's name to its series (None when absent)."""
+    for name, s in {"imu": imu, **streams}.items():
+        if s is not None:
+            check_stamp_magnitude(name, s)
     check_imu(imu)
     _odd_clock(imu, streams)
     for name, s in streams.items():

@@ -29,7 +29,7 @@ import numpy as np
 from ..errors import DataFormatError
 from ..types import check_times, check_unit_quaternions
 from . import kitti_poses
-from .plausible import check_track
+from .plausible import check_stamps_in_seconds, check_track
 from ._text import parse_numeric_rows, read_text
 
 log = logging.getLogger(__name__)
@@ -95,9 +95,14 @@ def detect_format(path: Path, text: str | None = None) -> str:
                                         f"pose matrix) or EuRoC CSV trajectory (comma-separated), got {n} values")
 
 
-def _stamps_checked(path: Path, t: np.ndarray, lines: np.ndarray) -> int:
-    """Refuse decreasing stamps (naming the line); return how many repeat the previous one (accepted, as by evo)."""
+def _stamps_checked(path: Path, t: np.ndarray, lines: np.ndarray, seconds: bool = True) -> int:
+    """Refuse decreasing stamps (naming the line) and, for stamps in ``seconds``, ones no clock in seconds gives;
+    return how many repeat the previous one (accepted, as by evo)."""
     check_times(np.asarray(t, float), str(path), lines, "trajectory", allow_equal=True)
+    if seconds:
+        # evo would read them and match no pose within t_max_diff (0.01 of a nanosecond): "0 poses match" named no unit
+        check_stamps_in_seconds("trajectory", path, lines, t, how="TUM and KITTI times files are in seconds; a EuRoC "
+                                                                 "CSV file's ns stamps are read as such")
     return int(np.count_nonzero(np.diff(t) == 0))
 
 
@@ -140,7 +145,7 @@ def read_trajectory(path: Path, times: Path | None = None, fmt: str = "auto") ->
     elif fmt == "euroc":
         rows, lines = parse_numeric_rows(path, text, _EUROC_COLS, "EuRoC CSV trajectory (#timestamp [ns],p_x,p_y,p_z,"
                                          "q_w,q_x,q_y,q_z,...)", delimiter=",")
-        repeated = _stamps_checked(path, rows[:, 0], lines)
+        repeated = _stamps_checked(path, rows[:, 0], lines, seconds=False)
         _poses_checked(path, lines, rows[:, 0] * 1e-9, rows[:, 1:4], rows[:, 4:8])
         try:
             traj = file_interface.read_euroc_csv_trajectory(str(path))
