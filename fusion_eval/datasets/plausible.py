@@ -375,6 +375,56 @@ def gnss_offset(gnss, groundtruth) -> str:
             f"{what}; the filter, started on the ground truth, is pulled there and every figure carries the offset")
 
 
+# The GNSS and the ground truth horizontal tracks related by a rotation about up (a map or UTM grid frame against
+# ENU: grid convergence reaches 3 deg at a zone's edge) or by swapped axes (NED or x/y swapped against ENU). Said
+# when the best such relation leaves at most a third of the residual of the plain track (after the median offset),
+# gains more than MIN_FRAME_GAIN_M, and the track spans MIN_FRAME_EXTENT_M (on a short one, noise fits any angle).
+MIN_FRAME_EXTENT_M, MIN_FRAME_GAIN_M, MAX_FRAME_FIT, MIN_FRAME_ANGLE_DEG = 50.0, 2.0, 1.0 / 3.0, 0.5
+
+
+def _fit_rotation_2d(a: np.ndarray, b: np.ndarray) -> tuple[float, float]:
+    """The rotation angle (rad) that best maps the centred 2-D points ``a`` onto ``b`` (least squares, 2-D Kabsch)
+    and the RMS residual after it."""
+    ac, bc = a - a.mean(axis=0), b - b.mean(axis=0)
+    H = ac.T @ bc
+    th = float(np.arctan2(H[0, 1] - H[1, 0], H[0, 0] + H[1, 1]))
+    c, s_ = np.cos(th), np.sin(th)
+    r = bc - ac @ np.array([[c, s_], [-s_, c]])
+    return th, float(np.sqrt(np.mean(np.sum(r ** 2, axis=1))))
+
+
+def gnss_frame(gnss, groundtruth) -> str:
+    """Why the GNSS track is the ground truth's turned about up or with its axes swapped, or ''. Both are usually
+    a frame given wrongly: ground truth in a map or UTM grid frame against ENU fixes (a 5 deg yaw: GNSS APE 21 m
+    against 2.3, no word), or local NED positions declared as ENU (229 m; only the NIS said anything)."""
+    if gnss is None or groundtruth is None or len(gnss) < 10 or len(groundtruth) < 2:
+        return ""
+    from ..interp import interpolate_poses
+
+    t_gt = np.asarray(groundtruth.t_s)
+    inside = (gnss.t_s >= t_gt[0]) & (gnss.t_s <= t_gt[-1]) & _real(gnss)
+    if inside.sum() < 10 or np.any(np.diff(t_gt) <= 0):
+        return ""
+    g = np.asarray(gnss.p_w_m, float)[inside]
+    r = interpolate_poses(groundtruth, gnss.t_s[inside]).p_w_m
+    if float(np.max(np.ptp(r[:, :2], axis=0))) < MIN_FRAME_EXTENT_M:
+        return ""
+    plain = float(np.sqrt(np.mean(np.sum((g[:, :2] - g[:, :2].mean(0) - (r[:, :2] - r[:, :2].mean(0))) ** 2, axis=1))))
+    th, rot = _fit_rotation_2d(r[:, :2], g[:, :2])
+    _, swap = _fit_rotation_2d(r[:, :2], g[:, 1::-1])
+    if swap <= MAX_FRAME_FIT * plain and plain - swap > MIN_FRAME_GAIN_M and swap < rot:
+        up = "; its up axis points down too" if np.ptp(r[:, 2]) > 5.0 and np.corrcoef(g[:, 2], r[:, 2])[0, 1] < -0.5 else ""
+        return (f"{gnss.source}: the GNSS track matches the ground truth's with its east and north swapped (RMS "
+                f"{swap:.1f} m against {plain:.1f} m as given{up}): positions in NED, or x and y swapped, declared as "
+                "ENU; every figure of the GNSS, and of the filter it pulls, is of the wrong frame")
+    if rot <= MAX_FRAME_FIT * plain and plain - rot > MIN_FRAME_GAIN_M and abs(np.degrees(th)) > MIN_FRAME_ANGLE_DEG:
+        return (f"{gnss.source}: the GNSS track matches the ground truth's turned {np.degrees(th):+.2f} deg about up "
+                f"(RMS {rot:.1f} m against {plain:.1f} m as given): one of the two is in another frame than ENU (a map "
+                "frame, or a UTM grid: grid north is up to 3 deg from true north); every figure of the GNSS, and of "
+                "the filter it pulls, carries the rotation")
+    return ""
+
+
 # A stream matching the ground truth best this far from its stamps, with at most a third of the position error
 # there and a metre less, is a clock offset: the search reaches +/- MAX_CLOCK_SHIFT_S (GPS against UNIX time is 18 s);
 # a lag of the odometry or a receiver's latency is tens of milliseconds. A third, not a half: an odometry whose scale
