@@ -218,7 +218,7 @@ def prepare(ds: Dataset, cfg: dict) -> Prepared:
     # --- ground truth: the same clock as its source; filled-in packets are not truth
     gt = shifted(ds.groundtruth, float(ds.description.get("time_offset_s", {}).get("groundtruth", 0.0)))
     gt = gt.select(~gt.filled)
-    more_warnings += filter(None, [plausible.truth_orientation_placeholder(gt)])
+    more_warnings += filter(None, [plausible.truth_orientation_placeholder(gt), plausible.gyro_scale(imu, gt)])
     if len(gt) < 2 or gt.t_s[-1] <= imu.t_s[0] or gt.t_s[0] >= imu.t_s[-1]:
         raise DataRangeError(f"IMU ({ds.imu.source}, {imu.t_s[0]:.3f}..{imu.t_s[-1]:.3f} s after imu.time_offset_s = "
                              f"{applied['time_offset_s']['imu']:g} s) and ground truth ({gt.source}, "

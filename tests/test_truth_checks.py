@@ -169,3 +169,17 @@ def test_a_gnss_track_turned_or_with_swapped_axes_against_the_truth_is_flagged(h
         assert "east and north swapped" in why and "NED" in why, why
     short = replace(gt, p_w_m=gt.p_w_m * 0.005)            # a track of a few metres: noise fits any angle
     assert plausible.gnss_frame(replace(g, p_w_m=p * 0.005), short) == ""
+
+
+@pytest.mark.parametrize("factor,needle", [(1.0, ""), (1 / 57.29578, "rad/s declared as deg/s"),
+                                           (57.29578, "deg/s read as rad/s"), (0.1, "another unit")])
+def test_a_gyro_turning_a_constant_factor_off_the_truth_is_flagged(factor, needle):
+    """rad/s declared as deg/s reads 57x too slow, which no bound on the rates catches: fused APE 112.9 m and 90.9 deg
+    with exit 0 (a user's review). The gyro's and the truth's rates agree to 1 % on kitti-00 (90th percentiles: 0.425
+    and 0.428 rad/s) and on the raw drives; a truth of placeholder orientations says nothing."""
+    drive = fe.load_dataset(None)
+    imu = replace(drive.imu, w_b_rps=drive.imu.w_b_rps * factor)
+    why = plausible.gyro_scale(imu, drive.groundtruth)
+    assert (why == "") if not needle else (needle in why and str(drive.imu.source) in why), why
+    flat = replace(drive.groundtruth, q_wb_xyzw=np.tile([0.0, 0.0, 0.0, 1.0], (len(drive.groundtruth), 1)))
+    assert plausible.gyro_scale(imu, flat) == ""

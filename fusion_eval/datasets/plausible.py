@@ -583,3 +583,36 @@ def truth_orientation_placeholder(gt) -> str | None:
     return (f"{gt.source}: the ground truth has one and the same orientation on every pose over {path:.0f} m of travel "
             "(placeholders: a position-only truth): its rotation APE, relative (RPE) and attitude NEES figures measure "
             "the placeholder, not the estimates; only the translation APE means anything")
+
+
+# The gyro's turning against the ground truth's: the 90th percentiles of their angular rate magnitudes (robust to a
+# clock offset and to straight stretches), compared where the truth turns at all. A gyro in rad/s declared deg/s
+# reads 57x too slow, which no bound on the rates catches (a car turning at 0.009 rad/s is plausible): fused APE
+# 112.9 m, 90.9 deg, exit 0 (a user's review). A factor beyond 3 either way is a unit, not a scale-factor error.
+MIN_TRUTH_TURN_RPS, MAX_GYRO_SCALE = 0.02, 3.0
+
+
+def gyro_scale(imu, gt) -> str:
+    """Why the gyro turns a constant factor faster or slower than the ground truth (a unit), or ''."""
+    if gt is None or len(gt) < 20 or len(imu.t_s) < 100 or truth_orientation_placeholder(gt):
+        return ""
+    t = np.asarray(gt.t_s, float)
+    inside = (imu.t_s >= t[0]) & (imu.t_s <= t[-1])
+    if inside.sum() < 100:
+        return ""
+    R = gt.R_wb()
+    dt = np.diff(t)
+    ok = dt > 0
+    cos = (np.einsum("nji,nji->n", R[:-1], R[1:]) - 1.0) / 2.0       # trace(R_k^T R_k+1) = 1 + 2 cos(angle)
+    rate_gt = np.arccos(np.clip(cos[ok], -1.0, 1.0)) / dt[ok]
+    truth = float(np.percentile(rate_gt, 90))
+    if not truth > MIN_TRUTH_TURN_RPS:
+        return ""
+    gyro = float(np.percentile(np.linalg.norm(np.asarray(imu.w_b_rps, float)[inside], axis=1), 90))
+    ratio = gyro / truth
+    if 1.0 / MAX_GYRO_SCALE <= ratio <= MAX_GYRO_SCALE:
+        return ""
+    hint = ("rad/s declared as deg/s? (a CSV stream's gyro_unit)" if 1 / 80 < ratio < 1 / 40 else
+            "deg/s read as rad/s? (a CSV stream's gyro_unit)" if 40 < ratio < 80 else "another unit?")
+    return (f"{imu.source}: the gyro turns {ratio:.3g}x as fast as the ground truth ({gyro:.3g} against {truth:.3g} "
+            f"rad/s, 90th percentiles of the rate): {hint} Every figure of the filter rests on the gyro")
