@@ -45,6 +45,10 @@ class DataFormatError(FusionEvalError):
         return type(self), (self.path, self.line, self.expected)
 
 
+class MissingTopicError(DataFormatError):
+    """A bag holds no topic of the name asked for: where a manifest named it, the manifest's line is the place to fix."""
+
+
 class ConfigError(FusionEvalError):
     """A configuration or manifest key is unknown, missing or has a wrong value."""
 

@@ -3,6 +3,8 @@ fast path against the rosbags typestore, stamps, errors, and the real bags of ev
 
 from __future__ import annotations
 
+import logging
+
 from pathlib import Path
 
 import numpy as np
@@ -84,7 +86,7 @@ def test_imu_round_trip(tmp_path, flavour):
 
 
 @pytest.mark.parametrize("flavour", FLAVOURS, ids=FLAVOUR_IDS)
-def test_navsatfix_round_trip_drops_no_fix(tmp_path, flavour):
+def test_navsatfix_round_trip_drops_no_fix(tmp_path, flavour, caplog):
     rng = np.random.default_rng(2)
     n = 40
     t = T0 + np.arange(n) * 0.2
@@ -95,9 +97,12 @@ def test_navsatfix_round_trip_drops_no_fix(tmp_path, flavour):
     status[20] = 2                   # GBAS fix: kept
     fixes = rb.FixSeries(t_s=t, lat_deg=lat, lon_deg=lon, alt_m=alt, std_enu_m=std, status=status)
     bag = _write(tmp_path, flavour, [rb.BagStream("/gps/fix", "navsatfix", fixes, "gps")])
-    origin = rb.first_fix(bag, "/gps/fix")
-    assert origin == (lat[1], lon[1], alt[1])      # the first *valid* fix
-    g = rb.read_navsatfix(bag, "/gps/fix", origin)
+    with caplog.at_level(logging.INFO, logger="fusion_eval"):
+        origin = rb.first_fix(bag, "/gps/fix")
+        assert origin == (lat[1], lon[1], alt[1])      # the first *valid* fix
+        g = rb.read_navsatfix(bag, "/gps/fix", origin)
+    # said once: the look for the first fix said it too (a user's review saw the line twice)
+    assert sum("dropped 3 of 40 fixes with status STATUS_NO_FIX" in r.getMessage() for r in caplog.records) == 1
     keep = status >= 0
     assert len(g) == n - 3
     np.testing.assert_array_equal(g.t_s, t[keep])
@@ -160,6 +165,13 @@ def test_a_zero_header_stamp_names_its_message(tmp_path):
     t[0] = 0.0
     bag = _write(tmp_path, FLAVOURS[0], [rb.BagStream("/imu/data", "imu", replace(imu, t_s=t), "imu_link")])
     with pytest.raises(DataFormatError, match=r"topic '/imu/data', message 1: header stamp 0 among stamps .*stamps: record"):
+        rb.read_imu(bag, "/imu/data")
+    # every stamp 0 (a driver that never sets it): each message but one was dropped as a repeat and the run refused
+    # for "fewer than 2 usable IMU samples" (a user's review)
+    unset = replace(imu)
+    object.__setattr__(unset, "t_s", t * 0.0)           # (the series itself refuses repeated stamps)
+    bag = _write(tmp_path, FLAVOURS[0], [rb.BagStream("/imu/data", "imu", unset, "imu_link")], name="all")
+    with pytest.raises(DataFormatError, match=r"topic '/imu/data': all \d+ messages carry one header stamp .*stamps: record"):
         rb.read_imu(bag, "/imu/data")
 
 
@@ -616,3 +628,18 @@ def test_a_bag_given_as_the_dataset_says_what_to_write(tmp_path, flavour):
     with pytest.raises(DataFormatError, match=r"a ROS bag, not a dataset: write a dataset.yaml .*its topics: /imu "
                                               r"\[sensor_msgs/msg/Imu\]"):
         load_dataset(bag)
+
+
+def test_a_manifests_topic_the_bag_lacks_is_named_at_its_line(tmp_path):
+    """A typo in a manifest's topic named the bag and its topics, not the manifest's line where it is fixed (a user's
+    review)."""
+    from fusion_eval.datasets.manifest import load_dataset
+
+    rng = np.random.default_rng(15)
+    bag = _write(tmp_path, FLAVOURS[0], [rb.BagStream("/imu", "imu", _imu(rng, n=10), "imu"),
+                                         rb.BagStream("/gt", "pose", _poses(rng, n=5), "map")])
+    (tmp_path / "dataset.yaml").write_text(
+        "name: typo\nstreams:\n  imu: {format: rosbag, path: " + bag.name + ",\n"
+        "        topic: /imu0}\n  groundtruth: {format: rosbag, path: " + bag.name + ", topic: /gt}\n")
+    with pytest.raises(ConfigError, match=r"dataset.yaml:4: topic '/imu0' not in bag \(topics: /gt .*, /imu .*\) in "):
+        load_dataset(tmp_path)

@@ -61,7 +61,7 @@ from rosbags.highlevel import AnyReader
 from rosbags.typesys import Stores, get_types_from_msg, get_typestore
 from rosbags.typesys.msg import normalize_msgtype
 
-from ..errors import ConfigError, DataFormatError, OutputError
+from ..errors import ConfigError, DataFormatError, MissingTopicError, OutputError
 from ..geo import geodetic_to_enu
 from ..so3 import inv_T, make_T, matrix_to_quat_xyzw, quat_xyzw_to_matrix
 from ..types import ImuSeries, GnssSeries, PoseSeries
@@ -192,7 +192,7 @@ def _describe(table: dict[str, tuple[str | None, int]]) -> str:
 def _check_topic(path, table: dict[str, tuple[str | None, int]], topic: str, accepted: Sequence[str]) -> str:
     """The topic's message type, or a DataFormatError naming what the bag holds."""
     if topic not in table:
-        raise DataFormatError(path, None, f"topic '{topic}' not in bag (topics: {_describe(table)})")
+        raise MissingTopicError(path, None, f"topic '{topic}' not in bag (topics: {_describe(table)})")
     typ, count = table[topic]
     if typ is None:
         raise DataFormatError(path, None, f"topic '{topic}' mixes message types; expected one of {', '.join(accepted)}")
@@ -798,6 +798,12 @@ def _order(t_s: np.ndarray, path, topic: str) -> np.ndarray | slice:
                               "clock was set): drop them, or read the bag's record times (stamps: record)")
     if t_s.size < 2 or np.all(t_s[1:] > t_s[:-1]):
         return slice(None)
+    if t_s.size >= 3 and np.all(t_s == t_s[0]):
+        # every message but the first would be dropped as a repeat, and the run refused for "fewer than 2 usable IMU
+        # samples" (a user's review): the header stamps are not set at all
+        raise DataFormatError(path, None, f"topic '{topic}': all {t_s.size} messages carry one header stamp "
+                              f"({float(t_s[0]):.9g} s; a driver that never sets it): read the bag's record times "
+                              "(stamps: record)")
     order = np.argsort(t_s, kind="stable")
     if np.any(order[1:] < order[:-1]):
         log.info("%s: topic %s: messages are not in stamp order; sorted by stamp", path, topic)
@@ -851,11 +857,14 @@ def read_imu(path: str | Path, topic: str, stamps: str = "header") -> ImuSeries:
                      lines=np.arange(1, t.size + 1)[keep])        # message numbers: refusals name them
 
 
-def _valid_fixes(fields: dict, path, topic: str) -> np.ndarray:
-    """Mask of fixes with a fix (status >= STATUS_FIX) and finite coordinates; the others are logged."""
+def _valid_fixes(fields: dict, path, topic: str, say: bool = True) -> np.ndarray:
+    """Mask of fixes with a fix (status >= STATUS_FIX) and finite coordinates; the others are logged (``say``: the
+    reading of the stream's fixes, not the look for its first one, which said it a second time)."""
     status = np.asarray(fields["status"]).astype(int)
     finite = np.all(np.isfinite(fields["lla"]), axis=1)
     ok = (status >= 0) & finite
+    if not say:
+        return ok
     if np.any(status < 0):
         log.info("%s: topic %s: dropped %d of %d fixes with status STATUS_NO_FIX", path, topic,
                  int(np.sum(status < 0)), status.size)
@@ -939,7 +948,7 @@ def first_fix(path: str | Path, topic: str) -> tuple[float, float, float]:
         Suitable as ``origin_lla`` of :func:`read_navsatfix`.
     """
     fields = _fixed_fields(path, topic, NAVSATFIX, need_record=False)
-    ok = _valid_fixes(fields, path, topic)
+    ok = _valid_fixes(fields, path, topic, say=False)
     if not np.any(ok):
         raise DataFormatError(path, None, f"topic '{topic}' has no valid fix (all have STATUS_NO_FIX or NaN coordinates)")
     t = _stamp_s(fields["sec"], fields["nsec"])

@@ -16,7 +16,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from ..errors import ConfigError
+from ..errors import ConfigError, MissingTopicError
 from ..types import SpeedSeries
 from .streams import ReadContext
 
@@ -75,4 +75,17 @@ def read_speed(entry: dict, ctx: ReadContext) -> SpeedSeries:
     return SpeedSeries(t_s=poses.t_s, v_mps=v_b[:, 0], source=poses.source)
 
 
-READERS = {"imu": read_imu, "gnss": read_gnss, "groundtruth": read_poses, "lidar": read_poses, "odometer": read_speed}
+def _at_the_topic_line(read):
+    """``read`` with a topic the bag lacks named at the manifest's line (the topic's), where it is fixed."""
+    def named(entry: dict, ctx: ReadContext):
+        try:
+            return read(entry, ctx)
+        except MissingTopicError as exc:
+            raise ConfigError(f"{ctx.at(entry, 'topic')}: {exc.expected} in {exc.path}") from None
+    named.__name__, named.__doc__ = read.__name__, read.__doc__
+    return named
+
+
+READERS = {k: _at_the_topic_line(f) for k, f in {"imu": read_imu, "gnss": read_gnss, "groundtruth": read_poses,
+                                                 "lidar": read_poses, "odometer": read_speed}.items()}
+first_fix = _at_the_topic_line(first_fix)
