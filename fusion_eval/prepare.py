@@ -327,6 +327,7 @@ def prepare(ds: Dataset, cfg: dict) -> Prepared:
         off = _offset(cfg, ds, "odometer")
         applied["time_offset_s"]["odometer"] = off
         odo = shifted(ds.odometer, off)
+        more_warnings += filter(None, [plausible.odometer_scale(odo, gt)])
         if ds.description.get("odometer_degrade", False) and cfg["odometer"]["added_noise_std_mps"] > 0:
             # its own stream of gnss.seed (seed + 1 would be the next Monte-Carlo trial's GNSS noise)
             rng = np.random.default_rng([cfg["gnss"]["seed"], 2])

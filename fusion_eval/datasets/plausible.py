@@ -616,3 +616,29 @@ def gyro_scale(imu, gt) -> str:
             "deg/s read as rad/s? (a CSV stream's gyro_unit)" if 40 < ratio < 80 else "another unit?")
     return (f"{imu.source}: the gyro turns {ratio:.3g}x as fast as the ground truth ({gyro:.3g} against {truth:.3g} "
             f"rad/s, 90th percentiles of the rate): {hint} Every figure of the filter rests on the gyro")
+
+
+# The odometer's speed against the ground truth's, as the gyro's rate above: a factor beyond 1.5 either way is a unit
+# (km/h read as m/s: 3.6x; mph: 2.24x), not a wheel's scale error (a few percent). Such an odometer made the filter
+# diverge with a hint at the process noise (a user's review).
+MIN_TRUTH_SPEED_MPS, MAX_ODOMETER_SCALE = 1.0, 1.5
+_SPEED_UNITS = ((3.6, "km/h read as m/s"), (2.237, "mph read as m/s"), (1 / 3.6, "m/s read as km/h"))
+
+
+def odometer_scale(odo, gt) -> str:
+    """Why the odometer's speed is a constant factor off the ground truth's (a unit), or ''."""
+    if odo is None or gt is None or len(gt) < 20 or len(odo.t_s) < 20:
+        return ""
+    t, p = np.asarray(gt.t_s, float), np.asarray(gt.p_w_m, float)
+    dt = np.diff(t)
+    ok = dt > 0
+    truth = float(np.percentile(np.linalg.norm(np.diff(p, axis=0)[ok], axis=1) / dt[ok], 90))
+    inside = (odo.t_s >= t[0]) & (odo.t_s <= t[-1])
+    if not truth > MIN_TRUTH_SPEED_MPS or inside.sum() < 20:
+        return ""
+    ratio = float(np.percentile(np.abs(np.asarray(odo.v_mps, float)[inside]), 90)) / truth
+    if 1.0 / MAX_ODOMETER_SCALE <= ratio <= MAX_ODOMETER_SCALE:
+        return ""
+    unit = next((u for f, u in _SPEED_UNITS if abs(ratio / f - 1.0) < 0.1), "another unit?")
+    return (f"{odo.source}: the odometer's speed is {ratio:.3g}x the ground truth's (90th percentiles: "
+            f"{ratio * truth:.3g} against {truth:.3g} m/s): {unit}; the filter needs m/s")
