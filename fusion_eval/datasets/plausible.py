@@ -348,20 +348,30 @@ def velocity_mismatch(poses) -> str:
 MAX_GNSS_OFFSET_M = 10.0       # a constant offset of the GNSS from the ground truth beyond this is a datum, not noise
 
 
-def gnss_offset(gnss, groundtruth) -> str:
-    """Why the GNSS sits a constant distance from the ground truth (median over the fixes inside the truth's span,
-    per ENU axis, beyond :data:`MAX_GNSS_OFFSET_M` and three times the residuals' spread about it), or ''. The usual
-    cause is a datum: an altitude above mean sea level (NavSatFix's is the ellipsoid's; the geoid lies 20-50 m
-    from it in Europe) against a geodetic origin or ground truth on the ellipsoid; horizontally, another origin."""
+def _fixes_on_truth(gnss, groundtruth) -> tuple[np.ndarray, np.ndarray] | None:
+    """The real GNSS fixes inside the ground truth's span and the truth's positions at their stamps ``(gnss, truth)``,
+    each (n, 3); None with fewer than 10 of them (or a truth whose stamps do not increase)."""
     if gnss is None or groundtruth is None or len(gnss) < 10 or len(groundtruth) < 2:
-        return ""
+        return None
     from ..interp import interpolate_poses
 
     t_gt = np.asarray(groundtruth.t_s)
     inside = (gnss.t_s >= t_gt[0]) & (gnss.t_s <= t_gt[-1]) & _real(gnss)
     if inside.sum() < 10 or np.any(np.diff(t_gt) <= 0):
+        return None
+    return np.asarray(gnss.p_w_m, float)[inside], interpolate_poses(groundtruth, gnss.t_s[inside]).p_w_m
+
+
+def gnss_offset(gnss, groundtruth) -> str:
+    """Why the GNSS sits a constant distance from the ground truth (median over the fixes inside the truth's span,
+    per ENU axis, beyond :data:`MAX_GNSS_OFFSET_M` and three times the residuals' spread about it), or ''. The usual
+    cause is a datum: an altitude above mean sea level (NavSatFix's is the ellipsoid's; the geoid lies 20-50 m
+    from it in Europe) against a geodetic origin or ground truth on the ellipsoid; horizontally, another origin."""
+    pair = _fixes_on_truth(gnss, groundtruth)
+    if pair is None:
         return ""
-    d = gnss.p_w_m[inside] - interpolate_poses(groundtruth, gnss.t_s[inside]).p_w_m
+    d = pair[0] - pair[1]
+    n_fixes = len(d)
     off = np.median(d, axis=0)
     spread = np.median(np.abs(d - off), axis=0) * 1.4826
     big = (np.abs(off) > MAX_GNSS_OFFSET_M) & (np.abs(off) > 3.0 * spread)
@@ -371,7 +381,7 @@ def gnss_offset(gnss, groundtruth) -> str:
             "-100 to +85 m from WGS84's ellipsoid; NavSatFix's altitude is the ellipsoid's)" if big[2] and not big[:2].any()
             else "another origin or datum than the ground truth's (the manifest's geodetic_origin)")
     return (f"{gnss.source}: the GNSS sits a constant east, north, up {off[0]:+.1f}, {off[1]:+.1f}, {off[2]:+.1f} m from "
-            f"the ground truth (median over {int(inside.sum())} fixes; their spread about it {spread.max():.1f} m): "
+            f"the ground truth (median over {n_fixes} fixes; their spread about it {spread.max():.1f} m): "
             f"{what}; the filter, started on the ground truth, is pulled there and every figure carries the offset")
 
 
@@ -397,16 +407,10 @@ def gnss_frame(gnss, groundtruth) -> str:
     """Why the GNSS track is the ground truth's turned about up or with its axes swapped, or ''. Both are usually
     a frame given wrongly: ground truth in a map or UTM grid frame against ENU fixes (a 5 deg yaw: GNSS APE 21 m
     against 2.3, no word), or local NED positions declared as ENU (229 m; only the NIS said anything)."""
-    if gnss is None or groundtruth is None or len(gnss) < 10 or len(groundtruth) < 2:
+    pair = _fixes_on_truth(gnss, groundtruth)
+    if pair is None:
         return ""
-    from ..interp import interpolate_poses
-
-    t_gt = np.asarray(groundtruth.t_s)
-    inside = (gnss.t_s >= t_gt[0]) & (gnss.t_s <= t_gt[-1]) & _real(gnss)
-    if inside.sum() < 10 or np.any(np.diff(t_gt) <= 0):
-        return ""
-    g = np.asarray(gnss.p_w_m, float)[inside]
-    r = interpolate_poses(groundtruth, gnss.t_s[inside]).p_w_m
+    g, r = pair
     if float(np.max(np.ptp(r[:, :2], axis=0))) < MIN_FRAME_EXTENT_M:
         return ""
     plain = float(np.sqrt(np.mean(np.sum((g[:, :2] - g[:, :2].mean(0) - (r[:, :2] - r[:, :2].mean(0))) ** 2, axis=1))))
