@@ -57,6 +57,10 @@ class DataRangeError(FusionEvalError):
     """Streams that must overlap in time do not, or too little data is left to work with."""
 
 
+class ShiftAtSearchEdgeError(DataRangeError):
+    """Two streams' signals match best at the end of the searched time shifts: their clocks or axes do not meet."""
+
+
 class FilterDivergedError(FusionEvalError):
     """The filter produced a non-finite or non-positive-definite state."""
 

@@ -1281,7 +1281,8 @@ def _stream(t, source="s.csv"):
     return SimpleNamespace(t_s=np.asarray(t, float), source=source, lines=np.arange(2, len(t) + 2))
 
 
-@pytest.mark.parametrize("scale,unit", [(1e9, "nanoseconds"), (1e6, "microseconds"), (1e3, "milliseconds")])
+@pytest.mark.parametrize("scale,unit", [(1e9, "POSIX time in nanoseconds"), (1e6, r"POSIX time in microseconds \(or a boot clock"),
+                                        (1e3, r"POSIX time in milliseconds \(or a boot clock")])
 def test_posix_stamps_in_another_unit_are_named_by_their_magnitude(scale, unit):
     """Every stream stamped in ns read as seconds passed the span checks (all alike): the filter 'diverged at
     t=1767225636000000000.000 s' (a user's review). The magnitude names the unit; a 100 Hz IMU in ms read as s is
@@ -1290,7 +1291,7 @@ def test_posix_stamps_in_another_unit_are_named_by_their_magnitude(scale, unit):
     from fusion_eval.errors import DataFormatError
 
     t = 1.7672256e9 + np.arange(0.0, 120.0, 0.01)
-    with pytest.raises(DataFormatError, match=rf"imu.csv:2: imu: the first stamp is .* POSIX time in {unit} read as "):
+    with pytest.raises(DataFormatError, match=rf"imu.csv:2: imu: the first stamp is .*: {unit}.* read as seconds"):
         plausible.check_dataset(_stream(t * scale, "imu.csv"), {"gnss": None})
     plausible.check_dataset(_stream(t, "imu.csv"), {"gnss": None})            # seconds: nothing to say
 
@@ -1301,6 +1302,8 @@ def test_an_imu_sampled_seconds_apart_is_refused_as_another_unit():
 
     with pytest.raises(DataFormatError, match=r"imu.csv:2: the IMU's samples are 10 s apart .* \(milliseconds read as seconds"):
         plausible.check_imu(_stream(np.arange(0.0, 120000.0, 10.0), "imu.csv"))
+    with pytest.raises(DataFormatError, match=r"samples are 1 s apart"):     # a 1 kHz IMU in ms
+        plausible.check_imu(_stream(np.arange(0.0, 120000.0, 1.0), "imu.csv"))
     plausible.check_imu(_stream(np.arange(0.0, 120.0, 0.1), "imu.csv"))     # KITTI's 10 Hz OXTS passes
 
 
@@ -1308,7 +1311,8 @@ def test_a_boot_clock_beside_posix_time_is_named():
     from fusion_eval.datasets.plausible import clock_hint
 
     hint = clock_hint("IMU", 812.5, "ground-truth", 1767225600.0)
-    assert "the IMU stamps count from a device's boot (812.500 s)" in hint and "about 1767224787.500 s" in hint
+    assert "the IMU stamps start near 0 (812.500 s: a device's boot clock" in hint
+    assert "add about 1767224787.500 s to the IMU stream's time_offset_s" in hint
     assert clock_hint("IMU", 1767225600.0, "GNSS", 1767225900.0) == "" and clock_hint("a", 5.0, "b", 9.0) == ""
 
 

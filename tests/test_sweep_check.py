@@ -634,7 +634,18 @@ def test_a_sweep_ranks_by_the_objective_it_is_given(small, tmp_path):
                                   "--no-plots"])
     assert r.exit_code == 0, r.output
     assert obj not in (out / "sweep.csv").read_text().splitlines()[0]
-    assert "Ranked by the mean fused APE translation RMSE" in (out / "sweep.md").read_text()
+    md = (out / "sweep.md").read_text()
+    assert "Ranked by the mean fused APE translation RMSE" in md
+    # every cell under its own header (the default's row lost its APE cell once, shifting the rest one column left)
+    head = next(ln for ln in md.splitlines() if ln.startswith("|   rank"))
+    names = [c.strip() for c in head.strip("|").split("|")]
+    rows = _rows(out)
+    for ln in (ln for ln in md.splitlines() if re.match(r"\|\s+\d+ \| eskf", ln)):
+        cells = dict(zip(names, (c.strip() for c in ln.strip("|").split("|"))))
+        row = rows[cells["setting"]]
+        assert float(cells["APE trans RMSE [m]"]) == pytest.approx(float(row["fused_ape_trans_rmse_m"]), abs=6e-4)
+        assert float(cells["std [m]"]) == pytest.approx(float(row["fused_ape_trans_rmse_m_std"]), abs=6e-4)
+        assert float(cells["APE rot RMSE [deg]"]) == pytest.approx(float(row["fused_ape_rot_rmse_deg"]), abs=6e-4)
     r = CliRunner().invoke(main, ["-q", "sweep", str(small), "--grid", str(sw), "--out", str(tmp_path / "t"),
                                   "--objective", "fsued.ape.rmse"])
     assert r.exit_code == 2 and "'fsued.ape.rmse' is no metric key" in r.stderr and not (tmp_path / "t").exists()

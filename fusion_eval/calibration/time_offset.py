@@ -35,7 +35,7 @@ from numba import njit
 from scipy.ndimage import gaussian_filter1d
 from scipy.spatial.transform import Rotation, Slerp
 
-from ..errors import DataRangeError
+from ..errors import DataRangeError, ShiftAtSearchEdgeError
 from ..types import ImuSeries, PoseSeries
 
 GRID_S = 0.005          # comparison grid; the minimum is refined below it by a parabola
@@ -305,7 +305,7 @@ def measure_shifts(imu: ImuSeries, lidar: PoseSeries, max_shift_s: float = MAX_S
     rt, rate_loo, n_r = _search(rate_cost_terms, _rate_cost, imu, lidar, grid, blocks, max_shift_s) if rate else nan
     for name, v in (("accelerometer", acc), ("gyro", rt)):
         if np.isfinite(v) and abs(v) >= max_shift_s - 2 * GRID_S:
-            raise DataRangeError(f"the {name} of {imu.source} matches the lidar of {lidar.source} best at the end of the "
+            raise ShiftAtSearchEdgeError(f"the {name} of {imu.source} matches the lidar of {lidar.source} best at the end of the "
                                  f"searched range (+/-{max_shift_s * 1000:.0f} ms): the streams do not share one clock "
                                  "to within that, or do not share axes (the IMU's frame not the one the lidar's "
                                  "extrinsic assumes: an IMU mounted rotated, FRD for FLU, a transform transposed); "

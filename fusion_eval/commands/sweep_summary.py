@@ -231,11 +231,12 @@ def write_summary(tasks: list[Task], out_dir: Path, keys: list[str], plots: bool
             ["rank", "variant", "setting", *own, *(["std"] if sd and own else []), "APE trans RMSE [m]",
              *(["std [m]"] if sd and not own else []), "APE rot RMSE [deg]", "RPE 1 frame [m]", "fused/lidar",
              "fused/GNSS", "time [s]"],
-            [[i, r["variant"], r["setting"], *([r[metric]] if own else []), *([sd[i - 1]] if sd else []),
-              *([r[METRIC]] if own else []), r.get(rot), r.get(rpe), r["fused_over_lidar"], r["fused_over_gnss"],
-              r["runtime_s"]] for i, r in enumerate(sub, 1)],
+            [[i, r["variant"], r["setting"], *([r[metric]] if own else []), *([sd[i - 1]] if sd and own else []),
+              r.get(METRIC), *([sd[i - 1]] if sd and not own else []), r.get(rot), r.get(rpe), r["fused_over_lidar"],
+              r["fused_over_gnss"], r["runtime_s"]] for i, r in enumerate(sub, 1)],
             align="rll" + "r" * len(own) + ("r" if sd else "") + "rrrrrr",
-            decimals=[0, 0, 0, *([4] * len(own)), *([3] if sd else []), 3, 3, 4, 3, 3, 1])
+            decimals=[0, 0, 0, *([4] * len(own)), *([4] if sd and own else []), 3, *([3] if sd and not own else []),
+                      3, 4, 3, 3, 1])
         L.append("")
     # averaged across datasets: only settings that finished on every dataset
     avg: dict = {}

@@ -21,7 +21,7 @@ MAX_LAG_S = 1.0          # an IMU channel's latency: beyond a second it is a clo
 LAG_NOTE = (f"a channel lag is a latency of milliseconds (KITTI's OXTS: 0.06 s), at most {MAX_LAG_S:g} s here; a clock "
             "offset between streams goes in time_offset_s")
 MAX_IMU_GAP_S = 60.0
-MAX_IMU_STEP_S = 1.0     # a median step above this is no IMU's (KITTI's OXTS, the slowest here: 0.1 s)
+MAX_IMU_STEP_S = 0.2     # a median step above this is no IMU's (KITTI's OXTS, the slowest here: 0.1 s; a 4 kHz one in ms: 0.25)
 FLAG_IMU_GAP_S = 1.0     # shorter stops are bridged by the filter (imu.gap_factor); longer ones are flagged
 MAX_SPAN_RATIO = 50.0
 # the Earth's circumference: more than any Earth-fixed frame holds (ENU, ECEF's 6,400 km, UTM's northings of up to
@@ -48,9 +48,9 @@ def check_imu(imu) -> None:
         # no IMU a filter integrates samples this slowly: its stamps are in another unit (ms read as s: a 100 Hz IMU
         # 10 s apart; the others' spans then did not meet it and nothing named the unit, a user's review)
         raise DataFormatError(imu.source, line_of(imu.lines, 0),
-                              f"the IMU's samples are {med:.6g} s apart (median step), where an IMU gives 1 to 1000 "
-                              "per second: its stamps are in another unit (milliseconds read as seconds?); give seconds, "
-                              "or the unit (csv format: time_unit: ms)")
+                              f"the IMU's samples are {med:.6g} s apart (median step), where an IMU gives 10 to "
+                              "thousands per second: its stamps are in another unit (milliseconds read as seconds?); "
+                              "give seconds, or the unit (csv format: time_unit: ms)")
     bad = np.flatnonzero(d > max(MAX_IMU_GAP_S, 1000.0 * med))
     if bad.size:
         i = int(bad[0]) + 1
@@ -256,7 +256,10 @@ def speed_glitches(streams: dict, platform: str | None, max_speed_mps: float = M
 # Seconds beyond this (year 5138) are no clock's: POSIX time in ms, us or ns read as seconds. The unit is told by
 # the magnitude of a 21st-century POSIX stamp (1.0e9..4.1e9 s) in each unit.
 MAX_STAMP_S = 1e11
-_UNIT_OF_MAGNITUDE = ((1e17, "nanoseconds", "ns"), (1e14, "microseconds", "us"), (1e11, "milliseconds", "ms"))
+_UNIT_OF_MAGNITUDE = ((1e17, "POSIX time in nanoseconds", "ns"),
+                      (1e14, "POSIX time in microseconds (or a boot clock in nanoseconds)", "us or ns"),
+                      (1e11, "POSIX time in milliseconds (or a boot clock in nanoseconds: a day's uptime is 8.6e13)",
+                       "ms or ns"))
 
 
 def check_stamp_magnitude(name: str, series) -> None:
@@ -274,8 +277,8 @@ def check_stamps_in_seconds(name: str, source, lines, t_s, how: str = "csv forma
     big = abs(float(t[0]))
     word, unit = next((w, u) for lim, w, u in _UNIT_OF_MAGNITUDE if big >= lim)
     raise DataFormatError(source, line_of(lines, 0),
-                          f"{name}: the first stamp is {float(t[0]):.6g} s, beyond any clock in seconds: POSIX time in "
-                          f"{word} read as seconds? Give seconds ({how.format(unit=unit)})")
+                          f"{name}: the first stamp is {float(t[0]):.6g} s, beyond any clock in seconds: {word} read "
+                          f"as seconds? Give seconds ({how.format(unit=unit)})")
 
 
 # a clock below this counts from a device's boot (12 days), one between the two bounds is POSIX time (1973-2100)
@@ -284,19 +287,20 @@ POSIX_RANGE_S = (1e8, 4.1e9)
 
 
 def clock_hint(a: str, a_t0: float, b: str, b_t0: float) -> str:
-    """Why two streams' stamps do not meet, where their starts tell: one clock counts from a device's boot and the
-    other is POSIX time (a bag's IMU on its driver's boot clock). '' otherwise."""
+    """Why two streams' stamps do not meet, where their starts tell: one clock starts near 0 (a device's boot clock,
+    or time relative to a recording's start) and the other is POSIX time (a bag's IMU on its driver's boot clock).
+    '' otherwise."""
     def kind(t):
-        return ("boot" if 0 <= t < BOOT_CLOCK_MAX_S else
+        return ("zero" if 0 <= t < BOOT_CLOCK_MAX_S else
                 "posix" if POSIX_RANGE_S[0] <= t <= POSIX_RANGE_S[1] else "")
     ka, kb = kind(a_t0), kind(b_t0)
-    if {ka, kb} != {"boot", "posix"}:
+    if {ka, kb} != {"zero", "posix"}:
         return ""
-    boot, posix = (a, b) if ka == "boot" else (b, a)
-    d = (b_t0 - a_t0) if ka == "boot" else (a_t0 - b_t0)
-    return (f": the {boot} stamps count from a device's boot ({min(a_t0, b_t0):.3f} s), the {posix} stamps are POSIX "
-            f"time: give the {boot} stream's time_offset_s (its start against the other's: about {d:.3f} s), or "
-            "stamp both on one clock")
+    near0, posix = (a, b) if ka == "zero" else (b, a)
+    d = (b_t0 - a_t0) if ka == "zero" else (a_t0 - b_t0)
+    return (f": the {near0} stamps start near 0 ({min(a_t0, b_t0):.3f} s: a device's boot clock, or time from the "
+            f"recording's start), the {posix} stamps are POSIX time: add about {d:.3f} s to the {near0} stream's "
+            "time_offset_s (their starts' difference), or stamp both on one clock")
 
 
 def check_dataset(imu, streams: dict) -> None:
@@ -590,10 +594,17 @@ def truth_orientation_placeholder(gt) -> str | None:
 
 
 # The gyro's turning against the ground truth's: the 90th percentiles of their angular rate magnitudes (robust to a
-# clock offset and to straight stretches), compared where the truth turns at all. A gyro in rad/s declared deg/s
-# reads 57x too slow, which no bound on the rates catches (a car turning at 0.009 rad/s is plausible): fused APE
-# 112.9 m, 90.9 deg, exit 0 (a user's review). A factor beyond 3 either way is a unit, not a scale-factor error.
-MIN_TRUTH_TURN_RPS, MAX_GYRO_SCALE = 0.02, 3.0
+# clock offset and to straight stretches), each over RATE_BASELINE_S (a motion-capture truth at 100 Hz with 0.01 deg
+# of jitter differenced sample to sample 'turned' at 0.06 rad/s standing still: a review), compared where the truth
+# turns at all. A gyro in rad/s declared deg/s reads 57x too slow, which no bound on the rates catches (a car turning
+# at 0.009 rad/s is plausible): fused APE 112.9 m, 90.9 deg, exit 0 (a user's review). A factor beyond 3 either way is
+# a unit, not a scale-factor error.
+MIN_TRUTH_TURN_RPS, MAX_GYRO_SCALE, RATE_BASELINE_S = 0.05, 3.0, 0.2
+
+
+def _stride(t: np.ndarray, baseline_s: float) -> int:
+    """Samples per ``baseline_s`` at the median step of ``t`` (at least one)."""
+    return max(1, int(np.ceil(baseline_s / max(float(np.median(np.diff(t))), 1e-9))))
 
 
 def gyro_scale(imu, gt) -> str:
@@ -602,24 +613,30 @@ def gyro_scale(imu, gt) -> str:
         return ""
     t = np.asarray(gt.t_s, float)
     inside = (imu.t_s >= t[0]) & (imu.t_s <= t[-1])
-    if inside.sum() < 100:
+    if inside.sum() < 100 or np.any(np.diff(t) <= 0):
+        return ""
+    k = _stride(t, RATE_BASELINE_S)
+    if t.size <= k + 10:
         return ""
     R = gt.R_wb()
-    dt = np.diff(t)
-    ok = dt > 0
-    cos = (np.einsum("nji,nji->n", R[:-1], R[1:]) - 1.0) / 2.0       # trace(R_k^T R_k+1) = 1 + 2 cos(angle)
-    rate_gt = np.arccos(np.clip(cos[ok], -1.0, 1.0)) / dt[ok]
+    cos = (np.einsum("nji,nji->n", R[:-k], R[k:]) - 1.0) / 2.0       # trace(R_a^T R_b) = 1 + 2 cos(angle)
+    rate_gt = np.arccos(np.clip(cos, -1.0, 1.0)) / (t[k:] - t[:-k])
     truth = float(np.percentile(rate_gt, 90))
     if not truth > MIN_TRUTH_TURN_RPS:
         return ""
-    gyro = float(np.percentile(np.linalg.norm(np.asarray(imu.w_b_rps, float)[inside], axis=1), 90))
+    ti, w = np.asarray(imu.t_s, float)[inside], np.asarray(imu.w_b_rps, float)[inside]
+    m = _stride(ti, RATE_BASELINE_S)
+    c = np.cumsum(np.r_[np.zeros((1, 3)), w], axis=0)
+    w_mean = (c[m:] - c[:-m]) / m if w.shape[0] > m else w
+    gyro = float(np.percentile(np.linalg.norm(w_mean, axis=1), 90))
     ratio = gyro / truth
     if 1.0 / MAX_GYRO_SCALE <= ratio <= MAX_GYRO_SCALE:
         return ""
     hint = ("rad/s declared as deg/s? (a CSV stream's gyro_unit)" if 1 / 80 < ratio < 1 / 40 else
             "deg/s read as rad/s? (a CSV stream's gyro_unit)" if 40 < ratio < 80 else "another unit?")
     return (f"{imu.source}: the gyro turns {ratio:.3g}x as fast as the ground truth ({gyro:.3g} against {truth:.3g} "
-            f"rad/s, 90th percentiles of the rate): {hint} Every figure of the filter rests on the gyro")
+            f"rad/s, 90th percentiles of the rate over {RATE_BASELINE_S:g} s): {hint} Every figure of the filter rests "
+            "on the gyro")
 
 
 # The odometer's speed against the ground truth's, as the gyro's rate above: a factor beyond 1.5 either way is a unit

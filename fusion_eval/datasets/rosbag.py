@@ -798,12 +798,6 @@ def _order(t_s: np.ndarray, path, topic: str) -> np.ndarray | slice:
                               "clock was set): drop them, or read the bag's record times (stamps: record)")
     if t_s.size < 2 or np.all(t_s[1:] > t_s[:-1]):
         return slice(None)
-    if t_s.size >= 3 and np.all(t_s == t_s[0]):
-        # every message but the first would be dropped as a repeat, and the run refused for "fewer than 2 usable IMU
-        # samples" (a user's review): the header stamps are not set at all
-        raise DataFormatError(path, None, f"topic '{topic}': all {t_s.size} messages carry one header stamp "
-                              f"({float(t_s[0]):.9g} s; a driver that never sets it): read the bag's record times "
-                              "(stamps: record)")
     order = np.argsort(t_s, kind="stable")
     if np.any(order[1:] < order[:-1]):
         log.info("%s: topic %s: messages are not in stamp order; sorted by stamp", path, topic)
@@ -851,6 +845,13 @@ def read_imu(path: str | Path, topic: str, stamps: str = "header") -> ImuSeries:
     _check_stamps(stamps)
     fields = _fixed_fields(path, topic, IMU, need_record=stamps == "record")
     t = _times(fields, stamps)
+    if t.size >= 3 and np.all(t == t[0]):
+        # every sample but the first would be dropped as a repeat, and the run refused for "fewer than 2 usable IMU
+        # samples" (a user's review): the stamps are not set at all
+        raise DataFormatError(path, None, f"topic '{topic}': all {t.size} messages carry one "
+                              + ("header stamp" if stamps == "header" else "record time")
+                              + f" ({float(t[0]):.9g} s" + ("; a driver that never sets it): read the bag's record "
+                                                          "times (stamps: record)" if stamps == "header" else ")"))
     keep = _order(t, path, topic)
     log.debug("%s: %d IMU messages of %s (%s route)", path, t.size, topic, fields["method"])
     return ImuSeries(t_s=t[keep], f_b_mps2=fields["f"][keep], w_b_rps=fields["w"][keep], source=_source(path, topic),

@@ -13,10 +13,11 @@ import numpy as np
 
 
 def every(n: int, at_most: int = 2500) -> slice | np.ndarray:
-    """The indices of at most ``at_most`` + 1 of ``n`` points, evenly strided, and always the last: a plot 1000
-    pixels wide shows no more, and its end is the series' end (a stride of 13 over a simulated 300 s at 100 Hz
-    stopped 0.09 s short, and the bias plot's "final" values were not the filter's final biases)."""
-    step = max(1, -(-n // at_most))
+    """The indices of at most ``at_most`` of ``n`` points, evenly strided, and always the last: a plot 1000 pixels
+    wide shows no more, and its end is the series' end (a stride of 13 over a simulated 300 s at 100 Hz stopped
+    0.09 s short, and the bias plot's "final" values were not the filter's final biases). The last point counts in
+    the budget, so that thinning what was thinned changes nothing."""
+    step = max(1, -(-(n - 1) // max(at_most - 1, 1)))
     if step == 1 or n == 0 or (n - 1) % step == 0:
         return slice(None, None, step)
     return np.r_[np.arange(0, n, step), n - 1]
