@@ -11,7 +11,7 @@ from __future__ import annotations
 import json
 import logging
 import time
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from pathlib import Path
 from typing import Callable
 
@@ -22,7 +22,7 @@ from ..datasets.tum import format_tum
 from ..errors import ConfigError
 from .. import trials as mc
 from ..evaluation import keys, span
-from ..evaluation.run_metrics import consistency, inconsistent_streams, segments
+from ..evaluation.run_metrics import consistency, inconsistent_streams, segments, truth_velocity_w
 from ..evaluation.trajectory import evaluate, ratio
 from ..filters import observations
 from ..outputs import StagedDir, dataset_roots, default_dir, repeated_path
@@ -218,7 +218,8 @@ def _compare(dataset_path: Path | None, variants: list[str], variant_dir: Path |
                              and r["estimate"] == "fused"]) for v in variants):
             log.warning(mc.NOTHING_RANDOM.format(n=n_trials))
 
-    gt_vb = body_velocity(gt) if gt.v_w_mps is not None else None
+    # the truth's velocity as the run's plots take it (its positions' rate where its own is off them: KITTI's Up)
+    gt_vb = body_velocity(replace(gt, v_w_mps=truth_velocity_w(gt)[0])) if gt.v_w_mps is not None else None
     truth_body = None if gt_vb is None else _rms_lateral_vertical(gt_vb)
 
     # per-segment breakdown: every variant and the unfiltered lidar and GNSS, windows along the route
