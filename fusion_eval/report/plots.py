@@ -577,17 +577,31 @@ def plot_sweep(out_dir: Path, rows: list[dict], keys: list[str], metric: str, ta
                     if np.isfinite(Z[i, j]):
                         # dark text on the bright (best, yellow) cells, white on the dark ones
                         r, g, b, _ = im.cmap(im.norm(Z[i, j]))
-                        ax.text(j, i, f"{Z[i, j]:.2f}", ha="center", va="center", fontsize=8,
+                        ax.text(j, i, f"{Z[i, j]:.3f}", ha="center", va="center", fontsize=8,
                                 color="black" if 0.299 * r + 0.587 * g + 0.114 * b > 0.5 else "white")
             ax.set_xlabel(kx)
             ax.set_ylabel(ky)
             fig.colorbar(im, label=f"{metric_label or 'fused APE RMSE [m]'} (mean over datasets and variants)")
-            ax.set_title("2-D grid")
+            if np.isfinite(Z).any():          # the best cell outlined (three cells read 0.77 at two decimals)
+                bi, bj = np.unravel_index(int(np.nanargmin(Z)), Z.shape)
+                ax.add_patch(plt.Rectangle((bj - 0.5, bi - 0.5), 1, 1, fill=False, ec="red", lw=2))
+            d = [r[metric] for r in ok if r["setting"] == "default" and is_number(r.get(metric))]
+            ax.set_title(f"{metric_label or 'Fused APE RMSE [m]'} over the 2-D grid (best outlined)"
+                         + (f"\nthe default configuration, off the grid: {np.mean(d):.3f}" if d else ""), fontsize=9)
             fig.tight_layout()
             save(fig, "sweep_heatmap.png")
     if best is not None:
+        # the best against the default; where the default is the best, against the runner-up (two identical curves,
+        # both labelled 'default', said nothing: a plot review)
+        other = "default"
+        if best["setting"] == "default":
+            rest = sorted((r for r in ok if r["setting"] != "default" and r["variant"] == best["variant"]
+                           and is_number(r.get(metric))), key=lambda r: r[metric])
+            other = rest[0]["setting"] if rest else None
         fig, ax = plt.subplots(figsize=(10, 4))
-        for name, style in ((best["setting"], "-"), ("default", ":")):
+        for name, style in ((best["setting"], "-"), (other, ":")):
+            if name is None:
+                continue
             # the best setting's own dataset, trial 0 (the curve of one run)
             t = next((t for t in tasks if t.variant == best["variant"] and t.setting == name and t.trial == 0
                       and t.dataset == best.get("dataset", t.dataset)), None)
@@ -607,7 +621,9 @@ def plot_sweep(out_dir: Path, rows: list[dict], keys: list[str], metric: str, ta
                     label=f"{name} ({Path(t.dataset).name}, {rmse})")
         ax.set_xlabel("time since start [s]")
         ax.set_ylabel("APE translation [m]")
-        ax.set_title("Best setting against the default" + (f" (ranked by {metric_label})" if metric_label else ""))
+        ax.set_title(("Best setting against the default" if other == "default" else
+                      f"Best setting (the default) against the runner-up ({other})" if other else "Best setting")
+                     + (f" (ranked by {metric_label})" if metric_label else ""))
         ax.grid(alpha=0.3)
         ax.legend(fontsize=8)
         save(fig, "sweep_best_vs_default.png")
