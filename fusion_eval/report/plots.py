@@ -10,7 +10,6 @@ import matplotlib
 
 matplotlib.use("Agg")
 import matplotlib.pyplot as plt  # noqa: E402
-import matplotlib.colors as mcolors  # noqa: E402
 import numpy as np  # noqa: E402
 
 # A fixed title height: matplotlib otherwise measures every axis' tick labels at each draw to lift titles
@@ -106,10 +105,15 @@ def _metres(x: float) -> str:
 
 
 def _log_floor(errs) -> float:
-    """The floor of a log-scale error plot: half the smallest positive error drawn (an anchored start is exactly 0),
-    not a fixed millimetre that flattened a sub-millimetre estimate onto the axis."""
-    pos = [float(np.min(e[e > 0])) for e in errs if e is not None and np.any(e > 0)]
-    return max(0.5 * min(pos), 1e-9) if pos else 1e-3
+    """The floor of a log-scale error plot: for each estimate half its smallest positive error (an anchored start is
+    exactly 0), but no more than three decades below its largest; the lowest over the estimates. Not a fixed
+    millimetre, which flattened a sub-millimetre estimate onto the axis, nor an anchored start's first micrometres,
+    which gave 3-12 of the axis' decades to the drive's first second (a plot review: a simulated drive's axis reached
+    1e-9 m, its errors lived between 0.1 and 10 m). The minimum and maximum are the thinned curves' too
+    (:func:`fusion_eval.report.thin.envelope`), so the floor is the same drawn from either."""
+    floors = [max(0.5 * float(np.min(e[e > 0])), 1e-3 * float(np.max(e))) for e in errs
+              if e is not None and np.any(e > 0)]
+    return max(min(floors), 1e-9) if floors else 1e-3
 
 
 def _gapped(t: np.ndarray, y: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -188,7 +192,9 @@ def biases_figure(t_s: np.ndarray, ba: np.ndarray, bg: np.ndarray, sigma: np.nda
     rows = ((ba, BA_ID, MG_MPS2, "mg", "accelerometer", None if truth is None else truth.accel_b_mps2),
             (bg, BG_ID, DEG_H_RPS, "deg/h", "gyro", None if truth is None else truth.gyro_b_rps))
     for r, (b_all, sl, unit_si, unit, what, tb) in enumerate(rows):
-        for i, (axis, c) in enumerate(zip("xyz", ("tab:red", "tab:green", "tab:blue"))):
+        # one panel per axis, all in the fused estimate's colour (red, green, blue per axis read as the fused, GNSS
+        # and lidar estimates of the other plots: a plot review)
+        for i, (axis, c) in enumerate(zip("xyz", (COLORS["fused"],) * 3)):
             ax = axes[r, i]
             b, s3 = b_all[:, i] / unit_si, 3 * sigma[:, sl + i] / unit_si
             ax.fill_between(t, b - s3, b + s3, color=c, alpha=0.12, lw=0)
@@ -300,10 +306,12 @@ def plot_att_vel_error_sigma(path: Path, av: dict) -> None:
     _save(att_vel_error_figure(av), path)
 
 
-# the unfiltered estimates beside variants: greys, which no variant's colour is (the lidar's blue and the GNSS's green
-# are the first and third variants' colours)
+# the unfiltered estimates beside variants: greys, which no variant's colour is
 _UNFILTERED = {"lidar": ("black", ":"), "gnss": ("0.55", ".")}
-_VARIANT_COLORS = [c for c in _VCOLORS if mcolors.to_hex(c) != "#7f7f7f"]
+# the first variant in the run plots' fused red, the next in colours no estimate of a run's plots has (blue was the
+# first variant here and the lidar there, orange a variant here and dead reckoning there: a plot review), then the rest
+_VARIANT_COLORS = ["tab:red", "tab:brown", "tab:pink", "tab:olive", "tab:cyan", "tab:purple", "tab:blue", "tab:green",
+                   "tab:orange"]
 
 
 def plot_compare_ape(path: Path, runs, evs_unfiltered: dict, t0: float) -> None:
