@@ -79,6 +79,12 @@ CORE: dict[str, Spec] = {
     "imu.gap_factor": S(1.5, "an IMU interval longer than gap_factor x the median interval is a gap (above 1: at 1 or "
                              "below every interval is one)", above=1.0),
     "imu.gap_noise_scale": S(10.0, "process noise std multiplier on intervals that are gaps", positive=True, reads="filter"),
+    "imu.gap_turn_rate_dps": S(10.0, "std of the unknown turn rate over an IMU gap, per axis, deg/s: at the first sample "
+                                     "after a gap of T s the attitude's variance grows by (rate x T)^2 (the KITTI drives' "
+                                     "own RMS turn rate: 8-12 deg/s)", nonneg=True, reads="filter"),
+    "imu.gap_accel_mps2": S(0.5, "std of the unknown acceleration over an IMU gap, per axis, m/s^2: the velocity's "
+                                 "variance grows by (accel x T)^2 (a car's typical longitudinal acceleration)",
+                            nonneg=True, reads="filter"),
     "lidar.time_offset_s": S(None, "added to lidar stamps; 'auto' = estimated from the data (accelerometer vs lidar "
                                    "acceleration; not together with imu.accel_lag_s=auto); null = the manifest's value "
                                    "(default 0)", "float", nullable=True, auto=True),

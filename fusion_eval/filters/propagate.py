@@ -45,7 +45,8 @@ FilterArrays = namedtuple("FilterArrays", [
     "t",          # (N,) sample stamps, s
     "u",          # (N, m) input rows (IMU: f_b, w_b; odometer + gyro: v, w_b)
     "prm",        # the formulation's parameter record (named indices in its module)
-    "gap",        # (2,) gap threshold (s) and the white-noise variance scale of a gap
+    "gap",        # (4,) gap threshold (s), the white-noise variance scale of a gap, and the variances of the
+                  # unknown turn rate and acceleration a gap hid (rad^2/s^2, m^2/s^4)
     "aux",        # formulation scratch (e.g. the nominal filter's quaternion sign reference)
     "cidx",       # (15,) own index of each canonical core state, -1 where the map is not the identity
     "rec_x",      # (N, NOMINAL.n) recorded nominal states
@@ -64,6 +65,19 @@ def {name}(a, n, k, t_target, cov):
         qscale = a.gap[1] if (k > 0 and a.t[k] - a.t[k - 1] > a.gap[0]) else 1.0
         if dt > 0.0:
             _step(a.x, a.P, n, u0, a.u[k], dt, qscale, a.prm, a.aux, cov)
+            if cov and qscale != 1.0:
+                # the first sample after a gap: the motion the gap hid, an unknown turn rate and acceleration over
+                # its T seconds, added to the attitude and velocity ((rate T)^2, (accel T)^2), where the formulation's
+                # blocks are the canonical ones. Here, not spread over the gap: inside it the inputs are interpolated,
+                # not measured, and fixes there would correct the attitude against a made-up motion (measured)
+                T = a.t[k] - a.t[k - 1]
+                for i in range(3):
+                    j = a.cidx[{th} + i]
+                    if j >= 0:
+                        a.P[j, j] += a.gap[2] * T * T
+                    j = a.cidx[{v} + i]
+                    if j >= 0:
+                        a.P[j, j] += a.gap[3] * T * T
         t0 = a.t[k]
         u0 = a.u[k]                 # a view: the inputs are never written
         a.rec_x[k, :] = a.x
@@ -81,7 +95,9 @@ def {name}(a, n, k, t_target, cov):
     a.last[{u}:] = u0
     return k
 '''
-_DIGEST = hashlib.sha1((_LOOP + repr((LAST_T, LAST_U))).encode()).hexdigest()[:10]  # not a state index
+_TH, _V = CANONICAL.start("TH"), CANONICAL.start("V")
+_DIGEST = hashlib.sha1((_LOOP + repr((LAST_T, LAST_U, _TH, _V))).encode()).hexdigest()[:10]  # not a state index
+DIGEST = _DIGEST        # what the compiled replay and the smoother, built on this loop, put in their own names
 
 
 def compiled_loop(module_name: str, step, record_cov):
@@ -96,7 +112,7 @@ def compiled_loop(module_name: str, step, record_cov):
     mod = sys.modules[module_name]
     name = f"_predict_to_{_DIGEST}"
     ns = {"_step": step, "_record_cov": record_cov, "np": np, "__name__": module_name}
-    exec(compile(_LOOP.format(name=name, t=LAST_T, u=LAST_U), mod.__file__, "exec"), ns)  # noqa: S102 - our own template
+    exec(compile(_LOOP.format(name=name, t=LAST_T, u=LAST_U, th=_TH, v=_V), mod.__file__, "exec"), ns)  # noqa: S102 - our own template
     fn = ns[name]
     fn.__qualname__ = name
     return njit(cache=True)(fn)

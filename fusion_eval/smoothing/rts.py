@@ -26,6 +26,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from ..errors import ConfigError
+from ..filters import propagate
 from ..filters.propagate import LAST_U
 from . import kernels
 from .compiled import compiled_pass
@@ -98,12 +99,21 @@ class RTS:
         self.nc = kf.layout.n_core
 
     # ---- the forward intervals between two epochs, recomputed ----------------------------------
-    def _step(self, x, aux, A, u0, u1, dt, qscale):
+    def _step(self, x, aux, A, u0, u1, dt, qscale, gap_s=0.0):
         """One interval with the formulation's compiled step on the covariance ``A`` of the core (a clone is
-        constant, so it needs no propagation): the propagated ``A`` and the core transition ``Phi``."""
+        constant, so it needs no propagation): the propagated ``A`` and the core transition ``Phi``. ``gap_s``: the
+        length of the IMU gap this step ends, at its first sample after it (its hidden motion added, as the forward
+        loop adds it), else 0."""
         nc = self.nc
         Pa = kernels.augmented(A, nc)        # a constant copy of the core: its cross block becomes Phi
         self.kf._step(x, Pa, 2 * nc, u0, u1, dt, qscale, self.prm, aux, True)
+        if gap_s > 0.0:
+            cidx, g = self.kf.cidx, self.gap
+            for i in range(3):
+                for blk, var in ((propagate._TH, g[2]), (propagate._V, g[3])):
+                    j = cidx[blk + i]
+                    if j >= 0:
+                        Pa[j, j] += var * gap_s * gap_s
         return np.ascontiguousarray(Pa[:nc, :nc]), np.ascontiguousarray(Pa[:nc, nc:])
 
     def segment(self, a: int, t_b: float):
@@ -130,7 +140,7 @@ class RTS:
         prior = (kernels.unpack_upper(self.rec.prior_P[a + 1], ep.n_max, n)
                  if a + 1 < ok.size and ok[a + 1] else None)
 
-        def advance(u1, dt, qscale, sample, last=False):
+        def advance(u1, dt, qscale, sample, last=False, gap_s=0.0):
             nonlocal A, B
             if prior is not None and last:
                 phi = self.rec.prior_phi[a + 1].reshape(nc, nc).copy()
@@ -141,7 +151,7 @@ class RTS:
                 else:
                     A = Pj
             else:
-                A, phi = self._step(x, aux, A, u0, u1, dt, qscale)
+                A, phi = self._step(x, aux, A, u0, u1, dt, qscale, gap_s)
                 if B is not None:
                     B = phi @ B
                     Pj = kernels.assemble(A, B, self._D, self._Dinv)
@@ -153,7 +163,8 @@ class RTS:
         while k < N and t[k] <= t_b:
             dt = t[k] - t0
             if dt > 0.0:
-                advance(u[k], dt, gap[1] if (k > 0 and t[k] - t[k - 1] > gap[0]) else 1.0, k, t[k] == t_b)
+                is_gap = k > 0 and t[k] - t[k - 1] > gap[0]
+                advance(u[k], dt, gap[1] if is_gap else 1.0, k, t[k] == t_b, t[k] - t[k - 1] if is_gap else 0.0)
             else:
                 points[-1][5] = k
             t0, u0 = t[k], u[k].copy()

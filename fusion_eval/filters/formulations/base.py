@@ -62,11 +62,13 @@ def bias_walks(s) -> tuple[float, float]:
     return s.imu.accel_bias_rw_mps3_sqrthz, s.imu.gyro_bias_rw_rps2_sqrthz
 
 
-def gap_of(s, t: np.ndarray) -> tuple[float, float]:
-    """An interval longer than ``imu.gap_factor`` median intervals is a gap; its white noise is scaled by
-    ``imu.gap_noise_scale`` (std), i.e. its variance by the square."""
+def gap_of(s, t: np.ndarray) -> tuple[float, float, float, float]:
+    """An interval longer than ``imu.gap_factor`` median intervals is a gap: its white noise is scaled by
+    ``imu.gap_noise_scale`` (std), i.e. its variance by the square, and at its end the motion it hid is added
+    (:data:`fusion_eval.filters.propagate` ``_LOOP``): the variances of the unknown turn rate and acceleration,
+    rad^2/s^2 and m^2/s^4."""
     gap_dt = s.imu.gap_factor * float(np.median(np.diff(t))) if t.size > 1 else np.inf
-    return gap_dt, s.imu.gap_noise_scale ** 2
+    return gap_dt, s.imu.gap_noise_scale ** 2, s.imu.gap_turn_rate_rps ** 2, s.imu.gap_accel_mps2 ** 2
 
 
 class FilterBase:
@@ -92,7 +94,7 @@ class FilterBase:
     smoothable = True
 
     def __init__(self, x0: NominalState, P0: np.ndarray, prm: np.ndarray, t: np.ndarray, u: np.ndarray, k0: int,
-                 gap: tuple[float, float] = (np.inf, 1.0), extra_var: dict[str, float] | None = None):
+                 gap: tuple[float, ...] = (np.inf, 1.0, 0.0, 0.0), extra_var: dict[str, float] | None = None):
         """``P0``: the canonical core prior (15x15); ``u``: the input rows at the stamps ``t``; the filter
         sits at sample ``k0``. ``extra_var``: variances of own blocks that have no canonical counterpart."""
         L = self.layout
