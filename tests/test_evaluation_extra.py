@@ -414,3 +414,21 @@ def test_evaluate_scores_a_runs_files_over_its_common_span_with_t_start_and_t_en
     assert r.exit_code == 2 and "--t-start 5.0 is not before --t-end 4.0" in r.output
     r = CliRunner().invoke(main, ["evaluate", *files, "--out", str(tmp_path / "e3"), "--t-start", "1", "--t-end", "2"])
     assert r.exit_code == 2 and "0 of its poses in --t-start 1.0 .. --t-end 2.0" in r.output and not (tmp_path / "e3").exists()
+
+
+def test_a_routes_last_stub_is_not_ranked_among_the_worst_segments():
+    """kitti-00's last window, 3701-3707 m, ranked among the five worst on the RMSE of a handful of errors (a plot
+    review): the worst are full windows (at least half the length); the stub stays in the table."""
+    from fusion_eval.evaluation.segments import breakdown
+    from fusion_eval.types import PoseSeries
+
+    t = np.arange(0.0, 105.0, 0.5)                  # 10 m/s along x for 100 s: ten 100 m windows
+    p = np.c_[10.0 * t, np.zeros_like(t), np.zeros_like(t)]
+    p[t > 100.0, 0] = 1000.0 + (t[t > 100.0] - 100.0)          # the last 5 s crawl 5 m: a 5 m stub window
+    gt = PoseSeries(t_s=t, p_w_m=p, q_wb_xyzw=np.tile([0.0, 0.0, 0.0, 1.0], (t.size, 1)))
+    e = np.where(p[:, 0] >= 1000.0, 9.0, 0.1 + 0.001 * np.arange(t.size))     # the stub's errors the largest
+    b = breakdown(gt, {"fused": (t, e)}, 100.0)
+    stub = b["segments"][-1]
+    assert stub["end_m"] - stub["start_m"] < 50.0 and stub["rmse_m"]["fused"] == pytest.approx(9.0)
+    assert stub["index"] not in b["worst"] and len(b["worst"]) == 5
+    assert b["worst"][0] == max(s["index"] for s in b["segments"] if s is not stub)    # the growing error's last full one
