@@ -17,6 +17,7 @@ from .calibration import measure_shifts, resolve
 from .calibration.time_offset import MAX_SHIFT_S
 from .datasets.plausible import LAG_NOTE, MAX_LAG_S
 from .errors import ConfigError, DataRangeError, FusionEvalError, ShiftAtSearchEdgeError
+from .stats import moving_mean
 from .types import Dataset, ImuSeries, shifted
 
 log = logging.getLogger(__name__)
@@ -134,8 +135,7 @@ def _turning_rps(imu: ImuSeries) -> float:
     if w.shape[0] < 3:
         return 0.0
     k = max(1, int(round(0.5 / max(float(np.median(np.diff(imu.t_s))), 1e-6))))
-    c = np.cumsum(np.r_[np.zeros((1, 3)), w - np.median(w, axis=0)], axis=0)
-    mean = (c[k:] - c[:-k]) / k if w.shape[0] > k else (c[-1:] - c[:1]) / w.shape[0]
+    mean = moving_mean(w - np.median(w, axis=0), min(k, w.shape[0]))
     return float(np.percentile(np.linalg.norm(mean, axis=1), 90))
 
 

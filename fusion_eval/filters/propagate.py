@@ -27,6 +27,7 @@ default run's cold start compiled each twice; ``tests/test_compiled_replay.py`` 
 from __future__ import annotations
 
 import hashlib
+import inspect
 import sys
 from collections import namedtuple
 
@@ -70,14 +71,7 @@ def {name}(a, n, k, t_target, cov):
                 # its T seconds, added to the attitude and velocity ((rate T)^2, (accel T)^2), where the formulation's
                 # blocks are the canonical ones. Here, not spread over the gap: inside it the inputs are interpolated,
                 # not measured, and fixes there would correct the attitude against a made-up motion (measured)
-                T = a.t[k] - a.t[k - 1]
-                for i in range(3):
-                    j = a.cidx[{th} + i]
-                    if j >= 0:
-                        a.P[j, j] += a.gap[2] * T * T
-                    j = a.cidx[{v} + i]
-                    if j >= 0:
-                        a.P[j, j] += a.gap[3] * T * T
+                _gap_motion(a.P, a.cidx, a.gap, a.t[k] - a.t[k - 1])
         t0 = a.t[k]
         u0 = a.u[k]                 # a view: the inputs are never written
         a.rec_x[k, :] = a.x
@@ -96,7 +90,26 @@ def {name}(a, n, k, t_target, cov):
     return k
 '''
 _TH, _V = CANONICAL.start("TH"), CANONICAL.start("V")
-_DIGEST = hashlib.sha1((_LOOP + repr((LAST_T, LAST_U, _TH, _V))).encode()).hexdigest()[:10]  # not a state index
+
+
+@njit(cache=True)
+def add_gap_motion(P, cidx, gap, gap_s):
+    """The motion an IMU gap of ``gap_s`` hid, added to the covariance ``P`` at its end: ``(gap[2] gap_s^2)`` to each
+    axis of the attitude's variance and ``(gap[3] gap_s^2)`` to the velocity's (``gap``: :func:`fusion_eval.filters.
+    formulations.base.gap_of`), where the formulation's blocks are the canonical ones (``cidx``). The one place the
+    filter's loop and both smoother paths add it."""
+    for i in range(3):
+        j = cidx[_TH + i]
+        if j >= 0:
+            P[j, j] += gap[2] * gap_s * gap_s
+        j = cidx[_V + i]
+        if j >= 0:
+            P[j, j] += gap[3] * gap_s * gap_s
+
+
+# the loop's name carries its template and the helper it calls (numba's cache checks only the caller's own file)
+_DIGEST = hashlib.sha1((_LOOP + repr((LAST_T, LAST_U)) + inspect.getsource(add_gap_motion.py_func)
+                        ).encode()).hexdigest()[:10]  # not a state index
 DIGEST = _DIGEST        # what the compiled replay and the smoother, built on this loop, put in their own names
 
 
@@ -111,8 +124,8 @@ def compiled_loop(module_name: str, step, record_cov):
     """
     mod = sys.modules[module_name]
     name = f"_predict_to_{_DIGEST}"
-    ns = {"_step": step, "_record_cov": record_cov, "np": np, "__name__": module_name}
-    exec(compile(_LOOP.format(name=name, t=LAST_T, u=LAST_U, th=_TH, v=_V), mod.__file__, "exec"), ns)  # noqa: S102 - our own template
+    ns = {"_step": step, "_record_cov": record_cov, "_gap_motion": add_gap_motion, "np": np, "__name__": module_name}
+    exec(compile(_LOOP.format(name=name, t=LAST_T, u=LAST_U), mod.__file__, "exec"), ns)  # noqa: S102 - our own template
     fn = ns[name]
     fn.__qualname__ = name
     return njit(cache=True)(fn)

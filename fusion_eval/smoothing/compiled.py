@@ -81,12 +81,7 @@ def {name}(x_a, aux, c, P_a, n, nc, t, u, gap, prm, k, t0, u0, t_b, xs_x, xs_c, 
                 Pa = _augmented(A[j], nc)
                 _step(x, Pa, 2 * nc, uu0, u1, dt, qs, prm, aux, np.bool_(True))
                 if qs != 1.0 and ks >= 0:          # the motion a gap hid, where the forward loop added it
-                    T = t[k] - t[k - 1]
-                    for i in range(3):
-                        if cidx[{th} + i] >= 0:
-                            Pa[cidx[{th} + i], cidx[{th} + i]] += gap[2] * T * T
-                        if cidx[{v} + i] >= 0:
-                            Pa[cidx[{v} + i], cidx[{v} + i]] += gap[3] * T * T
+                    _gap_motion(Pa, cidx, gap, t[k] - t[k - 1])
                 j += 1
                 A[j] = Pa[:nc, :nc]
                 PH[j - 1] = Pa[:nc, nc:]
@@ -180,15 +175,14 @@ def compiled_pass(cls):
              "_assemble": kernels.assemble, "_interval_plain": kernels.interval_plain,
              "_interval_clone": kernels.interval_clone, "_pinv": kernels.pinv_sym, "_gain_t": kernels.gain_t,
              "_uncondition": kernels.uncondition, "_unpack": kernels.unpack_upper,
-             "_condition_given": kernels.condition_given}
+             "_condition_given": kernels.condition_given, "_gap_motion": propagate.add_gap_motion}
     # the kernels' own callees too: numba's cache of this template checks only the formulation's module
     digest = source_digest(_SEGMENT + propagate.DIGEST, *calls.values(), kernels.pinv_sym, kernels.chol_scaled, kernels._pinv_eig,
                            kernels.solve_sym, kernels._solve_factored, kernels._tri_inverse,
                            kernels._clone_gain_applied, *STEP_CALLEES)
     name, name_pass = f"_rts_segment_{digest}", f"_rts_pass_{digest}"
     ns = {**calls, "np": np, "__name__": cls.__module__}
-    exec(compile(_SEGMENT.format(name=name, name_pass=name_pass, th=propagate._TH, v=propagate._V), mod.__file__,
-                 "exec"), ns)  # noqa: S102 - our template
+    exec(compile(_SEGMENT.format(name=name, name_pass=name_pass), mod.__file__, "exec"), ns)  # noqa: S102 - our template
     for nm in (name, name_pass):                       # the segment first: the pass calls it by its global name
         ns[nm].__qualname__ = nm
         ns[nm] = njit(cache=True)(ns[nm])

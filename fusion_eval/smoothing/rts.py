@@ -108,12 +108,7 @@ class RTS:
         Pa = kernels.augmented(A, nc)        # a constant copy of the core: its cross block becomes Phi
         self.kf._step(x, Pa, 2 * nc, u0, u1, dt, qscale, self.prm, aux, True)
         if gap_s > 0.0:
-            cidx, g = self.kf.cidx, self.gap
-            for i in range(3):
-                for blk, var in ((propagate._TH, g[2]), (propagate._V, g[3])):
-                    j = cidx[blk + i]
-                    if j >= 0:
-                        Pa[j, j] += var * gap_s * gap_s
+            propagate.add_gap_motion(Pa, self.kf.cidx, self.gap, gap_s)
         return np.ascontiguousarray(Pa[:nc, :nc]), np.ascontiguousarray(Pa[:nc, nc:])
 
     def segment(self, a: int, t_b: float):
