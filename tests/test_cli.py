@@ -248,3 +248,19 @@ def test_overwrite_never_replaces_a_users_dataset(kitti_slice, tmp_path):
     r = CliRunner().invoke(main, ["-q", "simulate", str(sim), "--duration", "20", "--seed", "1", "--overwrite"])
     assert r.exit_code == 0, r.output
     assert "name: sim-urban-automotive-s1" in (sim / "dataset.yaml").read_text()
+
+
+@pytest.mark.parametrize("command", [["run"], ["compare", "--variants", "eskf"]])
+def test_used_out_refused_before_the_numerics_load(tmp_path, command):
+    """A second run into the same --out is refused at once (it waited 0.7 s for the numerics' imports), with the
+    same one-line error and exit code as before, and without importing numba, evo or the pipeline."""
+    out = tmp_path / "out"
+    out.mkdir()
+    (out / "metrics.json").write_text("{}")
+    probe = ("import sys\nfrom fusion_eval.cli import main\n"
+             f"try:\n    main({[*command, '--out', str(out)]!r}, prog_name='fusion-eval')\n"
+             "except SystemExit as e:\n    print('exit', e.code)\n"
+             "print('loaded', sorted(m for m in ('numba', 'evo', 'fusion_eval.pipeline') if m in sys.modules))\n")
+    r = subprocess.run([sys.executable, "-c", probe], capture_output=True, text=True, cwd=tmp_path)
+    assert "exists and is not empty" in r.stderr and r.stderr.count("\n") == 1, r.stderr
+    assert "exit 2" in r.stdout and "loaded []" in r.stdout, r.stdout
