@@ -112,23 +112,39 @@ def nothing_random_line(n: int) -> str:
 
 
 # a lead below this share of the better figure, from one run each, is called out: one GNSS seed moves kitti-00's fused APE
-# by its std of 0.082 m (0.773 m mean over 5 seeds, `run --trials 5`), 11 %
+# by about 11 % of its mean (std over seeds; README, "Monte-Carlo trials")
 SMALL_LEAD = 0.05
-SEED_SPREAD_EXAMPLE = "kitti-00's degraded GNSS: fused APE 0.773 +/- 0.082 m over 5 seeds"
 
 
-def one_draw_note(better: float, worse: float, n_trials: int, what: str, how: str = "--trials 5") -> str | None:
+def seeded_streams(m: dict) -> list[str]:
+    """The streams a run's filter fused that were drawn with a seed (a degraded GNSS, GNSS velocity or odometer):
+    what makes its fused figures move from one seed to the next. Empty: the fused estimate is the same on every
+    seed (a GNSS degraded but not fused is only the unfiltered GNSS estimate's)."""
+    nis = m.get("nis") or {}
+    pre = m.get("preprocessing") or {}
+    out = ["degraded GNSS"] if "gnss" in nis and (m.get("gnss_degradation") or {}).get("degraded") else []
+    out += [f"degraded {k}" for k, info in pre.items() if isinstance(info, dict) and info.get("degraded") and k in nis]
+    if pre.get("odometer_added_noise_std_mps") and "odometer" in nis:
+        out.append("odometer noise")
+    return out
+
+
+def one_draw_note(better: float, worse: float, n_trials: int, what: str, how: str = "--trials 5",
+                  streams: list[str] | None = None) -> str | None:
     """A sentence under a ranking made from one run of each entry, when ``better`` leads ``worse`` by under
-    :data:`SMALL_LEAD` of it: where runs have random elements, one seed moves a figure by more than that. None when
-    the ranking is on means of trials, or the lead is larger (a student ranked noise settings 0.754-0.758 m apart,
-    inside a seed spread of 0.08 m, and took the 'best' as found)."""
+    :data:`SMALL_LEAD` of it and the runs fuse ``streams`` drawn with a seed (:func:`seeded_streams`; None: not
+    known): one seed moves a figure by more than that. None when the ranking is on means of trials, the lead is
+    larger, or nothing fused is random (a student ranked noise settings 0.754-0.758 m apart, inside a seed spread of
+    0.08 m, and took the 'best' as found; another was told to run trials of a comparison with nothing random in it)."""
     if n_trials > 1 or not (math.isfinite(better) and math.isfinite(worse)) or better <= 0 or worse < better:
         return None
     lead = (worse - better) / better
-    if lead >= SMALL_LEAD:
+    if lead >= SMALL_LEAD or streams == []:
         return None
-    return (f"{what} {lead * 100:.2g} % from one run each. Where the runs have random elements, one seed moves a figure "
-            f"by more ({SEED_SPREAD_EXAMPLE}): `{how}` ranks on the means over seeds, with each one's std.")
+    what_random = f"the {' and '.join(streams)} these runs fuse" if streams else "the runs' random elements"
+    return (f"{what} {lead * 100:.2g} % from one run each. One seed of {what_random} can move a figure by more (on "
+            f"kitti-00 the degraded GNSS moves the fused APE by about 11 % of its mean): `{how}` ranks on the means "
+            "over seeds, with each one's std.")
 
 
 def all_equal(values: list) -> bool:

@@ -11,8 +11,24 @@ from fusion_eval import trials
 def test_a_small_lead_from_one_run_each_is_said_with_the_way_to_rank_over_seeds():
     note = trials.one_draw_note(0.754, 0.758, 1, "The best leads the next by")
     assert note.startswith("The best leads the next by 0.53 % from one run each") and "`--trials 5`" in note
-    assert "0.773 +/- 0.082 m over 5 seeds" in note
+    assert "the runs' random elements" in note
     assert "`--seeds 3`" in trials.one_draw_note(0.728, 0.757, 1, "x", "--seeds 3")
+    named = trials.one_draw_note(0.754, 0.758, 1, "x", streams=["degraded GNSS"])
+    assert "One seed of the degraded GNSS these runs fuse can move a figure by more" in named
+    # nothing fused is drawn from a seed (IMU + lidar): no advice to run trials that would all be equal (a student's
+    # review of a comparison without GNSS)
+    assert trials.one_draw_note(0.754, 0.758, 1, "x", streams=[]) is None
+
+
+def test_seeded_streams_are_the_fused_streams_drawn_with_a_seed():
+    deg = {"degraded": True}
+    assert trials.seeded_streams({"nis": {"gnss": {}, "lidar": {}}, "gnss_degradation": deg}) == ["degraded GNSS"]
+    # degraded but not fused: only the unfiltered GNSS estimate varies with the seed
+    assert trials.seeded_streams({"nis": {"lidar": {}}, "gnss_degradation": deg}) == []
+    assert trials.seeded_streams({"nis": {"gnss": {}}, "gnss_degradation": {"degraded": False}}) == []
+    assert trials.seeded_streams({"nis": {"gnss_velocity": {}, "odometer": {}},
+                                  "preprocessing": {"gnss_velocity": deg, "odometer_added_noise_std_mps": 0.05}}) == [
+        "degraded gnss_velocity", "odometer noise"]
 
 
 def test_no_note_on_means_over_trials_a_clear_lead_or_no_figures():
@@ -35,7 +51,27 @@ def test_the_sweep_summary_and_the_compare_report_carry_it(kitti_slice, tmp_path
     assert "from one run each" in r.output
     # setting a is the default's configuration: they share one run, and the console says so beside sweep.md's count
     assert "2 runs done" in r.output and "3 settings in sweep.md, 1 of them the same configuration as another" in r.output
-    assert "The best leads the next by" in (tmp_path / "sw" / "sweep.md").read_text()
+    md = (tmp_path / "sw" / "sweep.md").read_text()
+    assert "The best leads the next by" in md
+    # each setting's consistency and the lidar noise's adaptation are columns (a student's review: the adaptation
+    # undid a swept noise, and an overconfident setting ranked first, with no word)
+    assert "NEES pos (3 dof)" in md and "lidar noise x pos / att" in md and "lidar.noise_adapt: none" in md
+    head = (tmp_path / "sw" / "sweep.csv").read_text().splitlines()[0].split(",")
+    assert {"nees_pos_mean", "nees_pos_in95_frac", "nis_lidar_mean", "lidar_noise_pos_x", "lidar_noise_att_x"} <= set(head)
+
+
+def test_an_overconfident_best_gets_a_caveat():
+    from fusion_eval.commands.sweep_summary import _overconfident_best
+
+    rows = [{"dataset": "d", "variant": "eskf", "setting": "default", "nees_pos_mean": 7.0},
+            {"dataset": "d", "variant": "eskf", "setting": "gnss-trusted", "nees_pos_mean": 14.4},
+            {"dataset": "d", "variant": "eskf", "setting": "lidar-tight", "nees_pos_mean": 7.2},
+            {"dataset": "e", "variant": "eskf", "setting": "gnss-trusted", "nees_pos_mean": 3.1}]
+    c = _overconfident_best(rows, "eskf", "gnss-trusted")
+    assert c.startswith("Caveat: the best setting's filter is overconfident") and "14.4 (the default 7.0)" in c
+    assert "`e`" not in c                                       # consistent there
+    assert _overconfident_best(rows, "eskf", "lidar-tight") is None     # as (in)consistent as the default
+    assert _overconfident_best(rows[:1], "eskf", "default") is None
 
 
 def test_the_compare_report_carries_it():
@@ -46,6 +82,7 @@ def test_the_compare_report_carries_it():
     text = _markdown("kitti-00", rows, None, False)
     assert "The best variant's fused APE leads the next by 0.26 % from one run each" in text
     assert "leads the next" not in _markdown("kitti-00", rows, None, False, n_trials=5)
+    assert "leads the next" not in _markdown("kitti-00", rows, None, False, seeded=[])
 
 
 def test_compare_gives_numbas_compilation_apart_from_the_filter_time():

@@ -53,6 +53,7 @@ class VariantRun:
     ev_smoothed: object = None      # the smoother's estimate, when the variant selects one
     warnings: tuple[str, ...] = ()  # the data's and the filter's, as a run of this variant reports them
     compile_s: float = 0.0          # numba's compilation inside the variant's first run (not in runtime_s)
+    seeded: tuple[str, ...] = ()    # the fused streams drawn with a seed (:func:`fusion_eval.trials.seeded_streams`)
 
 
 def body_velocity(poses: PoseSeries) -> np.ndarray:
@@ -76,7 +77,9 @@ def _replay_all(ds, variants: list[str], cfgs: list[dict], advance=None) -> tupl
             filt = replay(prep, settings_for(cfg, prep), imu_only=runs[0].filt.imu_only if runs else None)
         compiled = compile_notice.compile_seconds() - c0       # numba's first compilation of this variant's kernels
         runs.append(VariantRun(name, cfg, filt, None, time.perf_counter() - t0 - compiled, warnings=_warnings(name, prep, filt),
-                               compile_s=compiled))
+                               compile_s=compiled,
+                               seeded=tuple(mc.seeded_streams({"nis": filt.nis, "gnss_degradation": prep.gnss_info,
+                                                               "preprocessing": prep.applied}))))
         log.info("variant %s: filtered in %.2f s%s", name, runs[-1].runtime_s,
                  f" (and {compiled:.1f} s compiling)" if compiled > 0 else "")
         if advance:
@@ -238,7 +241,8 @@ def _compare(dataset_path: Path | None, variants: list[str], variant_dir: Path |
             result["warnings"] = warned
         out.write_text("compare.json", json.dumps(result, indent=2) + "\n")
         out.write_text("compare.csv", _csv(table, bool(trials_info)))
-        md = (_markdown(ds.name, table, truth_body, make_plots, sp, n_trials, warned, ev_cfg["alignment"])
+        md = (_markdown(ds.name, table, truth_body, make_plots, sp, n_trials, warned, ev_cfg["alignment"],
+                        list(dict.fromkeys(s for r in runs for s in r.seeded)))
               + "\n".join(segments_section({"segments": seg})) + "\n")
         out.write_text("compare.md", md)
         out.write_text("compare.tex", _latex(ds.name, table, n_trials, ev_cfg["alignment"]))
@@ -330,7 +334,7 @@ def _latex(name: str, rows: list[dict], n_trials: int, alignment: str = "none") 
 
 
 def _markdown(name: str, rows: list[dict], truth_body, plots: bool, sp: dict | None = None, n_trials: int = 1,
-              warned: dict | None = None, alignment: str = "none") -> str:
+              warned: dict | None = None, alignment: str = "none", seeded: list[str] | None = None) -> str:
     order = [o.name for o in observations.REGISTRY]
     header = ["variant", "estimate", "APE trans RMSE [m]", "APE rot RMSE [deg]", "RPE trans 1 frame [m]", "estimate/lidar",
               "estimate/GNSS", "KITTI drift [%] / [deg/100 m]", "NEES pos in 95 %", "lateral / vertical body velocity RMS [m/s]",
@@ -357,7 +361,7 @@ def _markdown(name: str, rows: list[dict], truth_body, plots: bool, sp: dict | N
               "plots and trajectories are trial 0's, every trial's table is in compare.json.", ""]
     L += [f"## Summary against ground truth (evo, {keys.alignment_words(alignment)})", ""] + markdown(header, body, align="llrrrrrlllllr")
     fused = sorted(r["ape_trans_rmse_m"] for r in rows if r["estimate"] == "fused" and r.get("ape_trans_rmse_m") is not None)
-    note = mc.one_draw_note(fused[0], fused[1], n_trials, "The best variant's fused APE leads the next by") \
+    note = mc.one_draw_note(fused[0], fused[1], n_trials, "The best variant's fused APE leads the next by", streams=seeded) \
         if len(fused) > 1 else None
     if note:
         L += ["", note]
