@@ -411,3 +411,58 @@ def test_thinning_keeps_the_last_point(n):
         b = np.c_[t, -t, 2 * t]
         tt, ba, _bg, _s, _ = thin.biases(t, b, b, np.ones((n, 15)))
         assert ba[-1, 0] == n - 1 and tt[-1] == n - 1
+
+
+def test_one_colour_per_estimate_name_in_every_plot(monkeypatch, tmp_path):
+    """evaluate drew fused blue and lidar orange in its trajectories and red and blue in its APE plot, and compare's
+    sixth variant took the smoothed estimate's purple (a student's review): named estimates keep their colour in every
+    plot, other names and variants take colours no named estimate has."""
+    from matplotlib.colors import to_hex
+
+    from fusion_eval.types import PoseSeries
+
+    c = plots.estimate_colors(["orb", "fused", "lidar", "vins"])
+    assert c["fused"] == plots.COLORS["fused"] and c["lidar"] == plots.COLORS["lidar"]
+    named = {to_hex(v) for v in plots.COLORS.values()}
+    assert c["orb"] != c["vins"] and not {to_hex(c["orb"]), to_hex(c["vins"])} & named
+    assert not {to_hex(v) for v in plots._VARIANT_COLORS[1:]} & named
+
+    figs = []
+    monkeypatch.setattr(plots, "_save", lambda fig, path: figs.append(fig))
+    t = np.arange(20.0)
+    p = np.column_stack([t, 0.1 * t, 0 * t])
+    q = np.tile([0.0, 0.0, 0.0, 1.0], (20, 1))
+    ref = PoseSeries(t, p, q, source="ref")
+    ests = {"lidar": PoseSeries(t, p + 1, q, source="l"), "fused": PoseSeries(t, p + 0.1, q, source="f")}
+    plots.plot_generic_trajectories(tmp_path / "t.png", ref, ests)
+    evs = {n: SimpleNamespace(ape_err_m=1 + t, ape_t_s=t, metrics={"ape": {"translation_m": {"rmse": 0.76}}}) for n in ests}
+    plots.plot_ape_over_time(tmp_path / "a.png", evs, 0.0)
+    for fig in figs:
+        col = {ln.get_label().split(" (")[0]: to_hex(ln.get_color()) for ln in fig.axes[0].get_lines()}
+        assert col["fused"] == to_hex(plots.COLORS["fused"]) and col["lidar odometry"] == to_hex(plots.COLORS["lidar"])
+    # legends as the tables print the figure (0.760, not 0.76), outside the axes
+    labels = [tx.get_text() for tx in figs[1].axes[0].get_legend().get_texts()]
+    assert "fused (RMSE 0.760 m)" in labels
+    assert figs[1].axes[0].get_legend().get_bbox_to_anchor().x0 > figs[1].axes[0].get_window_extent().x1 - 1
+    plt.close("all")
+
+
+def test_sweep_keys_set_together_share_a_panel_and_curves_join_only_one_key_changes():
+    """noise5's lidar-tight / lidar-loose set the position and the rotation noise together: two identical panels; a
+    setting that also switched the adaptation off was joined to the default, which has it on; with trials the
+    std had no bar (a student's review)."""
+    k1, k2, other = "lidar.relative_pos_std_frac", "lidar.relative_att_std_deg", "lidar.noise_adapt"
+    base = {"dataset": "/d/kitti-00", "variant": "eskf", "status": "ok"}
+    rows = [{**base, "setting": "default", k1: "", k2: "", other: "", METRIC: 0.75, f"{METRIC}_std": 0.08},
+            {**base, "setting": "tight", k1: 0.003, k2: 0.02, other: "", METRIC: 0.76, f"{METRIC}_std": 0.08},
+            {**base, "setting": "loose", k1: 0.03, k2: 0.2, other: "", METRIC: 0.77, f"{METRIC}_std": 0.08},
+            {**base, "setting": "loose-noadapt", k1: 0.05, k2: 0.3, other: "none", METRIC: 0.90, f"{METRIC}_std": 0.07}]
+    fig = plots.sweep_params_figure(rows, [k1, k2, other], METRIC, {("/d/kitti-00", "eskf"): {k1: 0.01, k2: 0.05}})
+    visible = [ax for ax in fig.axes if ax.get_visible()]
+    assert len(visible) == 2                                     # the overview and one panel for both keys
+    panel = visible[1]
+    assert f"set together with {k2}" in panel.get_xlabel()
+    curve = next(ln for ln in panel.lines if ln.get_linestyle() == "-" and ln.get_gid() is None)
+    assert sorted(curve.get_xdata()) == [0.003, 0.01, 0.03]      # not through loose-noadapt
+    assert panel.containers and len(panel.containers[0].lines[2][0].get_segments()) == 3   # a bar per setting
+    plt.close("all")

@@ -26,8 +26,26 @@ COLORS = {"groundtruth": "black", "fused": "tab:red", "smoothed": "tab:purple", 
           "imu_only": "tab:orange"}
 LABELS = {"groundtruth": "ground truth", "fused": "fused", "smoothed": "smoothed", "lidar": "lidar odometry",
           "gnss": "GNSS", "imu_only": "IMU dead reckoning"}
-_META = {"Software": None}
-_VCOLORS = plt.rcParams["axes.prop_cycle"].by_key()["color"]  # no version string in the PNG: same inputs, same bytes
+_META = {"Software": None}                                    # no version string in the PNG: same inputs, same bytes
+_VCOLORS = plt.rcParams["axes.prop_cycle"].by_key()["color"]
+# estimates of other names (a user's own files in evaluate, compare's variants after the first): colours no named
+# estimate has, so that red, blue, green, orange and purple mean fused, lidar, GNSS, dead reckoning and smoothed in
+# every plot (a student's review: evaluate drew fused blue and lidar orange in one plot, red and blue in the next)
+OTHER_COLORS = ["tab:cyan", "tab:brown", "tab:pink", "tab:olive", "navy", "darkgoldenrod", "teal", "magenta", "tab:gray"]
+
+
+def estimate_colors(names) -> dict:
+    """One colour per estimate name, the same in every plot of a report: :data:`COLORS` for the named estimates,
+    :data:`OTHER_COLORS` in order for the rest."""
+    others = iter(OTHER_COLORS * (1 + len(list(names)) // len(OTHER_COLORS)))
+    return {n: COLORS[n] if n in COLORS else next(others) for n in names}
+
+
+def _legend_outside(fig, ax, right: float = 0.78, **kw) -> None:
+    """The legend right of the axes, where it hides no data (inside, 'best' still covered the errors below 0.5 m over
+    the drive's last 160 s: a student's review)."""
+    ax.legend(loc="upper left", bbox_to_anchor=(1.01, 1.0), borderaxespad=0.0, **kw)
+    fig.subplots_adjust(left=0.07, right=right)
 
 
 
@@ -99,9 +117,9 @@ def plot_trajectories(path: Path, paths: dict, extent: tuple) -> None:
 
 
 def _metres(x: float) -> str:
-    """An RMSE for a legend: three significant digits (0.00812 m), whole metres from 1000 m (dead reckoning's
-    13258 m, not 1.33e+04)."""
-    return f"{x:.0f} m" if abs(x) >= 1000 else f"{x:.3g} m"
+    """An RMSE for a legend, as the report's tables print it: three decimals (0.760 m, where '0.76' read as another
+    figure than the table's 0.760: a student's review), whole metres from 1000 m (dead reckoning's 13258 m)."""
+    return f"{x:.0f} m" if abs(x) >= 1000 else f"{x:.3f} m"
 
 
 def _log_floor(errs) -> float:
@@ -133,15 +151,16 @@ def plot_ape_over_time(path: Path, evals: dict, t0: float, x_label: str = "time 
     ``x_label``: what the stamps count (frames, for KITTI poses without a times file); ``spans``: ``(start, end,
     label)`` on the plot's time axis, shaded (the GNSS outages, the IMU's gaps: where on the route the error grows and
     why, which a reader had to find in the report's text)."""
-    fig, ax = plt.subplots(figsize=(10, 4.5))
+    fig, ax = plt.subplots(figsize=(12, 4.5))
     shaded: set = set()
     for a, b, label in spans:
-        color = "tab:orange" if label.startswith("GNSS") else "0.5"
+        color = "gold" if label.startswith("GNSS") else "0.5"       # (orange is dead reckoning's)
         ax.axvspan(a, b, color=color, alpha=0.15, lw=0, label=None if label in shaded else label)
         shaded.add(label)
     known = [n for n in ("imu_only", "gnss", "lidar", "fused", "smoothed") if n in evals]
     floor = _log_floor([ev.ape_err_m for ev in evals.values()])
-    for i, name in enumerate(known + [n for n in evals if n not in known]):
+    colors = estimate_colors(list(evals))
+    for name in known + [n for n in evals if n not in known]:
         ev = evals[name]
         if ev.ape_err_m is None:
             continue
@@ -149,14 +168,14 @@ def plot_ape_over_time(path: Path, evals: dict, t0: float, x_label: str = "time 
         style = "." if name == "gnss" else "-"
         k = thin.envelope(ev.ape_err_m)
         ax.plot(*_gapped(ev.ape_t_s[k] - t0, np.maximum(ev.ape_err_m[k], floor)), style, ms=2.5, lw=1.0,
-                color=COLORS.get(name, _VCOLORS[i % len(_VCOLORS)]), label=f"{LABELS.get(name, name)} (RMSE {_metres(rmse)})")
+                color=colors[name], label=f"{LABELS.get(name, name)} (RMSE {_metres(rmse)})")
     ax.set_yscale("log")
     _no_minor_labels(ax)
     ax.set_xlabel(x_label)
     ax.set_ylabel("APE translation [m]")
     ax.set_title("Absolute position error against ground truth")
     ax.grid(alpha=0.3, which="both")
-    ax.legend(loc="best", fontsize=8)
+    _legend_outside(fig, ax, fontsize=8)
     _save(fig, path)
 
 
@@ -307,17 +326,17 @@ def plot_att_vel_error_sigma(path: Path, av: dict) -> None:
 
 
 # the unfiltered estimates beside variants: greys, which no variant's colour is
-_UNFILTERED = {"lidar": ("black", ":"), "gnss": ("0.55", ".")}
-# the first variant in the run plots' fused red, the next in colours no estimate of a run's plots has (blue was the
-# first variant here and the lidar there, orange a variant here and dead reckoning there: a plot review), then the rest
-_VARIANT_COLORS = ["tab:red", "tab:brown", "tab:pink", "tab:olive", "tab:cyan", "tab:purple", "tab:blue", "tab:green",
-                   "tab:orange"]
+_UNFILTERED = {"lidar": (COLORS["lidar"], ":"), "gnss": (COLORS["gnss"], ".")}   # as in a run's plots
+# the first variant in the run plots' fused red, the rest in colours no estimate of a run's plots has (blue was the
+# first variant here and the lidar there, orange a variant here and dead reckoning there: a plot review; purple, the
+# smoothed estimate's, the sixth variant: a student's review)
+_VARIANT_COLORS = ["tab:red", *OTHER_COLORS]
 
 
 def plot_compare_ape(path: Path, runs, evs_unfiltered: dict, t0: float) -> None:
     """APE translation over time of every variant (solid; a variant's smoothed estimate dashed, in its colour)
     and of the unfiltered estimates (grey: lidar dotted, GNSS dots)."""
-    fig, ax = plt.subplots(figsize=(10, 4.5))
+    fig, ax = plt.subplots(figsize=(12, 4.5))
     floor = _log_floor([r.ev.ape_err_m for r in runs] + [r.ev_smoothed.ape_err_m for r in runs if r.ev_smoothed is not None]
                        + [ev.ape_err_m for ev in evs_unfiltered.values()])
     for i, r in enumerate(runs):
@@ -326,7 +345,10 @@ def plot_compare_ape(path: Path, runs, evs_unfiltered: dict, t0: float) -> None:
             if ev is None or ev.ape_err_m is None:
                 continue
             k = thin.envelope(ev.ape_err_m)
-            ax.plot(*_gapped(ev.ape_t_s[k] - t0, np.maximum(ev.ape_err_m[k], floor)), style, lw=1.0, color=color,
+            # each later variant thinner: variants with the same errors (eskf, invariant, iekf with GNSS) hid the first
+            # under the last; drawn so, each shows as a rim of the one over it
+            ax.plot(*_gapped(ev.ape_t_s[k] - t0, np.maximum(ev.ape_err_m[k], floor)), style,
+                    lw=max(0.5, 2.2 - 1.7 * i / max(1, len(runs) - 1)), color=color,
                     label=f"{label} (RMSE {_metres(ev.metrics['ape']['translation_m']['rmse'])})")
     for name in ("lidar", "gnss"):
         ev = evs_unfiltered.get(name)
@@ -339,29 +361,29 @@ def plot_compare_ape(path: Path, runs, evs_unfiltered: dict, t0: float) -> None:
     _no_minor_labels(ax)
     ax.set_xlabel("time since start [s]")
     ax.set_ylabel("APE translation [m]")
-    ax.set_title("Absolute position error of each variant")
+    ax.set_title("Absolute position error of each variant (later variants drawn thinner, over the earlier)")
     ax.grid(alpha=0.3, which="both")
-    ax.legend(loc="best", fontsize=7)
+    _legend_outside(fig, ax, fontsize=7)
     _save(fig, path)
 
 
 def plot_compare_biases(path: Path, runs) -> None:
     """Estimated accelerometer and gyro biases of each variant (x, y, z as solid, dashed, dotted)."""
-    fig, axes = plt.subplots(2, 1, figsize=(10, 6), sharex=True)
+    fig, axes = plt.subplots(2, 1, figsize=(12, 6), sharex=True)
     styles = ("-", "--", ":")
     for i, r in enumerate(runs):
         t = r.filt.fused.t_s - r.filt.fused.t_s[0]
         for k in range(3):
             lab = r.name if k == 0 else None
-            axes[0].plot(t, r.filt.accel_bias_b[:, k], styles[k], lw=0.9, color=_VARIANT_COLORS[i % len(_VARIANT_COLORS)], label=lab)
-            axes[1].plot(t, np.degrees(r.filt.gyro_bias_b[:, k]) * 3600, styles[k], lw=0.9, color=_VARIANT_COLORS[i % len(_VARIANT_COLORS)])
-    axes[0].set_ylabel("accel bias [m/s^2]")
+            axes[0].plot(t, r.filt.accel_bias_b[:, k] / MG_MPS2, styles[k], lw=0.9, color=_VARIANT_COLORS[i % len(_VARIANT_COLORS)], label=lab)
+            axes[1].plot(t, r.filt.gyro_bias_b[:, k] / DEG_H_RPS, styles[k], lw=0.9, color=_VARIANT_COLORS[i % len(_VARIANT_COLORS)])
+    axes[0].set_ylabel("accel bias [mg]")     # the unit of a run's biases.png (m/s^2 here: a student's review)
     axes[1].set_ylabel("gyro bias [deg/h]")
     axes[1].set_xlabel("time since start [s]")
     axes[0].set_title("Estimated IMU biases per variant (x solid, y dashed, z dotted)")
     for ax in axes:
         ax.grid(alpha=0.3)
-    axes[0].legend(loc="upper right", fontsize=7)
+    _legend_outside(fig, axes[0], fontsize=7)
     _save(fig, path)
 
 
@@ -456,7 +478,15 @@ def sweep_params_figure(rows: list[dict], keys: list[str], metric: str, defaults
     several_variants = len({v for _, v in series}) > 1
     names = sorted({r["setting"] for r in ok})
     overview = len(names) <= OVERVIEW_MAX_SETTINGS
-    n = len(numeric) + overview
+    # keys that the same settings set are one panel: lidar-tight and lidar-loose set the position and the rotation
+    # noise together, and two panels showed the same points twice (a student's review)
+    sets_of = {k: frozenset(r["setting"] for r in ok if r["setting"] != "default" and is_number(r.get(k))) for k in numeric}
+    groups: list[list[str]] = []
+    for k in numeric:
+        g = next((g for g in groups if sets_of[g[0]] == sets_of[k]), None)
+        g.append(k) if g is not None else groups.append([k])
+    std_col = f"{metric}_std"
+    n = len(groups) + overview
     ncols = min(3, n)
     nrows = -(-n // ncols)
     height = max(4.3 * nrows, (0.24 * len(names) + 1.8) if overview else 0.0) + 0.7
@@ -477,7 +507,7 @@ def sweep_params_figure(rows: list[dict], keys: list[str], metric: str, defaults
         order = sorted(names, key=lambda nm: (-mean[nm], nm))        # the best at the top
         ypos = {nm: i for i, nm in enumerate(order)}
         for j, (ds, v) in enumerate(series):
-            c = _VCOLORS[j % len(_VCOLORS)]
+            c = _VARIANT_COLORS[j % len(_VARIANT_COLORS)]
             sub = [r for r in ok if r["dataset"] == ds and r["variant"] == v]
             off = (j - (len(series) - 1) / 2) * 0.12
             st = [r for r in sub if r["setting"] != "default"]
@@ -497,42 +527,54 @@ def sweep_params_figure(rows: list[dict], keys: list[str], metric: str, defaults
             ax.set_ylabel("grid settings: " + " / ".join(gk), fontsize=8)
         ax.set_title("Every setting, best at the top", fontsize=9)
         ax.grid(alpha=0.3, which="major")
-    for ax, k in zip(flat, numeric):
+    for ax, g in zip(flat, groups):
+        k = g[0]
         xs, notes = [], []
         for j, (ds, v) in enumerate(series):
-            c = _VCOLORS[j % len(_VCOLORS)]
-            pts = sorted((r[k], r[metric], r["setting"]) for r in ok if r["dataset"] == ds and r["variant"] == v
-                         and r["setting"] != "default" and is_number(r.get(k)))
+            c = _VARIANT_COLORS[j % len(_VARIANT_COLORS)]
+            mine = [r for r in ok if r["dataset"] == ds and r["variant"] == v and r["setting"] != "default"
+                    and is_number(r.get(k))]
+            pts = sorted((r[k], r[metric], r["setting"]) for r in mine)
+            # a curve joins only settings that change nothing but this panel's keys (one that also switched the
+            # lidar noise's adaptation off was joined to the default, which has it on: a student's review)
+            alone = {r["setting"] for r in mine if all(r.get(o) in ("", None) for o in keys if o not in g)}
             d = default_row(ds, v)
             dx = defaults.get((ds, v), {}).get(k)
-            both = pts + ([(dx, d[metric], "default")] if d is not None and is_number(dx) else [])
+            both = [p for p in pts if p[2] in alone] + ([(dx, d[metric], "default")] if d is not None and is_number(dx) else [])
             both.sort()
             if len(both) > 1 and len({p[0] for p in both}) == len(both):     # one run per value: a curve
                 ax.plot([p[0] for p in both], [p[1] for p in both], "-", lw=0.8, color=c, alpha=0.6)
             if pts:
+                err = {r["setting"]: r.get(std_col) for r in mine}
+                if any(is_number(e) and e > 0 for e in err.values()):     # means over trials: their std as a bar
+                    ax.errorbar([p[0] for p in pts], [p[1] for p in pts],
+                                yerr=[err[p[2]] if is_number(err[p[2]]) else 0.0 for p in pts], fmt="none", ecolor=c,
+                                elinewidth=0.8, capsize=3, alpha=0.7)
                 ax.plot([p[0] for p in pts], [p[1] for p in pts], "o", ms=5, color=c, gid="settings")
             if d is not None:
                 ax.axhline(d[metric], color=c, ls=":", lw=1.0)
                 if is_number(dx):
                     ax.plot([dx], [d[metric]], "*", ms=13, mfc=c, mec="black", mew=0.8, gid="default")
-                    notes.append((dx, d[metric], "default"))
-            if len(pts) <= 12:
-                notes += [(x, y, nm) for x, y, nm in pts if "=" not in nm and not nm.startswith("random-")]
-            xs += [p[0] for p in both]
+                    if not any(nm == "default" for _, _, nm in notes):
+                        notes.append((dx, d[metric], "default"))
+            if len(pts) <= 12:          # each name once (two variants' points labelled it twice, overlapping)
+                said = {nm for _, _, nm in notes}
+                notes += [(x, y, nm) for x, y, nm in pts if "=" not in nm and not nm.startswith("random-") and nm not in said]
+            xs += [p[0] for p in pts + both]
         _value_axis(ax, xs)
         ax.autoscale_view()
         for x, y, nm in notes:       # a grid's or a sample's name is its x: only named settings are labelled
             right = ax.transAxes.inverted().transform(ax.transData.transform((x, y)))[0] > 0.7
             ax.annotate(nm, (x, y), xytext=(-5 if right else 5, 4), textcoords="offset points", fontsize=7,
                         color="dimgray", ha="right" if right else "left")
-        ax.set_xlabel(k, fontsize=9)
+        ax.set_xlabel(k + ("" if len(g) == 1 else f"\n(set together with {', '.join(g[1:])})"), fontsize=9)
         ax.set_ylabel(label, fontsize=8)
         ax.grid(alpha=0.3, which="major")
     handles = [Line2D([], [], ls="", marker="o", color="gray", label="a setting of the sweep"),
                Line2D([], [], ls="", marker="*", ms=12, mfc="gray", mec="black", label="the default configuration"),
                Line2D([], [], ls=":", color="gray", label=f"the default's {short}")]
     if len(series) > 1:
-        handles += [Line2D([], [], ls="", marker="s", color=_VCOLORS[j % len(_VCOLORS)], label=label_of(*sv))
+        handles += [Line2D([], [], ls="", marker="s", color=_VARIANT_COLORS[j % len(_VARIANT_COLORS)], label=label_of(*sv))
                     for j, sv in enumerate(series)]
     fig.legend(handles=handles, loc="lower center", ncol=min(len(handles), 4), fontsize=8, frameon=False)
     fig.suptitle(("Fused APE" if metric_label is None else metric_label) + " against the sweep's settings"
@@ -607,7 +649,8 @@ def plot_sweep(out_dir: Path, rows: list[dict], keys: list[str], metric: str, ta
                            and is_number(r.get(metric))), key=lambda r: r[metric])
             other = rest[0]["setting"] if rest else None
         fig, ax = plt.subplots(figsize=(10, 4))
-        for name, style in ((best["setting"], "-"), (other, ":")):
+        # fixed colours (the default cycle's blue and orange are the lidar's and dead reckoning's elsewhere)
+        for name, style, color in ((best["setting"], "-", COLORS["fused"]), (other, ":", "black")):
             if name is None:
                 continue
             # the best setting's own dataset, trial 0 (the curve of one run)
@@ -625,7 +668,7 @@ def plot_sweep(out_dir: Path, rows: list[dict], keys: list[str], metric: str, ta
             rmse = (f"trial 0 RMSE {res.stats['rmse']:.3f} m, mean of {row['trials']} trials {row[RANK_COLUMN]:.3f} m"
                     if is_number(row.get("trials")) and row["trials"] > 1 and is_number(row.get(RANK_COLUMN))
                     else f"RMSE {res.stats['rmse']:.3f} m")
-            ax.plot(ts[k] - ts[0], res.np_arrays["error_array"][k], style, lw=1.0,
+            ax.plot(ts[k] - ts[0], res.np_arrays["error_array"][k], style, lw=1.0, color=color,
                     label=f"{name} ({Path(t.dataset).name}, {rmse})")
         ax.set_xlabel("time since start [s]")
         ax.set_ylabel("APE translation [m]")
@@ -641,13 +684,14 @@ def plot_sweep(out_dir: Path, rows: list[dict], keys: list[str], metric: str, ta
 def plot_drift(path: Path, evals: dict) -> None:
     """KITTI drift metric against segment length: translational (%) and rotational (deg/100 m) error."""
     fig, axes = plt.subplots(1, 2, figsize=(11, 4))
+    colors = estimate_colors(list(evals))
     for name, ev in evals.items():
         if not ev.drift:
             continue
         Ls = sorted(int(k) for k in ev.drift["per_length"])
         t = [ev.drift["per_length"][str(L)]["t_err_pct"] for L in Ls]
         r = [ev.drift["per_length"][str(L)]["r_err_deg_per_m"] * 100 for L in Ls]
-        c = COLORS.get(name)
+        c = colors[name]
         lab = LABELS.get(name, name)
         axes[0].plot(Ls, t, "o-", color=c, label=f"{lab} ({ev.drift['t_err_pct']:.2f} %)")
         axes[1].plot(Ls, r, "o-", color=c, label=f"{lab} ({ev.drift['r_err_deg_per_100m']:.3f} deg/100 m)")
@@ -795,8 +839,9 @@ def plot_generic_trajectories(path: Path, ref, estimates: dict, up_axis: str = "
     i0, i1 = {"z": (0, 1), "y": (0, 2), "x": (1, 2)}[up_axis]
     fig, ax = plt.subplots(figsize=(8, 7))
     ax.plot(ref.p_w_m[:, i0], ref.p_w_m[:, i1], "-", color="black", lw=1.6, label="reference")
-    for i, (name, s) in enumerate(estimates.items()):
-        ax.plot(s.p_w_m[:, i0], s.p_w_m[:, i1], "-", lw=1.0, color=_VCOLORS[i % len(_VCOLORS)], label=name)
+    colors = estimate_colors(list(estimates))
+    for name, s in estimates.items():
+        ax.plot(s.p_w_m[:, i0], s.p_w_m[:, i1], "-", lw=1.0, color=colors[name], label=LABELS.get(name, name))
     ax.set_aspect("equal", adjustable="box")
     # whole coordinates: georeferenced (UTM) files put an offset '+5.429e6' over the title, and a reader must add it
     ax.ticklabel_format(useOffset=False, style="plain")
