@@ -314,13 +314,27 @@ def validate(body: Any, where: str, schema_: dict[str, Spec] | None = None, info
     return Layer(out, where)
 
 
+def _shipped_hint(path: Path) -> str:
+    """'; did you mean configs/lidar-imu.yaml?' where a file of that name is under configs/ (the working directory's,
+    else the shipped tree's): `-c lidar-imu.yaml` said only 'not found' (a student's review)."""
+    from .resources import shipped_root
+
+    for root in (r for r in (Path.cwd(), shipped_root()) if r is not None):
+        hits = sorted((root / "configs").rglob(path.name)) if (root / "configs").is_dir() else []
+        if hits:
+            q = hits[0]
+            shown = q.relative_to(root) if root == Path.cwd() else q
+            return f"; did you mean {shown}{' (shipped with fusion-eval)' if root != Path.cwd() else ''}?"
+    return ""
+
+
 def read_yaml(path: Path, what: str = "config file") -> Any:
     """A YAML file's content; a missing file or bad YAML is a one-line error naming the file (and line)."""
     path = Path(path)
     if path.is_dir():
         raise ConfigError(f"{path}: is a folder; expected a YAML {what}")
     if not path.is_file():
-        raise ConfigError(f"{path}: {what} not found")
+        raise ConfigError(f"{path}: {what} not found{_shipped_hint(path)}")
     try:
         return yaml_lines.load(path.read_text(encoding="utf-8"))     # mappings that know their lines
     except UnicodeDecodeError:

@@ -185,8 +185,9 @@ def _row_format(*values: float):
     return lambda v: f"{v:.{nd}f}"
 
 
-def markdown(sec: dict) -> list[str]:
-    """The report's table of the headline metrics over the trials."""
+def markdown(sec: dict, plotted: bool = True) -> list[str]:
+    """The report's table of the headline metrics over the trials (``plotted``: ``trials.png`` was written; with
+    --no-plots the report pointed to a file that was not there: a student's review)."""
     from .tables import markdown as md
 
     rows = []
@@ -202,7 +203,7 @@ def markdown(sec: dict) -> list[str]:
     L = ["## Monte-Carlo trials", "",
          f"{sec['n']} trials over the seeds of every random element (trial i adds i to "
          f"{', '.join(sorted(seeds[0])) or 'the seeds'}); trial 0's outputs are the files of this folder; per trial: "
-         "`trials.csv`, `trials.png`.", ""]
+         f"`trials.csv`{', `trials.png`' if plotted else ''}.", ""]
     if sec.get("identical"):
         L += [nothing_random_line(sec["n"]), ""]
     if sec.get("failed"):

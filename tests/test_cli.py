@@ -161,6 +161,10 @@ def test_set_overrides_and_lidar_forms(kitti_slice, tmp_path):
         t0 = read_tum(out / "fused.tum").t_s[0]
         assert not np.any((g.t_s >= t0 + 20) & (g.t_s < t0 + 40))
         assert not list(out.glob("*.png"))
+        # the GNSS has no pose in the outage and the report says so beside the span (a student's review)
+        n = m["estimates"]["gnss"]["matched_poses"]
+        assert (f"The GNSS is scored on its {n} fixes inside the span and has none in its outage 20-40 s after the "
+                "start") in (out / "report.md").read_text()
         fused = read_tum(out / "fused.tum")
         assert np.isfinite(fused.p_w_m).all()
 

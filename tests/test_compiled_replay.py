@@ -37,17 +37,28 @@ def default_run():
     return _prepared()
 
 
+def _enable(o) -> tuple[str, ...]:
+    """The --set items that turn one registered observation on (with the lidar off unless it is the lidar)."""
+    sets = tuple(f"{k}={str(v).lower() if isinstance(v, bool) else v}" for k, v in o.enable_with.items())
+    return sets if o.enabled_by == "filter.lidar_update" else (*sets, "filter.lidar_update=none")
+
+
+# every registered observation with a compiled kernel, alone: a new one is dispatched and checked against Python
+_ENABLE_EACH_KERNEL = {f"{o.name}:{type(o).__name__}": _enable(o) for o in observations.REGISTRY if o.kernel is not None}
+
 CASES = [
     (),                                                                         # relative lidar + GNSS, adaptive noise
     ("filter.discretization=first_order", "lidar.noise_adapt=none", "lidar.gate_prob=0.9"),   # gated: rejections
     ("filter.lidar_update=absolute",),
     ("filter.use_gnss=false", "lidar.noise_adapt=nis_position", "gnss.lever_arm_b_m=[0.3, -0.2, 0.8]"),
     ("filter.odometer_update=true", "filter.nhc=true"),                        # the body-velocity kernels
+    *_ENABLE_EACH_KERNEL.values(),
 ]
 
 
 @pytest.mark.slow
-@pytest.mark.parametrize("sets", CASES, ids=["default", "gated", "absolute", "no-gnss-adapt-position", "odometer-nhc"])
+@pytest.mark.parametrize("sets", CASES, ids=["default", "gated", "absolute", "no-gnss-adapt-position", "odometer-nhc",
+                                             *(f"alone-{k}" for k in _ENABLE_EACH_KERNEL)])
 def test_compiled_replay_equals_the_python_loop(sets):
     prep, s = _prepared(*sets)
     ref = replay(prep, _with_mode(s.cfg, prep, "python"))
@@ -96,7 +107,7 @@ def test_every_registered_kernel_is_dispatched():
     # each kernel its own slot, and every kernel a bound observation carries is its class's declared one
     assert len(set(observations.KERNELS)) == len(observations.KERNELS) >= 5      # a slot per observation
     seen = set()
-    for sets in (("filter.odometer_update=true", "filter.nhc=true"), ("filter.lidar_update=absolute",)):
+    for sets in _ENABLE_EACH_KERNEL.values():
         prep, s = _prepared(*sets)
         for o in observations.enabled(s.cfg):
             b = o.bind(prep, s)

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import re
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -164,3 +165,15 @@ def test_a_run_label_with_a_percent_sign_is_said_as_written(caplog):
     log.warning("after")
     assert [r.getMessage() for r in caplog.records] == ["run x (gnss 50% outage): plain",
                                                         "run x (gnss 50% outage): with args", "after"]
+
+
+def test_a_missing_config_file_names_the_shipped_one_of_that_name(tmp_path, monkeypatch):
+    """`-c lidar-imu.yaml` said only 'not found' (a student's review): the file of that name under configs/ is named."""
+    from fusion_eval.config import read_yaml
+
+    monkeypatch.chdir(tmp_path)
+    with pytest.raises(ConfigError, match=r"lidar-imu.yaml: config file not found; did you mean .*configs/lidar-imu.yaml "
+                                          r"\(shipped with fusion-eval\)\?"):
+        read_yaml(Path("lidar-imu.yaml"))
+    with pytest.raises(ConfigError, match=r"no-such.yaml: config file not found$"):
+        read_yaml(Path("no-such.yaml"))

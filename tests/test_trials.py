@@ -151,3 +151,13 @@ def test_trials_of_a_run_with_nothing_random_say_so(tmp_path, kitti_slice, caplo
     assert sim["identical"] and "nothing it uses depends on a seed" in caplog.text
     assert any(ln.startswith("**The fused estimate's figures are identical over the 2 trials") for ln in markdown(sim))
     assert not fe.run(kitti_slice, trials=2).metrics["trials"]["identical"]       # the GNSS degradation varies
+
+
+def test_the_trials_section_names_trials_png_only_when_it_was_drawn():
+    """With --trials and --no-plots the report pointed to a trials.png that was not written (a student's review)."""
+    from fusion_eval.trials import markdown as trials_md
+
+    sec = {"n": 3, "seeds": [{"gnss.seed": 0}], "stats": {}, "identical": False, "failed": []}
+    assert "`trials.csv`, `trials.png`." in "\n".join(trials_md(sec))
+    text = "\n".join(trials_md(sec, plotted=False))
+    assert "`trials.csv`." in text and "trials.png" not in text

@@ -36,16 +36,19 @@ def stream_coverage(name: str, series: PoseSeries, applied: dict) -> tuple[float
     return coverage(series)
 
 
+def _names(names: list[str]) -> str:
+    return names[0] if len(names) == 1 else f"{', '.join(names[:-1])} and {names[-1]}"
+
+
 def common_span(gt: PoseSeries, spans: dict[str, tuple[float, float]]) -> dict:
     """The intersection of the estimates' spans (``name -> (t0, t1)``) with the ground truth's, and which
     estimate limits each end."""
-    t0, t1 = coverage(gt)
-    lo_by = hi_by = "groundtruth"
-    for name, (a, b) in spans.items():
-        if a > t0:
-            t0, lo_by = a, name
-        if b < t1:
-            t1, hi_by = b, name
+    ends = {"groundtruth": coverage(gt), **spans}
+    t0, t1 = max(a for a, _ in ends.values()), min(b for _, b in ends.values())
+    # every estimate at the limit is named: one of two that started together was named, the lidar by run and the
+    # filter by compare, for the same stamp (a student's review)
+    lo_by = _names([n for n, (a, _) in ends.items() if a == t0])
+    hi_by = _names([n for n, (_, b) in ends.items() if b == t1])
     if not t1 > t0:
         raise DataRangeError(f"the estimates share no time span with each other and the ground truth "
                              f"({', '.join(f'{k} {a:.3f}..{b:.3f} s' for k, (a, b) in spans.items())})")

@@ -298,12 +298,20 @@ def report_md(dataset: str, config_name: str, evals: dict, ratios: dict, cfg: di
              " (reference interpolated at the estimate's stamps: linear position, SLERP rotation)")
           + f"; alignment: **{ev0.get('alignment', 'none')}**. Matched poses are in the table above.",
           "", "Span: " + describe_span(ev0.get("span") if (ev0.get("span") or {}).get("mode") == "common" else None) + "."]
+    if gnss_info and gnss_info.get("fixes_in_outages") and "gnss" in evals:
+        # the span is the same, the poses are not: 'over the same 468.9 s' read as if the GNSS were scored through the
+        # outage too (a student's review)
+        n_out = len(gnss_info["outages_s"])
+        L += ["", f"The GNSS is scored on its {evals['gnss'].matched_poses} fixes inside the span and has none in its "
+              f"{_outages(gnss_info['outages_s'], gnss_info['fixes_in_outages'], 'fixes')}; the other estimates are "
+              f"scored through {'them' if n_out > 1 else 'it'}, so fused/GNSS sets the fused error over the whole span, "
+              f"{'outages' if n_out > 1 else 'outage'} included, against the GNSS's outside."]
     if plots_written:       # right after the summary: what a reader looks at first
         L += ["", "## Plots", ""] + [f"![{p}]({p})" for p in plots_written]
     if metrics.get("trials"):
         from ..trials import markdown as trials_md
 
-        L += [""] + trials_md(metrics["trials"])
+        L += [""] + trials_md(metrics["trials"], plotted="trials.png" in plots_written)
     L += drift_section(metrics) + consistency_section(metrics) + segments_section(metrics)
     L += ["## GNSS degradation", ""]
     if gnss_info is None:
