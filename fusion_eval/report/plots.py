@@ -528,7 +528,7 @@ def sweep_params_figure(rows: list[dict], keys: list[str], metric: str, defaults
         ax.set_title("Every setting, best at the top", fontsize=9)
         ax.grid(alpha=0.3, which="major")
     for ax, g in zip(flat, groups):
-        k = g[0]
+        k, *together = g
         xs, notes = [], []
         for j, (ds, v) in enumerate(series):
             c = _VARIANT_COLORS[j % len(_VARIANT_COLORS)]
@@ -567,7 +567,7 @@ def sweep_params_figure(rows: list[dict], keys: list[str], metric: str, defaults
             right = ax.transAxes.inverted().transform(ax.transData.transform((x, y)))[0] > 0.7
             ax.annotate(nm, (x, y), xytext=(-5 if right else 5, 4), textcoords="offset points", fontsize=7,
                         color="dimgray", ha="right" if right else "left")
-        ax.set_xlabel(k + ("" if len(g) == 1 else f"\n(set together with {', '.join(g[1:])})"), fontsize=9)
+        ax.set_xlabel(k + (f"\n(set together with {', '.join(together)})" if together else ""), fontsize=9)
         ax.set_ylabel(label, fontsize=8)
         ax.grid(alpha=0.3, which="major")
     handles = [Line2D([], [], ls="", marker="o", color="gray", label="a setting of the sweep"),
