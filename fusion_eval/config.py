@@ -22,7 +22,7 @@ import numpy as np
 import yaml
 
 from . import yaml_lines
-from .errors import ConfigError
+from .errors import ConfigError, shown as shown_value
 from .spec import S, Spec  # noqa: F401  (re-exported: config.S, config.Spec)
 
 
@@ -52,12 +52,13 @@ CORE: dict[str, Spec] = {
                              "float", positive=True, auto=True),
     "filter.init_pose_from": S("groundtruth", "initial position/attitude from 'groundtruth' or the first valid 'lidar' pose",
                                choices=("groundtruth", "lidar")),
-    "filter.init_velocity_from": S("groundtruth", "initial velocity from 'groundtruth' (its positions differenced where it has "
-                                                  "no velocity) or from differencing the first two 'gnss' fixes",
+    "filter.init_velocity_from": S("groundtruth", "initial velocity from 'groundtruth' (its velocity, or its positions "
+                                                  "differenced over +/-0.1 s where it has none: TUM, EuRoC motion capture) "
+                                                  "or from differencing the first two 'gnss' fixes",
                                    choices=("groundtruth", "gnss")),
     "smoother.method": S("none", "offline smoothing beside the filter, written as the 'smoothed' estimate: 'none', 'rts' "
                                  "(Rauch-Tung-Striebel backward pass over the filter's own models) or 'batch' (GTSAM factor "
-                                 "graph of every measurement the filter used; the 'smoother' extra)",
+                                 "graph of every measurement the filter used; the 'smoother' extra); see \"Offline smoothing\"",
                          choices=("none", "rts", "batch")),
     "imu.time_offset_s": S(None, "added to IMU stamps; null = the manifest's value (default 0)", "float", nullable=True),
     "imu.gyro_lag_s": S(None, "the gyro reports the rate of gyro_lag_s earlier and is advanced by this much; 'auto' = estimated "
@@ -81,7 +82,7 @@ CORE: dict[str, Spec] = {
     "imu.gap_noise_scale": S(10.0, "process noise std multiplier on intervals that are gaps", positive=True, reads="filter"),
     "imu.gap_turn_rate_dps": S(10.0, "std of the unknown turn rate over an IMU gap, per axis, deg/s: at the first sample "
                                      "after a gap of T s the attitude's variance grows by (rate x T)^2 (the KITTI drives' "
-                                     "own RMS turn rate: 8-12 deg/s)", nonneg=True, reads="filter"),
+                                     "own RMS turn rate, from their gyro: 8-12 deg/s)", nonneg=True, reads="filter"),
     "imu.gap_accel_mps2": S(0.5, "std of the unknown acceleration over an IMU gap, per axis, m/s^2: the velocity's "
                                  "variance grows by (accel x T)^2 (a car's typical longitudinal acceleration)",
                             nonneg=True, reads="filter"),
@@ -96,7 +97,9 @@ CORE: dict[str, Spec] = {
                                      choices=("calibration", "auto")),
     "lidar.interpolate_to_imu": S(True, "resample the lidar poses onto the IMU stamps (SLERP) before fusing"),
     "gnss.time_offset_s": S(None, "added to GNSS stamps; null = the manifest's value (default 0)", "float", nullable=True),
-    "gnss.rate_hz": S(1.0, "decimate GNSS to this rate (null = keep every fix); only for streams the manifest marks 'degrade'",
+    "gnss.rate_hz": S(1.0, "decimate GNSS to this rate (null = keep every fix); only for streams the manifest marks "
+                           "'degrade' (on another stream it and gnss.noise_std_m are a data warning: a sweep over them "
+                           "gave identical rows and a 'best' with no word)",
                       "float", positive=True, nullable=True, reads="data"),
     "gnss.noise_std_m": S([1.0, 1.0, 2.0], "white noise added per axis E/N/U, m ([0, 0, 0] = none)", nonneg=True, reads="data"),
     "gnss.outages_s": S([], "outage windows [[start, end], ...] in seconds from the filter's start (the first IMU sample it "
@@ -199,23 +202,23 @@ def _checked(key: str, spec: Spec, value: Any, where: str) -> Any:
     k = spec.kind
     if k == "choice":
         if value not in spec.choices:
-            raise ConfigError(f"{where}: {key} must be one of {', '.join(spec.choices)}, got {value!r}")
+            raise ConfigError(f"{where}: {key} must be one of {', '.join(spec.choices)}, got {shown_value(value)}")
         return value
     if k == "bool":
         if not isinstance(value, bool):
-            raise ConfigError(f"{where}: {key} must be true or false, got {value!r}")
+            raise ConfigError(f"{where}: {key} must be true or false, got {shown_value(value)}")
         return value
     if k == "int":
         if not isinstance(value, int) or isinstance(value, bool):
-            raise ConfigError(f"{where}: {key} must be an integer, got {value!r}")
+            raise ConfigError(f"{where}: {key} must be an integer, got {shown_value(value)}")
         if (spec.positive and value <= 0) or (spec.nonneg and value < 0):
-            raise ConfigError(f"{where}: {key} must be {'> 0' if spec.positive else '>= 0'}, got {value!r}")
+            raise ConfigError(f"{where}: {key} must be {'> 0' if spec.positive else '>= 0'}, got {shown_value(value)}")
         return value
     if k == "vec3":
         return _vec3(key, value, where, positive=spec.positive, nonneg=spec.nonneg)
     if k == "windows":
         if not isinstance(value, list) or not all(isinstance(w, (list, tuple)) and len(w) == 2 for w in value):
-            raise ConfigError(f"{where}: {key} must be a list of [start, end] pairs in seconds, got {value!r}")
+            raise ConfigError(f"{where}: {key} must be a list of [start, end] pairs in seconds, got {shown_value(value)}")
         out = []
         for a, b in value:
             a, b = _number(key, a, where), _number(key, b, where)
@@ -225,7 +228,7 @@ def _checked(key: str, spec: Spec, value: Any, where: str) -> Any:
         return out
     if k == "jumps":
         if not isinstance(value, list) or not all(isinstance(w, (list, tuple)) and len(w) == 5 for w in value):
-            raise ConfigError(f"{where}: {key} must be a list of [start_s, end_s, dE_m, dN_m, dU_m], got {value!r}")
+            raise ConfigError(f"{where}: {key} must be a list of [start_s, end_s, dE_m, dN_m, dU_m], got {shown_value(value)}")
         out = []
         for w in value:
             w = [_number(key, x, where) for x in w]
@@ -235,9 +238,9 @@ def _checked(key: str, spec: Spec, value: Any, where: str) -> Any:
         return out
     v = _number(key, value, where, positive=spec.positive, nonneg=spec.nonneg)
     if spec.below is not None and not v < spec.below:
-        raise ConfigError(f"{where}: {key} must be < {spec.below:g}, got {value!r}")
+        raise ConfigError(f"{where}: {key} must be < {spec.below:g}, got {shown_value(value)}")
     if spec.above is not None and not v > spec.above:
-        raise ConfigError(f"{where}: {key} must be > {spec.above:g}, got {value!r}")
+        raise ConfigError(f"{where}: {key} must be > {spec.above:g}, got {shown_value(value)}")
     return v
 
 
@@ -256,13 +259,13 @@ def _number(key, value, where, positive=False, nonneg=False) -> float:
             pass
     if isinstance(value, bool) or not isinstance(value, (int, float)) or (isinstance(value, float) and not math.isfinite(value)):
         # (an integer is finite, and is not handed to numpy: one beyond int64, 99999999999999999999999, was a traceback)
-        raise ConfigError(f"{where}: {key} must be a number, got {value!r}")
+        raise ConfigError(f"{where}: {key} must be a number, got {shown_value(value)}")
     if abs(value) > MAX_MAGNITUDE:
-        raise ConfigError(f"{where}: {key} = {value!r} is beyond any plausible value of it (|value| <= {MAX_MAGNITUDE:.0e})")
+        raise ConfigError(f"{where}: {key} = {shown_value(value)} is beyond any plausible value of it (|value| <= {MAX_MAGNITUDE:.0e})")
     if positive and value <= 0:
-        raise ConfigError(f"{where}: {key} must be > 0, got {value!r}")
+        raise ConfigError(f"{where}: {key} must be > 0, got {shown_value(value)}")
     if nonneg and value < 0:
-        raise ConfigError(f"{where}: {key} must be >= 0, got {value!r}")
+        raise ConfigError(f"{where}: {key} must be >= 0, got {shown_value(value)}")
     return float(value)
 
 
@@ -275,7 +278,7 @@ def _vec3(key, value, where, positive=False, nonneg=False) -> list[float]:
     if isinstance(value, (int, float)) and not isinstance(value, bool):
         value = [value] * 3
     if not isinstance(value, (list, tuple)) or len(value) != 3:
-        raise ConfigError(f"{where}: {key} must be a list of 3 numbers, got {value!r}")
+        raise ConfigError(f"{where}: {key} must be a list of 3 numbers, got {shown_value(value)}")
     return [_number(key, v, where, positive=positive, nonneg=nonneg) for v in value]
 
 

@@ -6,6 +6,7 @@ class carries; anything else that escapes is a bug and keeps its traceback.
 
 from __future__ import annotations
 
+import reprlib
 from pathlib import Path
 
 
@@ -13,6 +14,28 @@ class FusionEvalError(Exception):
     """Base class of every error the user can act on."""
 
     exit_code = 2
+
+
+_SHOWN = reprlib.Repr()
+_SHOWN.maxlevel, _SHOWN.maxlist, _SHOWN.maxtuple, _SHOWN.maxdict, _SHOWN.maxset = 3, 6, 6, 6, 6
+_SHOWN.maxstring, _SHOWN.maxother, _SHOWN.maxlong = 80, 80, 40
+MAX_MESSAGE = 2000        # characters of an error's one line: beyond, it is cut (a value echoed whole ran to 254 MB)
+
+
+def shown(value) -> str:
+    """A value as an error message quotes it: its repr, bounded in depth, length and digits (``[1, 2, ...]``). A
+    300-byte YAML of nested aliases expanded to a 254 MB message, and to 24 GB and the OOM killer one level deeper (a
+    corrupted-input review); an integer of thousands of digits has no repr at all."""
+    try:
+        return _SHOWN.repr(value)
+    except ValueError:                 # an int beyond Python's limit on digits for str()
+        return f"<an integer of {value.bit_length()} bits>" if isinstance(value, int) else f"<a {type(value).__name__}>"
+
+
+def one_line(message: str) -> str:
+    """A message on one line of at most :data:`MAX_MESSAGE` characters (the cut said)."""
+    text = " ".join(message.split())
+    return text if len(text) <= MAX_MESSAGE else f"{text[:MAX_MESSAGE]} ... ({len(text) - MAX_MESSAGE} characters cut)"
 
 
 def place(source: str, line: int | str | None) -> str:

@@ -114,7 +114,8 @@ class GnssVelocity(Observation):
     gate_key = "gnss_velocity.gate_prob"
     extra_streams = (STREAM,)
     keys = {
-        "filter.use_gnss_velocity": S(False, "fuse the GNSS receiver's ENU velocity (stream gnss_velocity)"),
+        "filter.use_gnss_velocity": S(False, "fuse the GNSS receiver's ENU velocity (stream gnss_velocity; see \"GNSS "
+                                             "velocity\")"),
         "gnss_velocity.time_offset_s": S(None, "added to GNSS velocity stamps; null = the manifest's value (default 0)",
                                          "float", nullable=True),
         "gnss_velocity.rate_hz": S("auto", "decimate the GNSS velocity to this rate; 'auto' = gnss.rate_hz (the receiver's "

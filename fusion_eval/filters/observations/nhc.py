@@ -48,15 +48,18 @@ class NonHolonomic(Observation):
     keys = {
         "filter.nhc": S("auto", "non-holonomic constraint: velocity across and above the direction of travel = 0 as a "
                                 "pseudo-observation while not turning; 'auto' = on when the dataset's platform is a wheeled "
-                                "vehicle (manifest 'platform: car'; plain KITTI raw drives)", "bool", auto=True),
+                                "vehicle (manifest 'platform: car'; plain KITTI raw drives) and the rest of the "
+                                "configuration can take it; see \"The non-holonomic constraint\"", "bool", auto=True),
         "filter.nhc_max_turn_rate_rps": S(0.13, "apply the constraint only while |angular rate| is below this, rad/s",
                                           positive=True),
         "filter.nhc_rate_hz": S(10.0, "rate of the constraint's pseudo-observations, Hz", positive=True),
         "filter.nhc_std_mps": S(0.1, "std of the constraint (lateral and vertical slip), m/s", positive=True, reads="filter"),
-        "filter.nhc_travel_pitch_mrad": S("auto", "pitch of the direction of travel above the IMU's x-y plane, mrad; 'auto' "
-                                                  "= from the lidar odometry's body-frame increments on straight stretches, "
-                                                  "else from a smoothed IMU + GNSS pass; null (or no estimate) = the "
-                                                  "vertical row is left out", "float", auto=True, nullable=True),
+        "filter.nhc_travel_pitch_mrad": S("auto", "pitch of the direction of travel above the IMU's x-y plane, mrad: the "
+                                                  "constraint's vertical row is along it; 'auto' = from the lidar "
+                                                  "odometry's body-frame increments on straight stretches, else from a "
+                                                  "smoothed IMU + GNSS pass (see \"The non-holonomic constraint\"); null "
+                                                  "(or no estimate) = the vertical row is left out", "float", auto=True,
+                                          nullable=True),
         "filter.nhc_travel_yaw_mrad": S(0.0, "yaw of the direction of travel to the left of the IMU's x axis, mrad (not "
                                              "estimated: the lidar's increments carry its own mount's yaw error); the "
                                              "odometer's speed update is along it too (the odometer + gyro process model "
