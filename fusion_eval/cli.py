@@ -13,7 +13,7 @@ from pathlib import Path
 import click
 
 from . import __version__, interrupts
-from .errors import FusionEvalError
+from .errors import FusionEvalError, one_line
 
 log = logging.getLogger("fusion_eval")
 
@@ -110,7 +110,7 @@ class Group(click.Group):
                 _interrupted(interrupts.Terminated() if signum == signal.SIGTERM else KeyboardInterrupt())
             if isinstance(exc, FusionEvalError):
                 # one line, whatever a library's message embedded (a YAML parser's report spans several)
-                click.echo("error: " + " ".join(str(exc).split()), err=True)
+                click.echo("error: " + one_line(str(exc)), err=True)
                 sys.exit(exc.exit_code)
             if isinstance(exc, click.UsageError):   # a command's options, an unknown command
                 _usage_error(exc)

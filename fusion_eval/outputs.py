@@ -6,6 +6,7 @@ from __future__ import annotations
 
 import contextlib
 import errno
+import glob
 import os
 import shutil
 import socket
@@ -240,8 +241,11 @@ class StagedDir:
                 self._unlock()
                 raise
             self.staging = self.final.parent / f".{self.final.name}.partial-{os.getpid()}"
-            if self.staging.exists():
-                shutil.rmtree(self.staging)
+            # with the lock held no other process writes this target: every staging folder of it is a killed run's
+            # (SIGKILL, the OOM killer, a CI timeout left 3.4 MB of half-written results beside --out for good: a
+            # corrupted-input review)
+            for old in self.final.parent.glob(f".{glob.escape(self.final.name)}.partial-*"):
+                shutil.rmtree(old, ignore_errors=True)
             self.staging.mkdir()
             self._abort_token = interrupts.on_abort(self._abandon)
         except OSError as exc:

@@ -1327,3 +1327,78 @@ def test_evaluate_names_a_tum_file_stamped_in_nanoseconds(tmp_path):
                                   "--out", str(tmp_path / "o")])
     _assert_clean_error(r, tmp_path / "o", "ref.tum:1:", "POSIX time in nanoseconds read as seconds", "in seconds")
     assert not (tmp_path / "o").exists()
+
+
+# --- a corrupted-input review (2026-12-05): inputs that broke the one-line-error contract
+
+def test_a_yaml_of_nested_aliases_is_a_short_error_not_a_memory_blowup(ds, tmp_path):
+    """A 300-byte config of nested YAML aliases expanded to a 254 MB 'one-line' error at 8 levels and to 24 GB and the
+    OOM killer at 9: the value is quoted bounded (errors.shown), and any error line is cut at errors.MAX_MESSAGE."""
+    from fusion_eval.errors import MAX_MESSAGE, one_line, shown
+
+    names = "abcdefghijkl"
+    parts = ['&a ["x","x","x","x","x","x","x","x","x"]']
+    parts += [f"&{names[i]} [{','.join(['*' + names[i - 1]] * 9)}]" for i in range(1, len(names))]
+    bomb = tmp_path / "bomb.yaml"
+    bomb.write_text("gnss:\n  noise_std_m: [" + ", ".join(parts) + "]\n")
+    r, out = _run(ds, tmp_path, "-c", str(bomb))
+    _assert_clean_error(r, out, "bomb.yaml:2: gnss.noise_std_m must be a list of 3 numbers, got [[")
+    assert len(r.stderr) < MAX_MESSAGE
+    assert shown(10 ** 5000) == "<an integer of 16610 bits>" and len(shown(list(range(10 ** 6)))) < 100
+    cut = one_line("x " * 5000)
+    assert len(cut) < MAX_MESSAGE + 40 and cut.endswith("characters cut)")
+
+
+def test_check_refuses_a_number_beyond_any_float_and_json_nested_too_deep(slice_run, tmp_path):
+    """A baseline with a 400-digit 'rmse' was an OverflowError traceback and one nested 100,000 deep a RecursionError."""
+    import json
+
+    m = json.loads((slice_run / "metrics.json").read_text())
+    m["estimates"]["fused"]["ape"]["translation_m"]["rmse"] = 10 ** 400
+    (tmp_path / "big.json").write_text(json.dumps(m))
+    (tmp_path / "deep.json").write_text("[" * 100_000 + "]" * 100_000)
+    r = CliRunner().invoke(main, ["check", str(slice_run / "metrics.json"), "--baseline", str(tmp_path / "big.json")])
+    assert r.exit_code == 2 and "not a finite number" in r.stderr and "..." in r.stderr, r.output
+    r = CliRunner().invoke(main, ["check", str(slice_run / "metrics.json"), "--baseline", str(tmp_path / "deep.json")])
+    assert r.exit_code == 2 and "JSON nested too deeply" in r.stderr, r.output
+
+
+def test_a_killed_runs_staging_folder_is_removed_by_the_next_run(ds, tmp_path):
+    """SIGKILL (the OOM killer, a CI timeout) left .out.partial-PID beside --out for good; the next run into the same
+    --out takes the lock and removes every staging folder of it."""
+    stale = tmp_path / ".out.partial-999999"
+    stale.mkdir()
+    (stale / "fused.tum").write_text("half\n")
+    r, out = _run(ds, tmp_path)
+    assert r.exit_code == 0, r.output
+    assert out.is_dir() and not list(tmp_path.glob(".out.partial*"))
+
+
+def test_an_interrupted_sweep_summary_says_the_records_are_kept_and_how_to_rebuild(kitti_slice, tmp_path, monkeypatch):
+    """A Ctrl-C between the summary's files left sweep.csv and best.yaml without sweep.md under 'no output directory
+    was written', which was false."""
+    from fusion_eval.commands import sweep_summary
+
+    (tmp_path / "g.yaml").write_text("settings:\n  a: {gnss.noise_std_m: [1.5, 1.5, 3.0]}\n")
+    args = ["sweep", str(kitti_slice), "--grid", str(tmp_path / "g.yaml"), "--out", str(tmp_path / "sw"), "--no-plots",
+            "--jobs", "1"]
+
+    def cut_short(*_a, **_k):
+        raise KeyboardInterrupt
+
+    monkeypatch.setattr(sweep_summary, "write_summary", cut_short)
+    r = CliRunner().invoke(main, args)
+    assert r.exit_code == 130 and "no output directory was written" not in r.stderr, r.output
+    assert "every finished run is recorded in" in r.stderr and "--summarize-only` rebuilds it" in r.stderr
+    assert len(list((tmp_path / "sw" / "records").glob("*.json"))) == 2
+
+
+@pytest.mark.slow
+def test_a_tune_none_of_whose_trials_completes_fails(kitti_slice, tmp_path):
+    """Every trial diverged, 'No trial completed: nothing is tuned.' and exit 0 (a sweep in that case exits 2)."""
+    (tmp_path / "space.yaml").write_text("params:\n  gnss.std_scale: {low: 1.0e-300, high: 1.0e-299, log: true}\n")
+    r = CliRunner().invoke(main, ["tune", str(kitti_slice), "--space", str(tmp_path / "space.yaml"), "--objective",
+                                  "nll", "--trials", "2", "--out", str(tmp_path / "t"), "-j", "1", "--no-plots"])
+    assert r.exit_code == 2 and "error: no trial of the tune completed" in r.stderr, r.output
+    assert "the first error: filter diverged" in r.stderr and (tmp_path / "t" / "tune.md").exists()
+    assert not (tmp_path / "t" / "best.yaml").exists()

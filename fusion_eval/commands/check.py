@@ -22,7 +22,7 @@ import xml.etree.ElementTree as ET
 from dataclasses import dataclass
 from pathlib import Path
 
-from ..errors import DataFormatError, FusionEvalError
+from ..errors import DataFormatError, FusionEvalError, shown
 from ..outputs import atomic_write
 from ..evaluation import keys
 from ..resources import dataset_label
@@ -58,6 +58,9 @@ def load_metrics(path: Path, trial_stat: str | None = "mean") -> tuple[dict[str,
                           object_pairs_hook=lambda pairs: _unique(path, pairs))
     except json.JSONDecodeError as exc:
         raise DataFormatError(path, exc.lineno, f"not valid JSON ({exc.msg})") from None
+    except RecursionError:          # '[' nested 100,000 deep is valid JSON that Python's parser cannot hold
+        raise DataFormatError(path, None, "JSON nested too deeply to be a metrics.json (expected a mapping with "
+                              "'estimates')") from None
     if not isinstance(body, dict) or not isinstance(body.get("estimates"), dict):
         raise DataFormatError(path, None, "expected a metrics.json of fusion-eval run (a mapping with 'estimates')")
     out = keys.flatten(body)
@@ -324,7 +327,7 @@ def _json_field(path: Path, key: str):
         return None
     try:
         return json.loads(Path(path).read_text()).get(key)
-    except (json.JSONDecodeError, OSError, AttributeError, UnicodeDecodeError):
+    except (json.JSONDecodeError, OSError, AttributeError, UnicodeDecodeError, RecursionError):
         return None
 
 
@@ -337,12 +340,12 @@ def _refuse_incomplete_baseline(path: Path, lacking: list[str]) -> None:
     if Path(path).suffix != ".csv":
         try:
             raw = keys.flatten(json.loads(Path(path).read_text()), raw=True)
-        except (json.JSONDecodeError, OSError, AttributeError):
+        except (json.JSONDecodeError, OSError, AttributeError, RecursionError):
             raw = {}
     k = lacking[0]
     held = raw.get(k, "__absent__")
     what = ("has no value for it" if held == "__absent__" else
-            f"holds {held!r} there, not a finite number")
+            f"holds {shown(held)} there, not a finite number")
     more = f" (and {len(lacking) - 1} more gated metrics)" if len(lacking) > 1 else ""
     raise CheckUsageError(f"{path}: the baseline {what}: gated metric {k!r}{more}; rebuild the baseline with "
                           "--update-baseline, or gate fewer metrics with --metric")

@@ -560,6 +560,13 @@ def run_sweep(sweep: str | Path, datasets: list[str], out_dir: Path, jobs: int |
     else:
         progress = progress_for(len({t.id for t in tasks})) if progress_for else None
         counts = execute(tasks, out_dir, jobs, scheduler, dask_local, retry_failed, progress=progress, batch=batch)
-    summary = write_summary(tasks, out_dir, swept_keys(body), plots=plots, grid_keys=list(body.get("grid") or {}),
-                            objective=objective)
+    try:
+        summary = write_summary(tasks, out_dir, swept_keys(body), plots=plots, grid_keys=list(body.get("grid") or {}),
+                                objective=objective)
+    except KeyboardInterrupt as exc:
+        # each summary file is written whole, but a Ctrl-C between them left sweep.csv and best.yaml without sweep.md
+        # under 'no output directory was written' (a corrupted-input review)
+        raise type(exc)(f"every finished run is recorded in {out_dir}/records, but the summary was cut short "
+                        "(sweep.md, best.yaml, report.html and the plots may be missing or from an earlier summary): "
+                        f"`fusion-eval sweep --grid {sweep} --out {out_dir} --summarize-only` rebuilds it") from None
     return {"counts": counts, "summary": summary, "tasks": tasks}

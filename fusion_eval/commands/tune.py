@@ -9,7 +9,7 @@ from pathlib import Path
 from typing import Callable
 
 from .. import resources
-from ..errors import ConfigError
+from ..errors import ConfigError, FusionEvalError
 from ..tuning import objectives as obj
 from ..tuning.report import write
 from ..tuning.space import load_space
@@ -68,7 +68,19 @@ def run_tune(train: list[str], test: list[str], space: str, objectives: list[str
         if new_dir and not any((s.out_dir / "trials").glob("*.json")):
             shutil.rmtree(s.out_dir, ignore_errors=True)
         raise
-    files = write(s, res, time.perf_counter() - t0, with_plots=plots)
+    try:
+        files = write(s, res, time.perf_counter() - t0, with_plots=plots)
+    except KeyboardInterrupt as exc:
+        raise type(exc)(f"every trial is kept in {s.out_dir}/study.journal, but the report was cut short (best.yaml, "
+                        "tune.md, report.html and the plots may be missing or from an earlier run): run the same "
+                        "command again to rewrite it") from None
+    if res["best"] is None:
+        # nothing tuned is a failure, as a sweep with nothing to rank: exit 0 and 'No trial completed' in tune.md hid it
+        # (a corrupted-input review); the records stay, and the report says each trial's fate
+        trials = res["study"].get_trials(deepcopy=False)
+        first = next((t.user_attrs["error"] for t in trials if t.user_attrs.get("error")), None)
+        raise FusionEvalError(f"no trial of the tune completed ({len(trials)} failed, diverged or pruned; every trial "
+                              f"is in {s.out_dir}/trials.csv and tune.md)" + (f"; the first error: {first}" if first else ""))
     return {"setup": s, "result": res, "files": files, "runtime_s": time.perf_counter() - t0}
 
 

@@ -103,7 +103,10 @@ def is_number(v) -> bool:
     """A finite int or float (not a bool): a value a metric, a table or a plot can use."""
     import math
 
-    return isinstance(v, (int, float)) and not isinstance(v, bool) and math.isfinite(v)
+    try:
+        return isinstance(v, (int, float)) and not isinstance(v, bool) and math.isfinite(v)
+    except OverflowError:          # an integer beyond any float (a JSON number of 400 digits): no metric value
+        return False
 
 
 def flatten(metrics: dict, raw: bool = False) -> dict[str, float]:
