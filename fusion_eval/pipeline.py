@@ -67,8 +67,9 @@ def evaluate_estimate(reference: PoseSeries, estimate: PoseSeries, name: str, ev
     ``output.zip_trajectories``; ``route``: keep the associated reference positions (the segment map's primary
     estimate; sent back for no other, a long estimate's are 17 MB)."""
     # the RPE results without their reduced trajectories: the result files do not hold them (report.files.evo_zips)
+    # a run's world frame is local ENU: up is z (the per-segment horizontal / vertical split; a 4dof alignment)
     ev = evaluate(reference, estimate, name, ev_cfg["t_max_diff_s"], ev_cfg["rpe_delta_m"], ev_cfg["association"],
-                  ev_cfg["alignment"], ev_cfg["engine"], rpe_trajectories=False)
+                  ev_cfg["alignment"], ev_cfg["engine"], rpe_trajectories=False, up_axis="z")
     if zip_dir is not None:
         report.files.write_evo_zips(ev, zip_dir, zip_trajectories)
         report.files.write_tum(Path(zip_dir) / report.files.TUM_FILES[name], name, estimate)

@@ -139,6 +139,10 @@ def test_default_report_carries_every_section(slice_run):
     m = json.loads((slice_run / "metrics.json").read_text())
     assert m["estimates"]["fused"]["kitti_drift"]["t_err_pct"] > 0
     assert 0 <= m["nees"]["position"]["fraction_in_95"] <= 1 and m["segments"]["segments"]
+    # where the fused error lies, window by window: horizontal and vertical parts (their squares add up to the APE's)
+    s = m["segments"]["segments"][0]
+    h, v, r = (s[k]["fused"] for k in ("rmse_h_m", "rmse_v_m", "rmse_m"))
+    assert h * h + v * v == pytest.approx(r * r, rel=1e-9) and "fused horizontal / vertical [m]" in report
     for p in ("kitti_drift.png", "consistency.png", "segments_map.png"):
         assert (slice_run / p).exists()
 
@@ -432,3 +436,32 @@ def test_a_routes_last_stub_is_not_ranked_among_the_worst_segments():
     assert stub["end_m"] - stub["start_m"] < 50.0 and stub["rmse_m"]["fused"] == pytest.approx(9.0)
     assert stub["index"] not in b["worst"] and len(b["worst"]) == 5
     assert b["worst"][0] == max(s["index"] for s in b["segments"] if s is not stub)    # the growing error's last full one
+
+
+def test_segments_split_each_error_across_and_along_the_up_axis():
+    """Where the error lies (a student found kitti-00's worst windows vertical only from the TUM files): each window
+    holds the RMSE of the error's horizontal and vertical parts, whose squares add up to the APE's, made from the
+    same associated poses as evo's APE."""
+    from fusion_eval.evaluation.segments import breakdown
+    from fusion_eval.evaluation.trajectory import horizontal_vertical
+
+    rng = np.random.default_rng(5)
+    n = 3000
+    t = np.arange(n) * 0.1
+    p = np.column_stack([np.cumsum(rng.uniform(0.5, 1.5, n)), np.cumsum(rng.normal(0, 0.3, n)), 0.01 * rng.normal(size=n)])
+    q = np.tile([0.0, 0.0, 0.0, 1.0], (n, 1))
+    gt = PoseSeries(t_s=t, p_w_m=p, q_wb_xyzw=q)
+    dp = rng.normal(size=(n, 3)) * [0.3, 0.2, 1.0]
+    est = PoseSeries(t_s=t, p_w_m=p + dp, q_wb_xyzw=q)
+    ev = evaluate(gt, est, "fused", 0.01, 100.0)
+    assert np.allclose(ev.ape_hv_m, np.column_stack([np.hypot(dp[:, 0], dp[:, 1]), np.abs(dp[:, 2])]), atol=1e-9)
+    assert np.allclose(np.hypot(*ev.ape_hv_m.T), ev.ape_err_m, atol=1e-9)          # evo's trans_part norm
+    seg = breakdown(gt, {"fused": (ev.ape_t_s, ev.ape_err_m)}, 100.0, parts={"fused": ev.ape_hv_m})
+    for s in seg["segments"]:
+        h, v, r = s["rmse_h_m"]["fused"], s["rmse_v_m"]["fused"], s["rmse_m"]["fused"]
+        assert h * h + v * v == pytest.approx(r * r, rel=1e-12) and v > h        # the vertical part dominates here
+    assert "rmse_h_m" not in breakdown(gt, {"fused": (ev.ape_t_s, ev.ape_err_m)}, 100.0)["segments"][0]
+    # the up axis found from the reference: a planar drive's z; none for a flight with no ground plane
+    assert np.allclose(horizontal_vertical(dp, "auto", p), ev.ape_hv_m)
+    assert horizontal_vertical(dp, "auto", rng.normal(size=(n, 3))) is None
+    assert np.allclose(horizontal_vertical(dp, "y", p)[:, 1], np.abs(dp[:, 1]))

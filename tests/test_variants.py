@@ -184,7 +184,7 @@ def test_compare_command_writes_table_and_plots(kitti_slice, tmp_path):
     assert float(rows["eskf"]["final_gyro_bias_z_dph"]) == pytest.approx(bv["final_gyro_bias_dph"][2], abs=1e-6)
     assert float(rows["eskf"]["nis_mean_lidar"]) == pytest.approx(bv["nis_mean"]["lidar"], abs=1e-6)
     assert rows["odometer-nhc"]["nis_mean_odometer"] != "" and rows["eskf"]["nis_mean_odometer"] == ""
-    assert "## Per-segment breakdown" in md and "KITTI drift" in md
+    assert "## Per-segment breakdown" in md and "KITTI drift" in md and "eskf horizontal / vertical [m]" in md
     for p in ("ape_over_time.png", "biases.png", "body_velocity.png"):
         assert (out / p).read_bytes()[:4] == b"\x89PNG"
     assert (out / "variants" / "nominal" / "fused.tum").exists()

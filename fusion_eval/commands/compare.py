@@ -117,10 +117,11 @@ def _evaluate_all(runs: list[VariantRun], base_prep, ev_cfg: dict, pool):
             r.warnings = (*r.warnings, short)
     ref = span.crop(gt, sp)              # as evo's --t_start/--t_end: the reference reduced to the span
     args = (ev_cfg["t_max_diff_s"], ev_cfg["rpe_delta_m"], ev_cfg["association"], ev_cfg["alignment"])
-    fut_v = [pool.submit(evaluate, ref, r.filt.fused, r.name, *args) for r in runs]
-    fut_s = [pool.submit(evaluate, ref, r.filt.smoothed.fused, r.name, *args) if r.filt.smoothed is not None else None
-             for r in runs]
-    fut_u = {k: pool.submit(evaluate, ref, s, k, *args) for k, s in unfiltered.items()}
+    kw = {"up_axis": "z"}                 # the filters' world frame is local ENU
+    fut_v = [pool.submit(evaluate, ref, r.filt.fused, r.name, *args, **kw) for r in runs]
+    fut_s = [pool.submit(evaluate, ref, r.filt.smoothed.fused, r.name, *args, **kw) if r.filt.smoothed is not None
+             else None for r in runs]
+    fut_u = {k: pool.submit(evaluate, ref, s, k, *args, **kw) for k, s in unfiltered.items()}
     for r, f, fs in zip(runs, fut_v, fut_s):
         r.ev = f.result()
         r.ev.results = {}

@@ -77,8 +77,8 @@ def evaluate_series(ref, estimates: dict, association: str = "nearest",
         ref = from_evo(ref, repeated_stamps=True)
     names = list(evals)
     errs = {k: (ev.ape_t_s, ev.ape_err_m) for k, ev in evals.items() if ev.ape_err_m is not None}
-    seg = breakdown(ref, errs, segment_m, segment_s, primary=names[0], secondary=names[1] if len(names) > 1 else None) \
-        if errs else None
+    seg = breakdown(ref, errs, segment_m, segment_s, primary=names[0], secondary=names[1] if len(names) > 1 else None,
+                    parts={k: ev.ape_hv_m for k, ev in evals.items()}) if errs else None
     est_m = {k: {**(about.get(k) or {}), **estimate_metrics(ev)} for k, ev in evals.items()}
     metrics = {"evaluation": {"association": association, "alignment": alignment, "t_max_diff_s": t_max_diff_s,
                               "t_offset_s": t_offset_s, "rpe_delta_m": rpe_delta_m, "engine": engine,

@@ -164,7 +164,8 @@ def _att_vel_error(gt: PoseSeries, gi: PoseSeries, sel: slice, filt) -> dict:
 def segments(gt: PoseSeries, evals: dict[str, EstimateEvaluation], ev_cfg: dict, primary: str = "fused",
              secondary: str | None = "lidar") -> dict:
     errs = {k: (ev.ape_t_s, ev.ape_err_m) for k, ev in evals.items() if ev.ape_err_m is not None}
-    return breakdown(gt, errs, ev_cfg["segment_m"], ev_cfg["segment_s"], primary=primary, secondary=secondary)
+    return breakdown(gt, errs, ev_cfg["segment_m"], ev_cfg["segment_s"], primary=primary, secondary=secondary,
+                     parts={k: ev.ape_hv_m for k, ev in evals.items()})
 
 
 def _strip_arrays(d: dict) -> dict:

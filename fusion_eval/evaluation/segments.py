@@ -17,13 +17,18 @@ MAX_SEGMENTS = 100_000       # a finer breakdown is a mistaken unit, not a repor
 
 
 def breakdown(gt: PoseSeries, errors: dict[str, tuple[np.ndarray, np.ndarray]], segment_m: float,
-              segment_s: float | None = None, worst: int = 5, primary: str = "fused", secondary: str | None = "lidar") -> dict:
+              segment_s: float | None = None, worst: int = 5, primary: str = "fused", secondary: str | None = "lidar",
+              parts: dict[str, np.ndarray] | None = None) -> dict:
     """Windows along the route with each estimate's APE RMSE inside.
 
-    ``errors`` maps an estimate's name to ``(stamps, APE translation errors)``. Returns ``{"by", "length",
-    "segments": [...], "worst": [...]}``; each segment holds its start/end distance and time and, per
-    estimate, the RMSE and the number of poses (estimates with no pose in a window get None).
+    ``errors`` maps an estimate's name to ``(stamps, APE translation errors)``; ``parts`` (optional) an estimate's
+    name to the horizontal and vertical parts of the same errors, ``(n, 2)``
+    (:func:`fusion_eval.evaluation.trajectory.horizontal_vertical`). Returns ``{"by", "length", "segments": [...],
+    "worst": [...]}``; each segment holds its start/end distance and time and, per estimate, the RMSE, the number of
+    poses (estimates with no pose in a window get None) and, with ``parts``, ``rmse_h_m``/``rmse_v_m``: where the
+    error lies (a student found that kitti-00's worst windows are vertical only from the TUM files).
     """
+    parts = {k: v for k, v in (parts or {}).items() if v is not None and k in errors}
     d_gt = route_distance(gt)
     t0 = gt.t_s[0]
     by_time = segment_s is not None
@@ -46,7 +51,8 @@ def breakdown(gt: PoseSeries, errors: dict[str, tuple[np.ndarray, np.ndarray]], 
     for name, (t, e) in errors.items():
         kk = key(t)
         order = np.argsort(kk, kind="stable")
-        groups[name] = (e[order], np.searchsorted(kk[order], np.arange(n_seg + 1), side="left"))
+        groups[name] = (e[order], np.searchsorted(kk[order], np.arange(n_seg + 1), side="left"),
+                        parts[name][order] if name in parts else None)
     x_gt = gt.t_s - t0 if by_time else d_gt          # non-decreasing: a window is a run of samples
     segs = []
     for k in range(n_seg):
@@ -56,10 +62,16 @@ def breakdown(gt: PoseSeries, errors: dict[str, tuple[np.ndarray, np.ndarray]], 
             continue
         seg = {"index": k, "start_m": float(d_gt[a]), "end_m": float(d_gt[b - 1]),
                "start_s": float(gt.t_s[a] - t0), "end_s": float(gt.t_s[b - 1] - t0), "rmse_m": {}, "poses": {}}
-        for name, (e_sorted, bounds) in groups.items():
+        if parts:
+            seg["rmse_h_m"], seg["rmse_v_m"] = {}, {}
+        for name, (e_sorted, bounds, hv_sorted) in groups.items():
             sel = e_sorted[bounds[k]:bounds[k + 1]]
             seg["rmse_m"][name] = float(np.sqrt(np.mean(sel ** 2))) if sel.size else None
             seg["poses"][name] = int(sel.size)
+            if hv_sorted is not None:
+                hv = hv_sorted[bounds[k]:bounds[k + 1]]
+                h, v = (float(x) for x in np.sqrt(np.mean(hv ** 2, axis=0))) if hv.size else (None, None)
+                seg["rmse_h_m"][name], seg["rmse_v_m"][name] = h, v
         segs.append(seg)
     # the worst among full windows: the route's last stub (kitti-00's 3701-3707 m, a few poses) ranked among the five
     # worst on an RMSE of a handful of errors (a plot review); it stays in the table

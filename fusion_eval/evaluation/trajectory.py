@@ -66,6 +66,8 @@ class EstimateEvaluation:
     alignment_params: dict | None = None
     drift: dict | None = None                         # KITTI drift metric (kitti_drift.DriftResult.as_dict)
     ref_p_m: np.ndarray | None = None                 # associated reference positions, for segment maps
+    ape_hv_m: np.ndarray | None = None                # (n, 2): horizontal and vertical parts of each APE translation
+                                                      # error (the reference's up axis), for the per-segment table
     nees: dict | None = None                          # position / attitude NEES of an estimate with covariances
 
 
@@ -248,6 +250,27 @@ def _align_4dof(est_a, ref_a, up_axis: str, n_to_align: int = -1):
     return engine.with_poses(est_a, A @ engine.traj_se3(est_a)), params, (R, 1.0)
 
 
+# a reference whose smallest principal spread is above this share of the middle one has no clear ground plane (a
+# flight): its errors are not split into horizontal and vertical parts along a guessed axis
+FLAT_ENOUGH = 0.5
+
+
+def horizontal_vertical(dp_m: np.ndarray, up_axis: str, p_ref_m: np.ndarray) -> np.ndarray | None:
+    """The horizontal and vertical parts of position errors ``dp_m`` (estimate - reference, (n, 3), in the
+    reference's frame): ``(n, 2)`` of the norm across ``up_axis`` and the absolute value along it, whose root sum of
+    squares is the APE translation error (evo's ``trans_part``). ``up_axis`` 'auto': the reference's least-varying
+    axis (:func:`fusion_eval.evaluation.alignment.detect_up_axis`); None where it has no clear ground plane."""
+    if up_axis == "auto":
+        if len(p_ref_m) < 3:
+            return None
+        up_axis, det = detect_up_axis(p_ref_m)
+        if det["flatness"] > FLAT_ENOUGH:
+            return None
+    k = "xyz".index(up_axis)
+    across = np.delete(dp_m, k, axis=1)
+    return np.column_stack([np.hypot(across[:, 0], across[:, 1]), np.abs(dp_m[:, k])])
+
+
 def evaluate(reference, estimate, name: str, t_max_diff_s: float,
              rpe_delta_m: float, association: str = "nearest", alignment: str = "none",
              engine_name: str = "arrays", *, relations: tuple[str, ...] = keys.DEFAULT_RELATIONS, up_axis: str = "auto",
@@ -326,6 +349,7 @@ def evaluate(reference, estimate, name: str, t_max_diff_s: float,
             ev.ape_t_s = np.array(est_a.timestamps)
             ev.ape_err_m = np.array(res.np_arrays["error_array"])
             ev.ref_p_m = np.array(ref_a.positions_xyz)
+            ev.ape_hv_m = horizontal_vertical(np.asarray(est_a.positions_xyz) - ev.ref_p_m, up_axis, ev.ref_p_m)
     if has_orientation:
         d = kitti_drift(*calc.se3())
         ev.drift = None if d is None else d.as_dict()

@@ -115,19 +115,32 @@ def segments_section(m: dict) -> list[str]:
     from ..datasets.trajectory_file import BY_INDEX
 
     by_frame = m.get("reference_stamps") == BY_INDEX
-    header = ["segment", "route [m]", "frames" if by_frame else "time [s]"] + [f"{n} APE RMSE [m]" for n in names] + ([f"{a} - {b} [m]"] if b else [])
+    # where the primary estimate's error lies: across the up axis or along it (a student's review found kitti-00's worst
+    # windows vertical only by reading the TUM files)
+    split = any((s.get("rmse_h_m") or {}).get(a) is not None for s in seg["segments"])
+    header = (["segment", "route [m]", "frames" if by_frame else "time [s]"] + [f"{n} APE RMSE [m]" for n in names]
+              + ([f"{a} horizontal / vertical [m]"] if split else []) + ([f"{a} - {b} [m]"] if b else []))
     rows = []
     for s in seg["segments"]:
         r = s["rmse_m"]
         diff = [] if not b else ["n/a" if r.get(a) is None or r.get(b) is None else f"{r[a] - r[b]:+.3f}"]
         rows.append([s["index"], f"{s['start_m']:.0f}-{s['end_m']:.0f}", f"{s['start_s']:.0f}-{s['end_s']:.0f}",
-                     *[r.get(n) for n in names], *diff])
+                     *[r.get(n) for n in names], *([_hv(s, a)] if split else []), *diff])
     L = ["", f"## Per-segment breakdown (every {seg['length']:g} {unit} along the route)", ""] + markdown(
         header, rows, align="lll" + "r" * (len(header) - 3))
     by_i = {s["index"]: s for s in seg["segments"]}
     L += ["", f"Worst segments for {a}: " + ", ".join(
-        f"{i} ({by_i[i]['start_m']:.0f}-{by_i[i]['end_m']:.0f} m, {by_i[i]['rmse_m'][a]:.3f} m)" for i in seg["worst"]) + ".", ""]
+        f"{i} ({by_i[i]['start_m']:.0f}-{by_i[i]['end_m']:.0f} m, {by_i[i]['rmse_m'][a]:.3f} m"
+        + (f"; horizontal / vertical {_hv(by_i[i], a)} m" if split else "") + ")" for i in seg["worst"]) + ".", ""]
+    if split:
+        L += ["Horizontal / vertical: the RMSE of the error's part across and along the reference's up axis (their "
+              "squares add up to the APE's).", ""]
     return L
+
+
+def _hv(s: dict, name: str) -> str:
+    h, v = (s.get("rmse_h_m") or {}).get(name), (s.get("rmse_v_m") or {}).get(name)
+    return "n/a" if h is None else f"{h:.3f} / {v:.3f}"
 
 
 _UNITS = {"mps": "m/s", "m": "m"}
