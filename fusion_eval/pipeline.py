@@ -141,7 +141,8 @@ def share(ds: Dataset, cfg: dict, pool, zip_dir: Path | None = None) -> Shared:
         sp = span.span_for(ev_cfg["span"], gt, spans)
     except DataRangeError as exc:
         raise DataRangeError(f"{exc} {offsets_note(prep.applied)}".rstrip()) from None
-    short = span.short_span_warning(sp, gt, (float(prep.imu.t_s[0]), float(prep.imu.t_s[-1])))
+    short = span.short_span_warning(sp, gt, (float(prep.imu.t_s[0]), float(prep.imu.t_s[-1])),
+                                    {n: spans[n] for n in ("lidar", "gnss") if n in spans})
     if short:            # said with the data's warnings (stderr, report.md, metrics.json)
         log.warning("%s", short)
         prep.applied["data_warnings"] = [*prep.applied.get("data_warnings", ()), short]

@@ -72,3 +72,32 @@ def test_a_start_a_rounding_before_the_truth_reads_as_zero():
     text = describe({"from_groundtruth_start_s": [-0.001, 114.85], "duration_s": 114.9, "start_set_by": "gnss",
                      "end_set_by": "gnss", "t0_s": 1.0, "t1_s": 2.0})
     assert "0.00 .. 114.85 s after" in text and "-0.00" not in text
+
+
+def test_a_stream_cut_short_is_said_whichever_stream_it_is():
+    """An IMU cut at 30 s of a 60 s drive, or a ground truth of 6 s, was scored over its stub with no word: the share
+    was taken of the time the IMU and the ground truth shared (a corrupted-input review). It is taken of the longest
+    input stream now; a drive whose streams all cover it says nothing."""
+    gt = _poses(np.arange(0, 60, 0.1))
+    full = span.common_span(gt, {"fused": (0.0, 59.9), "lidar": (0.0, 59.9)})
+    assert span.short_span_warning(full, gt, (0.0, 59.9), {"lidar": (0.0, 59.9)}) is None
+    imu_cut = span.common_span(gt, {"fused": (0.0, 30.0), "lidar": (0.0, 59.9)})
+    w = span.short_span_warning(imu_cut, gt, (0.0, 30.0), {"lidar": (0.0, 59.9)})
+    assert w.startswith("every estimate is scored over 30.0 s only") and "of the 59.9 s the ground truth covers" in w
+    assert "IMU 30.0 s" in w and "fused sets its start" not in w
+    gt_cut = _poses(np.arange(0, 6, 0.1))
+    w = span.short_span_warning(span.common_span(gt_cut, {"fused": (0.0, 59.9)}), gt_cut, (0.0, 59.9), {})
+    assert "of the 59.9 s the IMU covers (ground truth 5.9 s, IMU 59.9 s)" in w and "groundtruth its end" in w
+
+
+def test_no_ratio_over_an_estimate_equal_to_its_reference():
+    """A ground truth of two rows scored the lidar's anchored start alone: 'fused over lidar 2699170384210'."""
+    from types import SimpleNamespace
+
+    from fusion_eval.evaluation.trajectory import ratio
+
+    def ev(rmse):
+        return SimpleNamespace(metrics={"ape": {"translation_m": {"rmse": rmse}}})
+
+    assert ratio(ev(0.7), ev(7.0)) == pytest.approx(0.1)
+    assert ratio(ev(0.7), ev(2.6e-13)) is None and ratio(ev(0.7), ev(0.0)) is None and ratio(ev(0.7), None) is None

@@ -110,7 +110,8 @@ def _evaluate_all(runs: list[VariantRun], base_prep, ev_cfg: dict, pool):
     spans = {r.name: span.coverage(r.filt.fused) for r in runs}
     spans.update({k: span.stream_coverage(k, s, base_prep.applied) for k, s in unfiltered.items()})
     sp = span.span_for(ev_cfg["span"], gt, spans)
-    short = span.short_span_warning(sp, gt, (float(base_prep.imu.t_s[0]), float(base_prep.imu.t_s[-1])))
+    short = span.short_span_warning(sp, gt, (float(base_prep.imu.t_s[0]), float(base_prep.imu.t_s[-1])),
+                                    {n: spans[n] for n in ("lidar", "gnss") if n in spans})
     if short:            # of the data, so of every variant (compare.md and compare.json list each one's warnings)
         log.warning("%s", short)
         for r in runs:

@@ -90,18 +90,24 @@ def span_for(mode: str, gt: PoseSeries, spans: dict[str, tuple[float, float]]) -
 MIN_COVERED = 0.8
 
 
-def short_span_warning(sp: dict | None, gt: PoseSeries, imu: tuple[float, float]) -> str | None:
-    """A data warning when the common span covers less than :data:`MIN_COVERED` of the time the IMU (its first and
-    last samples, ``imu``) shares with the ground truth: a lidar stream overlapping the drive's last 2 s (a clock
-    offset, a cut file) had every figure scored over 2 s of 470, said only in the report's span line."""
+def short_span_warning(sp: dict | None, gt: PoseSeries, imu: tuple[float, float],
+                       streams: dict[str, tuple[float, float]] | None = None) -> str | None:
+    """A data warning when the common span covers less than :data:`MIN_COVERED` of the longest input stream (the
+    ground truth, the IMU's first and last samples ``imu``, and ``streams``, the other inputs' coverage): a lidar
+    stream overlapping the drive's last 2 s (a clock offset, a cut file) had every figure scored over 2 s of 470, and an
+    IMU or a ground truth cut short (30 s of a 60 s drive; 6 s; 2 rows) was scored over its stub with no word, the
+    share being taken of the time they shared (a corrupted-input review)."""
     if sp is None:
         return None
-    g0, g1 = coverage(gt)
-    full = min(g1, imu[1]) - max(g0, imu[0])
+    ends = {"ground truth": coverage(gt), "IMU": imu, **(streams or {})}
+    longest = max(ends, key=lambda n: ends[n][1] - ends[n][0])
+    full = ends[longest][1] - ends[longest][0]
     if not full > 0 or sp["duration_s"] >= MIN_COVERED * full:
         return None
-    a, b = sp["from_groundtruth_start_s"]
+    a, b = (round(v, 1) + 0.0 for v in sp["from_groundtruth_start_s"])
+    cover = ", ".join(f"{n} {e[1] - e[0]:.1f} s" for n, e in ends.items())
+    by = sp["start_set_by"]
     return (f"every estimate is scored over {sp['duration_s']:.1f} s only ({a:.1f} .. {b:.1f} s after the ground truth's "
-            f"first pose) of the {full:.1f} s the IMU shares with the ground truth: {sp['start_set_by']} sets its start "
-            f"and {sp['end_set_by']} its end (a clock offset, or a stream cut short?); evaluation.span=own scores each "
-            "estimate over its own poses")
+            f"first pose) of the {full:.1f} s the {longest} covers ({cover}): {by} {'set' if ' and ' in by else 'sets'} "
+            f"its start and {sp['end_set_by']} its end (a clock offset, or a stream cut short?); evaluation.span=own "
+            "scores each estimate over its own poses")

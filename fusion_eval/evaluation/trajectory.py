@@ -420,9 +420,16 @@ def pose_nees_of(ref_a, est_a, cov: tuple[np.ndarray, np.ndarray], applied: tupl
             "covariances_not_positive_definite": skipped}
 
 
+# an APE RMSE below this is an estimate scored where it equals its reference (an anchored start, a ground truth of two
+# poses): no ratio is taken over it ('fused over lidar 2699170384210' on a 2-row ground truth: a corrupted-input review)
+MIN_RATIO_DENOMINATOR_M = 1e-6
+
+
 def ratio(a: EstimateEvaluation | None, b: EstimateEvaluation | None) -> float | None:
-    """APE translation RMSE of ``a`` over that of ``b`` (None when either is missing)."""
+    """APE translation RMSE of ``a`` over that of ``b`` (None when either is missing, or ``b``'s is below
+    :data:`MIN_RATIO_DENOMINATOR_M`)."""
     try:
-        return float(a.metrics["ape"]["translation_m"]["rmse"] / b.metrics["ape"]["translation_m"]["rmse"])
+        den = b.metrics["ape"]["translation_m"]["rmse"]
+        return None if not den >= MIN_RATIO_DENOMINATOR_M else float(a.metrics["ape"]["translation_m"]["rmse"] / den)
     except (AttributeError, KeyError, TypeError, ZeroDivisionError):
         return None
