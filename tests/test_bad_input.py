@@ -616,7 +616,24 @@ def test_glitches_and_gaps_below_the_refusal_bounds_are_flagged_in_the_report(ds
         assert needle in r.stderr and needle in report, needle
     import json
 
-    assert len(json.loads((out / "metrics.json").read_text())["preprocessing"]["data_warnings"]) == 3   # + GNSS
+    warned = json.loads((out / "metrics.json").read_text())["preprocessing"]["data_warnings"]
+    # + GNSS's step, and the lidar's spike dragging the fused estimate to 6.4x the GNSS's own APE
+    assert len(warned) == 4 and "the fused estimate's APE" in warned[3] and "x the gnss's own" in warned[3]
+
+
+def test_a_fused_estimate_far_worse_than_a_stream_it_fuses_is_a_warning():
+    """A gyro axis of the wrong sign gave a fused 12.6 m and 93 deg against the GNSS's 2.5 m, exit 0, no warning (a
+    corrupted-input review): the innovations passed. The comparison with the fused streams' own APE does not."""
+    from fusion_eval.evaluation.run_metrics import worse_than_inputs
+
+    def est(**rmse):
+        return {k: {"ape": {"translation_m": {"rmse": v}}} for k, v in rmse.items()}
+
+    (w,) = worse_than_inputs(est(fused=12.6, gnss=2.5, lidar=7.2), {"gnss": {}, "lidar": {}})
+    assert w.startswith("the fused estimate's APE (12.6 m) is 5.0x the gnss's own (2.5 m), which it fuses")
+    assert worse_than_inputs(est(fused=12.6, gnss=2.5), {"lidar": {}}) == []        # GNSS not fused: no claim on it
+    assert worse_than_inputs(est(fused=0.76, gnss=2.45, lidar=7.18), {"gnss": {}, "lidar": {}}) == []
+    assert worse_than_inputs(est(fused=0.59, lidar=0.57), {"lidar": {}}) == []      # SiMpLE 07 without GNSS: 1.04x
 
 
 def test_the_clean_drive_has_no_data_warning(slice_run):
