@@ -123,10 +123,18 @@ class Group(click.Group):
             if isinstance(exc, OSError) and not isinstance(exc, BrokenPipeError):
                 # the system refused a read or write no check foresaw (stdout on a full device): one line, not a
                 # traceback; the output folder was written atomically or not at all
-                click.echo("error: " + " ".join(f"{exc.filename + ': ' if exc.filename else ''}{exc.strerror or exc}".split()),
-                           err=True)
+                where = _as_given(str(exc.filename)) if exc.filename else ""
+                click.echo("error: " + one_line(f"{where + ': ' if where else ''}{exc.strerror or exc}"), err=True)
                 sys.exit(2)
             raise
+
+
+def _as_given(path: str) -> str:
+    """A path inside a staging folder (``OUT/../.NAME.partial-PID/x``) as the user named it (``NAME/x``): a full disk
+    named the hidden staging path, not --out (a corrupted-input review)."""
+    import re
+
+    return re.sub(r"(^|/)\.([^/]+)\.partial-\d+(?=/|$)", r"\1\2", path)
 
 
 _PROCESS_ENTRY = False        # set by entry(): the command is the whole process, not a call inside another program

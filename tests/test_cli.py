@@ -268,3 +268,11 @@ def test_used_out_refused_before_the_numerics_load(tmp_path, command):
     r = subprocess.run([sys.executable, "-c", probe], capture_output=True, text=True, cwd=tmp_path)
     assert "exists and is not empty" in r.stderr and r.stderr.count("\n") == 1, r.stderr
     assert "exit 2" in r.stdout and "loaded []" in r.stdout, r.stdout
+
+
+def test_a_failed_write_names_the_output_as_given_not_the_staging_folder():
+    """A full disk named the hidden staging path .out.partial-PID/..., not --out (a corrupted-input review)."""
+    from fusion_eval.cli import _as_given
+
+    assert _as_given("/tmp/x/.out.partial-1234/fused.tum") == "/tmp/x/out/fused.tum"
+    assert _as_given("/a/.b.c.partial-77") == "/a/b.c" and _as_given("/data/.hidden/x.txt") == "/data/.hidden/x.txt"

@@ -49,3 +49,16 @@ def test_no_degradation_keeps_every_fix():
     g = _gnss()
     out, info = degrade_gnss(g, g.t_s[0], None, [0, 0, 0], [], 0, "auto")
     assert len(out) == len(g) and np.array_equal(out.p_w_m, g.p_w_m)
+
+
+def test_a_rate_at_or_above_the_streams_own_is_said_as_every_fix_kept():
+    """--set gnss.rate_hz=1000 on 10 Hz data read 'decimated to 1000 Hz (4409 -> 4409 fixes)' (a corrupted-input
+    review): the stream's own rate is recorded, and the report says every fix was kept."""
+    from fusion_eval.report.markdown import _rate_words
+
+    g = _gnss()
+    _, info = degrade_gnss(g, g.t_s[0], 1000.0, [1.0, 1.0, 2.0], [], 0, "auto")
+    assert info["fixes_after_decimation"] == len(g) and abs(info["stream_rate_hz"] - 10.0) < 0.1
+    assert _rate_words(info, "fix") == "every fix kept (its own rate, 10 Hz, is at or below the 1000 Hz set)"
+    _, info = degrade_gnss(g, g.t_s[0], 1.0, [1.0, 1.0, 2.0], [], 0, "auto")
+    assert _rate_words(info, "fix") == "decimated to 1 Hz"

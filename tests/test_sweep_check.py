@@ -163,6 +163,11 @@ def test_check_accepts_a_sweep_csv(tmp_path):
     (tmp_path / "c.csv").write_text(cols + "x,d,eskf,default,1.5,0.5,0.1,ok,\n")
     r = CliRunner().invoke(main, ["check", str(tmp_path / "c.csv"), "--baseline", str(tmp_path / "b.csv")])
     assert r.exit_code == 1 and "d/eskf/default.fused_ape_trans_rmse_m" in r.output
+    # a second row of one run let the last win: a regressed first row passed (a corrupted-input review)
+    (tmp_path / "dup.csv").write_text(cols + "x,d,eskf,default,1.5,0.5,0.1,ok,\nx,d,eskf,default,1.0,0.5,0.1,ok,\n")
+    r = CliRunner().invoke(main, ["check", str(tmp_path / "dup.csv"), "--baseline", str(tmp_path / "b.csv")])
+    assert r.exit_code == 2 and "dup.csv:3: a second row for dataset d, variant eskf, setting default (the first at " \
+                                "line 2)" in r.stderr, r.output
 
 
 def test_check_matches_a_sweep_csv_made_in_another_folder_by_dataset_name(tmp_path):

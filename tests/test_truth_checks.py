@@ -220,3 +220,19 @@ def test_a_truth_velocity_off_its_own_positions_is_not_the_reference():
     consistent = replace(gt, t_s=t, p_w_m=p, q_wb_xyzw=q, v_w_mps=vel, filled=None, lines=None)
     v2, why2 = truth_velocity_w(consistent)
     assert why2 == "the ground truth's own velocity" and np.array_equal(v2, vel)
+
+
+def test_a_straight_drive_keeps_its_one_orientation_without_a_placeholder_warning():
+    """simulate -d 30 (a straight, flat drive) was told its truth's orientations were placeholders; a truth whose
+    path leaves its line with one orientation still is."""
+    import numpy as np
+
+    from fusion_eval.datasets.plausible import truth_orientation_placeholder
+    from fusion_eval.types import PoseSeries
+
+    t = np.arange(0.0, 30.0, 0.1)
+    q = np.tile([0.0, 0.0, 0.38268343, 0.92387953], (t.size, 1))
+    straight = PoseSeries(t, np.column_stack([8 * t, 8 * t, 0 * t]), q, source="s")
+    assert truth_orientation_placeholder(straight) is None
+    curve = PoseSeries(t, np.column_stack([40 * np.sin(t / 10), 40 * (1 - np.cos(t / 10)), 0 * t]), q, source="c")
+    assert "one and the same orientation on every pose" in truth_orientation_placeholder(curve)

@@ -114,7 +114,15 @@ def _flat_csv(path: Path) -> dict[str, float]:
     for r in rows:
         paths_of.setdefault(dataset_label(r["dataset"]), set()).add(r["dataset"])
     out = Metrics()
+    seen: dict[tuple, int] = {}
     for i, r in enumerate(rows, start=2):
+        # one row per run: a second row of the same run let the last win, and a regressed first row passed (a
+        # corrupted-input review); a sweep.csv of per-trial rows (sweep_trials.csv) has its trial in the key
+        run = (r["dataset"], r.get("variant", ""), r["setting"], r.get("trial", ""))
+        if run in seen:
+            raise DataFormatError(path, i, f"a second row for dataset {r['dataset']}, variant {r.get('variant', '')}, "
+                                  f"setting {r['setting']} (the first at line {seen[run]}): one row per run expected")
+        seen[run] = i
         if r.get("status") != "ok":
             continue
         name = dataset_label(r["dataset"])

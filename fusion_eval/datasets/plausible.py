@@ -633,6 +633,12 @@ def truth_orientation_placeholder(gt) -> str | None:
     path = float(np.linalg.norm(np.diff(p, axis=0), axis=1).sum())
     if not path > PLACEHOLDER_PATH_M:
         return None
+    # a straight drive keeps one orientation for real: only a path that leaves its line (its second principal spread
+    # over a metre and 1 % of its length) says the orientations are placeholders (a simulated straight, flat 30 s drive
+    # was told its truth was a placeholder: a corrupted-input review)
+    spread = np.linalg.svd(p - p.mean(axis=0), compute_uv=False)
+    if not (spread.size > 1 and spread[1] / np.sqrt(len(p)) > max(1.0, 0.01 * path)):
+        return None
     return (f"{gt.source}: the ground truth has one and the same orientation on every pose over {path:.0f} m of travel "
             "(placeholders: a position-only truth): its rotation APE, relative (RPE) and attitude NEES figures measure "
             "the placeholder, not the estimates; only the translation APE means anything")

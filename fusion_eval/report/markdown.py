@@ -192,12 +192,22 @@ def _estimates(applied: dict) -> list[str]:
     return out
 
 
+def _rate_words(info: dict, what: str) -> str:
+    """'decimated to 1 Hz', or 'every fix kept' where no rate was set or the one set is at or above the stream's own."""
+    rate, own = info.get("rate_hz"), info.get("stream_rate_hz")
+    if rate is None:
+        return f"every {what} kept"
+    if own is not None and rate >= 0.99 * own:
+        return f"every {what} kept (its own rate, {own:.3g} Hz, is at or below the {rate:g} Hz set)"
+    return f"decimated to {rate:g} Hz"
+
+
 def _stream_info(name: str, info: dict) -> str:
     unit = next((k.split("std_given_to_filter_")[1] for k in info if k.startswith("std_given_to_filter_")), "")
     given = info.get(f"std_given_to_filter_{unit}")
     if not info["degraded"]:
         return f"Stream `{name}`: used as it is, {info['fixes_used']} measurements; std given to the filter: {given}."
-    rate = "every measurement kept" if info["rate_hz"] is None else f"decimated to {info['rate_hz']:g} Hz"
+    rate = _rate_words(info, "measurement")
     return (f"Stream `{name}` (a GPS/INS solution, degraded): {rate} ({info['fixes_in']} -> {info['fixes_after_decimation']}), "
             f"white noise with std {info.get(f'noise_std_{unit}')} {_UNITS.get(unit, unit)} (seed {info.get('seed')}), "
             f"{_outages(info['outages_s'], info['fixes_in_outages'], 'measurements')}; {info['fixes_used']} used. "
@@ -335,7 +345,7 @@ def report_md(dataset: str, config_name: str, evals: dict, ratios: dict, cfg: di
         L.append(f"The GNSS stream is a receiver's output (the manifest does not mark it for degradation): used as it is"
                  f"{outages}, {gnss_info['fixes_used']} fixes; std given to the filter: {gnss_info['std_given_to_filter_m']}.")
     else:
-        rate = "every fix kept" if gnss_info["rate_hz"] is None else f"decimated to {gnss_info['rate_hz']:g} Hz"
+        rate = _rate_words(gnss_info, "fix")
         L.append(f"KITTI's OXTS position is the GPS/INS solution that is also the ground truth, so it was degraded: "
                  f"{rate} ({gnss_info['fixes_in']} -> {gnss_info['fixes_after_decimation']} fixes), white noise with std "
                  f"{gnss_info['noise_std_m']} m (E, N, U; seed {gnss_info['seed']}), "
