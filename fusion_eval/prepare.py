@@ -247,7 +247,8 @@ def prepare(ds: Dataset, cfg: dict) -> Prepared:
         else:
             other_frame = plausible.unanchored_lidar(lid, gt)
         # (positions in another frame fit the truth at no time shift: the frame is the warning then)
-        more_warnings += filter(None, [other_frame or plausible.clock_shift("the lidar", lid, gt, "lidar.time_offset_s", lidar_off)])
+        more_warnings += filter(None, [other_frame or plausible.clock_shift("the lidar", lid, gt, "lidar.time_offset_s", lidar_off)
+                                       or plausible.speed_clock_warning("the lidar", lid, gt, "lidar.time_offset_s", lidar_off)])
         if ds.description.get("lidar_clock"):
             applied["lidar_clock"] = ds.description["lidar_clock"]
         if cfg["filter"].get("nhc") and cfg["filter"].get("nhc_travel_pitch_mrad") == "auto":

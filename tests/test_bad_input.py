@@ -1462,3 +1462,16 @@ def test_the_speed_clock_check_is_blind_to_frame_scale_and_drift():
     s, *_ = speed_clock_shift(t, est, t, p)
     assert abs(s) <= 0.011
     assert speed_clock_shift(t[:150], p[:150], t, p) is None             # under 20 s of overlap: no verdict
+    # a run's lidar against its truth: said with the offset that fits; an on-time one, or a small shift, is not
+    from fusion_eval.datasets.plausible import clear_speed_shift, speed_clock_warning
+    from fusion_eval.types import PoseSeries
+
+    q = np.tile([0.0, 0.0, 0.0, 1.0], (t.size, 1))
+    gt = PoseSeries(t, p, q, source="gt")
+    w = speed_clock_warning("the lidar", PoseSeries(t - 0.2, est, q, source="lidar.csv"), gt, "lidar.time_offset_s", -0.2)
+    assert re.match(r"the lidar \(lidar.csv\) moves like the ground truth 0\.(19|20|21) s earlier than stamped", w), w
+    assert re.search(r"\(lidar.time_offset_s -?0\.01\d s fits, for the -0.200 s given\)|\(lidar.time_offset_s -?0\.00\d s "
+                     r"fits, for the -0.200 s given\)", w), w
+    assert speed_clock_warning("the lidar", PoseSeries(t, est, q, source="l"), gt) == ""
+    assert not clear_speed_shift((0.1, 0.999, 0.99)) and not clear_speed_shift((0.3, 0.5, 0.2))
+    assert clear_speed_shift((0.3, 0.999, 0.99)) and not clear_speed_shift((0.3, 0.999, 0.9988))

@@ -277,7 +277,7 @@ def span_and_clock_hints(f, ref_f, ev, alignment: str, t_range_s=(None, None)) -
     lidar, or of its ground truth, scored 3.18 m against 7.14 m, with no word: the 'half matched' rule counts poses of
     the shorter file), and an estimate whose speed matches the reference's best at another time than stamped (one 1 s late: KITTI drift 9.14 %
     for 0.53 %; :func:`fusion_eval.datasets.plausible.speed_clock_shift`). Sentences for a warning and the report."""
-    from ..datasets.plausible import MIN_CLOCK_SHIFT_S, MIN_SPEED_CORR, speed_clock_shift
+    from ..datasets.plausible import clear_speed_shift, speed_clock_shift
     from ..datasets.trajectory_file import BY_INDEX
     from ..evaluation.span import MIN_COVERED
 
@@ -298,13 +298,11 @@ def span_and_clock_hints(f, ref_f, ev, alignment: str, t_range_s=(None, None)) -
     if ref_f.stamps != BY_INDEX and f.stamps != BY_INDEX:
         found = speed_clock_shift(f.traj.timestamps, f.traj.positions_xyz, ref_f.traj.timestamps,
                                   ref_f.traj.positions_xyz)
-        if found is not None:
+        if clear_speed_shift(found):
             s, c_best, c_zero = found
-            # a shift the speed profiles clearly prefer: half or less of the misfit left, and a profile worth timing by
-            if abs(s) >= MIN_CLOCK_SHIFT_S and c_best >= MIN_SPEED_CORR and 1 - c_best <= 0.5 * (1 - c_zero):
-                out.append(f"its speed matches the reference's best {abs(s):.2f} s {'later' if s > 0 else 'earlier'} than "
-                           f"stamped (correlation {c_best:.3f} there, {c_zero:.3f} as stamped): a clock offset between the "
-                           f"files, which every figure carries (--t-offset {-s:+.2f} matches them so)")
+            out.append(f"its speed matches the reference's best {abs(s):.2f} s {'later' if s > 0 else 'earlier'} than "
+                       f"stamped (correlation {c_best:.4f} there, {c_zero:.4f} as stamped): a clock offset between the "
+                       f"files, which every figure carries (--t-offset {-s:+.2f} matches them so)")
     return out
 
 
