@@ -1475,3 +1475,50 @@ def test_the_speed_clock_check_is_blind_to_frame_scale_and_drift():
     assert speed_clock_warning("the lidar", PoseSeries(t, est, q, source="l"), gt) == ""
     assert not clear_speed_shift((0.1, 0.999, 0.99)) and not clear_speed_shift((0.3, 0.5, 0.2))
     assert clear_speed_shift((0.3, 0.999, 0.99)) and not clear_speed_shift((0.3, 0.999, 0.9988))
+
+
+def test_a_semicolon_csv_and_an_absurd_stream_offset_are_said_plainly(tmp_path):
+    """A ';'-separated CSV with decimal commas read 'must have 7 values per row, got 8', and a manifest time_offset_s of
+    1e300 a duplicate stamp of the data file with two 300-digit numbers (a corrupted-input review)."""
+    from fusion_eval.config import ConfigError
+    from fusion_eval.datasets._text import parse_numeric_rows
+    from fusion_eval.errors import DataFormatError
+
+    with pytest.raises(DataFormatError, match=r"x.csv:1: IMU must have 7 values per row, got 8 \(the row holds ';'"):
+        parse_numeric_rows(Path("x.csv"), "0,0;0,1;0,2;9,8;0,0;0,0;0,1\n", 7, "IMU", delimiter=",")
+    with pytest.raises(DataFormatError, match=r"expected a number, got 'x{30,40}\.\.\.x{30,40}'$"):
+        parse_numeric_rows(Path("x.csv"), "1 2 " + "x" * 5_000_000 + "\n", 3, "row")
+    from fusion_eval.simulate.dataset import simulate
+    import yaml
+
+    simulate(tmp_path / "s", "urban", 30.0, 0, "automotive", (), jobs=1)
+    m = yaml.safe_load((tmp_path / "s" / "dataset.yaml").read_text())
+    m["streams"]["imu"]["time_offset_s"] = 1e300
+    (tmp_path / "s" / "dataset.yaml").write_text(yaml.safe_dump(m))
+    import fusion_eval as fe
+
+    with pytest.raises(ConfigError, match=r"time_offset_s of stream 'imu' is 1e\+300 s: beyond any clock's"):
+        fe.load_dataset(tmp_path / "s")
+
+
+def test_a_manifest_giving_a_streams_lag_twice_is_refused(tmp_path):
+    """A simulated drive's config.imu.gyro_lag_s: 0.0 hid a streams.imu.gyro_lag_s: 0.3 that a user wrote (the APE
+    moved from 0.686 to 0.917 m once the config's line was gone): two values for one setting in one manifest."""
+    import yaml
+
+    import fusion_eval as fe
+    from fusion_eval.config import ConfigError
+    from fusion_eval.simulate.dataset import simulate
+
+    simulate(tmp_path / "s", "urban", 30.0, 0, "automotive", (), jobs=1)
+    f = tmp_path / "s" / "dataset.yaml"
+    m = yaml.safe_load(f.read_text())
+    assert m["config"]["imu"]["gyro_lag_s"] == 0.0
+    m["streams"]["imu"]["gyro_lag_s"] = 0.3
+    f.write_text(yaml.safe_dump(m))
+    with pytest.raises(ConfigError, match=r"config imu.gyro_lag_s = 0.0 and the stream entry's gyro_lag_s = 0.3 .* "
+                                          r"both set it; the config's would win: give it once"):
+        fe.run(fe.load_dataset(tmp_path / "s"))
+    m["streams"]["imu"]["gyro_lag_s"] = 0.0                       # the same value twice: no contradiction
+    f.write_text(yaml.safe_dump(m))
+    assert fe.run(fe.load_dataset(tmp_path / "s"), overrides={"output.plots": False}).metrics

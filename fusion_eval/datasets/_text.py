@@ -9,7 +9,7 @@ from pathlib import Path
 import numpy as np
 from numba import njit
 
-from ..errors import DataFormatError
+from ..errors import DataFormatError, shown
 
 
 def check_file(path: Path, what: str) -> Path:
@@ -77,13 +77,15 @@ def parse_numeric_rows(path: Path, text: str, ncols: int | tuple[int, ...], what
         parts = [p.strip() for p in parts]
         if len(parts) not in allowed or (width is not None and len(parts) != width):
             exp = _counts(allowed) if width is None else str(width)
-            raise DataFormatError(path, lineno, f"{what} must have {exp} values per row, got {len(parts)}")
+            hint = (" (the row holds ';': values separated by ';' with decimal commas, a spreadsheet's export in some "
+                    "locales? write ',' or blanks between values and '.' for decimals)" if ";" in s else "")
+            raise DataFormatError(path, lineno, f"{what} must have {exp} values per row, got {len(parts)}{hint}")
         width = len(parts)
         try:
             vals = [float(p) for p in parts]
         except ValueError:
             bad = next(p for p in parts if not is_float(p))
-            raise DataFormatError(path, lineno, f"{what}: expected a number, got {bad!r}") from None
+            raise DataFormatError(path, lineno, f"{what}: expected a number, got {shown(bad)}") from None
         if not all(np.isfinite(vals)):
             raise DataFormatError(path, lineno, f"{what}: values must be finite numbers (found NaN or inf)")
         rows.append(vals)

@@ -163,6 +163,11 @@ def _from_manifest_dict(body: dict, root: Path, manifest: Path, extra: dict | No
                 raise ConfigError(f"{at(manifest, spec, key)}: {key} of stream {name!r} must be a number of seconds, got {v!r}")
             if key != "time_offset_s" and _is_num(v) and abs(v) > plausible.MAX_LAG_S:
                 raise ConfigError(f"{at(manifest, spec, key)}: {key} of stream {name!r} is {v:g} s: {plausible.LAG_NOTE}")
+            if key == "time_offset_s" and _is_num(v) and not abs(v) <= plausible.MAX_STAMP_S:
+                # 1e300 was reported as a duplicate stamp of the data file, with two 300-digit numbers (a review)
+                raise ConfigError(f"{at(manifest, spec, key)}: time_offset_s of stream {name!r} is {v:g} s: beyond any "
+                                  f"clock's (|offset| <= {plausible.MAX_STAMP_S:g} s; a boot clock against POSIX time is "
+                                  "about 1.7e9 s)")
         if "degrade" in spec and not isinstance(spec["degrade"], bool):
             raise ConfigError(f"{at(manifest, spec, 'degrade')}: 'degrade' of stream {name!r} must be true or false, got {spec['degrade']!r}")
 
