@@ -121,8 +121,10 @@ def _flag_data(ds: Dataset, applied: dict, more: list[str] = ()) -> None:
     if platform in WHEELED:
         warnings += plausible.speed_glitches({"groundtruth": ds.groundtruth, "gnss": ds.gnss, "lidar": ds.lidar},
                                                       platform)
-    else:                 # the GNSS of any platform: a fix kilometres off is a glitch (a pose stream's frame may jump)
-        warnings += plausible.speed_glitches({"gnss": ds.gnss}, platform, plausible.MAX_ANY_SPEED_MPS)
+    else:                 # any platform: a fix or a pose kilometres off is a glitch (a lidar odometry reset to its
+        # origin mid-drive read 'fused over lidar 0.005' with no word where no platform was declared: a review)
+        warnings += plausible.speed_glitches({"groundtruth": ds.groundtruth, "gnss": ds.gnss, "lidar": ds.lidar},
+                                             platform, plausible.MAX_ANY_SPEED_MPS)
     for w in warnings:
         log.warning("%s", w)
     if warnings:

@@ -1522,3 +1522,22 @@ def test_a_manifest_giving_a_streams_lag_twice_is_refused(tmp_path):
     m["streams"]["imu"]["gyro_lag_s"] = 0.0                       # the same value twice: no contradiction
     f.write_text(yaml.safe_dump(m))
     assert fe.run(fe.load_dataset(tmp_path / "s"), overrides={"output.plots": False}).metrics
+
+
+def test_a_pose_stream_jumping_kilometres_is_flagged_on_any_platform(tmp_path):
+    """A lidar odometry reset to its origin mid-drive read 'fused over lidar 0.005' with no word where the manifest
+    declared no platform: only a car's pose streams were checked (a corrupted-input review)."""
+    import fusion_eval as fe
+    from fusion_eval.simulate.dataset import simulate
+
+    simulate(tmp_path / "s", "urban", 30.0, 0, "automotive", ("output.layout=csv_log",), jobs=1)
+    f = tmp_path / "s" / "lidar.csv"
+    rows = f.read_text().splitlines()
+    v = rows[150].split(",")
+    v[1] = f"{float(v[1]) + 200.0:.6f}"             # 2 km/s: under the refusal bound of 10 km/s
+    rows[150] = ",".join(v)
+    f.write_text("\n".join(rows) + "\n")
+    ds = fe.load_dataset(tmp_path / "s")
+    assert not ds.description.get("platform")
+    warned = fe.run(ds, overrides={"output.plots": False}).metrics["preprocessing"]["data_warnings"]
+    assert any(w.startswith("lidar: 2 step(s) faster than 300 m/s for any platform (none declared)") for w in warned), warned
