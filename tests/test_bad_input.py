@@ -616,24 +616,33 @@ def test_glitches_and_gaps_below_the_refusal_bounds_are_flagged_in_the_report(ds
         assert needle in r.stderr and needle in report, needle
     import json
 
-    warned = json.loads((out / "metrics.json").read_text())["preprocessing"]["data_warnings"]
-    # + GNSS's step, and the lidar's spike dragging the fused estimate to 6.4x the GNSS's own APE
-    assert len(warned) == 4 and "the fused estimate's APE" in warned[3] and "x the gnss's own" in warned[3]
+    assert len(json.loads((out / "metrics.json").read_text())["preprocessing"]["data_warnings"]) == 3   # + GNSS
 
 
 def test_a_fused_estimate_far_worse_than_a_stream_it_fuses_is_a_warning():
     """A gyro axis of the wrong sign gave a fused 12.6 m and 93 deg against the GNSS's 2.5 m, exit 0, no warning (a
-    corrupted-input review): the innovations passed. The comparison with the fused streams' own APE does not."""
+    corrupted-input review): the innovations passed. The fused error at the GNSS's own stamps against the GNSS's does
+    not; a GNSS outage, where the fused error grows and the GNSS has no pose, is not counted (a review: 4.2x)."""
+    from types import SimpleNamespace
+
     from fusion_eval.evaluation.run_metrics import worse_than_inputs
 
-    def est(**rmse):
-        return {k: {"ape": {"translation_m": {"rmse": v}}} for k, v in rmse.items()}
+    t = np.arange(0.0, 300.0, 0.1)
+    fix = np.arange(0.0, 300.0, 1.0)
 
-    (w,) = worse_than_inputs(est(fused=12.6, gnss=2.5, lidar=7.2), {"gnss": {}, "lidar": {}})
-    assert w.startswith("the fused estimate's APE (12.6 m) is 5.0x the gnss's own (2.5 m), which it fuses")
-    assert worse_than_inputs(est(fused=12.6, gnss=2.5), {"lidar": {}}) == []        # GNSS not fused: no claim on it
-    assert worse_than_inputs(est(fused=0.76, gnss=2.45, lidar=7.18), {"gnss": {}, "lidar": {}}) == []
-    assert worse_than_inputs(est(fused=0.59, lidar=0.57), {"lidar": {}}) == []      # SiMpLE 07 without GNSS: 1.04x
+    def ev(ts, err):
+        return SimpleNamespace(ape_t_s=ts, ape_err_m=np.full(ts.size, err) if np.isscalar(err) else err)
+
+    (w,) = worse_than_inputs({"fused": ev(t, 12.6), "gnss": ev(fix, 2.5)}, {"gnss": {}})
+    assert w.startswith("the fused estimate's APE at the GNSS's 300 scored fixes (12.6 m) is 5.0x the GNSS's own (2.5 m)")
+    assert worse_than_inputs({"fused": ev(t, 12.6), "gnss": ev(fix, 2.5)}, {"lidar": {}}) == []   # GNSS not fused
+    assert worse_than_inputs({"fused": ev(t, 0.76), "gnss": ev(fix, 2.45)}, {"gnss": {}}) == []
+    # a noise-free simulation: 6.5e-5 m against 2.8e-5 m is a ratio, not a loss (a false-positive hunt)
+    assert worse_than_inputs({"fused": ev(t, 6.5e-5), "gnss": ev(fix, 2.8e-5)}, {"gnss": {}}) == []
+    outage = (t > 100) & (t < 250)
+    err = np.where(outage, 30.0, 0.8)                          # 10.5 m RMS over the whole span, 0.8 m at the fixes
+    kept = fix[(fix <= 100) | (fix >= 250)]
+    assert worse_than_inputs({"fused": ev(t, err), "gnss": ev(kept, 2.48)}, {"gnss": {}}) == []
 
 
 def test_the_clean_drive_has_no_data_warning(slice_run):
@@ -1362,6 +1371,13 @@ def test_a_yaml_of_nested_aliases_is_a_short_error_not_a_memory_blowup(ds, tmp_p
     _assert_clean_error(r, out, "bomb.yaml:2: gnss.noise_std_m must be a list of 3 numbers, got [[")
     assert len(r.stderr) < MAX_MESSAGE
     assert shown(10 ** 5000) == "<an integer of 16610 bits>" and len(shown(list(range(10 ** 6)))) < 100
+    # the YAML loader's own mappings too (a 649-byte YAML of nested mapping aliases took 6.7 s and 600 MB: a review)
+    from fusion_eval import yaml_lines
+
+    doc = "a: &a {x: 1, y: 2, z: 3, w: 4, v: 5, u: 6, t: 7}\n" + "".join(
+        f"{c}: &{c} {{{', '.join(f'k{i}: *{p}' for i in range(9))}}}\n" for p, c in zip("abcdefghij", "bcdefghijk"))
+    quoted = shown(yaml_lines.load(doc))          # (not inline in the assert: pytest would repr the whole value)
+    assert len(quoted) < 3000, len(quoted)
     cut = one_line("x " * 5000)
     assert len(cut) < MAX_MESSAGE + 40 and cut.endswith("characters cut)")
 
@@ -1443,7 +1459,16 @@ def test_evaluate_says_a_file_cut_short_and_a_clock_offset(tmp_path):
     (w,) = warnings(tmp_path / "cut.tum", est)          # the reference cut short
     assert "its matched poses span 47.0 s of its own 470.6 s" in w
     (w,) = warnings(gt, tmp_path / "late.tum")
-    assert re.search(r"its speed matches the reference's best 1\.0\d s later than stamped .*\(--t-offset -1\.0\d", w)
+    # stamped late: its pose stamped t is the reference's at t - 1 s, 'earlier' as the run's clock_shift says it
+    assert re.search(r"its speed matches the reference's best 1\.0\d s earlier than stamped .*\(--t-offset -1\.0\d", w)
+    # once --t-offset applies the fix, no warning; a --t-start / --t-end range is not called a file cut short
+    r = CliRunner().invoke(main, ["evaluate", str(gt), str(tmp_path / "late.tum"), "--t-offset", "-1.03", "--out",
+                                  str(tmp_path / "fixed"), "--no-plots"])
+    assert r.exit_code == 0 and "warning:" not in r.stderr, r.output
+    t0 = float(lines[0].split()[0])
+    r = CliRunner().invoke(main, ["evaluate", str(gt), str(est), "--t-start", str(t0 + 50), "--t-end", str(t0 + 100),
+                                  "--out", str(tmp_path / "range"), "--no-plots"])
+    assert r.exit_code == 0 and "warning:" not in r.stderr, r.output
 
 
 def test_the_speed_clock_check_is_blind_to_frame_scale_and_drift():
@@ -1469,7 +1494,7 @@ def test_the_speed_clock_check_is_blind_to_frame_scale_and_drift():
     q = np.tile([0.0, 0.0, 0.0, 1.0], (t.size, 1))
     gt = PoseSeries(t, p, q, source="gt")
     w = speed_clock_warning("the lidar", PoseSeries(t - 0.2, est, q, source="lidar.csv"), gt, "lidar.time_offset_s", -0.2)
-    assert re.match(r"the lidar \(lidar.csv\) moves like the ground truth 0\.(19|20|21) s earlier than stamped", w), w
+    assert re.match(r"the lidar \(lidar.csv\) moves like the ground truth 0\.(19|20|21) s later than stamped", w), w
     assert re.search(r"\(lidar.time_offset_s -?0\.01\d s fits, for the -0.200 s given\)|\(lidar.time_offset_s -?0\.00\d s "
                      r"fits, for the -0.200 s given\)", w), w
     assert speed_clock_warning("the lidar", PoseSeries(t, est, q, source="l"), gt) == ""
@@ -1555,4 +1580,8 @@ def test_a_ground_truth_the_gnss_cannot_agree_with_is_said():
     assert gnss_disagrees(ds.gnss, ds.groundtruth) == ""
     still = replace(ds.groundtruth, p_w_m=np.zeros_like(ds.groundtruth.p_w_m))
     w = gnss_disagrees(ds.gnss, still)
-    assert "the ground truth and the GNSS" in w and "m apart (RMS over" in w and "travel 0 and" in w
+    assert "the ground truth and the GNSS" in w and "m apart (median over" in w and "travel 0 and" in w
+    # a few multipath fixes kilometres off are the glitch warning's, not this one's (an RMS said 61 m: a review)
+    p = ds.gnss.p_w_m.copy()
+    p[[500, 2000]] += [[1000.0, 0.0, 0.0], [0.0, 800.0, 0.0]]
+    assert gnss_disagrees(replace(ds.gnss, p_w_m=p), ds.groundtruth) == ""

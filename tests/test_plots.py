@@ -466,3 +466,17 @@ def test_sweep_keys_set_together_share_a_panel_and_curves_join_only_one_key_chan
     assert sorted(curve.get_xdata()) == [0.003, 0.01, 0.03]      # not through loose-noadapt
     assert panel.containers and len(panel.containers[0].lines[2][0].get_segments()) == 3   # a bar per setting
     plt.close("all")
+
+
+def test_a_grids_independent_keys_keep_a_panel_each():
+    """Every setting of a grid sets every key: grouping keys by the settings that set them put grid2d's two keys in one
+    panel and hid the second (a review). Keys are grouped only where their values determine each other."""
+    k1, k2 = "imu.gyro_noise_dps_sqrthz", "lidar.relative_pos_std_frac"
+    base = {"dataset": "/d/kitti-00", "variant": "eskf", "status": "ok"}
+    rows = [{**base, "setting": "default", k1: "", k2: "", METRIC: 0.75}]
+    rows += [{**base, "setting": f"{k1}={a},{k2}={b}", k1: a, k2: b, METRIC: 0.7 + a + b}
+             for a in (0.05, 0.1, 0.2) for b in (0.005, 0.01)]
+    fig = plots.sweep_params_figure(rows, [k1, k2], METRIC, None)
+    visible = [ax for ax in fig.axes if ax.get_visible()]
+    assert len(visible) == 3 and [ax.get_xlabel() for ax in visible[1:]] == [k1, k2]
+    plt.close("all")

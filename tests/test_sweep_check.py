@@ -168,6 +168,13 @@ def test_check_accepts_a_sweep_csv(tmp_path):
     r = CliRunner().invoke(main, ["check", str(tmp_path / "dup.csv"), "--baseline", str(tmp_path / "b.csv")])
     assert r.exit_code == 2 and "dup.csv:3: a second row for dataset d, variant eskf, setting default (the first at " \
                                 "line 2)" in r.stderr, r.output
+    # a per-trial file (sweep_trials.csv): each trial is its own metric, so a regressed trial 0 fails (the last trial's
+    # row stood for every one: a review)
+    tcols = "trial," + cols
+    (tmp_path / "bt.csv").write_text(tcols + "0,x,d,eskf,default,1.0,0.5,0.1,ok,\n1,x,d,eskf,default,1.1,0.5,0.1,ok,\n")
+    (tmp_path / "ct.csv").write_text(tcols + "0,x,d,eskf,default,1.5,0.5,0.1,ok,\n1,x,d,eskf,default,1.1,0.5,0.1,ok,\n")
+    r = CliRunner().invoke(main, ["check", str(tmp_path / "ct.csv"), "--baseline", str(tmp_path / "bt.csv")])
+    assert r.exit_code == 1 and "d/eskf/default#trial0.fused_ape_trans_rmse_m" in r.output, r.output
 
 
 def test_check_matches_a_sweep_csv_made_in_another_folder_by_dataset_name(tmp_path):

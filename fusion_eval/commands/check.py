@@ -126,10 +126,13 @@ def _flat_csv(path: Path) -> dict[str, float]:
         if r.get("status") != "ok":
             continue
         name = dataset_label(r["dataset"])
-        tail = f"{r.get('variant', '')}/{r['setting']}"
+        # a per-trial file (sweep_trials.csv): each trial its own key, or the last trial's row stood for every one and
+        # a regressed trial 0 passed (a review)
+        trial = r.get("trial")
+        tail = f"{r.get('variant', '')}/{r['setting']}" + (f"#trial{trial}" if trial not in ("", None, "mean") else "")
         key = f"{name if len(paths_of[name]) == 1 else r['dataset']}/{tail}"
         for c, v in r.items():
-            if c in ("id", "dataset", "variant", "setting", "status", "error") or v in ("", None):
+            if c in ("id", "dataset", "variant", "setting", "status", "error", "trial") or v in ("", None):
                 continue
             try:
                 out[f"{key}.{c}"] = float(v)

@@ -123,7 +123,7 @@ def run_evaluate(inputs: list, out_dir: Path, ref_times: Path | None = None, tim
                                          f"(its stamps scaled by 1e{-3 * _unit_power(ref_f, f):+d} would cover the "
                                          "reference's; give them in seconds)") from None
             raise
-        _refuse_unmatched(ref_f, est_fs, evals, association, t_max_diff_s)
+        _refuse_unmatched(ref_f, est_fs, evals, association, t_max_diff_s, t_range_s, t_offset_s)
         for name in fixed:                   # why, in the report too (it was on stderr only)
             m["estimates"][name]["note"] = (
                 f"position only (one and the same orientation on every pose, while the reference turns by up to "
@@ -133,7 +133,7 @@ def run_evaluate(inputs: list, out_dir: Path, ref_times: Path | None = None, tim
                 f"by up to {ref_turns[name]:.0f} deg: placeholders): no rotation, relative (RPE) or KITTI drift metric")
         for name, f in zip(series, est_fs):
             for why in [*convention_hints(f, ref_f, alignment), *span_and_clock_hints(f, ref_f, evals[name], alignment,
-                                                                                     t_range_s)]:
+                                                                                     t_range_s, t_offset_s)]:
                 log.warning("%s: %s", name, why)
                 e = m["estimates"][name]
                 e["note"] = f"{e['note']}; {why}" if e.get("note") else why
@@ -271,7 +271,7 @@ def convention_hints(f, ref_f, alignment: str) -> list[str]:
     return out
 
 
-def span_and_clock_hints(f, ref_f, ev, alignment: str, t_range_s=(None, None)) -> list[str]:
+def span_and_clock_hints(f, ref_f, ev, alignment: str, t_range_s=(None, None), t_offset_s: float = 0.0) -> list[str]:
     """What a run checks and evaluate did not (a corrupted-input review): an estimate whose matched poses span less
     than :data:`fusion_eval.evaluation.span.MIN_COVERED` of the reference's time or of its own (10 % of kitti-00's
     lidar, or of its ground truth, scored 3.18 m against 7.14 m, with no word: the 'half matched' rule counts poses of
@@ -282,27 +282,33 @@ def span_and_clock_hints(f, ref_f, ev, alignment: str, t_range_s=(None, None)) -
     from ..evaluation.span import MIN_COVERED
 
     out = []
-    t_ref = np.asarray(ref_f.traj.timestamps, float)
-    lo, hi = t_range_s
-    t_ref = t_ref[(t_ref >= (-np.inf if lo is None else lo)) & (t_ref <= (np.inf if hi is None else hi))]
-    t_own = np.asarray(f.traj.timestamps, float)
+    lo = -np.inf if t_range_s[0] is None else t_range_s[0]
+    hi = np.inf if t_range_s[1] is None else t_range_s[1]
+
+    def in_range(t):            # the stretch the user asked for (--t-start / --t-end), on the reference's clock
+        return t[(t >= lo) & (t <= hi)]
+
+    t_ref = in_range(np.asarray(ref_f.traj.timestamps, float))
+    t_own = in_range(np.asarray(f.traj.timestamps, float) + t_offset_s)       # as matched: --t-offset applied
     t_est = ev.ape_t_s
     if t_est is not None and t_est.size > 1 and t_ref.size > 1:
         covered = float(t_est[-1] - t_est[0])
-        whose, full = max((("the reference's", float(t_ref[-1] - t_ref[0])), ("its own", float(t_own[-1] - t_own[0]))),
+        own = float(t_own[-1] - t_own[0]) if t_own.size > 1 else 0.0
+        whose, full = max((("the reference's", float(t_ref[-1] - t_ref[0])), ("its own", own)),
                           key=lambda w: w[1])
         if full > 0 and covered < MIN_COVERED * full:
             unit = "frames" if ref_f.stamps == BY_INDEX else "s"
             out.append(f"its matched poses span {covered:.1f} {unit} of {whose} {full:.1f} {unit}: every figure is over "
                        "that part only (a file cut short? --t-start / --t-end evaluate the same stretch of every file)")
     if ref_f.stamps != BY_INDEX and f.stamps != BY_INDEX:
-        found = speed_clock_shift(f.traj.timestamps, f.traj.positions_xyz, ref_f.traj.timestamps,
-                                  ref_f.traj.positions_xyz)
+        found = speed_clock_shift(np.asarray(f.traj.timestamps, float) + t_offset_s, f.traj.positions_xyz,
+                                  ref_f.traj.timestamps, ref_f.traj.positions_xyz)
         if clear_speed_shift(found):
             s, c_best, c_zero = found
-            out.append(f"its speed matches the reference's best {abs(s):.2f} s {'later' if s > 0 else 'earlier'} than "
+            # s > 0: stamped late (its pose stamped t is the reference's at t - s); --t-offset is added to its stamps
+            out.append(f"its speed matches the reference's best {abs(s):.2f} s {'earlier' if s > 0 else 'later'} than "
                        f"stamped (correlation {c_best:.4f} there, {c_zero:.4f} as stamped): a clock offset between the "
-                       f"files, which every figure carries (--t-offset {-s:+.2f} matches them so)")
+                       f"files, which every figure carries (--t-offset {t_offset_s - s:+.2f} matches them so)")
     return out
 
 
@@ -317,11 +323,20 @@ def _span(f) -> str:
     return f"{f.source} ({len(t)} poses, {t[0]:.3f} to {t[-1]:.3f} s)" if len(t) else f"{f.source} (no poses)"
 
 
-def _refuse_unmatched(ref_f, est_fs, evals: dict, association: str, t_max_diff_s: float) -> None:
+def _refuse_unmatched(ref_f, est_fs, evals: dict, association: str, t_max_diff_s: float,
+                      t_range_s=(None, None), t_offset_s: float = 0.0) -> None:
     """Fewer than 2 matched poses is no evaluation: exit 2 naming both files and their time spans (a report of
-    'n/a' with exit 0 would pass a CI gate that looks at the exit code)."""
+    'n/a' with exit 0 would pass a CI gate that looks at the exit code). Poses are counted inside the --t-start /
+    --t-end range (the whole files were: every range under half a file warned of unmatched poses, a review)."""
+    lo = -np.inf if t_range_s[0] is None else t_range_s[0]
+    hi = np.inf if t_range_s[1] is None else t_range_s[1]
+
+    def inside(t, shift=0.0):
+        t = np.asarray(t, float) + shift
+        return int(np.count_nonzero((t >= lo) & (t <= hi)))
+
     for f, ev in zip(est_fs, evals.values()):
-        n = min(len(f.traj.timestamps), len(ref_f.traj.timestamps))
+        n = min(inside(f.traj.timestamps, t_offset_s), inside(ref_f.traj.timestamps))
         k = _unit_power(ref_f, f)
         if k and ev.matched_poses < 0.1 * n:
             # a times file in milliseconds against one in seconds matched 2 of 4,541 poses, and 200 m of "APE" was
@@ -331,9 +346,10 @@ def _refuse_unmatched(ref_f, est_fs, evals: dict, association: str, t_max_diff_s
                                  f"{_unit_hint(ref_f, f).rstrip()} (its stamps scaled by 1e{-3 * k:+d} would cover the "
                                  "reference's; give them in seconds)")
         if 2 <= ev.matched_poses < 0.5 * n:
+            rates = "--t-max-diff or --association interpolate" if association != "interpolate" else "--t-max-diff"
             log.warning("%s: only %d of its %d poses match the reference (%s, within --t-max-diff %g s): the metrics "
-                        "cover those (a time offset? --t-offset; stamps of other rates? --t-max-diff or --association "
-                        "interpolate)", ev.name, ev.matched_poses, len(f.traj.timestamps), association, t_max_diff_s)
+                        "cover those (a time offset? --t-offset; stamps of other rates? %s)", ev.name, ev.matched_poses,
+                        n, association, t_max_diff_s, rates)
         if ev.matched_poses < 2:
             raise DataRangeError(f"{ev.matched_poses} poses of {_span(f)} match the reference {_span(ref_f)} "
                                  f"({association}, within --t-max-diff {t_max_diff_s} s); at least 2 are needed "

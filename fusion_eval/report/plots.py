@@ -480,10 +480,18 @@ def sweep_params_figure(rows: list[dict], keys: list[str], metric: str, defaults
     overview = len(names) <= OVERVIEW_MAX_SETTINGS
     # keys that the same settings set are one panel: lidar-tight and lidar-loose set the position and the rotation
     # noise together, and two panels showed the same points twice (a student's review)
-    sets_of = {k: frozenset(r["setting"] for r in ok if r["setting"] != "default" and is_number(r.get(k))) for k in numeric}
+    # (only keys whose values determine each other, setting by setting: a grid sets every key in every setting, and
+    # its keys vary independently: one panel for grid2d's two keys hid the second, a review)
+    values = {k: {r["setting"]: r[k] for r in ok if r["setting"] != "default" and is_number(r.get(k))} for k in numeric}
+
+    def together(a: str, b: str) -> bool:
+        va, vb = values[a], values[b]
+        pairs = {(va[s], vb[s]) for s in va} if va.keys() == vb.keys() else set()
+        return bool(pairs) and len(pairs) == len({x for x, _ in pairs}) == len({y for _, y in pairs})
+
     groups: list[list[str]] = []
     for k in numeric:
-        g = next((g for g in groups if sets_of[g[0]] == sets_of[k]), None)
+        g = next((g for g in groups if together(g[0], k)), None)
         g.append(k) if g is not None else groups.append([k])
     std_col = f"{metric}_std"
     n = len(groups) + overview
