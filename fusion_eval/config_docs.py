@@ -73,15 +73,20 @@ def readme_with_table(readme: str, schema: dict) -> str:
     return pattern.sub(lambda _m: f"{BEGIN}\n{readme_table(schema)}\n{END}", readme, count=1)
 
 
-def write(root: Path) -> list[str]:
-    """Rewrite ``root``'s README table and ``configs/default.yaml`` from the schema; the files that changed."""
+def stale(root: Path) -> dict[Path, str]:
+    """The documents of ``root`` (the README, ``configs/default.yaml``) that differ from the schema's, each with the
+    text it should hold."""
     from .config import schema
 
     sch = schema()
-    changed = []
-    for path, text in ((root / "README.md", readme_with_table((root / "README.md").read_text(), sch)),
-                       (root / "configs" / "default.yaml", default_yaml(sch))):
-        if not path.exists() or path.read_text() != text:
-            path.write_text(text)
-            changed.append(str(path.relative_to(root)))
-    return changed
+    want = {root / "README.md": readme_with_table((root / "README.md").read_text(), sch),
+            root / "configs" / "default.yaml": default_yaml(sch)}
+    return {p: text for p, text in want.items() if not p.exists() or p.read_text() != text}
+
+
+def write(root: Path) -> list[str]:
+    """Rewrite ``root``'s out-of-date documents (:func:`stale`); the files that changed."""
+    changed = stale(root)
+    for path, text in changed.items():
+        path.write_text(text)
+    return [str(p.relative_to(root)) for p in changed]

@@ -15,6 +15,12 @@ import numpy as np
 from .types import GnssSeries
 
 
+def _rate_hz(t_s: np.ndarray) -> float | None:
+    """A stream's own rate: one over its median step (None for fewer than two samples or repeated stamps)."""
+    step = float(np.median(np.diff(t_s))) if len(t_s) > 1 else 0.0
+    return 1.0 / step if step > 0 else None
+
+
 def degrade_vectors(series, t_ref_s: float, rate_hz: float | None, noise_std, outages_s, rng: np.random.Generator,
                     std_given, unit: str, value_field: str = "values", std_field: str = "std"):
     """The degraded series and a description of what was applied (for the report).
@@ -48,8 +54,7 @@ def degrade_vectors(series, t_ref_s: float, rate_hz: float | None, noise_std, ou
         "rate_hz": rate_hz,
         # the stream's own rate (median step): a rate_hz at or above it keeps every fix, which the report says
         # ('decimated to 1000 Hz (4409 -> 4409 fixes)' for 10 Hz data: a corrupted-input review)
-        "stream_rate_hz": float(1.0 / np.median(np.diff(series.t_s))) if n_in > 1 and np.median(np.diff(series.t_s)) > 0
-        else None,
+        "stream_rate_hz": _rate_hz(series.t_s),
         "fixes_after_decimation": int(keep.sum()),
         f"noise_std_{unit}": [float(x) for x in noise_std],
         "outages_s": [list(map(float, w)) for w in outages_s],

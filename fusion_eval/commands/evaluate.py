@@ -271,6 +271,15 @@ def convention_hints(f, ref_f, alignment: str) -> list[str]:
     return out
 
 
+def _in_range(stamps, t_range_s=(None, None), shift_s: float = 0.0) -> np.ndarray:
+    """``stamps`` (+ ``shift_s``: an estimate's --t-offset) inside the --t-start / --t-end range, on the reference's
+    clock (None: open)."""
+    t = np.asarray(stamps, float) + shift_s
+    lo = -np.inf if t_range_s[0] is None else t_range_s[0]
+    hi = np.inf if t_range_s[1] is None else t_range_s[1]
+    return t[(t >= lo) & (t <= hi)]
+
+
 def span_and_clock_hints(f, ref_f, ev, alignment: str, t_range_s=(None, None), t_offset_s: float = 0.0) -> list[str]:
     """What a run checks and evaluate did not (a corrupted-input review): an estimate whose matched poses span less
     than :data:`fusion_eval.evaluation.span.MIN_COVERED` of the reference's time or of its own (10 % of kitti-00's
@@ -282,14 +291,8 @@ def span_and_clock_hints(f, ref_f, ev, alignment: str, t_range_s=(None, None), t
     from ..evaluation.span import MIN_COVERED
 
     out = []
-    lo = -np.inf if t_range_s[0] is None else t_range_s[0]
-    hi = np.inf if t_range_s[1] is None else t_range_s[1]
-
-    def in_range(t):            # the stretch the user asked for (--t-start / --t-end), on the reference's clock
-        return t[(t >= lo) & (t <= hi)]
-
-    t_ref = in_range(np.asarray(ref_f.traj.timestamps, float))
-    t_own = in_range(np.asarray(f.traj.timestamps, float) + t_offset_s)       # as matched: --t-offset applied
+    t_ref = _in_range(ref_f.traj.timestamps, t_range_s)
+    t_own = _in_range(f.traj.timestamps, t_range_s, t_offset_s)       # as matched: --t-offset applied
     t_est = ev.ape_t_s
     if t_est is not None and t_est.size > 1 and t_ref.size > 1:
         covered = float(t_est[-1] - t_est[0])
@@ -328,15 +331,8 @@ def _refuse_unmatched(ref_f, est_fs, evals: dict, association: str, t_max_diff_s
     """Fewer than 2 matched poses is no evaluation: exit 2 naming both files and their time spans (a report of
     'n/a' with exit 0 would pass a CI gate that looks at the exit code). Poses are counted inside the --t-start /
     --t-end range (the whole files were: every range under half a file warned of unmatched poses, a review)."""
-    lo = -np.inf if t_range_s[0] is None else t_range_s[0]
-    hi = np.inf if t_range_s[1] is None else t_range_s[1]
-
-    def inside(t, shift=0.0):
-        t = np.asarray(t, float) + shift
-        return int(np.count_nonzero((t >= lo) & (t <= hi)))
-
     for f, ev in zip(est_fs, evals.values()):
-        n = min(inside(f.traj.timestamps, t_offset_s), inside(ref_f.traj.timestamps))
+        n = min(_in_range(f.traj.timestamps, t_range_s, t_offset_s).size, _in_range(ref_f.traj.timestamps, t_range_s).size)
         k = _unit_power(ref_f, f)
         if k and ev.matched_poses < 0.1 * n:
             # a times file in milliseconds against one in seconds matched 2 of 4,541 poses, and 200 m of "APE" was

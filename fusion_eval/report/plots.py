@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import itertools
 import textwrap
 import warnings
 from pathlib import Path
@@ -27,7 +28,6 @@ COLORS = {"groundtruth": "black", "fused": "tab:red", "smoothed": "tab:purple", 
 LABELS = {"groundtruth": "ground truth", "fused": "fused", "smoothed": "smoothed", "lidar": "lidar odometry",
           "gnss": "GNSS", "imu_only": "IMU dead reckoning"}
 _META = {"Software": None}                                    # no version string in the PNG: same inputs, same bytes
-_VCOLORS = plt.rcParams["axes.prop_cycle"].by_key()["color"]
 # estimates of other names (a user's own files in evaluate, compare's variants after the first): colours no named
 # estimate has, so that red, blue, green, orange and purple mean fused, lidar, GNSS, dead reckoning and smoothed in
 # every plot (a student's review: evaluate drew fused blue and lidar orange in one plot, red and blue in the next)
@@ -37,7 +37,7 @@ OTHER_COLORS = ["tab:cyan", "tab:brown", "tab:pink", "tab:olive", "navy", "darkg
 def estimate_colors(names) -> dict:
     """One colour per estimate name, the same in every plot of a report: :data:`COLORS` for the named estimates,
     :data:`OTHER_COLORS` in order for the rest."""
-    others = iter(OTHER_COLORS * (1 + len(list(names)) // len(OTHER_COLORS)))
+    others = itertools.cycle(OTHER_COLORS)
     return {n: COLORS[n] if n in COLORS else next(others) for n in names}
 
 
@@ -325,7 +325,7 @@ def plot_att_vel_error_sigma(path: Path, av: dict) -> None:
     _save(att_vel_error_figure(av), path)
 
 
-# the unfiltered estimates beside variants: greys, which no variant's colour is
+# the unfiltered estimates beside variants: in their colours of a run's plots, which no variant has
 _UNFILTERED = {"lidar": (COLORS["lidar"], ":"), "gnss": (COLORS["gnss"], ".")}   # as in a run's plots
 # the first variant in the run plots' fused red, the rest in colours no estimate of a run's plots has (blue was the
 # first variant here and the lidar there, orange a variant here and dead reckoning there: a plot review; purple, the
@@ -335,7 +335,7 @@ _VARIANT_COLORS = ["tab:red", *OTHER_COLORS]
 
 def plot_compare_ape(path: Path, runs, evs_unfiltered: dict, t0: float) -> None:
     """APE translation over time of every variant (solid; a variant's smoothed estimate dashed, in its colour)
-    and of the unfiltered estimates (grey: lidar dotted, GNSS dots)."""
+    and of the unfiltered estimates (lidar dotted, GNSS dots, in their own colours)."""
     fig, ax = plt.subplots(figsize=(12, 4.5))
     floor = _log_floor([r.ev.ape_err_m for r in runs] + [r.ev_smoothed.ape_err_m for r in runs if r.ev_smoothed is not None]
                        + [ev.ape_err_m for ev in evs_unfiltered.values()])
@@ -484,14 +484,14 @@ def sweep_params_figure(rows: list[dict], keys: list[str], metric: str, defaults
     # its keys vary independently: one panel for grid2d's two keys hid the second, a review)
     values = {k: {r["setting"]: r[k] for r in ok if r["setting"] != "default" and is_number(r.get(k))} for k in numeric}
 
-    def together(a: str, b: str) -> bool:
+    def set_together(a: str, b: str) -> bool:
         va, vb = values[a], values[b]
         pairs = {(va[s], vb[s]) for s in va} if va.keys() == vb.keys() else set()
         return bool(pairs) and len(pairs) == len({x for x, _ in pairs}) == len({y for _, y in pairs})
 
     groups: list[list[str]] = []
     for k in numeric:
-        g = next((g for g in groups if together(g[0], k)), None)
+        g = next((g for g in groups if set_together(g[0], k)), None)
         g.append(k) if g is not None else groups.append([k])
     std_col = f"{metric}_std"
     n = len(groups) + overview

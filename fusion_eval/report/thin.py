@@ -108,10 +108,10 @@ def envelope(y: np.ndarray, at_most: int = 5000) -> np.ndarray:
 
 
 def _lean(ev, **arrays):
-    """``ev`` without its result files and evo objects (a plot reads neither), with ``arrays`` replaced."""
+    """``ev`` without its result files, evo objects and error parts (no plot reads them), with ``arrays`` replaced."""
     from dataclasses import replace
 
-    return replace(ev, zips={}, results={}, **arrays)
+    return replace(ev, zips={}, results={}, **{"ape_hv_m": None, **arrays})
 
 
 def ape_curves(evals: dict) -> dict:
@@ -120,22 +120,22 @@ def ape_curves(evals: dict) -> dict:
     out = {}
     for n, ev in evals.items():
         if ev.ape_err_m is None:
-            out[n] = _lean(ev, ref_p_m=None, ape_hv_m=None)
+            out[n] = _lean(ev, ref_p_m=None)
             continue
         k = envelope(ev.ape_err_m)
-        out[n] = _lean(ev, ape_t_s=ev.ape_t_s[k], ape_err_m=ev.ape_err_m[k], ref_p_m=None, ape_hv_m=None)
+        out[n] = _lean(ev, ape_t_s=ev.ape_t_s[k], ape_err_m=ev.ape_err_m[k], ref_p_m=None)
     return out
 
 
 def drift_only(evals: dict) -> dict:
     """The drift plot's evaluations: their KITTI drift figures, no arrays."""
-    return {n: _lean(ev, ape_t_s=None, ape_err_m=None, ref_p_m=None, ape_hv_m=None) for n, ev in evals.items()}
+    return {n: _lean(ev, ape_t_s=None, ape_err_m=None, ref_p_m=None) for n, ev in evals.items()}
 
 
 def segment_map(evals: dict, seg: dict) -> dict:
     """The segment map's evaluations: the two it compares (whole: it colours every point of the route)."""
     keep = {seg.get("primary", "fused"), seg.get("secondary")}
-    return {n: _lean(ev, ape_hv_m=None) for n, ev in evals.items() if n in keep}
+    return {n: _lean(ev) for n, ev in evals.items() if n in keep}
 
 
 def consistency(cons: dict) -> dict:
