@@ -22,7 +22,7 @@ from ..datasets.tum import format_tum
 from ..errors import ConfigError
 from .. import trials as mc
 from ..evaluation import keys, span
-from ..evaluation.run_metrics import consistency, inconsistent_streams, segments, truth_velocity_w
+from ..evaluation.run_metrics import consistency, inconsistent_streams, segments, truth_velocity_w, worse_than_inputs
 from ..evaluation.trajectory import evaluate, ratio
 from ..filters import observations
 from ..outputs import StagedDir, dataset_roots, default_dir, repeated_path
@@ -123,13 +123,18 @@ def _evaluate_all(runs: list[VariantRun], base_prep, ev_cfg: dict, pool):
     fut_s = [pool.submit(evaluate, ref, r.filt.smoothed.fused, r.name, *args, **kw) if r.filt.smoothed is not None
              else None for r in runs]
     fut_u = {k: pool.submit(evaluate, ref, s, k, *args, **kw) for k, s in unfiltered.items()}
+    evs_u = {k: f.result() for k, f in fut_u.items()}
     for r, f, fs in zip(runs, fut_v, fut_s):
         r.ev = f.result()
         r.ev.results = {}
         if fs is not None:
             r.ev_smoothed = fs.result()
             r.ev_smoothed.results = {}
-    return unfiltered, {k: f.result() for k, f in fut_u.items()}, sp
+        # what run warns of once the estimates are scored: a variant fusing the GNSS that ends far worse than it
+        for w in worse_than_inputs({"fused": r.ev, "gnss": evs_u.get("gnss")}, r.filt.nis):
+            log.warning("variant %s: %s", r.name, w)
+            r.warnings = (*r.warnings, w)
+    return unfiltered, evs_u, sp
 
 
 def _table(runs: list[VariantRun], evs_u: dict, gt: PoseSeries, ev_cfg: dict) -> list[dict]:
