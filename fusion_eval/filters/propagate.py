@@ -71,7 +71,7 @@ def {name}(a, n, k, t_target, cov):
                 # its T seconds, added to the attitude and velocity ((rate T)^2, (accel T)^2), where the formulation's
                 # blocks are the canonical ones. Here, not spread over the gap: inside it the inputs are interpolated,
                 # not measured, and fixes there would correct the attitude against a made-up motion (measured)
-                _gap_motion(a.P, a.cidx, a.gap, a.t[k] - a.t[k - 1])
+                _gap_motion(a.P, a.x, a.cidx, a.gap, a.t[k] - a.t[k - 1])
         t0 = a.t[k]
         u0 = a.u[k]                 # a view: the inputs are never written
         a.rec_x[k, :] = a.x
@@ -93,11 +93,13 @@ _TH, _V = CANONICAL.start("TH"), CANONICAL.start("V")
 
 
 @njit(cache=True)
-def add_gap_motion(P, cidx, gap, gap_s):
+def add_gap_motion(P, x, cidx, gap, gap_s):
     """The motion an IMU gap of ``gap_s`` hid, added to the covariance ``P`` at its end: ``(gap[2] gap_s^2)`` to each
     axis of the attitude's variance and ``(gap[3] gap_s^2)`` to the velocity's (``gap``: :func:`fusion_eval.filters.
-    formulations.base.gap_of`), where the formulation's blocks are the canonical ones (``cidx``). The one place the
-    filter's loop and both smoother paths add it."""
+    formulations.base.gap_of`), for a formulation whose attitude and velocity blocks are the canonical ones
+    (``cidx``; ``x``, the nominal state, unused here). A formulation with other coordinates (the invariant error, a
+    quaternion) supplies its own (``FilterBase._gap_motion``), mapping the same canonical variances into them; the
+    filter's loop and both smoother paths call the formulation's."""
     for i in range(3):
         j = cidx[_TH + i]
         if j >= 0:
@@ -113,18 +115,20 @@ _DIGEST = hashlib.sha1((_LOOP + repr((LAST_T, LAST_U)) + inspect.getsource(add_g
 DIGEST = _DIGEST        # what the compiled replay and the smoother, built on this loop, put in their own names
 
 
-def compiled_loop(module_name: str, step, record_cov):
+def compiled_loop(module_name: str, step, record_cov, gap_motion=add_gap_motion):
     """``predict_to(arrays, n, k_next, t_target, cov) -> k_next`` for one formulation.
 
     Propagates through every sample ``k_next, k_next + 1, ...`` with a stamp ``<= t_target``, recording
     the state at each, then to ``t_target`` itself (the input interpolated linearly there, and ``last``
     set to that interpolated input). ``cov`` False propagates the state alone (dead reckoning).
-    The copy is compiled into (and cached beside) the module ``module_name``; the template's digest is
-    in its name, so a change of the loop invalidates every cached copy.
+    ``gap_motion``: the formulation's :func:`add_gap_motion` (its own when its coordinates are not the canonical
+    ones, defined in the same module, whose change numba's cache sees). The copy is compiled into (and cached beside)
+    the module ``module_name``; the template's digest is in its name, so a change of the loop invalidates every
+    cached copy.
     """
     mod = sys.modules[module_name]
     name = f"_predict_to_{_DIGEST}"
-    ns = {"_step": step, "_record_cov": record_cov, "_gap_motion": add_gap_motion, "np": np, "__name__": module_name}
+    ns = {"_step": step, "_record_cov": record_cov, "_gap_motion": gap_motion, "np": np, "__name__": module_name}
     exec(compile(_LOOP.format(name=name, t=LAST_T, u=LAST_U), mod.__file__, "exec"), ns)  # noqa: S102 - our own template
     fn = ns[name]
     fn.__qualname__ = name

@@ -81,7 +81,7 @@ def {name}(x_a, aux, c, P_a, n, nc, t, u, gap, prm, k, t0, u0, t_b, xs_x, xs_c, 
                 Pa = _augmented(A[j], nc)
                 _step(x, Pa, 2 * nc, uu0, u1, dt, qs, prm, aux, np.bool_(True))
                 if qs != 1.0 and ks >= 0:          # the motion a gap hid, where the forward loop added it
-                    _gap_motion(Pa, cidx, gap, t[k] - t[k - 1])
+                    _gap_motion(Pa, x, cidx, gap, t[k] - t[k - 1])
                 j += 1
                 A[j] = Pa[:nc, :nc]
                 PH[j - 1] = Pa[:nc, nc:]
@@ -175,7 +175,7 @@ def compiled_pass(cls):
              "_assemble": kernels.assemble, "_interval_plain": kernels.interval_plain,
              "_interval_clone": kernels.interval_clone, "_pinv": kernels.pinv_sym, "_gain_t": kernels.gain_t,
              "_uncondition": kernels.uncondition, "_unpack": kernels.unpack_upper,
-             "_condition_given": kernels.condition_given, "_gap_motion": propagate.add_gap_motion}
+             "_condition_given": kernels.condition_given, "_gap_motion": cls._gap_motion}
     # the kernels' own callees too: numba's cache of this template checks only the formulation's module
     digest = source_digest(_SEGMENT + propagate.DIGEST, *calls.values(), kernels.pinv_sym, kernels.chol_scaled, kernels._pinv_eig,
                            kernels.solve_sym, kernels._solve_factored, kernels._tri_inverse,

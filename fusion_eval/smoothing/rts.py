@@ -108,7 +108,7 @@ class RTS:
         Pa = kernels.augmented(A, nc)        # a constant copy of the core: its cross block becomes Phi
         self.kf._step(x, Pa, 2 * nc, u0, u1, dt, qscale, self.prm, aux, True)
         if gap_s > 0.0:
-            propagate.add_gap_motion(Pa, self.kf.cidx, self.gap, gap_s)
+            self.kf._gap_motion(Pa, x, self.kf.cidx, self.gap, gap_s)
         return np.ascontiguousarray(Pa[:nc, :nc]), np.ascontiguousarray(Pa[:nc, nc:])
 
     def segment(self, a: int, t_b: float):

@@ -27,7 +27,7 @@ from ...so3 import skew
 from .. import linalg
 from ..mech import exp3, log3
 from ..layout import CANONICAL, Layout, canonical_index, canonical_map, own_from_canonical
-from ..propagate import LAST_T, new_arrays
+from ..propagate import LAST_T, add_gap_motion, new_arrays
 from ..state import ClonePose, NominalState, ObservationModel
 from .imu_model import imu_inputs, imu_params
 
@@ -86,6 +86,8 @@ class FilterBase:
     _step = None            # the compiled step (also what the tests check the Jacobian of)
     _predict = None
     _record_cov = None
+    # the motion an IMU gap hid, added to the own covariance (propagate.add_gap_motion: the canonical blocks by index)
+    _gap_motion = staticmethod(add_gap_motion)
     clone_t = None          # stamp of the cloned pose
     recorder = None         # an RTS smoother's forward record (fusion_eval.smoothing.record), when smoothing
     transition_room = False  # whether reserve_transition gave its scratch room for the step's transition

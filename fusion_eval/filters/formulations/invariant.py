@@ -118,7 +118,34 @@ def record_cov(P, n, x, aux, cidx, diag_out, ppt_out):
     record_pose_cov(C, ppt_out)
 
 
-predict_to = compiled_loop(__name__, step, record_cov)
+@njit(cache=True)
+def gap_motion(P, x, cidx, gap, gap_s):
+    """:func:`~fusion_eval.filters.propagate.add_gap_motion` in the invariant error's coordinates: the unknown
+    rotation ``dtheta`` and velocity change ``dv`` a gap of ``gap_s`` hid (variances ``gap[2] gap_s^2`` and
+    ``gap[3] gap_s^2`` per axis) enter as ``xi_R = R dtheta``, ``xi_v = dv + [v]x R dtheta``,
+    ``xi_p = [p]x R dtheta`` (``D^-1`` at the estimate; ``R`` drops out of the isotropic variances). Added by index
+    to ``xi_R`` and ``xi_v``, as for the ESKF, they were not the canonical attitude and velocity: a 2 s gap grew the
+    position's std by 105-298 m at 800 m from the origin, and the invariant filter's APE on kitti-00, IMU + GNSS,
+    from 1.10 to 1.33 m (a review)."""
+    sr = gap[2] * gap_s * gap_s
+    G = np.zeros((9, 3))                  # d(xi_p, xi_v, xi_R) / d(R dtheta)
+    Sp, Sv = skew3(x[XP:XP + 3].copy()), skew3(x[XV:XV + 3].copy())
+    for i in range(3):
+        for k in range(3):
+            G[IP + i, k] = Sp[i, k]
+            G[IV + i, k] = Sv[i, k]
+        G[ITH + i, i] = 1.0
+    for i in range(9):
+        for j in range(9):
+            s = 0.0
+            for k in range(3):
+                s += G[i, k] * G[j, k]
+            P[i, j] += sr * s
+    for i in range(3):
+        P[IV + i, IV + i] += gap[3] * gap_s * gap_s
+
+
+predict_to = compiled_loop(__name__, step, record_cov, gap_motion)
 
 
 @njit(cache=True)
@@ -152,6 +179,7 @@ class RightInvariantEKF(FilterBase):
     _step = staticmethod(step)
     _predict = staticmethod(predict_to)
     _record_cov = staticmethod(record_cov)
+    _gap_motion = staticmethod(gap_motion)
     keys: dict = {}            # filter.discretization and the bias keys are the ESKF's (declared once, there)
     bias_models = ("random_walk", "constant", "gauss_markov")
 

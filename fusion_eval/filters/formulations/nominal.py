@@ -206,7 +206,25 @@ def record_cov(P, n, x, aux, cidx, diag_out, ppt_out):
     record_pose_cov(C, ppt_out)
 
 
-predict_to = compiled_loop(__name__, step, record_cov)
+@njit(cache=True)
+def gap_motion(P, x, cidx, gap, gap_s):
+    """:func:`~fusion_eval.filters.propagate.add_gap_motion` on the quaternion: the unknown rotation ``dtheta`` a gap
+    of ``gap_s`` hid (``gap[2] gap_s^2`` per axis) enters the quaternion as ``Xi(q) dtheta / 2``, so its block gains
+    ``gap[2] gap_s^2 Xi Xi^T / 4`` (either sign of ``q``); by index it was left out, the attitude having no block of
+    the canonical one's size (a review). The velocity's is the canonical one's."""
+    X = xi(rot_to_quat(attitude(x)))
+    sr = 0.25 * gap[2] * gap_s * gap_s
+    for i in range(4):
+        for j in range(4):
+            s = 0.0
+            for k in range(3):
+                s += X[i, k] * X[j, k]
+            P[NQ_ID + i, NQ_ID + j] += sr * s
+    for i in range(3):
+        P[NV_ID + i, NV_ID + i] += gap[3] * gap_s * gap_s
+
+
+predict_to = compiled_loop(__name__, step, record_cov, gap_motion)
 
 
 class NominalStateEKF(FilterBase):
@@ -218,6 +236,7 @@ class NominalStateEKF(FilterBase):
     _step = staticmethod(step)
     _predict = staticmethod(predict_to)
     _record_cov = staticmethod(record_cov)
+    _gap_motion = staticmethod(gap_motion)
     smoothable = False
 
     def initial_aux(self) -> np.ndarray:
