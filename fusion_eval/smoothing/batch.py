@@ -3,8 +3,9 @@ once, optimised with Levenberg-Marquardt.
 
 Keyframes are the filter's epochs (each lidar/GNSS stamp; the start and the end), each with a pose ``X``, a
 velocity ``V`` and an IMU bias ``B``. Between consecutive keyframes a ``CombinedImuFactor`` preintegrates the very
-inputs the filter stepped with (midpoint of consecutive samples, the partial interval to an event stamp
-interpolated, the same lag corrections), with the filter's IMU noise densities and bias random walks. Each
+inputs the filter stepped with (interpolated linearly over each interval, the partial interval to an event stamp
+too, the same lag corrections; in sub-steps of at most 10 ms, :func:`substeps`), with the filter's IMU noise
+densities and bias random walks. Each
 update the filter applied becomes a factor with the noise the filter used at that moment (adaptive lidar noise
 included): a relative lidar increment a ``BetweenFactor<Pose3>`` between the keyframe of its clone and its own, an
 absolute lidar pose a ``PriorFactor<Pose3>``, a GNSS fix a ``GPSFactor`` (``GPSFactorArm`` with a lever arm).
@@ -33,6 +34,23 @@ from ..filters.state import NominalState
 from .rts import Smoothed
 
 EXTRA = "pip install 'fusion-eval[smoother]' (or: pip install gtsam)"
+
+# GTSAM's preintegration takes each input as constant over its step and rotates the acceleration by the step's start
+# attitude (first order), where the filter's mechanization is a midpoint scheme over the interval: at 10 Hz turning at
+# 0.3 rad/s, a 2.7e-3 m/s velocity error per step (the filter's 1.3e-5), a 2.75 mrad tilt its noise does not hold.
+# So each IMU interval is integrated in sub-steps of at most this length, the inputs interpolated linearly (a 100 Hz
+# IMU: one step, as before; kitti-00's 10 Hz: ten). Measured on a 10 Hz white-noise simulation: the smoothed attitude
+# NEES 19.4 -> 3.05 (3 dof) and the rotation APE 0.0586 -> 0.0329 deg, the RTS pass's (found by a math review).
+MAX_SUBSTEP_S = 0.01
+
+
+def substeps(u0: np.ndarray, u1: np.ndarray, dt: float):
+    """``(midpoint input, step, is_last)`` of the sub-steps of one interval of ``dt`` s whose input goes linearly
+    from ``u0`` to ``u1`` (:data:`MAX_SUBSTEP_S`)."""
+    n = max(1, int(np.ceil(dt / MAX_SUBSTEP_S - 1e-9)))
+    h = dt / n
+    for s in range(n):
+        yield u0 + ((s + 0.5) / n) * (u1 - u0), h, s == n - 1
 
 
 def require_gtsam():
@@ -198,17 +216,17 @@ def batch_smooth(kf, rec: BatchRecord, s, k0: int, progress=None) -> tuple[Smoot
         while k < N and t[k] <= tb + 1e-12:
             dt = t[k] - t_prev
             if dt > 0:
-                um = 0.5 * (u_prev + u[k])
-                pim.integrateMeasurement(um[UF:UF + 3], um[UW:UW + 3], dt)
-                steps_of[i - 1].append((k if t[k] < tb - 1e-9 else -1, um, dt))
+                for um, h, last in substeps(u_prev, u[k], dt):
+                    pim.integrateMeasurement(um[UF:UF + 3], um[UW:UW + 3], h)
+                    steps_of[i - 1].append((k if last and t[k] < tb - 1e-9 else -1, um, h))
             t_prev, u_prev = float(t[k]), u[k].copy()
             k += 1
         if tb > t_prev + 1e-12 and k < N:
             frac = (tb - t_prev) / (t[k] - t_prev)
             u1 = u_prev + frac * (u[k] - u_prev)
-            um = 0.5 * (u_prev + u1)
-            pim.integrateMeasurement(um[UF:UF + 3], um[UW:UW + 3], tb - t_prev)
-            steps_of[i - 1].append((-1, um, tb - t_prev))
+            for um, h, _ in substeps(u_prev, u1, tb - t_prev):
+                pim.integrateMeasurement(um[UF:UF + 3], um[UW:UW + 3], h)
+                steps_of[i - 1].append((-1, um, h))
             t_prev, u_prev = tb, u1
         pims.append(pim)
         if pim.deltaTij() > 0:
