@@ -662,3 +662,23 @@ def test_a_sweep_ranks_by_the_objective_it_is_given(small, tmp_path):
     r = CliRunner().invoke(main, ["-q", "sweep", str(small), "--grid", str(sw), "--out", str(tmp_path / "t"),
                                   "--objective", "fsued.ape.rmse"])
     assert r.exit_code == 2 and "'fsued.ape.rmse' is no metric key" in r.stderr and not (tmp_path / "t").exists()
+
+
+def test_check_gates_a_smoothed_run_on_a_baseline_without_a_smoother(tmp_path):
+    """A run with `smoother.method=rts` checked against the shipped baseline (made without a smoother) exited 2 for
+    the smoothed metrics the baseline lacks (a review): with the default metrics they are said and not gated, the rest
+    is gated; named with --metric, or a baseline lacking the fused estimate, it is still refused."""
+    base = _metrics(tmp_path, "base.json", 1.0)
+    body = json.loads(base.read_text())
+    body["estimates"]["smoothed"] = {"ape": {"translation_m": {"rmse": 0.6}}}
+    body["ratios"]["smoothed_over_lidar"] = 0.6 / 7.0
+    (tmp_path / "cur.json").write_text(json.dumps(body))
+    run = CliRunner().invoke
+    r = run(main, ["check", str(tmp_path / "cur.json"), "--baseline", str(base)])
+    assert r.exit_code == 0, r.output
+    assert "not gated: 2 metric(s) of the smoothed estimate(s)" in r.stderr
+    body["estimates"]["fused"]["ape"]["translation_m"]["rmse"] = 1.5              # the gated rest still fails
+    (tmp_path / "worse.json").write_text(json.dumps(body))
+    assert run(main, ["check", str(tmp_path / "worse.json"), "--baseline", str(base)]).exit_code == 1
+    r = run(main, ["check", str(tmp_path / "cur.json"), "--baseline", str(base), "--metric", "smoothed.*"])
+    assert r.exit_code == 2 and "has no value for it" in r.stderr

@@ -281,7 +281,7 @@ def _variant_row(r: VariantRun, gt: PoseSeries, evs_u: dict, ev_cfg: dict, estim
            "ape_trans_rmse_m": m["ape"]["translation_m"]["rmse"], "ape_rot_rmse_deg": m["ape"]["rotation_deg"]["rmse"],
            "rpe_1frame_trans_rmse_m": (m.get("rpe_1frame") or {}).get("translation_m", {}).get("rmse"),
            f"{d}_trans_rmse_m": ((m.get(d) or {}).get("translation_m") or {}).get("rmse"),
-           "fused_over_lidar": ratio(r.ev, evs_u.get("lidar")), "fused_over_gnss": ratio(r.ev, evs_u.get("gnss")),
+           "estimate_over_lidar": ratio(r.ev, evs_u.get("lidar")), "estimate_over_gnss": ratio(r.ev, evs_u.get("gnss")),
            "final_accel_bias_mps2": r.filt.accel_bias_b[-1].tolist(),
            "final_gyro_bias_dph": (np.degrees(r.filt.gyro_bias_b[-1]) * 3600).tolist(),
            # one column per registered observation, found by name
@@ -297,7 +297,7 @@ def _variant_row(r: VariantRun, gt: PoseSeries, evs_u: dict, ev_cfg: dict, estim
 
 
 CSV_COLUMNS = ["variant", "estimate", "matched_poses", "ape_trans_rmse_m", "ape_rot_rmse_deg", "rpe_1frame_trans_rmse_m",
-               "fused_over_lidar", "fused_over_gnss", "kitti_drift_t_err_pct", "kitti_drift_r_err_deg_per_100m",
+               "estimate_over_lidar", "estimate_over_gnss", "kitti_drift_t_err_pct", "kitti_drift_r_err_deg_per_100m",
                "nees_position_in_95", "runtime_s"]
 
 
@@ -332,8 +332,8 @@ def _latex(name: str, rows: list[dict], n_trials: int, alignment: str = "none") 
               "estimate/lidar", "estimate/GNSS"]
     body = [[r["variant"], r["estimate"],
              cell(r["ape_trans_rmse_m"]) + (f" ± {cell(r['ape_trans_rmse_m_std'])}" if "ape_trans_rmse_m_std" in r else ""),
-             r.get("ape_rot_rmse_deg"), cell(r.get("rpe_1frame_trans_rmse_m"), 4), r.get("fused_over_lidar"),
-             r.get("fused_over_gnss")] for r in rows]
+             r.get("ape_rot_rmse_deg"), cell(r.get("rpe_1frame_trans_rmse_m"), 4), r.get("estimate_over_lidar"),
+             r.get("estimate_over_gnss")] for r in rows]
     mean = f", mean over {n_trials} Monte-Carlo trials" if n_trials > 1 else ""
     return latex_document([latex(header, body, align="llrrrrr", caption=f"{name}: filter variants against ground truth "
                                  f"(evo, {keys.alignment_words(alignment)}{mean}).", label=f"tab:{name.replace('/', '-')}-compare")],
@@ -355,7 +355,7 @@ def _markdown(name: str, rows: list[dict], truth_body, plots: bool, sp: dict | N
         if ci and all(v is not None for v in ci):        # the README promised it; only compare.json had it (an audit)
             ape += f" [{cell(ci[0])}, {cell(ci[1])}]"
         body.append([r["variant"], r["estimate"], ape, cell(r.get("ape_rot_rmse_deg")),
-                     cell(r.get("rpe_1frame_trans_rmse_m"), 4), cell(r.get("fused_over_lidar")), cell(r.get("fused_over_gnss")),
+                     cell(r.get("rpe_1frame_trans_rmse_m"), 4), cell(r.get("estimate_over_lidar")), cell(r.get("estimate_over_gnss")),
                      f"{cell(r.get('kitti_drift_t_err_pct'))} / {cell(r.get('kitti_drift_r_err_deg_per_100m'))}",
                      _pct(r.get("nees_position_in_95")), "" if not bv else f"{bv['lateral']:.3f} / {bv['vertical']:.3f}",
                      ", ".join(f"{b:.1f}" for b in r.get("final_gyro_bias_dph", [])),
