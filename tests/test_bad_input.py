@@ -1156,13 +1156,35 @@ def test_evaluate_flags_positions_in_mm_and_quaternions_in_wxyz_order(tmp_path):
     (tmp_path / "mm.txt").write_text("".join(f"{r[0]} {float(r[1]) * 1e3:.6f} {float(r[2]) * 1e3:.6f} "
                                              f"{float(r[3]) * 1e3:.6f} {' '.join(r[4:8])}\n" for r in rows))
     (tmp_path / "wxyz.txt").write_text("".join(f"{' '.join(r[:4])} {r[7]} {' '.join(r[4:7])}\n" for r in rows))
+    # the conjugate (world in body, JPL) gives the same body turns as the other order up to a constant rotation; it
+    # once got the order's hint, which raised its rotation error from 85 to 149 deg (a review). Conjugates in the
+    # other order are the truth's under a constant rotation of the world and one of the body
+    (tmp_path / "conj.txt").write_text("".join(f"{' '.join(r[:4])} {-float(r[4])} {-float(r[5])} {-float(r[6])} {r[7]}\n"
+                                               for r in rows))
+    (tmp_path / "conjwxyz.txt").write_text("".join(f"{' '.join(r[:4])} {r[7]} {-float(r[4])} {-float(r[5])} "
+                                                   f"{-float(r[6])}\n" for r in rows))
+    # a left-handed world (y flipped: positions and orientations mirrored), and a camera's poses (the body turned by a
+    # constant rotation): plausible APE figures with no word before (a review)
+    from scipy.spatial.transform import Rotation
+
+    (tmp_path / "mirror.txt").write_text("".join(f"{r[0]} {r[1]} {-float(r[2])} {r[3]} {-float(r[4])} {r[5]} "
+                                                 f"{-float(r[6])} {r[7]}\n" for r in rows))
+    cam = Rotation.from_euler("xz", [-90, -90], degrees=True)             # optical axes: z forward, x right, y down
+    (tmp_path / "camera.txt").write_text("".join(
+        f"{' '.join(r[:4])} {' '.join(f'{v:.9f}' for v in (Rotation.from_quat([float(x) for x in r[4:8]]) * cam).as_quat())}\n"
+        for r in rows))
     out = tmp_path / "o"
     r = CliRunner().invoke(main, ["evaluate", str(gt), str(orb), str(tmp_path / "mm.txt"), str(tmp_path / "wxyz.txt"),
-                                  "--alignment", "se3", "--no-plots", "-o", str(out)])
+                                  str(tmp_path / "conj.txt"), str(tmp_path / "conjwxyz.txt"), str(tmp_path / "mirror.txt"),
+                                  str(tmp_path / "camera.txt"), "--alignment", "se3", "--no-plots", "-o", str(out)])
     assert r.exit_code == 0, r.output
     est = json.loads((out / "metrics.json").read_text())["estimates"]
     assert "positions in another unit (mm for m?)" in est["mm"]["note"]
-    assert "written w x y z where the format wants x y z w?" in est["wxyz"]["note"]
+    assert "read in the other order: written w x y z where the format wants x y z w?" in est["wxyz"]["note"]
+    assert "inverted (their conjugates): the world's orientation in the body frame, or JPL" in est["conj"]["note"]
+    assert "a constant offset of the body" in est["conjwxyz"]["note"]          # which is what it amounts to
+    assert "its positions match the reference's mirrored" in est["mirror"]["note"]
+    assert "a constant offset of the body, the poses of another frame" in est["camera"]["note"]
     assert not est["fr2_desk_ORB"].get("note")
     assert "mm: its path is" in r.stderr and "wxyz: its body-frame turns" in r.stderr
 

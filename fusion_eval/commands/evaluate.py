@@ -132,7 +132,8 @@ def run_evaluate(inputs: list, out_dir: Path, ref_times: Path | None = None, tim
                 f"position only (the reference has one and the same orientation on every pose, while this estimate turns "
                 f"by up to {ref_turns[name]:.0f} deg: placeholders): no rotation, relative (RPE) or KITTI drift metric")
         for name, f in zip(series, est_fs):
-            for why in [*convention_hints(f, ref_f, alignment), *span_and_clock_hints(f, ref_f, evals[name], alignment,
+            rot = ((m["estimates"][name].get("ape") or {}).get("rotation_deg") or {}).get("rmse")
+            for why in [*convention_hints(f, ref_f, alignment, rot), *span_and_clock_hints(f, ref_f, evals[name], alignment,
                                                                                      t_range_s, t_offset_s)]:
                 log.warning("%s: %s", name, why)
                 e = m["estimates"][name]
@@ -232,7 +233,60 @@ def _misfit(a: np.ndarray, b: np.ndarray) -> float:
     return float(np.sqrt(np.mean(np.sum((a - b @ R.T) ** 2, axis=1)) / max(np.mean(np.sum(a ** 2, axis=1)), 1e-300)))
 
 
-def convention_hints(f, ref_f, alignment: str) -> list[str]:
+def _spread(q_ref_wxyz: np.ndarray, q_wxyz: np.ndarray, two_sided: bool = True, iterations: int = 8) -> float:
+    """How far the orientations ``q`` are from the reference's under one constant rotation on the world side and one on
+    the body side (``R_ref ~ A R B``: another world frame and a mount, fitted alternately), or with ``two_sided``
+    False under one of the two alone (the better): the RMS angle (rad) left."""
+    from ..so3 import log_so3, quat_xyzw_to_matrix, wxyz_to_xyzw
+
+    Rr, R = (quat_xyzw_to_matrix(wxyz_to_xyzw(np.asarray(x, float))).reshape(-1, 3, 3) for x in (q_ref_wxyz, q_wxyz))
+
+    def proj(M):                        # the rotation nearest M
+        U, _, Vt = np.linalg.svd(M)
+        return U @ np.diag([1.0, 1.0, np.sign(np.linalg.det(U @ Vt))]) @ Vt
+
+    def left(A, B):                     # RMS angle of Rr^T A R B
+        E = np.einsum("nji,jk,nkl->nil", Rr, A, R @ B)
+        return float(np.sqrt(np.mean(np.sum(log_so3(E) ** 2, axis=1))))
+
+    if not two_sided:
+        world = proj(np.einsum("nij,nkj->ik", Rr, R))                    # Rr ~ A R
+        body = proj(np.einsum("nji,njk->ik", R, Rr))                     # Rr ~ R B
+        return min(left(world, np.eye(3)), left(np.eye(3), body))
+    # B from the turns since the first pose, which the model conjugates by B (Rr_0^T Rr_i = B^T R_0^T R_i B, so their
+    # rotation vectors are B^T times each other's): alternating from the identity crawled along a planar track's
+    # trade-off of the two yaws (9.5 deg left after 8 rounds where 2.4 is the answer)
+    vr = log_so3(np.einsum("ji,njk->nik", Rr[0], Rr))
+    v = log_so3(np.einsum("ji,njk->nik", R[0], R))
+    B = proj(np.einsum("ni,nj->ij", v, vr))                              # v_ref ~ B^T v: B = argmax tr(B^T ...)
+    A = np.eye(3)
+    for _ in range(iterations):
+        A = proj(np.einsum("nij,nkj->ik", Rr, R @ B))                    # sum Rr (R B)^T
+        B = proj(np.einsum("nji,jk,nkl->il", R, A.T, Rr))                # sum R^T A^T Rr
+    return left(A, B)
+
+
+def _mirrored(p_ref: np.ndarray, p: np.ndarray) -> str:
+    """Why the positions ``p`` are the reference's mirrored (a left-handed frame: one axis flipped), or '': the best
+    reflection fits them to a third of the best rotation's residual, which is itself beyond 10 % of the track's
+    size."""
+    a, b = p - p.mean(axis=0), p_ref - p_ref.mean(axis=0)
+    size = float(np.sqrt(np.mean(np.sum(b ** 2, axis=1))))
+    if a.shape[0] < 10 or size <= 0:
+        return ""
+    U, _, Vt = np.linalg.svd(a.T @ b)
+    fit = {}                            # (a flat track is its own mirror image: both fit alike, and nothing is said)
+    for sign in (1.0, -1.0):
+        R = U @ np.diag([1.0, 1.0, sign * np.sign(np.linalg.det(U @ Vt))]) @ Vt
+        fit[sign] = float(np.sqrt(np.mean(np.sum((a @ R - b) ** 2, axis=1))))
+    if fit[1.0] > 0.1 * size and fit[-1.0] < fit[1.0] / 3:
+        return (f"its positions match the reference's mirrored ({fit[-1.0]:.3g} m RMS, against {fit[1.0]:.3g} m under "
+                "any rotation): a left-handed frame, one axis flipped (y for -y, NED read as ENU with a sign lost), so "
+                "no alignment makes its figures meaningful")
+    return ""
+
+
+def convention_hints(f, ref_f, alignment: str, rot_rmse_deg: float | None = None) -> list[str]:
     """Mistakes of convention that read as plausible numbers: positions 1000^k times the reference's (mm for m:
     1758 m of APE on a desk-sized track once, with se3 alignment), and quaternions written w x y z where the format
     wants x y z w (a 149 deg rotation error beside a translation error of millimetres). Each is a sentence for a
@@ -255,20 +309,57 @@ def convention_hints(f, ref_f, alignment: str) -> list[str]:
             if round(k) != 0 and abs(k - round(k)) < 0.1:
                 out.append(f"its path is {le / lr:.4g} times the reference's over the same stamps: positions in another "
                            f"unit ({'mm' if round(k) == 1 else 'km' if round(k) == -1 else f'1e{3 * round(k):+d}'} for m?)")
+    mirrored = _mirrored(ref_a.positions_xyz, est_a.positions_xyz)
+    if mirrored:
+        out.append(mirrored)
+        return out            # its orientations are of a left-handed frame: no reading of them fits
     q = np.asarray(est_a.orientations_quat_wxyz, float)
     step = max(1, int(round(0.5 / max(float(np.median(np.diff(est_a.timestamps))), 1e-9))))   # turns over ~0.5 s
     if not np.all(q == q[0]) and q.shape[0] > 4 * step:
         a = _body_turns(np.asarray(ref_a.orientations_quat_wxyz, float), step)
         turning = np.linalg.norm(a, axis=1) > np.radians(1.0)
         if turning.sum() >= 10:
-            # a file's w x y z read as x y z w: evo's (w, x, y, z) is the file's (z, w, x, y)
+            # a file's w x y z read as x y z w: evo's (w, x, y, z) is the file's (z, w, x, y); an inverse rotation
+            # (world in body, or a JPL quaternion) is the conjugate. Each reading is tried, and the best one named: a
+            # conjugate once got the order's hint, which raised its rotation error from 85 to 149 deg (a review)
             as_read = _misfit(a[turning], _body_turns(q, step)[turning])
-            swapped = _misfit(a[turning], _body_turns(q[:, [1, 2, 3, 0]], step)[turning])
-            if as_read > 0.5 and swapped < 0.25 * as_read:
-                out.append(f"its body-frame turns match the reference's to {as_read:.0%} of their size under any mount "
-                           f"rotation, to {swapped:.0%} with its quaternions read in the other order: written w x y z "
-                           "where the format wants x y z w?")
+            conj = q * np.array([1.0, -1.0, -1.0, -1.0])
+            readings = {"read in the other order: written w x y z where the format wants x y z w":
+                        q[:, [1, 2, 3, 0]],
+                        "inverted (their conjugates): the world's orientation in the body frame, or JPL quaternions, "
+                        "where the format wants the body's in the world": conj}
+            fits = {k: _misfit(a[turning], _body_turns(v, step)[turning]) for k, v in readings.items()}
+            # the order and the conjugate give the same body turns, and the same orientations under one constant
+            # rotation of the world and one of the body (as does a conjugate in the other order against the file as
+            # read): where the reference leaves one side fixed, a one-sided fit tells them apart, else both are named
+            ref_q = np.asarray(ref_a.orientations_quat_wxyz, float)
+            spread0 = _spread(ref_q, q)
+            cands = [k for k, v in fits.items() if v < 0.25 * as_read] if as_read > 0.5 else []
+            if cands:
+                one = {k: _spread(ref_q, readings[k], two_sided=False) for k in cands}
+                best = min(one, key=one.get)
+                others = [v for k, v in one.items() if k != best]
+                ties = [best] if not others or one[best] < 0.5 * min(others) else cands
+                what, question = best.split(": ", 1)
+                if len(ties) > 1:
+                    what = " or ".join(k.split(": ", 1)[0] for k in ties) + " (their turns cannot tell which)"
+                    question = " or ".join(k.split(": ", 1)[1] for k in ties)
+                out.append(f"its body-frame turns match the reference's to {as_read:.0%} of their size under any "
+                           f"mount rotation, to {fits[best]:.0%} with its quaternions {what}: {question}?")
+            elif (alignment in ("se3", "sim3") and rot_rmse_deg is not None and rot_rmse_deg > BODY_OFFSET_DEG
+                  and spread0 < np.radians(5.0)):
+                # as read, the reference's orientations up to one constant rotation of the world and one of the body,
+                # yet a large rotation error once the world is aligned: another frame's poses (a camera's optical
+                # frame gave 89.5 deg beside 0.146 m, no word; a review)
+                out.append(f"its orientations match the reference's under one constant rotation of the world and one "
+                           f"of the body to {np.degrees(spread0):.1f} deg RMS, and its rotation error is "
+                           f"{rot_rmse_deg:.0f} deg: a constant offset of the body, the poses of another frame than the "
+                           "reference's (a camera's, whose optical z axis looks forward; a mounted sensor), or a "
+                           "quaternion convention that amounts to one (conjugates written w x y z)")
     return out
+
+
+BODY_OFFSET_DEG = 20.0      # a rotation error this large and constant is another frame, not a mounting tolerance
 
 
 def _in_range(stamps, t_range_s=(None, None), shift_s: float = 0.0) -> np.ndarray:
