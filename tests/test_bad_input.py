@@ -784,6 +784,33 @@ def test_a_header_is_a_line_without_a_number_in_its_fields(tmp_path, text, delim
     assert rows.shape == (len(lines), 3) and list(ln) == lines
 
 
+@pytest.mark.parametrize("header, delimiter, ok", [
+    ("t,x,y,z,qw,qx,qy,qz", ",", False),                  # the README's qx qy qz qw given for a w-first file
+    ("timestamp,x,y,z,qx,qy,qz,qw", ",", True),
+    ("t_s x_m y_m z_m qx qy qz qw", " ", True),            # units after the names, as `simulate` writes them
+    ("time,pos_x,pos_y,pos_z,q1,q2,q3,q4", ",", True),     # other names: nothing to compare
+    ("# t,x,y,z,qw,qx,qy,qz", ",", True),                  # a comment, not a header
+], ids=["wxyz", "timestamp", "units", "other-names", "comment"])
+def test_a_header_naming_the_columns_in_another_order_than_the_manifest_is_an_error(tmp_path, header, delimiter, ok):
+    """A header is skipped unread: one saying qw first, read with columns [t, x, y, z, qx, qy, qz, qw], ran at 225 m with
+    exit 0 (a conventions review). Where its names are the stream's own column names, they must agree with 'columns'."""
+    from fusion_eval.datasets.csv_stream import read_poses
+    from fusion_eval.datasets.streams import ReadContext
+    from fusion_eval.errors import DataFormatError
+
+    sep = delimiter
+    p = tmp_path / "gt.csv"
+    p.write_text(header + "\n" + "\n".join(sep.join(["%d" % i, "1", "2", "3", "0", "0", "0", "1"]) for i in range(5)) + "\n")
+    entry = {"format": "csv", "path": str(p), "columns": ["t", "x", "y", "z", "qx", "qy", "qz", "qw"], "delimiter": delimiter}
+    ctx = ReadContext(root=tmp_path, manifest=tmp_path / "dataset.yaml", origin=None, oxts=None)
+    if ok:
+        assert read_poses(entry, ctx).t_s.size == 5
+    else:
+        with pytest.raises(DataFormatError, match=r"gt.csv:1: its header names column 5 'qw' where the manifest's "
+                                                  r"'columns' says 'qx'"):
+            read_poses(entry, ctx)
+
+
 def test_a_run_of_column_counts_is_said_as_a_range():
     from fusion_eval.datasets._text import _counts
 

@@ -174,6 +174,40 @@ def _columns(entry: dict, kind: str, ctx: ReadContext) -> dict[str, int]:
     return named
 
 
+# a header's names for the stamp column, read as 't' when a header is compared with 'columns'
+_STAMP_NAMES = frozenset({"t", "time", "timestamp", "stamp", "t_s", "time_s", "timestamp_s", "t_ns", "timestamp_ns"})
+# and a unit written after a name ('wx_dps', 'lat_deg', 'std_e_m', as `simulate` writes them)
+_UNIT_SUFFIX = r"_(dps|rps|deg|rad|m|mps|mps2|s|ns|us|ms|g)$"
+
+
+def _check_header(path: Path, entry: dict, kind: str, delimiter: str | None) -> None:
+    """A header whose names are this stream's own column names, in other places than ``columns`` puts them, is an
+    error naming its line: the header was skipped unread, and a file headed ``t,x,y,z,qw,qx,qy,qz`` read with the
+    README's ``qx qy qz qw`` ran at 225 m with exit 0 (a conventions review)."""
+    required, optional = NAMES[kind]
+    known = required | optional
+    with open(path, encoding="utf-8", errors="replace") as fh:
+        for no, ln in enumerate(fh, 1):
+            if no > 1000:
+                return
+            if not ln.strip() or ln.lstrip().startswith("#"):
+                continue
+            if _has_number(ln, delimiter):
+                return                      # the first row is data: no header
+            header = ln
+            break
+        else:
+            return
+    fields = header.split() if delimiter in (None, " ") else header.rstrip("\r\n").split(delimiter)
+    names = [f.strip().strip("\"'").strip().lower() for f in fields]
+    names = ["t" if n in _STAMP_NAMES else re.sub(_UNIT_SUFFIX, "", n) for n in names]
+    for i, (h, c) in enumerate(zip(names, entry["columns"])):
+        if h in known and not c.startswith("_") and h != c:
+            raise DataFormatError(path, no, f"its header names column {i + 1} {fields[i].strip()!r} where the manifest's "
+                                            f"'columns' says {c!r} ({', '.join(entry['columns'])}): give 'columns' in "
+                                            "the file's order")
+
+
 def _choice(entry: dict, key: str, table: dict, default: str, ctx: ReadContext):
     v = entry.get(key, default)
     if v not in table:
@@ -191,6 +225,8 @@ def _table(entry: dict, kind: str, ctx: ReadContext, what: str):
     if rows.shape[1] != len(entry["columns"]):
         raise DataFormatError(path, int(lines[0]), f"{what}: expected {len(entry['columns'])} columns (as 'columns' names), "
                                                    f"got {rows.shape[1]}")
+    if int(lines[0]) > 1:                   # something above the first row: a header, perhaps
+        _check_header(path, entry, kind, entry.get("delimiter", ","))
     t = rows[:, named["t"]] if per_ns is None else ns_to_s(ns)
     return named, rows, t, lines, str(path)
 
