@@ -616,6 +616,70 @@ def clock_shift(name: str, series, groundtruth, offset_key: str = "", offset_s: 
             f"between {name} and the ground truth{fix}, or in the ground truth's own stamps; every figure carries it")
 
 
+# a GNSS latency: the least-squares shift of the fixes along the truth's velocity, said beyond this many seconds and
+# this many standard errors (measured: KITTI's fixes, the truth itself, 0; the degraded ones 0.00 +/- 0.01 s)
+MIN_LATENCY_S, MIN_LATENCY_SIGMAS, MIN_LATENCY_SPEED_MPS = 0.05, 6.0, 2.0
+
+
+def gnss_latency(gnss, groundtruth, offset_s: float = 0.0) -> str:
+    """Why the GNSS fixes lag (or lead) the ground truth by a fraction of a second, or '': below what
+    :func:`clock_shift` can see against the fixes' noise (a receiver stamping its fixes 0.2 s late, at receive time,
+    gave 1.50 m for 0.54 with no word; a conventions review). Each fix's error against the truth at its stamp is,
+    for a latency ``d``, ``-v d`` (``v`` the truth's velocity there), beside a constant offset and an antenna ahead of
+    or behind the truth's point (along the direction of travel, whatever the speed): ``d`` by least squares over the
+    moving fixes, said beyond :data:`MIN_LATENCY_S` and :data:`MIN_LATENCY_SIGMAS` standard errors."""
+    pair = _fixes_on_truth(gnss, groundtruth)
+    if pair is None:
+        return ""
+    t_gt, p_gt = np.asarray(groundtruth.t_s), np.asarray(groundtruth.p_w_m)
+    real = _real(gnss)
+    t = np.asarray(gnss.t_s)[real]
+    t = t[(t >= t_gt[0]) & (t <= t_gt[-1])]
+    g, r = pair
+    h = 0.05
+    v = np.column_stack([(np.interp(t + h, t_gt, p_gt[:, a]) - np.interp(t - h, t_gt, p_gt[:, a])) / (2 * h)
+                         for a in range(3)])
+    speed = np.linalg.norm(v, axis=1)
+    moving = speed > MIN_LATENCY_SPEED_MPS
+    if moving.sum() < 30:
+        return ""
+    e, v = (g - r)[moving], v[moving]
+    u = v / speed[moving][:, None]
+    n = e.shape[0]
+
+    def fit(columns):                        # least squares of e on -v (the latency), the columns and a constant
+        X = np.zeros((3 * n, 4 + len(columns)))
+        X[:, 0] = -v.ravel()
+        for j, c in enumerate(columns):
+            X[:, 1 + j] = c.ravel()
+        for a in range(3):
+            X[a::3, X.shape[1] - 3 + a] = 1.0
+        coef, *_ = np.linalg.lstsq(X, e.ravel(), rcond=None)
+        res = e.ravel() - X @ coef
+        try:
+            var = float(res @ res) / max(3 * n - X.shape[1], 1) * np.linalg.inv(X.T @ X)[0, 0]
+        except np.linalg.LinAlgError:
+            return 0.0, np.inf
+        return float(coef[0]), float(np.sqrt(max(var, 0.0)))
+
+    d, sd = fit([])
+    if abs(d) < MIN_LATENCY_S or abs(d) < MIN_LATENCY_SIGMAS * sd:
+        return ""
+    # an antenna ahead of or behind the truth's point also moves each fix along the track, by a length whatever the
+    # speed: only the speed's variation tells the two apart
+    d2, sd2 = fit([u])
+    fix = f"gnss.time_offset_s {-d:+.3f} s fits: {offset_s - d:.3f} s for the {offset_s:.3f} s given"
+    if abs(d2) >= MIN_LATENCY_S and abs(d2) >= MIN_LATENCY_SIGMAS * sd2:
+        why = f"a latency, such as fixes stamped when received rather than when measured ({fix})"
+    else:
+        along = d * float(np.median(speed[moving]))
+        why = (f"a latency ({fix}), or an antenna {abs(along):.2f} m {'behind' if along > 0 else 'ahead of'} the "
+               "truth's point along the vehicle (gnss.lever_arm_b_m); the drive's speed varies too little to tell")
+    return (f"{gnss.source}: the GNSS fixes match the ground truth {abs(d):.3f} +/- {sd:.3f} s "
+            f"{'later' if d > 0 else 'earlier'} than stamped (their errors along the velocity, over {n} moving fixes): "
+            f"{why}; every fix is pulled along the track")
+
+
 # a lidar odometry given in the ground truth's frame (``anchor: none``) starts within these of the truth's pose
 MAX_UNANCHORED_DEG, MAX_UNANCHORED_M = 30.0, 20.0
 
