@@ -283,7 +283,8 @@ def prepare(ds: Dataset, cfg: dict) -> Prepared:
         applied["time_offset_s"]["gnss"] = off
         g = shifted(ds.gnss, off)
         g = g.select(~g.filled)
-        said = list(filter(None, [plausible.gnss_offset(g, gt), plausible.gnss_frame(g, gt),
+        said = list(filter(None, [plausible.gnss_offset(g, gt, bool(ds.description.get("origin_from_first_fix"))),
+                                  plausible.gnss_frame(g, gt),
                                   plausible.clock_shift("GNSS", g, gt, "gnss.time_offset_s", off)
                                   or plausible.gnss_latency(g, gt, off)]))  # as configured
         more_warnings += said or list(filter(None, [plausible.gnss_disagrees(g, gt)]))
