@@ -363,6 +363,23 @@ def test_utm_coordinates_south_of_the_equator_are_not_a_corrupted_pose():
         check_track("trajectory", "far.tum", np.arange(1, 4), t, np.array([[0.0, 0.0, 0.0], [0.0, 5e7, 0.0], [0.0, 0.0, 0.0]]))
 
 
+def test_a_track_fast_at_every_step_is_said_to_be_a_unit_not_a_corrupted_row():
+    """A whole manifest's time_unit 1000x off (ns declared for us) was refused as one corrupted pose (a conventions
+    review): where the median step is beyond any platform's speed, the message names a unit."""
+    from fusion_eval.datasets.plausible import check_track
+    from fusion_eval.errors import DataFormatError
+
+    t = np.arange(200) * 1e-5                                    # 10 ms steps read 1000x too short
+    p = np.column_stack([10.0 * np.arange(200) * 0.01, np.zeros(200), np.zeros(200)])   # 10 m/s in truth
+    with pytest.raises(DataFormatError, match=r"gt.csv:\d+: .*median step is 1e\+04 m/s, no platform's speed: stamps "
+                                              r"in another unit than read"):
+        check_track("groundtruth", "gt.csv", np.arange(1, 201), t, p)
+    one = np.column_stack([np.arange(200) * 0.1, np.zeros(200), np.zeros(200)])
+    one[100:] += 5e3                                              # one corrupted row among 10 m/s steps
+    with pytest.raises(DataFormatError, match=r"gt.csv:101: .*: a corrupted pose or stamp"):
+        check_track("groundtruth", "gt.csv", np.arange(1, 201), np.arange(200) * 0.01, one)
+
+
 def test_a_reflection_in_a_lidar_pose(ds, tmp_path):
     p = ds / "lidar" / "poses.txt"
     rows = p.read_text().splitlines()

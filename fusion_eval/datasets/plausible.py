@@ -120,9 +120,15 @@ def check_track(name: str, source, lines, t_s, p_m) -> None:
         bad = np.flatnonzero(v > MAX_SPEED_MPS)
         if bad.size:
             i = int(bad[0]) + 1
+            moving = v[np.isfinite(v) & (v > 0)]
+            med = float(np.median(moving)) if moving.size else 0.0
+            # every step that fast is a unit, not a corrupted row: stamps 1000x finer than read (a whole manifest's
+            # time_unit ns for us was blamed on one pose; a conventions review)
+            why = (f"; its median step is {med:.3g} m/s, no platform's speed: stamps in another unit than read (a "
+                   "time_unit 1000x off: ns for us, us for ms?) or positions in mm" if med > MAX_ANY_SPEED_MPS
+                   else f": a corrupted pose or stamp{_packet(source, line_of(lines, i))}")
             raise DataFormatError(source, line_of(lines, i), f"{name} pose moves {v[i - 1]:.3g} m/s from the previous one "
-                                                             f"(more than {MAX_SPEED_MPS:.0e} m/s): a corrupted pose or "
-                                                             f"stamp{_packet(source, line_of(lines, i))}")
+                                                             f"(more than {MAX_SPEED_MPS:.0e} m/s){why}")
 
 
 def _packet(source, line) -> str:
