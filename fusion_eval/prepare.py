@@ -82,7 +82,8 @@ def anchor_lidar(lidar_odom: PoseSeries, gt: PoseSeries) -> tuple[PoseSeries, fl
     if inside.size == 0:
         raise DataRangeError(f"lidar poses ({lidar_odom.source}) and ground truth do not overlap in time: "
                              f"lidar {lidar_odom.t_s[0]:.3f}..{lidar_odom.t_s[-1]:.3f} s, "
-                             f"ground truth {gt.t_s[0]:.3f}..{gt.t_s[-1]:.3f} s")
+                             f"ground truth {gt.t_s[0]:.3f}..{gt.t_s[-1]:.3f} s"
+                             + plausible.clock_hint("lidar", float(lidar_odom.t_s[0]), "ground-truth", float(gt.t_s[0])))
     a = int(inside[0])
     p_a, R_a, _ = interpolate_pose_at(gt, float(lidar_odom.t_s[a]))
     T_o = make_T(lidar_odom.R_wb(), lidar_odom.p_w_m)

@@ -1409,6 +1409,11 @@ def test_a_boot_clock_beside_posix_time_is_named():
     assert "the IMU stamps start near 0 (812.500 s: a device's boot clock" in hint
     assert "add about 1767224787.500 s to the IMU stream's time_offset_s" in hint
     assert clock_hint("IMU", 1767225600.0, "GNSS", 1767225900.0) == "" and clock_hint("a", 5.0, "b", 9.0) == ""
+    # both POSIX, whole hours apart: a time zone (kitti-00's GTSAM-style GPS file converted in local time: 2 h, no hint)
+    hint = clock_hint("GNSS", 1317639334.478, "IMU", 1317646536.498)
+    assert "their starts differ by 7202 s, about 2 h: one of the clocks in local time" in hint
+    assert "add about 7202 s to the GNSS stream's time_offset_s" in hint
+    assert clock_hint("GNSS", 1317639334.0, "IMU", 1317639334.0 + 5400.0) == ""          # 1.5 h: no zone
 
 
 def test_evaluate_names_a_tum_file_stamped_in_nanoseconds(tmp_path):

@@ -300,6 +300,15 @@ def clock_hint(a: str, a_t0: float, b: str, b_t0: float) -> str:
         return ("zero" if 0 <= t < BOOT_CLOCK_MAX_S else
                 "posix" if POSIX_RANGE_S[0] <= t <= POSIX_RANGE_S[1] else "")
     ka, kb = kind(a_t0), kind(b_t0)
+    if ka == kb == "posix":
+        # both POSIX, whole hours apart: one clock in local time (a GNSS file converted with a time zone: 2 h on
+        # kitti-00's GTSAM-style GPS file, with no hint; a conventions review)
+        d = b_t0 - a_t0
+        h = round(d / 3600.0)
+        if 1 <= abs(h) <= 14 and abs(d - 3600.0 * h) < 120.0:
+            return (f": their starts differ by {d:.0f} s, about {abs(h)} h: one of the clocks in local time, the other "
+                    f"in UTC? add about {d:.0f} s to the {a} stream's time_offset_s, or stamp both in UTC")
+        return ""
     if {ka, kb} != {"zero", "posix"}:
         return ""
     near0, posix = (a, b) if ka == "zero" else (b, a)
