@@ -880,7 +880,18 @@ def odometer_scale(odo, gt) -> str:
     inside = (odo.t_s >= t[0]) & (odo.t_s <= t[-1])
     if not truth > MIN_TRUTH_SPEED_MPS or inside.sum() < 20:
         return ""
-    ratio = float(np.percentile(np.abs(np.asarray(odo.v_mps, float)[inside]), 90)) / truth
+    v = np.asarray(odo.v_mps, float)[inside]
+    # moving (the truth's speed at the odometer's stamps over 1 m/s) and reading backwards nearly all the time: a sign
+    # (a flipped odometer made the filter diverge blaming km/h and g; a conventions review)
+    ts = odo.t_s[inside]
+    k = np.clip(np.searchsorted(t, ts), 1, t.size - 1)
+    speed_at = np.linalg.norm(p[k] - p[k - 1], axis=1) / np.where(t[k] - t[k - 1] > 0, t[k] - t[k - 1], np.inf)
+    moving = speed_at > MIN_TRUTH_SPEED_MPS
+    if moving.sum() >= 20 and np.mean(v[moving] < 0) > 0.8:
+        return (f"{odo.source}: the odometer reads backwards while the ground truth moves ({np.mean(v[moving] < 0):.0%} "
+                f"of {int(moving.sum())} moving samples, median {np.median(v[moving]):.3g} m/s): its sign reversed (a "
+                "wheel's axis or a driver's convention); the filter takes it as the forward speed")
+    ratio = float(np.percentile(np.abs(v), 90)) / truth
     if 1.0 / MAX_ODOMETER_SCALE <= ratio <= MAX_ODOMETER_SCALE:
         return ""
     unit = next((u for f, u in _SPEED_UNITS if abs(ratio / f - 1.0) < 0.1), "another unit?")
