@@ -480,3 +480,26 @@ def test_a_grids_independent_keys_keep_a_panel_each():
     visible = [ax for ax in fig.axes if ax.get_visible()]
     assert len(visible) == 3 and [ax.get_xlabel() for ax in visible[1:]] == [k1, k2]
     plt.close("all")
+
+
+def test_a_narrow_value_axis_labels_every_tick_apart():
+    """A 0.004-wide axis read 0.797, 0.798, 0.798, 0.799 with three significant digits (a review): as many digits as
+    the ticks need."""
+    import matplotlib.pyplot as plt
+
+    from fusion_eval.report import plots
+
+    fig, ax = plt.subplots()
+    vals = [0.7965, 0.7975, 0.7985, 0.7995, 0.8005]
+    ax.plot(vals, range(5))
+    plots._value_axis(ax, vals, "x", at_values=False)
+    fig.canvas.draw()
+    labels = [t.get_text() for t in ax.get_xticklabels()]
+    assert len(set(labels)) == len(labels) and len(labels) >= 3, labels
+    plt.close(fig)
+    fig, ax = plt.subplots()
+    ax.plot([0.01, 1.0], [1, 2])
+    plots._value_axis(ax, [0.01, 0.1, 1.0], "x")
+    fig.canvas.draw()
+    assert [t.get_text() for t in ax.get_xticklabels()] == ["0.01", "0.1", "1"]
+    plt.close(fig)

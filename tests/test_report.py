@@ -266,3 +266,29 @@ def test_a_verdict_won_on_ape_says_where_the_relative_figures_lose():
     assert got == "; but worse on RPE over 100 m (0.906 against 0.85 m) and KITTI drift (0.494 against 0.462 %)"
     assert _relative_worse({"fused": ev(0.8, 0.4), "lidar": ev(0.85, 0.46)}, "fused", "lidar", cfg) == ""
     assert _relative_worse({"fused": ev(0.8, None), "gnss": NS(metrics={}, drift=None)}, "fused", "gnss", cfg) == ""
+
+
+def test_a_track_shorter_than_one_segment_says_so_instead_of_an_empty_list():
+    """fr2/desk (a few metres) ended its report with 'Worst segments for fr2_desk_ORB: .' (a review)."""
+    from fusion_eval.report.markdown import segments_section
+
+    seg = {"by": "distance", "length": 100.0, "primary": "est", "secondary": None, "worst": [],
+           "segments": [{"index": 0, "start_m": 0.0, "end_m": 12.0, "start_s": 0.0, "end_s": 30.0,
+                         "rmse_m": {"est": 0.006}}]}
+    text = "\n".join(segments_section({"segments": seg}))
+    assert "Worst segments" not in text and "No segment of est is ranked: the track is shorter than one window of 100 m" in text
+    seg["worst"] = [0]
+    assert "Worst segments for est: 0 (0-12 m, 0.006 m)." in "\n".join(segments_section({"segments": seg}))
+
+
+def test_the_smoother_line_gives_the_bytes_per_clone_too(kitti_slice, tmp_path):
+    """'35.5 MB (5849 bytes per epoch)' over 4409 epochs did not multiply out: the clones' 2200 bytes each were not
+    said (a review)."""
+    import fusion_eval as fe
+
+    res = fe.run(fe.load_dataset(kitti_slice), overrides={"smoother.method": "rts", "output.plots": False})
+    sm = res.metrics["smoother"]
+    assert sm["record_bytes"] == sm["epochs"] * sm["bytes_per_epoch"] + sm["clones"] * sm["bytes_per_clone"]
+    res.write(tmp_path / "o")
+    line = next(ln for ln in (tmp_path / "o" / "report.md").read_text().splitlines() if "Smoother: **rts**" in ln)
+    assert f"({sm['bytes_per_epoch']} bytes per epoch, {sm['bytes_per_clone']} per clone)" in line

@@ -88,6 +88,9 @@ def test_compare_and_sweep_with_trials_report_means(kitti_slice, tmp_path):
         assert row["ape_trans_rmse_m"] == pytest.approx(np.mean(per)) and row["trials"] == 2
     md = (out / "compare.md").read_text()
     assert "Means over 2 Monte-Carlo trials" in md
+    # a count stays a count in compare.csv (the trials' mean wrote 4405.000000; a review)
+    assert all(re.fullmatch(r"\d+", row["matched_poses"])
+               for row in csv.DictReader((out / "compare.csv").read_text().splitlines()))
     lo, hi = e["ape_trans_rmse_m_ci95"]          # the 95 % interval of the mean, as the README says (an audit)
     assert lo <= e["ape_trans_rmse_m"] <= hi and f" [{lo:.3f}, {hi:.3f}]" in md
 

@@ -317,6 +317,9 @@ def _csv(rows: list[dict], trials: bool) -> str:
             f[f"final_gyro_bias_{a}_dph"] = float(b)
         for k, v in (r.get("nis_mean") or {}).items():
             f[f"nis_mean_{k}"] = v
+        mp = f.get("matched_poses")
+        if isinstance(mp, float) and mp.is_integer():     # a count, whatever the trials' mean made of it
+            f["matched_poses"] = int(mp)
         flat.append(f)
     cols = CSV_COLUMNS[:-1] + extra + CSV_COLUMNS[-1:] + (["trials", "ape_trans_rmse_m_std"] if trials else [])
     return csv_text(cols, flat)

@@ -129,9 +129,13 @@ def segments_section(m: dict) -> list[str]:
     L = ["", f"## Per-segment breakdown (every {seg['length']:g} {unit} along the route)", ""] + markdown(
         header, rows, align="lll" + "r" * (len(header) - 3))
     by_i = {s["index"]: s for s in seg["segments"]}
-    L += ["", f"Worst segments for {a}: " + ", ".join(
-        f"{i} ({by_i[i]['start_m']:.0f}-{by_i[i]['end_m']:.0f} m, {by_i[i]['rmse_m'][a]:.3f} m"
-        + (f"; horizontal / vertical {_hv(by_i[i], a)} m" if split else "") + ")" for i in seg["worst"]) + ".", ""]
+    if seg["worst"]:         # none ranked: a track shorter than one window leaves only its unranked stub
+        L += ["", f"Worst segments for {a}: " + ", ".join(
+            f"{i} ({by_i[i]['start_m']:.0f}-{by_i[i]['end_m']:.0f} m, {by_i[i]['rmse_m'][a]:.3f} m"
+            + (f"; horizontal / vertical {_hv(by_i[i], a)} m" if split else "") + ")" for i in seg["worst"]) + ".", ""]
+    else:
+        L += ["", f"No segment of {a} is ranked: the track is shorter than one window of {seg['length']:g} {unit} "
+              "(`evaluation.segment_m`; `--segment-m` for evaluate).", ""]
     if split:
         L += ["Horizontal / vertical: the RMSE of the error's part across and along the reference's up axis (their "
               "squares add up to the APE's).", ""]
@@ -277,9 +281,12 @@ def report_md(dataset: str, config_name: str, evals: dict, ratios: dict, cfg: di
          f"**{cfg['filter']['lidar_update']}**, GNSS fused: **{'yes' if cfg['filter']['use_gnss'] else 'no'}**, "
          f"bias model: **{cfg['filter']['bias_model']}**.", "",
          f"## Summary against ground truth (evo, {keys.alignment_words(cfg['evaluation']['alignment'])})", ""] + markdown(*summary_table(evals, cfg))
-    L += ["", f"RPE over one frame pairs each estimate's consecutive poses at its own rate (the fused estimate and "
-          f"dead reckoning at the IMU's, the lidar at its frames'): across estimates of different rates it is not "
-          f"like for like. RPE over {cfg['evaluation']['rpe_delta_m']:g} m takes its pairs "
+    rates = ["the fused estimate and dead reckoning at the IMU's"]
+    if "lidar" in evals:       # (a drive without lidar has none to speak of: a review found the sentence on one)
+        rates.append("the lidar at the IMU stamps it was resampled to" if cfg["lidar"].get("interpolate_to_imu")
+                     else "the lidar at its frames'")
+    L += ["", f"RPE over one frame pairs each estimate's consecutive poses at its own rate ({', '.join(rates)}): across "
+          f"estimates of different rates it is not like for like. RPE over {cfg['evaluation']['rpe_delta_m']:g} m takes its pairs "
           f"{cfg['evaluation']['rpe_delta_m']:g} m apart along each estimate's own path (evo's default): like for like "
           "between estimates that follow the route, not for one whose path runs away (dead reckoning: its pairs are "
           "metres of its own path, not of the route)."]
@@ -304,7 +311,9 @@ def report_md(dataset: str, config_name: str, evals: dict, ratios: dict, cfg: di
         sm = metrics["smoother"]
         if sm["method"] == "rts":
             L.append(f"- Smoother: **rts** over {sm['epochs']} epochs ({sm['clones']} clones), forward record "
-                     f"{sm['record_bytes'] / 1e6:.1f} MB ({sm['bytes_per_epoch']} bytes per epoch).")
+                     f"{sm['record_bytes'] / 1e6:.1f} MB ({sm['bytes_per_epoch']} bytes per epoch"
+                     + (f", {sm['bytes_per_clone']} per clone" if sm.get("bytes_per_clone") and sm["clones"] else "")
+                     + ").")
         else:
             L.append(f"- Smoother: **batch** (GTSAM): {sm['keyframes']} keyframes, {sm['factors']} factors ("
                      f"{sm['imu_factors']} IMU, {sm['lidar_relative_factors']} lidar increments, "

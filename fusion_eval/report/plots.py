@@ -18,6 +18,7 @@ import numpy as np  # noqa: E402
 matplotlib.rcParams["axes.titley"] = 1.0
 
 from ..evaluation.keys import RANK_COLUMN, is_number  # noqa: E402
+from ..resources import dataset_label  # noqa: E402
 from ..filters.layout import CANONICAL  # noqa: E402
 from . import thin  # noqa: E402
 
@@ -433,7 +434,15 @@ def _value_axis(ax, values, axis: str = "x", at_values: bool = True) -> None:
         a.set_major_locator(FixedLocator([vals[i] for i in keep]))
     else:
         a.set_major_locator(LogLocator(numticks=6) if log else MaxNLocator(6))
-    a.set_major_formatter(FuncFormatter(lambda v, _pos: f"{v:.3g}"))
+    def label(v, _pos):
+        # three significant digits, or as many more as the ticks need to read apart (0.797, 0.798, 0.798, 0.799 on a
+        # 0.004-wide axis; a review)
+        locs = [x for x in a.get_majorticklocs() if np.isfinite(x)]
+        n = 3
+        while n < 8 and len({f"{x:.{n}g}" for x in locs}) < len(set(locs)):
+            n += 1
+        return f"{v:.{n}g}"
+    a.set_major_formatter(FuncFormatter(label))
     a.set_minor_formatter(NullFormatter())
     if axis == "x":
         ax.margins(x=0.1)
@@ -504,7 +513,7 @@ def sweep_params_figure(rows: list[dict], keys: list[str], metric: str, defaults
         ax.set_visible(False)
 
     def label_of(ds, v):
-        return Path(ds).name + (f" / {v}" if several_variants else "")
+        return dataset_label(ds) + (f" / {v}" if several_variants else "")
 
     def default_row(ds, v):
         return next((r for r in ok if r["dataset"] == ds and r["variant"] == v and r["setting"] == "default"), None)

@@ -277,7 +277,8 @@ class RtsSmoother:
         sm = smooth(kf, self.rec, k0)
         rec = self.rec
         return sm, {"method": self.name, "epochs": int(rec.epochs.size), "clones": int(rec.clones.size),
-                    "bytes_per_epoch": rec.bytes_per_epoch(), "record_bytes": rec.nbytes(),
+                    "bytes_per_epoch": rec.bytes_per_epoch(), "bytes_per_clone": rec.clones.bytes_per_row(),
+                    "record_bytes": rec.nbytes(),
                     "backward_s": time.perf_counter() - t0}
 
 
