@@ -1676,3 +1676,9 @@ def test_a_fused_position_far_outside_its_covariance_is_a_warning():
     # a kilometre's glitch in the ground truth at a few poses sets the mean alone: most epochs are inside
     assert overconfident({"position": {"mean": 4e4, "dof": 3, "fraction_in_95": 0.83}}, {}) == []
     assert overconfident({}, {}) == [] and overconfident({"position": {"mean": float("nan"), "dof": 3}}, {}) == []
+    # the attitude: an IMU mounted 5 deg in roll off the axes its truth is given in, no extrinsic (a conventions review)
+    (w,) = overconfident({"attitude": {"mean": 5.2e4, "dof": 3, "fraction_in_95": 0.0,
+                                       "median_error_deg": [-4.90, 0.03, -0.07]}}, {})
+    assert w.startswith("the fused attitude's NEES is 5.2e+04 for 3 dof") and "an IMU mounted off the vehicle's axes" in w
+    assert "a rotation of 4.90 deg about the body's x, y, z (-4.90, +0.03, -0.07 deg)" in w
+    assert overconfident({"attitude": {"mean": 7.33, "dof": 3, "fraction_in_95": 0.76}}, {}) == []   # simple-00
