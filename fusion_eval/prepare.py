@@ -287,7 +287,7 @@ def prepare(ds: Dataset, cfg: dict) -> Prepared:
         said = list(filter(None, [plausible.gnss_offset(g, gt, bool(ds.description.get("origin_from_first_fix"))),
                                   plausible.gnss_frame(g, gt),
                                   plausible.clock_shift("GNSS", g, gt, "gnss.time_offset_s", off)
-                                  or plausible.gnss_latency(g, gt, off)]))  # as configured
+                                  or plausible.gnss_latency(g, gt, off, cfg["gnss"].get("lever_arm_b_m"))]))  # as configured
         more_warnings += said or list(filter(None, [plausible.gnss_disagrees(g, gt)]))
         if len(g) and (g.t_s[-1] < t0 or g.t_s[0] > imu.t_s[-1]):
             raise DataRangeError(f"GNSS ({ds.gnss.source}, {g.t_s[0]:.3f}..{g.t_s[-1]:.3f} s after its time_offset_s of "

@@ -808,8 +808,9 @@ def test_a_header_is_a_line_without_a_number_in_its_fields(tmp_path, text, delim
     ("timestamp,x,y,z,qx,qy,qz,qw", ",", True),
     ("t_s x_m y_m z_m qx qy qz qw", " ", True),            # units after the names, as `simulate` writes them
     ("time,pos_x,pos_y,pos_z,q1,q2,q3,q4", ",", True),     # other names: nothing to compare
-    ("# t,x,y,z,qw,qx,qy,qz", ",", True),                  # a comment, not a header
-], ids=["wxyz", "timestamp", "units", "other-names", "comment"])
+    ("# t,x,y,z,qw,qx,qy,qz", ",", False),                 # a header written as a comment (EuRoC's, TUM's way)
+    ("# recorded on 2026-12-05, car 2", ",", True),        # a comment that names no column
+], ids=["wxyz", "timestamp", "units", "other-names", "commented-header", "comment"])
 def test_a_header_naming_the_columns_in_another_order_than_the_manifest_is_an_error(tmp_path, header, delimiter, ok):
     """A header is skipped unread: one saying qw first, read with columns [t, x, y, z, qx, qy, qz, qw], ran at 225 m with
     exit 0 (a conventions review). Where its names are the stream's own column names, they must agree with 'columns'."""

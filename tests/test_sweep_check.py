@@ -682,3 +682,16 @@ def test_check_gates_a_smoothed_run_on_a_baseline_without_a_smoother(tmp_path):
     assert run(main, ["check", str(tmp_path / "worse.json"), "--baseline", str(base)]).exit_code == 1
     r = run(main, ["check", str(tmp_path / "cur.json"), "--baseline", str(base), "--metric", "smoothed.*"])
     assert r.exit_code == 2 and "has no value for it" in r.stderr
+
+
+def test_a_baseline_with_a_smoothed_section_of_nulls_is_refused_not_called_without_one(tmp_path):
+    """A baseline whose smoothed metrics are null was read as having none, and the check passed ungated (a diff
+    review): it holds them, as NaN, and is refused."""
+    base = _metrics(tmp_path, "base.json", 1.0)
+    body = json.loads(base.read_text())
+    body["estimates"]["smoothed"] = {"ape": {"translation_m": {"rmse": None}}}
+    (tmp_path / "nulls.json").write_text(json.dumps(body))
+    body["estimates"]["smoothed"] = {"ape": {"translation_m": {"rmse": 0.6}}}
+    (tmp_path / "cur.json").write_text(json.dumps(body))
+    r = CliRunner().invoke(main, ["check", str(tmp_path / "cur.json"), "--baseline", str(tmp_path / "nulls.json")])
+    assert r.exit_code == 2 and "smoothed.ape" in r.stderr and "not gated" not in r.stderr, r.output

@@ -51,7 +51,7 @@ def test_a_gnss_on_another_vertical_datum_is_flagged():
     g = drive.gnss
     msl = replace(drive, gnss=replace(g, p_w_m=g.p_w_m - [0.0, 0.0, 47.9]))     # the geoid's height near Karlsruhe
     m = fe.run(msl).metrics
-    (w,) = [w for w in m["preprocessing"]["data_warnings"] if "constant" in w]
+    (w,) = [w for w in m["preprocessing"]["data_warnings"] if "sits a constant" in w]
     assert "east, north, up +0.0, +0.0, -47.9 m" in w and "above mean sea level" in w
     east = replace(drive, gnss=replace(g, p_w_m=g.p_w_m + [120.0, 0.0, 0.0]))
     assert "another origin or datum" in plausible.gnss_offset(east.gnss, east.groundtruth)
@@ -240,33 +240,47 @@ def test_a_straight_drive_keeps_its_one_orientation_without_a_placeholder_warnin
     assert "one and the same orientation on every pose" in truth_orientation_placeholder(curve)
 
 
-@pytest.mark.parametrize("latency_s, speed_varies, said", [(0.2, True, "a latency, such as fixes stamped when received"),
-                                                          (0.2, False, "or an antenna"), (0.0, True, None),
-                                                          (-0.1, True, "earlier than stamped")])
-def test_a_gnss_latency_of_a_fraction_of_a_second_is_said(latency_s, speed_varies, said):
+@pytest.mark.parametrize("latency_s, antenna_m, speed, said", [
+    (0.2, 0.0, "varies", "later than stamped: a latency, such as fixes stamped when received"),
+    (0.2, 0.0, 8.0, "or an antenna"), (0.2, 0.0, 10.0, "or an antenna"), (0.2, 0.0, 15.0, "or an antenna"),
+    (0.0, 0.0, "varies", None), (-0.2, 0.0, "varies", "earlier than stamped"),
+    (0.0, -2.0, "varies", "m behind the truth's point along the vehicle (+/- "),
+    (0.0, -2.0, 10.0, "or an antenna 1.98 m behind"),
+    (0.0, -2.0, "configured", None)])
+def test_a_gnss_latency_of_a_fraction_of_a_second_is_said(latency_s, antenna_m, speed, said):
     """Fixes stamped 0.2 s late gave 1.50 m for 0.54 with no word: the clock-shift search needs a shift that cuts the
     misfit to a third, which a fraction of a second does not against 2 m of noise (a conventions review). Their errors
-    along the truth's velocity give it to about 0.01 s; a constant speed cannot tell it from an antenna behind the
-    truth's point, and says both."""
+    along the truth's velocity give it to about 0.01 s. An antenna behind the truth's point moves them along the track
+    too, by a length whatever the speed: where the speed varies the two are told apart, at one speed both are named
+    (a diff review found the latency said alone at 10 and 15 m/s, and an antenna called a latency); an antenna given
+    in gnss.lever_arm_b_m is not an error."""
     from fusion_eval.types import GnssSeries, PoseSeries
+    from fusion_eval.so3 import matrix_to_quat_xyzw
 
     t = np.arange(0.0, 300.0, 0.01)
-    speed = 8.0 + (5.0 * np.sin(t / 20.0) if speed_varies else 0.0 * t)
-    s = np.cumsum(speed) * 0.01
+    v = 8.0 + 5.0 * np.sin(t / 20.0) if speed in ("varies", "configured") else np.full(t.size, float(speed))
+    s = np.cumsum(v) * 0.01
     p = np.column_stack([60 * np.sin(s / 60), 60 * (1 - np.cos(s / 60)), 0 * t])
-    q = np.tile([0.0, 0.0, 0.0, 1.0], (t.size, 1))
-    truth = PoseSeries(t, p, q, source="gt")
+    yaw = s / 60                                                     # heading along the circle
+    R = np.zeros((t.size, 3, 3))
+    R[:, 0, 0], R[:, 0, 1], R[:, 1, 0], R[:, 1, 1], R[:, 2, 2] = np.cos(yaw), -np.sin(yaw), np.sin(yaw), np.cos(yaw), 1
+    truth = PoseSeries(t, p, matrix_to_quat_xyzw(R), source="gt")
     tf = np.arange(1.0, 299.0, 1.0)
     rng = np.random.default_rng(3)
-    fixes = np.column_stack([np.interp(tf - latency_s, t, p[:, a]) for a in range(3)]) + rng.normal(0, 1.5, (tf.size, 3))
+    k = np.searchsorted(t, tf)
+    fixes = (np.column_stack([np.interp(tf - latency_s, t, p[:, a]) for a in range(3)])
+             + np.einsum("nij,j->ni", R[k], [antenna_m, 0.0, 0.0]) + rng.normal(0, 1.5, (tf.size, 3)))
     g = GnssSeries(t_s=tf, p_w_m=fixes, std_w_m=np.full((tf.size, 3), 2.0), source="g.csv")
-    w = plausible.gnss_latency(g, truth, 0.0)
+    w = plausible.gnss_latency(g, truth, 0.0, [antenna_m, 0.0, 0.0] if speed == "configured" else None)
     if said is None:
-        assert w == ""
+        assert w == "", w
     else:
         assert said in w, w
-        d = float(re.search(r"match the ground truth (\d+\.\d+) \+/-", w).group(1))
-        assert abs(d - abs(latency_s)) < 0.05
+        m = re.search(r"(\d+\.\d+) \+/- [\d.]+ s (later|earlier)", w)
+        if latency_s:
+            assert abs(float(m.group(1)) - abs(latency_s)) < 0.05
+        if antenna_m and speed == "varies":
+            assert m is None                                         # not called a latency
 
 
 @pytest.mark.parametrize("offset, first_fix, said", [((-6.0, -4.0, 0.0), False, "another origin or datum"),

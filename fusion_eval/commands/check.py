@@ -300,7 +300,7 @@ def check(metrics_path: Path, baseline: Path, rtol: float, atol: float, patterns
         # the default patterns over a run with an estimate the baseline has none of (a smoother added to a run gated on
         # the shipped baseline exited 2, a review): said, and not gated, rather than refused; a metric the baseline
         # should hold but does not (NaN, a hand-edited key) is still refused
-        other = _estimates_absent_from(base, lacking)
+        other = _estimates_absent_from(_raw_keys(base_path) or base, lacking)
         if other:
             fams = sorted({_estimate_of(k) for k in other})
             log.warning("not gated: %d metric(s) of the %s estimate(s), which the baseline %s has none of; rebuild it "
@@ -351,6 +351,17 @@ def _json_field(path: Path, key: str):
         return json.loads(Path(path).read_text()).get(key)
     except (json.JSONDecodeError, OSError, AttributeError, UnicodeDecodeError, RecursionError):
         return None
+
+
+def _raw_keys(path: Path) -> dict:
+    """Every key of a metrics.json, NaN and non-numbers included (a baseline whose smoothed section holds nulls has one,
+    and is refused for it, not told it has none; a review), or {} for a sweep.csv or an unreadable file."""
+    if Path(path).suffix == ".csv":
+        return {}
+    try:
+        return keys.flatten(json.loads(Path(path).read_text()), raw=True)
+    except (json.JSONDecodeError, OSError, AttributeError, UnicodeDecodeError, RecursionError):
+        return {}
 
 
 def _estimate_of(key: str) -> str:

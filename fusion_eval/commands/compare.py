@@ -22,7 +22,8 @@ from ..datasets.tum import format_tum
 from ..errors import ConfigError
 from .. import trials as mc
 from ..evaluation import keys, span
-from ..evaluation.run_metrics import consistency, inconsistent_streams, segments, truth_velocity_w, worse_than_inputs
+from ..evaluation.run_metrics import (consistency, inconsistent_streams, nees, scored_warnings, segments,
+                                       truth_velocity_w)
 from ..evaluation.trajectory import evaluate, ratio
 from ..filters import observations
 from ..outputs import StagedDir, dataset_roots, default_dir, repeated_path
@@ -54,6 +55,7 @@ class VariantRun:
     warnings: tuple[str, ...] = ()  # the data's and the filter's, as a run of this variant reports them
     compile_s: float = 0.0          # numba's compilation inside the variant's first run (not in runtime_s)
     seeded: tuple[str, ...] = ()    # the fused streams drawn with a seed (:func:`fusion_eval.trials.seeded_streams`)
+    applied: dict | None = None     # its preparation's record (what `auto` chose: the lidar frame the warnings name)
 
 
 def body_velocity(poses: PoseSeries) -> np.ndarray:
@@ -77,7 +79,7 @@ def _replay_all(ds, variants: list[str], cfgs: list[dict], advance=None) -> tupl
             filt = replay(prep, settings_for(cfg, prep), imu_only=runs[0].filt.imu_only if runs else None)
         compiled = compile_notice.compile_seconds() - c0       # numba's first compilation of this variant's kernels
         runs.append(VariantRun(name, cfg, filt, None, time.perf_counter() - t0 - compiled, warnings=_warnings(name, prep, filt),
-                               compile_s=compiled,
+                               compile_s=compiled, applied=prep.applied,
                                seeded=tuple(mc.seeded_streams({"nis": filt.nis, "gnss_degradation": prep.gnss_info,
                                                                "preprocessing": prep.applied}))))
         log.info("variant %s: filtered in %.2f s%s", name, runs[-1].runtime_s,
@@ -130,8 +132,10 @@ def _evaluate_all(runs: list[VariantRun], base_prep, ev_cfg: dict, pool):
         if fs is not None:
             r.ev_smoothed = fs.result()
             r.ev_smoothed.results = {}
-        # what run warns of once the estimates are scored: a variant fusing the GNSS that ends far worse than it
-        for w in worse_than_inputs({"fused": r.ev, "gnss": evs_u.get("gnss")}, r.filt.nis):
+        # what run warns of once the estimates are scored (a variant fusing the GNSS that ends far worse than it, or
+        # far outside its own covariance), over the span every variant is scored on
+        for w in scored_warnings({"fused": r.ev, "gnss": evs_u.get("gnss")}, r.filt.nis, nees(ref, r.filt),
+                                 r.applied or {}):
             log.warning("variant %s: %s", r.name, w)
             r.warnings = (*r.warnings, w)
     return unfiltered, evs_u, sp

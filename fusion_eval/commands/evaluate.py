@@ -246,7 +246,7 @@ def _spread(q_ref_wxyz: np.ndarray, q_wxyz: np.ndarray, two_sided: bool = True, 
         return U @ np.diag([1.0, 1.0, np.sign(np.linalg.det(U @ Vt))]) @ Vt
 
     def left(A, B):                     # RMS angle of Rr^T A R B
-        E = np.einsum("nji,jk,nkl->nil", Rr, A, R @ B)
+        E = np.einsum("nji,jk,nkl->nil", Rr, A, R @ B, optimize=True)
         return float(np.sqrt(np.mean(np.sum(log_so3(E) ** 2, axis=1))))
 
     if not two_sided:
@@ -262,7 +262,7 @@ def _spread(q_ref_wxyz: np.ndarray, q_wxyz: np.ndarray, two_sided: bool = True, 
     A = np.eye(3)
     for _ in range(iterations):
         A = proj(np.einsum("nij,nkj->ik", Rr, R @ B))                    # sum Rr (R B)^T
-        B = proj(np.einsum("nji,jk,nkl->il", R, A.T, Rr))                # sum R^T A^T Rr
+        B = proj(np.einsum("nji,jk,nkl->il", R, A.T, Rr, optimize=True))  # sum R^T A^T Rr
     return left(A, B)
 
 
@@ -333,7 +333,6 @@ def convention_hints(f, ref_f, alignment: str, rot_rmse_deg: float | None = None
             # rotation of the world and one of the body (as does a conjugate in the other order against the file as
             # read): where the reference leaves one side fixed, a one-sided fit tells them apart, else both are named
             ref_q = np.asarray(ref_a.orientations_quat_wxyz, float)
-            spread0 = _spread(ref_q, q)
             cands = [k for k, v in fits.items() if v < 0.25 * as_read] if as_read > 0.5 else []
             if cands:
                 one = {k: _spread(ref_q, readings[k], two_sided=False) for k in cands}
@@ -347,7 +346,7 @@ def convention_hints(f, ref_f, alignment: str, rot_rmse_deg: float | None = None
                 out.append(f"its body-frame turns match the reference's to {as_read:.0%} of their size under any "
                            f"mount rotation, to {fits[best]:.0%} with its quaternions {what}: {question}?")
             elif (alignment in ("se3", "sim3") and rot_rmse_deg is not None and rot_rmse_deg > BODY_OFFSET_DEG
-                  and spread0 < np.radians(5.0)):
+                  and (spread0 := _spread(ref_q, q)) < np.radians(5.0)):      # (only where it is read: 1 s at 100k poses)
                 # as read, the reference's orientations up to one constant rotation of the world and one of the body,
                 # yet a large rotation error once the world is aligned: another frame's poses (a camera's optical
                 # frame gave 89.5 deg beside 0.146 m, no word; a review)

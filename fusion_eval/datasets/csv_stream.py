@@ -183,21 +183,25 @@ _UNIT_SUFFIX = r"_(dps|rps|deg|rad|m|mps|mps2|s|ns|us|ms|g)$"
 def _check_header(path: Path, entry: dict, kind: str, delimiter: str | None) -> None:
     """A header whose names are this stream's own column names, in other places than ``columns`` puts them, is an
     error naming its line: the header was skipped unread, and a file headed ``t,x,y,z,qw,qx,qy,qz`` read with the
-    README's ``qx qy qz qw`` ran at 225 m with exit 0 (a conventions review)."""
+    README's ``qx qy qz qw`` ran at 225 m with exit 0 (a conventions review). The header is the last line above the
+    first data row, a ``#`` comment's text included."""
     required, optional = NAMES[kind]
     known = required | optional
+    # the last line above the first data row, a '#' comment's text included (EuRoC's and TUM's headers are comments)
+    header, no = None, 0
     with open(path, encoding="utf-8", errors="replace") as fh:
-        for no, ln in enumerate(fh, 1):
-            if no > 1000:
+        for i, ln in enumerate(fh, 1):
+            if i > 1000:
                 return
-            if not ln.strip() or ln.lstrip().startswith("#"):
-                continue
-            if _has_number(ln, delimiter):
-                return                      # the first row is data: no header
-            header = ln
-            break
-        else:
-            return
+            text = ln.lstrip()
+            if text.startswith("#"):
+                header, no = text[1:], i
+            elif ln.strip():
+                if _has_number(ln, delimiter):
+                    break                   # the first data row
+                header, no = ln, i
+    if header is None:
+        return
     fields = header.split() if delimiter in (None, " ") else header.rstrip("\r\n").split(delimiter)
     names = [f.strip().strip("\"'").strip().lower() for f in fields]
     names = ["t" if n in _STAMP_NAMES else re.sub(_UNIT_SUFFIX, "", n) for n in names]

@@ -243,8 +243,8 @@ def _from_manifest_dict(body: dict, root: Path, manifest: Path, extra: dict | No
         "lidar_anchor": streams.get("lidar", {}).get("anchor", "groundtruth"),
         # the local frame's origin is a receiver's first fix, and the ground truth is not of the same OXTS solution:
         # that fix's error is then an offset of every fix from the truth (plausible.gnss_offset)
-        "origin_from_first_fix": origin == "first_fix" and all(streams.get(k, {}).get("format") != "kitti_oxts"
-                                                               for k in ("gnss", "groundtruth")),
+        "origin_from_first_fix": origin == "first_fix" and origin_t is not None
+                                 and all(streams.get(k, {}).get("format") != "kitti_oxts" for k in ("gnss", "groundtruth")),
         # the lidar frame clock recovered from the stamps of the IMU packets (times.smooth_s), if asked for
         "lidar_clock": lidar_notes.get("clock"),
         # KITTI's OXTS position is the GPS/INS solution (= the ground truth): degrade it by default;

@@ -652,21 +652,35 @@ def clock_shift(name: str, series, groundtruth, offset_key: str = "", offset_s: 
 MIN_LATENCY_S, MIN_LATENCY_SIGMAS, MIN_LATENCY_SPEED_MPS = 0.05, 6.0, 2.0
 
 
-def gnss_latency(gnss, groundtruth, offset_s: float = 0.0) -> str:
-    """Why the GNSS fixes lag (or lead) the ground truth by a fraction of a second, or '': below what
-    :func:`clock_shift` can see against the fixes' noise (a receiver stamping its fixes 0.2 s late, at receive time,
-    gave 1.50 m for 0.54 with no word; a conventions review). Each fix's error against the truth at its stamp is,
-    for a latency ``d``, ``-v d`` (``v`` the truth's velocity there), beside a constant offset and an antenna ahead of
-    or behind the truth's point (along the direction of travel, whatever the speed): ``d`` by least squares over the
-    moving fixes, said beyond :data:`MIN_LATENCY_S` and :data:`MIN_LATENCY_SIGMAS` standard errors."""
+# an antenna this far ahead of or behind the truth's point along the track, beyond MIN_LATENCY_SIGMAS standard errors,
+# is said where the speed's variation tells it from a latency
+MIN_ANTENNA_M = 0.5
+# the two regressors (-v, the latency's, and u, an antenna's along the track) this close to parallel (the cosine of
+# their angle, mean over RMS speed): a drive at one speed, where the data cannot tell them apart
+MAX_SEPARABLE_COSINE = 0.995
+
+
+def gnss_latency(gnss, groundtruth, offset_s: float = 0.0, lever_b_m=None) -> str:
+    """Why the GNSS fixes lag (or lead) the ground truth by a fraction of a second, or sit ahead of or behind its point
+    along the track, or '': below what :func:`clock_shift` can see against the fixes' noise (a receiver stamping its
+    fixes 0.2 s late, at receive time, gave 1.50 m for 0.54 with no word; a conventions review). Each fix's error
+    against the truth at its stamp (the configured antenna ``lever_b_m`` taken off) is ``-v d`` for a latency ``d``
+    (``v`` the truth's velocity there), ``a u`` for an antenna ``a`` metres along the direction of travel ``u``, and a
+    constant: by least squares over the moving fixes. Where the speed varies enough to separate them, each is said
+    beyond its bound (:data:`MIN_LATENCY_S`, :data:`MIN_ANTENNA_M`) and :data:`MIN_LATENCY_SIGMAS` standard errors;
+    at one speed the latency-only fit is said, naming the antenna as the other reading."""
     pair = _fixes_on_truth(gnss, groundtruth)
     if pair is None:
         return ""
+    from ..interp import interpolate_poses
+
     t_gt, p_gt = np.asarray(groundtruth.t_s), np.asarray(groundtruth.p_w_m)
     real = _real(gnss)
     t = np.asarray(gnss.t_s)[real]
     t = t[(t >= t_gt[0]) & (t <= t_gt[-1])]
     g, r = pair
+    if lever_b_m is not None and np.any(np.asarray(lever_b_m, float) != 0):      # the antenna the filter is told of
+        r = r + np.einsum("nij,j->ni", interpolate_poses(groundtruth, t).R_wb(), np.asarray(lever_b_m, float))
     h = 0.05
     v = np.column_stack([(np.interp(t + h, t_gt, p_gt[:, a]) - np.interp(t - h, t_gt, p_gt[:, a])) / (2 * h)
                          for a in range(3)])
@@ -674,41 +688,56 @@ def gnss_latency(gnss, groundtruth, offset_s: float = 0.0) -> str:
     moving = speed > MIN_LATENCY_SPEED_MPS
     if moving.sum() < 30:
         return ""
-    e, v = (g - r)[moving], v[moving]
-    u = v / speed[moving][:, None]
+    e, v, sp = (g - r)[moving], v[moving], speed[moving]
+    u = v / sp[:, None]
     n = e.shape[0]
 
-    def fit(columns):                        # least squares of e on -v (the latency), the columns and a constant
-        X = np.zeros((3 * n, 4 + len(columns)))
-        X[:, 0] = -v.ravel()
+    def fit(columns):                        # least squares of e on the columns and a constant: (coef, std) of each
+        X = np.zeros((3 * n, len(columns) + 3))
         for j, c in enumerate(columns):
-            X[:, 1 + j] = c.ravel()
+            X[:, j] = c.ravel()
         for a in range(3):
-            X[a::3, X.shape[1] - 3 + a] = 1.0
+            X[a::3, len(columns) + a] = 1.0
         coef, *_ = np.linalg.lstsq(X, e.ravel(), rcond=None)
         res = e.ravel() - X @ coef
         try:
-            var = float(res @ res) / max(3 * n - X.shape[1], 1) * np.linalg.inv(X.T @ X)[0, 0]
+            var = float(res @ res) / max(3 * n - X.shape[1], 1) * np.diag(np.linalg.inv(X.T @ X))
         except np.linalg.LinAlgError:
-            return 0.0, np.inf
-        return float(coef[0]), float(np.sqrt(max(var, 0.0)))
+            return coef, np.full(coef.size, np.inf)
+        return coef, np.sqrt(np.maximum(var, 0.0))
 
-    d, sd = fit([])
-    if abs(d) < MIN_LATENCY_S or abs(d) < MIN_LATENCY_SIGMAS * sd:
-        return ""
-    # an antenna ahead of or behind the truth's point also moves each fix along the track, by a length whatever the
-    # speed: only the speed's variation tells the two apart
-    d2, sd2 = fit([u])
+    def said(x, sx, bound):
+        return abs(x) >= bound and abs(x) >= MIN_LATENCY_SIGMAS * sx
+
+    separable = float(np.mean(sp) / np.sqrt(np.mean(sp ** 2))) < MAX_SEPARABLE_COSINE
+    latency = antenna = False
+    if separable:
+        (d, a, *_), (sd, sa, *_) = fit([-v, u])
+        latency, antenna = said(d, sd, MIN_LATENCY_S), said(a, sa, MIN_ANTENNA_M)
+    if not (latency or antenna):
+        # one speed, or too little of its variation to attribute the shift: the latency-only fit, both readings named
+        (d, *_), (sd, *_) = fit([-v])
+        if not said(d, sd, MIN_LATENCY_S):
+            return ""
+        separable = False
+        latency = True
     fix = f"gnss.time_offset_s {-d:+.3f} s fits: {offset_s - d:.3f} s for the {offset_s:.3f} s given"
-    if abs(d2) >= MIN_LATENCY_S and abs(d2) >= MIN_LATENCY_SIGMAS * sd2:
-        why = f"a latency, such as fixes stamped when received rather than when measured ({fix})"
-    else:
-        along = d * float(np.median(speed[moving]))
-        why = (f"a latency ({fix}), or an antenna {abs(along):.2f} m {'behind' if along > 0 else 'ahead of'} the "
-               "truth's point along the vehicle (gnss.lever_arm_b_m); the drive's speed varies too little to tell")
-    return (f"{gnss.source}: the GNSS fixes match the ground truth {abs(d):.3f} +/- {sd:.3f} s "
-            f"{'later' if d > 0 else 'earlier'} than stamped (their errors along the velocity, over {n} moving fixes): "
-            f"{why}; every fix is pulled along the track")
+    where = lambda x: f"{abs(x):.2f} m {'ahead of' if x > 0 else 'behind'} the truth's point along the vehicle"  # noqa: E731
+    if latency and not separable:
+        along = -d * float(np.median(sp))
+        return (f"{gnss.source}: the GNSS fixes match the ground truth {abs(d):.3f} +/- {sd:.3f} s "
+                f"{'later' if d > 0 else 'earlier'} than stamped (their errors along the velocity, over {n} moving "
+                f"fixes): a latency ({fix}), or an antenna {where(along)} not given in gnss.lever_arm_b_m; the drive's "
+                "speed varies too little to tell the two apart")
+    parts = []
+    if latency:
+        parts.append(f"they match it {abs(d):.3f} +/- {sd:.3f} s {'later' if d > 0 else 'earlier'} than stamped: a "
+                     f"latency, such as fixes stamped when received rather than when measured ({fix})")
+    if antenna:
+        parts.append(f"they sit {where(a)} (+/- {sa:.2f} m), whatever the speed: an antenna offset not given in "
+                     "gnss.lever_arm_b_m")
+    return (f"{gnss.source}: the GNSS fixes' errors along the velocity, over {n} moving fixes, against the ground "
+            f"truth: {'; '.join(parts)}; every fix is pulled along the track")
 
 
 # a lidar odometry given in the ground truth's frame (``anchor: none``) starts within these of the truth's pose

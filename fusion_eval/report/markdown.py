@@ -134,8 +134,9 @@ def segments_section(m: dict) -> list[str]:
             f"{i} ({by_i[i]['start_m']:.0f}-{by_i[i]['end_m']:.0f} m, {by_i[i]['rmse_m'][a]:.3f} m"
             + (f"; horizontal / vertical {_hv(by_i[i], a)} m" if split else "") + ")" for i in seg["worst"]) + ".", ""]
     else:
+        key = "segment_m" if unit == "m" else "segment_s"
         L += ["", f"No segment of {a} is ranked: the track is shorter than one window of {seg['length']:g} {unit} "
-              "(`evaluation.segment_m`; `--segment-m` for evaluate).", ""]
+              f"(`evaluation.{key}`; `--{key.replace('_', '-')}` for evaluate).", ""]
     if split:
         L += ["Horizontal / vertical: the RMSE of the error's part across and along the reference's up axis (their "
               "squares add up to the APE's).", ""]
@@ -283,7 +284,7 @@ def report_md(dataset: str, config_name: str, evals: dict, ratios: dict, cfg: di
          f"## Summary against ground truth (evo, {keys.alignment_words(cfg['evaluation']['alignment'])})", ""] + markdown(*summary_table(evals, cfg))
     rates = ["the fused estimate and dead reckoning at the IMU's"]
     if "lidar" in evals:       # (a drive without lidar has none to speak of: a review found the sentence on one)
-        rates.append("the lidar at the IMU stamps it was resampled to" if cfg["lidar"].get("interpolate_to_imu")
+        rates.append("the lidar at its frames', each moved onto the IMU stamp nearest it" if cfg["lidar"].get("interpolate_to_imu")
                      else "the lidar at its frames'")
     L += ["", f"RPE over one frame pairs each estimate's consecutive poses at its own rate ({', '.join(rates)}): across "
           f"estimates of different rates it is not like for like. RPE over {cfg['evaluation']['rpe_delta_m']:g} m takes its pairs "
