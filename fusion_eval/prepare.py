@@ -221,7 +221,10 @@ def prepare(ds: Dataset, cfg: dict) -> Prepared:
     # --- ground truth: the same clock as its source; filled-in packets are not truth
     gt = shifted(ds.groundtruth, float(ds.description.get("time_offset_s", {}).get("groundtruth", 0.0)))
     gt = gt.select(~gt.filled)
-    more_warnings += filter(None, [plausible.truth_orientation_placeholder(gt), plausible.gyro_scale(imu, gt)])
+    placeholder = plausible.truth_orientation_placeholder(gt)
+    if placeholder:
+        applied["truth_orientation_placeholder"] = True     # no attitude figure against it means anything
+    more_warnings += filter(None, [placeholder, plausible.gyro_scale(imu, gt)])
     if len(gt) < 2 or gt.t_s[-1] <= imu.t_s[0] or gt.t_s[0] >= imu.t_s[-1]:
         raise DataRangeError(f"IMU ({ds.imu.source}, {imu.t_s[0]:.3f}..{imu.t_s[-1]:.3f} s after imu.time_offset_s = "
                              f"{applied['time_offset_s']['imu']:g} s) and ground truth ({gt.source}, "
@@ -284,10 +287,11 @@ def prepare(ds: Dataset, cfg: dict) -> Prepared:
         applied["time_offset_s"]["gnss"] = off
         g = shifted(ds.gnss, off)
         g = g.select(~g.filled)
-        said = list(filter(None, [plausible.gnss_offset(g, gt, bool(ds.description.get("origin_from_first_fix"))),
+        arm = cfg["gnss"].get("lever_arm_b_m")
+        said = list(filter(None, [plausible.gnss_offset(g, gt, bool(ds.description.get("origin_from_first_fix")), arm),
                                   plausible.gnss_frame(g, gt),
                                   plausible.clock_shift("GNSS", g, gt, "gnss.time_offset_s", off)
-                                  or plausible.gnss_latency(g, gt, off, cfg["gnss"].get("lever_arm_b_m"))]))  # as configured
+                                  or plausible.gnss_latency(g, gt, off, arm)]))  # as configured
         more_warnings += said or list(filter(None, [plausible.gnss_disagrees(g, gt)]))
         if len(g) and (g.t_s[-1] < t0 or g.t_s[0] > imu.t_s[-1]):
             raise DataRangeError(f"GNSS ({ds.gnss.source}, {g.t_s[0]:.3f}..{g.t_s[-1]:.3f} s after its time_offset_s of "

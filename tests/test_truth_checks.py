@@ -194,7 +194,7 @@ def test_a_gyro_turning_a_constant_factor_off_the_truth_is_flagged(factor, needl
 
 @pytest.mark.parametrize("factor,needle", [(1.0, ""), (1.02, ""), (3.6, "km/h read as m/s"), (2.237, "mph read as m/s"),
                                            (1 / 3.6, "m/s read as km/h"), (10.0, "another unit"),
-                                           (-1.0, "the odometer reads backwards while the ground truth moves")])
+                                           (-1.0, "the odometer's sign is opposite to the ground truth's velocity along its body's x axis")])
 def test_an_odometer_a_constant_factor_off_the_truths_speed_is_flagged(factor, needle):
     """An odometer in km/h read as m/s made the filter diverge with a hint at the process noise (a user's review); a
     wheel's scale error of a few percent says nothing; one whose sign is reversed diverged blaming km/h and g (a

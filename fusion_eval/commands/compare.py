@@ -135,7 +135,7 @@ def _evaluate_all(runs: list[VariantRun], base_prep, ev_cfg: dict, pool):
         # what run warns of once the estimates are scored (a variant fusing the GNSS that ends far worse than it, or
         # far outside its own covariance), over the span every variant is scored on
         for w in scored_warnings({"fused": r.ev, "gnss": evs_u.get("gnss")}, r.filt.nis, nees(ref, r.filt),
-                                 r.applied or {}):
+                                 r.applied or {}, (r.filt.nis.get("gnss") or {}).get("t_s", ())):
             log.warning("variant %s: %s", r.name, w)
             r.warnings = (*r.warnings, w)
     return unfiltered, evs_u, sp

@@ -203,8 +203,12 @@ def _check_header(path: Path, entry: dict, kind: str, delimiter: str | None) -> 
     if header is None:
         return
     fields = header.split() if delimiter in (None, " ") else header.rstrip("\r\n").split(delimiter)
+    if len(fields) != len(entry["columns"]):
+        return        # a header names each column once: a comment's sentence is no header (a review found one refused)
     names = [f.strip().strip("\"'").strip().lower() for f in fields]
     names = ["t" if n in _STAMP_NAMES else re.sub(_UNIT_SUFFIX, "", n) for n in names]
+    # 'q_w', 'v_x': the names with their underscore (EuRoC's way), where that is what makes them known
+    names = [n.replace("_", "") if n not in known and n.replace("_", "") in known else n for n in names]
     for i, (h, c) in enumerate(zip(names, entry["columns"])):
         if h in known and not c.startswith("_") and h != c:
             raise DataFormatError(path, no, f"its header names column {i + 1} {fields[i].strip()!r} where the manifest's "
