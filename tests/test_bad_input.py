@@ -812,7 +812,9 @@ def test_a_header_is_a_line_without_a_number_in_its_fields(tmp_path, text, delim
     ("# recorded on 2026-12-05, car 2", ",", True),        # a comment that names no column
     ("# ground truth: t then x y z in ENU metres, then qx qy qz qw", " ", True),   # a sentence, not one name a column
     ("t,x,y,z,q_w,q_x,q_y,q_z", ",", False),               # EuRoC's underscores
-], ids=["wxyz", "timestamp", "units", "other-names", "commented-header", "comment", "sentence", "underscores"])
+    ("t,x,y,z,qw,qx,qy,qz\n# units: s, m", ",", False),    # a comment after the header does not hide it
+], ids=["wxyz", "timestamp", "units", "other-names", "commented-header", "comment", "sentence", "underscores",
+        "comment-after"])
 def test_a_header_naming_the_columns_in_another_order_than_the_manifest_is_an_error(tmp_path, header, delimiter, ok):
     """A header is skipped unread: one saying qw first, read with columns [t, x, y, z, qx, qy, qz, qw], ran at 225 m with
     exit 0 (a conventions review). Where its names are the stream's own column names, they must agree with 'columns'."""
@@ -1691,3 +1693,26 @@ def test_a_fused_position_far_outside_its_covariance_is_a_warning():
     # a position-only truth: its attitude NEES measures the placeholder
     assert overconfident({"attitude": att}, {"truth_orientation_placeholder": True}) == []
     assert overconfident({"attitude": {"mean": 7.33, "dof": 3, "fraction_in_95": 0.76}}, {}) == []   # simple-00
+
+
+def test_compare_holds_a_variant_to_the_fixes_it_fused():
+    """compare scores one GNSS for every variant: held to every fix, a variant with an outage was called 4.3x worse
+    than the GNSS (a false-positive hunt); held to exact stamps, one whose GNSS had another time_offset_s matched none
+    and was never checked (a review). The fixes within half an interval of the variant's own are kept."""
+    from types import SimpleNamespace
+
+    from fusion_eval.evaluation.run_metrics import worse_than_inputs
+
+    t = np.arange(0.0, 300.0, 0.1)
+    fix = np.arange(0.0, 300.0, 1.0)
+    fused_err = np.where((t > 100) & (t < 250), 30.0, 0.8)         # far off only inside the variant's outage
+
+    def ev(ts, err):
+        return SimpleNamespace(ape_t_s=ts, ape_err_m=np.full(ts.size, err) if np.isscalar(err) else err)
+
+    own = fix[(fix <= 100) | (fix >= 250)]
+    assert worse_than_inputs({"fused": ev(t, fused_err), "gnss": ev(fix, 2.45)}, {"gnss": {}}, own) == []
+    assert worse_than_inputs({"fused": ev(t, fused_err), "gnss": ev(fix, 2.45)}, {"gnss": {}}) != []   # all fixes
+    # a variant that fused the fixes 0.1 s later than the GNSS scored, and is far off: still said
+    (w,) = worse_than_inputs({"fused": ev(t, 12.6), "gnss": ev(fix, 2.5)}, {"gnss": {}}, fix + 0.1)
+    assert "5.0x the GNSS's own" in w

@@ -241,9 +241,9 @@ def test_a_straight_drive_keeps_its_one_orientation_without_a_placeholder_warnin
 
 
 @pytest.mark.parametrize("latency_s, antenna_m, speed, said", [
-    (0.2, 0.0, "varies", "later than stamped: a latency, such as fixes stamped when received"),
+    (0.2, 0.0, "varies", "earlier than stamped: a latency, such as fixes stamped when received"),
     (0.2, 0.0, 8.0, "or an antenna"), (0.2, 0.0, 10.0, "or an antenna"), (0.2, 0.0, 15.0, "or an antenna"),
-    (0.0, 0.0, "varies", None), (-0.2, 0.0, "varies", "earlier than stamped"),
+    (0.0, 0.0, "varies", None), (-0.2, 0.0, "varies", "later than stamped"),
     (0.0, -2.0, "varies", "m behind the truth's point along the vehicle (+/- "),
     (0.0, -2.0, 10.0, "or an antenna 1.98 m behind"),
     (0.0, -2.0, "configured", None)])
@@ -277,6 +277,8 @@ def test_a_gnss_latency_of_a_fraction_of_a_second_is_said(latency_s, antenna_m, 
     else:
         assert said in w, w
         m = re.search(r"(\d+\.\d+) \+/- [\d.]+ s (later|earlier)", w)
+        if m and latency_s:       # fixes measured before their stamps match the truth earlier, as clock_shift says
+            assert m.group(2) == ("earlier" if latency_s > 0 else "later")
         if latency_s:
             assert abs(float(m.group(1)) - abs(latency_s)) < 0.05
         if antenna_m and speed == "varies":

@@ -187,24 +187,29 @@ def _check_header(path: Path, entry: dict, kind: str, delimiter: str | None) -> 
     first data row, a ``#`` comment's text included."""
     required, optional = NAMES[kind]
     known = required | optional
-    # the last line above the first data row, a '#' comment's text included (EuRoC's and TUM's headers are comments)
-    header, no = None, 0
+    # the last line above the first data row with one field per column, a '#' comment's text included (EuRoC's and
+    # TUM's headers are comments; a comment after the header does not hide it, and a comment's sentence, whose words
+    # do not fall one per column, is no header: reviews found both)
+    above: list[tuple[str, int]] = []
     with open(path, encoding="utf-8", errors="replace") as fh:
         for i, ln in enumerate(fh, 1):
             if i > 1000:
                 return
             text = ln.lstrip()
             if text.startswith("#"):
-                header, no = text[1:], i
+                above.append((text[1:], i))
             elif ln.strip():
                 if _has_number(ln, delimiter):
                     break                   # the first data row
-                header, no = ln, i
+                above.append((ln, i))
+
+    def split(line):
+        return line.split() if delimiter in (None, " ") else line.rstrip("\r\n").split(delimiter)
+
+    header, no = next(((h, i) for h, i in reversed(above) if len(split(h)) == len(entry["columns"])), (None, 0))
     if header is None:
         return
-    fields = header.split() if delimiter in (None, " ") else header.rstrip("\r\n").split(delimiter)
-    if len(fields) != len(entry["columns"]):
-        return        # a header names each column once: a comment's sentence is no header (a review found one refused)
+    fields = split(header)
     names = [f.strip().strip("\"'").strip().lower() for f in fields]
     names = ["t" if n in _STAMP_NAMES else re.sub(_UNIT_SUFFIX, "", n) for n in names]
     # 'q_w', 'v_x': the names with their underscore (EuRoC's way), where that is what makes them known

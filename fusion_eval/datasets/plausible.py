@@ -387,7 +387,10 @@ def _fixes_on_truth(gnss, groundtruth, lever_b_m=None) -> tuple[np.ndarray, np.n
         return None
     at = interpolate_poses(groundtruth, gnss.t_s[inside])
     r = at.p_w_m
-    if lever_b_m is not None and np.any(np.asarray(lever_b_m, float) != 0):
+    q = np.asarray(groundtruth.q_wb_xyzw, float)
+    # (not by a placeholder orientation, the same on every pose of a position-only truth: it turned the arm wrongly
+    # and gave false offsets; a review)
+    if lever_b_m is not None and np.any(np.asarray(lever_b_m, float) != 0) and not np.all(q == q[0]):
         r = r + np.einsum("nij,j->ni", at.R_wb(), np.asarray(lever_b_m, float))
     return np.asarray(gnss.p_w_m, float)[inside], r
 
@@ -695,6 +698,8 @@ def gnss_latency(gnss, groundtruth, offset_s: float = 0.0, lever_b_m=None) -> st
     if moving.sum() < 30:
         return ""
     e, v, sp = (g - r)[moving], v[moving], speed[moving]
+    if np.linalg.norm(v.std(axis=0)) < 0.1 * np.linalg.norm(v.mean(axis=0)):
+        return ""            # one velocity throughout: -v d is a constant offset, gnss_offset's to say (a review)
     u = v / sp[:, None]
     n = e.shape[0]
 
@@ -742,12 +747,12 @@ def gnss_latency(gnss, groundtruth, offset_s: float = 0.0, lever_b_m=None) -> st
     if latency and not separable:
         along = -d * float(np.median(sp))
         return (f"{gnss.source}: the GNSS fixes match the ground truth {abs(d):.3f} +/- {sd:.3f} s "
-                f"{'later' if d > 0 else 'earlier'} than stamped (their errors along the velocity, over {n} moving "
+                f"{'earlier' if d > 0 else 'later'} than stamped (their errors along the velocity, over {n} moving "
                 f"fixes): a latency ({fix}), or an antenna {where(along)} not given in gnss.lever_arm_b_m; the drive's "
                 "speed varies too little to tell the two apart")
     parts = []
     if latency:
-        parts.append(f"they match it {abs(d):.3f} +/- {sd:.3f} s {'later' if d > 0 else 'earlier'} than stamped: a "
+        parts.append(f"they match it {abs(d):.3f} +/- {sd:.3f} s {'earlier' if d > 0 else 'later'} than stamped: a "
                      f"latency, such as fixes stamped when received rather than when measured ({fix})")
     if antenna:
         parts.append(f"they sit {where(a)} (+/- {sa:.2f} m), whatever the speed: an antenna offset not given in "

@@ -222,10 +222,13 @@ def worse_than_inputs(evals: dict, nis: dict, fused_gnss_t_s=None) -> list[str]:
     if "gnss" not in nis or fused is None or gnss is None or fused.ape_err_m is None or gnss.ape_err_m is None:
         return []
     g_t, g_err = np.asarray(gnss.ape_t_s), np.asarray(gnss.ape_err_m)
-    if fused_gnss_t_s is not None:
-        # only the fixes this filter fused (compare scores one GNSS for every variant: a variant with an outage was
-        # held to the fixes it never had, 4.3x; a review)
-        keep, _ = matching_time_indices(g_t, np.asarray(fused_gnss_t_s, float), 1e-3)
+    if fused_gnss_t_s is not None and len(fused_gnss_t_s):
+        # only the fixes this filter fused, within half their interval (compare scores one GNSS for every variant: a
+        # variant with an outage was held to the fixes it never had, 4.3x; a variant whose GNSS has another
+        # time_offset_s must still match its own fixes: reviews)
+        f_t = np.asarray(fused_gnss_t_s, float)
+        tol = 0.5 * float(np.median(np.diff(f_t))) if f_t.size > 1 else 0.5
+        keep, _ = matching_time_indices(g_t, f_t, max(tol, 0.05))
         g_t, g_err = g_t[keep], g_err[keep]
     own = float(np.sqrt(np.mean(np.square(g_err)))) if g_err.size else 0.0
     if not own >= MIN_RATIO_DENOMINATOR_M:
