@@ -24,9 +24,28 @@ from .pipeline import RunResult, execute
 from .types import Dataset, PoseSeries
 
 
+def _check_types(path=None, overrides=None, config=None, progress=None) -> None:
+    """The API's arguments of the wrong kind as the package's own errors, not a TypeError or AttributeError from deep
+    inside (``fe.run(None, overrides=[...])``, ``fe.load_dataset(5)``; an API review)."""
+    from collections.abc import Mapping
+
+    from .errors import ConfigError
+
+    if path is not None and not isinstance(path, (str, Path, Dataset)):
+        raise ConfigError(f"dataset: expected a path (str or Path), a Dataset or None, got {type(path).__name__}")
+    if overrides is not None and not isinstance(overrides, Mapping):
+        raise ConfigError(f"overrides: expected a mapping of keys to values ({{'gnss.rate_hz': 2.0}}), got "
+                          f"{type(overrides).__name__}")
+    if config is not None and not isinstance(config, (str, Path, Mapping)):
+        raise ConfigError(f"config: expected a file path or a {{section: {{key: value}}}} mapping, got {type(config).__name__}")
+    if progress is not None and not callable(progress):
+        raise ConfigError(f"progress: expected a callable taking the fraction done, got {type(progress).__name__}")
+
+
 def load_dataset(path: str | Path | None = None) -> Dataset:
     """A dataset: a folder holding ``dataset.yaml``, a manifest file, or a plain KITTI raw drive folder.
     ``None`` (or ``"data/kitti-00"`` outside a checkout) is the embedded default drive."""
+    _check_types(path)
     return session.dataset(path)
 
 
@@ -90,6 +109,7 @@ def run(dataset: Dataset | str | Path | None = None, overrides: dict | None = No
     """
     from .variants import resolve_variant
 
+    _check_types(dataset, overrides, config, progress)
     vpath = None if variant is None else resolve_variant(str(variant))
     req = session.request(config=config, variant=vpath, overrides=overrides)
     ds = dataset if isinstance(dataset, Dataset) else session.dataset(dataset)

@@ -100,3 +100,41 @@ def test_evaluate_matches_evo_on_kitti_00(tmp_path):
     # a KITTI pose file without times is matched by index: it cannot be compared with stamped poses
     with pytest.raises(FusionEvalError, match="both have stamps, or both be matched by index"):
         fe.evaluate(shared_path("kitti-odometry", "00", "00_gt_tum.txt"), est)
+
+
+def test_writing_a_run_leaves_the_hosts_matplotlib_as_it_was(kitti_slice, tmp_path):
+    """res.write() imported the plots, which set matplotlib's backend to Agg and its axes.titley for the whole
+    process: a notebook's inline figures stopped showing (an API review). The plots draw on figures of their own."""
+    import subprocess
+    import sys
+
+    code = f"""
+import matplotlib
+matplotlib.use("svg")
+import fusion_eval as fe
+before = (matplotlib.get_backend(), matplotlib.rcParams["axes.titley"])
+res = fe.run(fe.load_dataset({str(kitti_slice)!r}))
+res.write({str(tmp_path / 'o')!r})
+import pathlib
+assert any(pathlib.Path({str(tmp_path / 'o')!r}).glob("*.png"))
+print(before == (matplotlib.get_backend(), matplotlib.rcParams["axes.titley"]), before)
+"""
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True)
+    assert out.returncode == 0, out.stderr[-2000:]
+    assert out.stdout.strip().startswith("True"), out.stdout
+
+
+@pytest.mark.parametrize("call, needle", [
+    (lambda fe: fe.run(None, overrides=[("gnss.rate_hz", 2.0)]), "overrides: expected a mapping"),
+    (lambda fe: fe.load_dataset(5), "dataset: expected a path"),
+    (lambda fe: fe.run({"imu": 1}), "dataset: expected a path"),
+    (lambda fe: fe.run(None, config=42), "config: expected a file path"),
+    (lambda fe: fe.run(None, progress=5), "progress: expected a callable"),
+])
+def test_api_arguments_of_the_wrong_kind_are_the_packages_errors(call, needle):
+    """They raised AttributeError and TypeError from deep inside (an API review)."""
+    import fusion_eval as fe
+    from fusion_eval.errors import FusionEvalError
+
+    with pytest.raises(FusionEvalError, match=needle):
+        call(fe)

@@ -8,14 +8,27 @@ import warnings
 from pathlib import Path
 
 import matplotlib
-
-matplotlib.use("Agg")
-import matplotlib.pyplot as plt  # noqa: E402
-import numpy as np  # noqa: E402
+from matplotlib.backends.backend_agg import FigureCanvasAgg
+from matplotlib.figure import Figure
+from matplotlib.patches import Rectangle
+import numpy as np
 
 # A fixed title height: matplotlib otherwise measures every axis' tick labels at each draw to lift titles
 # over them (none of these plots has ticks on top), which was a third of the drawing time.
-matplotlib.rcParams["axes.titley"] = 1.0
+_RC = {"axes.titley": 1.0}
+_FIGURE_KW = ("figsize", "dpi", "layout", "constrained_layout", "tight_layout")
+
+
+def subplots(*args, **kw):
+    """``plt.subplots`` without pyplot: a ``Figure`` of its own on an Agg canvas of its own, so
+    that drawing the plots neither switches the host's backend nor keeps figures in pyplot's registry, and the fixed
+    title height applies to these axes only (as an API call, ``res.write()`` once set the host's backend to Agg and
+    its ``axes.titley``: a notebook's inline figures stopped showing; a review)."""
+    fig_kw = {k: kw.pop(k) for k in _FIGURE_KW if k in kw}
+    with matplotlib.rc_context(_RC):
+        fig = Figure(**fig_kw)
+        FigureCanvasAgg(fig)            # its own Agg canvas (measured text for label placement), not the host's
+        return fig, fig.subplots(*args, **kw)
 
 from ..evaluation.keys import RANK_COLUMN, is_number  # noqa: E402
 from ..resources import dataset_label  # noqa: E402
@@ -86,14 +99,14 @@ class _LogMinor(matplotlib.ticker.LogLocator):
 def _save(fig, path: Path) -> None:
     # zlib level 1 instead of 6: cheaper encoding (0.18 s of 7 plots at 6), files ~15 % larger
     fig.savefig(path, dpi=110, metadata=_META, pil_kwargs={"compress_level": 1})
-    plt.close(fig)
+    fig.clear()
 
 
 def plot_trajectories(path: Path, paths: dict, extent: tuple) -> None:
     """Top view (East/North) of every estimate with the ground truth (``paths``, ``extent``:
     :func:`fusion_eval.report.thin.paths`); axes fit the ground truth so a diverging dead-reckoning track does
     not squash the rest."""
-    fig, ax = plt.subplots(figsize=(8, 7))
+    fig, ax = subplots(figsize=(8, 7))
     for name in ("groundtruth", "lidar", "imu_only", "gnss", "fused", "smoothed"):
         p = paths.get(name)
         if p is None:
@@ -152,7 +165,7 @@ def plot_ape_over_time(path: Path, evals: dict, t0: float, x_label: str = "time 
     ``x_label``: what the stamps count (frames, for KITTI poses without a times file); ``spans``: ``(start, end,
     label)`` on the plot's time axis, shaded (the GNSS outages, the IMU's gaps: where on the route the error grows and
     why, which a reader had to find in the report's text)."""
-    fig, ax = plt.subplots(figsize=(12, 4.5))
+    fig, ax = subplots(figsize=(12, 4.5))
     shaded: set = set()
     for a, b, label in spans:
         color = "gold" if label.startswith("GNSS") else "0.5"       # (orange is dead reckoning's)
@@ -208,7 +221,7 @@ def biases_figure(t_s: np.ndarray, ba: np.ndarray, bg: np.ndarray, sigma: np.nda
     t0 = float(t_s[0])
     t = t_s - t0
     tt = None if truth is None else truth.t_s - t0
-    fig, axes = plt.subplots(2, 3, figsize=(13, 6.5), sharex=True)
+    fig, axes = subplots(2, 3, figsize=(13, 6.5), sharex=True)
     rows = ((ba, BA_ID, MG_MPS2, "mg", "accelerometer", None if truth is None else truth.accel_b_mps2),
             (bg, BG_ID, DEG_H_RPS, "deg/h", "gyro", None if truth is None else truth.gyro_b_rps))
     for r, (b_all, sl, unit_si, unit, what, tb) in enumerate(rows):
@@ -284,7 +297,7 @@ def plot_error_sigma(path: Path, d: dict) -> None:
     :func:`fusion_eval.report.thin.error_sigma`): is the covariance honest? The smoother's error and sigma at
     the same stamps, where given, drawn over it."""
     smoothed = d["smoothed"]
-    fig, axes = plt.subplots(3, 1, figsize=(10, 7), sharex=True)
+    fig, axes = subplots(3, 1, figsize=(10, 7), sharex=True)
     _error_sigma_panels(axes, d, ("East", "North", "Up"), "m")
     axes[0].legend(loc="upper right", fontsize=8, ncol=2 if smoothed is not None else 1)
     axes[-1].set_xlabel("time since start [s]")
@@ -304,7 +317,7 @@ def att_vel_error_figure(av: dict):
     attitude error (left column, deg) and velocity error (right column, m/s; absent when the estimate has no
     velocity) with the filter's +/-3 sigma."""
     has_vel = av.get("vel") is not None
-    fig, axes = plt.subplots(3, 2 if has_vel else 1, figsize=(14 if has_vel else 9, 7.5), sharex=True, squeeze=False)
+    fig, axes = subplots(3, 2 if has_vel else 1, figsize=(14 if has_vel else 9, 7.5), sharex=True, squeeze=False)
     _error_sigma_panels(axes[:, 0], av["att"], ATT_NAMES, "deg", scale=180 / np.pi, titles=ATT_TITLES)
     title = ("Attitude error Log(R_gt^T R_fused), body frame (x, y, z = roll, pitch, yaw for a forward-left-up IMU), "
              "with the filter's +/-3 sigma")
@@ -337,7 +350,7 @@ _VARIANT_COLORS = ["tab:red", *OTHER_COLORS]
 def plot_compare_ape(path: Path, runs, evs_unfiltered: dict, t0: float) -> None:
     """APE translation over time of every variant (solid; a variant's smoothed estimate dashed, in its colour)
     and of the unfiltered estimates (lidar dotted, GNSS dots, in their own colours)."""
-    fig, ax = plt.subplots(figsize=(12, 4.5))
+    fig, ax = subplots(figsize=(12, 4.5))
     floor = _log_floor([r.ev.ape_err_m for r in runs] + [r.ev_smoothed.ape_err_m for r in runs if r.ev_smoothed is not None]
                        + [ev.ape_err_m for ev in evs_unfiltered.values()])
     for i, r in enumerate(runs):
@@ -370,7 +383,7 @@ def plot_compare_ape(path: Path, runs, evs_unfiltered: dict, t0: float) -> None:
 
 def plot_compare_biases(path: Path, runs) -> None:
     """Estimated accelerometer and gyro biases of each variant (x, y, z as solid, dashed, dotted)."""
-    fig, axes = plt.subplots(2, 1, figsize=(12, 6), sharex=True)
+    fig, axes = subplots(2, 1, figsize=(12, 6), sharex=True)
     styles = ("-", "--", ":")
     for i, r in enumerate(runs):
         t = r.filt.fused.t_s - r.filt.fused.t_s[0]
@@ -390,7 +403,7 @@ def plot_compare_biases(path: Path, runs) -> None:
 
 def plot_compare_body_velocity(path: Path, runs, body_v: list, gt, gt_vb) -> None:
     """Lateral and vertical body-frame velocity of each variant (what the motion constraint acts on)."""
-    fig, axes = plt.subplots(2, 1, figsize=(10, 6), sharex=True)
+    fig, axes = subplots(2, 1, figsize=(10, 6), sharex=True)
     t0 = runs[0].filt.fused.t_s[0]
     if gt_vb is not None:
         for ax, k in zip(axes, (1, 2)):
@@ -507,7 +520,7 @@ def sweep_params_figure(rows: list[dict], keys: list[str], metric: str, defaults
     ncols = min(3, n)
     nrows = -(-n // ncols)
     height = max(4.3 * nrows, (0.24 * len(names) + 1.8) if overview else 0.0) + 0.7
-    fig, axes = plt.subplots(nrows, ncols, figsize=(5.4 * ncols, height), squeeze=False)
+    fig, axes = subplots(nrows, ncols, figsize=(5.4 * ncols, height), squeeze=False)
     flat = list(axes.ravel())
     for ax in flat[n:]:
         ax.set_visible(False)
@@ -613,7 +626,7 @@ def plot_sweep(out_dir: Path, rows: list[dict], keys: list[str], metric: str, ta
     def save(fig, name):
         tmp = out_dir / f".{name}.tmp.png"  # a .png suffix: matplotlib picks the format from it
         fig.savefig(tmp, dpi=110, metadata=_META)
-        plt.close(fig)
+        fig.clear()
         os.replace(tmp, out_dir / name)
         written.append(name)
 
@@ -635,7 +648,7 @@ def plot_sweep(out_dir: Path, rows: list[dict], keys: list[str], metric: str, ta
             Z = np.full((len(ys), len(xs)), np.nan)
             for (i, j), vals in cells.items():
                 Z[i, j] = float(np.mean(vals))
-            fig, ax = plt.subplots(figsize=(6, 5))
+            fig, ax = subplots(figsize=(6, 5))
             im = ax.imshow(Z, origin="lower", cmap="viridis_r", aspect="auto")
             ax.set_xticks(range(len(xs)), [f"{x:g}" for x in xs])
             ax.set_yticks(range(len(ys)), [f"{y:g}" for y in ys])
@@ -651,7 +664,7 @@ def plot_sweep(out_dir: Path, rows: list[dict], keys: list[str], metric: str, ta
             fig.colorbar(im, label=f"{metric_label or 'fused APE RMSE [m]'} (mean over datasets and variants)")
             if np.isfinite(Z).any():          # the best cell outlined (three cells read 0.77 at two decimals)
                 bi, bj = np.unravel_index(int(np.nanargmin(Z)), Z.shape)
-                ax.add_patch(plt.Rectangle((bj - 0.5, bi - 0.5), 1, 1, fill=False, ec="red", lw=2))
+                ax.add_patch(Rectangle((bj - 0.5, bi - 0.5), 1, 1, fill=False, ec="red", lw=2))
             d = [r[metric] for r in ok if r["setting"] == "default" and is_number(r.get(metric))]
             ax.set_title(f"{metric_label or 'Fused APE RMSE [m]'} over the 2-D grid (best outlined)"
                          + (f"\nthe default configuration, off the grid: {np.mean(d):.3f}" if d else ""), fontsize=9)
@@ -665,7 +678,7 @@ def plot_sweep(out_dir: Path, rows: list[dict], keys: list[str], metric: str, ta
             rest = sorted((r for r in ok if r["setting"] != "default" and r["variant"] == best["variant"]
                            and is_number(r.get(metric))), key=lambda r: r[metric])
             other = rest[0]["setting"] if rest else None
-        fig, ax = plt.subplots(figsize=(10, 4))
+        fig, ax = subplots(figsize=(10, 4))
         # fixed colours (the default cycle's blue and orange are the lidar's and dead reckoning's elsewhere)
         for name, style, color in ((best["setting"], "-", COLORS["fused"]), (other, ":", "black")):
             if name is None:
@@ -700,7 +713,7 @@ def plot_sweep(out_dir: Path, rows: list[dict], keys: list[str], metric: str, ta
 
 def plot_drift(path: Path, evals: dict) -> None:
     """KITTI drift metric against segment length: translational (%) and rotational (deg/100 m) error."""
-    fig, axes = plt.subplots(1, 2, figsize=(11, 4))
+    fig, axes = subplots(1, 2, figsize=(11, 4))
     colors = estimate_colors(list(evals))
     for name, ev in evals.items():
         if not ev.drift:
@@ -734,7 +747,7 @@ def consistency_figure(cons: dict, t0: float):
     items += [("NEES smoothed " + k, d) for k, d in cons.get("nees_smoothed", {}).items()]
     items += [("NIS " + k, d) for k, d in cons.get("nis", {}).items()]
     height = 2.2 * len(items) + 0.5
-    fig, axes = plt.subplots(len(items), 1, figsize=(10, height), sharex=True, squeeze=False)
+    fig, axes = subplots(len(items), 1, figsize=(10, height), sharex=True, squeeze=False)
     for ax, (label, d) in zip(axes[:, 0], items):
         lo, hi = d["bounds_95"]
         # NEES is a continuous series (a line); NIS values are separate innovations (pixel markers, cheap to draw)
@@ -778,7 +791,7 @@ def segment_map_figure(evals: dict, seg: dict, up_axis: str = "z"):
     f = evals[a]
     lid = evals.get(b) if b else None
     panels = 2 if lid is not None and lid.ape_err_m is not None else 1
-    fig, axes = plt.subplots(1, panels, figsize=(7 * panels, 6.6), squeeze=False)
+    fig, axes = subplots(1, panels, figsize=(7 * panels, 6.6), squeeze=False)
     p = f.ref_p_m
     k = thin.every(len(p))
     sc = axes[0, 0].scatter(p[k, i0], p[k, i1], c=f.ape_err_m[k], s=3, cmap="viridis")
@@ -854,7 +867,7 @@ def plot_generic_trajectories(path: Path, ref, estimates: dict, up_axis: str = "
     """Top view: the plane across the reference's gravity axis (x-y for ENU, x-z for KITTI's cam0 poses);
     ``estimates`` as the evaluation aligned them (``alignment``, for the title)."""
     i0, i1 = {"z": (0, 1), "y": (0, 2), "x": (1, 2)}[up_axis]
-    fig, ax = plt.subplots(figsize=(8, 7))
+    fig, ax = subplots(figsize=(8, 7))
     ax.plot(ref.p_w_m[:, i0], ref.p_w_m[:, i1], "-", color="black", lw=1.6, label="reference")
     colors = estimate_colors(list(estimates))
     for name, s in estimates.items():
@@ -895,7 +908,7 @@ def trials_figure(sec: dict):
             shown.append((key, name, label, v))
     nrows = -(-max(len(shown), 1) // 4)
     ncols = -(-max(len(shown), 1) // nrows)       # at most 4 a row, the rows as full as they can be
-    fig, axes = plt.subplots(nrows, ncols, figsize=(3.6 * ncols, 3.6 * nrows + 1.2), squeeze=False)
+    fig, axes = subplots(nrows, ncols, figsize=(3.6 * ncols, 3.6 * nrows + 1.2), squeeze=False)
     for ax, (key, name, label, v) in zip(axes.ravel(), shown):
         c = COLORS.get(name, "tab:gray")
         st = sec["stats"].get(key, {})

@@ -82,12 +82,9 @@ def write_track_outputs(out: StagedDir, res: TrackResult, params, source: str, m
 
 
 def _plot(out: StagedDir, res: TrackResult, metrics: dict) -> None:
-    import matplotlib
+    from ..report.plots import subplots      # figures of their own: the host's backend is left as it is
 
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-
-    fig, ax = plt.subplots(figsize=(8, 7))
+    fig, ax = subplots(figsize=(8, 7))
     ax.plot(res.gt[:, 0], res.gt[:, 1], "-", color="black", lw=1.5, label="ground truth")
     lid = res.kind == "L"
     rad = res.kind == "R"
@@ -109,8 +106,8 @@ def _plot(out: StagedDir, res: TrackResult, metrics: dict) -> None:
     ax.grid(alpha=0.3)
     ax.legend(fontsize=8)
     fig.savefig(out.path("track.png"), dpi=110, metadata={"Software": None})
-    plt.close(fig)
-    fig, axes = plt.subplots(2, 1, figsize=(9, 5), sharex=True)
+    fig.clear()
+    fig, axes = subplots(2, 1, figsize=(9, 5), sharex=True)
     t = (res.t_us - res.t_us[0]) / 1e6
     for ax, k, name in ((axes[0], "L", "lidar"), (axes[1], "R", "radar")):
         m = (res.kind == k) & np.isfinite(res.nis)
@@ -123,4 +120,4 @@ def _plot(out: StagedDir, res: TrackResult, metrics: dict) -> None:
     axes[1].set_xlabel("time [s]")
     fig.subplots_adjust(left=0.09, right=0.98, top=0.96, bottom=0.1, hspace=0.2)
     fig.savefig(out.path("nis.png"), dpi=110, metadata={"Software": None})
-    plt.close(fig)
+    fig.clear()
