@@ -30,6 +30,13 @@ def skew(v: np.ndarray) -> np.ndarray:
     return np.array([[0.0, -z, y], [z, 0.0, -x], [-y, x, 0.0]])
 
 
+def nearest_rotation(M: np.ndarray) -> np.ndarray:
+    """The rotation nearest a 3x3 matrix ``M`` (Frobenius; ``U diag(1, 1, det) V^T`` of its SVD). With
+    ``M = sum y x^T`` it is the rotation minimising ``sum |y - R x|^2`` (Wahba's problem, Kabsch's fit)."""
+    U, _, Vt = np.linalg.svd(M)
+    return U @ np.diag([1.0, 1.0, np.sign(np.linalg.det(U @ Vt))]) @ Vt
+
+
 def exp_so3(phi: np.ndarray) -> np.ndarray:
     """Rotation matrix of a rotation vector (rad); shape ``(3,)`` -> ``(3, 3)`` or ``(N, 3)`` -> ``(N, 3, 3)``."""
     return Rotation.from_rotvec(np.asarray(phi, dtype=float)).as_matrix()

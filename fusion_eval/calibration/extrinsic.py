@@ -28,7 +28,7 @@ import numpy as np
 from scipy.spatial.transform import Rotation
 
 from ..errors import DataRangeError
-from ..so3 import inv_T, make_T, matrix_to_quat_xyzw
+from ..so3 import inv_T, make_T, matrix_to_quat_xyzw, nearest_rotation
 from ..types import ImuSeries, PoseSeries
 from . import time_offset as to
 
@@ -51,9 +51,7 @@ class ExtrinsicEstimate:
 
 def _wahba(H: np.ndarray) -> np.ndarray:
     """The rotation R minimising sum |y - R x|^2, for H = sum x y^T."""
-    U, _, Vt = np.linalg.svd(H)
-    d = np.sign(np.linalg.det(Vt.T @ U.T))
-    return Vt.T @ np.diag([1.0, 1.0, d]) @ U.T
+    return nearest_rotation(H.T)
 
 
 def _signals(imu: ImuSeries, lidar: PoseSeries):

@@ -22,7 +22,7 @@ from ..datasets.tum import format_tum
 from ..errors import ConfigError
 from .. import trials as mc
 from ..evaluation import keys, span
-from ..evaluation.run_metrics import (consistency, inconsistent_streams, nees, scored_warnings, segments,
+from ..evaluation.run_metrics import (inconsistent_streams, nees, scored_warnings, segments,
                                        truth_velocity_w)
 from ..evaluation.trajectory import evaluate, ratio
 from ..filters import observations
@@ -56,6 +56,7 @@ class VariantRun:
     compile_s: float = 0.0          # numba's compilation inside the variant's first run (not in runtime_s)
     seeded: tuple[str, ...] = ()    # the fused streams drawn with a seed (:func:`fusion_eval.trials.seeded_streams`)
     applied: dict | None = None     # its preparation's record (what `auto` chose: the lidar frame the warnings name)
+    nees: dict | None = None        # its NEES over the scored span (the warnings' and the table's, computed once)
 
 
 def body_velocity(poses: PoseSeries) -> np.ndarray:
@@ -134,7 +135,8 @@ def _evaluate_all(runs: list[VariantRun], base_prep, ev_cfg: dict, pool):
             r.ev_smoothed.results = {}
         # what run warns of once the estimates are scored (a variant fusing the GNSS that ends far worse than it, or
         # far outside its own covariance), over the span every variant is scored on
-        for w in scored_warnings({"fused": r.ev, "gnss": evs_u.get("gnss")}, r.filt.nis, nees(ref, r.filt),
+        r.nees = nees(ref, r.filt)
+        for w in scored_warnings({"fused": r.ev, "gnss": evs_u.get("gnss")}, r.filt.nis, r.nees,
                                  r.applied or {}, (r.filt.nis.get("gnss") or {}).get("t_s", ())):
             log.warning("variant %s: %s", r.name, w)
             r.warnings = (*r.warnings, w)
@@ -280,7 +282,9 @@ def _compare(dataset_path: Path | None, variants: list[str], variant_dir: Path |
 def _variant_row(r: VariantRun, gt: PoseSeries, evs_u: dict, ev_cfg: dict, estimate: str = "fused") -> dict:
     m = r.ev.metrics
     d = keys.rpe_distance_group(ev_cfg["rpe_delta_m"])
-    nees = consistency(gt, r.filt).get("nees", {}).get("position")
+    # the NEES of the fused estimate as the warnings took it; a smoothed row's own (the whole consistency section,
+    # NIS and the smoothed NEES included, was computed again here for each row)
+    nees_pos = (r.nees if r.nees is not None else nees(gt, r.filt)).get("position")
     row = {"variant": r.name, "estimate": estimate, "matched_poses": r.ev.matched_poses,
            "ape_trans_rmse_m": m["ape"]["translation_m"]["rmse"], "ape_rot_rmse_deg": m["ape"]["rotation_deg"]["rmse"],
            "rpe_1frame_trans_rmse_m": (m.get("rpe_1frame") or {}).get("translation_m", {}).get("rmse"),
@@ -292,7 +296,7 @@ def _variant_row(r: VariantRun, gt: PoseSeries, evs_u: dict, ev_cfg: dict, estim
            "nis_mean": {k: float(np.mean(v["nis"])) for k, v in r.filt.nis.items()},
            "kitti_drift_t_err_pct": (r.ev.drift or {}).get("t_err_pct"),
            "kitti_drift_r_err_deg_per_100m": (r.ev.drift or {}).get("r_err_deg_per_100m"),
-           "nees_position_in_95": None if not nees else nees["fraction_in_95"],
+           "nees_position_in_95": None if not nees_pos else nees_pos["fraction_in_95"],
            "runtime_s": round(r.runtime_s, 3)}
     if r.compile_s > 0:
         row["compile_s"] = round(r.compile_s, 3)

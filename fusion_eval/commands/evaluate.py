@@ -229,9 +229,9 @@ def _body_turns(q_wxyz: np.ndarray, step: int) -> np.ndarray:
 def _misfit(a: np.ndarray, b: np.ndarray) -> float:
     """How far body-frame turns ``b`` are from ``a`` under the best constant rotation (a mount): the residual's RMS
     over ``a``'s (Kabsch's fit)."""
-    U, _, Vt = np.linalg.svd(b.T @ a)
-    D = np.diag([1.0, 1.0, np.sign(np.linalg.det(U @ Vt))])
-    R = Vt.T @ D @ U.T
+    from ..so3 import nearest_rotation
+
+    R = nearest_rotation(a.T @ b)            # a ~ R b
     return float(np.sqrt(np.mean(np.sum((a - b @ R.T) ** 2, axis=1)) / max(np.mean(np.sum(a ** 2, axis=1)), 1e-300)))
 
 
@@ -239,13 +239,9 @@ def _spread(q_ref_wxyz: np.ndarray, q_wxyz: np.ndarray, two_sided: bool = True, 
     """How far the orientations ``q`` are from the reference's under one constant rotation on the world side and one on
     the body side (``R_ref ~ A R B``: another world frame and a mount, fitted alternately), or with ``two_sided``
     False under one of the two alone (the better): the RMS angle (rad) left."""
-    from ..so3 import log_so3, quat_xyzw_to_matrix, wxyz_to_xyzw
+    from ..so3 import log_so3, nearest_rotation as proj, quat_xyzw_to_matrix, wxyz_to_xyzw
 
     Rr, R = (quat_xyzw_to_matrix(wxyz_to_xyzw(np.asarray(x, float))).reshape(-1, 3, 3) for x in (q_ref_wxyz, q_wxyz))
-
-    def proj(M):                        # the rotation nearest M
-        U, _, Vt = np.linalg.svd(M)
-        return U @ np.diag([1.0, 1.0, np.sign(np.linalg.det(U @ Vt))]) @ Vt
 
     def left(A, B):                     # RMS angle of Rr^T A R B
         E = np.einsum("nji,jk,nkl->nil", Rr, A, R @ B, optimize=True)

@@ -372,11 +372,11 @@ MIN_GNSS_OFFSET_M = 3.0
 MIN_FIRST_FIX_OFFSET_M, MIN_OFFSET_SIGMAS = 1.0, 5.0
 
 
-def _fixes_on_truth(gnss, groundtruth, lever_b_m=None) -> tuple[np.ndarray, np.ndarray] | None:
+def _fixes_on_truth(gnss, groundtruth, lever_b_m=None, stamps: bool = False):
     """The real GNSS fixes inside the ground truth's span and where the truth puts the antenna at their stamps
     ``(gnss, truth)``, each (n, 3): its positions, plus its attitude times the configured lever arm ``lever_b_m``
-    (a 4 m arm given rightly was called another origin; a review); None with fewer than 10 of them (or a truth whose
-    stamps do not increase)."""
+    (a 4 m arm given rightly was called another origin; a review); with ``stamps``, their stamps (n,) third. None with
+    fewer than 10 of them (or a truth whose stamps do not increase)."""
     if gnss is None or groundtruth is None or len(gnss) < 10 or len(groundtruth) < 2:
         return None
     from ..interp import interpolate_poses
@@ -392,7 +392,8 @@ def _fixes_on_truth(gnss, groundtruth, lever_b_m=None) -> tuple[np.ndarray, np.n
     # and gave false offsets; a review)
     if lever_b_m is not None and np.any(np.asarray(lever_b_m, float) != 0) and not np.all(q == q[0]):
         r = r + np.einsum("nij,j->ni", at.R_wb(), np.asarray(lever_b_m, float))
-    return np.asarray(gnss.p_w_m, float)[inside], r
+    g = np.asarray(gnss.p_w_m, float)[inside]
+    return (g, r, np.asarray(gnss.t_s, float)[inside]) if stamps else (g, r)
 
 
 def gnss_offset(gnss, groundtruth, origin_from_first_fix: bool = False, lever_b_m=None) -> str:
@@ -682,14 +683,11 @@ def gnss_latency(gnss, groundtruth, offset_s: float = 0.0, lever_b_m=None) -> st
     constant: by least squares over the moving fixes. Where the speed varies enough to separate them, each is said
     beyond its bound (:data:`MIN_LATENCY_S`, :data:`MIN_ANTENNA_M`) and :data:`MIN_LATENCY_SIGMAS` standard errors;
     at one speed the latency-only fit is said, naming the antenna as the other reading."""
-    pair = _fixes_on_truth(gnss, groundtruth, lever_b_m)      # the antenna the filter is told of, taken off
-    if pair is None:
+    found = _fixes_on_truth(gnss, groundtruth, lever_b_m, stamps=True)      # the antenna the filter is told of, off
+    if found is None:
         return ""
+    g, r, t = found
     t_gt, p_gt = np.asarray(groundtruth.t_s), np.asarray(groundtruth.p_w_m)
-    real = _real(gnss)
-    t = np.asarray(gnss.t_s)[real]
-    t = t[(t >= t_gt[0]) & (t <= t_gt[-1])]
-    g, r = pair
     h = 0.05
     v = np.column_stack([(np.interp(t + h, t_gt, p_gt[:, a]) - np.interp(t - h, t_gt, p_gt[:, a])) / (2 * h)
                          for a in range(3)])
@@ -703,7 +701,8 @@ def gnss_latency(gnss, groundtruth, offset_s: float = 0.0, lever_b_m=None) -> st
     u = v / sp[:, None]
     n = e.shape[0]
 
-    blocks = np.minimum((np.arange(n) * LATENCY_BLOCKS) // n, LATENCY_BLOCKS - 1)    # contiguous stretches of time
+    # contiguous stretches of time, each fix's three rows in its stretch
+    rows = np.repeat(np.minimum((np.arange(n) * LATENCY_BLOCKS) // n, LATENCY_BLOCKS - 1), 3)
 
     def fit(columns):
         """Least squares of e on the columns and a constant: (coef, std) of each. The std is the larger of the white
@@ -722,7 +721,6 @@ def gnss_latency(gnss, groundtruth, offset_s: float = 0.0, lever_b_m=None) -> st
             var = float(res @ res) / max(3 * n - X.shape[1], 1) * np.diag(np.linalg.inv(X.T @ X))
         except np.linalg.LinAlgError:
             return coef, np.full(coef.size, np.inf)
-        rows = np.repeat(blocks, 3)
         loo = np.array([np.linalg.lstsq(X[rows != b], y[rows != b], rcond=None)[0] for b in range(LATENCY_BLOCKS)])
         jk = (LATENCY_BLOCKS - 1) / LATENCY_BLOCKS * np.sum((loo - loo.mean(axis=0)) ** 2, axis=0)
         return coef, np.sqrt(np.maximum(np.maximum(var, jk), 0.0))
