@@ -169,6 +169,20 @@ def continuous_model(R, f_b, w_b, prm, qscale):
 
 
 @njit(cache=True)
+def discrete_model(R, f_b, w_b, dt, prm, qscale, method):
+    """``(Phi, Q_d)`` of the error dynamics over one IMU interval by the discretisation ``method``
+    (:mod:`fusion_eval.filters.discretize`), linearised at ``R`` and the bias-corrected ``f_b``, ``w_b``; the
+    nominal-state filter maps this ``Q_d`` into its own coordinates."""
+    Phi = np.empty((N_CORE, N_CORE))
+    Qd = np.empty((N_CORE, N_CORE))
+    # Van Loan on the dynamics' structure (a quarter of the series' cost); the series where it declines
+    if not (method == discretize.VAN_LOAN and van_loan_eskf(R, f_b, w_b, dt, prm, qscale, Phi, Qd)):
+        Ft, Qc = continuous_model(R, f_b, w_b, prm, qscale)
+        Phi, Qd = discretize.transition(Ft, Qc, dt, method)
+    return Phi, Qd
+
+
+@njit(cache=True)
 def step(x, P, n, u0, u1, dt, qscale, prm, aux, cov):
     """One IMU interval: covariance linearised at the start-of-interval attitude and the midpoint,
     bias-corrected IMU values, then the midpoint mechanization."""
@@ -185,13 +199,7 @@ def step(x, P, n, u0, u1, dt, qscale, prm, aux, cov):
             for i in range(3):
                 fm[i] = 0.5 * (u0[UF + i] + u1[UF + i]) - x[XBA + i]
                 wm[i] = 0.5 * (u0[UW + i] + u1[UW + i]) - x[XBG + i]
-            R = attitude(x)
-            Phi = np.empty((N_CORE, N_CORE))
-            Qd = np.empty((N_CORE, N_CORE))
-            # Van Loan on the dynamics' structure (a quarter of the series' cost); the series where it declines
-            if not (method == discretize.VAN_LOAN and van_loan_eskf(R, fm, wm, dt, prm, qscale, Phi, Qd)):
-                Ft, Qc = continuous_model(R, fm, wm, prm, qscale)
-                Phi, Qd = discretize.transition(Ft, Qc, dt, method)
+            Phi, Qd = discrete_model(attitude(x), fm, wm, dt, prm, qscale, method)
             discretize.propagate(P, n, Phi, Qd)
             if aux.shape[0] == AUX_OWN + N_CORE * N_CORE:     # the RTS smoother's room: it keeps the one into each epoch
                 q = AUX_OWN

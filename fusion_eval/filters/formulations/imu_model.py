@@ -26,8 +26,8 @@ def imu_params(g: float, accel_noise: float, gyro_noise: float, accel_bias_rw: f
                discretization: str = "first_order", accel_bias_decay: float = 0.0, gyro_bias_decay: float = 0.0
                ) -> np.ndarray:
     """The parameter record: gravity (m/s^2), the noise densities (SI, per sqrt(Hz)), the discretisation of
-    the error dynamics (:data:`fusion_eval.filters.discretize.METHODS`; formulations that linearise their own
-    discrete step, like the nominal-state EKF, ignore it) and the bias decay rates (1/s, Gauss-Markov)."""
+    the error dynamics (:data:`fusion_eval.filters.discretize.METHODS`; the nominal-state EKF takes its process
+    noise from it, its transition being its own step's Jacobian) and the bias decay rates (1/s, Gauss-Markov)."""
     if discretization not in METHODS:
         raise ConfigError(f"filter.discretization={discretization!r} is not resolved: 'auto' is chosen from the IMU "
                           "rate when a run is prepared (prepare.settings_for); give one of " + ", ".join(METHODS))
