@@ -115,8 +115,11 @@ CORE: dict[str, Spec] = {
     "init.accel_bias_std_mps2": S(0.01, "initial accelerometer bias std, m/s^2", nonneg=True, reads="filter"),
     "init.gyro_bias_std_dps": S(0.005, "initial gyroscope bias std, deg/s", nonneg=True, reads="filter"),
     "evaluation.t_max_diff_s": S(0.01, "max stamp difference when evo associates estimate and reference poses, s", positive=True),
-    "evaluation.association": S("nearest", "pose association: 'nearest' stamp within t_max_diff_s (evo's) or 'interpolate' "
-                                           "the reference at the estimate's stamps (linear position, SLERP rotation)",
+    "evaluation.association": S("nearest", "pose association (evo's --sync_method): 'nearest' stamp within t_max_diff_s, "
+                                           "or 'interpolate': the stamps matched the same way, then the denser "
+                                           "trajectory interpolated (linear position, SLERP rotation) at the matched "
+                                           "stamps of the other; with t_max_diff_s above half the ground truth's "
+                                           "interval, every pose of a sparser estimate is scored at its own stamp",
                                 choices=("nearest", "interpolate")),
     "evaluation.alignment": S("none", "alignment before APE: 'none' (all estimates share the ground truth's frame), "
                                       "'origin', 'se3', 'sim3' (evo's) or '4dof' (yaw + translation)",

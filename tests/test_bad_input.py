@@ -1421,6 +1421,22 @@ def test_a_boot_clock_beside_posix_time_is_named():
     assert clock_hint("GNSS", 1317639334.0, "IMU", 1317639334.0 + 5400.0) == ""          # 1.5 h: no zone
 
 
+def test_a_clock_of_seconds_of_the_day_or_of_the_gps_week_gets_its_epoch():
+    """GTSAM's KITTI GPS file counts seconds of the day: 'add their starts' difference' was 2.02 s off the day's
+    midnight (fused 13.7 m; an own-data review). A GPS time-of-week clock gets the week's start, leap seconds off."""
+    from fusion_eval.datasets.plausible import clock_hint
+
+    hint = clock_hint("GNSS", 46534.478, "IMU", 1317646534.998)        # kitti-00: 2011-10-03 12:55:34 UTC
+    assert "the GNSS stamps (46534.478 s) are seconds of the day (UTC)" in hint
+    assert "add 1317600000 s (that day's midnight, UTC) to the GNSS stream's time_offset_s" in hint
+    t_posix = 1767225600.0 + 5 * 86400 + 5000.0                           # 2026-01-06 01:23:20 UTC, a Tuesday
+    tow = (t_posix - 315964800.0 + 18) % 604800.0                        # GPS time of week, 18 leap seconds
+    hint = clock_hint("GNSS", tow + 0.2, "IMU", t_posix)
+    assert "seconds of the GPS week (GPS time, 18 s ahead of UTC)" in hint
+    off = float(hint.split("add ")[1].split(" s")[0])
+    assert abs((tow + 0.2 + off) - (t_posix + 0.2)) < 1e-6                 # the offset puts the fix on POSIX time
+
+
 def test_evaluate_names_a_tum_file_stamped_in_nanoseconds(tmp_path):
     """evo reads such a file and matches no pose within 0.01 of its units: 'matches 0 poses' named no unit."""
     t = 1305031102.16 + np.arange(50) * 0.1
@@ -1716,3 +1732,28 @@ def test_compare_holds_a_variant_to_the_fixes_it_fused():
     # a variant that fused the fixes 0.1 s later than the GNSS scored, and is far off: still said
     (w,) = worse_than_inputs({"fused": ev(t, 12.6), "gnss": ev(fix, 2.5)}, {"gnss": {}}, fix + 0.1)
     assert "5.0x the GNSS's own" in w
+
+
+def test_evaluate_names_a_headerless_csv_written_x_y_z_w_on_a_planar_track(tmp_path):
+    """A comma file t_ns,x,y,z,qx,qy,qz,qw with no header is read as EuRoC's (w first): 139 deg of rotation error beside
+    no translation error, with no word, as a planar track's turns fit every reading under a mount (an own-data review).
+    Unaligned, the world is the reference's: the reading that matches its orientations as they are is named."""
+    import json
+
+    from scipy.spatial.transform import Rotation
+
+    t = 1317646536.0 + np.arange(0.0, 60.0, 0.1)
+    yaw = 0.4 * np.sin(t / 8.0) + 0.02 * (t - t[0])
+    p = np.column_stack([np.cumsum(8 * np.cos(yaw)) * 0.1, np.cumsum(8 * np.sin(yaw)) * 0.1, 0 * t])
+    q = Rotation.from_euler("z", yaw[:, None]).as_quat()                            # x y z w
+    (tmp_path / "gt.tum").write_text("".join(f"{a:.3f} {' '.join(f'{v:.9f}' for v in (*b, *c))}\n"
+                                             for a, b, c in zip(t, p, q)))
+    (tmp_path / "est.csv").write_text("".join(f"{int(round(a * 1e9))},{','.join(f'{v:.9f}' for v in (*b, *c))}\n"
+                                              for a, b, c in zip(t, p, q)))
+    out = tmp_path / "o"
+    r = CliRunner().invoke(main, ["evaluate", str(tmp_path / "gt.tum"), str(tmp_path / "est.csv"), "--no-plots",
+                                  "-o", str(out)])
+    assert r.exit_code == 0, r.output
+    note = json.loads((out / "metrics.json").read_text())["estimates"]["est"]["note"]
+    assert "0.00 deg RMS with its quaternions read in the other order: written x y z w where the format wants w x y z?" \
+        in note, note

@@ -292,3 +292,11 @@ def test_the_smoother_line_gives_the_bytes_per_clone_too(kitti_slice, tmp_path):
     res.write(tmp_path / "o")
     line = next(ln for ln in (tmp_path / "o" / "report.md").read_text().splitlines() if "Smoother: **rts**" in ln)
     assert f"({sm['bytes_per_epoch']} bytes per epoch, {sm['bytes_per_clone']} per clone)" in line
+
+
+def test_time_offsets_are_said_in_seconds_when_they_are_a_clock_epoch():
+    """A seconds-of-day GNSS put on POSIX time read 'gnss +1317600000000.0 ms' (an own-data review)."""
+    from fusion_eval.report.markdown import _offsets
+
+    assert _offsets({"gnss": 1317600000.0, "lidar": 0.0}) == "gnss +1317600000.000 s; the other streams none"
+    assert _offsets({"lidar": -0.0588}) == "lidar -58.8 ms; the other streams none"

@@ -285,13 +285,18 @@ def test_a_gnss_latency_of_a_fraction_of_a_second_is_said(latency_s, antenna_m, 
             assert m is None                                         # not called a latency
 
 
-@pytest.mark.parametrize("offset, first_fix, said", [((-6.0, -4.0, 0.0), False, "another origin or datum"),
-                                                     ((-0.5, 2.5, 1.0), True, "the local frame's origin is the GNSS's first fix"),
-                                                     ((-0.5, 2.5, 1.0), False, None), ((0.0, 0.0, 0.0), True, None)])
-def test_a_gnss_offset_of_metres_from_the_truth_is_said(offset, first_fix, said):
+@pytest.mark.parametrize("offset, first_fix, said, noise_m, stated_m", [
+    ((-6.0, -4.0, 0.0), False, "another origin or datum", 1.5, 2.0),
+    ((-0.5, 2.5, 1.0), True, "the local frame's origin is the GNSS's first fix", 1.5, 2.0),
+    ((-0.5, 2.5, 1.0), False, None, 1.5, 2.0), ((0.0, 0.0, 0.0), True, None, 1.5, 2.0),
+    # a receiver stating 0.5 m, 2.5 m off: three stated stds (an own-data review), not the 3 m of a noisier one
+    ((2.5, 0.0, 0.0), False, "another origin or datum", 0.3, 0.5), ((0.8, 0.0, 0.0), False, None, 0.3, 0.5),
+    ((0.0, 0.0, 0.0), False, None, 0.3, 0.5), ((0.0, 0.0, 2.0), False, "above mean sea level", 0.3, 0.5)])
+def test_a_gnss_offset_of_metres_from_the_truth_is_said(offset, first_fix, said, noise_m, stated_m):
     """A given origin 7 m off ran to 6.84 m, and the default origin at a noisy first fix to 2.56 m for 0.54, with no
-    word (a conventions review): the constant offset is said from 3 m and three times the fixes' spread, and with the
-    origin at the first fix, whose error every fix then carries, from 1 m and five standard errors."""
+    word (a conventions review): the constant offset is said from 3 m (from 1 m and three stated stds where the
+    receiver states less than 1 m) and three times the fixes' spread, and with the origin at the first fix, whose
+    error every fix then carries, from 1 m and five standard errors."""
     from fusion_eval.types import GnssSeries, PoseSeries
 
     t = np.arange(0.0, 240.0, 0.1)
@@ -299,7 +304,34 @@ def test_a_gnss_offset_of_metres_from_the_truth_is_said(offset, first_fix, said)
     truth = PoseSeries(t, p, np.tile([0.0, 0.0, 0.0, 1.0], (t.size, 1)), source="gt")
     tf = np.arange(0.0, 240.0, 1.0)
     rng = np.random.default_rng(5)
-    fixes = np.column_stack([np.interp(tf, t, p[:, a]) for a in range(3)]) + rng.normal(0, 1.5, (tf.size, 3)) + offset
-    g = GnssSeries(t_s=tf, p_w_m=fixes, std_w_m=np.full((tf.size, 3), 2.0), source="g.csv")
+    fixes = np.column_stack([np.interp(tf, t, p[:, a]) for a in range(3)]) + rng.normal(0, noise_m, (tf.size, 3)) + offset
+    g = GnssSeries(t_s=tf, p_w_m=fixes, std_w_m=np.full((tf.size, 3), stated_m), source="g.csv")
     w = plausible.gnss_offset(g, truth, origin_from_first_fix=first_fix)
     assert (w == "") if said is None else (said in w), w
+
+
+def test_an_estimate_scored_on_a_fraction_of_its_poses_is_said_with_the_settings_that_score_all():
+    """A receiver on its own clock (1 Hz, between a 10 Hz truth's stamps) had 101 of its 469 fixes scored in a run,
+    and 'fused worse than GNSS' rested on those, with no word (an own-data review). The warning's settings pair every
+    fix; an estimate denser than the truth (each truth pose paired once) is not warned of."""
+    import re
+
+    from fusion_eval.evaluation.run_metrics import sparsely_matched
+    from fusion_eval.evaluation.trajectory import evaluate
+    from fusion_eval.types import PoseSeries
+
+    t = np.arange(0.0, 120.0, 0.1)
+    p = np.column_stack([10 * t, np.sin(t / 10), 0 * t])
+    q = np.tile([0.0, 0.0, 0.0, 1.0], (t.size, 1))
+    truth = PoseSeries(t, p, q, source="gt")
+    tf = np.arange(0.5, 119.0, 1.0) + np.random.default_rng(2).uniform(0.0, 0.1, 119)   # anywhere in an interval
+    fixes = PoseSeries(tf, np.column_stack([10 * tf, np.sin(tf / 10), 0 * tf]), np.tile(q[0], (tf.size, 1)), source="g")
+    td = np.arange(0.0, 120.0, 0.01)                                                       # 100 Hz, on the truth's
+    dense = PoseSeries(td, np.column_stack([10 * td, np.sin(td / 10), 0 * td]), np.tile(q[0], (td.size, 1)), source="f")
+    evs = {k: evaluate(truth, s, k, 0.01, 100.0) for k, s in (("gnss", fixes), ("fused", dense))}
+    w = sparsely_matched(evs, "nearest", 0.01)
+    assert len(w) == 1 and w[0].startswith("gnss: only ") and f"of its {tf.size} poses" in w[0], w
+    tmax = float(re.search(r"evaluation.t_max_diff_s=([\d.]+)", w[0]).group(1))
+    ev = evaluate(truth, fixes, "gnss", tmax, 100.0, association="interpolate")
+    assert ev.matched_poses == tf.size and sparsely_matched({"gnss": ev}, "interpolate", tmax) == []
+    assert ev.metrics["ape"]["translation_m"]["rmse"] < 1e-3          # the truth interpolated at each fix's stamp

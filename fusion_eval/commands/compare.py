@@ -22,7 +22,7 @@ from ..datasets.tum import format_tum
 from ..errors import ConfigError
 from .. import trials as mc
 from ..evaluation import keys, span
-from ..evaluation.run_metrics import (inconsistent_streams, nees, scored_warnings, segments,
+from ..evaluation.run_metrics import (inconsistent_streams, nees, scored_warnings, segments, sparsely_matched,
                                        truth_velocity_w)
 from ..evaluation.trajectory import evaluate, ratio
 from ..filters import observations
@@ -127,6 +127,10 @@ def _evaluate_all(runs: list[VariantRun], base_prep, ev_cfg: dict, pool):
              else None for r in runs]
     fut_u = {k: pool.submit(evaluate, ref, s, k, *args, **kw) for k, s in unfiltered.items()}
     evs_u = {k: f.result() for k, f in fut_u.items()}
+    for w in sparsely_matched(evs_u, ev_cfg["association"], ev_cfg["t_max_diff_s"]):    # of the data: said once
+        log.warning("%s", w)
+        for r in runs:
+            r.warnings = (*r.warnings, w)
     for r, f, fs in zip(runs, fut_v, fut_s):
         r.ev = f.result()
         r.ev.results = {}
@@ -136,8 +140,9 @@ def _evaluate_all(runs: list[VariantRun], base_prep, ev_cfg: dict, pool):
         # what run warns of once the estimates are scored (a variant fusing the GNSS that ends far worse than it, or
         # far outside its own covariance), over the span every variant is scored on
         r.nees = nees(ref, r.filt)
-        for w in scored_warnings({"fused": r.ev, "gnss": evs_u.get("gnss")}, r.filt.nis, r.nees,
-                                 r.applied or {}, (r.filt.nis.get("gnss") or {}).get("t_s", ())):
+        for w in (sparsely_matched({"fused": r.ev}, ev_cfg["association"], ev_cfg["t_max_diff_s"]) +
+                  scored_warnings({"fused": r.ev, "gnss": evs_u.get("gnss")}, r.filt.nis, r.nees,
+                                  r.applied or {}, (r.filt.nis.get("gnss") or {}).get("t_s", ()))):
             log.warning("variant %s: %s", r.name, w)
             r.warnings = (*r.warnings, w)
     return unfiltered, evs_u, sp

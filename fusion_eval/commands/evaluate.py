@@ -235,6 +235,24 @@ def _misfit(a: np.ndarray, b: np.ndarray) -> float:
     return float(np.sqrt(np.mean(np.sum((a - b @ R.T) ** 2, axis=1)) / max(np.mean(np.sum(a ** 2, axis=1)), 1e-300)))
 
 
+def _direct_reading(q_ref_wxyz: np.ndarray, q_wxyz: np.ndarray, readings: dict):
+    """``(reading, rms_deg)`` of the reading of the quaternions (``readings``: name -> (n, 4) wxyz) that matches the
+    reference's orientations as they are, with no rotation fitted, to under :data:`DIRECT_MATCH_DEG` RMS; or None."""
+    qr = np.asarray(q_ref_wxyz, float)
+    qr = qr / np.linalg.norm(qr, axis=1, keepdims=True)
+    best = None
+    for name, v in readings.items():
+        v = np.asarray(v, float) / np.linalg.norm(v, axis=1, keepdims=True)
+        ang = 2.0 * np.degrees(np.arccos(np.clip(np.abs(np.sum(qr * v, axis=1)), 0.0, 1.0)))
+        rms = float(np.sqrt(np.mean(ang ** 2)))
+        if rms < DIRECT_MATCH_DEG and (best is None or rms < best[1]):
+            best = (name, rms)
+    return best
+
+
+DIRECT_MATCH_DEG = 5.0
+
+
 def _spread(q_ref_wxyz: np.ndarray, q_wxyz: np.ndarray, two_sided: bool = True, iterations: int = 8) -> float:
     """How far the orientations ``q`` are from the reference's under one constant rotation on the world side and one on
     the body side (``R_ref ~ A R B``: another world frame and a mount, fitted alternately), or with ``two_sided``
@@ -323,8 +341,12 @@ def convention_hints(f, ref_f, alignment: str, rot_rmse_deg: float | None = None
             # conjugate once got the order's hint, which raised its rotation error from 85 to 149 deg (a review)
             as_read = _misfit(a[turning], _body_turns(q, step)[turning])
             conj = q * np.array([1.0, -1.0, -1.0, -1.0])
-            readings = {"read in the other order: written w x y z where the format wants x y z w":
-                        q[:, [1, 2, 3, 0]],
+            # (EuRoC's csv wants w x y z: a file written x y z w is the other way round, evo's (w, x, y, z) being
+            # the file's (x, y, z, w); a headerless one was read so with no word, an own-data review)
+            order = ("read in the other order: written x y z w where the format wants w x y z", q[:, [3, 0, 1, 2]]) \
+                if f.format == "euroc" else \
+                ("read in the other order: written w x y z where the format wants x y z w", q[:, [1, 2, 3, 0]])
+            readings = {order[0]: order[1],
                         "inverted (their conjugates): the world's orientation in the body frame, or JPL quaternions, "
                         "where the format wants the body's in the world": conj}
             fits = {k: _misfit(a[turning], _body_turns(v, step)[turning]) for k, v in readings.items()}
@@ -344,6 +366,15 @@ def convention_hints(f, ref_f, alignment: str, rot_rmse_deg: float | None = None
                     question = " or ".join(k.split(": ", 1)[1] for k in ties)
                 out.append(f"its body-frame turns match the reference's to {as_read:.0%} of their size under any "
                            f"mount rotation, to {fits[best]:.0%} with its quaternions {what}: {question}?")
+            elif (alignment in ("none", "origin") and rot_rmse_deg is not None and rot_rmse_deg > BODY_OFFSET_DEG
+                  and trans_rmse_m is not None and trans_rmse_m < FOLLOWS_FRACTION * _size(ref_a.positions_xyz)
+                  and (direct := _direct_reading(ref_q, q, readings))):
+                # the world frame is the reference's (no alignment): a reading that matches its orientations as they
+                # are names itself, where a planar track's turns fit every reading under a mount (a headerless
+                # x y z w file read as EuRoC's w-first: 139 deg beside no translation error, no word; an own-data review)
+                what, question = direct[0].split(": ", 1)
+                out.append(f"its rotation error is {rot_rmse_deg:.0f} deg beside positions that follow the reference's, "
+                           f"and {direct[1]:.2f} deg RMS with its quaternions {what}: {question}?")
             elif (alignment in ("se3", "sim3") and rot_rmse_deg is not None and rot_rmse_deg > BODY_OFFSET_DEG
                   and trans_rmse_m is not None and trans_rmse_m < FOLLOWS_FRACTION * _size(ref_a.positions_xyz)
                   and (spread0 := _spread(ref_q, q)) < np.radians(5.0)):      # (only where it is read: 1 s at 100k poses)

@@ -292,6 +292,29 @@ BOOT_CLOCK_MAX_S = 1e6
 POSIX_RANGE_S = (1e8, 4.1e9)
 
 
+# GPS time (from 1980-01-06, POSIX 315964800) runs ahead of UTC by the leap seconds since: (from POSIX t, seconds)
+GPS_EPOCH_POSIX_S = 315964800.0
+GPS_LEAP_S = ((1483228800.0, 18), (1435708800.0, 17), (1341100800.0, 16), (1230768000.0, 15), (1136073600.0, 14))
+# a start this close to the other clock's time of day (or of the GPS week) is that clock, not a boot clock
+CLOCK_EPOCH_MATCH_S = 600.0
+
+
+def _clock_epoch(t_near0: float, t_posix: float):
+    """``(offset_s, what, epoch)`` where a clock near 0 is the seconds of the day (UTC) or of the GPS week of the
+    POSIX one: a receiver's GPS-style file ran from 46534 s against KITTI's POSIX stamps and got 'add their starts'
+    difference', 2 s off the day's midnight (an own-data review). None otherwise."""
+    day0 = np.floor(t_posix / 86400.0) * 86400.0
+    if t_near0 < 86400.0 and abs((t_posix - day0) - t_near0) < CLOCK_EPOCH_MATCH_S:
+        return day0, "seconds of the day (UTC)", "that day's midnight, UTC"
+    leap = next((n for since, n in GPS_LEAP_S if t_posix >= since), 0)
+    gps = t_posix - GPS_EPOCH_POSIX_S + leap
+    week = np.floor(gps / 604800.0)
+    if t_near0 < 604800.0 and abs((gps - week * 604800.0) - t_near0) < CLOCK_EPOCH_MATCH_S:
+        return (GPS_EPOCH_POSIX_S + week * 604800.0 - leap, f"seconds of the GPS week (GPS time, {leap} s ahead of UTC)",
+                f"the start of GPS week {week:.0f} in POSIX time")
+    return None
+
+
 def clock_hint(a: str, a_t0: float, b: str, b_t0: float) -> str:
     """Why two streams' stamps do not meet, where their starts tell: one clock starts near 0 (a device's boot clock,
     or time relative to a recording's start) and the other is POSIX time (a bag's IMU on its driver's boot clock).
@@ -313,6 +336,11 @@ def clock_hint(a: str, a_t0: float, b: str, b_t0: float) -> str:
         return ""
     near0, posix = (a, b) if ka == "zero" else (b, a)
     d = (b_t0 - a_t0) if ka == "zero" else (a_t0 - b_t0)
+    t_near0, t_posix = (a_t0, b_t0) if ka == "zero" else (b_t0, a_t0)
+    epoch = _clock_epoch(t_near0, t_posix)
+    if epoch:
+        return (f": the {near0} stamps ({t_near0:.3f} s) are {epoch[1]}, the {posix} stamps POSIX time: add "
+                f"{epoch[0]:.0f} s ({epoch[2]}) to the {near0} stream's time_offset_s")
     return (f": the {near0} stamps start near 0 ({min(a_t0, b_t0):.3f} s: a device's boot clock, or time from the "
             f"recording's start), the {posix} stamps are POSIX time: add about {d:.3f} s to the {near0} stream's "
             "time_offset_s (their starts' difference), or stamp both on one clock")
@@ -365,8 +393,11 @@ def velocity_mismatch(poses) -> str:
 
 
 # a constant offset of the GNSS from the ground truth beyond this and three times the fixes' spread about it is an
-# origin or a datum, not noise (a given origin 7 m off ran to 6.84 m with no word at the 10 m this was; a review)
+# origin or a datum, not noise (a given origin 7 m off ran to 6.84 m with no word at the 10 m this was; a review);
+# from MIN_GNSS_OFFSET_STATED_M where the receiver states a std that small (x MIN_OFFSET_STATED_SIGMAS): a receiver
+# stating 0.5 m sat 2.5 m from the truth, fused 2.54 m against 0.79, with no word (an own-data review)
 MIN_GNSS_OFFSET_M = 3.0
+MIN_GNSS_OFFSET_STATED_M, MIN_OFFSET_STATED_SIGMAS = 1.0, 3.0
 # with the origin taken from the first fix, that fix's own error is carried by every fix: said beyond this and
 # MIN_OFFSET_SIGMAS standard errors of the median (2.6 m where 0.54 was right, no word; a review)
 MIN_FIRST_FIX_OFFSET_M, MIN_OFFSET_SIGMAS = 1.0, 5.0
@@ -396,9 +427,26 @@ def _fixes_on_truth(gnss, groundtruth, lever_b_m=None, stamps: bool = False):
     return (g, r, np.asarray(gnss.t_s, float)[inside]) if stamps else (g, r)
 
 
+def _offset_limits(gnss) -> tuple[float, float]:
+    """The horizontal and vertical offsets (m) beyond which :func:`gnss_offset` speaks: :data:`MIN_GNSS_OFFSET_M`, or
+    less where the receiver states a small std: :data:`MIN_OFFSET_STATED_SIGMAS` times it (medians over the real
+    fixes), from :data:`MIN_GNSS_OFFSET_STATED_M` (a constant offset of many stated stds is not the receiver's noise)."""
+    std = getattr(gnss, "std_w_m", None)
+    real = _real(gnss)
+    if std is None or np.asarray(std).shape != (len(gnss.t_s), 3) or not real.any():
+        return MIN_GNSS_OFFSET_M, MIN_GNSS_OFFSET_M
+    st = np.median(np.asarray(std, float)[real], axis=0)
+    if not np.all(np.isfinite(st) & (st > 0)):
+        return MIN_GNSS_OFFSET_M, MIN_GNSS_OFFSET_M
+    h = float(np.hypot(st[0], st[1]) / np.sqrt(2.0))
+    return tuple(float(np.clip(MIN_OFFSET_STATED_SIGMAS * v, MIN_GNSS_OFFSET_STATED_M, MIN_GNSS_OFFSET_M))
+                 for v in (h, st[2]))
+
+
 def gnss_offset(gnss, groundtruth, origin_from_first_fix: bool = False, lever_b_m=None) -> str:
     """Why the GNSS sits a constant distance from the ground truth (median over the fixes inside the truth's span,
-    per ENU axis, beyond :data:`MIN_GNSS_OFFSET_M` and three times the residuals' spread about it), or ''. The usual
+    per ENU axis, beyond :data:`MIN_GNSS_OFFSET_M` (less for a receiver stating a small std: :func:`_offset_limits`)
+    and three times the residuals' spread about it), or ''. The usual
     cause is a datum: an altitude above mean sea level (NavSatFix's is the ellipsoid's; the geoid lies 20-50 m
     from it in Europe) against a geodetic origin or ground truth on the ellipsoid; horizontally, another origin.
     ``origin_from_first_fix``: the local frame's origin is the GNSS's first fix (``geodetic_origin: first_fix``, the
@@ -413,8 +461,9 @@ def gnss_offset(gnss, groundtruth, origin_from_first_fix: bool = False, lever_b_
     spread = np.median(np.abs(d - off), axis=0) * 1.4826
     # horizontally by the offset's length (3.5 m at 45 deg passed each axis' 3 m; a review), vertically on its own
     h, sh = float(np.hypot(off[0], off[1])), float(np.hypot(spread[0], spread[1]) / np.sqrt(2.0))
-    big_h = h > MIN_GNSS_OFFSET_M and h > 3.0 * sh
-    big = np.array([big_h, big_h, abs(off[2]) > MIN_GNSS_OFFSET_M and abs(off[2]) > 3.0 * spread[2]])
+    lim = _offset_limits(gnss)
+    big_h = h > lim[0] and h > 3.0 * sh
+    big = np.array([big_h, big_h, abs(off[2]) > lim[1] and abs(off[2]) > 3.0 * spread[2]])
     if not big.any():
         se = 1.2533 * spread / np.sqrt(n_fixes)          # the standard error of a median
         if origin_from_first_fix and float(np.linalg.norm(off)) > MIN_FIRST_FIX_OFFSET_M and \

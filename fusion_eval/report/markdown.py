@@ -232,7 +232,9 @@ def _offsets(offsets_s: dict) -> str:
     if not nonzero:
         n = len(offsets_s)
         return f"none ({'both streams' if n == 2 else f'all {n} streams' if n > 2 else 'the stream'} on the IMU clock as stamped)"
-    return ", ".join(f"{k} {v * 1000:+.1f} ms" for k, v in nonzero.items()) + "; the other streams none"
+    # a clock's epoch (a seconds-of-day stream put on POSIX time: 1317600000 s) in seconds, a latency in ms
+    return ", ".join(f"{k} {v:+.3f} s" if abs(v) >= 60.0 else f"{k} {v * 1000:+.1f} ms"
+                     for k, v in nonzero.items()) + "; the other streams none"
 
 
 def fmt_stat(d, key="rmse", nd=3):
