@@ -369,6 +369,9 @@ def sweep(ctx, datasets, sweep_file, out_dir, jobs, variant_dir, scheduler, dask
               help="evo's --sync_method: nearest_time, or interpolation (guarded by --t-max-diff).")
 @click.option("--alignment", type=click.Choice(["none", "origin", "se3", "sim3", "scale", "4dof"]), default="none",
               show_default=True, help="evo's --align_origin, -a, -as, -s; or 4dof (about the gravity axis).")
+@click.option("-a", "--align", "evo_align", is_flag=True,
+              help="evo's -a: --alignment se3 (with -s: sim3), for evo users' command lines.")
+@click.option("-s", "--correct-scale", "evo_scale", is_flag=True, help="evo's -s: --alignment scale (with -a: sim3).")
 @click.option("--up-axis", type=click.Choice(["auto", "x", "y", "z"]), default="auto", show_default=True,
               help="Gravity axis of the reference frame for --alignment 4dof (auto: detected).")
 @click.option("--n-to-align", type=int, default=-1, show_default=True, help="Poses used by the alignment fit (-1: all).")
@@ -389,8 +392,9 @@ def sweep(ctx, datasets, sweep_file, out_dir, jobs, variant_dir, scheduler, dask
 @click.option("--engine", type=click.Choice(["arrays", "evo"]), default="arrays", show_default=True,
               help="evo's metrics on whole arrays, or evo's own per-pose loops (same numbers, ~10x slower).")
 @click.pass_context
-def evaluate(ctx, inputs, out_dir, fmt, bag, ref_topic, ref_times, times, association, alignment, up_axis, n_to_align,
-             relations, t_max_diff, t_offset, t_start, t_end, rpe_delta_m, segment_m, segment_s, overwrite, no_plots, engine):
+def evaluate(ctx, inputs, out_dir, fmt, bag, ref_topic, ref_times, times, association, alignment, evo_align, evo_scale,
+             up_axis, n_to_align, relations, t_max_diff, t_offset, t_start, t_end, rpe_delta_m, segment_m, segment_s,
+             overwrite, no_plots, engine):
     """Evaluate trajectories against a reference: REFERENCE ESTIMATE... (TUM, KITTI poses with or without times,
     EuRoC CSV), or --bag FILE --ref REF_TOPIC EST_TOPIC...: evo's APE/RPE, the KITTI drift metric and the
     per-segment breakdown."""
@@ -401,6 +405,12 @@ def evaluate(ctx, inputs, out_dir, fmt, bag, ref_topic, ref_times, times, associ
     if _given(ctx, "segment_m") and segment_s is not None:
         raise click.UsageError("--segment-m and --segment-s: give one (the per-segment window along the route in m, "
                                "or in time in s)")
+    if evo_align or evo_scale:         # evo's flags (-a, -s, -as): an evo_ape command line works as it is
+        evo = {(True, False): "se3", (False, True): "scale", (True, True): "sim3"}[(evo_align, evo_scale)]
+        if _given(ctx, "alignment") and alignment != evo:
+            raise click.UsageError(f"--alignment {alignment} and {'-as' if evo == 'sim3' else '-a' if evo == 'se3' else '-s'}"
+                                   f" (evo's for --alignment {evo}): give one")
+        alignment = evo
     if alignment != "4dof":
         _refuse_ignored(ctx, ("up_axis",), f"with --alignment {alignment} (the gravity axis of --alignment 4dof)")
     if alignment == "none":

@@ -1757,3 +1757,34 @@ def test_evaluate_names_a_headerless_csv_written_x_y_z_w_on_a_planar_track(tmp_p
     note = json.loads((out / "metrics.json").read_text())["estimates"]["est"]["note"]
     assert "0.00 deg RMS with its quaternions read in the other order: written x y z w where the format wants w x y z?" \
         in note, note
+
+
+def test_evaluate_names_an_estimate_of_another_world_frame_unaligned(tmp_path):
+    """A KITTI cam0 ground truth against an ENU track scored 382.9 m unaligned with no word, 1.19 m aligned (an
+    own-data review): one rigid motion fitting the positions to a tenth of the APE names the frames; a drifting
+    estimate (its fit no better than a few times) is not named."""
+    from scipy.spatial.transform import Rotation
+
+    from fusion_eval.commands.evaluate import _other_world
+
+    rng = np.random.default_rng(4)
+    t = np.arange(0.0, 200.0, 0.1)
+    p = np.column_stack([40 * np.sin(t / 20), 30 * (1 - np.cos(t / 25)), 0.5 * np.sin(t / 7)])
+    A = Rotation.from_euler("xz", [-90, -90], degrees=True)
+    cam = A.apply(p) + [5.0, -3.0, 2.0] + rng.normal(0, 0.3, p.shape)
+    ape = float(np.sqrt(np.mean(np.sum((cam - p) ** 2, axis=1))))
+    w = _other_world(p, cam, ape)
+    assert "its positions fit the reference's to 0.5" in w and "different world frames" in w and "(120 deg)" in w, w
+    drift = p + np.column_stack([1e-3 * t ** 2, -5e-4 * t ** 2, 0 * t])              # a growing error, no other frame
+    assert _other_world(p, drift, float(np.sqrt(np.mean(np.sum((drift - p) ** 2, axis=1))))) == ""
+    assert _other_world(p, p + 0.3, 0.52) == ""                                    # under a metre: not said
+    moved = p + [4.0, -2.0, 0.5] + rng.normal(0, 0.2, p.shape)                      # another origin: a constant offset
+    assert "under one rotation (0 deg) and translation" in _other_world(p, moved, 4.5)
+    th = np.radians(4.0) * np.minimum(t / 20.0, 1.0)                                   # a heading drift about the start
+    c, s_ = np.cos(th), np.sin(th)
+    turned = np.column_stack([c * p[:, 0] - s_ * p[:, 1], s_ * p[:, 0] + c * p[:, 1], p[:, 2]])
+    e = float(np.sqrt(np.mean(np.sum((turned - p) ** 2, axis=1))))
+    fit = float(np.linalg.norm(turned - turned.mean(0) - (p - p.mean(0)) @ Rotation.from_euler("z", 4.0, degrees=True)
+                               .as_matrix().T, axis=1).mean())
+    assert e > 10 * fit and e > 2.0, (e, fit)                     # what the fit alone would call another frame
+    assert _other_world(p, turned, e) == ""

@@ -413,3 +413,28 @@ def test_two_names_of_one_frame_joined_by_an_identity_static_edge_are_not_warned
                          tf_static=[("map", "world", T)])
         m = run_evaluate(["/est"], tmp_path / f"o{int(warned)}", bag=bag, ref_topic="/gt", make_plots=False)
         assert ("compared across two frames" in (m["estimates"]["est"].get("note") or "")) == warned
+
+
+@pytest.mark.parametrize("flags, alignment", [(["-as"], "sim3"), (["-a"], "se3"), (["-s"], "scale"),
+                                              (["-a", "--alignment", "se3"], "se3")])
+def test_evo_ape_flags_give_the_same_alignment(tmp_path, flags, alignment):
+    """evo's -a, -s and -as work as they do in an evo_ape command line ('No such option: -a' before; an own-data
+    review): fr2/desk ORB with -as is evo's 0.006123 m; a contradicting --alignment is refused."""
+    import json
+
+    from click.testing import CliRunner
+    from fusion_eval.cli import main
+
+    files = [str(shared_path("evo-test-data", f)) for f in ("fr2_desk_groundtruth.txt", "fr2_desk_ORB.txt")]
+    outs = {}
+    for k, extra in (("flags", flags), ("long", ["--alignment", alignment])):
+        r = CliRunner().invoke(main, ["-q", "evaluate", *files, *extra, "--no-plots", "-o", str(tmp_path / k)])
+        assert r.exit_code == 0, r.output
+        outs[k] = json.loads((tmp_path / k / "metrics.json").read_text())
+    assert outs["flags"]["evaluation"]["alignment"] == alignment
+    a, b = (o["estimates"]["fr2_desk_ORB"]["ape"]["translation_m"]["rmse"] for o in (outs["flags"], outs["long"]))
+    assert a == b
+    if alignment == "sim3":
+        assert abs(a - 0.006123) < 5e-7
+    r = CliRunner().invoke(main, ["-q", "evaluate", *files, "-a", "--alignment", "origin", "-o", str(tmp_path / "x")])
+    assert r.exit_code == 2 and "--alignment origin and -a (evo's for --alignment se3): give one" in r.output
