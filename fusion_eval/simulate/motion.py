@@ -48,10 +48,13 @@ def _q(u):
 
 def _turn(angle_deg: float, speed: float, radius: float, tau: float, slope_rad: float = 0.0) -> list[Segment]:
     """A turn by ``angle_deg`` at constant speed and slope, and the straight run-out that ends it (the
-    yaw-rate ramps in and out, each over ``tau``, make the turn exactly ``angle_deg``)."""
+    yaw-rate ramps in and out, each over ``tau``, make the turn exactly ``angle_deg``). A turn shorter than ``tau``
+    ramps over its own length: a ramp that did not finish left the run-out to start from the full rate, a step in
+    the angular rate (3 rad/s for a 25 m/s, 6 m radius corner) and a turn of the wrong angle (a stress test)."""
     w = np.sign(angle_deg) * speed / radius
-    return [Segment(abs(np.radians(angle_deg) / w), speed, w, slope_rad, tau),
-            Segment(tau, speed, 0.0, slope_rad, tau)]
+    duration = abs(np.radians(angle_deg) / w)
+    tau = min(tau, duration)
+    return [Segment(duration, speed, w, slope_rad, tau), Segment(tau, speed, 0.0, slope_rad, tau)]
 
 
 def urban() -> list[Segment]:
@@ -125,12 +128,14 @@ def from_waypoints_yaml(path: Path) -> tuple[list[Segment], float, int]:
     turn = np.angle(np.exp(1j * np.diff(np.concatenate([head, head[:1]]) if closed else head)))
     tangent = r * np.tan(np.abs(turn) / 2)
     ramp, tau_v = 1.0, 3.0
+    # each turn's run-out lasts its ramp, which a turn shorter than 1 s shortens to its own length (see _turn)
+    runout = np.minimum(ramp, np.abs(turn) * r / sp[:turn.size])
     segs = [Segment(t_still, 0.0, transition_s=0.0)]
     if closed:   # accelerate once; the loop then starts at the last leg's speed, as every later lap does
         segs.append(Segment(tau_v, float(sp[-1]), 0.0, 0.0, tau_v))
     for i in range(n):
         prev_turn = i - 1 if i > 0 else (n - 1 if closed else None)
-        before = 0.0 if prev_turn is None else tangent[prev_turn] + sp[prev_turn] * ramp   # tangent + run-out
+        before = 0.0 if prev_turn is None else tangent[prev_turn] + sp[prev_turn] * runout[prev_turn]  # + run-out
         after = tangent[i] if i < turn.size else 0.0
         straight = L[i] - before - after
         v_prev = sp[prev_turn] if prev_turn is not None else 0.0
