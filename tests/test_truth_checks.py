@@ -335,3 +335,28 @@ def test_an_estimate_scored_on_a_fraction_of_its_poses_is_said_with_the_settings
     ev = evaluate(truth, fixes, "gnss", tmax, 100.0, association="interpolate")
     assert ev.matched_poses == tf.size and sparsely_matched({"gnss": ev}, "interpolate", tmax) == []
     assert ev.metrics["ape"]["translation_m"]["rmse"] < 1e-3          # the truth interpolated at each fix's stamp
+
+
+def test_a_gnss_jump_is_said_from_its_run_of_large_innovations_without_ground_truth():
+    """A simulated GNSS jump of 10 m for 30 s ran to a fused 2.93 m against 0.47 with no word: its NIS, 7.2 on average
+    with 85 % inside, passed every rule, and the position NEES (32x) was inside its interval on 69 % of epochs (a
+    stress test). Its innovations beyond the 99.9 % bound come in runs (9 and 13 there), a consistent filter's one at
+    a time (the nine real drives: at most 1 in a row)."""
+    from scipy.stats import chi2
+
+    from fusion_eval.evaluation.run_metrics import inconsistent_streams, jumps
+
+    rng = np.random.default_rng(1)
+    t = np.arange(300.0)
+    clean = chi2.rvs(3, size=300, random_state=rng)
+    clean[[40, 41, 200]] = 40.0                                   # two outliers in a row and one alone: no jump
+    assert jumps("gnss", {"values": clean, "t_s": t, "dof": 3}) == ""
+    jumped = clean.copy()
+    jumped[100:109] = 60.0
+    jumped[130:143] = 45.0
+    w = jumps("gnss", {"values": jumped, "t_s": t + 1e9, "dof": 3})
+    assert w.startswith("gnss: 2 runs of 3 or more consecutive innovations") and "at 100.0-108.0 s, 130.0-142.0 s" in w
+    assert "gnss.gate_prob=0.999" in w
+    assert w in inconsistent_streams({"gnss": {"values": jumped, "t_s": t, "dof": 3}})
+    assert jumps("gnss", {"values": jumped, "t_s": t, "dof": 3, "rejected": 22}) == ""      # gated: counted elsewhere
+    assert jumps("lidar", {"values": jumped, "t_s": t, "dof": 3}) == ""                     # relative: heavy-tailed

@@ -94,8 +94,8 @@ def _warnings(name: str, prep, filt) -> tuple[str, ...]:
     """What ``run`` would warn of for this variant: the prepared data's warnings (already said on stderr by the
     preparation) and the streams its filter does not follow (said here: an accelerometer in g gave 184 m in the
     table with no word, where run named four streams)."""
-    misfit = inconsistent_streams({k: {"values": d["nis"], "dof": d["dof"], **({"adapt": d["adapt"]} if "adapt" in d else {})}
-                                   for k, d in filt.nis.items()})
+    misfit = inconsistent_streams({k: {"values": d["nis"], "dof": d["dof"], "t_s": d["t_s"], "rejected": d.get("rejected", 0),
+                                       **({"adapt": d["adapt"]} if "adapt" in d else {})} for k, d in filt.nis.items()})
     for w in misfit:
         log.warning("variant %s: %s", name, w)
     return (*prep.applied.get("data_warnings", ()), *misfit)
