@@ -26,6 +26,7 @@ from ...datasets import kitti_oxts
 from ...datasets.streams import StreamSpec
 from ...datasets.vectors import read_vectors
 from ...degrade import degrade_vectors
+from ...geo import enu_rotation
 from ...so3 import euler_rpy_to_matrix, skew
 from ...types import VectorSeries
 from ..layout import CANONICAL
@@ -57,8 +58,12 @@ def _from_oxts(entry: dict, ctx) -> VectorSeries:
     v = pk.values
     R = euler_rpy_to_matrix(v[:, kitti_oxts.ROLL], v[:, kitti_oxts.PITCH], v[:, kitti_oxts.YAW])
     up = np.einsum("nj,nj->n", R[:, 2, :], v[:, kitti_oxts.VF:kitti_oxts.VU + 1])   # vu rotated: the vertical rate
+    enu = np.column_stack([v[:, kitti_oxts.VE], v[:, kitti_oxts.VN], up])          # in the local level frame
+    if ctx.origin is not None:                                   # into the origin's ENU frame, the positions' own
+        lat0, lon0 = ctx.origin[0], ctx.origin[1]
+        enu = np.einsum("nij,nj->ni", enu_rotation(v[:, kitti_oxts.LAT], v[:, kitti_oxts.LON], lat0, lon0), enu)
     acc = kitti_oxts.accuracy(pk, kitti_oxts.VEL_ACC)
-    return VectorSeries(t_s=pk.t_s, values=np.column_stack([v[:, kitti_oxts.VE], v[:, kitti_oxts.VN], up]),
+    return VectorSeries(t_s=pk.t_s, values=enu,
                         std=np.repeat(acc[:, None], 3, axis=1), filled=pk.filled, source=str(pk.stamps_path),
                         lines=np.arange(1, pk.t_s.size + 1), what="GNSS velocity")
 
