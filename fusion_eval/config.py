@@ -108,6 +108,11 @@ CORE: dict[str, Spec] = {
     "odometer.time_offset_s": S(None, "added to odometer stamps; null = the manifest's value (default 0)", "float", nullable=True),
     "odometer.added_noise_std_mps": S(0.05, "white noise added to an odometer stream the manifest marks 'degrade' "
                                             "(KITTI's OXTS vf is the GPS/INS solution), m/s", nonneg=True, reads="data"),
+    "odometer.scale": S("auto", "the odometer's scale factor (its reading over the true speed), divided out of its "
+                                "readings: a number, or 'auto' = estimated from the fused GNSS (the odometer's speed "
+                                "dead-reckoned along the gyro's heading against the GNSS's displacement over 30 s "
+                                "windows) and applied where it lies over 3 std from 1; 1 without GNSS",
+                                "float", positive=True, auto=True, reads="data"),
     "init.pos_std_m": S(0.1, "initial position std, m", positive=True, reads="filter"),
     "init.vel_std_mps": S(0.1, "initial velocity std, m/s", positive=True, reads="filter"),
     "init.roll_pitch_std_deg": S(0.1, "initial roll and pitch std, deg", positive=True, reads="filter"),

@@ -289,3 +289,27 @@ def test_enu_rotation_turns_local_axes_into_the_origins_frame():
         moved = np.array(pymap3d.geodetic2enu(*step, lat0, lon0, 100.0)) - p
         assert np.abs(moved - R[:, axis]).max() < 1e-6
     assert np.allclose(enu_rotation(lat0, lon0, lat0, lon0)[0], np.eye(3), atol=1e-15)
+
+
+def test_the_odometer_scale_is_estimated_from_the_gnss_and_divided_out(tmp_path):
+    """A wheel odometer 2 % fast, fused with no scale state, biases the velocity; with odometer.scale 'auto' the
+    scale is estimated from the GNSS (no ground truth) and divided out of the readings, and the fused estimate is
+    as good as with the true scale given. Without GNSS it is not estimated."""
+    d = _sim(tmp_path / "odo", "--profile", "urban", "--duration", "600", "--set", "odometer.scale=1.02",
+             "--set", "output.layout=csv")
+    from fusion_eval.calibration import odometer_scale
+
+    ds = load_dataset(d)
+    est = odometer_scale.estimate(ds.odometer, ds.gnss, ds.imu)
+    assert abs(est["scale"] - 1.02) < max(0.004, 3 * est["std"]) and est["windows"] >= 10, est
+    ape = {}
+    for name, scale in (("auto", "auto"), ("true", "1.02"), ("none", "1.0")):
+        _, prep, out = _filter(d, "filter.odometer_update=true", "filter.lidar_update=none", f"odometer.scale={scale}")
+        gt = prep.groundtruth
+        i = np.searchsorted(gt.t_s, out.fused.t_s).clip(0, len(gt) - 1)
+        ape[name] = float(np.sqrt(np.mean(np.sum((out.fused.p_w_m - gt.p_w_m[i]) ** 2, axis=1))))
+        if name == "auto":
+            assert prep.applied["odometer_scale"]["scale"] == pytest.approx(est["scale"])
+    assert ape["auto"] < 0.8 * ape["none"] and ape["auto"] < 1.15 * ape["true"], ape
+    _, prep, _ = _filter(d, "filter.odometer_update=true", "filter.use_gnss=false", "filter.lidar_update=relative")
+    assert prep.applied["odometer_scale"]["scale"] == 1.0 and "not estimated" in prep.applied["odometer_scale"]["method"]

@@ -181,6 +181,13 @@ def _estimates(applied: dict) -> list[str]:
                    f"; lever-arm error (x, y): {lever[0] * 100:.1f}, {lever[1] * 100:.1f} cm +/- {lstd[0] * 100:.1f}, "
                    f"{lstd[1] * 100:.1f} (jackknife), from {x['method']}; applied to the lidar poses: "
                    f"{' and '.join(did) if did else 'neither'}.")
+    o = applied.get("odometer_scale")
+    if o and o.get("applied") is False:
+        out.append(f"- Odometer scale factor (its reading over the true speed): {o['scale_estimated']:.5f} +/- {o['std']:.5f} "
+                   f"(jackknife), from {o['method']}: within 3 std of 1, not applied.")
+    elif o:
+        out.append(f"- Odometer scale factor (its reading over the true speed), divided out of its readings: {o['scale']:.5f}"
+                   + (f" +/- {o['std']:.5f} (jackknife), from {o['method']}." if "std" in o else f", {o['method']}."))
     n = applied.get("nhc")
     if n:
         out.append(f"- Non-holonomic constraint: {n}.")
