@@ -332,3 +332,18 @@ def test_compiled_decimal_stamps_equal_the_numpy_string_reading(per_ns):
     assert decimal_to_ns(np.array(["--1", "+-2", "\u0661\u0662"]), per_ns)[1].all()
     assert decimal_to_ns(np.array(["99999999999999999999"]), per_ns)[1].all()
     assert decimal_to_ns(np.array([], dtype=str), per_ns)[0].size == 0
+
+
+def test_a_skipped_csv_column_may_hold_text(tmp_path):
+    """A ROS export's frame_id column was refused ('expected a number, got imu_link') though the manifest skips it
+    with '_' (an own-data review); the columns read stay checked, through both of the readers."""
+    rows = [f"{1.0 + 0.01 * i:.2f},imu_link,0,0,9.8,0,0,0.1" for i in range(40)]
+    (tmp_path / "imu.csv").write_text("t,frame_id,ax,ay,az,wx,wy,wz\n" + "\n".join(rows) + "\n")
+    imu = {"format": "csv", "path": "imu.csv", "columns": ["t", "_frame", "ax", "ay", "az", "wx", "wy", "wz"]}
+    ds = load_dataset(_manifest(tmp_path, {"imu": imu}))
+    assert np.allclose(ds.imu.f_b_mps2[:, 2], 9.8) and np.allclose(ds.imu.w_b_rps[:, 2], 0.1) and len(ds.imu.t_s) == 40
+    rows.insert(10, "# a comment line: the line-by-line reader")
+    rows[20] = rows[20].replace(",0.1", ",x")
+    (tmp_path / "imu.csv").write_text("t,frame_id,ax,ay,az,wx,wy,wz\n" + "\n".join(rows) + "\n")
+    with pytest.raises(DataFormatError, match=r"imu.csv:22: .*expected a number, got 'x'"):
+        load_dataset(_manifest(tmp_path, {"imu": imu}))

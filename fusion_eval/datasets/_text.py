@@ -55,15 +55,16 @@ _COMPRESSED = ((b"\x1f\x8b", "gzip"), (b"BZh", "bzip2"), (b"\xfd7zXZ", "xz"), (b
 
 
 def parse_numeric_rows(path: Path, text: str, ncols: int | tuple[int, ...], what: str,
-                       comment: str = "#", delimiter: str | None = None) -> tuple[np.ndarray, np.ndarray]:
+                       comment: str = "#", delimiter: str | None = None,
+                       skipped: tuple[int, ...] = ()) -> tuple[np.ndarray, np.ndarray]:
     """Parse numeric rows, skipping blank and comment lines.
 
     Returns the ``(N, ncols)`` array and the 1-based line number of each row. A row with the wrong
     number of values, a value that is not a number, or a NaN/inf raises :class:`DataFormatError`
-    naming the line and what was expected.
+    naming the line and what was expected. The columns ``skipped`` may hold anything and read as 0.
     """
     allowed = (ncols,) if isinstance(ncols, int) else tuple(ncols)
-    fast = _parse_clean(text, allowed, comment, delimiter)
+    fast = None if skipped else _parse_clean(text, allowed, comment, delimiter)
     if fast is not None:
         return fast
     rows: list[list[float]] = []
@@ -81,6 +82,7 @@ def parse_numeric_rows(path: Path, text: str, ncols: int | tuple[int, ...], what
                     "locales? write ',' or blanks between values and '.' for decimals)" if ";" in s else "")
             raise DataFormatError(path, lineno, f"{what} must have {exp} values per row, got {len(parts)}{hint}")
         width = len(parts)
+        parts = ["0" if i in skipped else p for i, p in enumerate(parts)]
         try:
             vals = [float(p) for p in parts]
         except ValueError:

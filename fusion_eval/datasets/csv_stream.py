@@ -64,13 +64,14 @@ def _has_number(line: str, delimiter: str | None) -> bool:
 
 
 def load_table(path: Path, what: str, ncols_min: int, delimiter: str | None = ",", stamp_col: int | None = None,
-               ncols_exact: int | None = None, per_ns: int = 1):
+               ncols_exact: int | None = None, per_ns: int = 1, skipped: tuple[int, ...] = ()):
     """Numeric rows of a delimited text file, skipping a leading header and ``#`` lines.
 
     Returns ``(rows (N, k) float, the stamps of column ``stamp_col`` as int64 nanoseconds or None, 1-based line of
     each row)``; the stamps are written in a unit of ``per_ns`` ns: integers for ns, decimals read from their
     text for ms and us. pandas' C parser reads it (with Python's correctly rounded float parse); anything it cannot
-    read as a clean numeric table is re-read line by line to name the line and what was expected.
+    read as a clean numeric table is re-read line by line to name the line and what was expected. The columns
+    ``skipped`` (a manifest's '_' columns) may hold anything (a ROS export's frame_id), and read as 0.
     """
     import pandas as pd
 
@@ -128,6 +129,9 @@ def load_table(path: Path, what: str, ncols_min: int, delimiter: str | None = ",
                     raise ValueError("a stamp that is no finite int64 of nanoseconds")   # the slow reader names its line
                 first_col[bad] = np.round(near).astype(np.int64)
             df[df.columns[stamp_col]] = 0.0
+        for c in skipped:                    # whatever they hold ('imu_link': a frame_id was refused as no number)
+            if c < df.shape[1]:
+                df[df.columns[c]] = 0.0
         rows = df.to_numpy(float)
         ok = rows.shape == (line_no.size, rows.shape[1]) and rows.shape[1] >= ncols_min and np.isfinite(rows).all()
     except (ValueError, TypeError, OverflowError, IndexError, pd.errors.ParserError):
@@ -136,7 +140,7 @@ def load_table(path: Path, what: str, ncols_min: int, delimiter: str | None = ",
         lines = text.splitlines()
         masked = "\n".join("#" if i < head else ln for i, ln in enumerate(lines))
         rows, ln = parse_numeric_rows(path, masked, ncols_exact or tuple(range(ncols_min, 64)), what,
-                                      delimiter=None if sep == r"\s+" else sep)
+                                      delimiter=None if sep == r"\s+" else sep, skipped=skipped)
         if stamp_col is not None:
             t = rows[:, stamp_col]
             bad = np.flatnonzero(t != np.round(t)) if per_ns == 1 else np.array([], int)
@@ -228,13 +232,18 @@ def _choice(entry: dict, key: str, table: dict, default: str, ctx: ReadContext):
     return table[v]
 
 
+def _skipped(entry: dict) -> tuple[int, ...]:
+    """The indices of a manifest's '_' columns (skipped: they may hold text)."""
+    return tuple(i for i, c in enumerate(entry["columns"]) if c.startswith("_"))
+
+
 def _table(entry: dict, kind: str, ctx: ReadContext, what: str):
     named = _columns(entry, kind, ctx)
     per_ns = _choice(entry, "time_unit", TIME_UNITS, "s", ctx)
     path = ctx.path(entry)
     rows, ns, lines = load_table(path, f"{what[:-1]}: {' '.join(entry['columns'])})", len(entry["columns"]),
                                  entry.get("delimiter", ","), stamp_col=None if per_ns is None else named["t"],
-                                 ncols_exact=len(entry["columns"]), per_ns=per_ns or 1)
+                                 ncols_exact=len(entry["columns"]), per_ns=per_ns or 1, skipped=_skipped(entry))
     if rows.shape[1] != len(entry["columns"]):
         raise DataFormatError(path, int(lines[0]), f"{what}: expected {len(entry['columns'])} columns (as 'columns' names), "
                                                    f"got {rows.shape[1]}")
@@ -278,7 +287,8 @@ def first_fix(entry: dict, ctx: ReadContext):
     named = _columns(entry, "gnss", ctx)
     if not {"lat", "lon", "alt"} <= set(named):
         return None
-    rows, _, _ = load_table(ctx.path(entry), "GNSS CSV", len(entry["columns"]), entry.get("delimiter", ","))
+    rows, _, _ = load_table(ctx.path(entry), "GNSS CSV", len(entry["columns"]), entry.get("delimiter", ","),
+                            skipped=_skipped(entry))
     return tuple(float(rows[0, named[k]]) for k in ("lat", "lon", "alt"))
 
 
