@@ -133,6 +133,19 @@ def dRa_dq(q, a):
 
 
 @njit(cache=True)
+def quat_of_rotvec(phi):
+    """``q{phi}``: the unit quaternion (w, x, y, z) of the rotation vector ``phi``."""
+    th = np.sqrt(phi @ phi)
+    q = np.empty(4)
+    q[0] = np.cos(0.5 * th)
+    if th > 1e-12:
+        q[QV0:QV1] = np.sin(0.5 * th) / th * phi
+    else:
+        q[QV0:QV1] = 0.5 * phi
+    return q
+
+
+@njit(cache=True)
 def nominal_F(q, a_b, w_b, dt):
     """Jacobian F (16x16) of one mechanization step with respect to the full state."""
     R = quat_to_rot(q)
@@ -146,14 +159,7 @@ def nominal_F(q, a_b, w_b, dt):
         for j in range(3):
             F[NP_ID + i, NBA_ID + j] = -0.5 * dt * dt * R[i, j]
             F[NV_ID + i, NBA_ID + j] = -dt * R[i, j]
-    phi = w_b * dt
-    th = np.sqrt(phi @ phi)
-    qw = np.empty(4)
-    qw[0] = np.cos(0.5 * th)
-    if th > 1e-12:
-        qw[QV0:QV1] = np.sin(0.5 * th) / th * phi
-    else:
-        qw[QV0:QV1] = 0.5 * phi
+    qw = quat_of_rotvec(w_b * dt)
     F[NQ_ID:NQ_ID + 4, NQ_ID:NQ_ID + 4] = quat_R(qw)
     F[NQ_ID:NQ_ID + 4, NBG_ID:NBG_ID + 3] = -0.5 * dt * xi(q)
     return F
@@ -170,14 +176,7 @@ def nominal_Q(q, a_b, w_b, dt, prm, qscale):
     every KITTI gap (kitti-00 0.870 m against 0.758)."""
     R = quat_to_rot(q)
     _, Qd = discrete_model(R, a_b, w_b, dt, prm, qscale, int(prm[PRM_DISC]))
-    phi = w_b * dt
-    th = np.sqrt(phi @ phi)
-    qw = np.empty(4)
-    qw[0] = np.cos(0.5 * th)
-    if th > 1e-12:
-        qw[QV0:QV1] = np.sin(0.5 * th) / th * phi
-    else:
-        qw[QV0:QV1] = 0.5 * phi
+    qw = quat_of_rotvec(w_b * dt)
     qe = quat_R(qw) @ q
     M = np.zeros((N_NOM, N_CANON))
     for i in range(3):
