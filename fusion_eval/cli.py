@@ -396,8 +396,8 @@ def evaluate(ctx, inputs, out_dir, fmt, bag, ref_topic, ref_times, times, associ
              up_axis, n_to_align, relations, t_max_diff, t_offset, t_start, t_end, rpe_delta_m, segment_m, segment_s,
              overwrite, no_plots, engine):
     """Evaluate trajectories against a reference: REFERENCE ESTIMATE... (TUM, KITTI poses with or without times,
-    EuRoC CSV), or --bag FILE --ref REF_TOPIC EST_TOPIC...: evo's APE/RPE, the KITTI drift metric and the
-    per-segment breakdown."""
+    EuRoC CSV; the REFERENCE may be a dataset folder or manifest: its ground truth), or --bag FILE --ref REF_TOPIC
+    EST_TOPIC...: evo's APE/RPE, the KITTI drift metric and the per-segment breakdown."""
     _say_compiling(ctx.obj["quiet"])
     from .commands.evaluate import run_evaluate
     from .evaluation.keys import DEFAULT_RELATIONS

@@ -178,6 +178,13 @@ def _say_models(cfg: dict, ds: Dataset, applied: dict, across: str = "") -> None
         applied["lidar_frame"] = {"frame": frame, "why": why}
 
 
+def ground_truth(ds: Dataset) -> PoseSeries:
+    """The dataset's ground truth as a run scores against it (``groundtruth.tum``): on the clock of its source (the
+    manifest's offset applied), without filled-in packets (they are not truth)."""
+    gt = shifted(ds.groundtruth, float(ds.description.get("time_offset_s", {}).get("groundtruth", 0.0)))
+    return gt.select(~gt.filled)
+
+
 def needed_streams(cfg: dict) -> dict[str, tuple[str, str]]:
     """The streams the configured filter needs, each with the key that asks for it and the setting that
     would do without it."""
@@ -241,9 +248,7 @@ def prepare(ds: Dataset, cfg: dict) -> Prepared:
     more_warnings += timing_applied.pop("time_warnings", [])
     applied.update(timing_applied)
 
-    # --- ground truth: the same clock as its source; filled-in packets are not truth
-    gt = shifted(ds.groundtruth, float(ds.description.get("time_offset_s", {}).get("groundtruth", 0.0)))
-    gt = gt.select(~gt.filled)
+    gt = ground_truth(ds)
     placeholder = plausible.truth_orientation_placeholder(gt)
     if placeholder:
         applied["truth_orientation_placeholder"] = True     # no attitude figure against it means anything

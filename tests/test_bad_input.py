@@ -1791,3 +1791,27 @@ def test_evaluate_names_an_estimate_of_another_world_frame_unaligned(tmp_path):
                                .as_matrix().T, axis=1).mean())
     assert e > 10 * fit and e > 2.0, (e, fit)                     # what the fit alone would call another frame
     assert _other_world(p, turned, e) == ""
+
+
+def test_evaluate_takes_a_dataset_as_the_reference(tmp_path):
+    """A user with an estimate and the drive it came from had to run first for groundtruth.tum (an own-data review):
+    a dataset folder or manifest as the reference is its ground truth as a run scores against it."""
+    import json
+    from dataclasses import replace
+
+    from conftest import KITTI00
+    from fusion_eval.datasets.manifest import load_dataset
+    from fusion_eval.datasets.tum import format_tum
+    from fusion_eval.prepare import ground_truth
+
+    gt = ground_truth(load_dataset(KITTI00))
+    (tmp_path / "est.tum").write_text(format_tum(replace(gt, p_w_m=gt.p_w_m + [0.3, 0.0, 0.0])))
+    for ref in (KITTI00, KITTI00 / "dataset.yaml"):
+        out = tmp_path / f"o{ref.suffix}"
+        r = CliRunner().invoke(main, ["-q", "evaluate", str(ref), str(tmp_path / "est.tum"), "--no-plots", "-o", str(out)])
+        assert r.exit_code == 0, r.output
+        e = json.loads((out / "metrics.json").read_text())["estimates"]["est"]
+        assert e["matched_poses"] == len(gt) and abs(e["ape"]["translation_m"]["rmse"] - 0.3) < 1e-6
+    r = CliRunner().invoke(main, ["evaluate", str(KITTI00), str(tmp_path / "est.tum"), "--ref-times", str(tmp_path / "est.tum"),
+                                  "-o", str(tmp_path / "x")])
+    assert r.exit_code == 2 and "--ref-times applies to a KITTI pose file" in r.output

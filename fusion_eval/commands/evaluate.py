@@ -15,7 +15,7 @@ from pathlib import Path
 
 import numpy as np
 
-from ..datasets.trajectory_file import BY_INDEX, as_series, read_bag_trajectories, read_trajectory
+from ..datasets.trajectory_file import BY_INDEX, TrajectoryFile, as_series, read_bag_trajectories, read_trajectory
 from ..errors import ConfigError, DataRangeError
 from ..evaluation import keys
 from ..evaluation.estimates import evaluate_series, validate_options
@@ -58,7 +58,8 @@ def read_inputs(inputs: list, bag: Path | None, ref_topic: str | None, fmt: str,
         # the reference against itself: an APE of 0.000 with exit 0 says nothing (with other times or an offset it
         # is a test of their effect, and is run)
         raise ConfigError(f"{twice[1]}: given as an estimate and as the reference ({twice[0]}), with the same stamps")
-    ref, ests = read_trajectory(inputs[0], ref_times, fmt), [read_trajectory(p, times, fmt) for p in inputs[1:]]
+    ref = _dataset_reference(inputs[0], ref_times) or read_trajectory(inputs[0], ref_times, fmt)
+    ests = [read_trajectory(p, times, fmt) for p in inputs[1:]]
     for f in ests:
         # paired by frame index, one pose missing mid-file would shift every later pair, silently
         if ref.stamps == BY_INDEX and f.stamps == BY_INDEX and f.traj.num_poses != ref.traj.num_poses:
@@ -66,6 +67,28 @@ def read_inputs(inputs: list, bag: Path | None, ref_topic: str | None, fmt: str,
                                  f"{ref.traj.num_poses}: KITTI pose files without times are paired by frame index, so "
                                  "they must have one pose per frame each (give both times files: --ref-times, --times)")
     return ref, ests
+
+
+def _dataset_reference(path, ref_times) -> TrajectoryFile | None:
+    """A dataset (a folder: a manifest's, a KITTI raw drive, an EuRoC folder; or a manifest ``.yaml``) as the
+    reference: its ground truth as a run scores against it (``prepare.ground_truth``), or None for a trajectory file.
+    (A user with a run's estimate and the drive it came from had to run first to get ``groundtruth.tum``; an
+    own-data review.)"""
+    p = Path(path)
+    if not (p.is_dir() or p.suffix in (".yaml", ".yml")):
+        return None
+    if ref_times is not None:
+        raise ConfigError(f"--ref-times applies to a KITTI pose file; {p} is a dataset, whose ground truth has its stamps")
+    from ..datasets.manifest import load_dataset
+    from ..evaluation.trajectory import to_evo
+    from ..prepare import ground_truth
+
+    ds = load_dataset(p)
+    if ds.groundtruth is None:
+        raise ConfigError(f"{p}: dataset {ds.name!r} has no groundtruth stream to evaluate against")
+    gt = ground_truth(ds)
+    return TrajectoryFile(traj=to_evo(gt, "groundtruth"), format="dataset", stamps="the dataset's stamps",
+                          source=f"{ds.name} ground truth ({gt.source})")
 
 
 def run_evaluate(inputs: list, out_dir: Path, ref_times: Path | None = None, times: Path | None = None,
