@@ -1435,6 +1435,14 @@ def test_a_clock_of_seconds_of_the_day_or_of_the_gps_week_gets_its_epoch():
     assert "seconds of the GPS week (GPS time, 18 s ahead of UTC)" in hint
     off = float(hint.split("add ")[1].split(" s")[0])
     assert abs((tow + 0.2 + off) - (t_posix + 0.2)) < 1e-6                 # the offset puts the fix on POSIX time
+    # a Sunday: the week's seconds are the day's plus 18 (named the day's, 18 s off; a review); and before 2006
+    for t_posix, leap in ((1767225600.0 + 3 * 86400 + 5000.0, 18), (1104537600.0 + 5000.0, 13)):   # 2026-01-04, 2005-01-01
+        tow = (t_posix - 315964800.0 + leap) % 604800.0
+        hint = clock_hint("GNSS", tow, "IMU", t_posix)
+        assert f"seconds of the GPS week (GPS time, {leap} s ahead of UTC)" in hint, hint
+        assert abs(tow + float(hint.split("add ")[1].split(" s")[0]) - t_posix) < 1e-6
+    hint = clock_hint("GNSS", 5000.0, "IMU", 1767225600.0 + 3 * 86400 + 5000.0)            # the day's, that Sunday
+    assert "seconds of the day (UTC)" in hint
 
 
 def test_evaluate_names_a_tum_file_stamped_in_nanoseconds(tmp_path):
@@ -1704,7 +1712,7 @@ def test_a_fused_position_far_outside_its_covariance_is_a_warning():
     assert w.startswith("the fused attitude's NEES is 5.2e+04 for 3 dof") and "an IMU mounted off the vehicle's axes" in w
     assert "holds 4.90 deg about the body's x, y, z (-4.90, +0.03, -0.07 deg" in w and "lidar" not in w
     # with a lidar stream its extrinsic is named too (a lidar 20 mrad off in yaw was blamed on the IMU; a stress test)
-    (w,) = overconfident({"attitude": att}, {"time_offset_s": {"imu": 0.0, "lidar": 0.0}})
+    (w,) = overconfident({"attitude": att}, {}, lidar_fused=True)
     assert "or the lidar's rotation to the IMU off its calibration (lidar.extrinsic_rotation=auto" in w
     # an error that wanders is a drift, not a mount (a lidar fused as absolute poses on kitti-00; a review)
     (w,) = overconfident({"attitude": {**att, "median_error_deg": [0.0, 0.1, 1.69], "error_std_deg": [0.1, 0.1, 0.83]}}, {})

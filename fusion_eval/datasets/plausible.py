@@ -292,27 +292,41 @@ BOOT_CLOCK_MAX_S = 1e6
 POSIX_RANGE_S = (1e8, 4.1e9)
 
 
-# GPS time (from 1980-01-06, POSIX 315964800) runs ahead of UTC by the leap seconds since: (from POSIX t, seconds)
+# GPS time (from 1980-01-06, POSIX 315964800) runs ahead of UTC by the leap seconds since: (from, seconds), the
+# dates of IERS's bulletins C
 GPS_EPOCH_POSIX_S = 315964800.0
-GPS_LEAP_S = ((1483228800.0, 18), (1435708800.0, 17), (1341100800.0, 16), (1230768000.0, 15), (1136073600.0, 14))
+_LEAPS = ("1981-07-01", "1982-07-01", "1983-07-01", "1985-07-01", "1988-01-01", "1990-01-01", "1991-01-01", "1992-07-01",
+          "1993-07-01", "1994-07-01", "1996-01-01", "1997-07-01", "1999-01-01", "2006-01-01", "2009-01-01", "2012-07-01",
+          "2015-07-01", "2017-01-01")
 # a start this close to the other clock's time of day (or of the GPS week) is that clock, not a boot clock
-CLOCK_EPOCH_MATCH_S = 600.0
+CLOCK_EPOCH_MATCH_S = 120.0
+
+
+def gps_leap_s(t_posix: float) -> int:
+    """GPS time minus UTC (s) at the POSIX time ``t_posix``."""
+    from datetime import datetime, timezone
+
+    return sum(t_posix >= datetime.fromisoformat(d).replace(tzinfo=timezone.utc).timestamp() for d in _LEAPS)
 
 
 def _clock_epoch(t_near0: float, t_posix: float):
     """``(offset_s, what, epoch)`` where a clock near 0 is the seconds of the day (UTC) or of the GPS week of the
     POSIX one: a receiver's GPS-style file ran from 46534 s against KITTI's POSIX stamps and got 'add their starts'
-    difference', 2 s off the day's midnight (an own-data review). None otherwise."""
+    difference', 2 s off the day's midnight (an own-data review). The nearer of the two where both fit (on a Sunday
+    the week's seconds are the day's plus the leap seconds; a review). None otherwise."""
+    cands = []
     day0 = np.floor(t_posix / 86400.0) * 86400.0
-    if t_near0 < 86400.0 and abs((t_posix - day0) - t_near0) < CLOCK_EPOCH_MATCH_S:
-        return day0, "seconds of the day (UTC)", "that day's midnight, UTC"
-    leap = next((n for since, n in GPS_LEAP_S if t_posix >= since), 0)
+    if t_near0 < 86400.0:
+        cands.append((abs((t_posix - day0) - t_near0), day0, "seconds of the day (UTC)", "that day's midnight, UTC"))
+    leap = gps_leap_s(t_posix)
     gps = t_posix - GPS_EPOCH_POSIX_S + leap
     week = np.floor(gps / 604800.0)
-    if t_near0 < 604800.0 and abs((gps - week * 604800.0) - t_near0) < CLOCK_EPOCH_MATCH_S:
-        return (GPS_EPOCH_POSIX_S + week * 604800.0 - leap, f"seconds of the GPS week (GPS time, {leap} s ahead of UTC)",
-                f"the start of GPS week {week:.0f} in POSIX time")
-    return None
+    if t_near0 < 604800.0:
+        cands.append((abs((gps - week * 604800.0) - t_near0), GPS_EPOCH_POSIX_S + week * 604800.0 - leap,
+                      f"seconds of the GPS week (GPS time, {leap} s ahead of UTC)",
+                      f"the start of GPS week {week:.0f} in POSIX time"))
+    cands = [c for c in cands if c[0] < CLOCK_EPOCH_MATCH_S]
+    return min(cands)[1:] if cands else None
 
 
 def clock_hint(a: str, a_t0: float, b: str, b_t0: float) -> str:
@@ -398,6 +412,7 @@ def velocity_mismatch(poses) -> str:
 # stating 0.5 m sat 2.5 m from the truth, fused 2.54 m against 0.79, with no word (an own-data review)
 MIN_GNSS_OFFSET_M = 3.0
 MIN_GNSS_OFFSET_STATED_M, MIN_OFFSET_STATED_SIGMAS = 1.0, 3.0
+MIN_ANTENNA_DATUM_M = 5.0      # an offset under this may be an antenna's lever arm as well as an origin or a datum
 # with the origin taken from the first fix, that fix's own error is carried by every fix: said beyond this and
 # MIN_OFFSET_SIGMAS standard errors of the median (2.6 m where 0.54 was right, no word; a review)
 MIN_FIRST_FIX_OFFSET_M, MIN_OFFSET_SIGMAS = 1.0, 5.0
@@ -474,9 +489,14 @@ def gnss_offset(gnss, groundtruth, origin_from_first_fix: bool = False, lever_b_
                     "the default), whose own error every fix then carries, while the ground truth has a frame of its "
                     "own; give geodetic_origin as the ground truth frame's origin (lat, lon, alt)")
         return ""
+    # a few metres: an antenna whose lever arm is not given, as likely as a datum (kitti-00's GNSS raised 1.5 m, stated
+    # 0.3 m, was called the geoid; a review)
+    arm = ("" if float(np.linalg.norm(off)) > MIN_ANTENNA_DATUM_M else
+           ", or an antenna offset from the IMU whose lever arm is not given (gnss.lever_arm_b_m; one fixed in the body "
+           "reads as a constant offset on a straight drive)")
     what = ("an altitude above mean sea level against an ellipsoidal origin, or the other way round (the geoid lies "
             "-100 to +85 m from WGS84's ellipsoid; NavSatFix's altitude is the ellipsoid's)" if big[2] and not big[:2].any()
-            else "another origin or datum than the ground truth's (the manifest's geodetic_origin)")
+            else "another origin or datum than the ground truth's (the manifest's geodetic_origin)") + arm
     return (f"{gnss.source}: the GNSS sits a constant east, north, up {off[0]:+.1f}, {off[1]:+.1f}, {off[2]:+.1f} m from "
             f"the ground truth (median over {n_fixes} fixes; their spread about it {spread.max():.1f} m): "
             f"{what}; the filter, started on the ground truth, is pulled there and every figure carries the offset")
