@@ -375,6 +375,10 @@ def test_a_gnss_jump_is_said_from_its_run_of_large_innovations_without_ground_tr
     start[0:6] = 50.0
     assert jumps("gnss", {"values": start, "t_s": t, "dof": 3}) == ""
     many = clean.copy()
-    for a in range(20, 300, 20):
-        many[a:a + 4] = 50.0
+    for a in range(20, 300, 10):
+        many[a:a + 6] = 50.0
     assert jumps("gnss", {"values": many, "t_s": t, "dof": 3}) == ""
+    big = clean.copy()
+    big[150:250] = 200.0                          # a 50 m jump for 30 s puts a third of the fixes in runs: said
+    assert jumps("gnss", {"values": big, "t_s": t, "dof": 3}).startswith("gnss: 1 run")
+    assert not [w for w in inconsistent_streams({"gnss": {"values": many, "t_s": t, "dof": 3}}) if "consecutive" in w]
