@@ -265,7 +265,8 @@ def compare(ctx, dataset, variants, variant_dir, config_path, sets, out_dir, ove
         for r in res["rows"]:
             rot = r.get("ape_rot_rmse_deg")
             sd = r.get("ape_trans_rmse_m_std")
-            t = f"{r['ape_trans_rmse_m']:.3f}" + ("" if sd is None else f" +/- {sd:.3f}")
+            tr = r.get("ape_trans_rmse_m")
+            t = ("n/a" if tr is None else f"{tr:.3f}") + ("" if sd is None else f" +/- {sd:.3f}")
             click.echo(f"{r['variant']:<26} {r['estimate']:<9} {t:>{w}} {'n/a' if rot is None else f'{rot:.3f}':>19}")
         click.echo(f"wrote {res['out_dir']}/ ({time.perf_counter() - t0:.1f} s)")
 

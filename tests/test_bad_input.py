@@ -1714,6 +1714,8 @@ def test_a_fused_position_far_outside_its_covariance_is_a_warning():
     # with a lidar stream its extrinsic is named too (a lidar 20 mrad off in yaw was blamed on the IMU; a stress test)
     (w,) = overconfident({"attitude": att}, {}, lidar_fused=True)
     assert "or the lidar's rotation to the IMU off its calibration (lidar.extrinsic_rotation=auto" in w
+    (w,) = overconfident({"attitude": att}, {"lidar_extrinsic": {"applied": ["rotation"]}}, lidar_fused=True)
+    assert "lidar.extrinsic_rotation=auto applied a hand-eye estimate, which may be the error" in w
     # an error that wanders is a drift, not a mount (a lidar fused as absolute poses on kitti-00; a review)
     (w,) = overconfident({"attitude": {**att, "median_error_deg": [0.0, 0.1, 1.69], "error_std_deg": [0.1, 0.1, 0.83]}}, {})
     assert "an attitude error that wanders" in w and "mounted off" not in w

@@ -358,13 +358,13 @@ def test_a_gnss_jump_is_said_from_its_run_of_large_innovations_without_ground_tr
     rng = np.random.default_rng(1)
     t = np.arange(300.0)
     clean = chi2.rvs(3, size=300, random_state=rng)
-    clean[[40, 41, 200]] = 40.0                                   # two outliers in a row and one alone: no jump
+    clean[[40, 41, 42, 200]] = 40.0                               # three outliers in a row and one alone: no jump
     assert jumps("gnss", {"values": clean, "t_s": t, "dof": 3}) == ""
     jumped = clean.copy()
     jumped[100:109] = 60.0
     jumped[130:143] = 45.0
     w = jumps("gnss", {"values": jumped, "t_s": t + 1e9, "dof": 3})
-    assert w.startswith("gnss: 2 runs of 3 or more consecutive innovations") and "at 100.0-108.0 s, 130.0-142.0 s" in w
+    assert w.startswith("gnss: 2 runs of 4 or more consecutive innovations") and "at 100.0-108.0 s, 130.0-142.0 s" in w
     assert "gnss.gate_prob=0.999" in w and "or the filter left it there" in w
     assert w in inconsistent_streams({"gnss": {"values": jumped, "t_s": t, "dof": 3}})
     assert jumps("gnss", {"values": jumped, "t_s": t, "dof": 3, "rejected": 22}) == ""      # gated: counted elsewhere

@@ -328,13 +328,14 @@ def evaluate(reference, estimate, name: str, t_max_diff_s: float,
     n_est = len(estimate) if isinstance(estimate, PoseSeries) else estimate.num_poses
     ev = EstimateEvaluation(name=name, poses=n_est, matched_poses=0)
     ev.association, ev.alignment = association, alignment
+    # (before the association: an estimate none of whose poses match is counted too)
+    ev.matchable, ev.ref_interval_s = _matchable(reference, estimate, t_max_diff_s, t_offset_s)
     try:
         ref_a, est_a = associate(reference, estimate, association, t_max_diff_s, t_offset_s)
     except sync.SyncException as exc:
         ev.note = f"no poses associated ({association}, max {t_max_diff_s} s: {exc})"
         return ev
     ev.matched_poses = int(ref_a.num_poses)
-    ev.matchable, ev.ref_interval_s = _matchable(reference, estimate, t_max_diff_s, t_offset_s)
     if ev.matched_poses < 2:
         ev.note = "fewer than 2 associated poses"
         return ev
