@@ -259,3 +259,18 @@ def test_compare_warns_of_a_variant_far_worse_than_the_gnss_it_fuses(kitti_slice
     warned = json.loads((out / "compare.json").read_text())["warnings"]
     assert any(said in w for w in warned["eskf"])
     assert not any(said in w for w in warned.get("lidar-relative-no-gnss", []))
+
+
+@pytest.mark.slow
+def test_compare_says_a_variant_that_meets_no_ground_truth_and_exits_2(tmp_path):
+    """A ground truth 5 ms off every filter stamp under a 2 ms tolerance: compare stopped with KeyError 'ape' in its
+    table (a review); it now says so as run does, exit 2, and the GNSS, matched nowhere, gets its warning first."""
+    r = CliRunner().invoke(main, ["-q", "simulate", str(tmp_path / "d"), "-d", "60", "-s", "output.layout=csv_log"])
+    assert r.exit_code == 0, r.output
+    gt = tmp_path / "d" / "groundtruth.csv"
+    head, *rows = gt.read_text().splitlines()
+    gt.write_text("\n".join([head] + [f"{float(x.split(',')[0]) + 0.005:.9f},{x.split(',', 1)[1]}" for x in rows]) + "\n")
+    r = CliRunner().invoke(main, ["compare", str(tmp_path / "d"), "-V", "eskf", "--no-plots", "-o", str(tmp_path / "c"),
+                                  "--set", "evaluation.t_max_diff_s=0.002"])
+    assert r.exit_code == 2 and "variant eskf: the fused estimate" in r.stderr and "matches 0 ground-truth poses" in r.stderr
+    assert "Traceback" not in r.output and not (tmp_path / "c").exists()

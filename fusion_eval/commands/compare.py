@@ -19,7 +19,7 @@ import numpy as np
 
 from .. import compile_notice, session
 from ..datasets.tum import format_tum
-from ..errors import ConfigError
+from ..errors import ConfigError, DataRangeError
 from .. import trials as mc
 from ..evaluation import keys, span
 from ..evaluation.run_metrics import (inconsistent_streams, nees, scored_warnings, segments, sparsely_matched,
@@ -134,6 +134,12 @@ def _evaluate_all(runs: list[VariantRun], base_prep, ev_cfg: dict, pool):
     for r, f, fs in zip(runs, fut_v, fut_s):
         r.ev = f.result()
         r.ev.results = {}
+        if r.ev.matched_poses < 2:
+            # no result, as run says it (a variant meeting no ground truth stopped the table with a KeyError; a review)
+            fu = r.filt.fused
+            raise DataRangeError(f"variant {r.name}: the fused estimate ({len(fu)} poses, {fu.t_s[0]:.3f}..{fu.t_s[-1]:.3f} s) "
+                                 f"matches {r.ev.matched_poses} ground-truth poses ({gt.source}: {len(gt)} poses) within "
+                                 f"evaluation.t_max_diff_s = {ev_cfg['t_max_diff_s']} s")
         if fs is not None:
             r.ev_smoothed = fs.result()
             r.ev_smoothed.results = {}

@@ -320,13 +320,14 @@ def sparsely_matched(evals: dict, association: str, t_max_diff_s: float) -> list
         # (none or one matched: no figure at all, and still no word; a false-positive hunt)
         if ev is None or n < 10 or not ev.matched_poses < MIN_MATCHED_FRACTION * n:
             continue
+        over = "its figures are over those" if ev.matched_poses >= 2 else "it has no figures"
         half = 0.5 * ev.ref_interval_s
         fix = (f"--set evaluation.association=interpolate --set evaluation.t_max_diff_s={1.2 * half:.3g} pairs each "
                f"with the ground truth interpolated at its own stamp" if association == "nearest" or
                t_max_diff_s < half else "a time offset between the streams? (the streams' time_offset_s)")
-        out.append(f"{name}: only {ev.matched_poses} of its {n} poses inside the ground truth's span are scored "
-                   f"({association}, within evaluation.t_max_diff_s {t_max_diff_s:g} s of a ground-truth stamp, "
-                   f"{ev.ref_interval_s:.3g} s apart): its figures are over those; {fix}")
+        out.append(f"{name}: only {ev.matched_poses} of the {n} pairs evo's association could make with the ground "
+                   f"truth are made ({association}, within evaluation.t_max_diff_s {t_max_diff_s:g} s of a ground-truth "
+                   f"stamp, {ev.ref_interval_s:.3g} s apart): {over}; {fix}")
     return out
 
 
@@ -388,6 +389,10 @@ def jumps(k: str, d: dict) -> str:
     t = np.asarray(d.get("t_s", []), float)
     if k not in JUMP_STREAMS or v.size < 10 or t.size != v.size or d.get("rejected"):
         return ""
+    keep = np.isfinite(v) & np.isfinite(t)       # (a NaN split a run, and made the median below NaN; a review)
+    v, t = v[keep], t[keep]
+    if v.size < 10:
+        return ""
     # not in the first seconds: a constant offset the filter, started on the truth, meets there (said by its own check)
     above = np.concatenate([[False], (v > chi2_upper(d["dof"], JUMP_PROB)) & (t - t.min() >= JUMP_SETTLE_S), [False]])
     edges = np.flatnonzero(np.diff(above.astype(np.int8)))
@@ -400,8 +405,8 @@ def jumps(k: str, d: dict) -> str:
     # understated 2x, a 0.1 m RTK track the filter's other errors exceed, a filter that failed) raises the innovations
     # everywhere and put some in runs too (a false-positive hunt)
     outside = np.ones(v.size, bool)
-    for a, b in zip(first, last):
-        outside[a:b + 1] = False
+    for a, b in zip(first, last):       # and as long again after it: the filter dragged along recovers slowly (a
+        outside[a:b + 1 + (b + 1 - a)] = False     # 50 m jump's neighbours raised the median past the bound; a review)
     if np.median(v[outside]) > JUMP_QUIET * chi2_upper(d["dof"], 0.5):
         return ""
     t = t - t.min()                          # from the stream's first fix
