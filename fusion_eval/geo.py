@@ -54,22 +54,19 @@ def geodetic_to_enu(lat_deg: np.ndarray, lon_deg: np.ndarray, alt_m: np.ndarray,
     return np.column_stack([e, n, u])
 
 
-def _ecef_from_enu(lat_rad: np.ndarray, lon_rad: np.ndarray) -> np.ndarray:
-    """``(N, 3, 3)``: the local ENU axes (east, north, up: the ellipsoid's normal) as columns in ECEF."""
-    sl, cl, so, co = np.sin(lat_rad), np.cos(lat_rad), np.sin(lon_rad), np.cos(lon_rad)
-    z = np.zeros_like(sl)
-    return np.stack([np.stack([-so, co, z], -1), np.stack([-sl * co, -sl * so, cl], -1),
-                     np.stack([cl * co, cl * so, sl], -1)], -1)
-
-
 def enu_rotation(lat_deg: np.ndarray, lon_deg: np.ndarray, origin_lat_deg: float, origin_lon_deg: float) -> np.ndarray:
-    """``(N, 3, 3)`` rotations from the local ENU frame at each point into the origin's ENU frame. An attitude given
-    in the local level frame where it was measured (KITTI's OXTS roll, pitch, yaw; an INS's heading) is turned by this
-    into the world frame the positions are in: over a few km the two differ by about distance / 6,400 km in tilt and
-    by the meridians' convergence, longitude difference x sin(latitude), in yaw (0.5 mrad 3 km east at 49 deg N)."""
-    lat, lon = np.radians(np.atleast_1d(np.asarray(lat_deg, float))), np.radians(np.atleast_1d(np.asarray(lon_deg, float)))
-    R0 = _ecef_from_enu(np.radians(np.array([origin_lat_deg])), np.radians(np.array([origin_lon_deg])))[0]
-    return np.einsum("ji,njk->nik", R0, _ecef_from_enu(lat, lon))
+    """``(N, 3, 3)`` rotations from the local ENU frame at each point into the origin's ENU frame (each local axis
+    taken to ECEF and back by pymap3d's vector rotations). An attitude given in the local level frame where it was
+    measured (KITTI's OXTS roll, pitch, yaw; an INS's heading) is turned by this into the world frame the positions are
+    in: over a few km the two differ by about distance / 6,400 km in tilt and by the meridians' convergence, longitude
+    difference x sin(latitude), in yaw (0.5 mrad 3 km east at 49 deg N)."""
+    lat, lon = (np.atleast_1d(np.asarray(a, float)) for a in (lat_deg, lon_deg))
+    R = np.empty((lat.size, 3, 3))
+    for axis in range(3):
+        e = np.zeros((3, lat.size))
+        e[axis] = 1.0
+        R[:, :, axis] = np.column_stack(pymap3d.uvw2enu(*pymap3d.enu2uvw(*e, lat, lon), origin_lat_deg, origin_lon_deg))
+    return R
 
 
 def normal_gravity_mps2(lat_deg: float, alt_m: float) -> float:

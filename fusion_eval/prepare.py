@@ -85,7 +85,8 @@ def _odometer_scaled(odo: SpeedSeries, scale, gnss, imu, applied: dict) -> Speed
         est = odometer_scale.estimate(odo, gnss, imu) if gnss is not None and len(gnss) > 1 else None
         if est is None:
             applied["odometer_scale"] = {"scale": 1.0, "method": "not estimated (no GNSS fused, or under "
-                                         f"{odometer_scale.MIN_WINDOWS} straight windows driven): taken as 1"}
+                                         f"{odometer_scale.MIN_WINDOWS} windows of "
+                                         f"{odometer_scale.MIN_DISPLACEMENT_M:g} m driven): taken as 1"}
             return odo
         # applied where the data tell it from 1: KITTI's odometer (the GPS/INS speed, scale 1) gave 1.0017 +/- 0.0022,
         # and dividing that out cost 2.6 % of fused APE; a simulated 1.005 gave 1.0068 +/- 0.0007

@@ -343,14 +343,15 @@ def test_nominal_state_process_noise_is_the_error_state_one_by_the_same_discreti
     w = np.array([0.02, -0.01, 0.3]) + 0.01 * rng.standard_normal(3)
     prm = imu_params(9.81, 0.05, np.radians(0.1), 1e-3, 1e-5, method)
     q = nominal.rot_to_quat(R)
-    Qn = nominal.nominal_Q(q, f, w, dt, prm, qscale)
-    qw = nominal.nominal_F(q, f, w, dt)[6:10, 6] # dq'/dq = [q{w T}]_R, whose first column is q{w T}
-    qe = nominal.quat_R(qw) @ q                   # the step's end: q (x) q{w T}
+    _, Qn = nominal.nominal_F_Q(q, f, w, dt, prm, qscale)
+    qe = nominal.quat_R(nominal.quat_of_rotvec(w * dt)) @ q      # the step's end: q (x) q{w T}
     D = np.zeros((N, 16))
     for a, b in ((0, 0), (3, 3), (9, 10), (12, 13)):
         D[a:a + 3, b:b + 3] = np.eye(3)
     D[6:9, 6:10] = 2.0 * nominal.xi(qe).T
     _, Qd = eskf.discrete_model(R, f, w, dt, prm, qscale, discretize.METHODS[method])
     assert np.abs(D @ Qn @ D.T - Qd).max() <= 1e-12 * np.abs(Qd).max()
+    # the setting is honoured: the noise reaches the position within the step except in the first-order form
+    assert (np.abs(Qn[0:3, 0:3]).max() > 0.0) == (method != "first_order")
     # and the part of it off the unit sphere's tangent is zero (the normalisation keeps P there)
     assert np.abs(qe @ Qn[6:10, 6:10]).max() <= 1e-15 * np.abs(Qn).max()

@@ -32,7 +32,7 @@ def test_kitti_stream_is_ve_vn_and_vu_rotated_with_the_reported_accuracy():
     local = np.column_stack([v[:, kitti_oxts.VE], v[:, kitti_oxts.VN], up])
     turn = enu_rotation(v[:, kitti_oxts.LAT], v[:, kitti_oxts.LON], *ds.geodetic_origin[:2])
     assert np.allclose(vs.values, np.einsum("nij,nj->ni", turn, local), atol=1e-12)
-    assert 1e-4 < np.abs(vs.values - local).max() < 0.05       # kitti-00 spans 0.5 km: up to 0.4 mrad x 10 m/s
+    assert 1e-4 < np.abs(vs.values - local).max() < 0.05       # kitti-00: its frames differ by up to 0.11 mrad (measured), x up to 14 m/s
     real = ~pk.filled
     assert np.array_equal(vs.std[real, 0], v[real, kitti_oxts.VEL_ACC]) and np.array_equal(vs.filled, pk.filled)
 

@@ -29,8 +29,7 @@ MIN_SIGMAS = 3.0               # the estimate is divided out only where it lies 
 def _window(t0: float, t1: float, to, vo, ti, f, w) -> float | None:
     """The horizontal displacement (m) the odometer's speed dead-reckons along the gyro's heading over
     ``[t0, t1]``, or None where either stream has a gap there."""
-    ii = np.flatnonzero((ti >= t0) & (ti <= t1))
-    io = np.flatnonzero((to >= t0) & (to <= t1))
+    ii, io = (np.arange(np.searchsorted(x, t0, "left"), np.searchsorted(x, t1, "right")) for x in (ti, to))  # in [t0, t1]
     if ii.size < 3 or io.size < 2:
         return None
     for t, idx in ((ti, ii), (to, io)):

@@ -315,12 +315,9 @@ def _other_world(p_ref: np.ndarray, p: np.ndarray, trans_rmse_m: float) -> str:
     positions to the reference's to under 1/:data:`OTHER_WORLD_RATIO` of that APE: a KITTI cam0 ground truth against an
     ENU GPS track scored 382.9 m as they are and 1.19 m aligned, with no word (an own-data review; bag topics of
     other frames were said already)."""
-    a, b = p - p.mean(axis=0), p_ref - p_ref.mean(axis=0)
-    if a.shape[0] < 10 or not trans_rmse_m > OTHER_WORLD_MIN_M:
+    if len(p) < 10 or not trans_rmse_m > OTHER_WORLD_MIN_M:
         return ""
-    U, _, Vt = np.linalg.svd(a.T @ b)
-    R = U @ np.diag([1.0, 1.0, np.sign(np.linalg.det(U @ Vt))]) @ Vt
-    fit = float(np.sqrt(np.mean(np.sum((a @ R - b) ** 2, axis=1))))
+    R, fit = _rigid_fit(p_ref, p)
     if trans_rmse_m < OTHER_WORLD_RATIO * fit or trans_rmse_m - fit < OTHER_WORLD_MIN_M:
         return ""
     turn = float(np.degrees(np.arccos(np.clip((np.trace(R) - 1.0) / 2.0, -1.0, 1.0))))
@@ -334,19 +331,24 @@ def _other_world(p_ref: np.ndarray, p: np.ndarray, trans_rmse_m: float) -> str:
             "against ENU, another origin), which --alignment se3 (or origin, for the origin alone) compares")
 
 
+def _rigid_fit(p_ref: np.ndarray, p: np.ndarray, mirror: bool = False) -> tuple[np.ndarray, float]:
+    """The rotation ``R`` (with ``mirror``, the reflection) and translation that best fit the positions ``p`` to the
+    reference's, ``p_ref ~ p R + c`` (Kabsch), and the RMS residual (m)."""
+    a, b = p - p.mean(axis=0), p_ref - p_ref.mean(axis=0)
+    U, _, Vt = np.linalg.svd(a.T @ b)
+    R = U @ np.diag([1.0, 1.0, (-1.0 if mirror else 1.0) * np.sign(np.linalg.det(U @ Vt))]) @ Vt
+    return R, float(np.sqrt(np.mean(np.sum((a @ R - b) ** 2, axis=1))))
+
+
 def _mirrored(p_ref: np.ndarray, p: np.ndarray) -> str:
     """Why the positions ``p`` are the reference's mirrored (a left-handed frame: one axis flipped), or '': the best
     reflection fits them to a third of the best rotation's residual, which is itself beyond 10 % of the track's
     size."""
-    a, b = p - p.mean(axis=0), p_ref - p_ref.mean(axis=0)
-    size = float(np.sqrt(np.mean(np.sum(b ** 2, axis=1))))
-    if a.shape[0] < 10 or size <= 0:
+    size = _size(p_ref)
+    if len(p) < 10 or size <= 0:
         return ""
-    U, _, Vt = np.linalg.svd(a.T @ b)
-    fit = {}                            # (a flat track is its own mirror image: both fit alike, and nothing is said)
-    for sign in (1.0, -1.0):
-        R = U @ np.diag([1.0, 1.0, sign * np.sign(np.linalg.det(U @ Vt))]) @ Vt
-        fit[sign] = float(np.sqrt(np.mean(np.sum((a @ R - b) ** 2, axis=1))))
+    # (a flat track is its own mirror image: both fit alike, and nothing is said)
+    fit = {sign: _rigid_fit(p_ref, p, mirror=sign < 0)[1] for sign in (1.0, -1.0)}
     if fit[1.0] > 0.1 * size and fit[-1.0] < fit[1.0] / 3:
         return (f"its positions match the reference's mirrored ({fit[-1.0]:.3g} m RMS, against {fit[1.0]:.3g} m under "
                 "any rotation): a left-handed frame, one axis flipped (y for -y, NED read as ENU with a sign lost), so "
@@ -422,7 +424,7 @@ def convention_hints(f, ref_f, alignment: str, rot_rmse_deg: float | None = None
                     question = " or ".join(k.split(": ", 1)[1] for k in ties)
                 out.append(f"its body-frame turns match the reference's to {as_read:.0%} of their size under any "
                            f"mount rotation, to {fits[best]:.0%} with its quaternions {what}: {question}?")
-            elif (alignment in ("none", "origin") and rot_rmse_deg is not None and rot_rmse_deg > BODY_OFFSET_DEG
+            elif (alignment == "none" and rot_rmse_deg is not None and rot_rmse_deg > BODY_OFFSET_DEG
                   and trans_rmse_m is not None and trans_rmse_m < FOLLOWS_FRACTION * _size(ref_a.positions_xyz)
                   and (direct := _direct_reading(ref_q, q, readings))):
                 # the world frame is the reference's (no alignment): a reading that matches its orientations as they

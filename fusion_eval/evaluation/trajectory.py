@@ -69,8 +69,7 @@ class EstimateEvaluation:
     ape_hv_m: np.ndarray | None = None                # (n, 2): horizontal and vertical parts of each APE translation
                                                       # error (the reference's up axis), for the per-segment table
     nees: dict | None = None                          # position / attitude NEES of an estimate with covariances
-    matchable: int = 0                                # poses evo could pair: the fewer of the estimate's inside the
-                                                      # reference's span and the reference's inside the estimate's
+    matchable: int = 0                                # pairs evo could make at most (trajectory._matchable)
     ref_interval_s: float = 0.0                       # the reference's median stamp interval (s)
 
 
@@ -103,12 +102,6 @@ def _stamps(x) -> np.ndarray:
     return np.asarray(x.t_s if isinstance(x, PoseSeries) else x.timestamps, float)
 
 
-def _near(a: np.ndarray, b: np.ndarray, tol: float) -> int:
-    """How many of the stamps ``a`` have one of ``b`` (increasing) within ``tol``."""
-    i = np.clip(np.searchsorted(b, a), 1, b.size - 1)
-    return int(np.count_nonzero(np.minimum(np.abs(a - b[i - 1]), np.abs(b[i] - a)) <= tol))
-
-
 def _matchable(reference, estimate, t_max_diff_s: float, t_offset_s: float = 0.0) -> tuple[int, float]:
     """How many pairs evo's association could make at most (each pose of the sparser side once), with a tolerance
     of half the other side's interval: the fewer of the estimate's stamps near one of the reference's and the
@@ -119,8 +112,8 @@ def _matchable(reference, estimate, t_max_diff_s: float, t_offset_s: float = 0.0
     if tr.size < 2 or te.size < 2:
         return 0, 0.0
     dr, de = float(np.median(np.diff(tr))), float(np.median(np.diff(te)))
-    n_est = _near(te, tr, max(t_max_diff_s, 0.6 * dr))
-    n_ref = _near(tr, te, max(t_max_diff_s, 0.6 * de))
+    n_est = engine.matching_time_indices(te, tr, max(t_max_diff_s, 0.6 * dr))[0].size
+    n_ref = engine.matching_time_indices(tr, te, max(t_max_diff_s, 0.6 * de))[0].size
     return min(n_est, n_ref), dr
 
 

@@ -6,7 +6,7 @@ Quaternions here are Hamilton, ``(w, x, y, z)``, body to world, as in Sola's "Qu
 the error-state Kalman filter"; the rest of the package sees only rotation matrices and scipy's
 ``(x, y, z, w)``. The state itself is propagated by the same midpoint mechanization as the ESKF; the
 covariance by the Jacobian of that step with respect to the full state (``docs/nominal_state.md``), with
-the ESKF's discrete process noise by ``filter.discretization`` mapped into the quaternion (:func:`nominal_Q`)::
+the ESKF's discrete process noise by ``filter.discretization`` mapped into the quaternion (:func:`nominal_F_Q`)::
 
     dp'/dq = T^2/2 d(R(q) a)/dq,   dv'/dq = T d(R(q) a)/dq,   d(R(q)a)/dq = 2 [w a + v x a | v.a I + v a^T - a v^T - w [a]x]
     dp'/dba = -T^2/2 R,  dv'/dba = -T R,  dq'/dq = [q{wT}]_R,  dq'/dbg = -T/2 [q]_L [0; I]
@@ -146,8 +146,14 @@ def quat_of_rotvec(phi):
 
 
 @njit(cache=True)
-def nominal_F(q, a_b, w_b, dt):
-    """Jacobian F (16x16) of one mechanization step with respect to the full state."""
+def nominal_F_Q(q, a_b, w_b, dt, prm, qscale):
+    """Jacobian F (16x16) of one mechanization step with respect to the full state, and the step's discrete process
+    noise in this filter's coordinates, ``M Q_d M^T``: ``Q_d`` the canonical error dynamics' over the step by
+    ``filter.discretization`` (:func:`.eskf.discrete_model`, the ESKF's own) and ``M`` the identity but ``Xi(q') / 2``
+    from the attitude error into the quaternion at the step's end ``q'`` (where ``Q_d`` is expressed). The first-order
+    ``Q_d`` puts the noise of the step on v and q alone; at 10 Hz and across an IMU gap the noise's path through the
+    step (the accelerometer's into p, the gyro's into v and p, Van Loan's) is what the error-state filter has and this
+    one lacked: with it this filter left the ESKF after every KITTI gap (kitti-00 0.870 m against 0.758)."""
     R = quat_to_rot(q)
     F = np.eye(N_NOM)
     J = dRa_dq(q, a_b)
@@ -159,34 +165,19 @@ def nominal_F(q, a_b, w_b, dt):
         for j in range(3):
             F[NP_ID + i, NBA_ID + j] = -0.5 * dt * dt * R[i, j]
             F[NV_ID + i, NBA_ID + j] = -dt * R[i, j]
-    qw = quat_of_rotvec(w_b * dt)
-    F[NQ_ID:NQ_ID + 4, NQ_ID:NQ_ID + 4] = quat_R(qw)
+    qR = quat_R(quat_of_rotvec(w_b * dt))            # dq'/dq: q' = q (x) q{w T}
+    F[NQ_ID:NQ_ID + 4, NQ_ID:NQ_ID + 4] = qR
     F[NQ_ID:NQ_ID + 4, NBG_ID:NBG_ID + 3] = -0.5 * dt * xi(q)
-    return F
-
-
-@njit(cache=True)
-def nominal_Q(q, a_b, w_b, dt, prm, qscale):
-    """The discrete process noise of one step in this filter's coordinates: ``M Q_d M^T``, with ``Q_d`` the
-    canonical error dynamics' over the step by ``filter.discretization`` (:func:`.eskf.discrete_model`, the ESKF's
-    own) and ``M`` the identity but ``Xi(q') / 2`` from the attitude error into the quaternion at the step's end
-    ``q'`` (where ``Q_d`` is expressed). The first-order ``Q_d`` puts the noise of the step on v and q alone; at 10 Hz
-    and across an IMU gap the noise's path through the step (the accelerometer's into p, the gyro's into v and p,
-    Van Loan's) is what the error-state filter has and this one lacked: with it this filter left the ESKF after
-    every KITTI gap (kitti-00 0.870 m against 0.758)."""
-    R = quat_to_rot(q)
     _, Qd = discrete_model(R, a_b, w_b, dt, prm, qscale, int(prm[PRM_DISC]))
-    qw = quat_of_rotvec(w_b * dt)
-    qe = quat_R(qw) @ q
     M = np.zeros((N_NOM, N_CANON))
     for i in range(3):
         M[NP_ID + i, CP0 + i] = 1.0
         M[NV_ID + i, CV0 + i] = 1.0
         M[NBA_ID + i, CBA0 + i] = 1.0
         M[NBG_ID + i, CBG0 + i] = 1.0
-    M[NQ_ID:NQ_ID + 4, TH0:TH0 + 3] = 0.5 * xi(qe)
+    M[NQ_ID:NQ_ID + 4, TH0:TH0 + 3] = 0.5 * xi(qR @ q)
     Q = M @ Qd @ M.T
-    return 0.5 * (Q + Q.T)
+    return F, 0.5 * (Q + Q.T)
 
 
 @njit(cache=True)
@@ -206,9 +197,7 @@ def step(x, P, n, u0, u1, dt, qscale, prm, aux, cov):
     if cov:
         fm = 0.5 * (u0[UF:UF + 3] + u1[UF:UF + 3]) - x[XBA:XBA + 3]
         wm = 0.5 * (u0[UW:UW + 3] + u1[UW:UW + 3]) - x[XBG:XBG + 3]
-        q = aligned_quat(attitude(x), aux[AQ0:AQ0 + 4])
-        F = nominal_F(q, fm, wm, dt)
-        Q = nominal_Q(q, fm, wm, dt, prm, qscale)
+        F, Q = nominal_F_Q(aligned_quat(attitude(x), aux[AQ0:AQ0 + 4]), fm, wm, dt, prm, qscale)
         Pn = np.ascontiguousarray(P[:n, :n])
         Fa = np.eye(n)
         Fa[:N_NOM, :N_NOM] = F
