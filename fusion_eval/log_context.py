@@ -26,3 +26,29 @@ def prefixed(label: str) -> Iterator[None]:
         yield
     finally:
         logging.setLogRecordFactory(old)
+
+
+class _Collector(logging.Handler):
+    def __init__(self):
+        super().__init__(logging.WARNING)
+        self.messages: list[str] = []
+
+    def emit(self, record):
+        self.messages.append(record.getMessage())
+
+
+@contextmanager
+def collected(show: bool = True) -> Iterator[list[str]]:
+    """The warnings (and worse) of fusion-eval's loggers inside the block, as their messages; ``show`` False keeps them
+    from the console (a Monte-Carlo trial's, which the run sums up once instead of repeating each trial's: a review)."""
+    pkg = logging.getLogger("fusion_eval")
+    h = _Collector()
+    pkg.addHandler(h)
+    propagate = pkg.propagate
+    if not show:
+        pkg.propagate = False
+    try:
+        yield h.messages
+    finally:
+        pkg.removeHandler(h)
+        pkg.propagate = propagate

@@ -9,6 +9,7 @@ from __future__ import annotations
 
 import logging
 import time
+from contextlib import nullcontext
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Callable
@@ -23,6 +24,7 @@ from .evaluation import span
 from .evaluation.run_metrics import (ESTIMATES, consistency, fused_error, ratio_metrics, run_metrics, segments,
                                      smoother_section)
 from .evaluation.trajectory import EstimateEvaluation, evaluate
+from .log_context import collected
 from .memory import release_free_heap
 from .outputs import StagedDir, dataset_roots
 from .pool import executor
@@ -89,19 +91,21 @@ def plot_truth_biases(description: dict, imu_time_offset_s: float, t_first: floa
     return None if truth is None else report.thin.truth_biases(truth, t_first, t_last)
 
 
-def trial_metrics(ds: Dataset, cfg: dict) -> dict:
-    """One Monte-Carlo trial's metrics (in a worker: nothing written, nothing else sent back). Its informational
-    log lines (the estimated gyro lag, ...) repeat the main run's, once per trial: only warnings are let through."""
+def trial_metrics(ds: Dataset, cfg: dict) -> tuple[dict, list[str]]:
+    """One Monte-Carlo trial's metrics and warnings (in a worker: nothing written, nothing said, nothing else sent
+    back). Its log lines repeat the main run's, once per trial: the informational ones are dropped, the warnings
+    returned for the run to sum up (:func:`fusion_eval.trials.warnings`)."""
     pkg = logging.getLogger(__package__)
     level = pkg.level
     pkg.setLevel(max(level, logging.WARNING))
-    try:
-        with np.errstate(over="ignore", invalid="ignore"):
-            return execute(ds, cfg, jobs=1).metrics
-    except FusionEvalError as exc:          # a diverged trial is a result, counted in the summary
-        return {"failed": str(exc)}
-    finally:
-        pkg.setLevel(level)
+    with collected(show=False) as said:
+        try:
+            with np.errstate(over="ignore", invalid="ignore"):
+                return execute(ds, cfg, jobs=1).metrics, said
+        except FusionEvalError as exc:          # a diverged trial is a result, counted in the summary
+            return {"failed": str(exc)}, said
+        finally:
+            pkg.setLevel(level)
 
 
 @dataclass
@@ -180,19 +184,24 @@ def execute(ds: Dataset, cfg: dict, *, dataset_path: str | Path | None = None, c
     """
     stages = as_stages(progress)
     plots = out is not None and cfg["output"]["plots"]
-    with executor(jobs, preload=("fusion_eval.report.plots",) if plots else ()) as pool:
+    # with trials, the run's own warnings: the later trials' are summed up against them
+    with executor(jobs, preload=("fusion_eval.report.plots",) if plots else ()) as pool, \
+            (collected() if trials > 1 else nullcontext(None)) as said:
         stages.start("prepare")
         sh = share(ds, cfg, pool, zip_dir=out.path(".") if out is not None else None)
         return filter_and_evaluate(ds, cfg, sh, pool, dataset_path=dataset_path,
-                                   config_source=config_source, progress=stages, out=out, trials=trials)
+                                   config_source=config_source, progress=stages, out=out, trials=trials, said=said)
 
 
 def filter_and_evaluate(ds: Dataset, cfg: dict, sh: Shared, pool, *, dataset_path: str | Path | None = None,
                         config_source: str = "default", progress: Callable[[float], None] | None = None,
-                        out: StagedDir | None = None, trials: int = 1, monitor=None) -> RunResult:
+                        out: StagedDir | None = None, trials: int = 1, monitor=None,
+                        said: list[str] | None = None) -> RunResult:
     """The filter's part of a run on prepared data (:func:`share`): replay, evaluate, summarise, write. ``cfg``
     may differ from the one ``sh`` was prepared with only in what the filter alone reads (a sweep's noise
-    settings, :func:`fusion_eval.commands.sweep.batch_key`). ``monitor``: see :func:`fusion_eval.replay.replay`."""
+    settings, :func:`fusion_eval.commands.sweep.batch_key`). ``monitor``: see :func:`fusion_eval.replay.replay`.
+    ``said``: the warnings this run has said so far (:func:`fusion_eval.log_context.collected`; without it, its
+    data warnings), against which the later trials' are summed up."""
     prep, gt, ev_cfg = sh.prep, sh.prep.groundtruth, cfg["evaluation"]
     timings = dict(sh.timings)
     s = settings_for(cfg, prep)
@@ -255,10 +264,15 @@ def filter_and_evaluate(ds: Dataset, cfg: dict, sh: Shared, pool, *, dataset_pat
     if n_trials > 1:
         stages.start("trials", n_trials)
         stages.advance()                      # trial 0: this run
-        per_trial = [metrics]
+        per_trial, later = [metrics], []
         for f in trial_futs:
-            per_trial.append(f.result())
+            m, w = f.result()
+            per_trial.append(m)
+            later.append(w)
             stages.advance()
+        run_said = [*(said or ()), *metrics.get("preprocessing", {}).get("data_warnings", ())]
+        for w in mc.warnings(run_said, later):
+            log.warning("%s", w)
         metrics["trials"] = mc.section(cfg, per_trial)
         if metrics["trials"]["identical"]:
             log.warning(mc.NOTHING_RANDOM.format(n=n_trials))

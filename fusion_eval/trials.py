@@ -14,6 +14,7 @@ single runs fall) and the 95 % confidence interval of the mean (Student's t, ``c
 from __future__ import annotations
 
 import math
+import re
 
 import numpy as np
 
@@ -242,3 +243,37 @@ def aggregate_rows(tables: list[list[dict]], by: tuple[str, ...], spread: str = 
         agg.update({"trials": len(same), f"{spread}_std": st.get("std"), f"{spread}_ci95": st.get("ci95_mean")})
         out.append(agg)
     return out
+
+
+def _kind(message: str) -> str:
+    """A warning without its figures: the same finding in two trials (a NIS of 87.1 in one, 100.3 in another)."""
+    return re.sub(r"[-+]?\d[\d.,]*(?:e[-+]?\d+)?", "#", message)
+
+
+def warnings(first: list[str], others: list[list[str]]) -> list[str]:
+    """What the trials after the first said, summed up: a finding the first trial (the run) said too is counted
+    once, one it did not is said once with the trials that found it (ten trials repeated each warning ten times,
+    with no word of which trial said which; a review). ``first``: the run's warnings; ``others``: each later
+    trial's."""
+    seen = {_kind(m) for m in first}
+    new: dict[str, tuple[str, list[int]]] = {}
+    repeated = set()
+    for i, msgs in enumerate(others, start=1):
+        kinds = {}
+        for m in msgs:
+            kinds.setdefault(_kind(m), m)          # one finding said twice in a trial: its first figures
+        for k, m in kinds.items():
+            if k in seen:
+                repeated.add(i)
+            else:
+                new.setdefault(k, (m, []))[1].append(i)
+    n = len(others) + 1
+    out = [f"{_trial_list(trials, n)}: {m}" for m, trials in new.values()]
+    if repeated:
+        out.append(f"{_trial_list(sorted(repeated), n)} repeated warnings above, with figures of their own")
+    return out
+
+
+def _trial_list(trials: list[int], n: int) -> str:
+    head = ", ".join(str(i) for i in trials[:8]) + (f" and {len(trials) - 8} more" if len(trials) > 8 else "")
+    return f"{'trial' if len(trials) == 1 else 'trials'} {head} (of 0..{n - 1})"

@@ -503,3 +503,38 @@ def test_a_narrow_value_axis_labels_every_tick_apart():
     fig.canvas.draw()
     assert [t.get_text() for t in ax.get_xticklabels()] == ["0.01", "0.1", "1"]
     plt.close(fig)
+
+
+def test_dead_reckoning_far_above_the_others_is_drawn_off_the_scale(monkeypatch, tmp_path):
+    """Dead reckoning's 1e4 m squeezed the fused, lidar and GNSS errors into two of the APE plot's seven decades,
+    and its 900 % the fused against the lidar drift (0.49 against 0.46 %) into one line: the axis ends at ten times
+    the others' largest error, and the legend says dead reckoning leaves it (a plot review). Not when it is near
+    them (a short drive), nor without it."""
+    from types import SimpleNamespace
+
+    figs = []
+    monkeypatch.setattr(plots, "_save", lambda fig, path: figs.append(fig))
+    t = np.arange(100.0)
+    drift = {"per_length": {"100": {"t_err_pct": 0.5, "r_err_deg_per_m": 0.002}}, "t_err_pct": 0.5,
+             "r_err_deg_per_100m": 0.2}
+
+    def ev(err, pct):
+        return SimpleNamespace(ape_err_m=err, ape_t_s=t, metrics={"ape": {"translation_m": {"rmse": float(err.max())}}},
+                               drift={**drift, "t_err_pct": pct,
+                                      "per_length": {"100": {"t_err_pct": pct, "r_err_deg_per_m": 0.002}}})
+
+    evals = {"fused": ev(0.5 + 0 * t, 0.49), "lidar": ev(1 + 0.1 * t, 0.46), "imu_only": ev(0.01 * t ** 3, 916.8)}
+    plots.plot_ape_over_time(tmp_path / "a.png", evals, 0.0)
+    plots.plot_drift(tmp_path / "d.png", evals)
+    ax = figs[0].axes[0]
+    assert ax.get_ylim()[1] == pytest.approx(10 * 10.9)
+    labels = [tx.get_text() for tx in ax.get_legend().get_texts()]
+    assert any(lb.startswith("IMU dead reckoning") and "off the scale from 23 s" in lb for lb in labels)
+    assert figs[1].axes[0].get_ylim()[1] == pytest.approx(4.9)                  # 10 x the lidar's 0.49 %
+    assert any("(off the scale)" in tx.get_text() for tx in figs[1].axes[0].get_legend().get_texts())
+    assert not any("off the scale" in tx.get_text() for tx in figs[1].axes[1].get_legend().get_texts())
+    near = {**evals, "imu_only": ev(2 + 0.1 * t, 3.0)}
+    plots.plot_ape_over_time(tmp_path / "b.png", near, 0.0)
+    assert figs[2].axes[0].get_ylim()[1] > 11.9 and not any(
+        "off the scale" in tx.get_text() for tx in figs[2].axes[0].get_legend().get_texts())
+    plt.close("all")

@@ -26,6 +26,7 @@ from ..evaluation.run_metrics import (inconsistent_streams, nees, scored_warning
                                        truth_velocity_w)
 from ..evaluation.trajectory import evaluate, ratio
 from ..filters import observations
+from ..log_context import collected
 from ..outputs import StagedDir, dataset_roots, default_dir, repeated_path
 from ..prepare import check_streams
 from ..pool import executor
@@ -175,11 +176,13 @@ def _table(runs: list[VariantRun], evs_u: dict, gt: PoseSeries, ev_cfg: dict) ->
     return table
 
 
-def trial_table(ds, variants: list[str], cfgs: list[dict]) -> list[dict]:
-    """One Monte-Carlo trial of a comparison: its table only (in a worker)."""
-    runs, base_prep = _replay_all(ds, variants, cfgs)
-    _, evs_u, sp = _evaluate_all(runs, base_prep, cfgs[0]["evaluation"], executor(1))
-    return _table(runs, evs_u, span.crop(base_prep.groundtruth, sp), cfgs[0]["evaluation"])
+def trial_table(ds, variants: list[str], cfgs: list[dict]) -> tuple[list[dict], list[str]]:
+    """One Monte-Carlo trial of a comparison: its table and its warnings, unsaid (in a worker; the comparison sums
+    them up, :func:`fusion_eval.trials.warnings`)."""
+    with collected(show=False) as said:
+        runs, base_prep = _replay_all(ds, variants, cfgs)
+        _, evs_u, sp = _evaluate_all(runs, base_prep, cfgs[0]["evaluation"], executor(1))
+        return _table(runs, evs_u, span.crop(base_prep.groundtruth, sp), cfgs[0]["evaluation"]), said
 
 
 def compare(dataset_path: Path | None, variants: list[str], variant_dir: Path | None, base_config: Path | None,
@@ -218,7 +221,7 @@ def _compare(dataset_path: Path | None, variants: list[str], variant_dir: Path |
         except ConfigError as exc:
             raise ConfigError(f"--variants {v!r}: {exc}") from None
 
-    with executor(None) as pool:
+    with executor(None) as pool, collected() as said:
         # trials 1.. on the pool (each one a whole comparison) while this process does trial 0 and its files
         trial_futs = [pool.submit(trial_table, ds, variants, [mc.apply(c, i) for c in cfgs]) for i in range(1, n_trials)]
         stages.start("variants", len(variants))
@@ -233,9 +236,14 @@ def _compare(dataset_path: Path | None, variants: list[str], variant_dir: Path |
         if trial_futs:
             stages.start("trials", n_trials)
             stages.advance()
+        later = []
         for f in trial_futs:
-            tables.append(f.result())
+            t, w = f.result()
+            tables.append(t)
+            later.append(w)
             stages.advance()
+        for w in mc.warnings(said, later):
+            log.warning("%s", w)
     stages.start("write")
     trials_info = None
     if n_trials > 1:

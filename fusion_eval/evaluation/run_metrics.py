@@ -63,9 +63,11 @@ def nees(gt: PoseSeries, filt) -> dict:
     ok = np.isfinite(n_pos) & np.isfinite(n_att)
     if not ok.any():
         return {}
-    # the attitude error's median rotation vector in the estimate's body frame: a constant one is a mount (an IMU
-    # 3 deg off the axes the truth is given in showed only as a NEES of 107; a conventions review)
-    th = relative_rotvecs(filt.fused.q_wb_xyzw[sel][ok], gi.q_wb_xyzw[ok])
+    # the attitude error's median rotation vector in the body frame, Log(R_true^T R_est) as the error plot's (the
+    # estimate less the truth, as the position error): a constant one is a mount (an IMU 3 deg off the axes the truth
+    # is given in showed only as a NEES of 107; a conventions review). It was Log(R_est^T R_true), the opposite sign
+    # of the plot, so that a mount corrected from the warning would have been turned the wrong way (a plot review)
+    th = relative_rotvecs(gi.q_wb_xyzw[ok], filt.fused.q_wb_xyzw[sel][ok])
     return {"position": {**summary(n_pos[ok], 3), "t_s": gi.t_s[ok], "values": n_pos[ok]},
             "attitude": {**summary(n_att[ok], 3), "median_error_deg": np.degrees(np.median(th, axis=0)).tolist(),
                          "error_std_deg": np.degrees(np.std(th, axis=0)).tolist(), "t_s": gi.t_s[ok], "values": n_att[ok]}}
