@@ -300,3 +300,21 @@ def test_time_offsets_are_said_in_seconds_when_they_are_a_clock_epoch():
 
     assert _offsets({"gnss": 1317600000.0, "lidar": 0.0}) == "gnss +1317600000.000 s; the other streams none"
     assert _offsets({"lidar": -0.0588}) == "lidar -58.8 ms; the other streams none"
+
+
+def test_html_shows_wide_figures_and_time_series_at_the_pages_width(tmp_path):
+    """Figures side by side are ~480 px wide: a time series (the APE over time, 1320 x 495 px) had a legend no one
+    could read without a click (a plot review). Wide or elongated figures start at the page's width."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    for name, size in (("series.png", (12, 4.5)), ("square.png", (6, 6)), ("panels.png", (14, 9))):
+        fig = plt.figure(figsize=size)
+        fig.savefig(tmp_path / name, dpi=110)
+        plt.close(fig)
+    md = "# fusion-eval run: x\n\n![s](series.png)\n![q](square.png)\n![p](panels.png)\n"
+    page = html.page(md, tmp_path)
+    kinds = dict(re.findall(r'<figure( class="wide")?><img alt="([^"]*)"', page)[i][::-1] for i in range(3))
+    assert kinds == {"s": ' class="wide"', "q": "", "p": ' class="wide"'}

@@ -24,6 +24,8 @@ from .. import provenance
 from .files import versions
 
 WIDE_PX = 1400          # figures this wide (several panels) start at the page's width, the others two side by side
+WIDE_ASPECT = 1.8       # ... and so do figures this much wider than high (a time series: the APE over time, ~480 px
+                        # wide beside another, had a legend no one could read without a click; a plot review)
 _IMG = re.compile(r'<img alt="([^"]*)" src="([^"]+)"\s*/?>')
 
 _CSS = """
@@ -82,16 +84,19 @@ def _figure(folder: Path, alt: str, src: str) -> str:
     except OSError:
         return f'<p class="missing">figure {name} was not written</p>'
     mime = "image/svg+xml" if src.endswith(".svg") else "image/png"
-    wide = ' class="wide"' if _png_width(p) >= WIDE_PX else ""
+    w, h = _png_size(p)
+    wide = ' class="wide"' if w >= WIDE_PX or (h > 0 and w >= WIDE_ASPECT * h) else ""
     return (f'<figure{wide}><img alt="{alt}" src="data:{mime};base64,{data}" title="{name}: click to widen or narrow">'
             f"<figcaption>{name}</figcaption></figure>")
 
 
-def _png_width(path: Path) -> int:
-    """A PNG's width in pixels from its IHDR chunk (0 for anything else)."""
+def _png_size(path: Path) -> tuple[int, int]:
+    """A PNG's width and height in pixels from its IHDR chunk ((0, 0) for anything else)."""
     with open(path, "rb") as fh:
         head = fh.read(24)
-    return int.from_bytes(head[16:20], "big") if head[:8] == b"\x89PNG\r\n\x1a\n" else 0
+    if head[:8] != b"\x89PNG\r\n\x1a\n":
+        return 0, 0
+    return int.from_bytes(head[16:20], "big"), int.from_bytes(head[20:24], "big")
 
 
 def _int(v) -> str:
