@@ -224,6 +224,14 @@ def test_trials_figure_shows_the_spread_of_each_metric():
         st = stats[key]
         assert band.get_y() == pytest.approx(st["mean"] - st["std"])
         assert band.get_y() + band.get_height() == pytest.approx(st["mean"] + st["std"])
+        assert ", min " in ax.get_title() and ", max " in ax.get_title() and " .. " not in ax.get_title()
+    # a metric no seed moves (the lidar's) is said in the title, not drawn as a panel of one value (a plot review)
+    for r in per:
+        r["lidar.ape.translation_m.rmse"] = 7.177
+    stats["lidar.ape.translation_m.rmse"] = {"mean": 7.177, "std": 0.0, "ci95_mean": [7.177, 7.177]}
+    fig = plots.trials_figure({"n": 8, "per_trial": per, "stats": stats})
+    assert len([ax for ax in fig.axes if ax.get_visible()]) == 3
+    assert "the same in every trial, not drawn: lidar odometry APE translation RMSE [m] 7.18" in fig._suptitle.get_text()
 
 
 # --- sweep

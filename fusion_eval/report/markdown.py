@@ -290,7 +290,11 @@ def report_md(dataset: str, config_name: str, evals: dict, ratios: dict, cfg: di
     L = [f"# fusion-eval run: {dataset}", "", header_line(), "", f"Configuration: `{config_name}`; lidar update: "
          f"**{cfg['filter']['lidar_update']}**, GNSS fused: **{'yes' if cfg['filter']['use_gnss'] else 'no'}**, "
          f"bias model: **{cfg['filter']['bias_model']}**.", "",
-         f"## Summary against ground truth (evo, {keys.alignment_words(cfg['evaluation']['alignment'])})", ""] + markdown(*summary_table(evals, cfg))
+         f"## Summary against ground truth (evo, {keys.alignment_words(cfg['evaluation']['alignment'])})", ""]
+    if metrics.get("trials"):      # the tables and plots are this run's, trial 0; the trials' means are a section below
+        L += [f"Trial 0 of {metrics['trials']['n']}: the run whose files, tables and plots these are; every metric's mean "
+              "and spread over the trials are in \"Monte-Carlo trials\" below.", ""]
+    L += markdown(*summary_table(evals, cfg))
     rates = ["the fused estimate and dead reckoning at the IMU's"]
     if "lidar" in evals:       # (a drive without lidar has none to speak of: a review found the sentence on one)
         rates.append("the lidar at its frames', each moved onto the IMU stamp nearest it" if cfg["lidar"].get("interpolate_to_imu")

@@ -935,11 +935,13 @@ def trials_figure(sec: dict):
     from matplotlib.patches import Patch
 
     rows = [r for r in sec["per_trial"] if "failed" not in r]
-    shown = []
+    shown, same = [], []
     for key, name, label in TRIAL_METRICS:
         v = np.array([r[key] for r in rows if r.get(key) is not None], float)
         v = v[np.isfinite(v)]
-        if v.size:
+        if v.size > 1 and np.ptp(v) <= 1e-12 * max(1.0, float(np.max(np.abs(v)))):
+            same.append(f"{label} {v[0]:.3g}")     # a sensor no seed touches (the lidar): a panel of one value, said
+        elif v.size:
             shown.append((key, name, label, v))
     nrows = -(-max(len(shown), 1) // 4)
     ncols = -(-max(len(shown), 1) // nrows)       # at most 4 a row, the rows as full as they can be
@@ -962,7 +964,8 @@ def trials_figure(sec: dict):
             ax.axhline(1.0, color="gray", lw=0.8, ls="--")      # above 1: fusion worse than the sensor alone
         ax.set_xlim(-0.6, 0.9)
         ax.set_xticks([])
-        ax.set_title(f"{label}\n{mean:.3g} +/- {std:.2g} (std), {v.min():.3g} .. {v.max():.3g}", fontsize=8)
+        # min and max in words: 'a .. b' is the 95 % interval of the mean on the console (a plot review)
+        ax.set_title(f"{label}\n{mean:.3g} +/- {std:.2g} (std), min {v.min():.3g}, max {v.max():.3g}", fontsize=8)
         ax.grid(alpha=0.3, axis="y")
     for ax in axes.ravel()[len(shown):]:
         ax.set_visible(False)
@@ -971,7 +974,9 @@ def trials_figure(sec: dict):
                Patch(facecolor="gray", alpha=0.3, label="mean +/- 1 std"),
                Line2D([], [], ls="-", marker="s", color="black", label="mean with the 95 % CI of the mean")]
     fig.legend(handles=handles, loc="lower center", ncol=4, fontsize=8, frameon=False)
-    fig.suptitle(f"{sec['n']} Monte-Carlo trials: the spread of each metric")
+    fig.suptitle(f"{sec['n']} Monte-Carlo trials: the spread of each metric"
+                 + (f"\n(the same in every trial, not drawn: {'; '.join(same)})" if same else ""),
+                 fontsize=11 if same else None)
     h = 3.6 * nrows + 1.2
     fig.subplots_adjust(left=0.07, right=0.98, top=1 - 1.0 / h, bottom=0.45 / h, wspace=0.35, hspace=0.5)
     return fig
