@@ -546,3 +546,26 @@ def test_dead_reckoning_far_above_the_others_is_drawn_off_the_scale(monkeypatch,
     assert figs[2].axes[0].get_ylim()[1] > 11.9 and not any(
         "off the scale" in tx.get_text() for tx in figs[2].axes[0].get_legend().get_texts())
     plt.close("all")
+
+
+def test_consistency_plot_shows_sparse_innovations_their_window_mean_and_keeps_its_axis_on_the_bounds():
+    """1 Hz GNSS NIS drawn in pixels was invisible, and a first epoch's 1e-4 squeezed the 95 % bounds into a third of
+    the axis (a plot review): sparse innovations are dots, their 10 s mean a step line, and the axis ends at a tenth of
+    the lower bound (or lower, where over 5 % of the values are)."""
+    rng = np.random.default_rng(3)
+    t = np.arange(0.0, 300.0, 1.0)
+    nis = rng.chisquare(3, t.size)
+    nis[0] = 1e-6
+    nees = rng.chisquare(3, t.size)
+    nees[0] = 1e-4
+    cons = {"nees": {"position": {**_series(3), "t_s": t, "values": nees}},
+            "nis": {"gnss": {**_series(3), "t_s": t, "values": nis}}}
+    fig = plots.consistency_figure(cons, 0.0)
+    ax_nees, ax_gnss = fig.axes[:2]
+    dots = [ln for ln in ax_gnss.lines if ln.get_marker() == "."]
+    assert len(dots) == 1 and dots[0].get_markersize() >= 3
+    lo = _series(3)["bounds_95"][0]
+    assert ax_nees.get_ylim()[0] == pytest.approx(min(0.1 * lo, np.percentile(nees, 5)) / 1.3)
+    steps = [p for p in ax_gnss.patches if p.get_label().startswith("NIS mean over 10 s")]
+    assert len(steps) == 1
+    plt.close("all")

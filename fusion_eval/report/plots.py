@@ -785,12 +785,25 @@ def consistency_figure(cons: dict, t0: float):
     fig, axes = subplots(len(items), 1, figsize=(10, height), sharex=True, squeeze=False)
     for ax, (label, d) in zip(axes[:, 0], items):
         lo, hi = d["bounds_95"]
-        # NEES is a continuous series (a line); NIS values are separate innovations (pixel markers, cheap to draw)
-        style = "-" if label.startswith("NEES") else ","
         v = np.asarray(d["values"])
+        t = np.asarray(d["t_s"]) - t0
+        # the axis' floor: a tenth of the lower bound, or lower where over 5 % of the values are (the constraint's NIS
+        # far below its dof is a finding); the first epoch's 1e-4 squeezed the bounds into a third of the axis (a plot
+        # review). Values below it sit on it
+        pos = v[np.isfinite(v) & (v > 0)]
+        floor = min(0.1 * lo, float(np.percentile(pos, 5))) if pos.size else 0.1 * lo
+        floor = max(floor, 1e-6)
         k = thin.envelope(v)
-        ax.plot(np.asarray(d["t_s"])[k] - t0, np.maximum(v[k], 1e-4), style, lw=0.7, color="tab:blue",
-                label="NEES (line) / NIS (dots)")
+        if label.startswith("NEES"):       # a continuous series: a line
+            ax.plot(t[k], np.maximum(v[k], floor), "-", lw=0.7, color="tab:blue", label="NEES (line) / NIS (dots)")
+        else:
+            # separate innovations: dots sized by their number (1 Hz GNSS in pixels was invisible; a plot review),
+            # and their mean over 10 s windows, where a stretch of over- or under-confidence shows
+            ms = 3.0 if v.size < 600 else 1.5 if v.size < 3000 else None
+            ax.plot(t[k], np.maximum(v[k], floor), "." if ms else ",", color="tab:blue", label="NEES (line) / NIS (dots)",
+                    **({"ms": ms} if ms else {}))
+            _window_mean(ax, t, v, floor)
+        ax.set_ylim(bottom=floor / 1.3)
         ax.axhline(lo, color="tab:red", lw=0.8, ls="--", label="95 % chi-square bounds of one epoch")
         ax.axhline(hi, color="tab:red", lw=0.8, ls="--")
         ax.axhline(d["dof"], color="black", lw=0.6, label="dof: the mean of a consistent filter")
@@ -801,11 +814,33 @@ def consistency_figure(cons: dict, t0: float):
                      fontsize=8, loc="left")
         ax.grid(alpha=0.3)
     axes[-1, 0].set_xlabel("time since start [s]")
-    # one legend for every axis (the same three lines in each), above the first, off the data
-    handles, labels = axes[0, 0].get_legend_handles_labels()
-    fig.legend(handles, labels, loc="upper center", ncol=3, fontsize=8, frameon=False)
+    # one legend for every axis (the same lines in each), above the first, off the data
+    seen = {}
+    for ax in axes[:, 0]:
+        for h, lb in zip(*ax.get_legend_handles_labels()):
+            seen.setdefault(lb, h)
+    fig.legend(list(seen.values()), list(seen), loc="upper center", ncol=4, fontsize=8, frameon=False)
     fig.subplots_adjust(left=0.08, right=0.98, top=1 - 0.45 / height, bottom=0.5 / height, hspace=0.45)
     return fig
+
+
+NIS_WINDOW_S = 10.0     # the NIS plot's running mean: over this many seconds of innovations
+
+
+def _window_mean(ax, t: np.ndarray, v: np.ndarray, floor: float) -> None:
+    """The mean of the innovations' NIS over consecutive :data:`NIS_WINDOW_S` windows (with at least 3 in each), as
+    a step line: a consistent filter's stays near the dof."""
+    ok = np.isfinite(v) & np.isfinite(t)
+    if ok.sum() < 6 or t[ok][-1] - t[ok][0] < 2 * NIS_WINDOW_S:
+        return
+    tt, vv = t[ok], v[ok]
+    w = np.floor((tt - tt[0]) / NIS_WINDOW_S).astype(int)
+    n = np.bincount(w)
+    mean = np.bincount(w, weights=vv) / np.maximum(n, 1)
+    keep = n >= 3
+    edges = tt[0] + NIS_WINDOW_S * np.arange(n.size + 1)
+    y = np.where(keep, np.maximum(mean, floor), np.nan)
+    ax.stairs(y, edges, baseline=None, color="tab:orange", lw=1.2, label=f"NIS mean over {NIS_WINDOW_S:g} s")
 
 
 def plot_consistency(path: Path, cons: dict, t0: float) -> None:
