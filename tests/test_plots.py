@@ -569,3 +569,33 @@ def test_consistency_plot_shows_sparse_innovations_their_window_mean_and_keeps_i
     steps = [p for p in ax_gnss.patches if p.get_label().startswith("NIS mean over 10 s")]
     assert len(steps) == 1
     plt.close("all")
+
+
+def test_error_plots_shade_the_gnss_outages_and_imu_holes(monkeypatch):
+    """An outage grew the East band to +/-5 m on the error plot with no word of it there; only the APE plot shaded
+    it (a plot review). The run's spans are shaded on every error panel, each label once in the legend, on the error
+    plot's own time axis (from its first stamp inside the truth)."""
+    from fusion_eval import report
+
+    gt = _circle()
+    av = fused_att_vel_error(gt, _filter_output(gt, np.random.default_rng(3)))
+    spans = [(1.0, 3.0, "GNSS outage"), (4.0, 4.5, "no IMU data (gap)"), (6.0, 6.5, "no IMU data (gap)")]
+    fig = plots.att_vel_error_figure(thin.att_vel(av), spans)
+    for ax in fig.axes:
+        assert len([p for p in ax.patches if p.get_x() in (1.0, 4.0, 6.0)]) == 3
+    labels = [t.get_text() for t in fig.axes[0].get_legend().get_texts()]
+    assert labels.count("GNSS outage") == 1 and labels.count("no IMU data (gap)") == 1
+    # write_filter_outputs moves them onto the error plots' clock: 2 s later start there, 2 s earlier spans
+    jobs = []
+    monkeypatch.setattr(report, "draw", lambda *a: jobs.append(a))
+    err = {"t_s": gt.t_s[20:], "err_w_m": np.zeros((gt.t_s.size - 20, 3)), "sigma_w_m": np.ones((gt.t_s.size - 20, 3)),
+           "att_vel": {**av, "t_s": av["t_s"][20:], **{k: av[k][20:] for k in ("att_err_b_rad", "att_sigma_b_rad",
+                                                                               "vel_err_w_mps", "vel_sigma_w_mps")}}}
+    filt = SimpleNamespace(fused=gt, accel_bias_b=np.zeros((gt.t_s.size, 3)), gyro_bias_b=np.zeros((gt.t_s.size, 3)),
+                           sigma=np.ones((gt.t_s.size, 15)))
+    out = SimpleNamespace(path=lambda name: name)
+    report.write_filter_outputs(out, {"groundtruth": gt}, filt, err, True, spans=spans, tums_written=("groundtruth",))
+    shift = gt.t_s[0] - gt.t_s[20]
+    (sig,) = [j for j in jobs if j[0] == "plot_error_sigma"]
+    assert sig[-1] == [(a + shift, b + shift, lb) for a, b, lb in spans]
+    plt.close("all")

@@ -32,7 +32,7 @@ FILTER_PLOTS = ["trajectories.png", "ape_over_time.png", "biases.png", "fused_er
 
 
 def write_filter_outputs(out: StagedDir, series: dict, filt, fused_err: dict, make_plots: bool, pool=None,
-                         truth_biases=None, tums_written=(), handles=None) -> list:
+                         truth_biases=None, tums_written=(), handles=None, spans=()) -> list:
     """TUM files and the plots that need no evaluation, each a job of its own on ``pool`` when given (so that
     they spread over the workers). Returns the futures to wait for (or nothing: done here); the plots the
     report lists are :func:`filter_plots` (``ape_over_time.png`` is drawn with the metrics, in
@@ -41,8 +41,13 @@ def write_filter_outputs(out: StagedDir, series: dict, filt, fused_err: dict, ma
     :func:`fusion_eval.datasets.truth.truth_imu_biases`), drawn over the estimated ones; ``tums_written``: the
     estimates whose TUM files another job writes (the one evaluating them, :func:`fusion_eval.pipeline.evaluate_estimate`).
     A job gets only what it draws (:mod:`.thin`): a long drive's series would cost their size again in pickles;
-    ``handles``: series as the pool's workers already hold them (:meth:`fusion_eval.pool.Pool.share`)."""
+    ``handles``: series as the pool's workers already hold them (:meth:`fusion_eval.pool.Pool.share`); ``spans``:
+    :func:`spans_of`, shaded on the error plots too (where the covariance grows, and why: a review found an outage's
+    +/-5 m band with no word of it there)."""
     handles = handles or {}
+    if len(fused_err["t_s"]) and len(filt.fused.t_s):      # the error plots count their time from their own first stamp
+        shift = float(filt.fused.t_s[0]) - float(fused_err["t_s"][0])
+        spans = [(a + shift, b + shift, label) for a, b, label in spans]
     jobs = [(files.write_tum, out.path(files.TUM_FILES[n]), n, handles.get(n, s)) for n, s in series.items()
             if s is not None and n in files.TUM_FILES and n not in tums_written]
     if make_plots:
@@ -50,9 +55,10 @@ def write_filter_outputs(out: StagedDir, series: dict, filt, fused_err: dict, ma
                  (draw, "plot_biases", out.path("biases.png"),
                   *thin.biases(filt.fused.t_s, filt.accel_bias_b, filt.gyro_bias_b, filt.sigma, truth_biases)),
                  (draw, "plot_error_sigma", out.path("fused_error_3sigma.png"),
-                  thin.error_sigma(fused_err["t_s"], fused_err["err_w_m"], fused_err["sigma_w_m"], fused_err.get("smoothed"))),
+                  thin.error_sigma(fused_err["t_s"], fused_err["err_w_m"], fused_err["sigma_w_m"], fused_err.get("smoothed")),
+                  spans),
                  (draw, "plot_att_vel_error_sigma", out.path("fused_error_att_vel_3sigma.png"),
-                  thin.att_vel(fused_err["att_vel"]))]
+                  thin.att_vel(fused_err["att_vel"]), spans)]
     if pool is None:
         for j in jobs:
             j[0](*j[1:])
@@ -71,11 +77,16 @@ IMU_GAP_MIN_S = 1.0        # a hole in the fused record this long is shaded (KIT
 def route_spans(res) -> list[tuple[float, float, str]]:
     """The spans of a run to shade on its time plots, in seconds from the filter's start: the configured GNSS outages
     and the holes in the fused record (the IMU's dropped packets), each ``(start, end, label)``."""
+    return spans_of(res.cfg, res.metrics.get("gnss_degradation"), res.filt.fused.t_s)
+
+
+def spans_of(cfg: dict, gnss_info: dict | None, fused_t_s) -> list[tuple[float, float, str]]:
+    """:func:`route_spans` from the configuration, the GNSS degradation's record and the fused stamps."""
     out = []
-    gd = res.metrics.get("gnss_degradation") or {}
-    if res.cfg["filter"].get("use_gnss"):
+    gd = gnss_info or {}
+    if cfg["filter"].get("use_gnss"):
         out += [(float(a), float(b), "GNSS outage") for a, b in gd.get("outages_s") or []]
-    t = np.asarray(res.filt.fused.t_s, float)
+    t = np.asarray(fused_t_s, float)
     if t.size > 2:
         dt = np.diff(t)
         for i in np.flatnonzero(dt > max(IMU_GAP_MIN_S, 5 * float(np.median(dt)))):
@@ -145,6 +156,7 @@ def write_evaluation(out: StagedDir, res, plots_written: list[str], pool=None, a
 def write_run(out: StagedDir, res, pool=None) -> None:
     """Every output of ``fusion-eval run`` for an evaluated run."""
     make_plots = res.cfg["output"]["plots"]
-    for f in write_filter_outputs(out, res.series, res.filt, res.fused_error, make_plots, pool, res.truth_biases):
+    for f in write_filter_outputs(out, res.series, res.filt, res.fused_error, make_plots, pool, res.truth_biases,
+                                  spans=route_spans(res)):
         f.result()
     write_evaluation(out, res, filter_plots(make_plots), pool)

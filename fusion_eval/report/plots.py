@@ -179,11 +179,7 @@ def plot_ape_over_time(path: Path, evals: dict, t0: float, x_label: str = "time 
     label)`` on the plot's time axis, shaded (the GNSS outages, the IMU's gaps: where on the route the error grows and
     why, which a reader had to find in the report's text)."""
     fig, ax = subplots(figsize=(12, 4.5))
-    shaded: set = set()
-    for a, b, label in spans:
-        color = "gold" if label.startswith("GNSS") else "0.5"       # (orange is dead reckoning's)
-        ax.axvspan(a, b, color=color, alpha=0.15, lw=0, label=None if label in shaded else label)
-        shaded.add(label)
+    _shade(ax, spans)
     known = [n for n in ("imu_only", "gnss", "lidar", "fused", "smoothed") if n in evals]
     floor = _log_floor([ev.ape_err_m for ev in evals.values()])
     colors = estimate_colors(list(evals))
@@ -282,7 +278,17 @@ def plot_biases(path: Path, t_s: np.ndarray, ba: np.ndarray, bg: np.ndarray, sig
     _save(biases_figure(t_s, ba, bg, sigma, truth), path)
 
 
-def _error_sigma_panels(axes, d: dict, names, unit: str, scale: float = 1.0, titles=None) -> None:
+def _shade(ax, spans, legend: bool = True) -> None:
+    """The route's spans (``(start, end, label)``, :func:`fusion_eval.report.spans_of`) on a time axis: the GNSS
+    outages gold, the IMU's holes grey, each label once in the legend."""
+    shaded: set = set()
+    for a, b, label in spans:
+        color = "gold" if label.startswith("GNSS") else "0.5"       # (orange is dead reckoning's)
+        ax.axvspan(a, b, color=color, alpha=0.15, lw=0, label=None if (label in shaded or not legend) else label)
+        shaded.add(label)
+
+
+def _error_sigma_panels(axes, d: dict, names, unit: str, scale: float = 1.0, titles=None, spans=()) -> None:
     """One axis per column of ``d["err"]`` (N, 3) (``d``: :func:`fusion_eval.report.thin.error_sigma`): the
     filter's +/-3 sigma as a grey band, the error over it, the smoother's error and sigma where given, and the
     share of epochs inside 3 sigma in the title. ``scale``: SI to the unit shown; ``names`` label the y axes,
@@ -291,6 +297,7 @@ def _error_sigma_panels(axes, d: dict, names, unit: str, scale: float = 1.0, tit
     inside_f, inside_s = d["inside"]
     t = t_s - t_s[0]
     for i, (ax, name, what) in enumerate(zip(axes, names, titles or names)):
+        _shade(ax, spans, legend=i == 0)
         s3 = 3 * sigma[:, i] * scale
         ax.fill_between(t, -s3, s3, color="tab:gray", alpha=0.3, lw=0, label="+/-3 sigma (filter)")
         ax.plot(t, err[:, i] * scale, color=COLORS["fused"], lw=0.9, label="fused - ground truth")
@@ -314,13 +321,13 @@ def _error_sigma_panels(axes, d: dict, names, unit: str, scale: float = 1.0, tit
         ax.grid(alpha=0.3)
 
 
-def plot_error_sigma(path: Path, d: dict) -> None:
+def plot_error_sigma(path: Path, d: dict, spans=()) -> None:
     """Fused position error per ENU axis with the filter's own +/-3 sigma per axis (``d``:
     :func:`fusion_eval.report.thin.error_sigma`): is the covariance honest? The smoother's error and sigma at
-    the same stamps, where given, drawn over it."""
+    the same stamps, where given, drawn over it; ``spans`` (on this plot's time axis) shaded."""
     smoothed = d["smoothed"]
     fig, axes = subplots(3, 1, figsize=(10, 7), sharex=True)
-    _error_sigma_panels(axes, d, ("East", "North", "Up"), "m")
+    _error_sigma_panels(axes, d, ("East", "North", "Up"), "m", spans=spans)
     axes[0].legend(loc="upper right", fontsize=8, ncol=2 if smoothed is not None else 1)
     axes[-1].set_xlabel("time since start [s]")
     fig.suptitle("Position error with its own +/-3 sigma" + (" (filter and smoother)" if smoothed is not None else ""))
@@ -334,17 +341,17 @@ VEL_NAMES = ("East", "North", "Up")
 VEL_TITLES = ("East velocity error", "North velocity error", "Up velocity error")
 
 
-def att_vel_error_figure(av: dict):
+def att_vel_error_figure(av: dict, spans=()):
     """The figure of :func:`plot_att_vel_error_sigma` (``av``: :func:`fusion_eval.report.thin.att_vel`):
     attitude error (left column, deg) and velocity error (right column, m/s; absent when the estimate has no
     velocity) with the filter's +/-3 sigma."""
     has_vel = av.get("vel") is not None
     fig, axes = subplots(3, 2 if has_vel else 1, figsize=(14 if has_vel else 9, 7.5), sharex=True, squeeze=False)
-    _error_sigma_panels(axes[:, 0], av["att"], ATT_NAMES, "deg", scale=180 / np.pi, titles=ATT_TITLES)
+    _error_sigma_panels(axes[:, 0], av["att"], ATT_NAMES, "deg", scale=180 / np.pi, titles=ATT_TITLES, spans=spans)
     title = ("Attitude error Log(R_gt^T R_fused), body frame (x, y, z = roll, pitch, yaw for a forward-left-up IMU), "
              "with the filter's +/-3 sigma")
     if has_vel:
-        _error_sigma_panels(axes[:, 1], av["vel"], VEL_NAMES, "m/s", titles=VEL_TITLES)
+        _error_sigma_panels(axes[:, 1], av["vel"], VEL_NAMES, "m/s", titles=VEL_TITLES, spans=spans)
         title += f"\nvelocity error: fused minus true ENU velocity; true velocity: {av['vel_truth']}"
     for ax in axes[-1]:
         ax.set_xlabel("time since start [s]")
@@ -354,11 +361,11 @@ def att_vel_error_figure(av: dict):
     return fig
 
 
-def plot_att_vel_error_sigma(path: Path, av: dict) -> None:
+def plot_att_vel_error_sigma(path: Path, av: dict, spans=()) -> None:
     """Fused attitude and velocity errors against the ground truth with the filter's own +/-3 sigma (``av``:
     :func:`fusion_eval.report.thin.att_vel` of :func:`fusion_eval.evaluation.run_metrics.fused_att_vel_error`):
-    the position plot's question for the other two blocks of the state."""
-    _save(att_vel_error_figure(av), path)
+    the position plot's question for the other two blocks of the state; ``spans`` shaded."""
+    _save(att_vel_error_figure(av, spans), path)
 
 
 # the unfiltered estimates beside variants: in their colours of a run's plots, which no variant has
