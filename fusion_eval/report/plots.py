@@ -678,13 +678,15 @@ def plot_sweep(out_dir: Path, rows: list[dict], keys: list[str], metric: str, ta
             for (i, j), vals in cells.items():
                 Z[i, j] = float(np.mean(vals))
             fig, ax = subplots(figsize=(6, 5))
-            im = ax.imshow(Z, origin="lower", cmap="viridis_r", aspect="auto")
+            # viridis as the segment map's: yellow the largest error there and here (this was reversed, yellow the
+            # best, and one report read both ways; a plot review)
+            im = ax.imshow(Z, origin="lower", cmap="viridis", aspect="auto")
             ax.set_xticks(range(len(xs)), [f"{x:g}" for x in xs])
             ax.set_yticks(range(len(ys)), [f"{y:g}" for y in ys])
             for i in range(len(ys)):
                 for j in range(len(xs)):
                     if np.isfinite(Z[i, j]):
-                        # dark text on the bright (best, yellow) cells, white on the dark ones
+                        # dark text on the bright (worst, yellow) cells, white on the dark ones
                         r, g, b, _ = im.cmap(im.norm(Z[i, j]))
                         ax.text(j, i, f"{Z[i, j]:.3f}", ha="center", va="center", fontsize=8,
                                 color="black" if 0.299 * r + 0.587 * g + 0.114 * b > 0.5 else "white")
