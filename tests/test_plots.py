@@ -339,6 +339,15 @@ def test_compare_ape_draws_smoothed_estimates_and_keeps_unfiltered_colours_apart
     assert lines["v1 smoothed"].get_color() == lines["v1"].get_color() and lines["v1 smoothed"].get_linestyle() == "--"
     variant = {to_hex(lines[f"v{i}"].get_color()) for i in range(4)}
     assert len(variant) == 4 and not variant & {to_hex(lines[n].get_color()) for n in ("lidar odometry", "GNSS")}
+    # the second panel: each later variant (and a smoothed one) less the first, in its colour; v1 is 1 + t above v0
+    diff = [ln for ln in figs[0].axes[1].get_lines() if len(ln.get_xdata()) > 2]
+    assert len(diff) == 4 and figs[0].axes[1].get_yscale() == "symlog"
+    by_colour = {(to_hex(ln.get_color()), ln.get_linestyle()): ln for ln in diff}
+    v1 = by_colour[(to_hex(lines["v1"].get_color()), "-")]
+    np.testing.assert_allclose(v1.get_ydata(), 1 + np.arange(50.0))
+    one = [SimpleNamespace(name="v0", ev=ev(1.0), ev_smoothed=None)]
+    plots.plot_compare_ape(tmp_path / "b.png", one, {}, 0.0)
+    assert len(figs[1].axes) == 1                                  # one variant: nothing to take a difference from
     plt.close("all")
 
 

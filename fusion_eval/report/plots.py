@@ -376,10 +376,19 @@ _UNFILTERED = {"lidar": (COLORS["lidar"], ":"), "gnss": (COLORS["gnss"], ".")}  
 _VARIANT_COLORS = ["tab:red", *OTHER_COLORS]
 
 
+SYMLOG_LIN_M = 0.01     # compare's difference panel: linear within +/- this, logarithmic beyond
+
+
 def plot_compare_ape(path: Path, runs, evs_unfiltered: dict, t0: float) -> None:
     """APE translation over time of every variant (solid; a variant's smoothed estimate dashed, in its colour)
-    and of the unfiltered estimates (lidar dotted, GNSS dots, in their own colours)."""
-    fig, ax = subplots(figsize=(12, 4.5))
+    and of the unfiltered estimates (lidar dotted, GNSS dots, in their own colours); with two variants or more, a
+    second panel of each later variant's APE minus the first's, on a linear axis: variants within centimetres of
+    each other were one band on the log axis, the thinner hidden under the others (a plot review)."""
+    diffs = len(runs) > 1 and runs[0].ev.ape_err_m is not None and len(runs[0].ev.ape_err_m) > 1
+    if diffs:
+        fig, (ax, axd) = subplots(2, 1, figsize=(12, 7.5), sharex=True, gridspec_kw={"height_ratios": [3, 2]})
+    else:
+        fig, ax = subplots(figsize=(12, 4.5))
     floor = _log_floor([r.ev.ape_err_m for r in runs] + [r.ev_smoothed.ape_err_m for r in runs if r.ev_smoothed is not None]
                        + [ev.ape_err_m for ev in evs_unfiltered.values()])
     for i, r in enumerate(runs):
@@ -402,11 +411,32 @@ def plot_compare_ape(path: Path, runs, evs_unfiltered: dict, t0: float) -> None:
                     label=f"{LABELS[name]} (RMSE {_metres(ev.metrics['ape']['translation_m']['rmse'])})")
     ax.set_yscale("log")
     _no_minor_labels(ax)
-    ax.set_xlabel("time since start [s]")
     ax.set_ylabel("APE translation [m]")
     ax.set_title("Absolute position error of each variant (later variants drawn thinner, over the earlier)")
     ax.grid(alpha=0.3, which="both")
     _legend_outside(fig, ax, fontsize=7)
+    if diffs:
+        base = runs[0].ev
+        axd.axhline(0.0, color=_VARIANT_COLORS[0], lw=1.2)
+        for i, r in enumerate(runs):
+            for ev, style in ((r.ev, "-"), (r.ev_smoothed, "--")):
+                if (i == 0 and style == "-") or ev is None or ev.ape_err_m is None or len(ev.ape_err_m) < 2:
+                    continue
+                d = np.interp(base.ape_t_s, ev.ape_t_s, ev.ape_err_m, left=np.nan, right=np.nan) - base.ape_err_m
+                k = thin.envelope(d)
+                axd.plot(*_gapped(base.ape_t_s[k] - t0, d[k]), style, lw=1.0,
+                         color=_VARIANT_COLORS[i % len(_VARIANT_COLORS)])
+        # linear within +/-1 cm, logarithmic beyond: filters centimetres apart and a smoother decimetres apart on one
+        # axis (linear, the smoother's 0.9 m flattened the filters into the zero line)
+        axd.set_yscale("symlog", linthresh=SYMLOG_LIN_M, linscale=0.5)
+        axd.set_ylabel(f"APE - {runs[0].name}'s APE [m]")
+        axd.set_title(f"Each variant against {runs[0].name} (below zero: better than it; linear within +/-"
+                      f"{SYMLOG_LIN_M * 100:g} cm, logarithmic beyond)", fontsize=9, loc="left")
+        axd.grid(alpha=0.3)
+        axd.set_xlabel("time since start [s]")
+        fig.subplots_adjust(hspace=0.25)
+    else:
+        ax.set_xlabel("time since start [s]")
     _save(fig, path)
 
 
