@@ -220,8 +220,15 @@ def read_bag_trajectories(bag: Path, topics: list[str]) -> list[TrajectoryFile]:
                 raise DataFormatError(bag, None, f"topic {topic!r}: {exc} (trajectory topics in the bag: "
                                                  f"{', '.join(known) or 'none'}; TF frames as /tf:parent.child)") from None
             t = np.asarray(traj.timestamps)
-            # the 'line' of a bag topic is the message's number in it
-            repeated = _stamps_checked(f"{bag} (topic {topic}, message)", t, np.arange(1, t.size + 1))
+            lines = np.arange(1, t.size + 1)           # the 'line' of a bag topic is the message's number in it
+            if t.size > 1 and np.any(np.diff(t) < 0) and np.all(np.isfinite(t)):
+                # recorded out of their header stamps' order (several publishers, a bag's write buffers): sorted by
+                # stamp, as run's bag reader does; they were refused as 'decreasing' (a bag review)
+                order = np.argsort(t, kind="stable")
+                traj.reduce_to_ids(order)
+                t, lines = np.asarray(traj.timestamps), lines[order]
+                log.info("%s: topic %s: messages are not in stamp order; sorted by stamp", bag, topic)
+            repeated = _stamps_checked(f"{bag} (topic {topic})", t, lines)
             traj.meta["name"] = topic
             f = TrajectoryFile(traj=traj, format="bag", stamps="header stamps", repeated_stamps=repeated,
                                source=f"{bag}:{topic}", frame_id=traj.meta.get("frame_id"), note=note)
