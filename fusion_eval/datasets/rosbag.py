@@ -993,7 +993,7 @@ def _messages(path, topic: str, accepted: Sequence[str]) -> Iterator[tuple[str, 
 
 
 def read_poses(path: str | Path, topic: str, stamps: str = "header", child_frame: str | None = None,
-               parent_frame: str | None = None) -> PoseSeries:
+               parent_frame: str | None = None, frames: dict | None = None) -> PoseSeries:
     """Read a pose topic.
 
     Parameters
@@ -1011,6 +1011,9 @@ def read_poses(path: str | Path, topic: str, stamps: str = "header", child_frame
     parent_frame : str, optional
         Selects messages (or transforms) whose ``header.frame_id`` is this frame. Only direct edges are read;
         transforms are not chained.
+    frames : dict, optional
+        Filled with the ``(parent, child)`` frame pairs of the poses read and their counts (``child`` None for a
+        type without a child frame): what the manifest's ``frame`` is checked against.
 
     Returns
     -------
@@ -1048,6 +1051,8 @@ def read_poses(path: str | Path, topic: str, stamps: str = "header", child_frame
             pairs[key] = pairs.get(key, 0) + 1
             if (child is not None and key[1] is not None and key[1] != child) or (parent is not None and key[0] != parent):
                 continue
+            if frames is not None:
+                frames[key] = frames.get(key, 0) + 1
             t_hdr.append((header.stamp.sec, header.stamp.nanosec))
             t_rec.append(rec)
             p.append((pos.x, pos.y, pos.z))
