@@ -430,7 +430,7 @@ def _imu_msgs(ros1: bool, frames: list[str], rng) -> tuple[list, np.ndarray, np.
 @pytest.mark.parametrize("ros1", [True, False], ids=["ros1", "ros2"])
 def test_varying_frame_id_falls_back_and_repeated_stamps_are_dropped(tmp_path, ros1, caplog):
     rng = np.random.default_rng(11)
-    msgs, f, w = _imu_msgs(ros1, ["a", "bb", "a", "ccc", "a", "bb"], rng)
+    msgs, f, w = _imu_msgs(ros1, ["imu", "/imu", "imu", "//imu", "imu", "/imu"], rng)     # one frame, spelt three ways
     # the fifth message repeats the fourth one's header stamp
     dup = msgs[4][3]
     dup.header.stamp = msgs[3][3].header.stamp
@@ -692,3 +692,25 @@ def test_poses_of_another_frame_than_the_extrinsic_taken_are_said(tmp_path, capl
     assert "tf_static: [imu_link, velo_link]" in w
     assert said("/odom", "velo", ["imu_link", "/velo_link"]) == ""
     assert said("/pose", "base", ["imu_link", "base_link"]) == ""           # PoseStamped: no child frame to check
+
+
+@pytest.mark.parametrize("ros1", [True, False], ids=["ros1", "ros2-sqlite3"])
+@pytest.mark.parametrize("names", [("imu0", "imu1"), ("imu_link", "imu2_link")], ids=["same-length", "other-length"])
+def test_two_sensors_on_one_topic_are_refused_unless_one_frame_is_chosen(tmp_path, ros1, names):
+    """Two IMU drivers publishing on one topic (frame_ids imu_link and imu2_link, the second rotated) ran as one IMU,
+    through misleading messages, to 1.58 m for 0.76 (a bag review): refused, naming the frames and their counts;
+    the entry's frame_id reads one of them, with the messages' own numbers. Both storage routes: frame_ids of one
+    length read by fixed offsets, of two lengths message by message."""
+    rng = np.random.default_rng(13)
+    frames = [names[i % 2] for i in range(40)]
+    msgs, f, w = _imu_msgs(ros1, frames, rng)
+    bag = _raw_bag(tmp_path / ("two.bag" if ros1 else "two"), ros1, msgs)
+    a, b = sorted(names)
+    with pytest.raises(DataFormatError, match=rf"holds messages of 2 frames \('{a}' \(20\), '{b}' \(20\)\).*"
+                                              "give the stream's frame_id"):
+        rb.read_imu(bag, "/imu")
+    imu = rb.read_imu(bag, "/imu", frame_id=names[1])
+    np.testing.assert_array_equal(imu.f_b_mps2, f[1::2])
+    np.testing.assert_array_equal(imu.lines, np.arange(2, 41, 2))
+    with pytest.raises(DataFormatError, match="no message of frame_id 'gps'"):
+        rb.read_imu(bag, "/imu", frame_id="gps")

@@ -25,7 +25,7 @@ from .streams import ReadContext
 log = logging.getLogger(__name__)
 
 _POSE_TOPIC = frozenset({"topic", "stamps", "child_frame", "parent_frame"})    # a /tf topic names its frames
-KEYS = {"imu": frozenset({"topic", "stamps"}), "gnss": frozenset({"topic", "stamps", "std_m"}),
+KEYS = {"imu": frozenset({"topic", "stamps", "frame_id"}), "gnss": frozenset({"topic", "stamps", "std_m", "frame_id"}),
         "groundtruth": _POSE_TOPIC, "lidar": _POSE_TOPIC, "odometer": _POSE_TOPIC}
 
 
@@ -42,7 +42,16 @@ def _topic(entry: dict, ctx: ReadContext) -> str:
 def read_imu(entry: dict, ctx: ReadContext):
     from . import rosbag
 
-    return rosbag.read_imu(ctx.path(entry), _topic(entry, ctx), stamps=entry.get("stamps", "header"))
+    return rosbag.read_imu(ctx.path(entry), _topic(entry, ctx), stamps=entry.get("stamps", "header"),
+                           frame_id=_frame_id(entry, ctx))
+
+
+def _frame_id(entry: dict, ctx: ReadContext) -> str | None:
+    """The entry's ``frame_id`` (which sensor's messages to read where two publish on one topic), or None."""
+    v = entry.get("frame_id")
+    if v is not None and (not isinstance(v, str) or not v):
+        raise ConfigError(f"{ctx.at(entry, 'frame_id')}: 'frame_id' must be a frame name (a message's header.frame_id)")
+    return v
 
 
 def read_gnss(entry: dict, ctx: ReadContext):
@@ -54,13 +63,13 @@ def read_gnss(entry: dict, ctx: ReadContext):
         raise ConfigError(f"{ctx.at(entry)}: NavSatFix fixes need a geodetic_origin ('first_fix' or [lat, lon, alt])")
     default = std_m(entry, ctx) if "std_m" in entry else None
     return rosbag.read_navsatfix(ctx.path(entry), topic, ctx.origin, stamps=entry.get("stamps", "header"),
-                                 default_std_m=default)
+                                 default_std_m=default, frame_id=_frame_id(entry, ctx))
 
 
 def first_fix(entry: dict, ctx: ReadContext):
     from . import rosbag
 
-    return tuple(float(v) for v in rosbag.first_fix(ctx.path(entry), _topic(entry, ctx)))
+    return tuple(float(v) for v in rosbag.first_fix(ctx.path(entry), _topic(entry, ctx), _frame_id(entry, ctx)))
 
 
 def read_poses(entry: dict, ctx: ReadContext):
