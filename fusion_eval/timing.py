@@ -15,7 +15,7 @@ import numpy as np
 
 from .calibration import measure_shifts, resolve
 from .calibration.time_offset import MAX_SHIFT_S
-from .datasets.plausible import LAG_NOTE, MAX_LAG_S
+from .datasets.plausible import LAG_NOTE, MAX_LAG_S, clock_hint
 from .errors import ConfigError, DataRangeError, FusionEvalError, ShiftAtSearchEdgeError
 from .stats import moving_mean
 from .types import Dataset, ImuSeries, shifted
@@ -101,6 +101,12 @@ def align(ds: Dataset, cfg: dict, imu: ImuSeries, lidar_offset_given) -> tuple[I
             fmt = ds.description.get("streams", {}).get("imu", {}).get("format")
             known = DEVICE_LAGS_S.get(fmt)
             if known is None:
+                # streams on two clocks overlap by nothing: that, not the missing figure, is what to fix (a bag's IMU
+                # on its boot clock was told to give its lags in seconds, and then, given them, of the clocks; a review)
+                hint = "" if ds.lidar is None or not len(ds.lidar) else clock_hint(
+                    "IMU", float(imu.t_s[0]), "lidar", float(ds.lidar.t_s[0]))
+                if hint:
+                    raise DataRangeError(f"the IMU and the lidar overlap by {max(overlap, 0.0):.1f} s{hint}")
                 raise ConfigError(f"imu.accel_lag_s / imu.gyro_lag_s / lidar.time_offset_s = auto need {MIN_OVERLAP_S:g} s of "
                                   f"lidar overlapping the IMU to estimate them from (here {max(overlap, 0.0):.1f} s, and no "
                                   f"known figure for IMU format {fmt!r}); give them in seconds")

@@ -1825,3 +1825,23 @@ def test_evaluate_takes_a_dataset_as_the_reference(tmp_path):
     r = CliRunner().invoke(main, ["evaluate", str(KITTI00), str(tmp_path / "est.tum"), "--ref-times", str(tmp_path / "est.tum"),
                                   "-o", str(tmp_path / "x")])
     assert r.exit_code == 2 and "--ref-times applies to a KITTI pose file" in r.output
+
+
+def test_auto_lags_on_an_imu_of_another_clock_name_the_clocks():
+    """A bag's IMU on its boot clock beside a POSIX lidar, with gyro_lag_s: auto, was told to give its lags in seconds
+    (too little overlap to estimate them), and only then, with them given, of the clocks (a bag review)."""
+    from types import SimpleNamespace
+
+    from fusion_eval.errors import DataRangeError
+    from fusion_eval.timing import align
+    from fusion_eval.types import ImuSeries, PoseSeries
+
+    t = np.arange(0.0, 120.0, 0.01) + 6536.4
+    imu = ImuSeries(t_s=t, f_b_mps2=np.tile([0.0, 0.0, 9.81], (t.size, 1)), w_b_rps=np.zeros((t.size, 3)))
+    tl = np.arange(0.0, 120.0, 0.1) + 1317646536.5
+    lidar = PoseSeries(t_s=tl, p_w_m=np.zeros((tl.size, 3)), q_wb_xyzw=np.tile([0.0, 0.0, 0.0, 1.0], (tl.size, 1)))
+    ds = SimpleNamespace(lidar=lidar, description={"streams": {"imu": {"format": "csv"}}})
+    cfg = {"imu": {"accel_lag_s": 0.0, "gyro_lag_s": "auto"}, "lidar": {}}
+    with pytest.raises(DataRangeError, match=r"the IMU and the lidar overlap by 0.0 s: the IMU stamps start near 0 "
+                                             r"\(6536.400 s: a device's boot clock.*add about 1317640000.100 s"):
+        align(ds, cfg, imu, 0.0)
