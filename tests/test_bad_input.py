@@ -1845,3 +1845,48 @@ def test_auto_lags_on_an_imu_of_another_clock_name_the_clocks():
     with pytest.raises(DataRangeError, match=r"the IMU and the lidar overlap by 0.0 s: the IMU stamps start near 0 "
                                              r"\(6536.400 s: a device's boot clock.*add about 1317640000.100 s"):
         align(ds, cfg, imu, 0.0)
+
+
+@pytest.mark.parametrize("where,value,needle", [
+    (("streams", "imu", "format"), ["kitti_oxts"], r"stream 'imu' needs a 'format', one word .* got \['kitti_oxts'\]"),
+    (("streams", "lidar", "T_cam0_velo", "key"), ["Tr"], r"T_cam0_velo: 'key' must be the name of a calibration entry"),
+    (("streams", "lidar", "format"), {"kitti_poses": 1}, r"stream 'lidar' needs a 'format', one word"),
+])
+def test_a_list_or_mapping_where_the_manifest_wants_a_word_is_one_line(tmp_path, where, value, needle):
+    """A YAML list or mapping where a word belongs ended in 'TypeError: unhashable type' with a traceback (a
+    corrupted-input review): each is a one-line error at the manifest's line."""
+    import yaml
+
+    from conftest import KITTI00 as src
+
+    text = (src / "dataset.yaml").read_text()
+    for rel in ("oxts", "lidar/00_poses_kitti.txt", "lidar/calib.txt", "calib_imu_to_velo.txt", "lidar/times.txt"):
+        text = text.replace(f" {rel}", f" {src / rel}")          # the data where it is, the manifest here
+    body = yaml.safe_load(text)
+    node = body
+    for k in where[:-1]:
+        node = node[k]
+    node[where[-1]] = value
+    (tmp_path / "dataset.yaml").write_text(yaml.safe_dump(body))
+    import fusion_eval as fe
+    from fusion_eval.errors import ConfigError
+
+    with pytest.raises(ConfigError, match=rf"dataset.yaml:\d+: {needle}"):
+        fe.load_dataset(tmp_path)
+
+
+@pytest.mark.parametrize("key,value", [("time_unit", ["s"]), ("gyro_unit", ["deg/s"]), ("accel_unit", {"g": 1})])
+def test_a_list_for_a_csv_streams_unit_is_one_line(tmp_path, key, value):
+    import yaml
+
+    from fusion_eval.simulate.dataset import simulate
+
+    simulate(tmp_path / "s", "urban", 20.0, 0, "automotive", ("output.layout=csv_log",), jobs=1)
+    m = yaml.safe_load((tmp_path / "s" / "dataset.yaml").read_text())
+    m["streams"]["imu"][key] = value
+    (tmp_path / "s" / "dataset.yaml").write_text(yaml.safe_dump(m))
+    import fusion_eval as fe
+    from fusion_eval.errors import ConfigError
+
+    with pytest.raises(ConfigError, match=rf"dataset.yaml:\d+: {key} must be one of .*, got "):
+        fe.load_dataset(tmp_path / "s")

@@ -227,7 +227,7 @@ def _check_header(path: Path, entry: dict, kind: str, delimiter: str | None) -> 
 
 def _choice(entry: dict, key: str, table: dict, default: str, ctx: ReadContext):
     v = entry.get(key, default)
-    if v not in table:
+    if not isinstance(v, str) or v not in table:       # (a list or mapping: unhashable, a traceback once)
         raise ConfigError(f"{ctx.at(entry, key)}: {key} must be one of {', '.join(table)}, got {v!r}")
     return table[v]
 

@@ -132,6 +132,10 @@ def _from_manifest_dict(body: dict, root: Path, manifest: Path, extra: dict | No
         registered = for_stream(name) if name in STREAMS else {}
         allowed = STREAM_KEYS[name] if name in STREAMS else extra[name].keys
         formats = tuple(registered) if name in STREAMS else tuple(extra[name].readers)
+        if not isinstance(spec.get("format"), str):
+            # a list or a mapping here ended in a traceback (unhashable type; a corrupted-input review)
+            raise ConfigError(f"{at(manifest, spec, 'format')}: stream {name!r} needs a 'format', one word (known for "
+                              f"{name}: {', '.join(formats)}), got {spec.get('format')!r}")
         if spec.get("format") in registered:
             allowed = allowed | registered[spec["format"]].keys_for(name)
         fmt = spec.get("format")
@@ -280,6 +284,9 @@ def _transform(spec_value, root: Path, where: str, what: str) -> np.ndarray:
         unknown = sorted(set(map(str, spec_value)) - {"file", "key"})
         if unknown:               # a misspelt 'key' (or an 'invert' it does not have) was ignored
             raise ConfigError(f"{where}: unknown key {unknown[0]!r} in {what} (known: file, key)")
+        if spec_value.get("key") is not None and not isinstance(spec_value["key"], str):
+            raise ConfigError(f"{where}: {what}: 'key' must be the name of a calibration entry (such as Tr), got "
+                              f"{spec_value['key']!r}")
         return kitti_poses.calib_transform(root / spec_value["file"], spec_value.get("key"))
     if isinstance(spec_value, (list, tuple)) and len(spec_value) in (12, 16) and all(_is_num(v) for v in spec_value):
         T = np.eye(4)
