@@ -1890,3 +1890,24 @@ def test_a_list_for_a_csv_streams_unit_is_one_line(tmp_path, key, value):
 
     with pytest.raises(ConfigError, match=rf"dataset.yaml:\d+: {key} must be one of .*, got "):
         fe.load_dataset(tmp_path / "s")
+
+
+@pytest.mark.parametrize("token", ["9_7.47", "1_0.5", "5.\u0661", "\u0669.81"])
+def test_numbers_python_reads_but_files_do_not_write_are_refused(tmp_path, token):
+    """Python's float (and numpy's and pandas' parsers after it) reads '9_7.47' as 97.47 and digits of other scripts
+    as digits: an accelerometer's '9_8.1' ran to a fused 3.6 m for 0.72 with the GNSS blamed, a TUM '1_0.5' was 10.5
+    (a corrupted-input review). Every reader of numbers refuses them at their line."""
+    from fusion_eval.datasets._text import parse_numeric_rows
+    from fusion_eval.datasets.csv_stream import load_table
+    from fusion_eval.errors import DataFormatError
+
+    text = "1 2 3\n4 " + token + " 6\n"
+    with pytest.raises(DataFormatError, match=rf"x.txt:2: rows: expected a number, got '{token}'"):
+        parse_numeric_rows(Path("x.txt"), text, 3, "rows")
+    with pytest.raises(DataFormatError, match=rf"x.txt:2: rows: expected a number, got '{token}'"):
+        parse_numeric_rows(Path("x.txt"), text.replace(" ", ","), 3, "rows", delimiter=",")
+    np.testing.assert_array_equal(parse_numeric_rows(Path("x.txt"), "# Stra\u00dfe\n1 2 3\n", 3, "rows")[0], [[1, 2, 3]])
+    csv = tmp_path / "imu.csv"                    # pandas' reader: a column with the token is text, not converted
+    csv.write_text("t,a,b\n1,2,3\n2," + token + ",6\n")
+    with pytest.raises(DataFormatError, match=rf"imu.csv:3: .*expected a number, got '{token}'"):
+        load_table(csv, "IMU CSV", 3, ",", stamp_col=0)

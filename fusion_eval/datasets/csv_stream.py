@@ -132,6 +132,10 @@ def load_table(path: Path, what: str, ncols_min: int, delimiter: str | None = ",
         for c in skipped:                    # whatever they hold ('imu_link': a frame_id was refused as no number)
             if c < df.shape[1]:
                 df[df.columns[c]] = 0.0
+        if not all(pd.api.types.is_numeric_dtype(d) for d in df.dtypes):
+            # a column pandas kept as text: converting it would take what Python's float takes, '9_8.1' as 98.1 (a
+            # corrupted-input review); the slow reader names the line
+            raise ValueError("a column of text")
         rows = df.to_numpy(float)
         ok = rows.shape == (line_no.size, rows.shape[1]) and rows.shape[1] >= ncols_min and np.isfinite(rows).all()
     except (ValueError, TypeError, OverflowError, IndexError, pd.errors.ParserError):

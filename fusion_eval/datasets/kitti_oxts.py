@@ -25,7 +25,7 @@ from ..errors import DataFormatError
 from ..geo import enu_rotation, geodetic_to_enu
 from ..so3 import euler_rpy_to_matrix, matrix_to_quat_xyzw
 from ..types import GnssSeries, ImuSeries, PoseSeries, SpeedSeries
-from ._text import check_file, exact_floats, is_float, read_text
+from ._text import check_file, exact_floats, is_float, read_text, strict_float
 
 N_FIELDS = 30
 FIELDS = ("lat", "lon", "alt", "roll", "pitch", "yaw", "vn", "ve", "vf", "vl", "vu", "ax", "ay", "az", "af", "al", "au",
@@ -138,7 +138,7 @@ def read_oxts(path: Path) -> OxtsPackets:
             raise DataFormatError(packet_paths[i], 1, f"expected {N_FIELDS} values per OXTS packet, got {len(parts)}"
                                                       + (f" ({len(parts) // N_FIELDS} packets in one file?)" if twice else ""))
         try:
-            row = [float(x) for x in parts]
+            row = [strict_float(x) for x in parts]
         except ValueError:
             bad_tok = next(x for x in parts if not is_float(x))
             raise DataFormatError(packet_paths[i], 1, f"expected a number, got {bad_tok!r}") from None
