@@ -105,6 +105,8 @@ def run_evaluate(inputs: list, out_dir: Path, ref_times: Path | None = None, tim
     # the output folder (its staging) is made before the work: an --out that cannot be created was said only after it
     with staged as out:
         ref_f, est_fs = read_inputs(list(inputs), bag, ref_topic, fmt, ref_times, times, t_offset_s)
+        for why in ref_f.flags:               # the estimates' are said with their other notes, below
+            log.warning("the reference %s: %s", Path(ref_f.source).name, why)
         if segment_s is not None and ref_f.stamps == BY_INDEX:
             # the frame index would be read as seconds: 60 frames of a 10 Hz drive labelled "60 s"
             raise ConfigError(f"--segment-s needs stamps in seconds, and the reference {ref_f.source} has none (KITTI poses "
@@ -157,7 +159,7 @@ def run_evaluate(inputs: list, out_dir: Path, ref_times: Path | None = None, tim
         for name, f in zip(series, est_fs):
             ape = m["estimates"][name].get("ape") or {}
             rot, trans = ((ape.get(k) or {}).get("rmse") for k in ("rotation_deg", "translation_m"))
-            for why in [*convention_hints(f, ref_f, alignment, rot, trans),
+            for why in [*f.flags, *convention_hints(f, ref_f, alignment, rot, trans),
                         *span_and_clock_hints(f, ref_f, evals[name], alignment,
                                                                                      t_range_s, t_offset_s)]:
                 log.warning("%s: %s", name, why)
