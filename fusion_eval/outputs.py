@@ -314,6 +314,10 @@ class StagedDir:
                         p.rmdir()
                     except OSError:
                         break
+                if isinstance(exc, OutputError) and self.staging is not None and str(self.staging) in str(exc):
+                    # a write that failed (a full device) named the hidden staging folder, not the --out given (a
+                    # corrupted-input review): the file as it would have been
+                    raise OutputError(str(exc).replace(str(self.staging), str(self.final))) from None
                 return False
             old = None
             if self.final.exists():

@@ -1374,6 +1374,14 @@ def test_a_write_that_fails_on_the_device_names_the_file_and_leaves_no_temporary
             fh.write(b"1 2 3\n")
             raise OSError(errno.ENOSPC, "No space left on device")
     assert list(tmp_path.iterdir()) == []
+    # inside an output folder: named as the --out given, not the hidden staging folder the run wrote into
+    from fusion_eval.outputs import StagedDir
+
+    with pytest.raises(OutputError, match=r"^\S*/out/r1/a.zip: cannot write \(No space left on device\)$"):
+        with StagedDir(tmp_path / "out" / "r1") as out:
+            with atomic_file(out.path("a.zip")):
+                raise OSError(errno.ENOSPC, "No space left on device")
+    assert list(tmp_path.iterdir()) == []
 
 
 def _stream(t, source="s.csv"):
