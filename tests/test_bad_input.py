@@ -1960,3 +1960,26 @@ def test_evaluate_says_a_pose_jump_and_stamps_rounded_to_seconds(tmp_path):
     assert "warning: jump: 2 step(s) faster than 300 m/s" in r.output
     m = json.loads((tmp_path / "o" / "metrics.json").read_text())
     assert "faster than 300 m/s" in m["estimates"]["jump"]["note"]
+
+
+def test_a_csv_streams_keys_are_its_own_and_a_bad_std_m_is_refused_beside_std_columns(tmp_path):
+    """std_m on a CSV IMU stream was accepted and ignored, and std_m: -1 on a GNSS CSV with std columns passed (a
+    corrupted-input review)."""
+    import yaml
+
+    import fusion_eval as fe
+    from fusion_eval.errors import ConfigError
+    from fusion_eval.simulate.dataset import simulate
+
+    simulate(tmp_path / "s", "urban", 20.0, 0, "automotive", ("output.layout=csv_log",), jobs=1)
+    man = tmp_path / "s" / "dataset.yaml"
+    base = yaml.safe_load(man.read_text())
+    assert {"std_e", "std_n", "std_u"} <= set(base["streams"]["gnss"]["columns"])
+    for stream, key, value, needle in (("imu", "std_m", 0.5, r"unknown key 'std_m' in stream 'imu'"),
+                                       ("gnss", "gyro_unit", "deg/s", r"unknown key 'gyro_unit' in stream 'gnss'"),
+                                       ("gnss", "std_m", -1, r"gnss 'std_m' must be a positive number")):
+        m = yaml.safe_load(man.read_text())
+        m["streams"][stream][key] = value
+        (tmp_path / "s" / "m.yaml").write_text(yaml.safe_dump(m))
+        with pytest.raises(ConfigError, match=needle):
+            fe.load_dataset(tmp_path / "s" / "m.yaml")

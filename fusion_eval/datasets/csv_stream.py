@@ -42,7 +42,10 @@ NAMES = {
     "poses": ({"t", "x", "y", "z", "qx", "qy", "qz", "qw"}, {"vx", "vy", "vz"}),
     "odometer": ({"t", "v"}, set()),
 }
-KEYS = frozenset({"columns", "time_unit", "gyro_unit", "accel_unit", "delimiter", "std_m"})
+# per stream: a key a stream does not read is refused (std_m on an IMU, a unit on a GNSS, were ignored; a review)
+_COMMON = frozenset({"columns", "time_unit", "delimiter"})
+KEYS = {"imu": _COMMON | {"gyro_unit", "accel_unit"}, "gnss": _COMMON | {"std_m"}, "groundtruth": _COMMON,
+        "lidar": _COMMON, "odometer": _COMMON}
 
 
 _OTHER_DELIMITERS = "[,;\t]"
@@ -277,6 +280,8 @@ def read_gnss(entry: dict, ctx: ReadContext) -> GnssSeries:
         p = rows[:, [named["x"], named["y"], named["z"]]]
     else:
         raise ConfigError(f"{ctx.at(entry, 'columns')}: a csv GNSS stream needs columns lat, lon, alt (geodetic) or x, y, z (local ENU m)")
+    if "std_m" in entry:
+        std_m(entry, ctx)             # checked where the columns give the std too (std_m: -1 passed unseen there)
     if {"std_e", "std_n", "std_u"} <= set(named):
         std = rows[:, [named["std_e"], named["std_n"], named["std_u"]]]
     elif "std" in named:
