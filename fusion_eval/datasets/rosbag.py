@@ -1116,10 +1116,13 @@ def read_poses(path: str | Path, topic: str, stamps: str = "header", child_frame
     typ = None
     for typ, rec, msg in _messages(path, topic, POSE_TYPES):
         if typ == TF_MESSAGE:
-            if child is None:
-                raise ConfigError(f"{path}: topic '{topic}' is a {TF_MESSAGE}; read_poses needs child_frame")
             items = [(tf.header, tf.child_frame_id, tf.transform.translation, tf.transform.rotation)
                      for tf in msg.transforms]
+            if child is None:         # which frame's poses: said with the frames present, once they are counted
+                for tf in msg.transforms:
+                    key = (_strip(tf.header.frame_id), _strip(tf.child_frame_id))
+                    pairs[key] = pairs.get(key, 0) + 1
+                continue
         elif typ == TRANSFORM_STAMPED:
             items = [(msg.header, msg.child_frame_id, msg.transform.translation, msg.transform.rotation)]
         elif typ == ODOMETRY:
@@ -1143,6 +1146,10 @@ def read_poses(path: str | Path, topic: str, stamps: str = "header", child_frame
                 lin = msg.twist.twist.linear
                 v.append((lin.x, lin.y, lin.z))
     listing = ", ".join(f"{a}->{b} ({n})" if b is not None else f"{a} ({n})" for (a, b), n in sorted(pairs.items(), key=str))
+    if typ == TF_MESSAGE and child is None:
+        # (it was 'read_poses needs child_frame', a function's name, with no frame named: a bag review)
+        raise ConfigError(f"{path}: topic '{topic}' is a {TF_MESSAGE}: give child_frame, the frame whose poses to read "
+                          f"(and parent_frame where it has several; transforms present: {listing})")
     if not t_hdr:
         raise DataFormatError(path, None, f"topic '{topic}' has no pose with child_frame={child_frame!r}, "
                                           f"parent_frame={parent_frame!r} (frames present: {listing})")
