@@ -715,3 +715,11 @@ def test_two_sensors_on_one_topic_are_refused_unless_one_frame_is_chosen(tmp_pat
     np.testing.assert_array_equal(imu.lines, np.arange(2, 41, 2))
     with pytest.raises(DataFormatError, match="no message of frame_id 'gps'"):
         rb.read_imu(bag, "/imu", frame_id="gps")
+
+
+def test_a_ros2_bags_metadata_yaml_reads_its_folder(tmp_path):
+    """path: bag/metadata.yaml was 'not a bag (suffix .yaml)' (a bag review): the bag is the file's folder."""
+    rng = np.random.default_rng(8)
+    bag = _write(tmp_path, FLAVOURS[1], [rb.BagStream("/imu", "imu", _imu(rng), "imu")])
+    assert rb.resolve(bag / "metadata.yaml") == ("rosbag2", bag)
+    np.testing.assert_array_equal(rb.read_imu(bag / "metadata.yaml", "/imu").t_s, rb.read_imu(bag, "/imu").t_s)

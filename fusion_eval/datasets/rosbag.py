@@ -109,6 +109,8 @@ def resolve(path: str | Path) -> tuple[str, Path]:
             if p.name in names:
                 return "rosbag2", p.parent
         return "rosbag2", p
+    if p.name == "metadata.yaml" and p.is_file():     # a ROS 2 bag's index: the bag is its folder
+        return "rosbag2", p.parent
     raise DataFormatError(p, None, f"not a bag (suffix {p.suffix!r}); expected {_BAG_FORMS}")
 
 
