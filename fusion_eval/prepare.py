@@ -445,6 +445,12 @@ def prepare(ds: Dataset, cfg: dict) -> Prepared:
         raise ConfigError(f"filter.gravity_mps2={g:g} is no gravity on Earth's surface (accepted: {GRAVITY_RANGE_MPS2[0]:g} "
                           f"to {GRAVITY_RANGE_MPS2[1]:g} m/s^2; 'auto' takes WGS84's at the geodetic origin)")
     applied["gravity_mps2"] = float(g)
+    if ds.geodetic_origin is not None:
+        # the local frame's origin, in the report and metrics.json: a first fix without altitude moved it to the next
+        # fix (0.83 m; fused 0.76 -> 1.06 m) with no record of where it was (a bag review)
+        lat, lon, alt = (float(v) for v in ds.geodetic_origin)
+        applied["geodetic_origin"] = {"lat_deg": lat, "lon_deg": lon, "alt_m": alt,
+                                      "from": ds.description.get("geodetic_origin_from", "the manifest")}
     applied["t_start_s"] = t0
     f = cfg["filter"]
     odo_model = f.get("process_model") == "odometer_gyro"       # it drives along the direction of travel too

@@ -145,6 +145,9 @@ def test_default_report_carries_every_section(slice_run):
     assert h * h + v * v == pytest.approx(r * r, rel=1e-9) and "fused horizontal / vertical [m]" in report
     for p in ("kitti_drift.png", "consistency.png", "segments_map.png"):
         assert (slice_run / p).exists()
+    # where the local frame is (a first fix without altitude moved it 0.83 m with no record of it; a bag review)
+    o = m["preprocessing"]["geodetic_origin"]
+    assert o["from"] == "the first valid fix" and -90 <= o["lat_deg"] <= 90 and "geodetic origin (the first valid fix)" in report
 
 
 @pytest.mark.slow

@@ -245,6 +245,7 @@ def _from_manifest_dict(body: dict, root: Path, manifest: Path, extra: dict | No
         "gyro_lag_s": imu_spec.get("gyro_lag_s", 0.0),
         "accel_lag_s": imu_spec.get("accel_lag_s", 0.0),
         "lidar_anchor": streams.get("lidar", {}).get("anchor", "groundtruth"),
+        "geodetic_origin_from": ("the first valid fix" if origin == "first_fix" else "the manifest's geodetic_origin"),
         # the local frame's origin is a receiver's first fix, and the ground truth is not of the same OXTS solution:
         # that fix's error is then an offset of every fix from the truth (plausible.gnss_offset)
         "origin_from_first_fix": origin == "first_fix" and origin_t is not None

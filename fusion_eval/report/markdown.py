@@ -393,6 +393,10 @@ def report_md(dataset: str, config_name: str, evals: dict, ratios: dict, cfg: di
           *_estimates(applied),
           f"- Time offsets added to each stream's stamps: {_offsets(applied['time_offset_s'])}.",
           f"- Gravity: {applied['gravity_mps2']:.5f} m/s^2."]
+    o = applied.get("geodetic_origin")
+    if o:
+        L.append(f"- Local ENU frame's geodetic origin ({o['from']}): {o['lat_deg']:.8f} deg, {o['lon_deg']:.8f} deg, "
+                 f"{o['alt_m']:.3f} m.")
     if applied.get("discretization"):
         L.append(f"- Error-state discretisation chosen from the IMU rate (filter.discretization = auto): "
                  f"{applied['discretization']}.")
