@@ -1316,6 +1316,26 @@ def test_a_stream_whose_clock_is_off_against_the_ground_truth_is_said_to_be(tmp_
     assert any("matches the ground truth best 1.0" in w and "earlier than stamped" in w for w in said), said
 
 
+
+def test_a_clock_shift_is_said_instead_of_the_constant_offset_it_looks_like(tmp_path, monkeypatch):
+    """A shifted clock moves the fixes along the route, which the median offset reads as a constant displacement: that
+    warning went first, with a geodetic origin's advice, for GNSS 18 s ahead (a bag review). Where a clock shift is
+    found, the offset is not said; where none is, it is."""
+    import json
+
+    from fusion_eval.datasets import plausible
+
+    monkeypatch.setattr(plausible, "gnss_offset", lambda *a, **k: "OFFSET SAID")
+    ds = make_slice(tmp_path / "ds", 300)
+    for off, expected in ((5.0, False), (0.0, True)):
+        out = tmp_path / f"o{off:g}"
+        r = CliRunner().invoke(main, ["run", str(ds), "--out", str(out), "--no-plots", "--set", f"gnss.time_offset_s={off}"])
+        assert r.exit_code == 0, r.output
+        said = json.loads((out / "metrics.json").read_text())["preprocessing"]["data_warnings"]
+        assert ("OFFSET SAID" in said) == expected, said
+        assert any("earlier than stamped" in w for w in said) == (not expected), said
+
+
 def test_lidar_poses_declared_in_the_truths_frame_but_not_are_said_to_be(tmp_path):
     """A manifest's lidar 'anchor: none' on an odometry in its own frame scored the lidar at 231.6 m / 92 deg and
     "fusion 99.8 % better" with no word (found by a corrupted-input review); anchored (the default) it gets none."""
