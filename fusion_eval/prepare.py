@@ -21,7 +21,7 @@ from .calibration.extrinsic import apply_extrinsic, estimate_extrinsic
 from .calibration.mount import HINT as MOUNT_HINT, across_travel
 from .calibration.travel import MIN_STRETCHES, estimate_travel_pitch, pitch_from_smoothed_pass, uncertain
 from .degrade import degrade_gnss
-from .errors import ConfigError, DataRangeError
+from .errors import ConfigError, DataRangeError, ShiftAtSearchEdgeError
 from .filters import check_combination, formulation_of, observations
 from .filters.state import NominalState
 from .geo import normal_gravity_mps2
@@ -142,7 +142,8 @@ def _flag_data(ds: Dataset, applied: dict, more: list[str] = ()) -> None:
     from .filters.observations.nhc import WHEELED
 
     platform = ds.description.get("platform")
-    warnings = plausible.imu_gaps(ds.imu) + list(more) + plausible.imu_units(ds.imu, platform, platform in WHEELED)
+    warnings = (plausible.imu_gaps(ds.imu) + plausible.clock_steps(ds.groundtruth) + list(more)
+                + plausible.imu_units(ds.imu, platform, platform in WHEELED))
     if platform in WHEELED:
         warnings += plausible.speed_glitches({"groundtruth": ds.groundtruth, "gnss": ds.gnss, "lidar": ds.lidar},
                                                       platform)
@@ -245,7 +246,15 @@ def prepare(ds: Dataset, cfg: dict) -> Prepared:
         raise DataRangeError(f"{ds.imu.source}: fewer than 2 usable IMU samples")
     # --- time alignment: the IMU channel lags and the lidar clock offset, given or estimated from the data
     imu_recorded = imu         # as recorded: the lag correction interpolates, which would smooth the noise estimate
-    imu, lidar_off, timing_applied = timing.align(ds, cfg, imu, _offset(cfg, ds, "lidar", auto=True))
+    try:
+        imu, lidar_off, timing_applied = timing.align(ds, cfg, imu, _offset(cfg, ds, "lidar", auto=True))
+    except ShiftAtSearchEdgeError as exc:
+        # a clock step in the truth's (and IMU's) stamps is the cause, where there is one: it was never located, the
+        # message blamed the clocks or the axes (a corrupted-input review)
+        steps = plausible.clock_steps(ds.groundtruth)
+        if steps:
+            raise ShiftAtSearchEdgeError(f"{exc}; the likely cause: {steps[0].removeprefix('groundtruth: ')}") from None
+        raise
     more_warnings += timing_applied.pop("time_warnings", [])
     applied.update(timing_applied)
 
