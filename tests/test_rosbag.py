@@ -723,3 +723,19 @@ def test_a_ros2_bags_metadata_yaml_reads_its_folder(tmp_path):
     bag = _write(tmp_path, FLAVOURS[1], [rb.BagStream("/imu", "imu", _imu(rng), "imu")])
     assert rb.resolve(bag / "metadata.yaml") == ("rosbag2", bag)
     np.testing.assert_array_equal(rb.read_imu(bag / "metadata.yaml", "/imu").t_s, rb.read_imu(bag, "/imu").t_s)
+
+
+def test_evaluate_refuses_a_topic_whose_header_stamps_are_never_set(tmp_path):
+    """All header stamps 0: 'dropped 4408 messages whose stamp repeats' then '0 poses match (0.000 to 0.000 s)' (a bag
+    review); one line says what it is."""
+    from fusion_eval.datasets.trajectory_file import read_bag_trajectories
+
+    rng = np.random.default_rng(9)
+    b = rb._Builder(False)
+    poses = _poses(rng, n=20, velocity=False)
+    msgs = [("/pose", rb.POSE_STAMPED, int(T0 * 1e9) + 10_000_000 * j, b.T[rb.POSE_STAMPED](
+        header=b.header(0, "map", j), pose=b.pose(poses.p_w_m[j], poses.q_wb_xyzw[j]))) for j in range(20)]
+    bag = _raw_bag(tmp_path / "z", False, msgs)
+    with pytest.raises(DataFormatError, match=r"topic '/pose': all 20 messages carry one header stamp \(0 s\): a "
+                                              r"publisher that never sets it"):
+        read_bag_trajectories(bag, ["/pose"])

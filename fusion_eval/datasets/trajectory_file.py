@@ -222,6 +222,13 @@ def read_bag_trajectories(bag: Path, topics: list[str]) -> list[TrajectoryFile]:
                 raise DataFormatError(bag, None, f"topic {topic!r}: {exc} (trajectory topics in the bag: "
                                                  f"{', '.join(known) or 'none'}; TF frames as /tf:parent.child)") from None
             t = np.asarray(traj.timestamps)
+            if t.size >= 3 and np.all(t == t[0]):
+                # 'dropped 4408 messages whose stamp repeats' and then '0 poses match (0.000 to 0.000 s)' said it
+                # twice without saying it (a bag review)
+                raise DataFormatError(bag, None, f"topic '{topic}': all {t.size} messages carry one header stamp "
+                                                 f"({float(t[0]):.9g} s): a publisher that never sets it; evaluate "
+                                                 "reads header stamps (run's manifests can take the record times: "
+                                                 "stamps: record)")
             lines = np.arange(1, t.size + 1)           # the 'line' of a bag topic is the message's number in it
             if t.size > 1 and np.any(np.diff(t) < 0) and np.all(np.isfinite(t)):
                 # recorded out of their header stamps' order (several publishers, a bag's write buffers): sorted by
