@@ -191,3 +191,25 @@ def test_a_tracker_that_follows_nothing_or_skips_readings_says_so(tmp_path):
     r = CliRunner().invoke(main, ["track", str(one), "--smooth", "--out", str(tmp_path / "o-one")])
     assert r.exit_code == 0 and "RuntimeWarning" not in r.output, r.output
     json.loads((tmp_path / "o-one" / "metrics.json").read_text(), parse_constant=lambda c: pytest.fail(c))
+
+
+def test_track_plots_say_their_units_their_nis_figures_and_the_errors_against_their_sigma(tmp_path, monkeypatch):
+    """track.png's RMSE had no units, nis.png no mean nor share above its line, and no plot showed the error over
+    time (the README's 'most of the vx error is the first seconds' could not be seen) (a plot review)."""
+    from matplotlib.figure import Figure
+
+    titles, save = [], Figure.savefig
+
+    def saved(self, *a, **k):               # each figure's titles as it is written
+        titles.extend(t for ax in self.axes for t in (ax.get_title(), ax.get_title(loc="left")) if t)
+        return save(self, *a, **k)
+
+    monkeypatch.setattr(Figure, "savefig", saved)
+    p = _file(tmp_path)
+    out = tmp_path / "out"
+    r = CliRunner().invoke(main, ["track", str(p), "--out", str(out), "--smooth"])
+    assert r.exit_code == 0, r.output
+    assert (out / "errors.png").exists()
+    assert any(t.startswith("RMSE px ") and " m, " in t and " m/s" in t for t in titles), titles
+    assert any(t.startswith("NIS lidar: mean ") and "above the 95 % line (5 % if consistent)" in t for t in titles)
+    assert any(t.startswith("vx error: ") and "inside 3 sigma" in t and "(smoothed: " in t for t in titles), titles

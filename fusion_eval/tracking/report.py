@@ -85,20 +85,24 @@ def _plot(out: StagedDir, res: TrackResult, metrics: dict) -> None:
     from ..report.plots import subplots      # figures of their own: the host's backend is left as it is
 
     fig, ax = subplots(figsize=(8, 7))
-    ax.plot(res.gt[:, 0], res.gt[:, 1], "-", color="black", lw=1.5, label="ground truth")
     lid = res.kind == "L"
     rad = res.kind == "R"
     ax.plot(res.z[lid, 0], res.z[lid, 1], "o", ms=3, mfc="none", color="tab:blue", label="lidar")
     rz = res.z[rad]
     ax.plot(rz[:, 0] * np.cos(rz[:, 1]), rz[:, 0] * np.sin(rz[:, 1]), "x", ms=3, color="tab:orange", label="radar (to x, y)")
-    ax.plot(res.x[:, 0], res.x[:, 1], "-", color="tab:red", lw=1.2, label="estimate")
+    # the estimates wide and under the truth, the truth a thin line over them: drawn over it, the estimate hid it (a
+    # plot review)
+    ax.plot(res.x[:, 0], res.x[:, 1], "-", color="tab:red", lw=2.4, alpha=0.7, label="estimate")
     def three(r):
-        return ", ".join(f"{k} " + ("n/a" if r[k] is None else f"{r[k]:.3f}") for k in ("px", "py", "vx", "vy"))
+        units = {"px": "m", "py": "m", "vx": "m/s", "vy": "m/s"}
+        return ", ".join(f"{k} " + ("n/a" if r[k] is None else f"{r[k]:.3f} {units[k]}") for k in ("px", "py", "vx", "vy"))
 
     title = f"RMSE {three(metrics['rmse'])}"
     if res.x_smoothed is not None:
-        ax.plot(res.x_smoothed[:, 0], res.x_smoothed[:, 1], "-", color="tab:purple", lw=1.2, label="smoothed (RTS)")
+        ax.plot(res.x_smoothed[:, 0], res.x_smoothed[:, 1], "-", color="tab:purple", lw=1.6, alpha=0.8, label="smoothed (RTS)")
         title += f"\nsmoothed: {three(metrics['smoothed']['rmse'])}"
+    ax.plot(res.gt[:, 0], res.gt[:, 1], "-", color="black", lw=0.8, label="ground truth")
+    ax.plot(res.gt[0, 0], res.gt[0, 1], ">", ms=8, color="black", mfc="white", label="start")
     ax.set_title(title, fontsize=10)
     ax.set_xlabel("x [m]")
     ax.set_ylabel("y [m]")
@@ -113,11 +117,56 @@ def _plot(out: StagedDir, res: TrackResult, metrics: dict) -> None:
         m = (res.kind == k) & np.isfinite(res.nis)
         ax.plot(t[m], res.nis[m], ".-", ms=3, lw=0.6, label=f"NIS {name}")
         if name in metrics["nis"]:
-            ax.axhline(metrics["nis"][name]["chi2_95"], color="tab:red", ls="--", label="95 % chi-square")
+            d = metrics["nis"][name]
+            ax.axhline(d["chi2_95"], color="tab:red", ls="--", label="95 % chi-square")
+            ax.axhline(d["dof"], color="black", lw=0.6, label="dof: a consistent filter's mean")
+            # the figures a reader checks the plot against (they were in metrics.json only: a plot review)
+            ax.set_title(f"NIS {name}: mean {d['mean']:.2f} for {d['dof']} dof, {100 * d['fraction_above_95']:.1f} % "
+                         "above the 95 % line (5 % if consistent)", fontsize=9, loc="left")
         ax.set_ylabel(f"NIS {name}")
         ax.grid(alpha=0.3)
         ax.legend(fontsize=8)
     axes[1].set_xlabel("time [s]")
-    fig.subplots_adjust(left=0.09, right=0.98, top=0.96, bottom=0.1, hspace=0.2)
+    fig.subplots_adjust(left=0.09, right=0.98, top=0.92, bottom=0.1, hspace=0.35)
     fig.savefig(out.path("nis.png"), dpi=110, metadata={"Software": None})
+    fig.clear()
+    if res.P is not None:
+        _plot_errors(out, res, t)
+
+
+def _plot_errors(out: StagedDir, res: TrackResult, t: np.ndarray) -> None:
+    """``errors.png``: each state's error against the truth over time with the filter's +/-3 sigma (and the
+    smoother's): where the error is, the first seconds' velocity (a plot review), and whether the covariance is
+    honest."""
+    from ..report.plots import subplots
+
+    names = (("px", "m"), ("py", "m"), ("vx", "m/s"), ("vy", "m/s"))
+    fig, axes = subplots(4, 1, figsize=(10, 8), sharex=True)
+    sg = np.sqrt(np.maximum(np.einsum("nii->ni", res.P), 0.0))
+    for i, (ax, (name, unit)) in enumerate(zip(axes, names)):
+        e = res.x[:, i] - res.gt[:, i]
+        ax.fill_between(t, -3 * sg[:, i], 3 * sg[:, i], color="tab:gray", alpha=0.3, lw=0, label="+/-3 sigma (filter)")
+        ax.plot(t, e, color="tab:red", lw=0.9, label="estimate - truth")
+        inside = 100.0 * np.mean(np.abs(e) <= 3 * sg[:, i])
+        title = f"{name} error: {inside:.1f} % inside 3 sigma (99.7 % if consistent)"
+        shown = [np.abs(e)]
+        if res.x_smoothed is not None and res.P_smoothed is not None:
+            es = res.x_smoothed[:, i] - res.gt[:, i]
+            ss = 3 * np.sqrt(np.maximum(res.P_smoothed[:, i, i], 0.0))
+            ax.plot(t, es, color="tab:purple", lw=0.9, label="smoothed - truth")
+            ax.plot(t, ss, color="tab:purple", lw=0.6, ls="--", label="+/-3 sigma (smoothed)")
+            ax.plot(t, -ss, color="tab:purple", lw=0.6, ls="--")
+            title += f" (smoothed: {100.0 * np.mean(np.abs(es) <= ss):.1f} %)"
+            shown.append(np.abs(es))
+        # the limits from the errors and the band's common width: the prior's first seconds would flatten the rest
+        lim = max(float(np.nanmax(np.concatenate(shown), initial=0.0)), float(np.nanpercentile(3 * sg[:, i], 98)))
+        if lim > 0:
+            ax.set_ylim(-1.08 * lim, 1.08 * lim)
+        ax.set_ylabel(f"{name} [{unit}]")
+        ax.set_title(title, fontsize=9, loc="left")
+        ax.grid(alpha=0.3)
+    axes[0].legend(fontsize=7, loc="upper right", ncol=2)
+    axes[-1].set_xlabel("time [s]")
+    fig.subplots_adjust(left=0.09, right=0.98, top=0.95, bottom=0.07, hspace=0.4)
+    fig.savefig(out.path("errors.png"), dpi=110, metadata={"Software": None})
     fig.clear()
