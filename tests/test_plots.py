@@ -608,3 +608,23 @@ def test_error_plots_shade_the_gnss_outages_and_imu_holes(monkeypatch):
     (sig,) = [j for j in jobs if j[0] == "plot_error_sigma"]
     assert sig[-1] == [(a + shift, b + shift, lb) for a, b, lb in spans]
     plt.close("all")
+
+
+def test_a_2d_grids_panels_join_the_settings_of_each_value_of_the_other_key(tmp_path):
+    """Three dots per value with nothing saying which value of the other key each was: an interaction did not show
+    (a plot review). Each value of the other key is a labelled line of its own."""
+    kx, ky = "imu.gyro_noise_dps_sqrthz", "lidar.relative_pos_std_frac"
+    base = {"dataset": "/d/kitti-00", "variant": "eskf", "status": "ok"}
+    rows = [{**base, "setting": "default", kx: "", ky: "", METRIC: 0.76}]
+    for x in (0.03, 0.1, 0.3):
+        for y in (0.003, 0.01, 0.03):
+            rows.append({**base, "setting": f"{x:g} / {y:g}", kx: x, ky: y, METRIC: 0.7 + x + 2 * x * y})
+    fig = plots.sweep_params_figure(rows, [kx, ky], METRIC)
+    panels = [ax for ax in fig.axes if ax.get_visible()][1:]
+    for ax, other in zip(panels, (ky, kx)):
+        lines = [ln for ln in ax.lines if ln.get_gid() == "interaction"]
+        assert sorted(ln.get_label() for ln in lines) == sorted(f"{other} = {v:g}" for v in
+                                                                 ((0.003, 0.01, 0.03) if other == ky else (0.03, 0.1, 0.3)))
+        assert all(len(ln.get_xdata()) == 3 for ln in lines)
+    fig.savefig(tmp_path / "s.png")
+    plt.close("all")

@@ -640,13 +640,16 @@ def sweep_params_figure(rows: list[dict], keys: list[str], metric: str, defaults
                                 yerr=[err[p[2]] if is_number(err[p[2]]) else 0.0 for p in pts], fmt="none", ecolor=c,
                                 elinewidth=0.8, capsize=3, alpha=0.7)
                 ax.plot([p[0] for p in pts], [p[1] for p in pts], "o", ms=5, color=c, gid="settings")
+            if len(series) == 1 and len(groups) == 2:
+                _interaction(ax, mine, k, next(o for o in groups if o is not g)[0], metric)
             if d is not None:
                 ax.axhline(d[metric], color=c, ls=":", lw=1.0)
                 if is_number(dx):
                     ax.plot([dx], [d[metric]], "*", ms=13, mfc=c, mec="black", mew=0.8, gid="default")
                     if not any(nm == "default" for _, _, nm in notes):
                         notes.append((dx, d[metric], "default"))
-            if len(pts) <= 12:          # each name once (two variants' points labelled it twice, overlapping)
+            if len(pts) <= 12 and not (len(series) == 1 and len(groups) == 2):   # (a grid's lines say their values)
+                # each name once (two variants' points labelled it twice, overlapping)
                 said = {nm for _, _, nm in notes}
                 notes += [(x, y, nm) for x, y, nm in pts if "=" not in nm and not nm.startswith("random-") and nm not in said]
             xs += [p[0] for p in pts + both]
@@ -670,6 +673,27 @@ def sweep_params_figure(rows: list[dict], keys: list[str], metric: str, defaults
                  + ("" if len(series) > 1 else f" ({label_of(*series[0])})"))
     fig.tight_layout(rect=(0, 0.55 / height * (1 + (len(handles) > 4)), 1, 1 - 0.35 / height))
     return fig
+
+
+_INTERACTION_MARKERS = "os^Dv<>p"
+
+
+def _interaction(ax, mine: list[dict], k: str, other: str, metric: str) -> None:
+    """On a 2-D grid's panel of ``k``: the settings of each value of the ``other`` key joined by a thin line of its
+    own shade and marker, labelled: three dots per value said nothing of which value of the other key each was, so
+    an interaction did not show (a plot review)."""
+    by = {}
+    for r in mine:
+        if is_number(r.get(other)):
+            by.setdefault(r[other], []).append((r[k], r[metric]))
+    if len(by) < 2 or len(by) > len(_INTERACTION_MARKERS):
+        return
+    shades = np.linspace(0.15, 0.65, len(by))
+    for (val, pts), m, g in zip(sorted(by.items()), _INTERACTION_MARKERS, shades):
+        pts.sort()
+        ax.plot([p[0] for p in pts], [p[1] for p in pts], "-", marker=m, ms=4, lw=0.8, color=str(g), mfc="none",
+                gid="interaction", label=f"{other} = {val:g}")
+    ax.legend(fontsize=7, loc="best", title=None)
 
 
 def plot_sweep(out_dir: Path, rows: list[dict], keys: list[str], metric: str, tasks, best, grid_keys=(),
