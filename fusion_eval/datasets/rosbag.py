@@ -773,7 +773,7 @@ def _fixed_fields(path: str | Path, topic: str, msgtype: str, need_record: bool 
             out["method"] = "storage"
             return out
         except _NoFastPath as why:
-            log.info("%s: topic %s read through rosbags (%s)", path, topic, why)
+            log.debug("%s: topic %s read through rosbags (%s)", path, topic, why)
         except Exception as err:     # a storage layout this reader does not know: rosbags reads it
             log.warning("%s: topic %s: direct storage read failed (%s: %s); reading through rosbags",
                         path, topic, type(err).__name__, err)
@@ -799,7 +799,7 @@ def _fixed_fields(path: str | Path, topic: str, msgtype: str, need_record: bool 
             except _NoFastPath as why:
                 if method == "raw":
                     raise
-                log.info("%s: topic %s deserialized message by message (%s)", path, topic, why)
+                log.debug("%s: topic %s deserialized message by message (%s)", path, topic, why)
         try:
             msgs = [reader.deserialize(raw, msgtype) for raw in raws]
             rows = [_fields_of(m, msgtype) for m in msgs]
