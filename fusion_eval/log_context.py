@@ -42,6 +42,11 @@ def collected(show: bool = True) -> Iterator[list[str]]:
     """The warnings (and worse) of fusion-eval's loggers inside the block, as their messages; ``show`` False keeps them
     from the console (a Monte-Carlo trial's, which the run sums up once instead of repeating each trial's: a review)."""
     pkg = logging.getLogger("fusion_eval")
+    # a block that keeps its warnings to itself keeps them from an enclosing block's collection too (a trial run in
+    # the run's own process, with one worker, would count its findings as the run's)
+    outer = [] if show else [x for x in pkg.handlers if isinstance(x, _Collector)]
+    for x in outer:
+        pkg.removeHandler(x)
     h = _Collector()
     pkg.addHandler(h)
     propagate = pkg.propagate
@@ -51,4 +56,6 @@ def collected(show: bool = True) -> Iterator[list[str]]:
         yield h.messages
     finally:
         pkg.removeHandler(h)
+        for x in outer:
+            pkg.addHandler(x)
         pkg.propagate = propagate

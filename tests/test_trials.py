@@ -183,3 +183,19 @@ def test_the_trials_section_names_trials_png_only_when_it_was_drawn():
     assert "`trials.csv`, `trials.png`." in "\n".join(trials_md(sec))
     text = "\n".join(trials_md(sec, plotted=False))
     assert "`trials.csv`." in text and "trials.png" not in text
+
+
+def test_warnings_kept_to_a_block_reach_no_enclosing_collection():
+    """With one worker a trial runs in the run's own process: its warnings, kept to itself, must not count as the
+    run's (they would then be 'repeated', and a finding only that trial raised never said)."""
+    import logging
+
+    from fusion_eval.log_context import collected
+
+    log = logging.getLogger("fusion_eval.test")
+    with collected() as run:
+        log.warning("the run's")
+        with collected(show=False) as trial:
+            log.warning("the trial's")
+        log.warning("the run's again")
+    assert run == ["the run's", "the run's again"] and trial == ["the trial's"]
