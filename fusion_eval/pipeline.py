@@ -271,7 +271,9 @@ def filter_and_evaluate(ds: Dataset, cfg: dict, sh: Shared, pool, *, dataset_pat
             per_trial.append(m)
             later.append(w)
             stages.advance()
-        run_said = [*(said or ()), *metrics.get("preprocessing", {}).get("data_warnings", ())]
+        # the run's: said here, its data warnings, and its evaluations' (said in the pool's workers)
+        run_said = [*(said or ()), *metrics.get("preprocessing", {}).get("data_warnings", ()),
+                    *(w for e in evals.values() for w in e.said)]
         for w in mc.warnings(run_said, later):
             log.warning("%s", w)
         metrics["trials"] = mc.section(cfg, per_trial)

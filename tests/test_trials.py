@@ -199,3 +199,17 @@ def test_warnings_kept_to_a_block_reach_no_enclosing_collection():
             log.warning("the trial's")
         log.warning("the run's again")
     assert run == ["the run's", "the run's again"] and trial == ["the trial's"]
+
+
+@pytest.mark.parametrize("jobs", [2, 1])
+def test_the_runs_evaluation_warnings_from_the_pool_are_not_said_again_as_the_trials(kitti_slice, caplog, jobs):
+    """Trial 0's evaluations run in the pool's workers, which print their warnings there: the summary of the later
+    trials did not know them and said each again as 'trials 1, 2: ...' (a review of the diff). With the pool and
+    without it, the trials' repeats are one line."""
+    import logging
+
+    with caplog.at_level(logging.WARNING, logger="fusion_eval"):
+        fe.run(kitti_slice, overrides={"evaluation.rpe_delta_m": 100000}, trials=3, jobs=jobs)
+    said = [r.getMessage() for r in caplog.records if r.name == "fusion_eval.pipeline"]
+    assert "trials 1, 2 (of 0..2) repeated warnings above, with figures of their own" in said, said
+    assert not [m for m in said if m.startswith("trials 1, 2 (of 0..2): ")], said

@@ -242,7 +242,10 @@ def _compare(dataset_path: Path | None, variants: list[str], variant_dir: Path |
             tables.append(t)
             later.append(w)
             stages.advance()
-        for w in mc.warnings(said, later):
+        # the comparison's own: said here and in its evaluations (in the pool's workers)
+        own = [*said, *(w for r in runs for e in (r.ev, r.ev_smoothed) if e is not None for w in e.said),
+               *(w for e in evs_u.values() for w in e.said)]
+        for w in mc.warnings(own, later):
             log.warning("%s", w)
     stages.start("write")
     trials_info = None

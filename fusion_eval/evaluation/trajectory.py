@@ -71,6 +71,7 @@ class EstimateEvaluation:
     nees: dict | None = None                          # position / attitude NEES of an estimate with covariances
     matchable: int = 0                                # pairs evo could make at most (trajectory._matchable)
     ref_interval_s: float = 0.0                       # the reference's median stamp interval (s)
+    said: list = field(default_factory=list)          # the warnings its evaluation gave (:func:`evaluate`)
 
 
 def _stats(res: Result) -> dict:
@@ -292,6 +293,24 @@ def horizontal_vertical(dp_m: np.ndarray, up_axis: str, p_ref_m: np.ndarray) -> 
     return np.column_stack([np.hypot(across[:, 0], across[:, 1]), np.abs(dp_m[:, k])])
 
 
+def _keeping_said(fn):
+    """``fn``, an evaluation, with the warnings it gave (still said) kept in the result's ``said``: in a pool's worker
+    they print there, and a Monte-Carlo run's summary of its trials' warnings must know them as the run's (trial 0's
+    evaluation warnings were said again as the later trials' own; a review of the diff)."""
+    import functools
+
+    @functools.wraps(fn)
+    def wrapped(*args, **kwargs):
+        from ..log_context import collected
+
+        with collected() as said:
+            ev = fn(*args, **kwargs)
+        ev.said = list(said)
+        return ev
+    return wrapped
+
+
+@_keeping_said
 def evaluate(reference, estimate, name: str, t_max_diff_s: float,
              rpe_delta_m: float, association: str = "nearest", alignment: str = "none",
              engine_name: str = "arrays", *, relations: tuple[str, ...] = keys.DEFAULT_RELATIONS, up_axis: str = "auto",
