@@ -693,6 +693,14 @@ def test_poses_of_another_frame_than_the_extrinsic_taken_are_said(tmp_path, capl
     assert "tf_static: [imu_link, velo_link]" in w
     assert said("/odom", "velo", ["imu_link", "/velo_link"]) == ""
     assert said("/pose", "base", ["imu_link", "base_link"]) == ""           # PoseStamped: no child frame to check
+    unset = _write(tmp_path, FLAVOURS[0], [rb.BagStream("/odom", "odometry", _poses(rng), "odom", child_frame_id="x")],
+                   name="unset")
+    entry = {"format": "rosbag", "path": unset.name, "topic": "/odom", "frame": "base",
+             "T_imu_base": {"tf_static": ["imu_link", "base_link"]}}
+    caplog.clear()
+    with caplog.at_level(logging.WARNING, logger="fusion_eval"):
+        rosbag_streams._check_frame(entry, ctx, {("odom", ""): 60})     # a driver that leaves child_frame_id unset
+    assert caplog.text == ""
 
 
 @pytest.mark.parametrize("ros1", [True, False], ids=["ros1", "ros2-sqlite3"])

@@ -270,7 +270,10 @@ def _frames(buf: np.ndarray, starts: np.ndarray, offset: int, strlen: int, cdr: 
     raw = _gather(buf, starts, offset, "u1", n).reshape(starts.size, n)
     if np.all(raw == raw[0]):
         return {"frames": [bytes(raw[0]).decode("utf-8", "replace")], "frame_of": None}
-    rows, of = np.unique(raw, axis=0, return_inverse=True)
+    # the rows as one fixed-width byte string each: np.unique over them is one sort of N strings, where unique along
+    # axis 0 took 1-4.6 s on 720k messages (a review of the diff)
+    keys = np.ascontiguousarray(raw).view(f"S{n}").ravel()
+    rows, of = np.unique(keys, return_inverse=True)
     return {"frames": [bytes(r).decode("utf-8", "replace") for r in rows], "frame_of": of.reshape(-1)}
 
 

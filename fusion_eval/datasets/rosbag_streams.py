@@ -90,7 +90,7 @@ def _check_frame(entry: dict, ctx: ReadContext, frames: dict) -> None:
     frame = entry.get("frame")
     spec = entry.get(f"T_imu_{frame}") if isinstance(frame, str) else None
     pair = spec.get("tf_static") if isinstance(spec, dict) else None
-    children = {c for (_, c) in frames if c is not None}
+    children = {c for (_, c) in frames if c}            # ('' where a driver leaves child_frame_id unset)
     if not (isinstance(pair, list) and len(pair) == 2 and children):
         return
     want = str(pair[1]).lstrip("/")
