@@ -42,8 +42,13 @@ class _Handler(logging.Handler):
             click.echo(msg, err=True)
 
 
+CONSOLE: tuple[int, int] | None = None     # (verbose, quiet) of this process's command line, once set up
+
+
 def _setup_logging(verbose: int, quiet: int) -> None:
     # -q: no log below errors (README), warnings included: a script reads the one line on stdout and the exit code
+    global CONSOLE
+    CONSOLE = (verbose, quiet)
     level = logging.ERROR if quiet else logging.INFO - 10 * verbose
     root = logging.getLogger()
     root.handlers[:] = [_Handler(verbose)]
@@ -51,6 +56,12 @@ def _setup_logging(verbose: int, quiet: int) -> None:
     log.setLevel(max(logging.DEBUG, level))
     for noisy in _CHATTY:
         logging.getLogger(noisy).setLevel(logging.ERROR if quiet else logging.WARNING if verbose < 2 else logging.INFO)
+
+
+def worker_logging(console: tuple[int, int]) -> None:
+    """A spawned worker's logging as its command's (``console``: :data:`CONSOLE`): it starts with none, and printed
+    warnings under -q, without their 'warning:' (a tune review). A forked worker inherits the parent's."""
+    _setup_logging(*console)
 
 
 def _given(ctx, *names: str) -> list[str]:
@@ -114,6 +125,14 @@ class Group(click.Group):
                 sys.exit(exc.exit_code)
             if isinstance(exc, click.UsageError):   # a command's options, an unknown command
                 _usage_error(exc)
+            from concurrent.futures.process import BrokenProcessPool
+
+            if isinstance(exc, BrokenProcessPool):
+                # a worker killed (the OOM killer, a kill -9) ended a tune in a traceback (a tune review)
+                click.echo("error: a worker process of this command died (killed by a signal, or by the system's "
+                           "out-of-memory killer): no output folder was written; a sweep or a tune keeps what it "
+                           "finished, and the same command goes on from there", err=True)
+                sys.exit(1)
             if isinstance(exc, RuntimeError) and str(exc).startswith("Symlink loop from "):
                 # pathlib's resolve() on a loop of links (up to Python 3.12) where no check saw it first
                 # (outputs.refuse_link_loop sees the dataset and --out of every command)

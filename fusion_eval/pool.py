@@ -7,6 +7,7 @@ main process filters and writes. ``jobs=1`` runs everything in this process (ins
 from __future__ import annotations
 
 import importlib
+import logging
 import multiprocessing as mp
 import os
 import signal
@@ -43,13 +44,18 @@ def _worker_dispositions() -> None:
     signal.signal(signal.SIGTERM, signal.SIG_DFL)
 
 
-def worker_init(preload: tuple[str, ...] = (), parent: int | None = None) -> None:
+def worker_init(preload: tuple[str, ...] = (), parent: int | None = None, console=None) -> None:
     """In each worker: Ctrl-C is the parent's to handle (a Ctrl-C to the process group must not print a traceback
     from every worker), SIGTERM ends the worker at once, and the worker dies with its parent (Linux), so that no
     worker outlives the command that started it, whatever signal ends it. ``preload``: modules to import then, while
     the parent still prepares and filters (matplotlib for a run's plots: about a second per process); ``parent``:
-    the pid of the process that made the pool."""
+    the pid of the process that made the pool; ``console``: the command line's logging (``cli.CONSOLE``), for a
+    spawned worker, which has none of its own."""
     _worker_dispositions()
+    if console is not None and not logging.getLogger().handlers:
+        from .cli import worker_logging
+
+        worker_logging(console)
     # a spawned worker is exec'd from the thread that held SIGINT and SIGTERM blocked (signals_held) and inherits
     # that mask: SIGTERM would stay pending, and the pool's terminate() waited its full second before SIGKILL
     signal.pthread_sigmask(signal.SIG_UNBLOCK, _FORK_SIGNALS)
@@ -161,8 +167,9 @@ class Pool(ProcessPoolExecutor):
     def __init__(self, max_workers: int, mp_context, preload: tuple[str, ...] = ()):
         from . import interrupts
 
+        cli = sys.modules.get("fusion_eval.cli")          # a command line's logging, for spawned workers
         super().__init__(max_workers=max_workers, mp_context=mp_context, initializer=worker_init,
-                         initargs=(tuple(preload), os.getpid()))
+                         initargs=(tuple(preload), os.getpid(), getattr(cli, "CONSOLE", None)))
         self._abort_token = interrupts.on_abort(self.terminate)
         self._shared: list[int] = []
         self._inherited_upto = 0                 # the last shared token every worker was forked after

@@ -114,3 +114,21 @@ def test_a_worker_takes_sigterm_whatever_its_start_method(method):
     with pool.Pool(max_workers=1, mp_context=mp.get_context(method)) as ex:
         blocked = ex.submit(_blocked_signals).result(timeout=120)
     assert not blocked & {signal.SIGINT, signal.SIGTERM}, blocked
+
+
+def test_a_spawned_workers_warnings_follow_the_command_lines_logging(capfd, monkeypatch):
+    """A spawned worker (tune's pool) starts with no logging of its own: its warnings printed under -q, and without
+    their 'warning:' (a tune review). It takes the command line's."""
+    import logging
+    import multiprocessing as mp
+
+    import fusion_eval.cli as cli
+    from fusion_eval.pool import Pool
+
+    say = logging.getLogger("fusion_eval.test").warning
+    for console, shown in (((0, 1), False), ((0, 0), True)):
+        monkeypatch.setattr(cli, "CONSOLE", console)
+        with Pool(1, mp.get_context("spawn")) as p:
+            p.submit(say, "from a worker").result()
+        err = capfd.readouterr().err
+        assert ("warning: from a worker" in err) == shown and ("from a worker" in err) == shown, err

@@ -333,6 +333,9 @@ def test_the_first_trial_is_the_default_even_where_the_default_is_auto(tmp_path)
     s.base_config, s.sets = {"filter": {"use_gnss": False}}, ("imu.gyro_noise_dps_sqrthz=0.1",)
     assert yaml.safe_load(R.default_yaml(s, res)) == {"filter": {"use_gnss": False}, "imu": {"gyro_noise_dps_sqrthz": 0.1}}
     assert "no better than the default" in R._generalisation([("training", 0.75, 0.82)])
+    # the default itself best: equal, not '-0 worse' (a tune review)
+    same = R._generalisation([("training", 0.75, 0.75), ("held-out", 0.5, 0.5)])
+    assert "(equal to it); on the held-out drives they are the same as the default's" in same and "-0" not in same
 
 
 def test_a_study_resumed_with_held_out_drives_scores_the_default_on_them(tmp_path):
@@ -388,3 +391,41 @@ def test_an_objective_no_tuned_key_moves_is_said(kitti_slice, tmp_path):
     assert r.exit_code == 0, r.output
     text = (tmp_path / "t" / "tune.md").read_text()
     assert "Every one of the 3 complete trials scored the same objective" in text and "no key of the space" in text
+
+
+def test_a_running_trial_without_an_owner_is_run_again_once_it_is_stale(monkeypatch):
+    """A Ctrl-C inside study.ask(), before the trial had its owner, left it running for good (the default
+    configuration's trial, once; a tune review). The ask is now shielded from the signal; a trial left so by an
+    older study is run again once it is a minute old, not while another process may be giving it its owner."""
+    import optuna
+
+    from fusion_eval.tuning import study as st
+
+    optuna.logging.set_verbosity(optuna.logging.WARNING)
+    s = optuna.create_study()
+    t = s.ask({"x": optuna.distributions.FloatDistribution(0.0, 1.0)})
+    assert st._requeue_stale(s) == 0                                    # just asked: another process's, maybe
+    monkeypatch.setattr(st, "OWNERLESS_STALE_S", -1.0)
+    assert st._requeue_stale(s) == 1
+    states = [x.state for x in s.get_trials(deepcopy=False)]
+    assert states == [optuna.trial.TrialState.FAIL, optuna.trial.TrialState.WAITING]
+    assert s.get_trials(deepcopy=False)[1].system_attrs["fixed_params"] == {"x": t.params["x"]}   # run again as it was
+
+
+def test_a_worker_killed_is_one_line_not_a_traceback(monkeypatch, tmp_path):
+    """kill -9 of a pool worker (what the OOM killer does) ended a tune in a BrokenProcessPool traceback (a tune
+    review)."""
+    from concurrent.futures.process import BrokenProcessPool
+
+    from click.testing import CliRunner
+
+    from fusion_eval.cli import main
+    from fusion_eval.commands import run as run_cmd
+
+    def broken(*a, **k):
+        raise BrokenProcessPool("A process in the process pool was terminated abruptly")
+
+    monkeypatch.setattr(run_cmd, "run_to_dir", broken)
+    r = CliRunner().invoke(main, ["run", "--out", str(tmp_path / "o")])
+    assert r.exit_code == 1, r.output
+    assert r.output.strip().splitlines()[-1].startswith("error: a worker process of this command died")

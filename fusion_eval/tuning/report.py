@@ -179,18 +179,26 @@ def _per_drive_obj(rec: dict | None) -> dict[str, float]:
     return {k: sum(v) / len(v) for k, v in out.items()}
 
 
+def _worse(d: float) -> str:
+    """How much worse than the default, in words: a best trial that is the default itself is 'equal' (it read
+    '-0 worse'; a tune review)."""
+    return "equal to it" if d == 0 else f"{d:.4g} worse"
+
+
 def _generalisation(gaps) -> str:
     """Whether the gain on the training drives holds on the held-out ones (overfitting shows as a gap)."""
     if gaps and all(math.isfinite(x) for x in gaps[0][1:]) and gaps[0][1] - gaps[0][2] <= 0 and len(gaps) < 2:
         return (f"The tuned values are no better than the default on the training drives "
-                f"({gaps[0][2] - gaps[0][1]:.4g} worse); no held-out drives (give --test).")
+                f"({_worse(gaps[0][2] - gaps[0][1])}); no held-out drives (give --test).")
     if len(gaps) < 2 or not all(math.isfinite(x) for _, a, b in gaps for x in (a, b)):
         return "No held-out drives: whether the tuned values generalise is not measured (give --test)."
     (_, d_tr, t_tr), (_, d_te, t_te) = gaps
     g_tr, g_te = d_tr - t_tr, d_te - t_te
     if g_tr <= 0:
-        return (f"The tuned values are no better than the default on the training drives ({-g_tr:.4g} worse); on the "
-                f"held-out drives they are {abs(g_te):.4g} {'better' if g_te > 0 else 'worse'}.")
+        held = ("the same as the default's" if g_te == 0 else
+                f"{abs(g_te):.4g} {'better' if g_te > 0 else 'worse'}")
+        return (f"The tuned values are no better than the default on the training drives ({_worse(-g_tr)}); on the "
+                f"held-out drives they are {held}.")
     if g_te < 0:
         return (f"Overfitting: the tuned values improve the objective on the training drives by {g_tr:.4g} but make it "
                 f"worse on the held-out drives by {-g_te:.4g}.")

@@ -10,6 +10,7 @@ processes pointed at one ``--out`` share the study.
 
 from __future__ import annotations
 
+import datetime
 import json
 import logging
 import os
@@ -19,6 +20,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Callable
 
+from .. import interrupts
 from ..errors import ConfigError
 from ..outputs import alive, atomic_write, resumable_dir
 from .objectives import Objective
@@ -129,13 +131,22 @@ def _flock(journal: Path):
     return FlockLock(str(journal.with_name(journal.name + ".lock")))
 
 
+OWNERLESS_STALE_S = 60.0      # a running trial with no owner this long after it started: left by a stopped process
+
+
 def _requeue_stale(study) -> int:
     """Trials left running by a process of this host that is gone (killed): failed, and enqueued again."""
     optuna = _optuna()
     host, n = socket.gethostname(), 0
     for t in study.get_trials(deepcopy=False, states=(optuna.trial.TrialState.RUNNING,)):
         owner = t.system_attrs.get("fusion_eval_owner") or t.user_attrs.get("owner")
-        if not owner or owner[0] != host or alive(owner[1]):
+        if not owner:
+            # a trial is given its owner as it is asked for: one without an owner a minute on was left by a process
+            # stopped in between (a study from before the deferred signal above)
+            started = t.datetime_start
+            if started is None or (datetime.datetime.now() - started).total_seconds() < OWNERLESS_STALE_S:
+                continue
+        elif owner[0] != host or alive(owner[1]):
             continue
         study._storage.set_trial_user_attr(t._trial_id, "interrupted", True)            # noqa: SLF001
         study._storage.set_trial_state_values(t._trial_id, optuna.trial.TrialState.FAIL)  # noqa: SLF001
@@ -249,9 +260,12 @@ def run_study(s: Setup, progress: Callable[[int, int, float | None], None] | Non
                 thresholds = prune_thresholds(study, n_steps) if s.prune and len(s.objectives) == 1 else ()
                 asked = []
                 for _ in range(min(s.jobs, left)):
-                    t = study.ask()
-                    t.set_user_attr("owner", [host, pid])
-                    asked.append((t, s.space.overrides({p.key: p.suggest(t) for p in s.space.params})))
+                    # a Ctrl-C inside ask(), before the trial had an owner, left it running for good (it was the
+                    # default configuration's trial once; a tune review): the signal waits for the block's end
+                    with interrupts.deferred():
+                        t = study.ask()
+                        t.set_user_attr("owner", [host, pid])
+                        asked.append((t, s.space.overrides({p.key: p.suggest(t) for p in s.space.params})))
                 results = ex.map([s.job(t.number, ov, s.train, thresholds) for t, ov in asked])
                 for (t, ov), rec in zip(asked, results):
                     _tell(study, t, ov, rec, rec_dir)
