@@ -7,6 +7,7 @@ from __future__ import annotations
 import re
 import csv
 import json
+from types import SimpleNamespace
 import os
 import signal
 import subprocess
@@ -120,6 +121,18 @@ def test_a_study_is_not_resumed_with_another_space_or_objective(tmp_path):
                  tmp_path).exit_code == 0
     r = CliRunner().invoke(main, ["tune", str(ds), "--objective", "nis", "--trials", "2", "-j", "1", "-o", str(out)])
     assert r.exit_code == 2 and "another objectives" in r.output, r.output
+    # a study whose start failed before any trial (a scheduler out of reach, a Ctrl-C while the default was scored)
+    # holds nothing: it takes the new settings (it locked the folder to the old ones; a tune review)
+    from fusion_eval.tuning import study as st
+
+    empty = tmp_path / "empty"
+    first = SimpleNamespace(out_dir=empty, space=SimpleNamespace(digest=lambda: "a"), objectives=[SimpleNamespace(name="nll")],
+                            train=[str(ds)], seeds=1, base_config=None, sets=(), sampler="tpe", seed=0, n_trials=2)
+    st.open_study(first)
+    (empty / "default.json").write_text("{}")
+    second = SimpleNamespace(**{**vars(first), "objectives": [SimpleNamespace(name="nis")]})
+    assert st.open_study(second).user_attrs["ident"]["objectives"] == ["nis"]
+    assert not (empty / "default.json").exists()
 
 
 def test_an_objective_the_runs_do_not_have_is_refused_naming_it(tmp_path):

@@ -94,7 +94,12 @@ def open_study(s: Setup):
     ident = {"space": s.space.digest(), "objectives": [o.name for o in s.objectives], "train": list(s.train),
              "seeds": s.seeds, "base_config": s.base_config, "sets": list(s.sets), "pruning_reports": REPORTS}
     old = study.user_attrs.get("ident")
-    if old is None:
+    if old is None or (old != ident and not study.trials):
+        # a study with no trial yet (a start that failed: a scheduler out of reach, a Ctrl-C while the default was
+        # scored) holds nothing to keep: it takes the new settings (it locked the folder to the old ones; a tune
+        # review), and the default is scored again under them
+        if old is not None:
+            (s.out_dir / "default.json").unlink(missing_ok=True)
         study.set_user_attr("ident", ident)
     elif old != ident:
         diff = next(k for k in ident if ident[k] != old.get(k))
@@ -250,6 +255,10 @@ def run_study(s: Setup, progress: Callable[[int, int, float | None], None] | Non
         asked: list = []
         try:
             while True:
+                # a process sharing the study that was killed left its trials running: run again, not counted (the
+                # survivor ended one short of --trials, saying it was done; a tune review)
+                if _requeue_stale(study):
+                    log.info("trials of a killed tune sharing this study are run again")
                 left = s.n_trials - counted(study)
                 if progress:
                     progress(min(counted(study), s.n_trials), s.n_trials, _best_value(study),
