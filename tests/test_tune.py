@@ -135,6 +135,11 @@ def test_a_study_is_not_resumed_with_another_space_or_objective(tmp_path):
     assert not (empty / "default.json").exists()
 
 
+def test_an_objective_given_twice_is_refused(tmp_path):
+    r = CliRunner().invoke(main, ["tune", "--objective", "nll", "--objective", "nll", "-o", str(tmp_path / "t")])
+    assert r.exit_code == 2 and "--objective 'nll' given twice" in r.output and not (tmp_path / "t").exists()
+
+
 def test_an_objective_the_runs_do_not_have_is_refused_naming_it(tmp_path):
     ds = make_slice(tmp_path / "ds", 300)
     r = CliRunner().invoke(main, ["tune", str(ds), "--objective", "fused.ape.rmsx", "--trials", "2", "-j", "1",

@@ -38,6 +38,9 @@ def run_tune(train: list[str], test: list[str], space: str, objectives: list[str
 
     if not objectives:
         raise ConfigError("give an --objective: nll or nis (no ground truth), or a metric key such as fused.ape.rmse")
+    twice = next((o for i, o in enumerate(objectives) if o in objectives[:i]), None)
+    if twice is not None:       # a study of one objective given twice ran as two, with duplicate columns (a review)
+        raise ConfigError(f"--objective {twice!r} given twice: a study's objectives are distinct")
     if scheduler and dask_local:
         raise ConfigError("give either --scheduler or --dask local, not both")
     if jobs is not None and jobs < 1:
