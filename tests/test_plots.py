@@ -628,3 +628,23 @@ def test_a_2d_grids_panels_join_the_settings_of_each_value_of_the_other_key(tmp_
         assert all(len(ln.get_xdata()) == 3 for ln in lines)
     fig.savefig(tmp_path / "s.png")
     plt.close("all")
+
+
+def test_compare_biases_give_each_sensor_axis_its_panel_with_every_variant(monkeypatch, tmp_path):
+    """15-18 lines in two panels, the axes told apart by a line style the legend did not key (a plot review): one
+    panel per sensor and axis, each with every variant in its colour, one legend of the variants."""
+    figs = []
+    monkeypatch.setattr(plots, "_save", lambda fig, path: figs.append(fig))
+    t = np.arange(0.0, 10.0, 0.1)
+
+    def run(name, k):
+        return SimpleNamespace(name=name, filt=SimpleNamespace(fused=SimpleNamespace(t_s=t),
+                                                               accel_bias_b=np.full((t.size, 3), 0.001 * k),
+                                                               gyro_bias_b=np.full((t.size, 3), 1e-5 * k)))
+
+    plots.plot_compare_biases(tmp_path / "b.png", [run(f"v{k}", k) for k in range(5)])
+    fig = figs[0]
+    assert len(fig.axes) == 6 and all(len(ax.get_lines()) == 5 for ax in fig.axes)
+    assert [t.get_text() for t in fig.legends[0].get_texts()] == [f"v{k}" for k in range(5)]
+    assert fig.axes[0].get_title() == "accelerometer, x (body)" and fig.axes[5].get_title() == "gyro, z (body)"
+    plt.close("all")

@@ -441,22 +441,28 @@ def plot_compare_ape(path: Path, runs, evs_unfiltered: dict, t0: float) -> None:
 
 
 def plot_compare_biases(path: Path, runs) -> None:
-    """Estimated accelerometer and gyro biases of each variant (x, y, z as solid, dashed, dotted)."""
-    fig, axes = subplots(2, 1, figsize=(12, 6), sharex=True)
-    styles = ("-", "--", ":")
+    """Estimated accelerometer and gyro biases of each variant, one panel per sensor and axis: 15-18 lines in two
+    panels, the axes told apart by line style with no key for it, could not be read (a plot review)."""
+    fig, axes = subplots(2, 3, figsize=(14, 6), sharex=True)
     for i, r in enumerate(runs):
         t = r.filt.fused.t_s - r.filt.fused.t_s[0]
+        c = _VARIANT_COLORS[i % len(_VARIANT_COLORS)]
+        lw = max(0.6, 1.6 - 1.0 * i / max(1, len(runs) - 1))      # later variants thinner, over the earlier
         for k in range(3):
-            lab = r.name if k == 0 else None
-            axes[0].plot(t, r.filt.accel_bias_b[:, k] / MG_MPS2, styles[k], lw=0.9, color=_VARIANT_COLORS[i % len(_VARIANT_COLORS)], label=lab)
-            axes[1].plot(t, r.filt.gyro_bias_b[:, k] / DEG_H_RPS, styles[k], lw=0.9, color=_VARIANT_COLORS[i % len(_VARIANT_COLORS)])
-    axes[0].set_ylabel("accel bias [mg]")     # the unit of a run's biases.png (m/s^2 here: a student's review)
-    axes[1].set_ylabel("gyro bias [deg/h]")
-    axes[1].set_xlabel("time since start [s]")
-    axes[0].set_title("Estimated IMU biases per variant (x solid, y dashed, z dotted)")
-    for ax in axes:
+            axes[0, k].plot(t, r.filt.accel_bias_b[:, k] / MG_MPS2, "-", lw=lw, color=c, label=r.name if k == 0 else None)
+            axes[1, k].plot(t, r.filt.gyro_bias_b[:, k] / DEG_H_RPS, "-", lw=lw, color=c)
+    for k, axis in enumerate("xyz"):
+        axes[0, k].set_title(f"accelerometer, {axis} (body)", fontsize=9)
+        axes[1, k].set_title(f"gyro, {axis} (body)", fontsize=9)
+        axes[1, k].set_xlabel("time since start [s]")
+    axes[0, 0].set_ylabel("accel bias [mg]")     # the unit of a run's biases.png (m/s^2 here: a student's review)
+    axes[1, 0].set_ylabel("gyro bias [deg/h]")
+    for ax in axes.ravel():
         ax.grid(alpha=0.3)
-    _legend_outside(fig, axes[0], fontsize=7)
+    fig.suptitle("Estimated IMU biases per variant", fontsize=11)
+    handles, labels = axes[0, 0].get_legend_handles_labels()
+    fig.legend(handles, labels, loc="upper right", fontsize=7, ncol=min(len(labels), 6), frameon=False)
+    fig.subplots_adjust(left=0.06, right=0.99, top=0.86, bottom=0.09, wspace=0.25, hspace=0.35)
     _save(fig, path)
 
 
