@@ -648,3 +648,20 @@ def test_compare_biases_give_each_sensor_axis_its_panel_with_every_variant(monke
     assert [t.get_text() for t in fig.legends[0].get_texts()] == [f"v{k}" for k in range(5)]
     assert fig.axes[0].get_title() == "accelerometer, x (body)" and fig.axes[5].get_title() == "gyro, z (body)"
     plt.close("all")
+
+
+def test_compare_body_velocity_says_how_far_each_variant_is_from_the_truth(monkeypatch, tmp_path):
+    """The truth drawn thick on top hid the variant that followed it best, and nothing said which did (a review):
+    the truth is a thin dashed line over them, and each variant's legend gives its RMS from it."""
+    figs = []
+    monkeypatch.setattr(plots, "_save", lambda fig, path: figs.append(fig))
+    t = np.arange(0.0, 10.0, 0.1)
+    gt = SimpleNamespace(t_s=t)
+    gt_vb = np.zeros((t.size, 3))
+    runs = [SimpleNamespace(name=f"v{k}", filt=SimpleNamespace(fused=SimpleNamespace(t_s=t))) for k in range(2)]
+    body = [np.column_stack([np.ones_like(t), np.full_like(t, 0.1 * (k + 1)), np.full_like(t, 0.02)]) for k in range(2)]
+    plots.plot_compare_body_velocity(tmp_path / "v.png", runs, body, gt, gt_vb)
+    labels = [x.get_text() for x in figs[0].legends[0].get_texts()]
+    assert labels == ["ground truth", "v0 (RMS from the truth: lateral 0.100, vertical 0.020 m/s)",
+                      "v1 (RMS from the truth: lateral 0.200, vertical 0.020 m/s)"]
+    plt.close("all")

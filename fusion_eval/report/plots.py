@@ -471,11 +471,18 @@ def plot_compare_body_velocity(path: Path, runs, body_v: list, gt, gt_vb) -> Non
     fig, axes = subplots(2, 1, figsize=(10, 6), sharex=True)
     t0 = runs[0].filt.fused.t_s[0]
     if gt_vb is not None:
+        # thin and dashed over the variants: drawn thick on top, it hid the variant that followed it best (a review)
         for ax, k in zip(axes, (1, 2)):
-            ax.plot(gt.t_s - t0, gt_vb[:, k], color="black", lw=1.2, label="ground truth", zorder=10)
+            ax.plot(gt.t_s - t0, gt_vb[:, k], "--", color="black", lw=0.8, label="ground truth", zorder=10)
     for i, (r, vb) in enumerate(zip(runs, body_v)):
+        label = r.name
+        if gt_vb is not None:       # how far each follows the truth, in the legend (the lines overlap)
+            rms = [float(np.sqrt(np.nanmean((vb[:, k] - np.interp(r.filt.fused.t_s, gt.t_s, gt_vb[:, k],
+                                                                   left=np.nan, right=np.nan)) ** 2))) for k in (1, 2)]
+            label += f" (RMS from the truth: lateral {rms[0]:.3f}, vertical {rms[1]:.3f} m/s)"
         for ax, k in zip(axes, (1, 2)):
-            ax.plot(r.filt.fused.t_s - t0, vb[:, k], lw=0.7, alpha=0.7, color=_VARIANT_COLORS[i % len(_VARIANT_COLORS)], label=r.name)
+            ax.plot(r.filt.fused.t_s - t0, vb[:, k], lw=0.9, alpha=0.8, color=_VARIANT_COLORS[i % len(_VARIANT_COLORS)],
+                    label=label)
     axes[0].set_ylabel("lateral [m/s]")
     axes[1].set_ylabel("vertical [m/s]")
     axes[1].set_xlabel("time since start [s]")
@@ -484,8 +491,10 @@ def plot_compare_body_velocity(path: Path, runs, body_v: list, gt, gt_vb) -> Non
         ax.grid(alpha=0.3)
     # below the axes, one row: inside, the legend covered the data and hid a variant behind the truth (a review)
     handles, labels = axes[0].get_legend_handles_labels()
-    fig.legend(handles, labels, loc="lower center", ncol=min(len(labels), 6), fontsize=8, frameon=False)
-    fig.subplots_adjust(bottom=0.16, top=0.93, hspace=0.12)
+    ncol = 2 if gt_vb is not None else min(len(labels), 6)
+    rows = -(-len(labels) // ncol)
+    fig.legend(handles, labels, loc="lower center", ncol=ncol, fontsize=7 if gt_vb is not None else 8, frameon=False)
+    fig.subplots_adjust(bottom=0.08 + 0.035 * rows, top=0.93, hspace=0.12)
     _save(fig, path)
 
 
