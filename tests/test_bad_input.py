@@ -1832,7 +1832,7 @@ def test_evaluate_names_an_estimate_of_another_world_frame_unaligned(tmp_path):
     assert _other_world(p, turned, e) == ""
 
 
-def test_evaluate_takes_a_dataset_as_the_reference(tmp_path):
+def test_evaluate_takes_a_dataset_as_the_reference(tmp_path, monkeypatch):
     """A user with an estimate and the drive it came from had to run first for groundtruth.tum (an own-data review):
     a dataset folder or manifest as the reference is its ground truth as a run scores against it."""
     import json
@@ -1854,6 +1854,17 @@ def test_evaluate_takes_a_dataset_as_the_reference(tmp_path):
     r = CliRunner().invoke(main, ["evaluate", str(KITTI00), str(tmp_path / "est.tum"), "--ref-times", str(tmp_path / "est.tum"),
                                   "-o", str(tmp_path / "x")])
     assert r.exit_code == 2 and "--ref-times applies to a KITTI pose file" in r.output
+    # its up axis is the run's, z: a vertical flight's 'auto' took y, and a 4dof alignment tilted the world (0.847 m
+    # for the run's 0.985; a non-car review). The detection made to answer y, as it did there: z is used all the same
+    from fusion_eval.evaluation import trajectory as tr
+
+    monkeypatch.setattr(tr, "detect_up_axis", lambda p: ("y", {"normal": [0.0, 1.0, 0.0], "angle_deg": 0.0,
+                                                              "flatness": 0.65}))
+    out = tmp_path / "o4"
+    r = CliRunner().invoke(main, ["-q", "evaluate", str(KITTI00), str(tmp_path / "est.tum"), "--no-plots", "-o", str(out),
+                                  "--alignment", "4dof"])
+    assert r.exit_code == 0, r.output
+    assert json.loads((out / "metrics.json").read_text())["estimates"]["est"]["alignment"]["up_axis"] == "z"
 
 
 def test_auto_lags_on_an_imu_of_another_clock_name_the_clocks():
