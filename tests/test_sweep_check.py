@@ -695,3 +695,15 @@ def test_a_baseline_with_a_smoothed_section_of_nulls_is_refused_not_called_witho
     (tmp_path / "cur.json").write_text(json.dumps(body))
     r = CliRunner().invoke(main, ["check", str(tmp_path / "cur.json"), "--baseline", str(tmp_path / "nulls.json")])
     assert r.exit_code == 2 and "smoothed.ape" in r.stderr and "not gated" not in r.stderr, r.output
+
+
+def test_a_drift_glob_gates_on_errors_not_on_the_segment_count():
+    """'fused.kitti_drift.*' gated on kitti_drift.segments, a count: a longer drive's more segments read as a
+    regression (a non-car review)."""
+    from fusion_eval.evaluation import keys
+
+    m = {"estimates": {"fused": {"kitti_drift": {"t_err_pct": 0.5, "r_err_deg_per_m": 0.002, "r_err_deg_per_100m": 0.2,
+                                                 "segments": 41, "per_length": {}}}}}
+    flat = keys.flatten(m)
+    assert set(flat) == {"fused.kitti_drift.t_err_pct", "fused.kitti_drift.r_err_deg_per_m",
+                         "fused.kitti_drift.r_err_deg_per_100m"}
