@@ -487,3 +487,24 @@ def test_the_attitude_errors_median_has_the_error_plots_sign(kitti_slice):
     plotted = np.degrees(np.median(fused_att_vel_error(prep.groundtruth, filt)["att_err_b_rad"], axis=0))
     assert np.linalg.norm(med) > 1e-3                  # not a zero that either sign would match
     np.testing.assert_allclose(med, plotted, atol=1e-9)
+
+
+def test_an_rpe_over_more_than_the_route_is_one_line_naming_the_setting(caplog):
+    """A route shorter than evaluation.rpe_delta_m gave evo's words once per pose relation ('try lower values'),
+    naming no setting: 14 lines in a compare of a room-sized route (a non-car review)."""
+    import logging
+
+    from fusion_eval.evaluation.trajectory import evaluate
+    from fusion_eval.types import PoseSeries
+
+    t = np.arange(0.0, 20.0, 0.1)
+    p = np.column_stack([t, np.zeros_like(t), np.zeros_like(t)])
+    q = np.tile([0.0, 0.0, 0.0, 1.0], (t.size, 1))
+    ref = PoseSeries(t_s=t, p_w_m=p, q_wb_xyzw=q)
+    est = PoseSeries(t_s=t, p_w_m=p + 0.1, q_wb_xyzw=q)
+    with caplog.at_level(logging.WARNING, logger="fusion_eval"):
+        ev = evaluate(ref, est, "fused", 0.01, 100.0)
+    lines = [r.getMessage() for r in caplog.records if "not computed" in r.getMessage()]
+    assert lines == ["fused: rpe_100m (translation_m, rotation_deg) not computed: no two poses 100 m apart along its "
+                     "path (a route shorter than that); give a shorter evaluation.rpe_delta_m (evaluate: --rpe-delta-m)"]
+    assert ev.metrics["rpe_100m"]["translation_m"] is None and ev.said == lines

@@ -402,15 +402,26 @@ def evaluate(reference, estimate, name: str, t_max_diff_s: float,
     for label, delta, unit in ((keys.RPE_FRAME, 1.0, metrics.Unit.frames),
                                (keys.rpe_distance_group(rpe_delta_m), rpe_delta_m, metrics.Unit.meters)):
         ev.metrics[label] = {}
+        failed = []
         for key, rel in rels:
             try:
                 res = calc.rpe(rel, delta, unit)
             except (metrics.MetricsException, FilterException) as exc:   # e.g. a drive shorter than delta
-                log.warning("%s: %s %s not computed: %s", name, label, key, exc)
+                failed.append((key, exc))
                 ev.metrics[label][key] = None
                 continue
             ev.metrics[label][key] = _stats(res)
             ev.results[f"{label}_{keys.RESULT_NAMES[key]}"] = res
+        if failed:
+            # one line per estimate, and the setting to change: evo's own words ('try lower values') came once per
+            # pose relation, naming no setting (a room-sized route gave 14 such lines in a compare; a non-car review)
+            what = ", ".join(k for k, _ in failed)
+            if unit == metrics.Unit.meters and "empty index list" in str(failed[0][1]):
+                log.warning("%s: %s (%s) not computed: no two poses %g m apart along its path (a route shorter than "
+                            "that); give a shorter evaluation.rpe_delta_m (evaluate: --rpe-delta-m)", name, label, what,
+                            delta)
+            else:
+                log.warning("%s: %s (%s) not computed: %s", name, label, what, failed[0][1])
     return _named(ev, ref_name)
 
 
