@@ -174,6 +174,9 @@ def _say_models(cfg: dict, ds: Dataset, applied: dict, across: str = "") -> None
     elif platform in WHEELED:
         applied["nhc"] = ("off on this {platform} (filter.nhc=false, or a process model or smoother without it; "
                           "see README, 'The non-holonomic constraint')").format(platform=platform)
+    else:       # said too: a drone's report spoke of the constraint as of a car's (a non-car review)
+        applied["nhc"] = (f"off (the dataset's platform is {'a ' + platform if platform else 'not declared'}: the "
+                          "constraint is a wheeled vehicle's)")
     if f["lidar_update"] == "relative" and cfg["lidar"]["relative_frame"] == "auto":
         frame = frame_of("auto", f["use_gnss"], cfg["smoother"]["method"])
         why = "GNSS fused" if f["use_gnss"] else ("the batch smoother" if frame == "body" else "no GNSS fused")

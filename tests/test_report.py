@@ -318,3 +318,19 @@ def test_html_shows_wide_figures_and_time_series_at_the_pages_width(tmp_path):
     page = html.page(md, tmp_path)
     kinds = dict(re.findall(r'<figure( class="wide")?><img alt="([^"]*)"', page)[i][::-1] for i in range(3))
     assert kinds == {"s": ' class="wide"', "q": "", "p": ' class="wide"'}
+
+
+def test_a_drive_of_no_car_says_why_the_constraint_is_off_and_not_what_a_car_does(tmp_path):
+    """A drone's report spoke of the non-holonomic constraint as of a car's ('wherever the car does not slip') with the
+    constraint off, and never said why it was off (a non-car review)."""
+    import fusion_eval as fe
+    from fusion_eval.report.markdown import consistency_section
+    from fusion_eval.simulate.dataset import simulate
+
+    simulate(tmp_path / "s", "urban", 30.0, 0, "automotive", (), jobs=1)     # the simulator declares no platform
+    m = fe.run(tmp_path / "s").metrics
+    assert m["preprocessing"]["nhc"].startswith("off (the dataset's platform is not declared")
+    assert "nhc" not in m["nis"] and not any("slip" in ln for ln in consistency_section(m))
+    car = {**m, "nis": {**m["nis"], "nhc": {"mean": 0.5, "dof": 2, "fraction_in_95": 0.9, "epochs": 10,
+                                             "bounds_95": [0.05, 7.4]}}}
+    assert any("wherever the vehicle does not slip" in ln for ln in consistency_section(car))

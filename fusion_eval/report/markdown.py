@@ -98,8 +98,9 @@ def consistency_section(m: dict) -> list[str]:
           "consistent filter has a mean near the dof and about 95 % inside; a mean well below means the filter is "
           f"conservative (noise too large), well above overconfident. The verdict: a mean above {VERDICT_RATIO:g}x the "
           f"dof is overconfident, below 1/{VERDICT_RATIO:g} of it conservative, and a mean between with under "
-          f"{VERDICT_MIN_INSIDE * 100:.0f} % inside heavy-tailed (outliers, or a model error at some epochs). A pseudo-"
-          "observation (the non-holonomic constraint) is conservative wherever the car does not slip."]
+          f"{VERDICT_MIN_INSIDE * 100:.0f} % inside heavy-tailed (outliers, or a model error at some epochs)."
+          + (" A pseudo-observation (the non-holonomic constraint) is conservative wherever the vehicle does not slip."
+             if "nhc" in (m.get("nis") or {}) else "")]
     return L
 
 
