@@ -147,6 +147,7 @@ def _flag_data(ds: Dataset, applied: dict, more: list[str] = ()) -> None:
     if platform in WHEELED:
         warnings += plausible.speed_glitches({"groundtruth": ds.groundtruth, "gnss": ds.gnss, "lidar": ds.lidar},
                                                       platform)
+        warnings += list(filter(None, [plausible.sideways(ds.groundtruth, platform)]))
     else:                 # any platform: a fix or a pose kilometres off is a glitch (a lidar odometry reset to its
         # origin mid-drive read 'fused over lidar 0.005' with no word where no platform was declared: a review)
         warnings += plausible.speed_glitches({"groundtruth": ds.groundtruth, "gnss": ds.gnss, "lidar": ds.lidar},

@@ -386,3 +386,26 @@ def test_a_gnss_jump_is_said_from_its_run_of_large_innovations_without_ground_tr
     big[10] = np.nan
     assert jumps("gnss", {"values": big, "t_s": t, "dof": 3}).startswith("gnss: 1 run")
     assert not [w for w in inconsistent_streams({"gnss": {"values": many, "t_s": t, "dof": 3}}) if "consecutive" in w]
+
+
+def test_a_truth_that_moves_sideways_on_a_wheeled_platform_is_said():
+    """A strafing drone declared a car went from 0.25 to 38.6 m with warnings on NIS and NEES only (a non-car
+    review): a body moving sideways on a fifth of its moving time is no car's. A car's own slip is not."""
+    from types import SimpleNamespace
+
+    from fusion_eval.datasets.plausible import sideways
+
+    t = np.arange(0.0, 60.0, 0.1)
+    R = np.tile(np.eye(3), (t.size, 1, 1))
+
+    class T(SimpleNamespace):
+        def __len__(self):
+            return self.t_s.size
+
+    strafe = T(t_s=t, v_w_mps=np.tile([0.5, 4.0, 0.0], (t.size, 1)), R_wb=lambda: R, filled=None)
+    w = sideways(strafe, "car")
+    assert w.startswith("groundtruth: the body moves sideways (its lateral speed over half its speed on 100% of the")
+    assert "which no car does" in w
+    slipping = T(t_s=t, v_w_mps=np.tile([10.0, 0.3, 0.0], (t.size, 1)), R_wb=lambda: R, filled=None)
+    assert sideways(slipping, "car") == ""
+    assert sideways(T(t_s=t, v_w_mps=np.zeros((t.size, 3)), R_wb=lambda: R, filled=None), "car") == ""  # parked
