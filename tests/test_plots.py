@@ -665,3 +665,25 @@ def test_compare_body_velocity_says_how_far_each_variant_is_from_the_truth(monke
     assert labels == ["ground truth", "v0 (RMS from the truth: lateral 0.100, vertical 0.020 m/s)",
                       "v1 (RMS from the truth: lateral 0.200, vertical 0.020 m/s)"]
     plt.close("all")
+
+
+def test_the_trajectory_plot_has_the_height_over_time(monkeypatch, tmp_path):
+    """A top view alone hid a flight's 60 m climb (a non-car review): a panel of the height over time, its axis fitting
+    every estimate but dead reckoning."""
+    from fusion_eval.report import thin
+
+    figs = []
+    monkeypatch.setattr(plots, "_save", lambda fig, path: figs.append(fig))
+    t = np.arange(0.0, 60.0, 0.1)
+    q = np.tile([0.0, 0.0, 0.0, 1.0], (t.size, 1))
+    climb = np.column_stack([np.sin(t), np.cos(t), t])                          # up 60 m over a 2 m circle
+    series = {"groundtruth": PoseSeries(t, climb, q), "fused": PoseSeries(t, climb + [0.0, 0.0, 0.5], q),
+              "imu_only": PoseSeries(t, climb + [0.0, 0.0, 1e4], q)}
+    paths, extent = thin.paths(series)
+    assert paths["fused"].shape == (t.size, 4)
+    plots.plot_trajectories(tmp_path / "t.png", paths, extent)
+    top, height = figs[0].axes
+    assert height.get_ylabel() == "Up [m]" and len(height.get_lines()) == 3
+    lo, hi = height.get_ylim()
+    assert lo < 0.0 and 60.0 < hi < 100.0                                       # the climb, not dead reckoning's 1e4
+    plt.close("all")

@@ -106,7 +106,8 @@ def plot_trajectories(path: Path, paths: dict, extent: tuple) -> None:
     """Top view (East/North) of every estimate with the ground truth (``paths``, ``extent``:
     :func:`fusion_eval.report.thin.paths`); axes fit the ground truth so a diverging dead-reckoning track does
     not squash the rest."""
-    fig, ax = subplots(figsize=(8, 7))
+    fig, (ax, axh) = subplots(2, 1, figsize=(8, 9), gridspec_kw={"height_ratios": [3.2, 1]})
+    t0 = min((p[0, 3] for p in paths.values() if p.shape[1] > 3 and len(p)), default=0.0)
     for name in ("groundtruth", "lidar", "imu_only", "gnss", "fused", "smoothed"):
         p = paths.get(name)
         if p is None:
@@ -116,9 +117,12 @@ def plot_trajectories(path: Path, paths: dict, extent: tuple) -> None:
         else:
             ax.plot(p[:, 0], p[:, 1], "-", lw=1.6 if name == "groundtruth" else 1.1,
                     color=COLORS[name], label=LABELS[name], alpha=0.9)
+        if p.shape[1] > 3:          # the height over time: a top view hid a flight's 60 m climb (a non-car review)
+            axh.plot(p[:, 3] - t0, p[:, 2], "." if name == "gnss" else "-", ms=2.0,
+                     lw=1.6 if name == "groundtruth" else 1.0, color=COLORS[name], alpha=0.9)
     lo, hi, start = extent
     ax.plot(start[0], start[1], "k^", ms=8, label="start")
-    pad = 0.08 * (hi - lo).max() + 5.0
+    pad = 0.08 * (hi[:2] - lo[:2]).max() + 5.0
     ax.set_xlim(lo[0] - pad, hi[0] + pad)
     ax.set_ylim(lo[1] - pad, hi[1] + pad)
     ax.set_aspect("equal", adjustable="box")
@@ -127,6 +131,17 @@ def plot_trajectories(path: Path, paths: dict, extent: tuple) -> None:
     ax.set_title("Trajectories (top view, ENU)")
     ax.grid(alpha=0.3)
     ax.legend(loc="best", fontsize=8)
+    # the height axis fits every estimate but dead reckoning (its kilometres would flatten the rest)
+    ups = [p[:, 2] for n, p in paths.items() if n != "imu_only" and p.shape[1] > 3 and len(p)]
+    if ups:
+        zlo, zhi = min(float(np.nanmin(u)) for u in ups), max(float(np.nanmax(u)) for u in ups)
+        hpad = 0.08 * (zhi - zlo) + 0.5
+        axh.set_ylim(zlo - hpad, zhi + hpad)
+    axh.set_xlabel("time since start [s]")
+    axh.set_ylabel("Up [m]")
+    axh.set_title("Height", fontsize=9, loc="left")
+    axh.grid(alpha=0.3)
+    fig.subplots_adjust(left=0.12, right=0.97, top=0.95, bottom=0.06, hspace=0.22)
     _save(fig, path)
 
 

@@ -80,11 +80,14 @@ PATH_POINTS = 20000       # a path of 20,000 points is smooth at a plot's size
 
 
 def paths(series: dict) -> tuple[dict, tuple]:
-    """East/North paths ``(n, 2)`` of each series thinned to :data:`PATH_POINTS`, and the ground truth's extent
-    ``(lo, hi, start)`` over all its poses (the axes fit it)."""
-    out = {n: np.ascontiguousarray(s.p_w_m[every(len(s), PATH_POINTS), :2]) for n, s in series.items()
-           if s is not None and len(s)}
-    gt = series["groundtruth"].p_w_m[:, :2]
+    """East/North/Up paths with their stamps, ``(n, 4)`` (E, N, U, t), of each series thinned to :data:`PATH_POINTS`,
+    and the ground truth's extent ``(lo, hi, start)`` over all its poses (E, N, U: the axes fit it)."""
+    out = {}
+    for n, s in series.items():
+        if s is not None and len(s):
+            k = every(len(s), PATH_POINTS)
+            out[n] = np.ascontiguousarray(np.column_stack([s.p_w_m[k], np.asarray(s.t_s)[k]]))
+    gt = series["groundtruth"].p_w_m
     return out, (gt.min(axis=0), gt.max(axis=0), gt[0].copy())
 
 
