@@ -134,7 +134,7 @@ def _velocity_from_positions(poses, t0: float, half_window_s: float = 0.1) -> np
     return (dt @ (p[k] - p[k].mean(axis=0))) / (dt @ dt)
 
 
-def _flag_data(ds: Dataset, applied: dict, more: list[str] = ()) -> None:
+def _flag_data(ds: Dataset, applied: dict, more: list[str] = (), travel_yaw_rad: float = 0.0) -> None:
     """What the data hold that no plausibility bound refuses but that makes the figures suspect, said on stderr and
     in the report: the IMU stopping for seconds (in its stamps, or once its filled-in packets are dropped), a wheeled
     vehicle's streams jumping faster than it can drive, and what the preparation found (``more``: the GNSS a constant
@@ -147,7 +147,8 @@ def _flag_data(ds: Dataset, applied: dict, more: list[str] = ()) -> None:
     if platform in WHEELED:
         warnings += plausible.speed_glitches({"groundtruth": ds.groundtruth, "gnss": ds.gnss, "lidar": ds.lidar},
                                                       platform)
-        warnings += list(filter(None, [plausible.sideways(ds.groundtruth, platform)]))
+        if str(applied.get("nhc", "")).startswith("on"):       # the constraint that sideways motion fights
+            warnings += list(filter(None, [plausible.sideways(ds.groundtruth, platform, travel_yaw_rad)]))
     else:                 # any platform: a fix or a pose kilometres off is a glitch (a lidar odometry reset to its
         # origin mid-drive read 'fused over lidar 0.005' with no word where no platform was declared: a review)
         warnings += plausible.speed_glitches({"groundtruth": ds.groundtruth, "gnss": ds.gnss, "lidar": ds.lidar},
@@ -480,7 +481,8 @@ def prepare(ds: Dataset, cfg: dict) -> Prepared:
             across += "; the odometer + gyro process model drives along that direction as configured"
         more_warnings.append(f"{across}: {MOUNT_HINT}")
     _say_models(cfg, ds, applied, across)
-    _flag_data(ds, applied, more_warnings)
+    yaw = cfg["filter"].get("nhc_travel_yaw_mrad")
+    _flag_data(ds, applied, more_warnings, float(yaw) * 1e-3 if isinstance(yaw, (int, float)) else 0.0)
     prep = Prepared(imu=imu, groundtruth=gt, gnss=gnss, lidar=lidar, k_start=k0, x0=x0, gravity_mps2=float(g),
                     gnss_info=gnss_info, applied=applied, odometer=odo, streams=extra, resolved=resolved)
     if cfg["filter"].get("nhc") and not across and cfg["filter"].get("nhc_travel_pitch_mrad") == "auto":

@@ -388,9 +388,11 @@ def test_a_gnss_jump_is_said_from_its_run_of_large_innovations_without_ground_tr
     assert not [w for w in inconsistent_streams({"gnss": {"values": many, "t_s": t, "dof": 3}}) if "consecutive" in w]
 
 
-def test_a_truth_that_moves_sideways_on_a_wheeled_platform_is_said():
+def test_a_truth_that_moves_sideways_on_a_wheeled_platform_is_said(tmp_path):
     """A strafing drone declared a car went from 0.25 to 38.6 m with warnings on NIS and NEES only (a non-car
-    review): a body moving sideways on a fifth of its moving time is no car's. A car's own slip is not."""
+    review): a body moving sideways on a fifth of its moving time is no car's. Not a car's own slip, nor a car parked,
+    nor an IMU mounted across whose direction of travel is given (filter.nhc_travel_yaw_mrad), nor a truth whose
+    stored velocity is in another frame (its positions tell the motion); and said only where the constraint is on."""
     from types import SimpleNamespace
 
     from fusion_eval.datasets.plausible import sideways
@@ -402,10 +404,31 @@ def test_a_truth_that_moves_sideways_on_a_wheeled_platform_is_said():
         def __len__(self):
             return self.t_s.size
 
-    strafe = T(t_s=t, v_w_mps=np.tile([0.5, 4.0, 0.0], (t.size, 1)), R_wb=lambda: R, filled=None)
-    w = sideways(strafe, "car")
+    def moving(v, R=R, stored=None):
+        return T(t_s=t, p_w_m=np.outer(t, v), v_w_mps=stored, R_wb=lambda: R, filled=None)
+
+    w = sideways(moving([0.5, 4.0, 0.0]), "car")
     assert w.startswith("groundtruth: the body moves sideways (its lateral speed over half its speed on 100% of the")
     assert "which no car does" in w
-    slipping = T(t_s=t, v_w_mps=np.tile([10.0, 0.3, 0.0], (t.size, 1)), R_wb=lambda: R, filled=None)
-    assert sideways(slipping, "car") == ""
-    assert sideways(T(t_s=t, v_w_mps=np.zeros((t.size, 3)), R_wb=lambda: R, filled=None), "car") == ""  # parked
+    assert sideways(moving([10.0, 0.3, 0.0]), "car") == ""                         # a car's slip
+    assert sideways(moving([0.0, 0.0, 0.0]), "car") == ""                          # parked
+    assert sideways(moving([0.0, 10.0, 0.0]), "car", np.pi / 2) == ""              # mounted across, travel given
+    assert sideways(moving([10.0, 0.0, 0.0], stored=np.tile([0.0, 10.0, 0.0], (t.size, 1))), "car") == ""
+    # in a run: said with the constraint on, not with it off
+    import fusion_eval as fe
+    from fusion_eval.simulate.dataset import simulate
+
+    simulate(tmp_path / "s", "urban", 40.0, 0, "automotive", (), jobs=1)
+    ds = fe.load_dataset(tmp_path / "s")
+    yawed = ds.groundtruth
+    from dataclasses import replace
+    from fusion_eval.so3 import exp_so3, matrix_to_quat_xyzw
+    turn = exp_so3(np.array([0.0, 0.0, np.pi / 2]))
+    q = matrix_to_quat_xyzw(yawed.R_wb() @ turn)          # the truth's body turned 90 deg: its motion is along y
+    ds = replace(ds, groundtruth=replace(yawed, q_wb_xyzw=q), description={**ds.description, "platform": "car"})
+    from fusion_eval.prepare import _flag_data
+
+    for nhc, said in (("on (the dataset's platform is a car)", True), ("off (filter.nhc=false)", False)):
+        applied = {"nhc": nhc}
+        _flag_data(ds, applied)
+        assert any("moves sideways" in w for w in applied.get("data_warnings", ())) == said, applied
