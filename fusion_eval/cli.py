@@ -130,8 +130,8 @@ class Group(click.Group):
             if isinstance(exc, BrokenProcessPool):
                 # a worker killed (the OOM killer, a kill -9) ended a tune in a traceback (a tune review)
                 click.echo("error: a worker process of this command died (killed by a signal, or by the system's "
-                           "out-of-memory killer): no output folder was written; a sweep or a tune keeps what it "
-                           "finished, and the same command goes on from there", err=True)
+                           "out-of-memory killer): a run or a comparison wrote nothing; a sweep or a tune keeps what "
+                           "it finished, and the same command goes on from there", err=True)
                 sys.exit(1)
             if isinstance(exc, RuntimeError) and str(exc).startswith("Symlink loop from "):
                 # pathlib's resolve() on a loop of links (up to Python 3.12) where no check saw it first

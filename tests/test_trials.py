@@ -201,11 +201,12 @@ def test_warnings_kept_to_a_block_reach_no_enclosing_collection():
     assert run == ["the run's", "the run's again"] and trial == ["the trial's"]
 
 
-@pytest.mark.parametrize("jobs", [2, 1])
-def test_the_runs_evaluation_warnings_from_the_pool_are_not_said_again_as_the_trials(kitti_slice, caplog, jobs):
+def test_the_runs_evaluation_warnings_from_the_pool_are_not_said_again_as_the_trials(kitti_slice, caplog):
     """Trial 0's evaluations run in the pool's workers, which print their warnings there: the summary of the later
-    trials did not know them and said each again as 'trials 1, 2: ...' (a review of the diff). With the pool and
-    without it, the trials' repeats are one line."""
+    trials did not know them and said each again as 'trials 1, 2: ...' (a review of the diff). The trials' repeats
+    are one line. (Without the pool, trial 0's are the run's own: test_warnings_kept_to_a_block_reach_no_enclosing_
+    collection holds the later trials' apart.)"""
+    jobs = 2
     import logging
 
     with caplog.at_level(logging.WARNING, logger="fusion_eval"):

@@ -123,21 +123,34 @@ def test_a_study_is_not_resumed_with_another_space_or_objective(tmp_path):
     assert r.exit_code == 2 and "another objectives" in r.output, r.output
     # a study whose start failed before any trial (a scheduler out of reach, a Ctrl-C while the default was scored)
     # holds nothing: it takes the new settings (it locked the folder to the old ones; a tune review)
+    from fusion_eval.errors import ConfigError
     from fusion_eval.tuning import study as st
 
     empty = tmp_path / "empty"
     first = SimpleNamespace(out_dir=empty, space=SimpleNamespace(digest=lambda: "a"), objectives=[SimpleNamespace(name="nll")],
                             train=[str(ds)], seeds=1, base_config=None, sets=(), sampler="tpe", seed=0, n_trials=2)
-    st.open_study(first)
+    study = st.open_study(first)
     (empty / "default.json").write_text("{}")
     second = SimpleNamespace(**{**vars(first), "objectives": [SimpleNamespace(name="nis")]})
+    # while its maker lives (still scoring the default), it is refused: two studies were mixed in one folder so
+    with pytest.raises(ConfigError, match="another objectives"):
+        st.open_study(second)
+    import socket
+    import subprocess
+    import sys as _sys
+
+    gone = subprocess.run([_sys.executable, "-c", "import os; print(os.getpid())"], capture_output=True, text=True)
+    study.set_user_attr("ident_owner", [socket.gethostname(), int(gone.stdout)])       # a process that has ended
     assert st.open_study(second).user_attrs["ident"]["objectives"] == ["nis"]
     assert not (empty / "default.json").exists()
 
 
 def test_an_objective_given_twice_is_refused(tmp_path):
     r = CliRunner().invoke(main, ["tune", "--objective", "nll", "--objective", "nll", "-o", str(tmp_path / "t")])
-    assert r.exit_code == 2 and "--objective 'nll' given twice" in r.output and not (tmp_path / "t").exists()
+    assert r.exit_code == 2 and "--objective 'nll' is the objective 'nll' again" in r.output and not (tmp_path / "t").exists()
+    r = CliRunner().invoke(main, ["tune", "--objective", "fused.ape.rmse", "--objective", "fused.ape.translation_m.rmse",
+                                  "-o", str(tmp_path / "t")])
+    assert r.exit_code == 2 and "is the objective 'fused.ape.rmse' again" in r.output
 
 
 def test_an_objective_the_runs_do_not_have_is_refused_naming_it(tmp_path):
@@ -447,3 +460,26 @@ def test_a_worker_killed_is_one_line_not_a_traceback(monkeypatch, tmp_path):
     r = CliRunner().invoke(main, ["run", "--out", str(tmp_path / "o")])
     assert r.exit_code == 1, r.output
     assert r.output.strip().splitlines()[-1].startswith("error: a worker process of this command died")
+
+
+def test_two_survivors_requeue_a_dead_trial_once_without_failing(tmp_path):
+    """Two processes sharing a study each requeued a killed one's trial at a generation's start: the second's update
+    of the trial the first had failed raised UpdateFinishedTrialError and ended that tune (a review of the diff)."""
+    import socket
+
+    import optuna
+    from optuna.storages import JournalStorage
+    from optuna.storages.journal import JournalFileBackend
+
+    from fusion_eval.tuning import study as st
+
+    optuna.logging.set_verbosity(optuna.logging.WARNING)
+    path = str(tmp_path / "j.journal")
+    a = optuna.create_study(study_name="s", storage=JournalStorage(JournalFileBackend(path)))
+    t = a.ask({"x": optuna.distributions.FloatDistribution(0.0, 1.0)})
+    t.set_user_attr("owner", [socket.gethostname(), 2 ** 22 + 12345])          # a pid no process has
+    b = optuna.load_study(study_name="s", storage=JournalStorage(JournalFileBackend(path)))
+    stale_b = b.get_trials(deepcopy=False, states=(optuna.trial.TrialState.RUNNING,))   # b's view, before a requeues
+    assert st._requeue_stale(a) == 1
+    b.get_trials = lambda deepcopy=False, states=None: stale_b                  # b acts on what it had seen
+    assert st._requeue_stale(b) == 0

@@ -38,9 +38,13 @@ def run_tune(train: list[str], test: list[str], space: str, objectives: list[str
 
     if not objectives:
         raise ConfigError("give an --objective: nll or nis (no ground truth), or a metric key such as fused.ape.rmse")
-    twice = next((o for i, o in enumerate(objectives) if o in objectives[:i]), None)
-    if twice is not None:       # a study of one objective given twice ran as two, with duplicate columns (a review)
-        raise ConfigError(f"--objective {twice!r} given twice: a study's objectives are distinct")
+    # one objective given twice ran as two, with duplicate columns (a review): compared by what they add up, an alias
+    # and its full name, or a metric and its translation part's short key (fused.ape.rmse), being one
+    same = [tuple(sorted((w, k.replace(".translation_m.", ".")) for w, k in obj.parse(o).terms)) for o in objectives]
+    twice = next((i for i, t in enumerate(same) if t in same[:i]), None)
+    if twice is not None:
+        raise ConfigError(f"--objective {objectives[twice]!r} is the objective {objectives[same.index(same[twice])]!r} "
+                          "again: a study's objectives are distinct")
     if scheduler and dask_local:
         raise ConfigError("give either --scheduler or --dask local, not both")
     if jobs is not None and jobs < 1:

@@ -94,13 +94,19 @@ def open_study(s: Setup):
     ident = {"space": s.space.digest(), "objectives": [o.name for o in s.objectives], "train": list(s.train),
              "seeds": s.seeds, "base_config": s.base_config, "sets": list(s.sets), "pruning_reports": REPORTS}
     old = study.user_attrs.get("ident")
-    if old is None or (old != ident and not study.trials):
-        # a study with no trial yet (a start that failed: a scheduler out of reach, a Ctrl-C while the default was
-        # scored) holds nothing to keep: it takes the new settings (it locked the folder to the old ones; a tune
-        # review), and the default is scored again under them
-        if old is not None:
+    maker = study.user_attrs.get("ident_owner")
+    host = socket.gethostname()
+    # a study with no trial yet whose maker is gone (a start that failed: a scheduler out of reach, a Ctrl-C while the
+    # default was scored) holds nothing to keep: it takes the new settings (it locked the folder to the old ones; a tune
+    # review), and the default is scored again under them; not while its maker still scores the default (two studies
+    # were mixed in one folder so: a review of the diff)
+    abandoned = (old is not None and old != ident and not study.trials and maker is not None and maker[0] == host
+                 and not alive(maker[1]))
+    if old is None or abandoned:
+        if abandoned:
             (s.out_dir / "default.json").unlink(missing_ok=True)
         study.set_user_attr("ident", ident)
+        study.set_user_attr("ident_owner", [host, os.getpid()])
     elif old != ident:
         diff = next(k for k in ident if ident[k] != old.get(k))
         raise ConfigError(f"{s.out_dir}: holds a study of another {diff.replace('_', ' ')} ({old.get(diff)!r}); "
@@ -153,8 +159,11 @@ def _requeue_stale(study) -> int:
                 continue
         elif owner[0] != host or alive(owner[1]):
             continue
-        study._storage.set_trial_user_attr(t._trial_id, "interrupted", True)            # noqa: SLF001
-        study._storage.set_trial_state_values(t._trial_id, optuna.trial.TrialState.FAIL)  # noqa: SLF001
+        try:
+            study._storage.set_trial_user_attr(t._trial_id, "interrupted", True)            # noqa: SLF001
+            study._storage.set_trial_state_values(t._trial_id, optuna.trial.TrialState.FAIL)  # noqa: SLF001
+        except optuna.exceptions.UpdateFinishedTrialError:
+            continue              # another process sharing the study requeued it first (a review of the diff)
         study.enqueue_trial(t.params, skip_if_exists=False)
         n += 1
     return n
