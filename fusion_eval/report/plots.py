@@ -122,7 +122,7 @@ def plot_trajectories(path: Path, paths: dict, extent: tuple) -> None:
                      lw=1.6 if name == "groundtruth" else 1.0, color=COLORS[name], alpha=0.9)
     lo, hi, start = extent
     ax.plot(start[0], start[1], "k^", ms=8, label="start")
-    pad = 0.08 * (hi[:2] - lo[:2]).max() + 5.0
+    pad = 0.08 * (hi[:2] - lo[:2]).max() + 5.0          # not a state index: East and North
     ax.set_xlim(lo[0] - pad, hi[0] + pad)
     ax.set_ylim(lo[1] - pad, hi[1] + pad)
     ax.set_aspect("equal", adjustable="box")
