@@ -483,3 +483,15 @@ def test_two_survivors_requeue_a_dead_trial_once_without_failing(tmp_path):
     assert st._requeue_stale(a) == 1
     b.get_trials = lambda deepcopy=False, states=None: stale_b                  # b acts on what it had seen
     assert st._requeue_stale(b) == 0
+
+
+def test_a_two_objective_studys_report_compares_both_objectives(tmp_path):
+    """tune.md's default-against-tuned table gave the first objective only in a two-objective study (a tune review)."""
+    ds = make_slice(tmp_path / "ds", 300)
+    out = tmp_path / "t"
+    r = _tune([str(ds), "--objective", "fused.ape.rmse", "--objective", "nll", "--trials", "2", "-j", "1", "-o", str(out),
+               "--no-plots"], tmp_path)
+    assert r.exit_code == 0, r.output
+    md = (out / "tune.md").read_text()
+    head = next(ln for ln in md.splitlines() if ln.startswith("| drives"))
+    assert all(c in head for c in ("fused.ape.rmse (default)", "fused.ape.rmse (tuned)", "nll (default)", "nll (tuned)"))

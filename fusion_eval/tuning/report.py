@@ -136,19 +136,23 @@ def markdown(s: Setup, res: dict, runtime_s: float) -> str:
         L += ["**No trial beat the first one, the default configuration**: the tuned values are the default's. "
               "More trials, or a wider space, may find better ones.", ""]
     rows, gaps = [], []
+    n_obj = len(s.objectives)       # every objective's pair of columns (a two-objective study showed the first only)
     for part, d_rec, t_rec in (("training", default["train"], best["train"]),
                                ("held-out", default.get("test"), best.get("test"))):
         if d_rec is None:
             continue
-        d_obj, t_obj = _obj(d_rec, 0), _obj(t_rec, 0)
-        gaps.append((part, d_obj, t_obj))
-        rows.append([f"{part} (mean)", _f(d_obj), _f(t_obj), _f(_mean(d_rec, FUSED_APE)), _f(_mean(t_rec, FUSED_APE))])
+        gaps.append((part, _obj(d_rec, 0), _obj(t_rec, 0)))
+        rows.append([f"{part} (mean)", *(_f(x) for k in range(n_obj) for x in (_obj(d_rec, k), _obj(t_rec, k))),
+                     _f(_mean(d_rec, FUSED_APE)), _f(_mean(t_rec, FUSED_APE))])
         da, ta = _per_drive(d_rec, FUSED_APE), _per_drive(t_rec, FUSED_APE)
-        do, to = _per_drive_obj(d_rec), _per_drive_obj(t_rec)
+        per = [(_per_drive_obj(d_rec, k), _per_drive_obj(t_rec, k)) for k in range(n_obj)]
         for name in da:
-            rows.append([f"{part}: {name}", _f(do.get(name)), _f(to.get(name)), _f(da[name]), _f(ta.get(name))])
+            rows.append([f"{part}: {name}", *(_f(x) for do, to in per for x in (do.get(name), to.get(name))),
+                         _f(da[name]), _f(ta.get(name))])
+    obj_cols = ([c for o in s.objectives for c in (f"{o.name} (default)", f"{o.name} (tuned)")] if n_obj > 1
+                else ["objective (default)", "objective (tuned)"])
     L += ["## Objective and fused APE, default against tuned", ""] + markdown_table(
-        ["drives", "objective (default)", "objective (tuned)", "fused APE RMSE m (default)", "fused APE RMSE m (tuned)"], rows)
+        ["drives", *obj_cols, "fused APE RMSE m (default)", "fused APE RMSE m (tuned)"], rows)
     L += ["", _generalisation(gaps), ""]
     d_ape, t_ape = _mean(default["train"], FUSED_APE), _mean(best["train"], FUSED_APE)
     note = one_draw_note(t_ape, d_ape, s.seeds, "The tuned values' fused APE on the training drives leads the default's by",
@@ -171,11 +175,11 @@ def _obj(rec: dict | None, k: int) -> float:
     return rec["values"][k] if rec.get("values") else math.nan
 
 
-def _per_drive_obj(rec: dict | None) -> dict[str, float]:
+def _per_drive_obj(rec: dict | None, k: int = 0) -> dict[str, float]:
     out: dict = {}
     for st in (rec or {}).get("steps", []):
         if st["status"] == "ok":
-            out.setdefault(Path(st["dataset"]).name, []).append(st["values"][0])
+            out.setdefault(Path(st["dataset"]).name, []).append(st["values"][k])
     return {k: sum(v) / len(v) for k, v in out.items()}
 
 
