@@ -864,7 +864,7 @@ def _stamp_s(sec: np.ndarray, nsec: np.ndarray) -> np.ndarray:
     return ns_to_s(np.asarray(sec, dtype=np.int64) * 1_000_000_000 + np.asarray(nsec, dtype=np.int64))
 
 
-def _order(t_s: np.ndarray, path, topic: str) -> np.ndarray | slice:
+def _order(t_s: np.ndarray, path, topic: str, say: bool = True) -> np.ndarray | slice:
     """Indices that sort by stamp and keep the first of repeated stamps (logged); a no-op slice when the stamps
     already increase. A zero header stamp among real ones is refused with its message (a driver publishing before
     its clock was set was blamed on milliseconds, or on recordings run together)."""
@@ -876,7 +876,7 @@ def _order(t_s: np.ndarray, path, topic: str) -> np.ndarray | slice:
     if t_s.size < 2 or np.all(t_s[1:] > t_s[:-1]):
         return slice(None)
     order = np.argsort(t_s, kind="stable")
-    if np.any(order[1:] < order[:-1]):
+    if say and np.any(order[1:] < order[:-1]):
         log.info("%s: topic %s: messages are not in stamp order; sorted by stamp", path, topic)
     t = t_s[order]
     keep = np.concatenate([[True], np.diff(t) > 0])
@@ -1193,7 +1193,7 @@ def read_pose_covariances(path: str | Path, topic: str, stamps: str = "header") 
         rec_ns.append(rec)
         cov.append(msg.pose.covariance)
     t_s = _times({"sec": sec, "nsec": nsec, "rec_ns": rec_ns}, stamps)
-    keep = _order(t_s, path, topic)
+    keep = _order(t_s, path, topic, say=False)        # (the poses' reading says it: once, not twice; a review)
     return t_s[keep], np.array(cov, float).reshape(-1, 6, 6)[keep]
 
 

@@ -298,8 +298,9 @@ def _shade(ax, spans, legend: bool = True) -> None:
     outages gold, the IMU's holes grey, each label once in the legend."""
     shaded: set = set()
     for a, b, label in spans:
-        color = "gold" if label.startswith("GNSS") else "0.5"       # (orange is dead reckoning's)
-        ax.axvspan(a, b, color=color, alpha=0.15, lw=0, label=None if (label in shaded or not legend) else label)
+        # (orange is dead reckoning's, purple the smoother's; the holes cyan: grey vanished in the grey 3-sigma band, a review)
+        color = "gold" if label.startswith("GNSS") else "tab:cyan"
+        ax.axvspan(a, b, color=color, alpha=0.18, lw=0, label=None if (label in shaded or not legend) else label)
         shaded.add(label)
 
 
