@@ -102,11 +102,14 @@ def _save(fig, path: Path) -> None:
     fig.clear()
 
 
+HEIGHT_POINTS = 2000      # the trajectories' height panel: points per estimate (the envelope's)
+
+
 def plot_trajectories(path: Path, paths: dict, extent: tuple) -> None:
     """Top view (East/North) of every estimate with the ground truth (``paths``, ``extent``:
     :func:`fusion_eval.report.thin.paths`); axes fit the ground truth so a diverging dead-reckoning track does
     not squash the rest."""
-    fig, (ax, axh) = subplots(2, 1, figsize=(8, 9), gridspec_kw={"height_ratios": [3.2, 1]})
+    fig, (ax, axh) = subplots(2, 1, figsize=(8, 8.4), gridspec_kw={"height_ratios": [3.4, 1]})
     t0 = min((p[0, 3] for p in paths.values() if p.shape[1] > 3 and len(p)), default=0.0)
     for name in ("groundtruth", "lidar", "imu_only", "gnss", "fused", "smoothed"):
         p = paths.get(name)
@@ -118,7 +121,8 @@ def plot_trajectories(path: Path, paths: dict, extent: tuple) -> None:
             ax.plot(p[:, 0], p[:, 1], "-", lw=1.6 if name == "groundtruth" else 1.1,
                     color=COLORS[name], label=LABELS[name], alpha=0.9)
         if p.shape[1] > 3:          # the height over time: a top view hid a flight's 60 m climb (a non-car review)
-            axh.plot(p[:, 3] - t0, p[:, 2], "." if name == "gnss" else "-", ms=2.0,
+            k = thin.envelope(p[:, 2], HEIGHT_POINTS)       # a 900-pixel panel: its peaks kept, not 20,000 points
+            axh.plot(p[k, 3] - t0, p[k, 2], "." if name == "gnss" else "-", ms=2.0,
                      lw=1.6 if name == "groundtruth" else 1.0, color=COLORS[name], alpha=0.9)
     lo, hi, start = extent
     ax.plot(start[0], start[1], "k^", ms=8, label="start")
