@@ -102,7 +102,7 @@ def _save(fig, path: Path) -> None:
     fig.clear()
 
 
-HEIGHT_POINTS = 2000      # the trajectories' height panel: points per estimate (the envelope's)
+HEIGHT_POINTS = 2000      # not a state index: the height panel's points per estimate (the envelope's)
 
 
 def plot_trajectories(path: Path, paths: dict, extent: tuple) -> None:
