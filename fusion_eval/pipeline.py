@@ -95,17 +95,12 @@ def trial_metrics(ds: Dataset, cfg: dict) -> tuple[dict, list[str]]:
     """One Monte-Carlo trial's metrics and warnings (in a worker: nothing written, nothing said, nothing else sent
     back). Its log lines repeat the main run's, once per trial: the informational ones are dropped, the warnings
     returned for the run to sum up (:func:`fusion_eval.trials.warnings`)."""
-    pkg = logging.getLogger(__package__)
-    level = pkg.level
-    pkg.setLevel(max(level, logging.WARNING))
-    with collected(show=False) as said:
+    with collected(show=False) as said:       # (nothing reaches the console from inside: INFO lines neither)
         try:
             with np.errstate(over="ignore", invalid="ignore"):
                 return execute(ds, cfg, jobs=1).metrics, said
         except FusionEvalError as exc:          # a diverged trial is a result, counted in the summary
             return {"failed": str(exc)}, said
-        finally:
-            pkg.setLevel(level)
 
 
 @dataclass

@@ -231,10 +231,9 @@ def log_so3(R: np.ndarray) -> np.ndarray:
 
 def matrix_to_euler_rpy(R: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Roll, pitch, yaw (rad) of ``R_wb = Rz(yaw) Ry(pitch) Rx(roll)`` (the inverse of :func:`euler_rpy_to_matrix`
-    away from pitch = +/-90 deg), each ``(N,)``."""
-    R = np.asarray(R, dtype=float).reshape(-1, 3, 3)
-    pitch = -np.arcsin(np.clip(R[:, 2, 0], -1.0, 1.0))
-    return np.arctan2(R[:, 2, 1], R[:, 2, 2]), pitch, np.arctan2(R[:, 1, 0], R[:, 0, 0])
+    away from pitch = +/-90 deg), each ``(N,)``: scipy's intrinsic z-y-x angles."""
+    ypr = Rotation.from_matrix(np.asarray(R, dtype=float).reshape(-1, 3, 3)).as_euler("ZYX")
+    return ypr[:, 2], ypr[:, 1], ypr[:, 0]
 
 
 def euler_rpy_to_matrix(roll: np.ndarray, pitch: np.ndarray, yaw: np.ndarray) -> np.ndarray:

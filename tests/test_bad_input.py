@@ -2047,3 +2047,19 @@ def test_a_clock_step_in_the_truths_stamps_is_located(tmp_path):
     assert clock_steps(S(t_s=t[keep], p_w_m=p[keep], v_w_mps=v[keep], source="x", lines=None, filled=None)) == []
     parked = S(t_s=stepped, p_w_m=np.zeros_like(p), v_w_mps=np.zeros_like(v), source="x", lines=None, filled=None)
     assert clock_steps(parked) == []                                   # standing still: no motion to tell by
+
+
+def test_an_oxts_packet_with_a_number_files_do_not_write_is_refused(tmp_path):
+    """KITTI's packets are read by Python's float where their bytes are plain; one holding '9_8.1' (98.1 to Python)
+    or a digit of another script is refused at its file (a corrupted-input review)."""
+    from conftest import make_slice
+    from fusion_eval.datasets.kitti_oxts import read_oxts
+    from fusion_eval.errors import DataFormatError
+
+    ds = make_slice(tmp_path / "ds", 50)
+    pk = ds / "oxts" / "data" / "0000000010.txt"
+    vals = pk.read_text().split()
+    for bad in ("9_8.1", "9.8\u0661"):
+        pk.write_text(" ".join(vals[:13] + [bad] + vals[14:]) + "\n")
+        with pytest.raises(DataFormatError, match=rf"0000000010.txt:1: expected a number, got '{bad}'"):
+            read_oxts(ds / "oxts")

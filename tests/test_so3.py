@@ -116,3 +116,14 @@ def test_relative_rotvecs_equal_the_log_of_the_matrix_product():
     got = relative_rotvecs(qa, qb)
     assert np.max(np.abs(got - want)) < 1e-9
     assert np.max(np.abs(got - d)) < 1e-9
+
+
+def test_roll_pitch_yaw_of_a_matrix_invert_the_devkits_convention():
+    """The simulator writes OXTS attitude by :func:`matrix_to_euler_rpy`, the readers read it by
+    :func:`euler_rpy_to_matrix`: one the other's inverse (away from pitch = +/-90 deg)."""
+    from fusion_eval.so3 import euler_rpy_to_matrix, matrix_to_euler_rpy
+
+    rng = np.random.default_rng(0)
+    r, p, y = rng.uniform(-3.1, 3.1, 200), rng.uniform(-1.5, 1.5, 200), rng.uniform(-3.1, 3.1, 200)
+    for got, want in zip(matrix_to_euler_rpy(euler_rpy_to_matrix(r, p, y)), (r, p, y)):
+        np.testing.assert_allclose(np.angle(np.exp(1j * (got - want))), 0.0, atol=1e-12)

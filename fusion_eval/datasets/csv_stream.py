@@ -280,14 +280,14 @@ def read_gnss(entry: dict, ctx: ReadContext) -> GnssSeries:
         p = rows[:, [named["x"], named["y"], named["z"]]]
     else:
         raise ConfigError(f"{ctx.at(entry, 'columns')}: a csv GNSS stream needs columns lat, lon, alt (geodetic) or x, y, z (local ENU m)")
-    if "std_m" in entry:
-        std_m(entry, ctx)             # checked where the columns give the std too (std_m: -1 passed unseen there)
+    # checked where the columns give the std too (std_m: -1 passed unseen there; a review)
+    given = std_m(entry, ctx) if "std_m" in entry else None
     if {"std_e", "std_n", "std_u"} <= set(named):
         std = rows[:, [named["std_e"], named["std_n"], named["std_u"]]]
     elif "std" in named:
         std = np.repeat(rows[:, [named["std"]]], 3, axis=1)
     else:
-        std = np.tile(std_m(entry, ctx), (t.size, 1))
+        std = np.tile(given if given is not None else std_m(entry, ctx), (t.size, 1))
     return GnssSeries(t_s=t, p_w_m=p, std_w_m=std, source=src, lines=lines)
 
 

@@ -132,13 +132,15 @@ def read_oxts(path: Path) -> OxtsPackets:
         if name != f"{i:010d}.txt":
             raise DataFormatError(packet_paths[i], None, f"expected packet file {i:010d}.txt at position {i} (packets must "
                                                          "be numbered consecutively from 0)")
-        parts = _packet_tokens(packet_paths[i])
+        parts, plain = _packet_tokens(packet_paths[i])
         if len(parts) != N_FIELDS:
             twice = len(parts) % N_FIELDS == 0 and len(parts) > N_FIELDS
             raise DataFormatError(packet_paths[i], 1, f"expected {N_FIELDS} values per OXTS packet, got {len(parts)}"
                                                       + (f" ({len(parts) // N_FIELDS} packets in one file?)" if twice else ""))
         try:
-            row = [strict_float(x) for x in parts]
+            # Python's float where the bytes are plain (strict_float's check, on the file's bytes at once: per value
+            # it was a tenth of the read)
+            row = [float(x) for x in parts] if plain else [strict_float(x) for x in parts]
         except ValueError:
             bad_tok = next(x for x in parts if not is_float(x))
             raise DataFormatError(packet_paths[i], 1, f"expected a number, got {bad_tok!r}") from None
@@ -152,14 +154,16 @@ def read_oxts(path: Path) -> OxtsPackets:
     return OxtsPackets(t_s=t, values=values, filled=filled, stamps_path=stamps_path, packet_paths=packet_paths)
 
 
-def _packet_tokens(path: Path) -> list[str]:
-    """The whitespace-separated tokens of one packet file; a file that cannot be opened or decoded is read again by
-    :func:`read_text` for its one-line error."""
+def _packet_tokens(path: Path) -> tuple[list[str], bool]:
+    """The whitespace-separated tokens of one packet file, and whether its bytes are plain (ASCII, no '_'); a file
+    that cannot be opened or decoded is read again by :func:`read_text` for its one-line error."""
     try:
         with open(path, "rb") as f:
-            return f.read().decode("utf-8-sig").split()        # a byte-order mark dropped, as read_text drops it
+            raw = f.read()
+        # a byte-order mark dropped, as read_text drops it
+        return raw.decode("utf-8-sig").split(), raw.isascii() and b"_" not in raw
     except (OSError, UnicodeDecodeError):
-        return read_text(path, "one OXTS packet of 30 values").split()
+        return read_text(path, "one OXTS packet of 30 values").split(), False
 
 
 def _read_packets_csv(path: Path) -> OxtsPackets:

@@ -93,7 +93,9 @@ def _check_frame(entry: dict, ctx: ReadContext, frames: dict) -> None:
     children = {c for (_, c) in frames if c}            # ('' where a driver leaves child_frame_id unset)
     if not (isinstance(pair, list) and len(pair) == 2 and children):
         return
-    want = str(pair[1]).lstrip("/")
+    from .rosbag import _strip
+
+    want = _strip(str(pair[1]))
     if want in children:
         return
     have = ", ".join(f"'{c}'" for c in sorted(children))

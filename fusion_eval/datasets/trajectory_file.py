@@ -255,6 +255,8 @@ def read_bag_trajectories(bag: Path, topics: list[str]) -> list[TrajectoryFile]:
 
 
 _COV_TYPES = ("geometry_msgs/msg/PoseWithCovarianceStamped", "nav_msgs/msg/Odometry")
+
+
 @dataclass
 class _Track:
     """The positions of a trajectory as :func:`fusion_eval.datasets.plausible.speed_glitches` reads a stream."""

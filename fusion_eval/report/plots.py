@@ -299,7 +299,7 @@ def plot_biases(path: Path, t_s: np.ndarray, ba: np.ndarray, bg: np.ndarray, sig
 
 def _shade(ax, spans, legend: bool = True) -> None:
     """The route's spans (``(start, end, label)``, :func:`fusion_eval.report.spans_of`) on a time axis: the GNSS
-    outages gold, the IMU's holes grey, each label once in the legend."""
+    outages gold, the IMU's holes cyan, each label once in the legend."""
     shaded: set = set()
     for a, b, label in spans:
         # (orange is dead reckoning's, purple the smoother's; the holes cyan: grey vanished in the grey 3-sigma band, a review)
@@ -308,7 +308,7 @@ def _shade(ax, spans, legend: bool = True) -> None:
         shaded.add(label)
 
 
-def _error_sigma_panels(axes, d: dict, names, unit: str, scale: float = 1.0, titles=None, spans=()) -> None:
+def error_sigma_panels(axes, d: dict, names, unit: str, scale: float = 1.0, titles=None, spans=()) -> None:
     """One axis per column of ``d["err"]`` (N, 3) (``d``: :func:`fusion_eval.report.thin.error_sigma`): the
     filter's +/-3 sigma as a grey band, the error over it, the smoother's error and sigma where given, and the
     share of epochs inside 3 sigma in the title. ``scale``: SI to the unit shown; ``names`` label the y axes,
@@ -347,7 +347,7 @@ def plot_error_sigma(path: Path, d: dict, spans=()) -> None:
     the same stamps, where given, drawn over it; ``spans`` (on this plot's time axis) shaded."""
     smoothed = d["smoothed"]
     fig, axes = subplots(3, 1, figsize=(10, 7), sharex=True)
-    _error_sigma_panels(axes, d, ("East", "North", "Up"), "m", spans=spans)
+    error_sigma_panels(axes, d, ("East", "North", "Up"), "m", spans=spans)
     axes[0].legend(loc="upper right", fontsize=8, ncol=2 if smoothed is not None else 1)
     axes[-1].set_xlabel("time since start [s]")
     fig.suptitle("Position error with its own +/-3 sigma" + (" (filter and smoother)" if smoothed is not None else ""))
@@ -367,11 +367,11 @@ def att_vel_error_figure(av: dict, spans=()):
     velocity) with the filter's +/-3 sigma."""
     has_vel = av.get("vel") is not None
     fig, axes = subplots(3, 2 if has_vel else 1, figsize=(14 if has_vel else 9, 7.5), sharex=True, squeeze=False)
-    _error_sigma_panels(axes[:, 0], av["att"], ATT_NAMES, "deg", scale=180 / np.pi, titles=ATT_TITLES, spans=spans)
+    error_sigma_panels(axes[:, 0], av["att"], ATT_NAMES, "deg", scale=180 / np.pi, titles=ATT_TITLES, spans=spans)
     title = ("Attitude error Log(R_gt^T R_fused), body frame (x, y, z = roll, pitch, yaw for a forward-left-up IMU), "
              "with the filter's +/-3 sigma")
     if has_vel:
-        _error_sigma_panels(axes[:, 1], av["vel"], VEL_NAMES, "m/s", titles=VEL_TITLES, spans=spans)
+        error_sigma_panels(axes[:, 1], av["vel"], VEL_NAMES, "m/s", titles=VEL_TITLES, spans=spans)
         title += f"\nvelocity error: fused minus true ENU velocity; true velocity: {av['vel_truth']}"
     for ax in axes[-1]:
         ax.set_xlabel("time since start [s]")
@@ -402,8 +402,9 @@ SYMLOG_LIN_M = 0.01     # compare's difference panel: linear within +/- this, lo
 def plot_compare_ape(path: Path, runs, evs_unfiltered: dict, t0: float) -> None:
     """APE translation over time of every variant (solid; a variant's smoothed estimate dashed, in its colour)
     and of the unfiltered estimates (lidar dotted, GNSS dots, in their own colours); with two variants or more, a
-    second panel of each later variant's APE minus the first's, on a linear axis: variants within centimetres of
-    each other were one band on the log axis, the thinner hidden under the others (a plot review)."""
+    second panel of each later variant's APE minus the first's, linear within +/- :data:`SYMLOG_LIN_M` and
+    logarithmic beyond: variants within centimetres of each other were one band on the log axis, the thinner hidden
+    under the others (a plot review)."""
     diffs = len(runs) > 1 and runs[0].ev.ape_err_m is not None and len(runs[0].ev.ape_err_m) > 1
     if diffs:
         fig, (ax, axd) = subplots(2, 1, figsize=(12, 7.5), sharex=True, gridspec_kw={"height_ratios": [3, 2]})

@@ -136,35 +136,21 @@ def _plot(out: StagedDir, res: TrackResult, metrics: dict) -> None:
 
 def _plot_errors(out: StagedDir, res: TrackResult, t: np.ndarray) -> None:
     """``errors.png``: each state's error against the truth over time with the filter's +/-3 sigma (and the
-    smoother's): where the error is, the first seconds' velocity (a plot review), and whether the covariance is
-    honest."""
-    from ..report.plots import subplots
+    smoother's), the run's error panels (:func:`fusion_eval.report.plots.error_sigma_panels`): where the error is,
+    the first seconds' velocity (a plot review), and whether the covariance is honest."""
+    from ..report import thin
+    from ..report.plots import error_sigma_panels, subplots
 
-    names = (("px", "m"), ("py", "m"), ("vx", "m/s"), ("vy", "m/s"))
+    def sigma(P):
+        return np.sqrt(np.maximum(np.einsum("nii->ni", P), 0.0))
+
+    err, sg = res.x - res.gt, sigma(res.P)
+    sm = None if res.x_smoothed is None or res.P_smoothed is None else (res.x_smoothed - res.gt, sigma(res.P_smoothed))
+    names = ("px", "py", "vx", "vy")
     fig, axes = subplots(4, 1, figsize=(10, 8), sharex=True)
-    sg = np.sqrt(np.maximum(np.einsum("nii->ni", res.P), 0.0))
-    for i, (ax, (name, unit)) in enumerate(zip(axes, names)):
-        e = res.x[:, i] - res.gt[:, i]
-        ax.fill_between(t, -3 * sg[:, i], 3 * sg[:, i], color="tab:gray", alpha=0.3, lw=0, label="+/-3 sigma (filter)")
-        ax.plot(t, e, color="tab:red", lw=0.9, label="estimate - truth")
-        inside = 100.0 * np.mean(np.abs(e) <= 3 * sg[:, i])
-        title = f"{name} error: {inside:.1f} % inside 3 sigma (99.7 % if consistent)"
-        shown = [np.abs(e)]
-        if res.x_smoothed is not None and res.P_smoothed is not None:
-            es = res.x_smoothed[:, i] - res.gt[:, i]
-            ss = 3 * np.sqrt(np.maximum(res.P_smoothed[:, i, i], 0.0))
-            ax.plot(t, es, color="tab:purple", lw=0.9, label="smoothed - truth")
-            ax.plot(t, ss, color="tab:purple", lw=0.6, ls="--", label="+/-3 sigma (smoothed)")
-            ax.plot(t, -ss, color="tab:purple", lw=0.6, ls="--")
-            title += f" (smoothed: {100.0 * np.mean(np.abs(es) <= ss):.1f} %)"
-            shown.append(np.abs(es))
-        # the limits from the errors and the band's common width: the prior's first seconds would flatten the rest
-        lim = max(float(np.nanmax(np.concatenate(shown), initial=0.0)), float(np.nanpercentile(3 * sg[:, i], 98)))
-        if lim > 0:
-            ax.set_ylim(-1.08 * lim, 1.08 * lim)
-        ax.set_ylabel(f"{name} [{unit}]")
-        ax.set_title(title, fontsize=9, loc="left")
-        ax.grid(alpha=0.3)
+    for cols, unit in ((slice(0, 2), "m"), (slice(2, 4), "m/s")):      # positions, then velocities
+        d = thin.error_sigma(t, err[:, cols], sg[:, cols], None if sm is None else (sm[0][:, cols], sm[1][:, cols]))
+        error_sigma_panels(axes[cols], d, names[cols], unit, titles=tuple(f"{n} error" for n in names[cols]))
     axes[0].legend(fontsize=7, loc="upper right", ncol=2)
     axes[-1].set_xlabel("time [s]")
     fig.subplots_adjust(left=0.09, right=0.98, top=0.95, bottom=0.07, hspace=0.4)
