@@ -17,7 +17,7 @@ from . import timing
 from .datasets import plausible
 from .calibration import imu_noise
 from .config import Settings, schema
-from .calibration.extrinsic import apply_extrinsic, estimate_extrinsic
+from .calibration.extrinsic import apply_extrinsic, estimate_extrinsic, mount_disagrees
 from .calibration.mount import HINT as MOUNT_HINT, across_travel
 from .calibration.travel import MIN_STRETCHES, estimate_travel_pitch, pitch_from_smoothed_pass, uncertain
 from .degrade import degrade_gnss
@@ -289,6 +289,10 @@ def prepare(ds: Dataset, cfg: dict) -> Prepared:
                                                                                       ("lever_arm", arm_auto)) if on]}
             log.info("lidar mount correction estimated: roll, pitch, yaw %s mrad; lever arm x, y %s cm",
                      np.round(est.rpy_mrad, 2), np.round(est.t_E_m[:2] * 100, 1))
+        else:
+            # a calibration taken as it is, checked against the data: a flipped or inverted one gave no other sign
+            more_warnings += filter(None, [mount_disagrees(imu, lid.select(~lid.filled),
+                                                           f"the extrinsic its manifest entry gives for {ds.lidar.source}")])
         other_frame = ""
         if ds.description.get("lidar_anchor", "groundtruth") == "groundtruth":
             lid, t_anchor = anchor_lidar(lid, gt)

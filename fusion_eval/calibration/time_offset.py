@@ -71,9 +71,9 @@ def _interp(t_src: np.ndarray, x: np.ndarray, grid: np.ndarray) -> np.ndarray:
     return np.column_stack([np.interp(grid, t_src, x[:, i]) for i in range(x.shape[1])])
 
 
-def _smooth(x: np.ndarray, valid: np.ndarray, sigma_s: float) -> tuple[np.ndarray, np.ndarray]:
-    """Gaussian low-pass on the grid; a point stays valid only if its whole kernel (+/- 3 sigma) is."""
-    s = sigma_s / GRID_S
+def _smooth(x: np.ndarray, valid: np.ndarray, sigma_s: float, step_s: float = GRID_S) -> tuple[np.ndarray, np.ndarray]:
+    """Gaussian low-pass on the grid (of ``step_s``); a point stays valid only if its whole kernel (+/- 3 sigma) is."""
+    s = sigma_s / step_s
     m = gaussian_filter1d(valid.astype(float), s, axis=0, truncate=3.0)
     y = gaussian_filter1d(np.where(valid[:, None], x, 0.0), s, axis=0, truncate=3.0)
     return y, m > 1.0 - 1e-6
@@ -121,13 +121,13 @@ def _jackknife(per_block_cost, shifts: np.ndarray, blocks: int) -> tuple[float, 
     return full, float(np.sqrt((blocks - 1) / blocks * np.sum((loo - loo.mean()) ** 2))), loo
 
 
-def _common_grid(imu: ImuSeries, lidar: PoseSeries, max_shift_s: float) -> np.ndarray:
+def _common_grid(imu: ImuSeries, lidar: PoseSeries, max_shift_s: float, step_s: float = GRID_S) -> np.ndarray:
     t0 = max(imu.t_s[0], lidar.t_s[0]) + max_shift_s
     t1 = min(imu.t_s[-1], lidar.t_s[-1]) - max_shift_s
     if t1 - t0 < 20.0:
         raise DataRangeError(f"IMU ({imu.source}) and lidar ({lidar.source}) overlap for {max(t1 - t0, 0):.1f} s; "
                              "estimating their time offset needs at least 20 s")
-    return t0 + np.arange(int((t1 - t0) / GRID_S)) * GRID_S
+    return t0 + np.arange(int((t1 - t0) / step_s)) * step_s
 
 
 def _block_of(n: int, blocks: int) -> np.ndarray:
@@ -145,27 +145,27 @@ def _block_sums(x: np.ndarray, ok: np.ndarray, blk: np.ndarray, blocks: int) -> 
     return np.add.reduceat(np.where(ok[:, None], x, 0.0), starts, axis=0)
 
 
-def lidar_accel_signal(lidar: PoseSeries, grid: np.ndarray):
+def lidar_accel_signal(lidar: PoseSeries, grid: np.ndarray, step_s: float = GRID_S):
     """The lidar's body-frame acceleration ``A = smooth(R^T a)`` and gravity matrix ``B = smooth(R^T)`` on the
-    grid (``A - B g`` is the specific force the IMU sees), with their validity."""
+    grid of ``step_s`` (``A - B g`` is the specific force the IMU sees), with their validity."""
     gl = _valid_on_grid(lidar.t_s, grid, _max_gap(lidar.t_s))
     p = _interp(lidar.t_s, lidar.p_w_m, grid)
-    a_w = np.gradient(np.gradient(p, GRID_S, axis=0), GRID_S, axis=0)
+    a_w = np.gradient(np.gradient(p, step_s, axis=0), step_s, axis=0)
     Rt = Slerp(lidar.t_s, Rotation.from_quat(lidar.q_wb_xyzw))(np.clip(grid, lidar.t_s[0], lidar.t_s[-1])).inv()
-    A, ok = _smooth(Rt.apply(a_w), gl, ACCEL_SMOOTH_S)
-    B, _ = _smooth(Rt.as_matrix().reshape(-1, 9), gl, ACCEL_SMOOTH_S)
+    A, ok = _smooth(Rt.apply(a_w), gl, ACCEL_SMOOTH_S, step_s)
+    B, _ = _smooth(Rt.as_matrix().reshape(-1, 9), gl, ACCEL_SMOOTH_S, step_s)
     return A, B.reshape(-1, 3, 3), ok
 
 
-def lidar_rate_signal(lidar: PoseSeries, grid: np.ndarray):
+def lidar_rate_signal(lidar: PoseSeries, grid: np.ndarray, step_s: float = GRID_S):
     """The lidar's body-frame rotation rate, low-passed, on the grid, with its validity."""
     tm, w = _lidar_rates(lidar)
-    return _smooth(_interp(tm, w, grid), _valid_on_grid(tm, grid, _max_gap(lidar.t_s)), RATE_SMOOTH_S)
+    return _smooth(_interp(tm, w, grid), _valid_on_grid(tm, grid, _max_gap(lidar.t_s)), RATE_SMOOTH_S, step_s)
 
 
-def imu_signal(t_s: np.ndarray, x: np.ndarray, grid: np.ndarray, sigma_s: float):
+def imu_signal(t_s: np.ndarray, x: np.ndarray, grid: np.ndarray, sigma_s: float, step_s: float = GRID_S):
     """An IMU channel on the grid through the same zero-phase path as the lidar's, with its validity."""
-    return _smooth(_interp(t_s, x, grid), _valid_on_grid(t_s, grid, _max_gap(t_s)), sigma_s)
+    return _smooth(_interp(t_s, x, grid), _valid_on_grid(t_s, grid, _max_gap(t_s)), sigma_s, step_s)
 
 
 def _scan(shifts: np.ndarray, n: int, ok_fixed: np.ndarray, ok_moving: np.ndarray, blocks: int, fill) -> np.ndarray:
