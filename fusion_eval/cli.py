@@ -475,11 +475,14 @@ def evaluate(ctx, inputs, out_dir, fmt, bag, ref_topic, ref_times, times, associ
 @click.option("--lidar-var", nargs=2, type=float, default=(0.0225, 0.0225), show_default=True, help="Lidar R diagonal, m^2.")
 @click.option("--radar-var", nargs=3, type=float, default=(0.09, 0.0009, 0.09), show_default=True,
               help="Radar R diagonal: rho [m^2], phi [rad^2], rho_dot [m^2/s^2].")
+@click.option("--max-gap", "max_gap_s", type=float, default=5.0, show_default=True,
+              help="Restart the tracker after a gap of over this many seconds between measurements.")
 @click.option("--smooth", is_flag=True, help="Also an RTS smoother over the filter (reported beside it).")
 @click.option("--overwrite", is_flag=True, help="Replace an existing output directory.")
 @click.option("--no-plots", is_flag=True, help="Skip the plots.")
 @click.pass_context
-def track(ctx, input_path, out_dir, sensors, noise_ax, noise_ay, lidar_var, radar_var, smooth, overwrite, no_plots):
+def track(ctx, input_path, out_dir, sensors, noise_ax, noise_ay, lidar_var, radar_var, max_gap_s, smooth, overwrite,
+          no_plots):
     """Track a 2-D target from lidar (KF) and radar (EKF) measurements; RMSE against the file's ground truth."""
     _say_compiling(ctx.obj["quiet"])
     from .commands.track import track as run_track
@@ -487,7 +490,7 @@ def track(ctx, input_path, out_dir, sensors, noise_ax, noise_ay, lidar_var, rada
     if sensors != "both":
         _refuse_ignored(ctx, ("radar_var",) if sensors == "lidar" else ("lidar_var",), f"with --sensors {sensors}")
     metrics = run_track(input_path, out_dir, sensors, noise_ax, noise_ay, lidar_var, radar_var, overwrite, not no_plots,
-                        smooth)
+                        smooth, max_gap_s)
     if ctx.obj["quiet"]:
         click.echo(out_dir)
     else:
@@ -499,6 +502,9 @@ def track(ctx, input_path, out_dir, sensors, noise_ax, noise_ay, lidar_var, rada
             click.echo(f"smoothed (RTS): RMSE [px, py, vx, vy] = [{four(metrics['smoothed']['rmse'])}]")
         for k, d in metrics["nis"].items():
             click.echo(f"NIS {k}: mean {d['mean']:.4g} (dof {d['dof']}), {d['fraction_above_95'] * 100:.1f} % above the 95 % line")
+        for what, d in (("NEES", metrics.get("nees")), ("NEES smoothed", metrics.get("smoothed", {}).get("nees"))):
+            if d:
+                click.echo(f"{what}: mean {d['mean']:.4g} (dof {d['dof']}), {d['fraction_above_95'] * 100:.1f} % above the 95 % line")
         click.echo(f"wrote {out_dir}/")
 
 

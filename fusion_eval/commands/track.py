@@ -15,7 +15,7 @@ def _positive(name: str, v: float) -> None:
 
 
 def track(input_path: Path, out_dir: Path, sensors: str, noise_ax: float, noise_ay: float, lidar_var, radar_var,
-          overwrite: bool = False, make_plots: bool = True, smooth: bool = False) -> dict:
+          overwrite: bool = False, make_plots: bool = True, smooth: bool = False, max_gap_s: float = 5.0) -> dict:
     """Run the tracker on a measurement file and write its outputs; returns the metrics."""
     from ..tracking.ekf import TrackParams, run_track
     from ..tracking.ekf import smooth as rts
@@ -23,10 +23,10 @@ def track(input_path: Path, out_dir: Path, sensors: str, noise_ax: float, noise_
     from ..tracking.report import write_track_outputs
 
     for name, v in (("--noise-ax", noise_ax), ("--noise-ay", noise_ay), *(("--lidar-var", x) for x in lidar_var),
-                    *(("--radar-var", x) for x in radar_var)):
+                    *(("--radar-var", x) for x in radar_var), ("--max-gap", max_gap_s)):
         _positive(name, v)
     params = TrackParams(noise_ax=noise_ax, noise_ay=noise_ay, lidar_var=tuple(lidar_var), radar_var=tuple(radar_var),
-                         sensors=sensors)
+                         sensors=sensors, max_gap_s=max_gap_s)
     staged = StagedDir(out_dir, overwrite=overwrite, inputs=(input_path,))
     staged.check()
     m = read_measurements(input_path)

@@ -48,8 +48,9 @@ def simulate_track_chunks(duration_s: float = 25.0, interval_s: float = 0.05, se
             else:
                 rho = np.hypot(px[j], py[j])
                 phi = np.arctan2(py[j], px[j])
-                rd = (px[j] * vx[j] + py[j] * vy[j]) / rho
+                rd = (px[j] * vx[j] + py[j] * vy[j]) / rho if rho > 0 else 0.0     # on the sensor: 0, not nan
                 z = np.array([rho, phi, rd]) + rng.standard_normal(3) * radar_sd
+                z[0] = abs(z[0])        # a radar reports no negative range (track refused a file near the sensor)
                 z[1] = (z[1] + np.pi) % (2 * np.pi) - np.pi
                 lines.append(format_line("R", z, t_us, gt, yaw[j], w[j]))
         yield "\n".join(lines) + "\n"
