@@ -165,6 +165,13 @@ def nominal_F_Q(q, a_b, w_b, dt, prm, qscale):
         for j in range(3):
             F[NP_ID + i, NBA_ID + j] = -0.5 * dt * dt * R[i, j]
             F[NV_ID + i, NBA_ID + j] = -dt * R[i, j]
+    # the gyro bias turns the end attitude that the step's mean acceleration reads (mech_step: R1 f1 beside R0 f0):
+    # dv'/dbg = T^2/2 R [a]x, dp'/dbg = T^3/4 R [a]x (left out until a finite-difference audit; the ESKF's Phi had them)
+    Ra = R @ skew3(a_b)
+    for i in range(3):
+        for j in range(3):
+            F[NV_ID + i, NBG_ID + j] = 0.5 * dt * dt * Ra[i, j]
+            F[NP_ID + i, NBG_ID + j] = 0.25 * dt * dt * dt * Ra[i, j]
     qR = quat_R(quat_of_rotvec(w_b * dt))            # dq'/dq: q' = q (x) q{w T}
     F[NQ_ID:NQ_ID + 4, NQ_ID:NQ_ID + 4] = qR
     F[NQ_ID:NQ_ID + 4, NBG_ID:NBG_ID + 3] = -0.5 * dt * xi(q)
