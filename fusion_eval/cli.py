@@ -374,6 +374,15 @@ def sweep(ctx, datasets, sweep_file, out_dir, jobs, variant_dir, scheduler, dask
             if best.get("note"):
                 click.echo(best["note"])
         click.echo(f"wrote {out_dir}/sweep.csv, sweep.md, report.html" + (", best.yaml" if best else ""))
+    failed = [r for r in rows if r["status"] == "failed"]
+    if failed and not summarize_only:
+        # everything is written, but a CI script must see it: exit 0 with the failure only in a warning (hidden by -q)
+        # read as a clean sweep (a review)
+        first = next((r for r in failed if r.get("error")), failed[0])
+        click.echo(f"error: {len(failed)} of {len(rows)} runs of the sweep failed (each in {out_dir}/sweep.md; "
+                   f"--retry-failed runs them again); the first, {first['id']}: {first.get('error') or 'failed'}",
+                   err=True)
+        ctx.exit(1)
 
 
 @main.command()
@@ -567,17 +576,17 @@ def check(ctx, metrics_path, baseline, rtol, atol, patterns, rules, junit_path, 
     res = run_check(metrics_path, baseline, rtol, atol, tuple(patterns), tuple(rules), junit_path, summary_path,
                     None if trial_stat == "none" else trial_stat, trial_stat_given=bool(_given(ctx, "trial_stat")))
     if ctx.obj["quiet"]:            # one line for scripts: the verdict (the exit code says it too)
-        click.echo("check: PASS" if res.ok else "check: FAIL (regression or failed rule)")
+        click.echo("check: PASS" if res.ok else "check: FAIL (regression, missing or invalid metric, or failed rule)")
         sys.exit(0 if res.ok else 1)
     w = max(len(r.metric) for r in res.rows)
     click.echo(f"{'metric':<{w}}  {'baseline':>12}  {'current':>12}  {'change':>10}  verdict")
     for r in res.rows:
         b = "" if r.baseline is None else f"{r.baseline:.6g}"
-        c = "" if r.current is None else f"{r.current:.6g}"
+        c = r.raw if r.current is None else f"{r.current:.6g}"
         click.echo(f"{r.metric:<{w}}  {b:>12}  {c:>12}  {r.change:>10}  {r.verdict}")
     for rule, holds, txt in res.rules:
         click.echo(f"rule {txt}: {'holds' if holds else 'FAILS'}")
-    click.echo("check: PASS" if res.ok else "check: FAIL (regression or failed rule)")
+    click.echo("check: PASS" if res.ok else "check: FAIL (regression, missing or invalid metric, or failed rule)")
     if not res.ok:
         sys.exit(1)
 

@@ -373,8 +373,10 @@ def test_check_says_when_the_baseline_is_of_another_dataset(tmp_path):
         m = json.loads(p.read_text())
         m["dataset"] = name
         p.write_text(json.dumps(m))
-    r = CliRunner().invoke(main, ["check", str(cur), "--baseline", str(base)])
-    assert r.exit_code == 0 and "of dataset 'simple-05' and the baseline of 'kitti-00'" in r.stderr, r.output
+    r = CliRunner().invoke(main, ["check", str(cur), "--baseline", str(base), "--summary", str(tmp_path / "c.md")])
+    # refused, not warned: simple-06's run passed against kitti-00's baseline with exit 0 (a review)
+    assert r.exit_code == 2 and "is of dataset 'simple-05' and the baseline" in r.stderr and "of 'kitti-00'" in r.stderr
+    assert (tmp_path / "c.md").read_text().startswith("# fusion-eval check: ERROR")
 
 
 def test_check_refuses_metrics_scored_otherwise_than_the_baseline(tmp_path):
@@ -707,3 +709,69 @@ def test_a_drift_glob_gates_on_errors_not_on_the_segment_count():
     flat = keys.flatten(m)
     assert set(flat) == {"fused.kitti_drift.t_err_pct", "fused.kitti_drift.r_err_deg_per_m",
                          "fused.kitti_drift.r_err_deg_per_100m"}
+
+
+def test_check_gates_errors_only_and_says_what_it_cannot_gate(tmp_path):
+    """A review: NEES/NIS means (best at their dof) and shares inside the 95 % interval (best at 0.95) were gated
+    as errors, lower is better: a NEES share rising from 0.67 to 0.77 was a REGRESSION, exit 1, and the reverse
+    "better". Named, they are refused; caught by a glob, left out and said; a sweep or tune will not rank by them."""
+    base, cur = _metrics(tmp_path, "base.json", 1.0), _metrics(tmp_path, "cur.json", 1.0)
+    for p, share in ((base, 0.67), (cur, 0.77)):
+        m = json.loads(p.read_text())
+        m["nees"] = {"position": {"mean": 6.0, "dof": 3, "fraction_in_95": share}}
+        p.write_text(json.dumps(m))
+    run = CliRunner().invoke
+    r = run(main, ["check", str(cur), "--baseline", str(base), "-m", "nees.position.fraction_in_95"])
+    assert r.exit_code == 2 and "is a consistency figure, best at its dof" in r.stderr and "--require" in r.stderr
+    r = run(main, ["check", str(cur), "--baseline", str(base), "-m", "nees.position.*", "-m", "fused.ape.rmse"])
+    assert r.exit_code == 0 and "not gated: 2 figure(s)" in r.stderr and "REGRESSION" not in r.output, r.output
+    r = run(main, ["check", str(cur), "--baseline", str(base), "--require", "nees.position.fraction_in_95 > 0.7"])
+    assert r.exit_code == 0
+    from fusion_eval.errors import ConfigError
+    from fusion_eval.tuning import objectives
+
+    with pytest.raises(ConfigError, match="nees.position.fraction_in_95 is a consistency figure"):
+        objectives.parse("nees.position.fraction_in_95")
+    objectives.parse("nis.lidar.nll_mean")                   # a likelihood: lower is better
+
+
+def test_a_check_that_cannot_be_made_replaces_the_earlier_summary_and_junit(tmp_path):
+    """A PASS summary and JUnit file from an earlier check stayed in place when the next one exited 2 (a review)."""
+    base, cur = _metrics(tmp_path, "base.json", 1.0), _metrics(tmp_path, "cur.json", 1.0)
+    md, xml = tmp_path / "s.md", tmp_path / "j.xml"
+    r = CliRunner().invoke(main, ["check", str(cur), "-b", str(base), "--summary", str(md), "--junit", str(xml)])
+    assert r.exit_code == 0 and "PASS" in md.read_text()
+    bad = tmp_path / "nan.json"
+    bad.write_text(base.read_text().replace('"rmse": 1.0', '"rmse": NaN'))
+    r = CliRunner().invoke(main, ["check", str(cur), "-b", str(bad), "--summary", str(md), "--junit", str(xml)])
+    assert r.exit_code == 2
+    assert md.read_text().startswith("# fusion-eval check: ERROR") and "holds nan there" in md.read_text()
+    assert 'errors="1"' in xml.read_text() and "holds nan there" in xml.read_text()
+
+
+def test_update_baseline_refuses_what_the_next_check_would_refuse_and_a_value_that_is_no_number_is_named(tmp_path):
+    """A review: a NaN metric and a sweep.csv written as a .json baseline were written with exit 0 and refused by the
+    next check; NaN or a string in the current file read as MISSING with a blank value."""
+    base = _metrics(tmp_path, "base.json", 1.0)
+    bad = tmp_path / "nan.json"
+    bad.write_text(base.read_text().replace('"rmse": 1.0', '"rmse": NaN'))
+    r = CliRunner().invoke(main, ["check", str(bad), "-b", str(tmp_path / "nb.json"), "--update-baseline"])
+    assert r.exit_code == 2 and "holds nan, not a finite number" in r.stderr and not (tmp_path / "nb.json").exists()
+    r = CliRunner().invoke(main, ["check", str(bad), "-b", str(base)])
+    assert r.exit_code == 1 and "INVALID" in r.output and "nan" in r.output, r.output
+    csvf = tmp_path / "sweep.csv"
+    csvf.write_text("id,dataset,variant,setting,fused_ape_trans_rmse_m,status\n1,kitti-00,eskf,default,0.7,ok\n")
+    r = CliRunner().invoke(main, ["check", str(csvf), "-b", str(tmp_path / "nb.json"), "--update-baseline"])
+    assert r.exit_code == 2 and "must be a .csv file too" in r.stderr and not (tmp_path / "nb.json").exists()
+
+
+def test_a_sweep_with_a_failed_run_writes_everything_and_exits_1(small, tmp_path):
+    """A CI script saw exit 0 and, under -q, not a word when a run failed (a review); diverged runs are results of a
+    noise sweep and keep exit 0."""
+    sw = tmp_path / "sweep.yaml"
+    sw.write_text("settings:\n  nognss: {gnss.outages_s: [[0, 100000]]}\n")
+    out = tmp_path / "s"
+    r = CliRunner().invoke(main, ["-q", "sweep", str(small), "--grid", str(sw), "--out", str(out), "--jobs", "1"])
+    assert r.exit_code == 1, r.output
+    assert "error: 1 of 2 runs of the sweep failed" in r.stderr and "the first, " in r.stderr
+    assert (out / "sweep.md").exists() and (out / "best.yaml").exists()

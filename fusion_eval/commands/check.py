@@ -4,7 +4,9 @@ Metrics are addressed by dotted paths. From a run's ``metrics.json``: ``<estimat
 (``fused.ape.translation_m.rmse``, ``lidar.rpe_100m.rotation_deg.max``), with the translation part also as
 ``<estimate>.<group>.<stat>`` (``fused.ape.rmse``), plus ``ratios.fused_over_lidar`` and ``nis.lidar.mean``.
 From a ``sweep.csv``: ``<dataset>/<variant>/<setting>.<column>`` (the dataset's folder or manifest name). Every compared metric is an error
-(lower is better): a regression is ``current > baseline + atol + rtol * |baseline|``.
+(lower is better): a regression is ``current > baseline + atol + rtol * |baseline|``; a figure that is not an error
+(a NEES or NIS mean, best at its dof; a share inside the 95 % interval; a wall time: :func:`keys.not_an_error`) is
+refused when named and left out of a glob, and gated with ``--require`` instead.
 
 ``--require`` rules are parsed by a small grammar, ``operand OP operand`` with OP one of
 ``< <= > >= == !=`` and each operand a number or a metric path; nothing is passed to ``eval``.
@@ -150,6 +152,7 @@ class Row:
     baseline: float | None
     current: float | None
     verdict: str
+    raw: str = ""               # what the current file holds where it is no number (shown instead of a blank)
 
     @property
     def change(self) -> str:
@@ -172,6 +175,20 @@ def compare_metrics(current: dict, baseline: dict, patterns: tuple[str, ...], rt
     names = sorted(set().union(*(_matching(m, p) for m in (current, baseline) for p in patterns)))
     if not names:
         raise CheckUsageError(f"no metric matches {', '.join(patterns)}")
+    # lower is better only for error figures: one named outright is refused, one a glob caught is left out and said
+    named = {a for m in (current, baseline) for a in patterns if a in m or a in getattr(m, "aliases", {})}
+    for k in names:
+        why = keys.not_an_error(k)
+        if why and (k in named or any(getattr(m, "aliases", {}).get(a) == k for m in (current, baseline) for a in named)):
+            raise CheckUsageError(f"--metric {k!r} is {why}")
+    skipped = [k for k in names if keys.not_an_error(k)]
+    if skipped:
+        log.warning("not gated: %d figure(s) the pattern caught that are not errors (%s%s): check compares errors, lower "
+                    "is better; gate those with --require", len(skipped), ", ".join(skipped[:3]),
+                    ", ..." if len(skipped) > 3 else "")
+        names = [k for k in names if k not in skipped]
+        if not names:
+            raise CheckUsageError(f"no error figure matches {', '.join(patterns)} (only {keys.not_an_error(skipped[0])})")
     rows = []
     for k in names:
         b, c = baseline.get(k), current.get(k)
@@ -222,7 +239,7 @@ def evaluate_rule(rule: str, metrics: dict) -> tuple[bool, str]:
 def markdown(rows: list[Row], rules: list[tuple[str, bool, str]], rtol: float, atol: float, ok: bool) -> str:
     L = [f"# fusion-eval check: {'PASS' if ok else 'FAIL'}", "", f"Tolerance: rtol {rtol:g}, atol {atol:g} (lower is better).", ""]
     L += md_table(["metric", "baseline", "current", "change", "verdict"],
-                  [[f"`{r.metric}`", _v(r.baseline), _v(r.current), r.change, r.verdict] for r in rows], align="lrrrl")
+                  [[f"`{r.metric}`", _v(r.baseline), _v(r.current) or r.raw, r.change, r.verdict] for r in rows], align="lrrrl")
     if rules:
         L += [""] + md_table(["rule", "values", "verdict"],
                              [[f"`{rule}`", txt, "holds" if holds else "FAILS"] for rule, holds, txt in rules], align="lll")
@@ -240,9 +257,10 @@ def junit(rows: list[Row], rules: list[tuple[str, bool, str]]) -> str:
     fails = 0
     for r in rows:
         case = ET.SubElement(suite, "testcase", classname="fusion-eval.metrics", name=r.metric)
-        if r.verdict in ("REGRESSION", "MISSING"):
+        if r.verdict in ("REGRESSION", "MISSING", "INVALID"):
             fails += 1
-            ET.SubElement(case, "failure", message=f"{r.verdict}: baseline {_v(r.baseline)}, current {_v(r.current)} ({r.change})")
+            ET.SubElement(case, "failure", message=f"{r.verdict}: baseline {_v(r.baseline)}, current "
+                                                   f"{_v(r.current) or r.raw or 'absent'} ({r.change})")
     for rule, holds, txt in rules:
         case = ET.SubElement(suite, "testcase", classname="fusion-eval.rules", name=rule)
         if not holds:
@@ -267,7 +285,36 @@ def check(metrics_path: Path, baseline: Path, rtol: float, atol: float, patterns
           trial_stat: str | None = "mean", trial_stat_given: bool = False) -> CheckResult:
     """Compare a metrics file with its baseline, evaluate the rules, write the summary (and JUnit).
     ``trial_stat_given``: the statistic was asked for (``--trial-stat``), so a pair of files without trials is an
-    error rather than the statistic silently not applying."""
+    error rather than the statistic silently not applying. A check that cannot be made writes its error into the
+    summary and the JUnit file: an earlier PASS left in place read as this check's (a review)."""
+    try:
+        return _check(metrics_path, baseline, rtol, atol, patterns, rules, junit_path, summary_path, trial_stat,
+                      trial_stat_given)
+    except FusionEvalError as exc:
+        _write_error(exc, metrics_path, junit_path, summary_path)
+        raise
+
+
+def _write_error(exc: Exception, metrics_path: Path, junit_path: Path | None, summary_path: Path | None) -> None:
+    summary = summary_path or Path(metrics_path).with_name("check.md")
+    targets = [(summary, f"# fusion-eval check: ERROR\n\n{exc}\n")]
+    if junit_path:
+        suite = ET.Element("testsuite", name="fusion-eval check", tests="1", failures="0", errors="1")
+        case = ET.SubElement(suite, "testcase", classname="fusion-eval.check", name="check")
+        ET.SubElement(case, "error", message=str(exc))
+        ET.indent(suite)
+        targets.append((junit_path, ET.tostring(suite, encoding="unicode", xml_declaration=True) + "\n"))
+    for path, text in targets:
+        # only where a summary was asked for, or beside a metrics file that exists (not into a folder given as one)
+        if path is summary_path or path is junit_path or Path(metrics_path).is_file():
+            try:
+                atomic_write(path, text)
+            except (OSError, FusionEvalError):
+                pass
+
+
+def _check(metrics_path, baseline, rtol, atol, patterns, rules, junit_path, summary_path, trial_stat,
+           trial_stat_given) -> CheckResult:
     from ..errors import ConfigError
 
     if not (math.isfinite(rtol) and math.isfinite(atol)) or rtol < 0 or atol < 0:
@@ -282,11 +329,20 @@ def check(metrics_path: Path, baseline: Path, rtol: float, atol: float, patterns
     names = [_json_field(p, "dataset") for p in (metrics_path, base_path)]
     names = [n if isinstance(n, str) else None for n in names]
     if None not in names and names[0] != names[1]:
-        log.warning("the metrics are of dataset %r and the baseline of %r: compared all the same", *names)
+        # a warning let simple-06's run pass against kitti-00's baseline, exit 0 (a review)
+        raise ConfigError(f"{metrics_path} is of dataset {names[0]!r} and the baseline {baseline} of {names[1]!r}: their "
+                          "figures do not compare; check a run against a baseline of its own dataset (its manifest's "
+                          "name), or make one with --update-baseline")
     _refuse_other_scoring(metrics_path, base_path)
     if trial_stat_given and not any(_json_field(p, "trials") for p in (metrics_path, base_path)):
         raise ConfigError(f"--trial-stat applies to the metrics of a run with --trials N; neither {metrics_path} nor "
                           f"{baseline} has trials")
+    with_trials = [bool(_json_field(p, "trials")) for p in (metrics_path, base_path)]
+    if trial_stat is not None and with_trials[0] != with_trials[1]:
+        # a 4-trial mean against one run's figures passed without a word (a review): they are not the same statistic
+        log.warning("the %s file holds Monte-Carlo trials (compared by their %s) and the %s one run's figures: a mean over "
+                    "GNSS seeds against one seed's; make the baseline the same way", *(
+                        ("metrics", trial_stat, "baseline") if with_trials[0] else ("baseline", trial_stat, "metrics file")))
     pats = tuple(patterns) or default_patterns(kind, delta)
     rows = compare_metrics(current, base, pats, rtol, atol)
     for r in rows:
@@ -309,6 +365,12 @@ def check(metrics_path: Path, baseline: Path, rtol: float, atol: float, patterns
     _refuse_incomplete_baseline(base_path, lacking)
     evaluated = [(r, *evaluate_rule(r, current)) for r in rules]
     ok = all(r.verdict not in ("REGRESSION", "MISSING") for r in rows) and all(h for _, h, _ in evaluated)
+    raw_current = _raw_keys(metrics_path)
+    for r in rows:
+        if r.verdict == "MISSING" and r.metric in raw_current:
+            # NaN, inf, null or "0.75" in the current file read as MISSING, with a blank value (a review)
+            r.verdict, r.raw = "INVALID", shown(raw_current[r.metric])
+    ok = ok and not any(r.verdict == "INVALID" for r in rows)
     atomic_write(summary_path or Path(metrics_path).with_name("check.md"), markdown(rows, evaluated, rtol, atol, ok))
     if junit_path:
         atomic_write(junit_path, junit(rows, evaluated))
@@ -407,5 +469,18 @@ def _refuse_incomplete_baseline(path: Path, lacking: list[str]) -> None:
 
 
 def update_baseline(metrics_path: Path, baseline: Path) -> None:
-    load_metrics(metrics_path)          # refuse to make a baseline of something that is not a metrics file
+    """Copy a metrics file to ``baseline``, unless the next check would refuse it (a review: a NaN metric, or a
+    sweep.csv written as a .json baseline, were written with exit 0)."""
+    from ..errors import ConfigError
+
+    current, kind, delta = load_metrics(metrics_path)     # refuse to make a baseline of what is not a metrics file
+    if (Path(baseline).suffix == ".csv") != (kind == "csv"):
+        raise ConfigError(f"--update-baseline {baseline}: a {kind} file's baseline must be a .{kind} file too "
+                          f"({metrics_path} is a {'sweep.csv' if kind == 'csv' else 'metrics.json'})")
+    raw = _raw_keys(metrics_path)
+    pats = default_patterns(kind, delta)
+    bad = [k for k in raw if k not in current and any(fnmatch.fnmatchcase(k, p) for p in pats)]
+    if bad:
+        raise DataFormatError(metrics_path, None, f"{bad[0]} holds {shown(raw[bad[0]])}, not a finite number: a baseline "
+                                                  "of it would be refused by the next check (not written)")
     atomic_write(baseline, Path(metrics_path).read_text())

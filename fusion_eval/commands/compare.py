@@ -19,7 +19,7 @@ import numpy as np
 
 from .. import compile_notice, session
 from ..datasets.tum import format_tum
-from ..errors import ConfigError, DataRangeError
+from ..errors import ConfigError, DataRangeError, FilterDivergedError
 from .. import trials as mc
 from ..evaluation import keys, span
 from ..evaluation.run_metrics import (inconsistent_streams, nees, scored_warnings, segments, sparsely_matched,
@@ -75,10 +75,14 @@ def _replay_all(ds, variants: list[str], cfgs: list[dict], advance=None) -> tupl
     base_prep = None
     for i, (name, cfg) in enumerate(zip(variants, cfgs)):
         t0, c0 = time.perf_counter(), compile_notice.compile_seconds()
-        prep = prepare(ds, cfg)
-        base_prep = base_prep or prep
-        with np.errstate(over="ignore", invalid="ignore"):
-            filt = replay(prep, settings_for(cfg, prep), imu_only=runs[0].filt.imu_only if runs else None)
+        try:
+            prep = prepare(ds, cfg)
+            base_prep = base_prep or prep
+            with np.errstate(over="ignore", invalid="ignore"):
+                filt = replay(prep, settings_for(cfg, prep), imu_only=runs[0].filt.imu_only if runs else None)
+        except (ConfigError, DataRangeError, FilterDivergedError) as exc:
+            # which of the variants failed (an error of the data alone did not say: a review); a file's error names it
+            raise type(exc)(f"variant {name!r}: {exc}") from None
         compiled = compile_notice.compile_seconds() - c0       # numba's first compilation of this variant's kernels
         runs.append(VariantRun(name, cfg, filt, None, time.perf_counter() - t0 - compiled, warnings=_warnings(name, prep, filt),
                                compile_s=compiled, applied=prep.applied,

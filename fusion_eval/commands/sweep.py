@@ -486,7 +486,15 @@ def execute(tasks: list[Task], out_dir: Path, jobs: int | None, scheduler: str |
 
         cluster = LocalCluster(n_workers=jobs, threads_per_worker=1, processes=True, dashboard_address=None) \
             if dask_local else None
-        client = Client(cluster if cluster is not None else scheduler)
+        try:
+            client = Client(cluster if cluster is not None else scheduler)
+        except (OSError, TimeoutError) as exc:
+            # an address nobody answers: after its 30 s, one line naming the option, and no empty folder left
+            if cluster is not None:
+                cluster.close()
+            if not any(p.is_file() for p in out_dir.rglob("*")):        # nothing recorded: the folder goes
+                shutil.rmtree(out_dir, ignore_errors=True)
+            raise ConfigError(f"--scheduler {scheduler}: no Dask scheduler answers there ({exc})") from None
         if scheduler:
             # remote workers may not share this filesystem: each writes its run locally and sends the files back
             work = [[dataclasses.replace(t, ship=True) for t in w] for w in work]
@@ -495,6 +503,8 @@ def execute(tasks: list[Task], out_dir: Path, jobs: int | None, scheduler: str |
             for fut in as_completed(futures):
                 for rec in fut.result():
                     finished(rec)
+        except KeyboardInterrupt as exc:      # "no output directory was written" with 16 runs recorded (a review)
+            raise interrupted(exc) from None
         finally:
             client.close()
             if cluster is not None:

@@ -10,6 +10,8 @@ relations (``translation_m``, ``rotation_deg``) of statistics (``rmse`` ... ``ma
 
 from __future__ import annotations
 
+import re
+
 STATS = ("rmse", "mean", "median", "std", "min", "max")
 APE = "ape"
 RPE_FRAME = "rpe_1frame"
@@ -107,6 +109,23 @@ def is_number(v) -> bool:
         return isinstance(v, (int, float)) and not isinstance(v, bool) and math.isfinite(v)
     except OverflowError:          # an integer beyond any float (a JSON number of 400 digits): no metric value
         return False
+
+
+# figures that are not errors, so "lower is better" does not rank them: a NEES or NIS mean is best at its dof and a
+# share inside the 95 % interval at 0.95 (check called a NEES share rising from 0.67 to 0.77 a regression, and a sweep
+# ranked by it chose a setting with 33 % inside as best: a review); a sweep.csv's wall time is the machine's
+_TWO_SIDED = re.compile(r"(^|\.)(nis|nees|nees_smoothed)\.[^.]+\.(mean|fraction_in_95)$|(^|\.)(nees|nis)_\w*_(mean|in95_frac)$")
+_NOT_ERROR = re.compile(r"(^|\.)runtime_s$")
+
+
+def not_an_error(key: str) -> str:
+    """Why ``key`` (a check path, or a sweep.csv key ``run.column``) is no error figure, or "" where lower is better."""
+    if _TWO_SIDED.search(key):
+        return ("a consistency figure, best at its dof (a mean) or at 0.95 (a share inside the 95 % interval), not at "
+                "0: gate it with --require (e.g. 'nees.position.fraction_in_95 > 0.9'), rank by the nis objective")
+    if _NOT_ERROR.search(key):
+        return "the run's wall time on this machine, not an error figure"
+    return ""
 
 
 def flatten(metrics: dict, raw: bool = False) -> dict[str, float]:

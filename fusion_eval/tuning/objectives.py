@@ -73,7 +73,11 @@ def parse(text: str) -> Objective:
         w = float(m.group(1)) if m.group(1) else 1.0
         if not (math.isfinite(w) and w > 0):
             raise ConfigError(f"objective {text!r}: weights must be positive numbers, got {m.group(1)}")
-        terms.append((w, ALIASES.get(m.group(2), m.group(2))))
+        key = ALIASES.get(m.group(2), m.group(2))
+        why = keys.not_an_error(key)
+        if why:             # minimised, a NEES share inside its interval chose the least consistent setting
+            raise ConfigError(f"objective {text!r}: {key} is {why}")
+        terms.append((w, key))
     return Objective(text, tuple(terms))
 
 
