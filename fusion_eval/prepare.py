@@ -412,8 +412,11 @@ def prepare(ds: Dataset, cfg: dict) -> Prepared:
     if cfg["filter"].get("discretization") == "auto":          # formulations that discretise a continuous model
         from .filters.discretize import resolve_auto
 
-        resolved.setdefault("filter", {})["discretization"] = resolve_auto("auto", imu.t_s)
+        only = formulation_of(cfg).discretizations
+        # a process model with one discretisation takes it (the odometer + gyro model was reported as van_loan)
+        resolved.setdefault("filter", {})["discretization"] = only[0] if len(only) == 1 else resolve_auto("auto", imu.t_s)
         applied["discretization"] = resolved["filter"]["discretization"]
+        applied["discretization_from"] = "the IMU rate" if len(only) > 1 else "the process model's only one"
     # --- initial state
     if cfg["filter"]["init_pose_from"] == "lidar":
         if lidar is None:

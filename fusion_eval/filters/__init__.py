@@ -31,6 +31,10 @@ def check_combination(cfg: dict) -> None:
     if bias not in cls.bias_models:
         raise ConfigError(f"filter.bias_model={bias} is not implemented by filter.formulation={cls.name} with "
                           f"filter.process_model={cls.process_model} (it has: {', '.join(cls.bias_models)})")
+    disc = cfg["filter"].get("discretization", "auto")
+    if disc != "auto" and disc not in cls.discretizations:
+        raise ConfigError(f"filter.discretization={disc} is not implemented by filter.formulation={cls.name} with "
+                          f"filter.process_model={cls.process_model} (it has: {', '.join(cls.discretizations)})")
     from .. import smoothing
 
     smoothing.check(cfg, cls)

@@ -35,7 +35,8 @@ FIRST_ORDER, SECOND_ORDER, VAN_LOAN = 1, 2, 3
 METHODS = {"first_order": FIRST_ORDER, "second_order": SECOND_ORDER, "van_loan": VAN_LOAN}
 DOC = ("discretisation of the error-state propagation over one IMU interval: 'first_order' (F = I + F_t T, "
        "Q_d = Q_c T), 'second_order' (Phi to T^2, trapezoidal Q_d), 'van_loan' (exact for the linearised model) or "
-       "'auto': van_loan below 100 Hz (the median IMU interval above 10 ms), first_order from 100 Hz on")
+       "'auto': van_loan below 100 Hz (the median IMU interval above 10 ms), first_order from 100 Hz on; the odometer + gyro "
+       "process model has first_order only")
 # 'auto': where the first-order step drops terms that matter. The dropped T^2/2 coupling is of relative size
 # |g T|^2 / 2: 0.48 at 10 Hz (KITTI), 0.5 % at 100 Hz, 0.1 % at 200 Hz, while Van Loan costs 8-10x the
 # first-order step per sample (measured: the simulated drives at 100 Hz give the same APE either way)

@@ -399,8 +399,8 @@ def report_md(dataset: str, config_name: str, evals: dict, ratios: dict, cfg: di
         L.append(f"- Local ENU frame's geodetic origin ({o['from']}): {o['lat_deg']:.8f} deg, {o['lon_deg']:.8f} deg, "
                  f"{o['alt_m']:.3f} m.")
     if applied.get("discretization"):
-        L.append(f"- Error-state discretisation chosen from the IMU rate (filter.discretization = auto): "
-                 f"{applied['discretization']}.")
+        L.append(f"- Error-state discretisation chosen from {applied.get('discretization_from', 'the IMU rate')} "
+                 f"(filter.discretization = auto): {applied['discretization']}.")
     if applied.get("lidar_clock"):
         c = applied["lidar_clock"]
         L.append(f"- Lidar frame times: the stamps of the IMU packets they were matched to, smoothed by a robust local line "

@@ -77,6 +77,8 @@ class FilterBase:
     name = "base"                   # filter.formulation
     process_model = "imu"           # filter.process_model
     bias_models = ("random_walk", "constant")   # filter.bias_model values its process model implements
+    # filter.discretization values its process model implements (the ESKF's, the nominal and invariant filters' all)
+    discretizations = ("first_order", "second_order", "van_loan")
     layout: Layout
     pairs: tuple[tuple[str, str], ...]
     keys: dict = {}                 # configuration keys this formulation owns

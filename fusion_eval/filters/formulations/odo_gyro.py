@@ -100,6 +100,7 @@ predict_to = compiled_loop(__name__, step, record_cov_by_index)
 class OdometerGyroKF(ErrorStateBase):
     name = "error_state"
     process_model = "odometer_gyro"
+    discretizations = ("first_order",)        # its step is F = I + F_t T; 'auto' took van_loan in the report only
     label = "odometer + gyro (wheel speed and gyro drive the prediction; error state [dp, dtheta, dk, dbg])"
     layout = LAYOUT
     pairs = PAIRS
