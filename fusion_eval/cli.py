@@ -287,6 +287,9 @@ def compare(ctx, dataset, variants, variant_dir, config_path, sets, out_dir, ove
             tr = r.get("ape_trans_rmse_m")
             t = ("n/a" if tr is None else f"{tr:.3f}") + ("" if sd is None else f" +/- {sd:.3f}")
             click.echo(f"{r['variant']:<26} {r['estimate']:<9} {t:>{w}} {'n/a' if rot is None else f'{rot:.3f}':>19}")
+        note = (res.get("trials") or {}).get("ranking_note")
+        if note:
+            click.echo(note.replace("**", ""))
         click.echo(f"wrote {res['out_dir']}/ ({time.perf_counter() - t0:.1f} s)")
 
 

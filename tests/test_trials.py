@@ -93,6 +93,14 @@ def test_compare_and_sweep_with_trials_report_means(kitti_slice, tmp_path):
                for row in csv.DictReader((out / "compare.csv").read_text().splitlines()))
     lo, hi = e["ape_trans_rmse_m_ci95"]          # the 95 % interval of the mean, as the README says (an audit)
     assert lo <= e["ape_trans_rmse_m"] <= hi and f" [{lo:.3f}, {hi:.3f}]" in md
+    # the lead of the best over the next, paired over the same seeds (a review: overlapping intervals of the means
+    # said nothing of a lead every seed showed)
+    rk = c["trials"]["ranking"]
+    fused = {v: [next(x for x in t if x["variant"] == v and x["estimate"] == "fused")["ape_trans_rmse_m"]
+                 for t in c["trials"]["per_trial"]] for v in ("eskf", "constant-bias")}
+    d = np.subtract(fused[rk["next"]], fused[rk["best"]])
+    assert rk["mean_difference"] == pytest.approx(d.mean()) and rk["wins"] == int(np.sum(d > 0)) and rk["trials"] == 2
+    assert f"**{rk['best']}** leads **{rk['next']}**" in md
 
     sweep = tmp_path / "s.yaml"
     sweep.write_text(f"datasets: [{kitti_slice}]\nvariants: [eskf]\ntrials: 2\nsettings:\n  quiet: {{imu.accel_noise_mps2_sqrthz: 0.1}}\n")
@@ -214,3 +222,14 @@ def test_the_runs_evaluation_warnings_from_the_pool_are_not_said_again_as_the_tr
     said = [r.getMessage() for r in caplog.records if r.name == "fusion_eval.pipeline"]
     assert "trials 1, 2 (of 0..2) repeated warnings above, with figures of their own" in said, said
     assert not [m for m in said if m.startswith("trials 1, 2 (of 0..2): ")], said
+
+
+def test_a_paired_lead_is_said_with_its_interval_and_held_only_when_it_excludes_zero():
+    from fusion_eval.trials import paired_lead
+
+    text, info = paired_lead({"a": [1.00, 1.10, 0.95, 1.05], "b": [1.02, 1.12, 0.97, 1.07], "c": [2.0, 2.0, 2.0, None]})
+    assert info["best"] == "a" and info["next"] == "b" and info["wins"] == 4 and info["holds"]
+    assert info["mean_difference"] == pytest.approx(0.02) and "the lead holds" in text
+    _, info = paired_lead({"a": [1.0, 1.2, 0.9], "b": [1.1, 1.0, 1.05]})
+    assert not info["holds"] and info["ci95"][0] < 0 < info["ci95"][1]
+    assert paired_lead({"a": [1.0], "b": [1.1]}) is None            # one trial: no interval

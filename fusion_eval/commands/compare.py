@@ -257,6 +257,11 @@ def _compare(dataset_path: Path | None, variants: list[str], variant_dir: Path |
         trials_info = {"n": n_trials, "seeds": [mc.trial_overrides(cfgs[0], i) for i in range(n_trials)],
                        "per_trial": tables}
         table = mc.aggregate_rows(tables, ("variant", "estimate"))
+        lead = mc.paired_lead({v: [next((r.get("ape_trans_rmse_m") for r in t if r["variant"] == v and
+                                         r["estimate"] == "fused"), None) for t in tables] for v in variants})
+        if lead:
+            trials_info["ranking"] = lead[1]
+            trials_info["ranking_note"] = lead[0]
         if all(mc.all_equal([r.get("ape_trans_rmse_m") for t in tables for r in t if r["variant"] == v
                              and r["estimate"] == "fused"]) for v in variants):
             log.warning(mc.NOTHING_RANDOM.format(n=n_trials))
@@ -282,7 +287,8 @@ def _compare(dataset_path: Path | None, variants: list[str], variant_dir: Path |
         out.write_text("compare.json", json.dumps(result, indent=2) + "\n")
         out.write_text("compare.csv", _csv(table, bool(trials_info)))
         md = (_markdown(ds.name, table, truth_body, make_plots, sp, n_trials, warned, ev_cfg["alignment"],
-                        list(dict.fromkeys(s for r in runs for s in r.seeded)))
+                        list(dict.fromkeys(s for r in runs for s in r.seeded)),
+                        (trials_info or {}).get("ranking_note"))
               + "\n".join(segments_section({"segments": seg})) + "\n")
         out.write_text("compare.md", md)
         out.write_text("compare.tex", _latex(ds.name, table, n_trials, ev_cfg["alignment"]))
@@ -379,7 +385,8 @@ def _latex(name: str, rows: list[dict], n_trials: int, alignment: str = "none") 
 
 
 def _markdown(name: str, rows: list[dict], truth_body, plots: bool, sp: dict | None = None, n_trials: int = 1,
-              warned: dict | None = None, alignment: str = "none", seeded: list[str] | None = None) -> str:
+              warned: dict | None = None, alignment: str = "none", seeded: list[str] | None = None,
+              ranking_note: str | None = None) -> str:
     order = [o.name for o in observations.REGISTRY]
     header = ["variant", "estimate", "APE trans RMSE [m]", "APE rot RMSE [deg]", "RPE trans 1 frame [m]", "estimate/lidar",
               "estimate/GNSS", "KITTI drift [%] / [deg/100 m]", "NEES pos in 95 %", "lateral / vertical body velocity RMS [m/s]",
@@ -410,6 +417,8 @@ def _markdown(name: str, rows: list[dict], truth_body, plots: bool, sp: dict | N
         if len(fused) > 1 else None
     if note:
         L += ["", note]
+    if ranking_note:
+        L += ["", ranking_note]
     if any(r.get("compile_s") for r in rows):
         L += ["", "Filter time: the variant's preparation and replay, without numba's compilation of its kernels on their "
               "first use in this installation (given apart; a later compare loads them from the cache)."]

@@ -139,7 +139,11 @@ def settings_of(body: dict, where: str) -> list[tuple[str, dict]]:
     def check(key, value, mapping):
         at = yaml_lines.at(where, mapping, key)            # the line of the key in the sweep file
         if key not in known:
-            raise ConfigError(f"{at}: unknown configuration key {key!r} in the sweep")
+            import difflib
+
+            close = difflib.get_close_matches(str(key), list(known), n=3)
+            raise ConfigError(f"{at}: unknown configuration key {key!r} in the sweep"
+                              + (f" (did you mean {', '.join(close)}?)" if close else ""))
         if key in getattr(mapping, "empty", ()):     # 'gnss.rate_hz:' with nothing after it: YAML's null
             raise ConfigError(f"{at}: {key} has no value (write null for null)")
         return check_value(key, known[key], value, at)
