@@ -151,9 +151,10 @@ def estimate_extrinsic(imu: ImuSeries, lidar: PoseSeries, blocks: int = to.BLOCK
         Km = K[m]
         n = Km.shape[0]
 
-        def K_of(R):                    # R Km R^T at every point, as two (3n, 3) x (3, 3) products
-            KRt = (Km.reshape(-1, 3) @ R.T).reshape(n, 3, 3)
-            return (KRt.transpose(0, 2, 1).reshape(-1, 3) @ R.T).reshape(n, 3, 3).transpose(0, 2, 1)
+        Kflat = Km.reshape(n, 9)
+
+        def K_of(R):                    # R Km R^T at every point: one (n, 9) x (9, 9) product, vec(R K R^T) = (R x R) vec(K)
+            return (Kflat @ np.kron(R, R).T).reshape(n, 3, 3)
         R, d = _solve(wl[m], wg[m], A[m], B[m], F[m], K_of, R0)
         return np.r_[Rotation.from_matrix(R).as_euler("xyz") * 1e3, -d], R
 
