@@ -705,6 +705,18 @@ def test_evaluate_says_when_the_stamps_differ_by_a_unit(tmp_path):
     _assert_clean_error(r, out, "0 poses of", "the estimate's stamps are 1e+9 times the reference's: in another unit?")
 
 
+def test_evaluate_names_a_clock_offset_as_such_and_the_offset_that_fixes_it(tmp_path):
+    """An estimate 1000 s (or the ROS epoch) after its reference, its span as long: put down to milliseconds before
+    ('scaled by 1e-3 would cover the reference's'), with no word of --t-offset's value (a review)."""
+    ref = _tum(tmp_path / "ref.tum")
+    for shift in (1000.0, 1317384506.0):
+        est = _tum(tmp_path / "est.tum", edit=lambda rows: [r.__setitem__(0, r[0] + shift) for r in rows])
+        out = tmp_path / "o"
+        r = CliRunner().invoke(main, ["evaluate", str(ref), str(est), "-o", str(out)])
+        _assert_clean_error(r, out, "0 poses of", f"--t-offset {-shift:.10g} puts its first stamp on the reference's")
+        assert "scaled by" not in r.stderr and "another unit" not in r.stderr
+
+
 def test_evaluate_says_the_unit_before_an_alignment_fails_on_it(tmp_path):
     """KITTI times in ms with --alignment se3: the 2 poses the mistake matched failed the alignment, and the error
     said 'choose another --alignment' (found by a corrupted-input review)."""

@@ -438,3 +438,34 @@ def test_evo_ape_flags_give_the_same_alignment(tmp_path, flags, alignment):
         assert abs(a - 0.006123) < 5e-7
     r = CliRunner().invoke(main, ["-q", "evaluate", *files, "-a", "--alignment", "origin", "-o", str(tmp_path / "x")])
     assert r.exit_code == 2 and "--alignment origin and -a (evo's for --alignment se3): give one" in r.output
+
+
+@pytest.mark.parametrize("flags,n", [(("-as",), -1), (("-a",), 300), (("--alignment", "origin"), -1), ((), -1)])
+def test_result_files_carry_evos_title_and_alignment_for_the_alignment_used(tmp_path, flags, n):
+    """Every result file said "(not aligned)" and lacked evo's alignment_transformation_sim3 after -a or -as (the
+    metric is computed on poses aligned beforehand; a review): the title, and the array, as evo_ape writes them."""
+    from click.testing import CliRunner
+
+    from fusion_eval.cli import main
+
+    ref, est = (shared_path("evo-test-data", f) for f in ("fr2_desk_groundtruth.txt", "fr2_desk_ORB.txt"))
+    out = tmp_path / "o"
+    extra = ("--n-to-align", str(n)) if n != -1 else ()
+    r = CliRunner().invoke(main, ["evaluate", str(ref), str(est), *flags, *extra, "--out", str(out), "--no-plots"])
+    assert r.exit_code == 0, r.output
+    traj_ref, traj_est = (file_interface.read_tum_trajectory_file(str(p)) for p in (ref, est))
+    from evo.core import sync
+    from evo.core.metrics import PoseRelation
+
+    traj_ref, traj_est = sync.associate_trajectories(traj_ref, traj_est)
+    want = evo_ape(traj_ref, traj_est, PoseRelation.translation_part, align="-a" in flags or "-as" in flags,
+                   correct_scale="-as" in flags, align_origin="origin" in flags, n_to_align=n)
+    got = file_interface.load_res_file(str(out / "ape_translation_fr2_desk_ORB.zip"))
+    assert got.info["title"] == want.info["title"]
+    if "alignment_transformation_sim3" in want.np_arrays:
+        np.testing.assert_allclose(got.np_arrays["alignment_transformation_sim3"],
+                                   want.np_arrays["alignment_transformation_sim3"], atol=1e-9)
+    else:
+        assert "alignment_transformation_sim3" not in got.np_arrays
+    rpe = file_interface.load_res_file(str(out / "rpe_1frame_translation_fr2_desk_ORB.zip"))
+    assert rpe.info["title"].split("\n", 1)[1] == want.info["title"].split("\n", 1)[1]

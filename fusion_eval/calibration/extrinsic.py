@@ -28,7 +28,7 @@ import numpy as np
 from scipy.spatial.transform import Rotation
 
 from ..errors import DataRangeError
-from ..so3 import inv_T, make_T, matrix_to_quat_xyzw, nearest_rotation
+from ..so3 import inv_T, make_T, matrix_to_quat_xyzw
 from ..types import ImuSeries, PoseSeries
 from . import time_offset as to
 
@@ -47,11 +47,6 @@ class ExtrinsicEstimate:
                 "lever_arm_error_m": self.t_E_m.tolist(), "lever_arm_std_m": self.t_std_m.tolist(),
                 "method": "hand-eye: gyro vs lidar rotation rate and accelerometer vs lidar acceleration (Wahba, SVD; "
                           "lever arm and horizontal accelerometer bias by least squares beside it)"}
-
-
-def _wahba(H: np.ndarray) -> np.ndarray:
-    """The rotation R minimising sum |y - R x|^2, for H = sum x y^T."""
-    return nearest_rotation(H.T)
 
 
 def _signals(imu: ImuSeries, lidar: PoseSeries, step_s: float):

@@ -544,8 +544,18 @@ def _refuse_unmatched(ref_f, est_fs, evals: dict, association: str, t_max_diff_s
         if ev.matched_poses < 2:
             raise DataRangeError(f"{ev.matched_poses} poses of {_span(f)} match the reference {_span(ref_f)} "
                                  f"({association}, within --t-max-diff {t_max_diff_s} s); at least 2 are needed "
-                                 f"({_unit_hint(ref_f, f)}a time offset between the files? --t-offset; KITTI files "
-                                 "without times? --times)")
+                                 f"({_unit_hint(ref_f, f)}a time offset between the files? {_offset_hint(ref_f, f)}; "
+                                 "KITTI files without times? --times)")
+
+
+def _offset_hint(ref_f, f) -> str:
+    """``--t-offset`` with the shift that puts the estimate's first stamp on the reference's, where the two spans
+    do not meet and last alike (a clock offset, not a unit), else the bare option."""
+    ta, tb = (np.asarray(x.traj.timestamps, float) for x in (ref_f, f))
+    if ta.size >= 2 and tb.size >= 2 and _overlap(ta[0], ta[-1], tb[0], tb[-1]) == 0.0 \
+            and 0.1 <= (tb[-1] - tb[0]) / max(ta[-1] - ta[0], 1e-300) <= 10:
+        return f"--t-offset {ta[0] - tb[0]:.10g} puts its first stamp on the reference's"
+    return "--t-offset"
 
 
 def _overlap(a0: float, a1: float, b0: float, b1: float) -> float:
@@ -560,9 +570,12 @@ def _unit_power(ref_f, f) -> int:
     ta, tb = (np.asarray(x.traj.timestamps, float) for x in (ref_f, f))
     if ta.size < 2 or tb.size < 2 or _overlap(ta[0], ta[-1], tb[0], tb[-1]) >= 0.1:
         return 0
+    span_a = ta[-1] - ta[0]
     for k in (1, -1, 2, -2, 3, -3):
         s = 1000.0 ** -k
-        if _overlap(ta[0], ta[-1], tb[0] * s, tb[-1] * s) > 0.5:
+        # scaled, its span must also last about as long as the reference's: any span shrunk 1000x fits inside, and a
+        # clock offset of 1000 s (or the ROS epoch against 0) was put down to milliseconds (a review)
+        if _overlap(ta[0], ta[-1], tb[0] * s, tb[-1] * s) > 0.5 and 0.1 <= (tb[-1] - tb[0]) * s / max(span_a, 1e-300) <= 10:
             return k
     return 0
 

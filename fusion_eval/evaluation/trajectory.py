@@ -242,6 +242,35 @@ def _align(est_a, ref_a, alignment: str, arrays: bool, n_to_align: int = -1):
             (np.asarray(r), float(s)))
 
 
+_EVO_ALIGNED = {"se3": "\n(with SE(3) Umeyama alignment)", "sim3": "\n(with Sim(3) Umeyama alignment)",
+                "scale": "\n(scale corrected)", "origin": "\n(with origin alignment)", "none": "\n(not aligned)",
+                "4dof": "\n(with 4-DoF alignment: a rotation about the up axis and a translation)"}
+
+
+def _evo_labelled(alignment: str, n_to_align: int, params: dict | None):
+    """A function that gives a result evo's title for the alignment applied before it (``evo_ape -a``: "(with SE(3)
+    Umeyama alignment)", ...) and evo's ``alignment_transformation_sim3`` array: the metric was computed on poses
+    aligned beforehand, so every result file said "(not aligned)" and lacked the array (a review)."""
+    suffix = _EVO_ALIGNED.get(alignment, "")
+    if alignment in ("se3", "sim3", "scale") and n_to_align != -1:
+        suffix = suffix + f" (aligned poses: {n_to_align})"
+    sim3 = None
+    if params and alignment in ("se3", "sim3", "scale", "origin"):
+        if "T" in params:
+            sim3 = np.asarray(params["T"], float)
+        else:
+            sim3 = np.eye(4)
+            sim3[:3, :3] = float(params.get("scale", 1.0)) * np.asarray(params.get("rotation", np.eye(3)), float)
+            sim3[:3, 3] = params.get("translation_m", np.zeros(3))
+
+    def label(res):
+        res.info["title"] = res.info["title"].split("\n")[0] + suffix
+        if sim3 is not None:
+            res.add_np_array("alignment_transformation_sim3", sim3)
+        return res
+    return label
+
+
 def aligned_positions(p_m: np.ndarray, params: dict | None) -> np.ndarray:
     """Positions moved by an alignment as :func:`_align` and :func:`_align_4dof` record it (``alignment_params``):
     ``p' = s R p + t``, or evo's ``--align_origin`` transform ``T``; unchanged without one."""
@@ -377,6 +406,7 @@ def evaluate(reference, estimate, name: str, t_max_diff_s: float,
                                  "choose another --alignment") from None
     if cov is not None:
         ev.nees = pose_nees_of(ref_a, est_a, cov, applied, t_max_diff_s)
+    labelled = _evo_labelled(alignment, n_to_align, ev.alignment_params)
     wanted = ["trans_part", *[r for r in relations if r != "trans_part"]]
     rels = [(keys.RELATION_KEYS[r], keys.EVO_RELATIONS[r]) for r in wanted
             if has_orientation or r in keys.POSITION_RELATIONS]
@@ -384,7 +414,7 @@ def evaluate(reference, estimate, name: str, t_max_diff_s: float,
 
     ev.metrics[keys.APE] = {}
     for key, rel in rels:
-        res = calc.ape(rel)
+        res = labelled(calc.ape(rel))
         ev.metrics["ape"][key] = _stats(res)
         ev.results[f"ape_{keys.RESULT_NAMES[key]}"] = res
         if key == "translation_m":
@@ -405,7 +435,7 @@ def evaluate(reference, estimate, name: str, t_max_diff_s: float,
         failed = []
         for key, rel in rels:
             try:
-                res = calc.rpe(rel, delta, unit)
+                res = labelled(calc.rpe(rel, delta, unit))
             except (metrics.MetricsException, FilterException) as exc:   # e.g. a drive shorter than delta
                 failed.append((key, exc))
                 ev.metrics[label][key] = None
