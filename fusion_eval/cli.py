@@ -141,6 +141,12 @@ class Group(click.Group):
                            "out-of-memory killer): a run or a comparison wrote nothing; a sweep or a tune keeps what "
                            "it finished, and the same command goes on from there", err=True)
                 sys.exit(1)
+            if isinstance(exc, MemoryError):
+                # an hour at 400 Hz simulated under a memory limit was a 46-line traceback (a simulate review); the
+                # output folder is written atomically, so nothing half-written is left
+                click.echo("error: out of memory: this command needs more memory than the system gave it (a shorter "
+                           "drive, a lower IMU rate, or --jobs 1 needs less); no output was written", err=True)
+                sys.exit(1)
             if isinstance(exc, RuntimeError) and str(exc).startswith("Symlink loop from "):
                 # pathlib's resolve() on a loop of links (up to Python 3.12) where no check saw it first
                 # (outputs.refuse_link_loop sees the dataset and --out of every command)

@@ -432,3 +432,21 @@ def test_a_truth_that_moves_sideways_on_a_wheeled_platform_is_said(tmp_path):
         applied = {"nhc": nhc}
         _flag_data(ds, applied)
         assert any("moves sideways" in w for w in applied.get("data_warnings", ())) == said, applied
+
+
+@pytest.mark.slow
+def test_a_slowly_varying_speed_is_no_clock_offset(tmp_path):
+    """A simulated figure-8 at near-constant speed (its lidar on time) was 'stamped 0.43 s late': its speed varied
+    slowly and in the first half only, the second half's profiles did not correlate (a simulate review). The shift
+    must hold in each half of the stream that can be timed."""
+    from fusion_eval.datasets import plausible
+    from fusion_eval.datasets.manifest import load_dataset
+    from fusion_eval.simulate.dataset import simulate
+
+    simulate(tmp_path / "f8", "figure8", 600.0, 0, "automotive", ("output.layout=csv",), jobs=1)
+    ds = load_dataset(tmp_path / "f8")
+    real = plausible._real(ds.lidar)
+    t, p = ds.lidar.t_s[real], ds.lidar.p_w_m[real]
+    found = plausible.speed_clock_shift(t, p, ds.groundtruth.t_s, ds.groundtruth.p_w_m)
+    assert plausible.clear_speed_shift(found)             # the whole stream alone: the false shift
+    assert plausible.speed_clock_warning("the lidar", ds.lidar, ds.groundtruth) == ""
