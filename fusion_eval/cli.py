@@ -145,7 +145,8 @@ class Group(click.Group):
                 # an hour at 400 Hz simulated under a memory limit was a 46-line traceback (a simulate review); the
                 # output folder is written atomically, so nothing half-written is left
                 click.echo("error: out of memory: this command needs more memory than the system gave it (a shorter "
-                           "drive, a lower IMU rate, or --jobs 1 needs less); no output was written", err=True)
+                           "drive, a lower IMU rate, or --jobs 1 needs less); nothing half-written is left: a run or a comparison wrote "
+                           "nothing, a sweep or a tune keeps what it finished", err=True)
                 sys.exit(1)
             if isinstance(exc, RuntimeError) and str(exc).startswith("Symlink loop from "):
                 # pathlib's resolve() on a loop of links (up to Python 3.12) where no check saw it first
@@ -391,14 +392,12 @@ def sweep(ctx, datasets, sweep_file, out_dir, jobs, variant_dir, scheduler, dask
             if best.get("note"):
                 click.echo(best["note"])
         click.echo(f"wrote {out_dir}/sweep.csv, sweep.md, report.html" + (", best.yaml" if best else ""))
-    failed = [r for r in rows if r["status"] == "failed"]
+    failed = res["summary"]["failed_runs"]        # runs, trials included (a setting of trials folds them)
     if failed and not summarize_only:
         # everything is written, but a CI script must see it: exit 0 with the failure only in a warning (hidden by -q)
         # read as a clean sweep (a review)
-        first = next((r for r in failed if r.get("error")), failed[0])
-        click.echo(f"error: {len(failed)} of {len(rows)} runs of the sweep failed (each in {out_dir}/sweep.md; "
-                   f"--retry-failed runs them again); the first, {first['id']}: {first.get('error') or 'failed'}",
-                   err=True)
+        click.echo(f"error: {len(failed)} of {res['summary']['runs']} runs of the sweep failed (each in {out_dir}/sweep.md; "
+                   f"--retry-failed runs them again); the first, {failed[0]['id']}: {failed[0]['error']}", err=True)
         ctx.exit(1)
 
 

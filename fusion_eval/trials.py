@@ -149,26 +149,31 @@ def one_draw_note(better: float, worse: float, n_trials: int, what: str, how: st
 
 
 def paired_lead(per_trial: dict[str, list], what: str = "fused APE") -> tuple[str, dict] | None:
-    """The best entry against the next, paired over the trials (the same seeds for both): the mean difference of
-    their figures with its 95 % interval (Student's t) and how many trials the best wins; overlapping intervals of
-    the two means said nothing of a lead that every seed showed (a review: 0.007-0.020 m on each of four seeds).
-    ``per_trial``: {entry: [figure per trial]} (None for a failed trial: that trial is left out of the pair)."""
-    means = {k: float(np.mean([x for x in v if x is not None])) for k, v in per_trial.items()
-             if any(x is not None for x in v)}
-    if len(means) < 2:
+    """The best entry against the next, paired over the trials every entry finished (trial i of each draws its
+    random elements with the same seed offset): the mean difference of their figures with its 95 % interval
+    (Student's t) and how many trials the best wins; overlapping intervals of the two means said nothing of a lead
+    that every seed showed (a review: 0.007-0.020 m on each of four seeds). ``per_trial``: {entry: [figure per trial]}
+    (None or NaN for a failed trial: the ranking is over the trials every entry finished, the pair over those both
+    finished)."""
+    rows = [k for k, v in per_trial.items() if v]
+    if len(rows) < 2:
         return None
+    n = min(len(per_trial[k]) for k in rows)
+    ok = [i for i in range(n) if all(per_trial[k][i] is not None and math.isfinite(per_trial[k][i]) for k in rows)]
+    if len(ok) < 2:
+        return None
+    means = {k: float(np.mean([per_trial[k][i] for i in ok])) for k in rows}
     best, nxt = sorted(means, key=means.get)[:2]
-    d = np.array([b - a for a, b in zip(per_trial[best], per_trial[nxt]) if a is not None and b is not None])
-    if d.size < 2:
-        return None
+    both = [i for i in range(n) if all(per_trial[k][i] is not None and math.isfinite(per_trial[k][i]) for k in (best, nxt))]
+    d = np.array([per_trial[nxt][i] - per_trial[best][i] for i in both])
     st = stats(d)
     lo, hi = st["ci95_mean"]
     wins = int(np.sum(d > 0))
     held = lo > 0
-    text = (f"Ranking over {d.size} paired trials (the same seeds for every variant): **{best}** leads **{nxt}** in "
-            f"{what} by {st['mean']:.4g} m on average [95 % interval {lo:.4g}, {hi:.4g}], lower in {wins} of {d.size} "
-            "trials: " + ("the lead holds." if held else "the interval includes 0, so these trials do not rank the two; "
-                         "more trials (--trials) may."))
+    text = (f"Ranking over {d.size} paired trials (trial i of every variant with the same seed offset): **{best}** "
+            f"leads **{nxt}** in {what} by {st['mean']:.4g} m on average [95 % interval {lo:.4g}, {hi:.4g}], lower in "
+            f"{wins} of {d.size} trials: " + ("the lead holds." if held else "the interval includes 0, so these trials do "
+                                               "not rank the two; more trials (--trials) may."))
     return text, {"best": best, "next": nxt, "mean_difference": st["mean"], "ci95": [lo, hi], "wins": wins,
                   "trials": int(d.size), "holds": bool(held)}
 

@@ -211,7 +211,24 @@ def test_a_calibration_far_from_the_data_is_named():
     assert mount_disagrees(imu, lidar, "calib_imu_to_velo.txt") == ""
     flipped = apply_extrinsic(lidar, np.eye(3), [1.62, -0.64, 1.6])            # twice its lever arm, in IMU axes
     w = mount_disagrees(imu, flipped, "calib_imu_to_velo.txt")
-    assert "the lever arm -1.9" in w and "(x, y) away from it" in w and "its sign" in w and "the rotation" not in w, w
+    assert "the lever arm -1.9" in w and "(x, y; +/- 0.0" in w and "its sign" in w and "the rotation" not in w, w
     tilted = apply_extrinsic(lidar, Rotation.from_rotvec([0, 0.035, 0]).as_matrix())
     w = mount_disagrees(imu, tilted, "calib_imu_to_velo.txt")
     assert "the rotation" in w and ", -35, " in w and "the lever arm" not in w, w
+
+
+def test_a_parked_or_straight_drive_is_no_evidence_against_its_mount():
+    """A review: a parked minute with a right calibration fitted tilts of 15-44 mrad and was warned; the check now
+    asks for turns (the mount shows only in them) and for its figures beyond three of their jackknife's spread."""
+    from fusion_eval.calibration.extrinsic import mount_disagrees
+    from fusion_eval.types import ImuSeries, PoseSeries
+
+    for seed in range(4):
+        rng = np.random.default_rng(seed)
+        t = np.arange(0, 60, 0.01)
+        imu = ImuSeries(t_s=t, f_b_mps2=np.tile([0, 0, 9.81], (t.size, 1)) + rng.normal(size=(t.size, 3)) * 0.01,
+                        w_b_rps=rng.normal(size=(t.size, 3)) * 0.001, source="imu")
+        tl = np.arange(0, 60, 0.1)
+        lid = PoseSeries(t_s=tl, p_w_m=rng.normal(size=(tl.size, 3)) * 0.01, q_wb_xyzw=np.tile([0, 0, 0, 1.0], (tl.size, 1)),
+                         source="lidar")
+        assert mount_disagrees(imu, lid, "calib") == "", seed

@@ -233,3 +233,8 @@ def test_a_paired_lead_is_said_with_its_interval_and_held_only_when_it_excludes_
     _, info = paired_lead({"a": [1.0, 1.2, 0.9], "b": [1.1, 1.0, 1.05]})
     assert not info["holds"] and info["ci95"][0] < 0 < info["ci95"][1]
     assert paired_lead({"a": [1.0], "b": [1.1]}) is None            # one trial: no interval
+    # a failed trial is left out of every pair, and the ranking is over the trials all finished (b led a's three
+    # by 0.1 but was called the second, "by -0.1 m", from its failed fourth trial's 2.0: a review)
+    _, info = paired_lead({"a": [1.0, 1.0, 1.0, None], "b": [0.9, 0.9, 0.9, 2.0]})
+    assert info["best"] == "b" and info["trials"] == 3 and info["wins"] == 3
+    assert paired_lead({"a": [1.0, float("nan")], "b": [1.1, 1.2]}) is None

@@ -436,9 +436,9 @@ def test_a_truth_that_moves_sideways_on_a_wheeled_platform_is_said(tmp_path):
 
 @pytest.mark.slow
 def test_a_slowly_varying_speed_is_no_clock_offset(tmp_path):
-    """A simulated figure-8 at near-constant speed (its lidar on time) was 'stamped 0.43 s late': its speed varied
-    slowly and in the first half only, the second half's profiles did not correlate (a simulate review). The shift
-    must hold in each half of the stream that can be timed."""
+    """A simulated figure-8 at near-constant speed (its lidar on time) was 'stamped 0.43 s late' (a simulate review):
+    its speed profiles peaked at a correlation of 0.92 there, against 0.998-0.999 for real offsets (the lidar drives,
+    the simulator's urban drive 0.2 s off)."""
     from fusion_eval.datasets import plausible
     from fusion_eval.datasets.manifest import load_dataset
     from fusion_eval.simulate.dataset import simulate
@@ -448,5 +448,20 @@ def test_a_slowly_varying_speed_is_no_clock_offset(tmp_path):
     real = plausible._real(ds.lidar)
     t, p = ds.lidar.t_s[real], ds.lidar.p_w_m[real]
     found = plausible.speed_clock_shift(t, p, ds.groundtruth.t_s, ds.groundtruth.p_w_m)
-    assert plausible.clear_speed_shift(found)             # the whole stream alone: the false shift
+    assert abs(found[0]) > 0.3 and 0.9 < found[1] < plausible.MIN_SPEED_CORR     # the false peak, below the bar now
     assert plausible.speed_clock_warning("the lidar", ds.lidar, ds.groundtruth) == ""
+
+
+def test_a_clock_offset_is_still_said_where_half_the_stream_cannot_be_timed():
+    """The halves rule must not hide a real offset where one half is parked or cruising (a diff review: speed that
+    varies for 100 s, then a steady 25 m/s, the estimate stamped 1.0 s late, was vetoed by the flat half)."""
+    from fusion_eval.datasets import plausible
+
+    t = np.arange(0.0, 200.0, 0.1)
+    v = np.where(t < 100, 10 + 5 * np.sin(t / 3.0) + 3 * np.sin(t / 1.3), 25.0)
+    x = np.cumsum(v) * 0.1
+    p = np.column_stack([x, np.zeros_like(x), np.zeros_like(x)])
+    late = t + 1.0                                         # stamped 1 s late
+    found = plausible.speed_clock_shift(late, p, t, p)
+    halves = plausible.speed_shift_halves(late, p, t, p)
+    assert found[0] == pytest.approx(1.0, abs=0.02) and plausible.clear_speed_shift(found, halves), (found, halves)

@@ -220,6 +220,9 @@ def write_summary(tasks: list[Task], out_dir: Path, keys: list[str], plots: bool
     cols = ["id", "dataset", "variant", "setting", *keys, *metric_cols, "fused_over_lidar", "fused_over_gnss", "runtime_s",
             "status", "error"]
     n_trials = 1 + max((t.trial for t in tasks), default=0)
+    # the failed runs, counted before the trials fold into settings (a setting with one failed trial is 'ok' there)
+    failed_runs = [{"id": r["id"], "error": r.get("error") or "failed"} for r in rows if r["status"] == "failed"]
+    n_runs = len(rows)
     if n_trials > 1:
         # every trial in sweep_trials.csv; everything below is over the means of each setting's trials
         atomic_write(out_dir / "sweep_trials.csv", csv_text(["trial", *cols], rows, float_format="{:.6g}"))
@@ -337,7 +340,7 @@ def write_summary(tasks: list[Task], out_dir: Path, keys: list[str], plots: bool
     md = "\n".join(L) + "\n"
     atomic_write(out_dir / "sweep.md", md)
     atomic_write(out_dir / "report.html", html.page(md, out_dir, inputs=dataset_files(t.dataset for t in tasks)))
-    return {"rows": rows, "best": best, "plots": written, "ranking": rank}
+    return {"rows": rows, "best": best, "plots": written, "ranking": rank, "failed_runs": failed_runs, "runs": n_runs}
 
 
 def _factors(r: dict, stream: str) -> str:

@@ -115,7 +115,7 @@ def is_number(v) -> bool:
 # share inside the 95 % interval at 0.95 (check called a NEES share rising from 0.67 to 0.77 a regression, and a sweep
 # ranked by it chose a setting with 33 % inside as best: a review); a sweep.csv's wall time is the machine's
 _TWO_SIDED = re.compile(r"(^|\.)(nis|nees|nees_smoothed)\.[^.]+\.(mean|fraction_in_95)$|(^|\.)(nees|nis)_\w*_(mean|in95_frac)$")
-_NOT_ERROR = re.compile(r"(^|\.)runtime_s$")
+_NOT_ERROR = re.compile(r"(^|\.)runtime_s$|_noise_(pos|att)_x$")
 
 
 def not_an_error(key: str) -> str:
@@ -124,7 +124,8 @@ def not_an_error(key: str) -> str:
         return ("a consistency figure, best at its dof (a mean) or at 0.95 (a share inside the 95 % interval), not at "
                 "0: gate it with --require (e.g. 'nees.position.fraction_in_95 > 0.9'), rank by the nis objective")
     if _NOT_ERROR.search(key):
-        return "the run's wall time on this machine, not an error figure"
+        return ("the run's wall time on this machine, not an error figure" if key.endswith("runtime_s") else
+                "an adapted noise's factor over its configured std, best near 1, not an error figure")
     return ""
 
 
