@@ -775,3 +775,30 @@ def test_a_sweep_with_a_failed_run_writes_everything_and_exits_1(small, tmp_path
     assert r.exit_code == 1, r.output
     assert "error: 1 of 2 runs of the sweep failed" in r.stderr and "the first, " in r.stderr
     assert (out / "sweep.md").exists() and (out / "best.yaml").exists()
+
+
+@pytest.mark.slow
+def test_a_failed_trial_counts_as_a_failed_run_though_its_setting_has_a_mean(small, tmp_path):
+    """Under --trials a setting with one failed trial is 'ok' in sweep.csv (the mean of the others); the exit-1 rule
+    read those folded rows and passed such a sweep (a diff review). The failed runs are counted before the fold."""
+    import json as _json
+
+    from fusion_eval.commands import sweep as sw
+    from fusion_eval.commands.sweep_summary import write_summary
+
+    sw_file = tmp_path / "sweep.yaml"
+    sw_file.write_text("settings:\n  a: {imu.gyro_noise_dps_sqrthz: 0.2}\n")
+    out = tmp_path / "s"
+    r = CliRunner().invoke(main, ["-q", "sweep", str(small), "--grid", str(sw_file), "--out", str(out), "--jobs", "1",
+                                  "--trials", "2"])
+    assert r.exit_code == 0, r.output
+    tasks = sw.plan(sw_file, [str(small)], out, trials=2)[0]
+    victim = next(t for t in tasks if t.trial == 1 and t.setting == "a")
+    rec_path = out / "records" / f"{victim.id}.json"
+    rec = _json.loads(rec_path.read_text())
+    rec.update(status="failed", error="a bug")
+    rec_path.write_text(_json.dumps(rec))
+    summary = write_summary(tasks, out, ["imu.gyro_noise_dps_sqrthz"], plots=False)
+    row = next(x for x in summary["rows"] if x["setting"] == "a")
+    assert row["status"] == "ok" and row["failed_trials"] == 1
+    assert summary["failed_runs"] == [{"id": victim.id, "error": "a bug"}] and summary["runs"] == 4
