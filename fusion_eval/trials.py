@@ -155,7 +155,8 @@ def paired_lead(per_trial: dict[str, list], what: str = "fused APE") -> tuple[st
     that every seed showed (a review: 0.007-0.020 m on each of four seeds). ``per_trial``: {entry: [figure per trial]}
     (None or NaN for a failed trial: the ranking is over the trials every entry finished, the pair over those both
     finished)."""
-    rows = [k for k, v in per_trial.items() if v]
+    rows = [k for k, v in per_trial.items() if any(x is not None and math.isfinite(x) for x in v)]   # a variant
+    # that finished no trial is not ranked (it left no trial that every variant finished: a review)
     if len(rows) < 2:
         return None
     n = min(len(per_trial[k]) for k in rows)

@@ -238,3 +238,5 @@ def test_a_paired_lead_is_said_with_its_interval_and_held_only_when_it_excludes_
     _, info = paired_lead({"a": [1.0, 1.0, 1.0, None], "b": [0.9, 0.9, 0.9, 2.0]})
     assert info["best"] == "b" and info["trials"] == 3 and info["wins"] == 3
     assert paired_lead({"a": [1.0, float("nan")], "b": [1.1, 1.2]}) is None
+    _, info = paired_lead({"a": [1.0, 1.1, 1.2], "b": [1.2, 1.3, 1.4], "c": [None, None, None]})   # c finished none
+    assert info["best"] == "a" and info["next"] == "b" and info["trials"] == 3
