@@ -163,7 +163,8 @@ def test_sparse_van_loan_series_equals_the_block_exponential(dt):
 
 @pytest.mark.parametrize("n", [15, 21])
 def test_sparse_first_order_covariance_equals_the_dense_product(n):
-    """``propagate_cov`` (in place, sparse F) equals ``F P F^T + Q`` with the dense ``F = I + F_t T``."""
+    """``propagate_cov`` (in place, sparse F) equals ``F P F^T + Q`` with the dense ``F = I + F_t T``, but for the
+    Gauss-Markov bias block, exact (``exp(-T/tau)`` and its variance: the series diverged for tau under T/2)."""
     from fusion_eval.filters.formulations.eskf import propagate_cov
 
     rng = np.random.default_rng(n)
@@ -176,9 +177,11 @@ def test_sparse_first_order_covariance_equals_the_dense_product(n):
     Ft, Qc = continuous_model(R, f, w, prm, 1.0)
     F = np.eye(n)
     F[:15, :15] += Ft * dt
-    F[9:15, 9:15] = np.diag(1.0 - dt * np.r_[[prm[PRM_KBA]] * 3, [prm[PRM_KBG]] * 3])
+    k = np.r_[[prm[PRM_KBA]] * 3, [prm[PRM_KBG]] * 3]
+    F[9:15, 9:15] = np.diag(np.exp(-dt * k))
     Q = np.zeros((n, n))
     Q[:15, :15] = np.diag(Qc) * dt
+    Q[9:15, 9:15] = np.diag(Qc[9:15] * -np.expm1(-2 * k * dt) / (2 * k))
     expect = F @ P[:n, :n] @ F.T + Q
     propagate_cov(P, n, R, f, w, dt, prm, 1.0)
     assert np.abs(P[:n, :n] - expect).max() <= 1e-12 * np.abs(expect).max()
@@ -355,3 +358,19 @@ def test_nominal_state_process_noise_is_the_error_state_one_by_the_same_discreti
     assert (np.abs(Qn[0:3, 0:3]).max() > 0.0) == (method != "first_order")
     # and the part of it off the unit sphere's tangent is zero (the normalisation keeps P there)
     assert np.abs(qe @ Qn[6:10, 6:10]).max() <= 1e-15 * np.abs(Qn).max()
+
+
+def test_a_gauss_markov_bias_faster_than_the_interval_stays_stable():
+    """tau = 1 ms at 10 Hz: the first and second order's 1 - T/tau (-99) blew the bias variance up by 1e4 per step and
+    the filter diverged (a simulate review); the decoupled bias block is exact in every discretisation now."""
+    from fusion_eval.filters.discretize import FIRST_ORDER, SECOND_ORDER, VAN_LOAN, transition_full
+
+    prm = imu_params(9.81, 0.05, np.radians(0.1), 1e-3, 1e-5, "first_order")
+    prm[PRM_KBA], prm[PRM_KBG] = 1000.0, 1000.0
+    R = Rotation.from_rotvec([0.1, -0.2, 0.3]).as_matrix()
+    Ft, Qc = continuous_model(R, np.array([0.1, 0.2, 9.8]), np.array([0.01, 0.0, 0.1]), prm, 1.0)
+    exact = transition_full(Ft, np.diag(Qc), 0.1, VAN_LOAN)
+    for method in (FIRST_ORDER, SECOND_ORDER):
+        Phi, Qd = transition_full(Ft, np.diag(Qc), 0.1, method)
+        np.testing.assert_allclose(np.diag(Phi)[9:15], np.diag(exact[0])[9:15], atol=1e-12)
+        np.testing.assert_allclose(np.diag(Qd)[9:15], np.diag(exact[1])[9:15], rtol=1e-9)

@@ -220,8 +220,36 @@ def transition_full(Ft, Qc, dt, method):
     if method == VAN_LOAN:
         return van_loan(Ft, Qc, dt)
     if method == SECOND_ORDER:
-        return second_order(Ft, Qc, dt)
-    return np.eye(Ft.shape[0]) + Ft * dt, Qc * dt
+        Phi, Qd = second_order(Ft, Qc, dt)
+    else:
+        Phi, Qd = np.eye(Ft.shape[0]) + Ft * dt, Qc * dt
+    _exact_decay(Ft, Qc, dt, Phi, Qd)
+    return Phi, Qd
+
+
+@njit(cache=True)
+def _exact_decay(Ft, Qc, dt, Phi, Qd):
+    """A state that only decays (a Gauss-Markov bias: its row of ``F_t`` holds nothing but ``-1/tau`` on the
+    diagonal) gets its exact ``exp(-dt/tau)`` and variance, in place: the series' ``1 - dt/tau`` went below -1 for a
+    correlation time under half the interval, and the filter diverged (a simulate review)."""
+    n = Ft.shape[0]
+    for i in range(n):
+        k = -Ft[i, i]
+        if k <= 0.0:
+            continue
+        alone = True
+        for j in range(n):
+            if j != i and (Ft[i, j] != 0.0 or Qc[i, j] != 0.0):
+                alone = False
+                break
+        if alone:
+            e = np.exp(-k * dt)
+            for j in range(n):
+                Phi[i, j] = 0.0
+                Qd[i, j] = 0.0
+                Qd[j, i] = 0.0
+            Phi[i, i] = e
+            Qd[i, i] = Qc[i, i] * (-np.expm1(-2.0 * k * dt)) / (2.0 * k)
 
 
 @njit(cache=True)

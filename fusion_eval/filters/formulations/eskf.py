@@ -122,8 +122,10 @@ def _propagate_cov(P, n, R, f0, f1, f2, w0, w1, w2, dt, prm, qscale):
         P[i, TH_ID] = th0 - dt * P[i, BG_ID] + th1 * c2 + th2 * (-c1)
         P[i, TH_ID + 1] = th1 - dt * P[i, BG_ID + 1] + th0 * (-c2) + th2 * c0
         P[i, TH_ID + 2] = th2 - dt * P[i, BG_ID + 2] + th0 * c1 + th1 * (-c0)
-    # Gauss-Markov biases: F has 1 - dt/tau on the bias diagonal (identity for a random walk)
-    fa, fg = 1.0 - prm[PRM_KBA] * dt, 1.0 - prm[PRM_KBG] * dt
+    # Gauss-Markov biases: F has exp(-dt/tau) on the bias diagonal (identity for a random walk), exact for the
+    # decoupled bias block: its first-order 1 - dt/tau went below -1 for a correlation time under half the interval
+    # and the filter diverged (tau = 1 ms at 10 Hz, a simulate review)
+    fa, fg = np.exp(-prm[PRM_KBA] * dt), np.exp(-prm[PRM_KBG] * dt)
     if fa != 1.0 or fg != 1.0:
         for i in range(3):
             for j in range(n):
@@ -134,14 +136,23 @@ def _propagate_cov(P, n, R, f0, f1, f2, w0, w1, w2, dt, prm, qscale):
                 P[j, BG_ID + i] *= fg
     qa = prm[PRM_QA] * prm[PRM_QA] * dt * qscale
     qg = prm[PRM_QG] * prm[PRM_QG] * dt * qscale
-    qba = prm[PRM_QBA] * prm[PRM_QBA] * dt
-    qbg = prm[PRM_QBG] * prm[PRM_QBG] * dt
+    qba = prm[PRM_QBA] * prm[PRM_QBA] * gm_interval(prm[PRM_KBA], dt)
+    qbg = prm[PRM_QBG] * prm[PRM_QBG] * gm_interval(prm[PRM_KBG], dt)
     for i in range(3):
         P[V_ID + i, V_ID + i] += qa
         P[TH_ID + i, TH_ID + i] += qg
         P[BA_ID + i, BA_ID + i] += qba
         P[BG_ID + i, BG_ID + i] += qbg
     linalg.symmetrize_into(P, n, P)
+
+
+@njit(cache=True)
+def gm_interval(k, dt):
+    """The variance a unit-density driving noise adds to a Gauss-Markov state of decay rate ``k`` over ``dt``:
+    ``(1 - exp(-2 k dt)) / (2 k)`` (``dt`` for a random walk, ``k = 0``)."""
+    if k * dt < 1e-9:
+        return dt
+    return -np.expm1(-2.0 * k * dt) / (2.0 * k)
 
 
 @njit(cache=True)
