@@ -14,10 +14,9 @@ from dataclasses import replace
 import numpy as np
 
 from .calibration import measure_shifts, resolve
-from .calibration.time_offset import MAX_SHIFT_S
+from .calibration.time_offset import MAX_SHIFT_S, turning_rps
 from .datasets.plausible import LAG_NOTE, MAX_LAG_S, clock_hint
 from .errors import ConfigError, DataRangeError, FusionEvalError, ShiftAtSearchEdgeError
-from .stats import moving_mean
 from .types import Dataset, ImuSeries, shifted
 
 log = logging.getLogger(__name__)
@@ -135,16 +134,6 @@ def align(ds: Dataset, cfg: dict, imu: ImuSeries, lidar_offset_given) -> tuple[I
 CHECK_SPAN_S, CHECK_MIN_S, CHECK_MIN_TURN_RPS = 300.0, 0.03, 0.05
 
 
-def _turning_rps(imu: ImuSeries) -> float:
-    """The 90th percentile of the gyro's rate magnitude about its median, averaged over half a second."""
-    w = np.asarray(imu.w_b_rps, float)
-    if w.shape[0] < 3:
-        return 0.0
-    k = max(1, int(round(0.5 / max(float(np.median(np.diff(imu.t_s))), 1e-6))))
-    mean = moving_mean(w - np.median(w, axis=0), min(k, w.shape[0]))
-    return float(np.percentile(np.linalg.norm(mean, axis=1), 90))
-
-
 def clock_check(imu: ImuSeries, lidar, off_s: float, gyro_lag_s: float) -> str:
     """Why the lidar's clock (with ``off_s``) and the gyro's (with ``gyro_lag_s``) do not meet, or '' (also where
     the data cannot tell: too short an overlap, too little turning)."""
@@ -155,7 +144,7 @@ def clock_check(imu: ImuSeries, lidar, off_s: float, gyro_lag_s: float) -> str:
         return ""
     keep = lambda s: s.select(s.t_s <= t0 + CHECK_SPAN_S)          # noqa: E731
     imu_w, lid_w = keep(imu), keep(lidar)
-    if _turning_rps(imu_w.select(imu_w.t_s >= t0)) < CHECK_MIN_TURN_RPS:
+    if turning_rps(imu_w.select(imu_w.t_s >= t0)) < CHECK_MIN_TURN_RPS:
         return ""
     given = f"lidar.time_offset_s = {off_s:g} s, imu.gyro_lag_s = {gyro_lag_s:g} s"
     try:

@@ -155,17 +155,20 @@ def paired_lead(per_trial: dict[str, list], what: str = "fused APE") -> tuple[st
     that every seed showed (a review: 0.007-0.020 m on each of four seeds). ``per_trial``: {entry: [figure per trial]}
     (None or NaN for a failed trial: the ranking is over the trials every entry finished, the pair over those both
     finished)."""
-    rows = [k for k, v in per_trial.items() if any(x is not None and math.isfinite(x) for x in v)]   # a variant
-    # that finished no trial is not ranked (it left no trial that every variant finished: a review)
+    def done(k, i):
+        return per_trial[k][i] is not None and math.isfinite(per_trial[k][i])
+
+    # a variant that finished no trial is not ranked (it left no trial that every variant finished: a review)
+    rows = [k for k, v in per_trial.items() if any(done(k, i) for i in range(len(v)))]
     if len(rows) < 2:
         return None
     n = min(len(per_trial[k]) for k in rows)
-    ok = [i for i in range(n) if all(per_trial[k][i] is not None and math.isfinite(per_trial[k][i]) for k in rows)]
+    ok = [i for i in range(n) if all(done(k, i) for k in rows)]
     if len(ok) < 2:
         return None
     means = {k: float(np.mean([per_trial[k][i] for i in ok])) for k in rows}
     best, nxt = sorted(means, key=means.get)[:2]
-    both = [i for i in range(n) if all(per_trial[k][i] is not None and math.isfinite(per_trial[k][i]) for k in (best, nxt))]
+    both = [i for i in range(n) if done(best, i) and done(nxt, i)]
     d = np.array([per_trial[nxt][i] - per_trial[best][i] for i in both])
     st = stats(d)
     lo, hi = st["ci95_mean"]

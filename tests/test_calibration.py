@@ -235,20 +235,24 @@ def test_a_parked_or_straight_drive_is_no_evidence_against_its_mount():
         # and the jackknife's bar alone holds it too (a second review: at 3 of its std, seed 2's roll passed at 4)
         import fusion_eval.calibration.extrinsic as ex
 
-        turns = ex._turns
+        bound = ex.MIN_TURN_RPS
         try:
-            ex._turns = lambda _imu: True
+            ex.MIN_TURN_RPS = -1.0                       # the turning gate passed
             assert mount_disagrees(imu, lid, "calib") == "", seed
         finally:
-            ex._turns = turns
+            ex.MIN_TURN_RPS = bound
 
 
 def test_turns_are_seen_in_bursts_of_stamps_and_on_a_steady_circle():
     """A second review: the half-second window was sized by the median interval, which stamps arriving in bursts
     (10 at 0.1 ms, then a gap) shrink to 0.1 ms: 50 s of averaging hid every turn; and the rate's spread about its
     median missed a steady circle, whose centripetal acceleration shows the lever arm."""
-    from fusion_eval.calibration.extrinsic import _turns
+    from fusion_eval.calibration.extrinsic import MIN_TURN_RPS
+    from fusion_eval.calibration.time_offset import turning_rps
     from fusion_eval.types import ImuSeries
+
+    def _turns(imu):
+        return turning_rps(imu, about_median=False) > MIN_TURN_RPS
 
     t = np.arange(0, 60, 0.01)
     bunched = (np.arange(t.size) // 10) * 0.1 + (np.arange(t.size) % 10) * 1e-4

@@ -172,8 +172,6 @@ def apply_extrinsic(lidar: PoseSeries, R_E: np.ndarray, t_E_m=None) -> PoseSerie
     return replace(lidar, p_w_m=Tc[:, :3, 3], q_wb_xyzw=matrix_to_quat_xyzw(Tc[:, :3, :3]))
 
 
-
-
 # what a mount check warns about: far outside what the five real KITTI lidar drives give against their calibration
 # (README "Time offsets": lever arm 13-28 cm horizontal, roll and pitch under 1 mrad, yaw -1 to -10 +/- 5 mrad), so a
 # sign or frame mistake in a calibration file shows (kitti-00 with its lever arm's sign flipped: 1.8 m) and a
@@ -182,23 +180,7 @@ CHECK_LEVER_M, CHECK_TILT_MRAD, CHECK_YAW_MRAD = 0.5, 10.0, 30.0
 CHECK_STEP_S = 0.02         # the check's grid (the 5 ms one's fit took 4x as long for the same figures)
 CHECK_BLOCKS = 4            # its jackknife: a figure is named only beyond CHECK_SIGMAS of its spread, a t quantile
 CHECK_SIGMAS = 5.8          # for the 3 degrees of freedom of 4 blocks (99 %): 3 let a parked minute's 4-sigma roll by
-
-
-MIN_TURN_RPS = 0.05         # the gyro's rate, over half a second, at its 90th percentile
-
-
-def _turns(imu: ImuSeries) -> bool:
-    """Whether the platform turns enough for the mount to show: roll and pitch show in the rates' direction and the
-    lever arm in the turns' centripetal acceleration; a parked or straight drive fits noise (the same bound as the
-    time offsets' check of hand-given offsets)."""
-    t, w = np.asarray(imu.t_s, float), np.asarray(imu.w_b_rps, float)
-    if t.size < 10 or not t[-1] > t[0]:
-        return False
-    # the mean interval (the median of stamps that come in bursts is a fraction of it: the window took 50 s) and the
-    # rate itself (a steady circle shows the lever arm in its centripetal acceleration; its rate's spread is nil)
-    k = max(1, int(round(0.5 * (t.size - 1) / (t[-1] - t[0]))))
-    smooth = np.column_stack([np.convolve(w[:, i], np.ones(k) / k, mode="valid") for i in range(3)])
-    return float(np.percentile(np.linalg.norm(smooth, axis=1), 90)) > MIN_TURN_RPS
+MIN_TURN_RPS = 0.05         # time_offset.turning_rps of the rate itself (the time offsets' check takes the same bound)
 
 
 def _beyond_bounds(est: ExtrinsicEstimate) -> bool:
@@ -212,7 +194,9 @@ def mount_disagrees(imu: ImuSeries, lidar: PoseSeries, source: str) -> str:
     bounds above and beyond CHECK_SIGMAS of its jackknife's standard errors (a parked minute, which shows no mount,
     fitted tilts of 15-44 mrad: a review), on a 20 ms grid (0.1-0.2 s on kitti-00): so that a flipped lever arm (kitti-00:
     fused 0.76 -> 1.66 m with no other sign) or a tilted mount is named. Nothing when the data cannot tell."""
-    if not _turns(imu):
+    # only where the platform turns: roll and pitch show in the rates' direction, the lever arm in the turns'
+    # centripetal acceleration; a parked or straight drive fits noise
+    if to.turning_rps(imu, about_median=False) <= MIN_TURN_RPS:
         return ""
     try:
         # one fit first: on a drive within the bounds (every real one) the jackknife's four more are not needed

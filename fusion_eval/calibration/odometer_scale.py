@@ -65,7 +65,8 @@ def _shape_misfit(windows, bias: float) -> float:
     each path turned and scaled onto its fixes (a complex factor: the unknown heading and the scale)."""
     total = 0.0
     for t, rate, v, tf, gf in windows:
-        z = np.interp(tf, t, _dead_reckoned(t, rate, v, bias).real) + 1j * np.interp(tf, t, _dead_reckoned(t, rate, v, bias).imag)
+        path = _dead_reckoned(t, rate, v, bias)
+        z = np.interp(tf, t, path.real) + 1j * np.interp(tf, t, path.imag)
         c = np.vdot(z, gf) / max(np.vdot(z, z).real, 1e-300)
         total += float(np.sum(np.abs(gf - c * z) ** 2))
     return total

@@ -36,6 +36,7 @@ from scipy.ndimage import gaussian_filter1d
 from scipy.spatial.transform import Rotation, Slerp
 
 from ..errors import DataRangeError, ShiftAtSearchEdgeError
+from ..stats import moving_mean
 from ..types import ImuSeries, PoseSeries
 
 GRID_S = 0.005          # comparison grid; the minimum is refined below it by a parabola
@@ -65,6 +66,20 @@ def _valid_on_grid(t_src: np.ndarray, grid: np.ndarray, max_gap_s: float) -> np.
     ok = (j > 0) & (j < t_src.size)
     jj = np.clip(j, 1, t_src.size - 1)
     return ok & (t_src[jj] - t_src[jj - 1] <= max_gap_s)
+
+
+def turning_rps(imu: ImuSeries, about_median: bool = True) -> float:
+    """How much the platform turns: the 90th percentile of the gyro's rate magnitude, averaged over half a second,
+    about its median (``about_median``: what a time shift can be read from; a steady turn says nothing of it) or as
+    it is (what shows a mount: a steady circle shows the lever arm in its centripetal acceleration). The half second
+    in samples from the mean interval: the median of stamps that come in bursts is a fraction of it, and a 50 s
+    window hid every turn (a review)."""
+    t, w = np.asarray(imu.t_s, float), np.asarray(imu.w_b_rps, float)
+    if w.shape[0] < 3 or not t[-1] > t[0]:
+        return 0.0
+    k = max(1, int(round(0.5 * (t.size - 1) / (t[-1] - t[0]))))
+    mean = moving_mean(w - np.median(w, axis=0) if about_median else w, min(k, w.shape[0]))
+    return float(np.percentile(np.linalg.norm(mean, axis=1), 90))
 
 
 def _interp(t_src: np.ndarray, x: np.ndarray, grid: np.ndarray) -> np.ndarray:

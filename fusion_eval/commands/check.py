@@ -146,6 +146,9 @@ def _flat_csv(path: Path) -> dict[str, float]:
     return out
 
 
+FAILING = ("REGRESSION", "MISSING", "INVALID")      # the verdicts that fail a check
+
+
 @dataclass
 class Row:
     metric: str
@@ -176,19 +179,19 @@ def compare_metrics(current: dict, baseline: dict, patterns: tuple[str, ...], rt
     if not names:
         raise CheckUsageError(f"no metric matches {', '.join(patterns)}")
     # lower is better only for error figures: one named outright is refused, one a glob caught is left out and said
-    named = {a for m in (current, baseline) for a in patterns if a in m or a in getattr(m, "aliases", {})}
+    named = set(patterns) | {m.aliases[a] for m in (current, baseline) for a in patterns if a in getattr(m, "aliases", {})}
+    why = {k: keys.not_an_error(k) for k in names}
     for k in names:
-        why = keys.not_an_error(k)
-        if why and (k in named or any(getattr(m, "aliases", {}).get(a) == k for m in (current, baseline) for a in named)):
-            raise CheckUsageError(f"--metric {k!r} is {why}")
-    skipped = [k for k in names if keys.not_an_error(k)]
+        if why[k] and k in named:
+            raise CheckUsageError(f"--metric {k!r} is {why[k]}")
+    skipped = [k for k in names if why[k]]
     if skipped:
         log.warning("not gated: %d figure(s) the pattern caught that are not errors (%s%s): check compares errors, lower "
                     "is better; gate those with --require", len(skipped), ", ".join(skipped[:3]),
                     ", ..." if len(skipped) > 3 else "")
         names = [k for k in names if k not in skipped]
         if not names:
-            raise CheckUsageError(f"no error figure matches {', '.join(patterns)} (only {keys.not_an_error(skipped[0])})")
+            raise CheckUsageError(f"no error figure matches {', '.join(patterns)} (only {why[skipped[0]]})")
     rows = []
     for k in names:
         b, c = baseline.get(k), current.get(k)
@@ -257,7 +260,7 @@ def junit(rows: list[Row], rules: list[tuple[str, bool, str]]) -> str:
     fails = 0
     for r in rows:
         case = ET.SubElement(suite, "testcase", classname="fusion-eval.metrics", name=r.metric)
-        if r.verdict in ("REGRESSION", "MISSING", "INVALID"):
+        if r.verdict in FAILING:
             fails += 1
             ET.SubElement(case, "failure", message=f"{r.verdict}: baseline {_v(r.baseline)}, current "
                                                    f"{_v(r.current) or r.raw or 'absent'} ({r.change})")
@@ -364,13 +367,12 @@ def _check(metrics_path, baseline, rtol, atol, patterns, rules, junit_path, summ
             lacking = [k for k in lacking if k not in other]
     _refuse_incomplete_baseline(base_path, lacking)
     evaluated = [(r, *evaluate_rule(r, current)) for r in rules]
-    ok = all(r.verdict not in ("REGRESSION", "MISSING") for r in rows) and all(h for _, h, _ in evaluated)
     raw_current = _raw_keys(metrics_path)
     for r in rows:
         if r.verdict == "MISSING" and r.metric in raw_current:
             # NaN, inf, null or "0.75" in the current file read as MISSING, with a blank value (a review)
             r.verdict, r.raw = "INVALID", shown(raw_current[r.metric])
-    ok = ok and not any(r.verdict == "INVALID" for r in rows)
+    ok = all(r.verdict not in FAILING for r in rows) and all(h for _, h, _ in evaluated)
     atomic_write(summary_path or Path(metrics_path).with_name("check.md"), markdown(rows, evaluated, rtol, atol, ok))
     if junit_path:
         atomic_write(junit_path, junit(rows, evaluated))

@@ -481,7 +481,7 @@ def span_and_clock_hints(f, ref_f, ev, alignment: str, t_range_s=(None, None), t
     lidar, or of its ground truth, scored 3.18 m against 7.14 m, with no word: the 'half matched' rule counts poses of
     the shorter file), and an estimate whose speed matches the reference's best at another time than stamped (one 1 s late: KITTI drift 9.14 %
     for 0.53 %; :func:`fusion_eval.datasets.plausible.speed_clock_shift`). Sentences for a warning and the report."""
-    from ..datasets.plausible import clear_speed_shift, speed_clock_shift, speed_shift_halves
+    from ..datasets.plausible import held_speed_shift
     from ..datasets.trajectory_file import BY_INDEX
     from ..evaluation.span import MIN_COVERED
 
@@ -499,10 +499,9 @@ def span_and_clock_hints(f, ref_f, ev, alignment: str, t_range_s=(None, None), t
             out.append(f"its matched poses span {covered:.1f} {unit} of {whose} {full:.1f} {unit}: every figure is over "
                        "that part only (a file cut short? --t-start / --t-end evaluate the same stretch of every file)")
     if ref_f.stamps != BY_INDEX and f.stamps != BY_INDEX:
-        args = (np.asarray(f.traj.timestamps, float) + t_offset_s, f.traj.positions_xyz, ref_f.traj.timestamps,
-                ref_f.traj.positions_xyz)
-        found = speed_clock_shift(*args)
-        if clear_speed_shift(found) and clear_speed_shift(found, speed_shift_halves(*args)):
+        found = held_speed_shift(np.asarray(f.traj.timestamps, float) + t_offset_s, f.traj.positions_xyz,
+                                 ref_f.traj.timestamps, ref_f.traj.positions_xyz)
+        if found is not None:
             s, c_best, c_zero = found
             # s > 0: stamped late (its pose stamped t is the reference's at t - s); --t-offset is added to its stamps
             out.append(f"its speed matches the reference's best {abs(s):.2f} s {'earlier' if s > 0 else 'later'} than "

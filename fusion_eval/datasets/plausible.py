@@ -707,6 +707,15 @@ def clear_speed_shift(found, halves=()) -> bool:
     return all(h is None or h[1] < MIN_SPEED_CORR or abs(h[0] - s) <= max(0.1, 0.3 * abs(s)) for h in halves)
 
 
+def held_speed_shift(t_est_s, p_est_m, t_ref_s, p_ref_m) -> tuple[float, float, float] | None:
+    """:func:`speed_clock_shift`'s result where it is a clock offset to report (:func:`clear_speed_shift`, the
+    halves asked only then), else None."""
+    found = speed_clock_shift(t_est_s, p_est_m, t_ref_s, p_ref_m)
+    if not clear_speed_shift(found):
+        return None
+    return found if clear_speed_shift(found, speed_shift_halves(t_est_s, p_est_m, t_ref_s, p_ref_m)) else None
+
+
 def speed_shift_halves(t_est_s, p_est_m, t_ref_s, p_ref_m) -> tuple:
     """:func:`speed_clock_shift` on each half of the estimate (None for a half too short to time)."""
     t, p = np.asarray(t_est_s, float), np.asarray(p_est_m, float)
@@ -766,10 +775,9 @@ def speed_clock_warning(name: str, series, groundtruth, offset_key: str = "", of
     if series is None or groundtruth is None or len(series) < 20 or len(groundtruth) < 20:
         return ""
     real = _real(series)
-    t, p = np.asarray(series.t_s)[real], np.asarray(series.p_w_m)[real]
-    found = speed_clock_shift(t, p, groundtruth.t_s, groundtruth.p_w_m)
-    if not (clear_speed_shift(found) and clear_speed_shift(found, speed_shift_halves(t, p, groundtruth.t_s,
-                                                                                    groundtruth.p_w_m))):
+    found = held_speed_shift(np.asarray(series.t_s)[real], np.asarray(series.p_w_m)[real], groundtruth.t_s,
+                             groundtruth.p_w_m)
+    if found is None:
         return ""
     s, c_best, c_zero = found
     fix = f" ({offset_key} {offset_s - s:.3f} s fits, for the {offset_s:.3f} s given)" if offset_key else ""

@@ -254,14 +254,7 @@ def _evo_labelled(alignment: str, n_to_align: int, params: dict | None):
     suffix = _EVO_ALIGNED.get(alignment, "")
     if alignment in ("se3", "sim3", "scale") and n_to_align != -1:
         suffix = suffix + f" (aligned poses: {n_to_align})"
-    sim3 = None
-    if params and alignment in ("se3", "sim3", "scale", "origin"):
-        if "T" in params:
-            sim3 = np.asarray(params["T"], float)
-        else:
-            sim3 = np.eye(4)
-            sim3[:3, :3] = float(params.get("scale", 1.0)) * np.asarray(params.get("rotation", np.eye(3)), float)
-            sim3[:3, 3] = params.get("translation_m", np.zeros(3))
+    sim3 = _sim3_of(params) if alignment in ("se3", "sim3", "scale", "origin") else None
 
     def label(res):
         res.info["title"] = res.info["title"].split("\n")[0] + suffix
@@ -271,19 +264,24 @@ def _evo_labelled(alignment: str, n_to_align: int, params: dict | None):
     return label
 
 
+def _sim3_of(params: dict | None) -> np.ndarray | None:
+    """The 4x4 ``[s R, t]`` of an alignment as :func:`_align` and :func:`_align_4dof` record it
+    (``alignment_params``), or evo's ``--align_origin`` transform ``T``; None without one."""
+    if not params or not ({"T", "rotation", "scale"} & params.keys()):
+        return None
+    if "T" in params:
+        return np.asarray(params["T"], float)
+    S = np.eye(4)
+    S[:3, :3] = float(params.get("scale", 1.0)) * np.asarray(params.get("rotation", np.eye(3)), float)
+    S[:3, 3] = params.get("translation_m", np.zeros(3))
+    return S
+
+
 def aligned_positions(p_m: np.ndarray, params: dict | None) -> np.ndarray:
     """Positions moved by an alignment as :func:`_align` and :func:`_align_4dof` record it (``alignment_params``):
     ``p' = s R p + t``, or evo's ``--align_origin`` transform ``T``; unchanged without one."""
-    if not params or not ({"T", "rotation", "scale"} & params.keys()):
-        return p_m
-    if "T" in params:
-        T = np.asarray(params["T"], float)
-        R, t, s = T[:3, :3], T[:3, 3], 1.0
-    else:
-        R = np.asarray(params.get("rotation", np.eye(3)), float)
-        t = np.asarray(params.get("translation_m", np.zeros(3)), float)
-        s = float(params.get("scale", 1.0))
-    return s * p_m @ R.T + t
+    S = _sim3_of(params)
+    return p_m if S is None else p_m @ S[:3, :3].T + S[:3, 3]
 
 
 def _align_4dof(est_a, ref_a, up_axis: str, n_to_align: int = -1):

@@ -228,6 +228,15 @@ def transition_full(Ft, Qc, dt, method):
 
 
 @njit(cache=True)
+def gm_interval(k, dt):
+    """The variance a unit-density driving noise adds to a Gauss-Markov state of decay rate ``k`` over ``dt``:
+    ``(1 - exp(-2 k dt)) / (2 k)`` (``dt`` for a random walk, ``k = 0``)."""
+    if k * dt < 1e-9:
+        return dt
+    return -np.expm1(-2.0 * k * dt) / (2.0 * k)
+
+
+@njit(cache=True)
 def _exact_decay(Ft, Qc, dt, Phi, Qd):
     """A state that only decays (a Gauss-Markov bias: its row of ``F_t`` holds nothing but ``-1/tau`` on the
     diagonal) gets its exact ``exp(-dt/tau)`` and variance, in place: the series' ``1 - dt/tau`` went below -1 for a
@@ -249,7 +258,7 @@ def _exact_decay(Ft, Qc, dt, Phi, Qd):
                 Qd[i, j] = 0.0
                 Qd[j, i] = 0.0
             Phi[i, i] = e
-            Qd[i, i] = Qc[i, i] * (-np.expm1(-2.0 * k * dt)) / (2.0 * k)
+            Qd[i, i] = Qc[i, i] * gm_interval(k, dt)
 
 
 @njit(cache=True)

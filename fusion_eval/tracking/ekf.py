@@ -107,9 +107,8 @@ def _run_track(m, p: TrackParams) -> TrackResult:
     Ps, Fs, xps, Pps = [], [], [], []
     x = P = None
     t_prev = None
-    first = None
     skipped = 0                  # radar readings not used: the estimate too close to the sensor to linearise
-    dropouts, restarts = [], []
+    dropouts, restarts, used = [], [], []        # used: the measurements each estimate is of
     for i in idx:
         k, z, t = m.kind[i], m.z[i], int(m.t_us[i])
         if k == "R" and not abs(z[0]) >= p.min_range:
@@ -122,7 +121,6 @@ def _run_track(m, p: TrackParams) -> TrackResult:
             restarts.append((int(m.lines[i]), (t - t_prev) / 1e6))
             x = None                 # the prediction over the gap is worthless: start again from this measurement
         if x is None:
-            first = i if first is None else first
             if k == "L":
                 x = np.array([z[0], z[1], 0.0, 0.0])
             else:
@@ -131,6 +129,7 @@ def _run_track(m, p: TrackParams) -> TrackResult:
             P = np.diag([p.init_pos_var, p.init_pos_var, p.init_vel_var, p.init_vel_var])
             t_prev = t
             xs.append(x.copy())
+            used.append(i)
             nis.append(np.nan)
             # a restart's transition from the estimate before it is 0: the smoother passes nothing back across it
             Ps.append(P.copy()), Fs.append(np.zeros((4, 4)) if len(xs) > 1 else np.eye(4))
@@ -150,6 +149,7 @@ def _run_track(m, p: TrackParams) -> TrackResult:
             elif np.hypot(x[0], x[1]) < p.min_range:
                 skipped += 1
                 xs.append(x.copy())          # too close to the sensor to linearise the radar model
+                used.append(i)
                 nis.append(np.nan)
                 Ps.append(P.copy())
                 continue
@@ -164,6 +164,7 @@ def _run_track(m, p: TrackParams) -> TrackResult:
             raise FilterDivergedError(f"{m.source}:{m.lines[i]}: the tracker diverged at this measurement "
                                       "(non-finite state; check its values)")
         xs.append(x.copy())
+        used.append(i)
         nis.append(float(s))
         Ps.append(P.copy())
     if x is None:
@@ -172,7 +173,7 @@ def _run_track(m, p: TrackParams) -> TrackResult:
                                               f"file (--sensors {p.sensors})" if not idx else
                               "no measurement to start the tracker from: every radar reading is within 0.1 mm of the "
                               "sensor (a range of 0: dropouts)")
-    used = np.array([i for i in idx if i >= first and not (m.kind[i] == "R" and not abs(m.z[i][0]) >= p.min_range)])
+    used = np.array(used)
     return TrackResult(skipped=skipped, dropouts=tuple(dropouts), restarts=tuple(restarts), t_us=m.t_us[used], x=np.array(xs), gt=m.gt[used], kind=m.kind[used], z=m.z[used],
                        nis=np.array(nis), used=used, P=np.array(Ps), F=np.array(Fs), x_prior=np.array(xps),
                        P_prior=np.array(Pps))

@@ -64,17 +64,16 @@ def nees_summary(res: TrackResult, smoothed: bool = False) -> dict | None:
     x, P = (res.x_smoothed, res.P_smoothed) if smoothed else (res.x, res.P)
     if x is None or P is None:
         return None
+    from ..evaluation.consistency import nees
+
     e = x - res.gt
     ok = np.all(np.isfinite(e), axis=1) & np.all(np.isfinite(P), axis=(1, 2))
-    v = []
-    for ei, Pi in zip(e[ok], P[ok]):
-        try:
-            v.append(float(ei @ np.linalg.solve(Pi, ei)))
-        except np.linalg.LinAlgError:
-            pass
-    if not v:
+    if not ok.any():
         return None
-    v = np.asarray(v)
+    try:
+        v = nees(e[ok], P[ok])
+    except np.linalg.LinAlgError:       # a singular covariance: no consistency figure to give
+        return None
     line = float(chi2_ppf(0.95, 4))
     return {"epochs": int(v.size), "dof": 4, "mean": float(v.mean()), "median": float(np.median(v)), "chi2_95": line,
             "fraction_above_95": float(np.mean(v > line))}

@@ -136,23 +136,14 @@ def _propagate_cov(P, n, R, f0, f1, f2, w0, w1, w2, dt, prm, qscale):
                 P[j, BG_ID + i] *= fg
     qa = prm[PRM_QA] * prm[PRM_QA] * dt * qscale
     qg = prm[PRM_QG] * prm[PRM_QG] * dt * qscale
-    qba = prm[PRM_QBA] * prm[PRM_QBA] * gm_interval(prm[PRM_KBA], dt)
-    qbg = prm[PRM_QBG] * prm[PRM_QBG] * gm_interval(prm[PRM_KBG], dt)
+    qba = prm[PRM_QBA] * prm[PRM_QBA] * discretize.gm_interval(prm[PRM_KBA], dt)
+    qbg = prm[PRM_QBG] * prm[PRM_QBG] * discretize.gm_interval(prm[PRM_KBG], dt)
     for i in range(3):
         P[V_ID + i, V_ID + i] += qa
         P[TH_ID + i, TH_ID + i] += qg
         P[BA_ID + i, BA_ID + i] += qba
         P[BG_ID + i, BG_ID + i] += qbg
     linalg.symmetrize_into(P, n, P)
-
-
-@njit(cache=True)
-def gm_interval(k, dt):
-    """The variance a unit-density driving noise adds to a Gauss-Markov state of decay rate ``k`` over ``dt``:
-    ``(1 - exp(-2 k dt)) / (2 k)`` (``dt`` for a random walk, ``k = 0``)."""
-    if k * dt < 1e-9:
-        return dt
-    return -np.expm1(-2.0 * k * dt) / (2.0 * k)
 
 
 @njit(cache=True)
