@@ -203,6 +203,9 @@ def test_the_kitti_layout_writer_pool_workers_take_the_projects_signal_dispositi
     # a height of 1e9 m was blamed on the imu.* settings; an outage over the whole drive wrote a GNSS file `run`
     # refused (found by a corrupted-input review)
     (("-d", "30", "--set", "origin.alt_m=1e9"), "origin.alt_m must be < 100000"),
+    # a height of -1e7 m and a lidar 1e6 s early were written, and every run refused the drive (a simulate review)
+    (("-d", "30", "--set", "origin.alt_m=-1e7"), "origin.alt_m must be > -1000"),
+    (("-d", "30", "--set", "lidar.time_offset_s=1e6"), "lidar.time_offset_s must be < 10"),
     (("-d", "30", "--set", "gnss.outages_s=[[0, 1000]]"), "the simulated GNSS has 0 fixes over the 30 s drive"),
 ])
 def test_absurd_simulator_settings_are_one_line_errors(tmp_path, args, needle):

@@ -42,7 +42,8 @@ SIM_SCHEMA: dict[str, Spec] = {
     "lidar.scale_drift": S(0.005, "odometry: fractional scale error of the translation increments", nonneg=True),
     "lidar.yaw_drift_deg_per_100m": S(0.3, "odometry: yaw drift added per 100 m travelled, deg", nonneg=True),
     "lidar.time_offset_s": S(0.0, "the lidar stamps are written this much early (true time = stamp + offset): the "
-                                  "filter's lidar.time_offset_s that corrects it, s"),
+                                  "filter's lidar.time_offset_s that corrects it, s (within +/-10 s: an offset of 1e6 s "
+                                  "wrote a lidar stream that no run can use)", above=-10.0, below=10.0),
     "lidar.extrinsic_error_rpy_mrad": S([0.0, 0.0, 0.0], "rotation of the true lidar mount against the calibration file "
                                                           "written (roll, pitch, yaw about the IMU axes), mrad", "vec3"),
     "lidar.extrinsic_error_m": S([0.0, 0.0, 0.0], "lever-arm error of the calibration file written (IMU axes), m", "vec3"),
@@ -50,7 +51,8 @@ SIM_SCHEMA: dict[str, Spec] = {
     "lidar.outlier_std_m": S(3.0, "map matching: position std of outliers, m", nonneg=True),
     "origin.lat_deg": S(49.0, "geodetic origin of the local ENU frame: latitude, deg"),
     "origin.lon_deg": S(8.4, "longitude, deg"),
-    "origin.alt_m": S(116.0, "ellipsoidal height, m (under 100 km: a height of 1e9 m was blamed on the IMU settings)", below=1e5),
+    "origin.alt_m": S(116.0, "ellipsoidal height, m (-1 km to 100 km, the heights a run accepts: a height of 1e9 m "
+                              "was blamed on the IMU settings)", above=-1000.0, below=1e5),
     "start.posix_s": S(1767225600.0, "time of the first sample, POSIX seconds, 0 to 4e9 (written as a KITTI local-clock stamp)",
                        nonneg=True),
     "output.layout": S("kitti", "'kitti' (one file per OXTS packet, as KITTI raw), 'csv' (all packets in oxts/packets.csv), "
