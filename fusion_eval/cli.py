@@ -566,8 +566,12 @@ def simulate_track_cmd(ctx, out_file, duration_s, interval_s, seed, start, headi
 @main.command()
 @click.argument("metrics_path", metavar="METRICS", type=click.Path(path_type=Path))
 @click.option("-b", "--baseline", required=True, type=click.Path(path_type=Path), help="Baseline metrics.json or sweep.csv.")
-@click.option("--rtol", type=float, default=0.05, show_default=True, help="Relative tolerance of a metric's increase.")
-@click.option("--atol", type=float, default=0.0, show_default=True, help="Absolute tolerance of a metric's increase.")
+@click.option("--rtol", multiple=True, metavar="[PATTERN=]R",
+              help="Relative tolerance of a metric's increase (default 0.05); PATTERN=R sets it for the metrics the glob "
+                   "matches (repeatable; the last match wins).")
+@click.option("--atol", multiple=True, metavar="[PATTERN=]A",
+              help="Absolute tolerance of a metric's increase, in the metric's unit (default 0); PATTERN=A as for --rtol, "
+                   "e.g. --atol 0.01 --atol '*rotation*=0.05'.")
 @click.option("-m", "--metric", "patterns", multiple=True, metavar="PATTERN",
               help="Metric paths to compare (glob, repeatable; default: RMSE of APE/RPE and the ratios).")
 @click.option("--require", "rules", multiple=True, metavar="EXPR",

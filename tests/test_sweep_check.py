@@ -177,6 +177,31 @@ def test_check_accepts_a_sweep_csv(tmp_path):
     assert r.exit_code == 1 and "d/eskf/default#trial0.fused_ape_trans_rmse_m" in r.output, r.output
 
 
+def test_check_tolerances_per_metric_pattern(tmp_path):
+    """One --atol across metres, degrees and ratios was a CI user's complaint: PATTERN=VALUE sets the tolerance of the
+    metrics a glob matches (the last match wins), a bare value every other's; a pattern matching nothing is refused."""
+    base = _metrics(tmp_path, "base.json", 1.0)
+    worse = _metrics(tmp_path, "worse.json", 1.2)        # fused APE +0.2 m, ratio +0.029
+    run = CliRunner().invoke
+    r = run(main, ["check", str(worse), "-b", str(base), "--rtol", "0", "--atol", "0.25"])
+    assert r.exit_code == 0, r.output
+    r = run(main, ["check", str(worse), "-b", str(base), "--rtol", "0", "--atol", "0.25", "--atol", "ratios.*=0.01"])
+    assert r.exit_code == 1 and "ratios.fused_over_lidar" in r.output and r.output.count("REGRESSION") == 1, r.output
+    assert "atol 0.25, 0.01 for `ratios.*`" in (tmp_path / "check.md").read_text()
+    for order, code in ((("fused.ape.*=0.1", "fused.*=0.3"), 0), (("fused.*=0.3", "fused.ape.*=0.1"), 1)):
+        r = run(main, ["check", str(worse), "-b", str(base), "--rtol", "0.5", "--rtol", order[0], "--rtol", order[1]])
+        assert r.exit_code == code, (order, r.output)                 # the last matching pattern wins: +20 % in APE
+    r = run(main, ["check", str(worse), "-b", str(base), "--atol", "fused.ap.*=0.05"])
+    assert r.exit_code == 2 and "'fused.ap.*' matches none of the compared metrics" in r.stderr, r.output
+    for bad in ("-1", "x=nan", "abc"):
+        r = run(main, ["check", str(worse), "-b", str(base), "--atol", bad])
+        assert r.exit_code == 2 and "expected a finite number >= 0, or PATTERN=NUMBER" in r.stderr, (bad, r.output)
+    from fusion_eval.commands.check import Tolerance, check
+
+    assert Tolerance.parse("--atol", ("0.1", "a*=2", "ab*=3"), 0.0).of("abc") == 3.0
+    assert check(worse, base, rtol=0.5, atol=0.0).ok          # the API still takes plain numbers
+
+
 def test_check_matches_a_sweep_csv_made_in_another_folder_by_dataset_name(tmp_path):
     """A sweep records each dataset's absolute path; a baseline made in another checkout (CI's workspace) must still
     match, and rules name the dataset as sweep.md does. Two datasets of one name at two paths keep their paths."""

@@ -4,7 +4,8 @@ Metrics are addressed by dotted paths. From a run's ``metrics.json``: ``<estimat
 (``fused.ape.translation_m.rmse``, ``lidar.rpe_100m.rotation_deg.max``), with the translation part also as
 ``<estimate>.<group>.<stat>`` (``fused.ape.rmse``), plus ``ratios.fused_over_lidar`` and ``nis.lidar.mean``.
 From a ``sweep.csv``: ``<dataset>/<variant>/<setting>.<column>`` (the dataset's folder or manifest name). Every compared metric is an error
-(lower is better): a regression is ``current > baseline + atol + rtol * |baseline|``; a figure that is not an error
+(lower is better): a regression is ``current > baseline + atol + rtol * |baseline|``, each tolerance one number or
+per metric (:class:`Tolerance`: ``--atol 0.01 --atol 'fused.*rotation*=0.05'``, metres and degrees apart); a figure that is not an error
 (a NEES or NIS mean, best at its dof; a share inside the 95 % interval; a wall time: :func:`keys.not_an_error`) is
 refused when named and left out of a glob, and gated with ``--require`` instead.
 
@@ -174,7 +175,56 @@ def _matching(metrics: dict, pattern: str) -> set:
     return hits
 
 
-def compare_metrics(current: dict, baseline: dict, patterns: tuple[str, ...], rtol: float, atol: float) -> list[Row]:
+@dataclass(frozen=True)
+class Tolerance:
+    """A tolerance of ``check``: one value for every metric, and ``(pattern, value)`` pairs that override it for the
+    metrics a glob matches (the last matching pair wins), so that metres, degrees, per cent and ratios each get a
+    tolerance of their own unit (one ``--atol`` across them all was a CI user's complaint)."""
+    default: float
+    rules: tuple[tuple[str, float], ...] = ()
+
+    @classmethod
+    def parse(cls, option: str, values, default: float) -> "Tolerance":
+        """``values``: numbers or ``PATTERN=NUMBER`` strings (``--atol`` given several times), or one number."""
+        from ..errors import ConfigError
+
+        if isinstance(values, (int, float)):
+            values = (values,)
+        rules, base = [], default
+        for v in values:
+            pattern, _, number = str(v).rpartition("=")
+            try:
+                x = float(number)
+            except ValueError:
+                x = math.nan
+            if not math.isfinite(x) or x < 0:
+                raise ConfigError(f"{option} {v!r}: expected a finite number >= 0, or PATTERN=NUMBER (e.g. "
+                                  f"{option} 'fused.*rotation*=0.05')")
+            if pattern:
+                rules.append((pattern.strip(), x))
+            else:
+                base = x
+        return cls(base, tuple(rules))
+
+    def of(self, metric: str, aliases: tuple[str, ...] = ()) -> float:
+        """The tolerance of ``metric`` (also matched by its other spellings, ``aliases``)."""
+        out = self.default
+        for pattern, x in self.rules:
+            if any(fnmatch.fnmatchcase(k, pattern) for k in (metric, *aliases)):
+                out = x
+        return out
+
+    def __str__(self) -> str:
+        return f"{self.default:g}" + "".join(f", {x:g} for `{p}`" for p, x in self.rules)
+
+
+def _tolerance(option: str, value) -> Tolerance:
+    return value if isinstance(value, Tolerance) else Tolerance.parse(option, value, 0.0)
+
+
+def compare_metrics(current: dict, baseline: dict, patterns: tuple[str, ...], rtol, atol) -> list[Row]:
+    """``rtol``, ``atol``: numbers or :class:`Tolerance`."""
+    rtol, atol = _tolerance("--rtol", rtol), _tolerance("--atol", atol)
     names = sorted(set().union(*(_matching(m, p) for m in (current, baseline) for p in patterns)))
     if not names:
         raise CheckUsageError(f"no metric matches {', '.join(patterns)}")
@@ -192,16 +242,26 @@ def compare_metrics(current: dict, baseline: dict, patterns: tuple[str, ...], rt
         names = [k for k in names if k not in skipped]
         if not names:
             raise CheckUsageError(f"no error figure matches {', '.join(patterns)} (only {why[skipped[0]]})")
+    spelt = {}                          # a metric's other spellings (a sweep.csv's dataset paths)
+    for m in (current, baseline):
+        for a, k in getattr(m, "aliases", {}).items():
+            spelt.setdefault(k, set()).add(a)
+    unused = [p for p, _ in (*rtol.rules, *atol.rules)
+              if not any(fnmatch.fnmatchcase(a, p) for k in names for a in (k, *spelt.get(k, ())))]
+    if unused:
+        # a misspelt pattern would leave its metrics at the default tolerance without a word
+        raise CheckUsageError(f"the tolerance pattern {unused[0]!r} matches none of the compared metrics")
     rows = []
     for k in names:
         b, c = baseline.get(k), current.get(k)
+        slack = atol.of(k, tuple(spelt.get(k, ()))) + rtol.of(k, tuple(spelt.get(k, ()))) * abs(b) if b is not None else 0.0
         if c is None:
             rows.append(Row(k, b, None, "MISSING"))
         elif b is None:
             rows.append(Row(k, None, c, "new"))
-        elif c > b + atol + rtol * abs(b):
+        elif c > b + slack:
             rows.append(Row(k, b, c, "REGRESSION"))
-        elif c < b - atol - rtol * abs(b):
+        elif c < b - slack:
             rows.append(Row(k, b, c, "better"))
         else:
             rows.append(Row(k, b, c, "ok"))
@@ -239,8 +299,9 @@ def evaluate_rule(rule: str, metrics: dict) -> tuple[bool, str]:
     return _OPS[op](va, vb), f"{a} ({va:.6g}) {op} {b} ({vb:.6g})"
 
 
-def markdown(rows: list[Row], rules: list[tuple[str, bool, str]], rtol: float, atol: float, ok: bool) -> str:
-    L = [f"# fusion-eval check: {'PASS' if ok else 'FAIL'}", "", f"Tolerance: rtol {rtol:g}, atol {atol:g} (lower is better).", ""]
+def markdown(rows: list[Row], rules: list[tuple[str, bool, str]], rtol, atol, ok: bool) -> str:
+    rtol, atol = _tolerance("--rtol", rtol), _tolerance("--atol", atol)
+    L = [f"# fusion-eval check: {'PASS' if ok else 'FAIL'}", "", f"Tolerance: rtol {rtol}; atol {atol} (lower is better).", ""]
     L += md_table(["metric", "baseline", "current", "change", "verdict"],
                   [[f"`{r.metric}`", _v(r.baseline), _v(r.current) or r.raw, r.change, r.verdict] for r in rows], align="lrrrl")
     if rules:
@@ -283,13 +344,14 @@ class CheckResult:
     ok: bool
 
 
-def check(metrics_path: Path, baseline: Path, rtol: float, atol: float, patterns: tuple[str, ...] = (),
+def check(metrics_path: Path, baseline: Path, rtol=0.05, atol=0.0, patterns: tuple[str, ...] = (),
           rules: tuple[str, ...] = (), junit_path: Path | None = None, summary_path: Path | None = None,
           trial_stat: str | None = "mean", trial_stat_given: bool = False) -> CheckResult:
     """Compare a metrics file with its baseline, evaluate the rules, write the summary (and JUnit).
     ``trial_stat_given``: the statistic was asked for (``--trial-stat``), so a pair of files without trials is an
     error rather than the statistic silently not applying. A check that cannot be made writes its error into the
-    summary and the JUnit file: an earlier PASS left in place read as this check's (a review)."""
+    summary and the JUnit file: an earlier PASS left in place read as this check's (a review). ``rtol``, ``atol``: a
+    number, numbers and ``PATTERN=NUMBER`` strings (as ``--rtol``/``--atol`` given), or a :class:`Tolerance`."""
     try:
         return _check(metrics_path, baseline, rtol, atol, patterns, rules, junit_path, summary_path, trial_stat,
                       trial_stat_given)
@@ -320,8 +382,8 @@ def _check(metrics_path, baseline, rtol, atol, patterns, rules, junit_path, summ
            trial_stat_given) -> CheckResult:
     from ..errors import ConfigError
 
-    if not (math.isfinite(rtol) and math.isfinite(atol)) or rtol < 0 or atol < 0:
-        raise ConfigError(f"--rtol and --atol must be finite numbers >= 0, got {rtol} and {atol}")
+    rtol = rtol if isinstance(rtol, Tolerance) else Tolerance.parse("--rtol", rtol, 0.05)
+    atol = _tolerance("--atol", atol)
     from .. import resources
 
     base_path = resources.find(baseline)          # configs/baselines/... from any directory
