@@ -11,6 +11,8 @@ import os
 import shutil
 import socket
 import time
+from collections.abc import Callable
+from contextlib import contextmanager
 from pathlib import Path
 
 from . import interrupts
@@ -204,6 +206,49 @@ def refuse_overlap(out: Path, inputs=()) -> None:
                           "give a new folder")
 
 
+def take_lock(path: Path, wait_s: float, busy: Callable[[int], str]) -> None:
+    """Create ``path`` exclusively, holding this host and pid; while another live process holds it, wait up to
+    ``wait_s`` and then raise :class:`OutputError` with ``busy(pid)``. A lock whose process is gone (killed) is taken
+    over; one held on another host (a cluster's shared filesystem) cannot be probed and counts as alive."""
+    t_end = time.monotonic() + wait_s
+    while True:
+        try:
+            fd = os.open(path, os.O_CREAT | os.O_EXCL | os.O_WRONLY, 0o644)
+        except FileExistsError:
+            try:
+                host, _, pid_s = path.read_text().strip().rpartition(" ")
+                pid = int(pid_s or 0)
+            except (OSError, ValueError):
+                host, pid = "", 0
+            mine = host in ("", socket.gethostname())
+            if pid and (not mine or (pid != os.getpid() and alive(pid))):
+                if time.monotonic() < t_end:
+                    time.sleep(0.2)
+                    continue
+                raise OutputError(busy(pid)) from None
+            try:
+                path.unlink()          # stale: its process was killed
+            except FileNotFoundError:
+                pass
+            continue
+        with os.fdopen(fd, "w") as f:
+            f.write(f"{socket.gethostname()} {os.getpid()}")
+        return
+
+
+@contextmanager
+def held_lock(path: Path, busy: Callable[[int], str]):
+    """:func:`take_lock` (no waiting) for the length of a ``with`` block."""
+    take_lock(path, 0.0, busy)
+    try:
+        yield
+    finally:
+        try:
+            path.unlink()
+        except FileNotFoundError:
+            pass
+
+
 class StagedDir:
     def __init__(self, final: Path, overwrite: bool = False, wait_lock_s: float = 0.0, inputs=()):
         self.final = Path(final)
@@ -263,37 +308,16 @@ class StagedDir:
         return write_atomic(self.staging / name, data)
 
     def _lock(self) -> None:
-        """Take ``.<name>.lock`` beside the target (created exclusively, holding our pid): a second process writing
-        the same directory at the same time is refused instead of silently replacing the first one's results. A
-        lock whose process is gone (killed) is taken over."""
+        """Take ``.<name>.lock`` beside the target: a second process writing the same directory at the same time is
+        refused instead of silently replacing the first one's results."""
         self._lock_path = self.final.parent / f".{self.final.name}.lock"
-        t_end = time.monotonic() + self.wait_lock_s
-        while True:
-            try:
-                fd = os.open(self._lock_path, os.O_CREAT | os.O_EXCL | os.O_WRONLY, 0o644)
-            except FileExistsError:
-                try:
-                    host, _, pid_s = self._lock_path.read_text().strip().rpartition(" ")
-                    pid = int(pid_s or 0)
-                except (OSError, ValueError):
-                    host, pid = "", 0
-                # a holder on another host (a cluster's shared filesystem) cannot be probed: it is taken as alive
-                mine = host in ("", socket.gethostname())
-                if pid and (not mine or (pid != os.getpid() and alive(pid))):
-                    if time.monotonic() < t_end:
-                        time.sleep(0.2)
-                        continue
-                    self._lock_path = None
-                    raise OutputError(f"{self.final}: another fusion-eval (pid {pid}) is writing this output directory; "
-                                      "wait for it, or choose another --out") from None
-                try:
-                    self._lock_path.unlink()          # stale: its process was killed
-                except FileNotFoundError:
-                    pass
-                continue
-            with os.fdopen(fd, "w") as f:
-                f.write(f"{socket.gethostname()} {os.getpid()}")
-            return
+        try:
+            take_lock(self._lock_path, self.wait_lock_s,
+                      lambda pid: f"{self.final}: another fusion-eval (pid {pid}) is writing this output directory; "
+                                  "wait for it, or choose another --out")
+        except OutputError:
+            self._lock_path = None
+            raise
 
     def _unlock(self) -> None:
         if getattr(self, "_lock_path", None) is not None:

@@ -79,6 +79,28 @@ def test_diverging_setting_is_recorded_as_diverged_and_the_rest_finish(small, tm
     assert "## Diverged runs" in md and "1 diverged, 0 failed" in md
 
 
+def test_a_second_sweep_into_a_running_sweeps_folder_is_refused(small, tmp_path):
+    """Two sweeps into one folder each ran what the other had not recorded yet, and replaced each other's finished
+    runs (a run's own lock only made the second wait): the second is refused while the first lives; a killed one's
+    lock is taken over (test_interrupted_sweep_resumes_without_losing_runs)."""
+    import socket
+
+    sw = _sweep_file(tmp_path)
+    out = tmp_path / "s"
+    out.mkdir()
+    (out / "records").mkdir()
+    holder = subprocess.Popen([sys.executable, "-c", "import time; time.sleep(60)"])
+    try:
+        (out / ".sweep.lock").write_text(f"{socket.gethostname()} {holder.pid}")
+        r = CliRunner().invoke(main, ["sweep", str(small), "--grid", str(sw), "--out", str(out), "--jobs", "1"])
+        assert r.exit_code == 2 and f"another fusion-eval sweep (pid {holder.pid}) is running in this folder" in r.stderr
+        assert "\n" not in r.stderr.strip() and not list((out / "records").iterdir()) and not (out / "runs").exists()
+        assert (out / ".sweep.lock").exists()              # the holder's lock is left to it
+    finally:
+        holder.kill()
+        holder.wait()
+
+
 @pytest.mark.slow
 def test_interrupted_sweep_resumes_without_losing_runs(small, tmp_path):
     sw = _sweep_file(tmp_path)

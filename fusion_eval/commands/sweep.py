@@ -51,7 +51,7 @@ from ..config import check_value, read_yaml, schema
 from ..errors import ConfigError, FilterDivergedError, FusionEvalError
 from ..log_context import prefixed
 from ..batch import FILTER_ONLY_KEYS, batch_key  # noqa: F401 - FILTER_ONLY_KEYS: part of this module's API
-from ..outputs import dataset_roots, resumable_dir
+from ..outputs import dataset_roots, held_lock, resumable_dir
 from ..provenance import fingerprint
 from ..variants import resolve_variant
 
@@ -573,7 +573,13 @@ def run_sweep(sweep: str | Path, datasets: list[str], out_dir: Path, jobs: int |
             raise ConfigError(f"{out_dir}: no sweep records here (nothing to summarize)")
     else:
         progress = progress_for(len({t.id for t in tasks})) if progress_for else None
-        counts = execute(tasks, out_dir, jobs, scheduler, dask_local, retry_failed, progress=progress, batch=batch)
+        # two sweeps into one folder would each run what the other had not recorded yet, one replacing the other's
+        # finished runs (a run's own lock only made the second wait for it): the second is refused
+        (Path(out_dir) / "records").mkdir(exist_ok=True)      # a sweep killed at once is still one to resume
+        with held_lock(Path(out_dir) / ".sweep.lock",
+                       lambda pid: f"{out_dir}: another fusion-eval sweep (pid {pid}) is running in this folder; wait "
+                                   "for it (then run this one again to resume it), or choose another --out"):
+            counts = execute(tasks, out_dir, jobs, scheduler, dask_local, retry_failed, progress=progress, batch=batch)
     try:
         summary = write_summary(tasks, out_dir, swept_keys(body), plots=plots, grid_keys=list(body.get("grid") or {}),
                                 objective=objective)
