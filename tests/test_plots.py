@@ -205,6 +205,33 @@ def test_segment_map_labels_are_explained():
     assert "segment k" in caption and "100 m" in caption and "largest fused APE translation RMSE" in caption
 
 
+def test_segment_map_sets_fused_against_the_gnss_where_there_is_no_lidar_and_not_across_an_outage():
+    """A run of IMU and GNSS had a map of its own error and nothing to set it against: the breakdown's secondary is
+    the lidar, else the GNSS; across a GNSS outage the map draws no difference (the line between the fixes on either
+    side is no GNSS error), but marks the span."""
+    from fusion_eval.evaluation.run_metrics import segments
+
+    n = 600
+    t = 0.1 * np.arange(n)
+    p = np.column_stack([np.linspace(0, 599, n), np.zeros(n), np.zeros(n)])
+    t_g = np.r_[np.arange(0.0, 20.0), np.arange(40.0, 60.0)]           # 1 Hz fixes, none from 20 to 40 s
+
+    def ev(ts, err):
+        return SimpleNamespace(ape_t_s=ts, ape_err_m=err, ape_hv_m=None, ref_p_m=p[:len(ts)])
+    evals = {"fused": ev(t, np.full(n, 0.5)), "gnss": ev(t_g, np.full(t_g.size, 2.0)), "imu_only": ev(t, t)}
+    gt = SimpleNamespace(t_s=t, p_w_m=p)
+    seg = segments(gt, evals, {"segment_m": 100.0, "segment_s": None})
+    assert seg["primary"] == "fused" and seg["secondary"] == "gnss"
+    evals["lidar"] = ev(t, np.full(n, 1.0))
+    assert segments(gt, evals, {"segment_m": 100.0, "segment_s": None})["secondary"] == "lidar"
+    fig = plots.segment_map_figure({"fused": evals["fused"], "gnss": evals["gnss"]}, seg)
+    assert len(fig.axes) == 4                                              # two panels and their colour bars
+    far, colored = fig.axes[1].collections
+    assert far.get_label() == "no gnss pose here" and far.get_offsets().shape[0] == int(np.sum((t - 19 > 2) & (40 - t > 2)))
+    assert np.allclose(colored.get_array(), -1.5)
+    assert not plots._far_from(t_g + 0.5, t_g).any() and plots._far_from(np.array([30.0]), t_g).all()
+
+
 def test_trials_figure_shows_the_spread_of_each_metric():
     rng = np.random.default_rng(4)
     per = [{"trial": i, "fused.ape.translation_m.rmse": 0.7 + 0.05 * rng.normal(), "gnss.ape.translation_m.rmse":

@@ -274,7 +274,7 @@ def _compare(dataset_path: Path | None, variants: list[str], variant_dir: Path |
     seg_evals = {r.name: r.ev for r in runs}
     seg_evals.update({f"{r.name} smoothed": r.ev_smoothed for r in runs if r.ev_smoothed is not None})
     seg_evals.update({k: ev for k, ev in evs_u.items() if k != "imu_only"})
-    seg = segments(ref, seg_evals, ev_cfg, primary=runs[0].name, secondary="lidar" if "lidar" in seg_evals else None)
+    seg = segments(ref, seg_evals, ev_cfg, primary=runs[0].name)
 
     with staged as out:
         result = {"dataset": ds.name, "variants": variants, "span": sp if sp is not None else {"mode": "own"},

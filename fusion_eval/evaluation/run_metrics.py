@@ -170,8 +170,13 @@ def _att_vel_error(gt: PoseSeries, gi: PoseSeries, sel: slice, filt) -> dict:
 
 
 def segments(gt: PoseSeries, evals: dict[str, EstimateEvaluation], ev_cfg: dict, primary: str = "fused",
-             secondary: str | None = "lidar") -> dict:
+             secondary: str | None = None) -> dict:
+    """The per-segment breakdown; ``secondary``, the estimate the primary is set against (its difference per segment
+    and on the segment map), by default the sensor fusion has to beat: the lidar, else the GNSS (a run of IMU and
+    GNSS only had a map of its own error and nothing to set it against)."""
     errs = {k: (ev.ape_t_s, ev.ape_err_m) for k, ev in evals.items() if ev.ape_err_m is not None}
+    if secondary is None:
+        secondary = next((k for k in ("lidar", "gnss") if k in errs and k != primary), None)
     return breakdown(gt, errs, ev_cfg["segment_m"], ev_cfg["segment_s"], primary=primary, secondary=secondary,
                      parts={k: ev.ape_hv_m for k, ev in evals.items()})
 

@@ -969,8 +969,17 @@ def segment_map_figure(evals: dict, seg: dict, up_axis: str = "z"):
     axes[0, 0].set_title(textwrap.fill(f"{a} error along the route", 55), fontsize=10)
     if panels == 2:
         diff = f.ape_err_m - np.interp(f.ape_t_s, lid.ape_t_s, lid.ape_err_m)
-        lim = float(np.percentile(np.abs(diff), 98)) or 1.0
-        sc = axes[0, 1].scatter(p[k, i0], p[k, i1], c=diff[k], s=3, cmap="coolwarm", vmin=-lim, vmax=lim)
+        # only where the other estimate has a pose near: across a GNSS outage the line between the fixes on either
+        # side is no error of it (a thin black line there: gray is the colour map's middle)
+        far = _far_from(f.ape_t_s, lid.ape_t_s)
+        diff[far] = np.nan
+        if np.any(far[k]):
+            axes[0, 1].scatter(p[k, i0][far[k]], p[k, i1][far[k]], c="black", s=0.5, label=f"no {b} pose here")
+            axes[0, 1].legend(loc="best", fontsize=8, markerscale=6)
+        lim = float(np.nanpercentile(np.abs(diff), 98)) if np.any(~far) else 1.0
+        lim = lim or 1.0
+        sc = axes[0, 1].scatter(p[k, i0][~far[k]], p[k, i1][~far[k]], c=diff[k][~far[k]], s=3, cmap="coolwarm",
+                                vmin=-lim, vmax=lim)
         fig.colorbar(sc, ax=axes[0, 1], label=f"{a} APE - {b} APE [m] (blue: {a} better)")
         axes[0, 1].set_title(textwrap.fill(f"Where {a} is better (blue) or worse (red) than {b}", 55), fontsize=10)
     d = np.concatenate([[0.0], np.cumsum(np.linalg.norm(np.diff(p, axis=0), axis=1))])
@@ -1002,6 +1011,15 @@ def segment_map_figure(evals: dict, seg: dict, up_axis: str = "z"):
     fig.subplots_adjust(left=0.1 if panels == 1 else 0.06, right=0.97, top=0.94, bottom=0.14, wspace=0.25)
     _place_labels(fig, axes[0, 0], marks)
     return fig
+
+
+def _far_from(t_s: np.ndarray, other_t_s: np.ndarray) -> np.ndarray:
+    """Where ``t_s`` lies more than twice the other series' median interval (at least 0.5 s) from its nearest stamp."""
+    if len(other_t_s) < 2:
+        return np.ones(len(t_s), bool)
+    gap = max(2.0 * float(np.median(np.diff(other_t_s))), 0.5)
+    j = np.clip(np.searchsorted(other_t_s, t_s), 1, len(other_t_s) - 1)
+    return np.minimum(np.abs(t_s - other_t_s[j - 1]), np.abs(other_t_s[j] - t_s)) > gap
 
 
 def _place_labels(fig, ax, marks) -> None:
