@@ -371,6 +371,17 @@ def test_a_gnss_jump_is_said_from_its_run_of_large_innovations_without_ground_tr
     assert w in inconsistent_streams({"gnss": {"values": jumped, "t_s": t, "dof": 3}})
     assert jumps("gnss", {"values": jumped, "t_s": t, "dof": 3, "rejected": 22}) == ""      # gated: counted elsewhere
     assert jumps("lidar", {"values": jumped, "t_s": t, "dof": 3}) == ""                     # relative: heavy-tailed
+    # which streams can jump is each observation's declaration (Observation.jumps): a new absolute sensor says so in
+    # its module (an extension author's barometer had to be added to a list in this module)
+    from fusion_eval.filters import observations
+
+    lidar = next(o for o in observations.REGISTRY if o.name == "lidar")
+    try:
+        type(lidar).jumps = True
+        assert jumps("lidar", {"values": jumped, "t_s": t, "dof": 3}).startswith("lidar: 2 runs")
+    finally:
+        del type(lidar).jumps
+    assert {o.name for o in observations.REGISTRY if o.jumps} == {"gnss", "gnss_velocity"}
     # the filter's start against an offset (said by its own check), and runs holding over a tenth of the fixes (a
     # drifting lidar fused as absolute poses: the filter left the GNSS, and the gate made it worse; a review)
     start = clean.copy()

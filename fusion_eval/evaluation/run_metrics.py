@@ -378,7 +378,6 @@ MISFIT_ADAPT_STD = 3.0
 # simulated GNSS jump of 10 m for 30 s: runs of 9 and 13, fused 2.93 m against 0.47 with no word before; a 0.1 m
 # receiver on kitti-00, which the filter's own errors exceed for a few fixes after a turn or an IMU gap: runs of 3)
 JUMP_RUN, JUMP_PROB = 4, 0.999
-JUMP_STREAMS = ("gnss", "gnss_velocity")
 # a jump is a part of the drive: runs holding more of the fixes than this are a stream the filter does not follow
 # (the lidar-absolute variant's drift: 242 of 464 fixes in runs, and the gate made it worse; a review; it also has
 # the misfit warning, beside which this is not said), while a 50 m jump for 30 s put a third of them in runs
@@ -394,7 +393,7 @@ def jumps(k: str, d: dict) -> str:
     rejections are counted in the report)."""
     v = np.asarray(d.get("values", []), float)
     t = np.asarray(d.get("t_s", []), float)
-    if k not in JUMP_STREAMS or v.size < 10 or t.size != v.size or d.get("rejected"):
+    if k not in _jumping() or v.size < 10 or t.size != v.size or d.get("rejected"):
         return ""
     keep = np.isfinite(v) & np.isfinite(t)       # (a NaN split a run, and made the median below NaN; a review)
     v, t = v[keep], t[keep]
@@ -424,6 +423,13 @@ def jumps(k: str, d: dict) -> str:
             f"the {JUMP_PROB:.1%} bound ({n} of {v.size}; at {spans} from its first): the stream jumped there "
             f"(multipath, a receiver's reset or change of fix type) and pulled the filter with it, or the filter left "
             f"it there (another stream's fault); if the fixes jumped, {k}.gate_prob=0.999 rejects such fixes")
+
+
+def _jumping() -> set[str]:
+    """The observations that declare their stream can jump (``Observation.jumps``: GNSS position and velocity)."""
+    from ..filters.observations import REGISTRY
+
+    return {o.name for o in REGISTRY if o.jumps}
 
 
 def _measured() -> set[str]:

@@ -24,6 +24,7 @@ import sys
 import numpy as np
 from numba import njit
 
+from .. import codegen
 from ..errors import FilterDivergedError
 from .layout import CLONE
 from . import discretize, linalg, mech, propagate
@@ -53,6 +54,12 @@ def {name}(a, st, xc, clone_t, times, kinds, index, j0, j1, gates, clone_after, 
         st[{st_k}] = _predict(a, n, st[{st_k}], max(t, a.last[0]), np.bool_(True))   # plain bool: propagate's note
         if rec_on:                # the smoother's record of the prior of the epoch this stamp opens
             store_prior(a.P, n, n_max, ep_t, rst[0], a.last[0], pr_P, pr_ok, a.aux, pr_phi)
+        # every kernel starts from zeros, as each Python call does (kernel_model): one that writes only its non-zero
+        # entries would otherwise inherit the last event's, a silent difference between the two paths (an extension
+        # author's review: 2.81 m against 3.19)
+        H[:, :] = 0.0
+        r[:] = 0.0
+        Rm[:, :] = 0.0
 {dispatch}
         nis_out[j] = np.nan
         if m > 0:
@@ -186,8 +193,7 @@ def compiled_loop(formulation):
           "matched_variance": matched_variance, "epoch_index": epoch_index, "store_row": store_row, "store_prior": store_prior,
           "__name__": mod.__name__}
     ns.update({f"_k{c}": k for c, k in enumerate(KERNELS)})
-    exec(compile(src, mod.__file__, "exec"), ns)  # noqa: S102 - our own template
-    fn = ns[name]
+    fn = codegen.build(mod.__name__, name, src, ns)[name]
     fn.__qualname__ = name
     _CACHE[formulation] = njit(cache=True)(fn)
     return _CACHE[formulation]

@@ -28,12 +28,12 @@ from __future__ import annotations
 
 import hashlib
 import inspect
-import sys
 from collections import namedtuple
 
 import numpy as np
 from numba import njit
 
+from .. import codegen
 from .layout import CANONICAL, PACKED, POSE_BLOCKS, POSE_PACKED_N
 
 # ``last``: the time, then the input row the state sits at
@@ -122,15 +122,13 @@ def compiled_loop(module_name: str, step, record_cov, gap_motion=add_gap_motion)
     the state at each, then to ``t_target`` itself (the input interpolated linearly there, and ``last``
     set to that interpolated input). ``cov`` False propagates the state alone (dead reckoning).
     ``gap_motion``: the formulation's :func:`add_gap_motion` (its own when its coordinates are not the canonical
-    ones, defined in the same module, whose change numba's cache sees). The copy is compiled into (and cached beside)
-    the module ``module_name``; the template's digest is in its name, so a change of the loop invalidates every
-    cached copy.
+    ones, defined in the same module, whose change numba's cache sees). The copy is compiled from a file of its own
+    (:func:`fusion_eval.codegen.build`) named by the template and the source of the module ``module_name``, so a
+    change of either invalidates every cached copy.
     """
-    mod = sys.modules[module_name]
     name = f"_predict_to_{_DIGEST}"
     ns = {"_step": step, "_record_cov": record_cov, "_gap_motion": gap_motion, "np": np, "__name__": module_name}
-    exec(compile(_LOOP.format(name=name, t=LAST_T, u=LAST_U), mod.__file__, "exec"), ns)  # noqa: S102 - our own template
-    fn = ns[name]
+    fn = codegen.build(module_name, name, _LOOP.format(name=name, t=LAST_T, u=LAST_U), ns)[name]
     fn.__qualname__ = name
     return njit(cache=True)(fn)
 

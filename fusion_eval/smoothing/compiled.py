@@ -20,6 +20,7 @@ import sys
 import numpy as np
 from numba import njit
 
+from .. import codegen
 from ..filters import propagate
 from ..filters.compiled_replay import STEP_CALLEES, source_digest
 from . import kernels
@@ -182,7 +183,7 @@ def compiled_pass(cls):
                            kernels._clone_gain_applied, *STEP_CALLEES)
     name, name_pass = f"_rts_segment_{digest}", f"_rts_pass_{digest}"
     ns = {**calls, "np": np, "__name__": cls.__module__}
-    exec(compile(_SEGMENT.format(name=name, name_pass=name_pass), mod.__file__, "exec"), ns)  # noqa: S102 - our template
+    codegen.build(mod.__name__, name_pass, _SEGMENT.format(name=name, name_pass=name_pass), ns)
     for nm in (name, name_pass):                       # the segment first: the pass calls it by its global name
         ns[nm].__qualname__ = nm
         ns[nm] = njit(cache=True)(ns[nm])

@@ -137,6 +137,10 @@ class Observation:
     extra_streams: tuple = ()           # datasets.streams.StreamSpec of streams only this observation reads
     sim_keys: dict = {}                 # simulator settings of its simulated sensor (``simulate``)
     kernel = None                       # its compiled model (``kernel(x, xc, row, H, r, Rm) -> m``), if it has one
+    # an absolute measurement of the world (GNSS): runs of innovations far beyond their bound amid consistent ones
+    # are a jump of the stream (multipath, a receiver's reset, a change of datum), said in the report with the gate
+    # that rejects them; not of a relative or a pseudo-observation, whose runs are the filter's own
+    jumps: bool = False
 
     @property
     def enable_with(self) -> dict:

@@ -51,6 +51,7 @@ class GnssPosition(Observation):
     label = "GNSS position"
     dof = 3
     streams = ("gnss",)
+    jumps = True
     blocks = frozenset({"P", "TH"})
     enabled_by = "filter.use_gnss"
     gate_key = "gnss.gate_prob"

@@ -114,6 +114,7 @@ class GnssVelocity(Observation):
     label = "GNSS velocity"
     dof = 3
     streams = ("gnss_velocity",)
+    jumps = True
     blocks = frozenset({"V", "TH", "BG"})
     enabled_by = "filter.use_gnss_velocity"
     gate_key = "gnss_velocity.gate_prob"
