@@ -178,6 +178,10 @@ def entry() -> None:
     """The console script and ``python -m fusion_eval``: :func:`main` as the process itself."""
     global _PROCESS_ENTRY
     _PROCESS_ENTRY = True
+    if os.name != "posix":
+        # fork-started workers, POSIX signal masks and non-blocking pipes: on Windows every command failed with a
+        # traceback of its own (a portability review); one line instead
+        sys.exit("error: fusion-eval runs on Linux and macOS (POSIX); on Windows, run it under WSL")
     # a path that is not UTF-8 (a byte the file system allows) is echoed back as the bytes it was given, not as a
     # UnicodeEncodeError after the command's work is done
     if sys.stdout is not None and hasattr(sys.stdout, "reconfigure"):
@@ -690,7 +694,7 @@ def tune(ctx, datasets, space, objectives, n_trials, test, out_dir, sampler, see
     if ctx.obj["quiet"]:
         click.echo(out_dir)
     else:
-        click.echo((res["setup"].out_dir / "tune.md").read_text())
+        click.echo((res["setup"].out_dir / "tune.md").read_text(encoding="utf-8"))
         click.echo(f"wrote {res['setup'].out_dir}/ ({res['runtime_s']:.1f} s)")
 
 

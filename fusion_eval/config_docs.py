@@ -79,14 +79,14 @@ def stale(root: Path) -> dict[Path, str]:
     from .config import schema
 
     sch = schema()
-    want = {root / "README.md": readme_with_table((root / "README.md").read_text(), sch),
+    want = {root / "README.md": readme_with_table((root / "README.md").read_text(encoding="utf-8"), sch),
             root / "configs" / "default.yaml": default_yaml(sch)}
-    return {p: text for p, text in want.items() if not p.exists() or p.read_text() != text}
+    return {p: text for p, text in want.items() if not p.exists() or p.read_text(encoding="utf-8") != text}
 
 
 def write(root: Path) -> list[str]:
     """Rewrite ``root``'s out-of-date documents (:func:`stale`); the files that changed."""
     changed = stale(root)
     for path, text in changed.items():
-        path.write_text(text)
+        path.write_text(text, encoding="utf-8")
     return [str(p.relative_to(root)) for p in changed]

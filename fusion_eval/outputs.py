@@ -27,7 +27,7 @@ def atomic_write(path: Path, text: str) -> None:
     tmp = path.with_name(f".{path.name}.tmp-{os.getpid()}")
     try:
         path.parent.mkdir(parents=True, exist_ok=True)
-        tmp.write_text(text)
+        tmp.write_text(text, encoding="utf-8")      # not the locale's: a cp1252 best.yaml was refused by run
         os.replace(tmp, path)
     except OSError as exc:                  # a folder in the way, a path under /proc: one line, no temporary left
         tmp.unlink(missing_ok=True)
@@ -216,7 +216,7 @@ def take_lock(path: Path, wait_s: float, busy: Callable[[int], str]) -> None:
             fd = os.open(path, os.O_CREAT | os.O_EXCL | os.O_WRONLY, 0o644)
         except FileExistsError:
             try:
-                host, _, pid_s = path.read_text().strip().rpartition(" ")
+                host, _, pid_s = path.read_text(encoding="utf-8").strip().rpartition(" ")
                 pid = int(pid_s or 0)
             except (OSError, ValueError):
                 host, pid = "", 0

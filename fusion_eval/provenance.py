@@ -53,7 +53,7 @@ def _digest(path: str, mtime_ns: int, size: int) -> tuple[str, int, int]:
     total = 0
     for f in files:
         if p.is_dir():
-            h.update(str(f.relative_to(p)).encode() + b"\0")
+            h.update(f.relative_to(p).as_posix().encode() + b"\0")   # one checksum on every OS
         with open(f, "rb") as fh:
             for chunk in iter(lambda: fh.read(1 << 20), b""):
                 h.update(chunk)
@@ -109,7 +109,7 @@ def fingerprint(description: dict) -> str:
                 continue
             # names relative to the dataset's folder: the same files however the path was written, from anywhere
             rel = f.relative_to(root) if f.is_relative_to(root) else f
-            h.update(f"{rel}\0{st.st_size}\0{st.st_mtime_ns}\n".encode())
+            h.update(f"{rel.as_posix()}\0{st.st_size}\0{st.st_mtime_ns}\n".encode())
     return h.hexdigest()[:16]
 
 

@@ -4,7 +4,7 @@ fast path against the rosbags typestore, stamps, errors, and the real bags of ev
 from __future__ import annotations
 
 import logging
-
+import sys
 from pathlib import Path
 
 import numpy as np
@@ -747,3 +747,15 @@ def test_evaluate_refuses_a_topic_whose_header_stamps_are_never_set(tmp_path):
     with pytest.raises(DataFormatError, match=r"topic '/pose': all 20 messages carry one header stamp \(0 s\): a "
                                               r"publisher that never sets it"):
         read_bag_trajectories(bag, ["/pose"])
+
+
+def test_zstd_chunks_without_a_zstd_module_take_the_general_route(monkeypatch):
+    """An older rosbags brings zstandard, not backports.zstd: the fast path's import failed, warned of a missing
+    module and took the slow route (a portability review); each known module is tried, and with none the fast path
+    steps aside as for any layout it does not handle."""
+    from fusion_eval.datasets import rosbag
+
+    for name in ("compression", "compression.zstd", "backports", "backports.zstd", "zstandard"):
+        monkeypatch.setitem(sys.modules, name, None)
+    with pytest.raises(rosbag._NoFastPath, match="no zstd module"):
+        rosbag._zstd_decompress(b"\x28\xb5\x2f\xfd")

@@ -474,7 +474,7 @@ def _json_field(path: Path, key: str):
     if Path(path).suffix == ".csv":
         return None
     try:
-        return json.loads(Path(path).read_text()).get(key)
+        return json.loads(Path(path).read_text(encoding="utf-8")).get(key)
     except (json.JSONDecodeError, OSError, AttributeError, UnicodeDecodeError, RecursionError):
         return None
 
@@ -485,7 +485,7 @@ def _raw_keys(path: Path) -> dict:
     if Path(path).suffix == ".csv":
         return {}
     try:
-        return keys.flatten(json.loads(Path(path).read_text()), raw=True)
+        return keys.flatten(json.loads(Path(path).read_text(encoding="utf-8")), raw=True)
     except (json.JSONDecodeError, OSError, AttributeError, UnicodeDecodeError, RecursionError):
         return {}
 
@@ -520,7 +520,7 @@ def _refuse_incomplete_baseline(path: Path, lacking: list[str]) -> None:
     raw: dict = {}
     if Path(path).suffix != ".csv":
         try:
-            raw = keys.flatten(json.loads(Path(path).read_text()), raw=True)
+            raw = keys.flatten(json.loads(Path(path).read_text(encoding="utf-8")), raw=True)
         except (json.JSONDecodeError, OSError, AttributeError, RecursionError):
             raw = {}
     k = lacking[0]
@@ -547,4 +547,4 @@ def update_baseline(metrics_path: Path, baseline: Path) -> None:
     if bad:
         raise DataFormatError(metrics_path, None, f"{bad[0]} holds {shown(raw[bad[0]])}, not a finite number: a baseline "
                                                   "of it would be refused by the next check (not written)")
-    atomic_write(baseline, Path(metrics_path).read_text())
+    atomic_write(baseline, Path(metrics_path).read_text(encoding="utf-8"))

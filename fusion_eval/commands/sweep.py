@@ -314,7 +314,7 @@ def _finish(task: Task, rec: dict, root: Path) -> dict:
         import shutil
 
         folder = root / "runs" / task.id
-        rec["files"] = ({str(f.relative_to(folder)): f.read_bytes() for f in sorted(folder.rglob("*")) if f.is_file()}
+        rec["files"] = ({f.relative_to(folder).as_posix(): f.read_bytes() for f in sorted(folder.rglob("*")) if f.is_file()}
                         if folder.is_dir() else {})
         shutil.rmtree(root, ignore_errors=True)
     else:
@@ -414,7 +414,7 @@ def write_record(out_dir: Path, rec: dict) -> None:
     d = Path(out_dir) / "records"
     d.mkdir(parents=True, exist_ok=True)
     tmp = d / f".{rec['id']}.json.tmp"
-    tmp.write_text(json.dumps(rec, indent=1, default=float))
+    tmp.write_text(json.dumps(rec, indent=1, default=float), encoding="utf-8")
     os.replace(tmp, d / f"{rec['id']}.json")
 
 
@@ -423,7 +423,7 @@ def read_records(out_dir: Path) -> dict[str, dict]:
     out = {}
     for f in sorted(d.glob("*.json")) if d.is_dir() else []:
         try:
-            out[f.stem] = json.loads(f.read_text())
+            out[f.stem] = json.loads(f.read_text(encoding="utf-8"))
         except json.JSONDecodeError:
             log.warning("%s: unreadable record, the run will be done again", f)
     return out

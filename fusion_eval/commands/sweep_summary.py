@@ -407,7 +407,7 @@ def default_values(tasks: list[Task], out_dir: Path, keys: list[str]) -> dict[tu
             continue
         f = Path(out_dir) / "runs" / t.id / "config.resolved.yaml"
         try:
-            cfg = yaml.safe_load(f.read_text()) if f.is_file() else None
+            cfg = yaml.safe_load(f.read_text(encoding="utf-8")) if f.is_file() else None
         except (OSError, yaml.YAMLError):
             cfg = None
         if not isinstance(cfg, dict):

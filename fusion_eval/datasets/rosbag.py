@@ -103,7 +103,7 @@ def resolve(path: str | Path) -> tuple[str, Path]:
         if meta.is_file():        # a file of a bag folder: read the whole bag (split bags, message counts)
             try:
                 names = [Path(x).name for x in
-                         yaml.safe_load(meta.read_text())["rosbag2_bagfile_information"]["relative_file_paths"]]
+                         yaml.safe_load(meta.read_text(encoding="utf-8"))["rosbag2_bagfile_information"]["relative_file_paths"]]
             except Exception:     # an unreadable metadata.yaml: read the file on its own
                 names = []
             if p.name in names:
@@ -207,6 +207,24 @@ def _check_topic(path, table: dict[str, tuple[str | None, int]], topic: str, acc
 
 # ----------------------------------------------------------------------------------------------------------------
 # fixed-offset decoding of sensor_msgs/Imu and sensor_msgs/NavSatFix
+
+
+def _zstd_decompress(data: bytes) -> bytes:
+    """zstd as the installed rosbags has it: the standard library's (Python 3.14), ``backports.zstd`` (rosbags'
+    own dependency before 3.14, from its later releases) or ``zstandard`` (its earlier ones); else the bag is read
+    through rosbags (an older rosbags' bag warned of a missing module and took the slow path; a portability review)."""
+    try:
+        from compression import zstd
+    except ImportError:
+        try:
+            from backports import zstd
+        except ImportError:
+            try:
+                import zstandard
+            except ImportError:
+                raise _NoFastPath("no zstd module") from None
+            return zstandard.ZstdDecompressor().decompressobj().decompress(data)
+    return zstd.decompress(data)
 
 
 class _NoFastPath(Exception):
@@ -686,11 +704,7 @@ class _Mcap:
             size = int.from_bytes(bytes(mm[q:q + 8]), "little")
             data = mm[q + 8:q + 8 + size]
             if compression == "zstd":
-                try:
-                    from compression import zstd
-                except ImportError:
-                    from backports import zstd      # what rosbags uses before Python 3.14
-                data, compressed = np.frombuffer(zstd.decompress(bytes(data)), np.uint8), True
+                data, compressed = np.frombuffer(_zstd_decompress(bytes(data)), np.uint8), True
             elif compression == "lz4":
                 import lz4.frame
                 data, compressed = np.frombuffer(lz4.frame.decompress(bytes(data)), np.uint8), True
@@ -736,7 +750,7 @@ def _storage(kind: str, target: Path) -> _Bag1 | _Db3 | _Mcap | None:
         if kind == "rosbag1":
             return _Bag1(target)
         if target.is_dir():
-            info = yaml.safe_load((target / "metadata.yaml").read_text())["rosbag2_bagfile_information"]
+            info = yaml.safe_load((target / "metadata.yaml").read_text(encoding="utf-8"))["rosbag2_bagfile_information"]
             if (info.get("compression_mode") or "none").lower() != "none":
                 return None
             files = [target / Path(x).name for x in info["relative_file_paths"]]

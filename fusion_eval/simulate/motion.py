@@ -98,7 +98,7 @@ def from_waypoints_yaml(path: Path) -> tuple[list[Segment], float, int]:
     its first leg and repeats; an open one ends with a stop. Returns the segments and the initial
     heading (rad) and the number of segments before the part that repeats."""
     try:
-        body = yaml_lines.load(Path(path).read_text())        # a waypoint key given twice is refused
+        body = yaml_lines.load(Path(path).read_text(encoding="utf-8"))        # a waypoint key given twice is refused
     except (OSError, UnicodeDecodeError, yaml.YAMLError) as exc:
         raise ConfigError(f"{path}: cannot read the waypoint profile ({exc})") from None
     if not isinstance(body, dict) or "waypoints" not in body:

@@ -306,7 +306,7 @@ def _default(s: Setup, ex: Executor) -> dict:
     it also checks that every objective names a metric the runs have."""
     path = s.out_dir / "default.json"
     if path.exists():
-        body = json.loads(path.read_text())
+        body = json.loads(path.read_text(encoding="utf-8"))
         # a study resumed with held-out drives it did not have (or other ones): the default is scored on those
         # too, or the report would compare the tuned values on them with nothing
         held = sorted({st["dataset"] for st in (body.get("test") or {}).get("steps", [])})
@@ -403,7 +403,7 @@ def _best(study, s: Setup) -> dict | None:
     if not front:
         return None
     t = min(front, key=lambda t: (t.values[0], t.number))
-    rec = json.loads((s.out_dir / "trials" / f"{t.number:05d}.json").read_text())
+    rec = json.loads((s.out_dir / "trials" / f"{t.number:05d}.json").read_text(encoding="utf-8"))
     return {"number": t.number, "values": list(t.values), "params": t.params, "overrides": t.user_attrs["overrides"],
             "train": rec, "front": [{"number": f.number, "values": list(f.values), "params": f.params}
                                     for f in sorted(front, key=lambda f: f.values[0])]}
