@@ -18,6 +18,43 @@ import os as _os
 # every module that compiles does after this package's import.
 _os.environ.setdefault("NUMBA_OPT", "2")
 
+
+def _writable(path: str) -> bool:
+    """Whether ``path``, or the nearest folder above it that exists, can be written to."""
+    while not _os.path.exists(path):
+        parent = _os.path.dirname(path)
+        if parent == path:
+            return False
+        path = parent
+    return _os.path.isdir(path) and _os.access(path, _os.W_OK | _os.X_OK)
+
+
+def _caches_in_temp() -> None:
+    """numba's and matplotlib's caches in the temporary folder when neither their usual places nor (for numba) the
+    installed package's folder can be written: a read-only install used with an unwritable home stopped every data
+    command with numba's 53-line "cannot cache function ... no locator available" traceback, and matplotlib warned
+    four times per run and left two temporary folders behind (a failure-injection review). A user's own setting is
+    kept."""
+    home = _os.path.expanduser("~")
+    cache = _os.environ.get("XDG_CACHE_HOME") or _os.path.join(home, ".cache")
+    config = _os.environ.get("XDG_CONFIG_HOME") or _os.path.join(home, ".config")
+    here = _os.path.dirname(_os.path.abspath(__file__))
+    todo = []
+    if "NUMBA_CACHE_DIR" not in _os.environ and not (_writable(_os.path.join(here, "__pycache__"))
+                                                      or _writable(_os.path.join(cache, "numba"))):
+        todo.append(("NUMBA_CACHE_DIR", "numba"))
+    if "MPLCONFIGDIR" not in _os.environ and not _writable(_os.path.join(config, "matplotlib")):
+        todo.append(("MPLCONFIGDIR", "matplotlib"))
+    if todo:
+        import tempfile
+
+        user = getattr(_os, "getuid", lambda: 0)()
+        for var, what in todo:
+            _os.environ[var] = _os.path.join(tempfile.gettempdir(), f"fusion-eval-{what}-{user}")
+
+
+_caches_in_temp()
+
 __version__ = "0.1.0"
 
 _API = ("load_dataset", "run", "evaluate", "Result")

@@ -178,6 +178,11 @@ def entry() -> None:
     """The console script and ``python -m fusion_eval``: :func:`main` as the process itself."""
     global _PROCESS_ENTRY
     _PROCESS_ENTRY = True
+    if os.environ.get("MPLBACKEND", "agg").lower() != "agg":
+        # the plots are drawn on Agg canvases of their own; a backend named here that is not installed (a notebook's
+        # module://matplotlib_inline...) failed every worker at matplotlib's import, reported as a killed process,
+        # and compare, evaluate and a sweep's summary with a traceback (a failure-injection review)
+        os.environ["MPLBACKEND"] = "Agg"
     if os.name != "posix":
         # fork-started workers, POSIX signal masks and non-blocking pipes: on Windows every command failed with a
         # traceback of its own (a portability review); one line instead
@@ -199,7 +204,10 @@ def _interrupted(exc: BaseException) -> None:
     if _PROCESS_ENTRY:
         signal.signal(signal.SIGINT, signal.SIG_IGN)
     what = "terminated (SIGTERM)" if isinstance(exc, interrupts.Terminated) else "interrupted"
-    click.echo(f"\n{what}: {exc.args[0] if exc.args else 'no output directory was written'}", err=True)
+    done = interrupts.written()
+    said = (exc.args[0] if exc.args else f"after {' and '.join(done)} was written whole" if done
+            else "no output directory was written")
+    click.echo(f"\n{what}: {said}", err=True)
     sys.exit(143 if isinstance(exc, interrupts.Terminated) else 130)
 
 

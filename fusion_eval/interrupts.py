@@ -74,6 +74,18 @@ def _abort(signum: int) -> None:
 
 
 _received: int | None = None                 # the last signal raised in this block
+_written: list[str] = []                     # output folders completed in this block (said if a signal then ends it)
+
+
+def wrote(path) -> None:
+    """Record a completed output folder: a signal that ends the command after it must not say nothing was written
+    (a failure-injection review: "no output directory was written" beside a complete one)."""
+    _written.append(str(path))
+
+
+def written() -> list[str]:
+    """The output folders completed in the current :func:`handled` block."""
+    return list(_written)
 
 
 @contextmanager
@@ -185,6 +197,7 @@ def handled():
         if not (s == signal.SIGINT and h == signal.SIG_IGN):
             signal.signal(s, _handler)
     _received = None
+    _written.clear()
     rfd, wfd = os.pipe()
     os.set_blocking(wfd, False)
     old_fd = signal.set_wakeup_fd(wfd, warn_on_full_buffer=False)

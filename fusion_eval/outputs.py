@@ -6,7 +6,9 @@ from __future__ import annotations
 
 import contextlib
 import errno
+import fcntl
 import glob
+import hashlib
 import os
 import shutil
 import socket
@@ -60,7 +62,7 @@ def default_dir(base: Path):
             d = base if k == 1 else base.with_name(f"{base.name}-{k}")
             try:
                 d.mkdir(parents=True)          # parents: another command's clean-up may have removed results/ meanwhile
-                if (d.parent / f".{d.name}.lock").exists():       # an explicit --out of that name is being written
+                if _sibling(d, "lock").exists():       # an explicit --out of that name is being written
                     d.rmdir()
                     raise FileExistsError
                 break
@@ -206,52 +208,88 @@ def refuse_overlap(out: Path, inputs=()) -> None:
                           "give a new folder")
 
 
-def take_lock(path: Path, wait_s: float, busy: Callable[[int], str]) -> None:
-    """Create ``path`` exclusively, holding this host and pid; while another live process holds it, wait up to
-    ``wait_s`` and then raise :class:`OutputError` with ``busy(pid)``. A lock whose process is gone (killed) is taken
-    over; one held on another host (a cluster's shared filesystem) cannot be probed and counts as alive."""
+def _sibling(final: Path, tag: str) -> Path:
+    """The hidden working file or folder ``.<name>.<tag>`` beside ``final``; for a name too long to take the
+    prefix and the tag (a legal 245-character --out failed as "File name too long" and left its lock file behind), a
+    digest of the name stands in."""
+    name = f".{final.name}.{tag}"
+    if len(name.encode("utf-8", "surrogateescape")) > 200:
+        name = f".fe-{hashlib.sha1(final.name.encode('utf-8', 'surrogateescape')).hexdigest()[:16]}.{tag}"
+    return final.parent / name
+
+
+def take_lock(path: Path, wait_s: float, busy: Callable[[int], str]) -> int:
+    """Hold ``path`` as a lock (an exclusive ``flock`` on it, which the system releases when its process ends, however
+    it ends) and write this host and pid into it; returns the descriptor for :func:`release_lock`. While another
+    process holds it, wait up to ``wait_s`` and then raise :class:`OutputError` with ``busy(pid)``. A lock file named
+    by another host (a cluster's shared filesystem, where ``flock`` may not reach) counts as held. Reading a dead
+    holder's pid and deleting its file let two processes both take it over at once (a failure-injection review):
+    the kernel's lock cannot be taken twice."""
     t_end = time.monotonic() + wait_s
     while True:
+        fd = os.open(path, os.O_CREAT | os.O_RDWR, 0o644)
         try:
-            fd = os.open(path, os.O_CREAT | os.O_EXCL | os.O_WRONLY, 0o644)
-        except FileExistsError:
-            try:
-                host, _, pid_s = path.read_text(encoding="utf-8").strip().rpartition(" ")
-                pid = int(pid_s or 0)
-            except (OSError, ValueError):
-                host, pid = "", 0
-            mine = host in ("", socket.gethostname())
-            if pid and (not mine or (pid != os.getpid() and alive(pid))):
-                if time.monotonic() < t_end:
-                    time.sleep(0.2)
-                    continue
-                raise OutputError(busy(pid)) from None
-            try:
-                path.unlink()          # stale: its process was killed
+            fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
+            held = False
+        except BlockingIOError:
+            held = True
+        host, pid = _holder(fd)
+        if not held:
+            try:                              # the holder before may have deleted the file after we opened it
+                current = os.fstat(fd).st_ino == os.stat(path).st_ino
             except FileNotFoundError:
-                pass
-            continue
-        with os.fdopen(fd, "w") as f:
-            f.write(f"{socket.gethostname()} {os.getpid()}")
-        return
+                current = False
+            if not current:
+                os.close(fd)
+                continue
+            held = bool(pid) and host not in ("", socket.gethostname())
+        if held:
+            os.close(fd)
+            if time.monotonic() < t_end:
+                time.sleep(0.2)
+                continue
+            raise OutputError(busy(pid))
+        os.ftruncate(fd, 0)
+        os.pwrite(fd, f"{socket.gethostname()} {os.getpid()}".encode(), 0)
+        return fd
+
+
+def _holder(fd: int) -> tuple[str, int]:
+    """The host and pid written in a lock file ('' and 0 when unreadable)."""
+    try:
+        host, _, pid_s = os.pread(fd, 4096, 0).decode("utf-8", "replace").strip().rpartition(" ")
+        return host, int(pid_s or 0)
+    except (OSError, ValueError):
+        return "", 0
+
+
+def release_lock(path: Path, fd: int) -> None:
+    """Delete the lock file while still holding it (a process waiting on it then finds it gone and takes a new one),
+    then let it go."""
+    try:
+        path.unlink()
+    except FileNotFoundError:
+        pass
+    os.close(fd)
 
 
 @contextmanager
 def held_lock(path: Path, busy: Callable[[int], str]):
     """:func:`take_lock` (no waiting) for the length of a ``with`` block."""
-    take_lock(path, 0.0, busy)
+    fd = take_lock(path, 0.0, busy)
     try:
         yield
     finally:
-        try:
-            path.unlink()
-        except FileNotFoundError:
-            pass
+        release_lock(path, fd)
 
 
 class StagedDir:
     def __init__(self, final: Path, overwrite: bool = False, wait_lock_s: float = 0.0, inputs=()):
         self.final = Path(final)
+        if self.final.is_symlink() and self.final.is_dir():
+            # a link to a folder: the results go into the folder it names (the link itself was replaced by a folder
+            # beside it, on the link's filesystem, and the target left empty: a failure-injection review)
+            self.final = self.final.resolve()
         self.overwrite = overwrite
         self.inputs = tuple(Path(p) for p in inputs if p is not None)   # what must survive the replacement
         # a sweep's run may be retried on another worker while the first (lost to the scheduler, not yet dead)
@@ -285,11 +323,11 @@ class StagedDir:
             except OutputError:
                 self._unlock()
                 raise
-            self.staging = self.final.parent / f".{self.final.name}.partial-{os.getpid()}"
+            self.staging = _sibling(self.final, f"partial-{os.getpid()}")
             # with the lock held no other process writes this target: every staging folder of it is a killed run's
             # (SIGKILL, the OOM killer, a CI timeout left 3.4 MB of half-written results beside --out for good: a
             # corrupted-input review)
-            for old in self.final.parent.glob(f".{glob.escape(self.final.name)}.partial-*"):
+            for old in self.final.parent.glob(glob.escape(_sibling(self.final, "partial-").name) + "*"):
                 shutil.rmtree(old, ignore_errors=True)
             self.staging.mkdir()
             self._abort_token = interrupts.on_abort(self._abandon)
@@ -310,9 +348,9 @@ class StagedDir:
     def _lock(self) -> None:
         """Take ``.<name>.lock`` beside the target: a second process writing the same directory at the same time is
         refused instead of silently replacing the first one's results."""
-        self._lock_path = self.final.parent / f".{self.final.name}.lock"
+        self._lock_path = _sibling(self.final, "lock")
         try:
-            take_lock(self._lock_path, self.wait_lock_s,
+            self._lock_fd = take_lock(self._lock_path, self.wait_lock_s,
                       lambda pid: f"{self.final}: another fusion-eval (pid {pid}) is writing this output directory; "
                                   "wait for it, or choose another --out")
         except OutputError:
@@ -321,10 +359,7 @@ class StagedDir:
 
     def _unlock(self) -> None:
         if getattr(self, "_lock_path", None) is not None:
-            try:
-                self._lock_path.unlink()
-            except FileNotFoundError:
-                pass
+            release_lock(self._lock_path, self._lock_fd)
             self._lock_path = None
 
     def __exit__(self, exc_type, exc, tb) -> bool:
@@ -343,13 +378,17 @@ class StagedDir:
                     # corrupted-input review): the file as it would have been
                     raise OutputError(str(exc).replace(str(self.staging), str(self.final))) from None
                 return False
-            old = None
-            if self.final.exists():
-                old = self.final.parent / f".{self.final.name}.old-{os.getpid()}"
-                os.replace(self.final, old)
-            os.replace(self.staging, self.final)
-            if old is not None:
-                shutil.rmtree(old, ignore_errors=True)
+            # the two renames as one step: a signal between them left the old results and the new ones both hidden
+            # (.out.old-PID, .out.partial-PID) and nothing at --out (a failure-injection review); it is raised after
+            with interrupts.deferred():
+                old = None
+                if self.final.exists():
+                    old = _sibling(self.final, f"old-{os.getpid()}")
+                    os.replace(self.final, old)
+                os.replace(self.staging, self.final)
+                interrupts.wrote(self.final)
+                if old is not None:
+                    shutil.rmtree(old, ignore_errors=True)
             return False
         finally:
             interrupts.forget(getattr(self, "_abort_token", None))

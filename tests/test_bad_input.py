@@ -1567,6 +1567,19 @@ def test_an_interrupted_sweep_summary_says_the_records_are_kept_and_how_to_rebui
     assert r.exit_code == 130 and "no output directory was written" not in r.stderr, r.output
     assert "every finished run is recorded in" in r.stderr and "--summarize-only` rebuilds it" in r.stderr
     assert len(list((tmp_path / "sw" / "records").glob("*.json"))) == 2
+    # and a Ctrl-C after the last run was recorded, before the summary began (as the sweep's lock is let go): the
+    # same, not 'no output directory was written' (a failure-injection review)
+    from contextlib import contextmanager
+
+    from fusion_eval.commands import sweep
+
+    @contextmanager
+    def lock_then_signal(*_a, **_k):
+        yield
+        raise KeyboardInterrupt
+    monkeypatch.setattr(sweep, "held_lock", lock_then_signal)
+    r = CliRunner().invoke(main, args)
+    assert r.exit_code == 130 and "every finished run is recorded in" in r.stderr, r.output
 
 
 @pytest.mark.slow

@@ -193,6 +193,86 @@ def test_two_runs_into_one_out_at_once_the_second_is_refused(tmp_path):
     assert (tmp_path / "out" / "x.txt").read_text() == "first" and not (tmp_path / ".out.lock").exists()
 
 
+def test_a_killed_writers_lock_is_taken_once_and_a_live_ones_never(tmp_path):
+    """Reading a dead holder's pid and deleting its lock let two processes take it over at once, both exiting 0 with
+    one's results replaced by the other's (a failure-injection review). The lock is the kernel's (flock): a killed
+    holder's file is taken over, a live holder's never, whatever its file says."""
+    from fusion_eval.errors import OutputError
+    from fusion_eval.outputs import StagedDir, take_lock
+
+    lock = tmp_path / ".out.lock"
+    lock.write_text(f"{socket.gethostname()} 999999999")            # a SIGKILLed run's: no process holds it
+    with StagedDir(tmp_path / "out") as a:
+        a.write_text("x.txt", "mine")
+    assert (tmp_path / "out" / "x.txt").read_text() == "mine" and not lock.exists()
+    holder = subprocess.Popen([sys.executable, "-c", "import sys, time; from pathlib import Path; "
+                               "from fusion_eval.outputs import take_lock; take_lock(Path(sys.argv[1]), 0, str); "
+                               "print('held', flush=True); time.sleep(60)", str(tmp_path / ".out2.lock")],
+                              stdout=subprocess.PIPE, text=True)
+    try:
+        assert holder.stdout.readline().strip() == "held"
+        (tmp_path / ".out2.lock").write_text(f"{socket.gethostname()} 999999999")    # a pid that says dead: held
+        with pytest.raises(OutputError, match="another fusion-eval .* is writing this output directory"):
+            with StagedDir(tmp_path / "out2"):
+                pass
+        with pytest.raises(OutputError, match="busy 999999999"):
+            take_lock(tmp_path / ".out2.lock", 0.3, lambda pid: f"busy {pid}")
+    finally:
+        holder.kill()
+        holder.wait()
+    with StagedDir(tmp_path / "out2") as b:                  # its holder gone: taken
+        b.write_text("y.txt", "then mine")
+    assert (tmp_path / "out2" / "y.txt").exists()
+
+
+def test_a_signal_between_the_two_renames_is_raised_after_them(tmp_path, monkeypatch):
+    """A signal between moving the old results aside and the new ones in left both hidden (.out.old-PID,
+    .out.partial-PID) and nothing at --out, with "no output directory was written" (a failure-injection review): the
+    swap is one step, the signal raised after it, and the message says what was written."""
+    from fusion_eval import interrupts
+    from fusion_eval.outputs import StagedDir
+
+    out = tmp_path / "out"
+    out.mkdir()
+    (out / "metrics.json").write_text("old")
+    real = os.replace
+    calls = []
+
+    def replace(a, b):
+        calls.append(b)
+        if len(calls) == 1:
+            signal.raise_signal(signal.SIGINT)              # right after the old results moved aside
+        return real(a, b)
+    with pytest.raises(KeyboardInterrupt):
+        with interrupts.handled():
+            with StagedDir(out, overwrite=True) as st:
+                st.write_text("metrics.json", "new")
+                monkeypatch.setattr(os, "replace", replace)
+    monkeypatch.setattr(os, "replace", real)
+    assert len(calls) == 2 and (out / "metrics.json").read_text() == "new"
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["out"]       # no .old, no .partial, no lock
+    assert interrupts.written() == [str(out)]
+
+
+def test_out_given_as_a_link_to_a_folder_and_as_a_very_long_name(tmp_path):
+    """A link: the link was replaced by a folder beside it and its target left empty; a legal 245-character name:
+    "File name too long" (its hidden working folder's name was longer) and a lock file left (a failure-injection
+    review)."""
+    from fusion_eval.outputs import StagedDir
+
+    target = tmp_path / "target"
+    target.mkdir()
+    (tmp_path / "link").symlink_to(target)
+    with StagedDir(tmp_path / "link") as a:
+        a.write_text("x.txt", "1")
+    assert (tmp_path / "link").is_symlink() and (target / "x.txt").read_text() == "1"
+    long = tmp_path / ("a" * 245)
+    with StagedDir(long) as b:
+        b.write_text("x.txt", "2")
+    assert (long / "x.txt").read_text() == "2"
+    assert sorted(p.name for p in tmp_path.iterdir()) == sorted(["target", "link", long.name])
+
+
 @pytest.mark.slow
 def test_two_cli_runs_into_one_out(tmp_path):
     out = tmp_path / "out"

@@ -125,3 +125,28 @@ def test_numba_compiles_at_o2_unless_the_user_says_otherwise():
     out = subprocess.run([sys.executable, "-c", code], env={**env, "NUMBA_OPT": "3"}, capture_output=True, text=True,
                          check=True)
     assert out.stdout.strip() == "3"
+
+
+def test_caches_go_to_the_temporary_folder_where_nothing_else_can_be_written(monkeypatch, tmp_path):
+    """A read-only install with an unwritable home stopped every data command with numba's "no locator available"
+    traceback, and matplotlib warned four times a run (a failure-injection review); a user's own setting is kept."""
+    import tempfile
+
+    import fusion_eval
+
+    blocker = tmp_path / "a-file"
+    blocker.write_text("")
+    monkeypatch.setenv("HOME", str(blocker / "home"))               # under a file: nothing there can be made
+    for var in ("XDG_CACHE_HOME", "XDG_CONFIG_HOME", "NUMBA_CACHE_DIR", "MPLCONFIGDIR"):
+        monkeypatch.delenv(var, raising=False)
+    pkg = str(Path(fusion_eval.__file__).parent)
+    real = fusion_eval._writable
+    monkeypatch.setattr(fusion_eval, "_writable", lambda p: False if p.startswith(pkg) else real(p))   # read-only install
+    fusion_eval._caches_in_temp()
+    assert os.environ["NUMBA_CACHE_DIR"].startswith(tempfile.gettempdir())
+    assert os.environ["MPLCONFIGDIR"].startswith(tempfile.gettempdir())
+    monkeypatch.setenv("MPLCONFIGDIR", str(tmp_path / "mine"))
+    monkeypatch.setenv("HOME", str(tmp_path))                        # a writable home: numba's user cache is used
+    monkeypatch.delenv("NUMBA_CACHE_DIR")
+    fusion_eval._caches_in_temp()
+    assert "NUMBA_CACHE_DIR" not in os.environ and os.environ["MPLCONFIGDIR"] == str(tmp_path / "mine")

@@ -64,6 +64,11 @@ def test_sweep_process_pool_and_dask_give_identical_metrics(small, tmp_path):
     # the runs' outputs are those of `fusion-eval run`
     rid = ra["a"]["id"]
     assert (a / "runs" / rid / "metrics.json").exists() and (a / "runs" / rid / "fused.tum").exists()
+    # a summary without plots leaves none of an earlier one's (they read as this one's; a failure-injection review)
+    r = CliRunner().invoke(main, ["-q", "sweep", str(small), "--grid", str(sw), "--out", str(a), "--summarize-only",
+                                  "--no-plots"])
+    assert r.exit_code == 0, r.output
+    assert not list(a.glob("*.png")) and "sweep_params.png" not in (a / "sweep.md").read_text()
 
 
 @pytest.mark.slow
@@ -83,15 +88,16 @@ def test_a_second_sweep_into_a_running_sweeps_folder_is_refused(small, tmp_path)
     """Two sweeps into one folder each ran what the other had not recorded yet, and replaced each other's finished
     runs (a run's own lock only made the second wait): the second is refused while the first lives; a killed one's
     lock is taken over (test_interrupted_sweep_resumes_without_losing_runs)."""
-    import socket
-
     sw = _sweep_file(tmp_path)
     out = tmp_path / "s"
     out.mkdir()
     (out / "records").mkdir()
-    holder = subprocess.Popen([sys.executable, "-c", "import time; time.sleep(60)"])
+    holder = subprocess.Popen([sys.executable, "-c", "import sys, time; from pathlib import Path; "
+                               "from fusion_eval.outputs import take_lock; take_lock(Path(sys.argv[1]), 0, str); "
+                               "print('held', flush=True); time.sleep(60)", str(out / ".sweep.lock")],
+                              stdout=subprocess.PIPE, text=True)
     try:
-        (out / ".sweep.lock").write_text(f"{socket.gethostname()} {holder.pid}")
+        assert holder.stdout.readline().strip() == "held"
         r = CliRunner().invoke(main, ["sweep", str(small), "--grid", str(sw), "--out", str(out), "--jobs", "1"])
         assert r.exit_code == 2 and f"another fusion-eval sweep (pid {holder.pid}) is running in this folder" in r.stderr
         assert "\n" not in r.stderr.strip() and not list((out / "records").iterdir()) and not (out / "runs").exists()
@@ -197,6 +203,18 @@ def test_check_accepts_a_sweep_csv(tmp_path):
     (tmp_path / "ct.csv").write_text(tcols + "0,x,d,eskf,default,1.5,0.5,0.1,ok,\n1,x,d,eskf,default,1.1,0.5,0.1,ok,\n")
     r = CliRunner().invoke(main, ["check", str(tmp_path / "ct.csv"), "--baseline", str(tmp_path / "bt.csv")])
     assert r.exit_code == 1 and "d/eskf/default#trial0.fused_ape_trans_rmse_m" in r.output, r.output
+
+
+def test_check_gives_its_verdict_where_its_summary_cannot_be_written_beside_the_metrics(tmp_path):
+    """A run folder on a read-only share: check exited 2 with no verdict, naming its temporary file (a
+    failure-injection review). The default summary is best effort; one asked for with --summary is not."""
+    base = _metrics(tmp_path, "base.json", 1.0)
+    same = _metrics(tmp_path, "same.json", 1.01)
+    (tmp_path / "check.md").mkdir()                          # in the way of the summary, as a read-only folder is
+    r = CliRunner().invoke(main, ["check", str(same), "-b", str(base)])
+    assert r.exit_code == 0 and "no check.md written" in r.stderr and "ok" in r.stdout, r.output
+    r = CliRunner().invoke(main, ["check", str(same), "-b", str(base), "--summary", str(tmp_path / "check.md")])
+    assert r.exit_code == 2 and "cannot write" in r.stderr
 
 
 def test_check_tolerances_per_metric_pattern(tmp_path):

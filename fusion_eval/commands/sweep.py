@@ -571,21 +571,25 @@ def run_sweep(sweep: str | Path, datasets: list[str], out_dir: Path, jobs: int |
     if summarize_only:
         if not (Path(out_dir) / "records").is_dir():
             raise ConfigError(f"{out_dir}: no sweep records here (nothing to summarize)")
-    else:
-        progress = progress_for(len({t.id for t in tasks})) if progress_for else None
-        # two sweeps into one folder would each run what the other had not recorded yet, one replacing the other's
-        # finished runs (a run's own lock only made the second wait for it): the second is refused
-        (Path(out_dir) / "records").mkdir(exist_ok=True)      # a sweep killed at once is still one to resume
-        with held_lock(Path(out_dir) / ".sweep.lock",
-                       lambda pid: f"{out_dir}: another fusion-eval sweep (pid {pid}) is running in this folder; wait "
-                                   "for it (then run this one again to resume it), or choose another --out"):
-            counts = execute(tasks, out_dir, jobs, scheduler, dask_local, retry_failed, progress=progress, batch=batch)
     try:
+        if not summarize_only:
+            progress = progress_for(len({t.id for t in tasks})) if progress_for else None
+            # two sweeps into one folder would each run what the other had not recorded yet, one replacing the
+            # other's finished runs (a run's own lock only made the second wait for it): the second is refused
+            (Path(out_dir) / "records").mkdir(exist_ok=True)      # a sweep killed at once is still one to resume
+            with held_lock(Path(out_dir) / ".sweep.lock",
+                           lambda pid: f"{out_dir}: another fusion-eval sweep (pid {pid}) is running in this folder; "
+                                       "wait for it (then run this one again to resume it), or choose another --out"):
+                counts = execute(tasks, out_dir, jobs, scheduler, dask_local, retry_failed, progress=progress,
+                                 batch=batch)
         summary = write_summary(tasks, out_dir, swept_keys(body), plots=plots, grid_keys=list(body.get("grid") or {}),
                                 objective=objective)
     except KeyboardInterrupt as exc:
+        if exc.args:                  # the runs' own account (execute: how many are recorded)
+            raise
         # each summary file is written whole, but a Ctrl-C between them left sweep.csv and best.yaml without sweep.md
-        # under 'no output directory was written' (a corrupted-input review)
+        # under 'no output directory was written' (a corrupted-input review), and so did one after the last run was
+        # recorded, before the summary began (a failure-injection review)
         raise type(exc)(f"every finished run is recorded in {out_dir}/records, but the summary was cut short "
                         "(sweep.md, best.yaml, report.html and the plots may be missing or from an earlier summary): "
                         f"`fusion-eval sweep --grid {sweep} --out {out_dir} --summarize-only` rebuilds it") from None

@@ -206,6 +206,9 @@ def _span_note(rows: list[dict]) -> str:
             "truth's first pose): their figures are not over exactly the same stretch.")
 
 
+SWEEP_PLOTS = ("sweep_params.png", "sweep_heatmap.png", "sweep_best_vs_default.png")   # what plots.plot_sweep draws
+
+
 def write_summary(tasks: list[Task], out_dir: Path, keys: list[str], plots: bool = True,
                   grid_keys: list[str] | None = None, objective: str | None = None) -> dict:
     """``sweep.csv``, ``sweep.md``, ``report.html``, ``best.yaml`` and the plots, from the records. ``objective``:
@@ -337,6 +340,10 @@ def write_summary(tasks: list[Task], out_dir: Path, keys: list[str], plots: bool
                                defaults=default_values(tasks, out_dir, keys),
                                metric_label=None if rank.is_default else rank.label)
         L += [f"![{p}]({p})" for p in written]
+    for stale in set(SWEEP_PLOTS) - set(written):
+        # an earlier summary's plot this one does not draw (another grid's heatmap, another ranking's best against
+        # the default, --no-plots) read as this one's (a failure-injection review)
+        (out_dir / stale).unlink(missing_ok=True)
     md = "\n".join(L) + "\n"
     atomic_write(out_dir / "sweep.md", md)
     atomic_write(out_dir / "report.html", html.page(md, out_dir, inputs=dataset_files(t.dataset for t in tasks)))

@@ -75,6 +75,13 @@ def run_tune(train: list[str], test: list[str], space: str, objectives: list[str
         if new_dir and not any((s.out_dir / "trials").glob("*.json")):
             shutil.rmtree(s.out_dir, ignore_errors=True)
         raise
+    except KeyboardInterrupt as exc:
+        # the study's own account (how many trials are kept) where it gave one; else, once its folder exists, not
+        # "no output directory was written" beside a journal of trials (a failure-injection review)
+        if exc.args or not (s.out_dir / "study.journal").exists():
+            raise
+        raise type(exc)(f"the trials so far are kept in {s.out_dir}/study.journal; run the same command again to go "
+                        "on") from None
     try:
         files = write(s, res, time.perf_counter() - t0, with_plots=plots)
     except KeyboardInterrupt as exc:

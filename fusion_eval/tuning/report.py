@@ -164,8 +164,8 @@ def markdown(s: Setup, res: dict, runtime_s: float) -> str:
                                                 [[f["number"]] + [_f(v) for v in f["values"]] for f in best["front"]])
         L.append("")
     L += ["Files: `best.yaml` (use with `fusion-eval run -c best.yaml`), `trials.csv`, `trials/<n>.json` (every "
-          "trial's metrics per drive), `default.json`, `study.journal` (Optuna's; the same command resumes it), plots "
-          "`history.png`, `importance.png`, `parallel.png`.", ""]
+          "trial's metrics per drive), `default.json`, `study.journal` (Optuna's; the same command resumes it), and, "
+          "unless `--no-plots`, the plots `history.png`, `importance.png`, `parallel.png`.", ""]
     return "\n".join(L)
 
 
@@ -210,6 +210,9 @@ def _generalisation(gaps) -> str:
         return (f"Partly overfitted: the gain on the held-out drives ({g_te:.4g}) is less than half the gain on the "
                 f"training drives ({g_tr:.4g}).")
     return f"The gain holds on the held-out drives: {g_te:.4g} there against {g_tr:.4g} on the training drives."
+
+
+TUNE_PLOTS = ("history.png", "importance.png", "parallel.png")
 
 
 def plots(study, s: Setup) -> list[str]:
@@ -258,6 +261,8 @@ def write(s: Setup, res: dict, runtime_s: float, with_plots: bool = True) -> lis
     files += ["trials.csv", "tune.md"]
     if with_plots and res["best"] is not None:
         files += plots(res["study"], s)
+    for stale in set(TUNE_PLOTS) - set(files):         # an earlier report's (a resumed tune with --no-plots kept them)
+        (out / stale).unlink(missing_ok=True)
     atomic_write(out / "report.html", html.page(md, out, [f for f in files if f.endswith(".png")],
                                                 inputs=dataset_files([*s.train, *s.test])))
     return files + ["report.html"]
