@@ -219,6 +219,21 @@ def test_absurd_simulator_settings_are_one_line_errors(tmp_path, args, needle):
     assert not out.exists()
 
 
+def test_every_simulated_sensors_rate_must_divide_the_imu_rate(tmp_path, monkeypatch):
+    """A registered observation's simulated sensor at 7 Hz on a 100 Hz IMU was written at 7.14 Hz without a word,
+    where the built-in sensors' rates are checked (an extension author's barometer)."""
+    from click.testing import CliRunner
+
+    from fusion_eval.cli import main
+    from fusion_eval.filters import observations
+    from fusion_eval.spec import S
+
+    real = observations.sim_keys
+    monkeypatch.setattr(observations, "sim_keys", lambda: {**real(), "baro.rate_hz": S(10.0, "a rate, Hz", positive=True)})
+    r = CliRunner().invoke(main, ["simulate", str(tmp_path / "sim"), "-d", "30", "--set", "baro.rate_hz=7"])
+    assert r.exit_code == 2 and "baro.rate_hz=7 must divide imu.rate_hz=100" in r.stderr, r.output
+
+
 def test_a_misspelt_waypoint_key_is_refused(tmp_path):
     from click.testing import CliRunner
 
