@@ -203,6 +203,11 @@ def _interrupted(exc: BaseException) -> None:
     # keeps its own handler.
     if _PROCESS_ENTRY:
         signal.signal(signal.SIGINT, signal.SIG_IGN)
+        # and the libraries' exit hooks cut short by the signal keep their tracebacks to themselves (Dask's cluster
+        # interrupted as it started printed "Exception ignored in atexit callback ... Status.init", its comms
+        # "CommClosedError" under the one line: a failure-injection review)
+        sys.unraisablehook = lambda _unraisable: None
+        logging.getLogger("distributed").setLevel(logging.CRITICAL + 1)
     what = "terminated (SIGTERM)" if isinstance(exc, interrupts.Terminated) else "interrupted"
     done = interrupts.written()
     said = (exc.args[0] if exc.args else f"after {' and '.join(done)} was written whole" if done

@@ -495,3 +495,18 @@ def test_a_two_objective_studys_report_compares_both_objectives(tmp_path):
     md = (out / "tune.md").read_text()
     head = next(ln for ln in md.splitlines() if ln.startswith("| drives"))
     assert all(c in head for c in ("fused.ape.rmse (default)", "fused.ape.rmse (tuned)", "nll (default)", "nll (tuned)"))
+
+
+def test_a_journal_that_cannot_be_written_is_named(tmp_path, monkeypatch):
+    """A full disk under Optuna's journal ended a tune with "error: No space left on device", naming no file (a
+    failure-injection review): the journal is named, in one line."""
+    from fusion_eval.tuning import study as st
+
+    def full(*_a, **_k):
+        raise OSError(28, "No space left on device")
+    monkeypatch.setattr(st, "_tell", full)
+    ds = make_slice(tmp_path / "ds", 300)
+    out = tmp_path / "tune"
+    r = _tune([str(ds), "--objective", "fused.ape.rmse", "--trials", "2", "-j", "1", "-o", str(out), "--no-plots"],
+              tmp_path)
+    assert r.exit_code == 2 and f"{out / 'study.journal'}: cannot write (No space left on device)" in r.stderr, r.output

@@ -488,8 +488,11 @@ def execute(tasks: list[Task], out_dir: Path, jobs: int | None, scheduler: str |
     if scheduler or dask_local:
         from dask.distributed import Client, LocalCluster, as_completed
 
-        cluster = LocalCluster(n_workers=jobs, threads_per_worker=1, processes=True, dashboard_address=None) \
-            if dask_local else None
+        try:
+            cluster = LocalCluster(n_workers=jobs, threads_per_worker=1, processes=True, dashboard_address=None) \
+                if dask_local else None
+        except KeyboardInterrupt as exc:     # while the cluster starts: what is recorded, not "nothing was written"
+            raise interrupted(exc) from None
         try:
             client = Client(cluster if cluster is not None else scheduler)
         except (OSError, TimeoutError) as exc:

@@ -21,7 +21,7 @@ from pathlib import Path
 from typing import Callable
 
 from .. import interrupts
-from ..errors import ConfigError
+from ..errors import ConfigError, OutputError
 from ..outputs import alive, atomic_write, resumable_dir
 from .objectives import Objective
 from .space import Space
@@ -295,6 +295,13 @@ def run_study(s: Setup, progress: Callable[[int, int, float | None], None] | Non
                 study.enqueue_trial(t.params, skip_if_exists=False)
             raise type(exc)(f"{counted(study)} of {s.n_trials} trials are kept in {s.out_dir}/study.journal; run the "
                             "same command again to go on") from None
+        except OSError as exc:
+            if exc.filename is not None:
+                raise
+            # Optuna's journal, appended to by its own code: "No space left on device" named no file (a
+            # failure-injection review)
+            raise OutputError(f"{s.out_dir / 'study.journal'}: cannot write ({exc.strerror or exc}); the trials "
+                              "written before are kept") from None
         best = _best(study, s)
         if best is not None and s.test:
             best["test"] = ex.map([s.job(best["number"], best["overrides"], s.test)])[0]
