@@ -45,12 +45,38 @@ def _caches_in_temp() -> None:
         todo.append(("NUMBA_CACHE_DIR", "numba"))
     if "MPLCONFIGDIR" not in _os.environ and not _writable(_os.path.join(config, "matplotlib")):
         todo.append(("MPLCONFIGDIR", "matplotlib"))
-    if todo:
-        import tempfile
+    for var, what in todo:
+        folder = _private_temp(f"fusion-eval-{what}")
+        if folder is None:                   # not ours to trust: a fresh folder, no cache kept between runs
+            import tempfile
 
-        user = getattr(_os, "getuid", lambda: 0)()
-        for var, what in todo:
-            _os.environ[var] = _os.path.join(tempfile.gettempdir(), f"fusion-eval-{what}-{user}")
+            folder = tempfile.mkdtemp(prefix=f"fusion-eval-{what}-")
+        _os.environ[var] = folder
+
+
+def _private_temp(name: str) -> str | None:
+    """``<temp>/<name>-<uid>``, made private (0700) if missing; None unless it is a folder of this user's that no one
+    else can write, not a link: at a predictable path in the shared temporary folder, another user could have made it
+    first and left code there that numba's cache would load (a diff review)."""
+    import stat
+    import tempfile
+
+    uid = getattr(_os, "getuid", lambda: None)()
+    path = _os.path.join(tempfile.gettempdir(), f"{name}-{uid if uid is not None else 'user'}")
+    try:
+        _os.mkdir(path, 0o700)
+    except FileExistsError:
+        pass
+    except OSError:
+        return None
+    try:
+        st = _os.lstat(path)
+    except OSError:
+        return None
+    mine = uid is None or st.st_uid == uid
+    if not stat.S_ISDIR(st.st_mode) or not mine or st.st_mode & 0o022:
+        return None
+    return path
 
 
 _caches_in_temp()

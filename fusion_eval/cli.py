@@ -210,8 +210,8 @@ def _interrupted(exc: BaseException) -> None:
         logging.getLogger("distributed").setLevel(logging.CRITICAL + 1)
     what = "terminated (SIGTERM)" if isinstance(exc, interrupts.Terminated) else "interrupted"
     done = interrupts.written()
-    said = (exc.args[0] if exc.args else f"after {' and '.join(done)} was written whole" if done
-            else "no output directory was written")
+    said = (exc.args[0] if exc.args else f"after {' and '.join(done)} {'was' if len(done) == 1 else 'were'} written whole"
+            if done else "no output directory was written")
     click.echo(f"\n{what}: {said}", err=True)
     sys.exit(143 if isinstance(exc, interrupts.Terminated) else 130)
 

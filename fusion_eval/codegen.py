@@ -7,18 +7,22 @@ the module that builds them, the templates' line numbers pointed into an unrelat
 3.10-3.12 returned the wrong lines without a word, and Python 3.13's tokenizer raised on them, so that the first
 run on 3.13 failed with a traceback (a portability review). A file of their own gives numba both.
 
-The file's name carries a digest of the template and of the anchoring module's whole source: numba's cache sees
-only the file itself, and the loop inlines functions of that module (a formulation's step), whose change must give
-a fresh compile. Where no folder is writable, the template is compiled under the anchoring module's name as before.
+The file's name carries a digest of the template, of the anchoring module's whole source and of every module of the
+filters and the smoother: numba's cache sees only the file itself, and the loop inlines functions of those (a
+formulation's step, the mechanization, the discretisation), whose change must give a fresh compile. Copies made
+from other sources are pruned after two weeks. Where no folder is writable, the template is compiled under the
+anchoring module's name as before.
 """
 
 from __future__ import annotations
 
+import glob
 import hashlib
 import os
 import sys
-import tempfile
 from pathlib import Path
+
+from . import _private_temp
 
 
 def build(module_name: str, name: str, src: str, ns: dict) -> dict:
@@ -32,11 +36,13 @@ def build(module_name: str, name: str, src: str, ns: dict) -> dict:
 
 def _written(module_name: str, name: str, src: str, anchor: Path) -> Path | None:
     h = hashlib.sha1(src.encode())
+    h.update(_compiled_sources())
     try:
         h.update(anchor.read_bytes())
     except OSError:
         pass
-    file_name = f"{module_name.replace('.', '_')}__{name}__{h.hexdigest()[:12]}.py"   # not a state index
+    stem = f"{module_name.replace('.', '_')}__{name}__"
+    file_name = f"{stem}{h.hexdigest()[:12]}.py"   # not a state index
     for folder in _folders():
         path = folder / file_name
         try:
@@ -46,10 +52,52 @@ def _written(module_name: str, name: str, src: str, anchor: Path) -> Path | None
             tmp = folder / f".{file_name}.{os.getpid()}.tmp"
             tmp.write_text(src, encoding="utf-8")
             os.replace(tmp, path)         # whole, for another process compiling the same template at once
+            _prune(folder, stem, path)
             return path
         except OSError:
             continue
     return None
+
+
+_SOURCES: list[bytes] = []
+
+
+def _compiled_sources() -> bytes:
+    """A digest of every module of the filters and the smoother, once per process: the loops inline functions of
+    many of them (the step's mechanization, discretisation, the kernels' helpers), and a callee changed in one that the
+    name did not cover was served from numba's cache as it was (a diff review)."""
+    if not _SOURCES:
+        h = hashlib.sha1()
+        root = Path(__file__).parent
+        for sub in ("filters", "smoothing"):
+            for f in sorted((root / sub).rglob("*.py")):
+                h.update(f.relative_to(root).as_posix().encode() + b"\0")
+                try:
+                    h.update(f.read_bytes())
+                except OSError:
+                    pass
+        _SOURCES.append(h.digest())
+    return _SOURCES[0]
+
+
+PRUNE_AFTER_S = 14 * 86400
+
+
+def _prune(folder: Path, stem: str, keep: Path) -> None:
+    """Remove copies of the same loop made from other sources over :data:`PRUNE_AFTER_S` ago, with numba's cache of
+    them (11 MB a set; every upgrade or edit made a new one). Not younger ones: another installation on this account
+    may still use them, and would compile them again."""
+    import time
+
+    now = time.time()
+    for old in folder.glob(f"{glob.escape(stem)}*.py"):
+        try:
+            if old != keep and now - old.stat().st_mtime > PRUNE_AFTER_S:
+                old.unlink()
+                for cached in (folder / "__pycache__").glob(f"{glob.escape(old.stem)}.*"):
+                    cached.unlink()
+        except OSError:
+            pass
 
 
 def _folders() -> list[Path]:
@@ -64,12 +112,7 @@ def _folders() -> list[Path]:
         base = None
     if base:
         out.append(Path(base) / "fusion-eval" / "generated")
-    out.append(Path(tempfile.gettempdir()) / f"fusion-eval-generated-{_user()}")
+    private = _private_temp("fusion-eval-generated")      # a shared folder: only a private one of this user's
+    if private is not None:
+        out.append(Path(private))
     return out
-
-
-def _user() -> str:
-    try:
-        return str(os.getuid())
-    except AttributeError:            # Windows
-        return os.environ.get("USERNAME", "user")

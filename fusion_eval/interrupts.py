@@ -75,12 +75,15 @@ def _abort(signum: int) -> None:
 
 _received: int | None = None                 # the last signal raised in this block
 _written: list[str] = []                     # output folders completed in this block (said if a signal then ends it)
+_active: list[bool] = []                     # handled() blocks open
 
 
 def wrote(path) -> None:
     """Record a completed output folder: a signal that ends the command after it must not say nothing was written
-    (a failure-injection review: "no output directory was written" beside a complete one)."""
-    _written.append(str(path))
+    (a failure-injection review: "no output directory was written" beside a complete one). Only inside a command's
+    :func:`handled` block (a program calling the API does not collect them)."""
+    if _active:
+        _written.append(str(path))
 
 
 def written() -> list[str]:
@@ -198,6 +201,7 @@ def handled():
             signal.signal(s, _handler)
     _received = None
     _written.clear()
+    _active.append(True)
     rfd, wfd = os.pipe()
     os.set_blocking(wfd, False)
     old_fd = signal.set_wakeup_fd(wfd, warn_on_full_buffer=False)
@@ -207,6 +211,7 @@ def handled():
     try:
         yield
     finally:
+        _active.pop()
         _pending = None
         _generation += 1
         signal.set_wakeup_fd(old_fd)

@@ -6,19 +6,17 @@ from __future__ import annotations
 
 import contextlib
 import errno
-import fcntl
 import glob
 import hashlib
+import logging
 import os
 import shutil
-import socket
-import time
-from collections.abc import Callable
-from contextlib import contextmanager
 from pathlib import Path
 
-from . import interrupts
+from . import interrupts, locks
 from .errors import OutputError
+
+log = logging.getLogger(__name__)
 
 
 def atomic_write(path: Path, text: str) -> None:
@@ -34,17 +32,6 @@ def atomic_write(path: Path, text: str) -> None:
     except OSError as exc:                  # a folder in the way, a path under /proc: one line, no temporary left
         tmp.unlink(missing_ok=True)
         raise OutputError(f"{path}: cannot write ({exc.strerror or exc})") from None
-
-
-def alive(pid: int) -> bool:
-    """Whether process ``pid`` of this host exists (a lock's or a study trial's owner)."""
-    try:
-        os.kill(pid, 0)
-    except ProcessLookupError:
-        return False
-    except PermissionError:
-        return True
-    return True
 
 
 @contextlib.contextmanager
@@ -212,75 +199,10 @@ def _sibling(final: Path, tag: str) -> Path:
     """The hidden working file or folder ``.<name>.<tag>`` beside ``final``; for a name too long to take the
     prefix and the tag (a legal 245-character --out failed as "File name too long" and left its lock file behind), a
     digest of the name stands in."""
-    name = f".{final.name}.{tag}"
-    if len(name.encode("utf-8", "surrogateescape")) > 200:
-        name = f".fe-{hashlib.sha1(final.name.encode('utf-8', 'surrogateescape')).hexdigest()[:16]}.{tag}"
-    return final.parent / name
-
-
-def take_lock(path: Path, wait_s: float, busy: Callable[[int], str]) -> int:
-    """Hold ``path`` as a lock (an exclusive ``flock`` on it, which the system releases when its process ends, however
-    it ends) and write this host and pid into it; returns the descriptor for :func:`release_lock`. While another
-    process holds it, wait up to ``wait_s`` and then raise :class:`OutputError` with ``busy(pid)``. A lock file named
-    by another host (a cluster's shared filesystem, where ``flock`` may not reach) counts as held. Reading a dead
-    holder's pid and deleting its file let two processes both take it over at once (a failure-injection review):
-    the kernel's lock cannot be taken twice."""
-    t_end = time.monotonic() + wait_s
-    while True:
-        fd = os.open(path, os.O_CREAT | os.O_RDWR, 0o644)
-        try:
-            fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
-            held = False
-        except BlockingIOError:
-            held = True
-        host, pid = _holder(fd)
-        if not held:
-            try:                              # the holder before may have deleted the file after we opened it
-                current = os.fstat(fd).st_ino == os.stat(path).st_ino
-            except FileNotFoundError:
-                current = False
-            if not current:
-                os.close(fd)
-                continue
-            held = bool(pid) and host not in ("", socket.gethostname())
-        if held:
-            os.close(fd)
-            if time.monotonic() < t_end:
-                time.sleep(0.2)
-                continue
-            raise OutputError(busy(pid))
-        os.ftruncate(fd, 0)
-        os.pwrite(fd, f"{socket.gethostname()} {os.getpid()}".encode(), 0)
-        return fd
-
-
-def _holder(fd: int) -> tuple[str, int]:
-    """The host and pid written in a lock file ('' and 0 when unreadable)."""
-    try:
-        host, _, pid_s = os.pread(fd, 4096, 0).decode("utf-8", "replace").strip().rpartition(" ")
-        return host, int(pid_s or 0)
-    except (OSError, ValueError):
-        return "", 0
-
-
-def release_lock(path: Path, fd: int) -> None:
-    """Delete the lock file while still holding it (a process waiting on it then finds it gone and takes a new one),
-    then let it go."""
-    try:
-        path.unlink()
-    except FileNotFoundError:
-        pass
-    os.close(fd)
-
-
-@contextmanager
-def held_lock(path: Path, busy: Callable[[int], str]):
-    """:func:`take_lock` (no waiting) for the length of a ``with`` block."""
-    fd = take_lock(path, 0.0, busy)
-    try:
-        yield
-    finally:
-        release_lock(path, fd)
+    base = final.name
+    if len(base.encode("utf-8", "surrogateescape")) > 180:       # by the name alone: every tag of one --out alike
+        base = f"fe-{hashlib.sha1(base.encode('utf-8', 'surrogateescape')).hexdigest()[:16]}"
+    return final.parent / f".{base}.{tag}"
 
 
 class StagedDir:
@@ -317,23 +239,41 @@ class StagedDir:
             # remember which parent folders this run creates, to remove them again if it fails
             self._made = [p for p in [self.final.parent, *self.final.parent.parents] if not p.exists()]
             self.final.parent.mkdir(parents=True, exist_ok=True)
-            self._lock()
-            try:
-                self.check()          # another process may have finished this directory while we worked
-            except OutputError:
-                self._unlock()
-                raise
-            self.staging = _sibling(self.final, f"partial-{os.getpid()}")
-            # with the lock held no other process writes this target: every staging folder of it is a killed run's
-            # (SIGKILL, the OOM killer, a CI timeout left 3.4 MB of half-written results beside --out for good: a
-            # corrupted-input review)
-            for old in self.final.parent.glob(glob.escape(_sibling(self.final, "partial-").name) + "*"):
-                shutil.rmtree(old, ignore_errors=True)
-            self.staging.mkdir()
-            self._abort_token = interrupts.on_abort(self._abandon)
         except OSError as exc:
             raise OutputError(f"{self.final}: cannot create output directory ({_why(self.final, exc)})") from None
+        self._lock()
+        try:
+            self._recover()
+            self.check()          # another process may have finished this directory while we worked
+            self.staging = _sibling(self.final, f"partial-{os.getpid()}")
+            self.staging.mkdir()
+            self._abort_token = interrupts.on_abort(self._abandon)
+        except BaseException as exc:          # the lock let go on every way out (a notebook locked itself out)
+            if self.staging is not None:
+                shutil.rmtree(self.staging, ignore_errors=True)
+                self.staging = None
+            self._unlock()
+            if isinstance(exc, OSError):
+                raise OutputError(f"{self.final}: cannot create output directory ({_why(self.final, exc)})") from None
+            raise
         return self
+
+    def _recover(self) -> None:
+        """With the lock held no other process writes this target: every staging folder of it is a killed run's
+        (SIGKILL, the OOM killer, a CI timeout left 3.4 MB of half-written results beside --out for good: a
+        corrupted-input review), and every old copy a finished swap's, removed; except an old copy where the
+        target is missing (a writer killed between the swap's two renames), which is put back."""
+        def siblings(tag):
+            return sorted(self.final.parent.glob(glob.escape(_sibling(self.final, tag).name) + "*"),
+                          key=lambda p: p.stat().st_mtime if p.exists() else 0.0)
+        for p in siblings("partial-"):
+            shutil.rmtree(p, ignore_errors=True)
+        olds = siblings("old-")
+        if olds and not self.final.exists():
+            os.replace(olds.pop(), self.final)
+            log.warning("%s: put back from the copy a killed run had moved aside", self.final)
+        for p in olds:
+            shutil.rmtree(p, ignore_errors=True)
 
     def path(self, name: str) -> Path:
         """A path inside the staging folder (for writers that take a file name)."""
@@ -346,21 +286,15 @@ class StagedDir:
         return write_atomic(self.staging / name, data)
 
     def _lock(self) -> None:
-        """Take ``.<name>.lock`` beside the target: a second process writing the same directory at the same time is
-        refused instead of silently replacing the first one's results."""
-        self._lock_path = _sibling(self.final, "lock")
-        try:
-            self._lock_fd = take_lock(self._lock_path, self.wait_lock_s,
-                      lambda pid: f"{self.final}: another fusion-eval (pid {pid}) is writing this output directory; "
-                                  "wait for it, or choose another --out")
-        except OutputError:
-            self._lock_path = None
-            raise
+        """Take ``.<name>.lock`` beside the target (:mod:`fusion_eval.locks`): a second process writing the same
+        directory at the same time is refused instead of silently replacing the first one's results."""
+        self._held = locks.take(_sibling(self.final, "lock"), self.wait_lock_s,
+                                lambda pid: f"{self.final}: another fusion-eval (pid {pid}) is writing this output "
+                                            "directory; wait for it, or choose another --out")
 
     def _unlock(self) -> None:
-        if getattr(self, "_lock_path", None) is not None:
-            release_lock(self._lock_path, self._lock_fd)
-            self._lock_path = None
+        held, self._held = getattr(self, "_held", None), None      # once, whichever thread gets here first
+        locks.release(held)
 
     def __exit__(self, exc_type, exc, tb) -> bool:
         try:
@@ -381,14 +315,24 @@ class StagedDir:
             # the two renames as one step: a signal between them left the old results and the new ones both hidden
             # (.out.old-PID, .out.partial-PID) and nothing at --out (a failure-injection review); it is raised after
             with interrupts.deferred():
+                if not self.overwrite and self.final.is_dir() and any(self.final.iterdir()):
+                    # written by a command that takes no lock of this folder (a sweep started in it) while this
+                    # one worked: its files are not replaced (a diff review), this run's results go beside them
+                    k = 2
+                    while (self.final.parent / f"{self.final.name}-{k}").exists():
+                        k += 1
+                    beside = self.final.parent / f"{self.final.name}-{k}"
+                    os.replace(self.staging, beside)
+                    raise OutputError(f"{self.final}: another command wrote there while this run worked; its files "
+                                      f"are left as they are and this run's results are in {beside}")
                 old = None
                 if self.final.exists():
                     old = _sibling(self.final, f"old-{os.getpid()}")
                     os.replace(self.final, old)
                 os.replace(self.staging, self.final)
                 interrupts.wrote(self.final)
-                if old is not None:
-                    shutil.rmtree(old, ignore_errors=True)
+            if old is not None:                # (a copy left by a signal here is removed by the next run's _recover)
+                shutil.rmtree(old, ignore_errors=True)
             return False
         finally:
             interrupts.forget(getattr(self, "_abort_token", None))

@@ -1577,7 +1577,7 @@ def test_an_interrupted_sweep_summary_says_the_records_are_kept_and_how_to_rebui
     def lock_then_signal(*_a, **_k):
         yield
         raise KeyboardInterrupt
-    monkeypatch.setattr(sweep, "held_lock", lock_then_signal)
+    monkeypatch.setattr(sweep.locks, "held", lock_then_signal)
     r = CliRunner().invoke(main, args)
     assert r.exit_code == 130 and "every finished run is recorded in" in r.stderr, r.output
 

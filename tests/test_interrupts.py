@@ -198,7 +198,8 @@ def test_a_killed_writers_lock_is_taken_once_and_a_live_ones_never(tmp_path):
     one's results replaced by the other's (a failure-injection review). The lock is the kernel's (flock): a killed
     holder's file is taken over, a live holder's never, whatever its file says."""
     from fusion_eval.errors import OutputError
-    from fusion_eval.outputs import StagedDir, take_lock
+    from fusion_eval.locks import take as take_lock
+    from fusion_eval.outputs import StagedDir
 
     lock = tmp_path / ".out.lock"
     lock.write_text(f"{socket.gethostname()} 999999999")            # a SIGKILLed run's: no process holds it
@@ -206,7 +207,7 @@ def test_a_killed_writers_lock_is_taken_once_and_a_live_ones_never(tmp_path):
         a.write_text("x.txt", "mine")
     assert (tmp_path / "out" / "x.txt").read_text() == "mine" and not lock.exists()
     holder = subprocess.Popen([sys.executable, "-c", "import sys, time; from pathlib import Path; "
-                               "from fusion_eval.outputs import take_lock; take_lock(Path(sys.argv[1]), 0, str); "
+                               "from fusion_eval.locks import take; take(Path(sys.argv[1]), 0, str); "
                                "print('held', flush=True); time.sleep(60)", str(tmp_path / ".out2.lock")],
                               stdout=subprocess.PIPE, text=True)
     try:
@@ -250,8 +251,18 @@ def test_a_signal_between_the_two_renames_is_raised_after_them(tmp_path, monkeyp
                 monkeypatch.setattr(os, "replace", replace)
     monkeypatch.setattr(os, "replace", real)
     assert len(calls) == 2 and (out / "metrics.json").read_text() == "new"
-    assert sorted(p.name for p in tmp_path.iterdir()) == ["out"]       # no .old, no .partial, no lock
     assert interrupts.written() == [str(out)]
+    # the old copy is deleted after the swap, where the signal is raised: left, and removed by the next writer; a copy
+    # where the target is missing (a writer killed between the renames) is put back
+    assert sorted(p.name for p in tmp_path.iterdir()) == [f".out.old-{os.getpid()}", "out"]     # no .partial, no lock
+    with StagedDir(tmp_path / "other"):
+        pass
+    (tmp_path / "other").rename(tmp_path / ".other.old-999999")
+    for target in (out, tmp_path / "other"):
+        with StagedDir(target, overwrite=True) as st:
+            assert target.is_dir()
+            st.write_text("metrics.json", "newer")
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["other", "out"]
 
 
 def test_out_given_as_a_link_to_a_folder_and_as_a_very_long_name(tmp_path):

@@ -150,3 +150,21 @@ def test_caches_go_to_the_temporary_folder_where_nothing_else_can_be_written(mon
     monkeypatch.delenv("NUMBA_CACHE_DIR")
     fusion_eval._caches_in_temp()
     assert "NUMBA_CACHE_DIR" not in os.environ and os.environ["MPLCONFIGDIR"] == str(tmp_path / "mine")
+
+
+def test_a_temporary_cache_folder_is_used_only_if_private(monkeypatch, tmp_path):
+    """At a predictable path in the shared temporary folder another user could make the folder first and leave code
+    there that numba's cache loads (a diff review): only a private folder of this user's, not a link, is used."""
+    import tempfile
+
+    import fusion_eval
+
+    monkeypatch.setattr(tempfile, "gettempdir", lambda: str(tmp_path))
+    uid = os.getuid()
+    made = fusion_eval._private_temp("fe-a")
+    assert made == str(tmp_path / f"fe-a-{uid}") and (os.stat(made).st_mode & 0o777) == 0o700
+    (tmp_path / f"fe-b-{uid}").mkdir(mode=0o777)
+    os.chmod(tmp_path / f"fe-b-{uid}", 0o777)                          # writable by others
+    (tmp_path / "elsewhere").mkdir(mode=0o700)
+    (tmp_path / f"fe-c-{uid}").symlink_to(tmp_path / "elsewhere")     # a link
+    assert fusion_eval._private_temp("fe-b") is None and fusion_eval._private_temp("fe-c") is None

@@ -93,7 +93,7 @@ def test_a_second_sweep_into_a_running_sweeps_folder_is_refused(small, tmp_path)
     out.mkdir()
     (out / "records").mkdir()
     holder = subprocess.Popen([sys.executable, "-c", "import sys, time; from pathlib import Path; "
-                               "from fusion_eval.outputs import take_lock; take_lock(Path(sys.argv[1]), 0, str); "
+                               "from fusion_eval.locks import take; take(Path(sys.argv[1]), 0, str); "
                                "print('held', flush=True); time.sleep(60)", str(out / ".sweep.lock")],
                               stdout=subprocess.PIPE, text=True)
     try:
@@ -217,6 +217,20 @@ def test_check_gives_its_verdict_where_its_summary_cannot_be_written_beside_the_
     assert r.exit_code == 2 and "cannot write" in r.stderr
 
 
+def test_a_scheduler_nobody_answers_leaves_no_folder(small, tmp_path, monkeypatch):
+    """One line naming the option, and no empty folder (its own lock file once counted as a record: a diff review)."""
+    import dask.distributed
+
+    def nobody(*_a, **_k):
+        raise OSError("Timed out trying to connect")
+    monkeypatch.setattr(dask.distributed, "Client", nobody)
+    out = tmp_path / "s"
+    r = CliRunner().invoke(main, ["sweep", str(small), "--grid", str(_sweep_file(tmp_path)), "--out", str(out),
+                                  "--scheduler", "tcp://127.0.0.1:9"])
+    assert r.exit_code == 2 and "--scheduler tcp://127.0.0.1:9: no Dask scheduler answers there" in r.stderr, r.output
+    assert not out.exists()
+
+
 def test_check_tolerances_per_metric_pattern(tmp_path):
     """One --atol across metres, degrees and ratios was a CI user's complaint: PATTERN=VALUE sets the tolerance of the
     metrics a glob matches (the last match wins), a bare value every other's; a pattern matching nothing is refused."""
@@ -240,6 +254,13 @@ def test_check_tolerances_per_metric_pattern(tmp_path):
 
     assert Tolerance.parse("--atol", ("0.1", "a*=2", "ab*=3"), 0.0).of("abc") == 3.0
     assert check(worse, base, rtol=0.5, atol=0.0).ok          # the API still takes plain numbers
+    import numpy as np
+
+    assert check(worse, base, rtol="0.5").ok and check(worse, base, rtol=np.float32(0.5)).ok   # one value, any type
+    from fusion_eval.commands.check import compare_metrics, load_metrics
+
+    cur, base_m = load_metrics(_metrics(tmp_path, "same2.json", 1.01), None)[0], load_metrics(base, None)[0]
+    assert [r.verdict for r in compare_metrics(cur, base_m, ("fused.ape.rmse",), (), ())] == ["ok"]  # +1 %: 0.05 as check()
 
 
 def test_check_matches_a_sweep_csv_made_in_another_folder_by_dataset_name(tmp_path):

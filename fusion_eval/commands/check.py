@@ -20,6 +20,7 @@ import fnmatch
 import json
 import logging
 import math
+import numbers
 import re
 import xml.etree.ElementTree as ET
 from dataclasses import dataclass
@@ -188,7 +189,7 @@ class Tolerance:
         """``values``: numbers or ``PATTERN=NUMBER`` strings (``--atol`` given several times), or one number."""
         from ..errors import ConfigError
 
-        if isinstance(values, (int, float)):
+        if isinstance(values, (str, numbers.Real)):      # one value (a string was read a character at a time)
             values = (values,)
         rules, base = [], default
         for v in values:
@@ -219,7 +220,11 @@ class Tolerance:
 
 
 def _tolerance(option: str, value) -> Tolerance:
-    return value if isinstance(value, Tolerance) else Tolerance.parse(option, value, 0.0)
+    """``value`` as a :class:`Tolerance`; nothing given is the option's default (rtol 0.05, atol 0), as for check()."""
+    return value if isinstance(value, Tolerance) else Tolerance.parse(option, value, DEFAULTS[option])
+
+
+DEFAULTS = {"--rtol": 0.05, "--atol": 0.0}
 
 
 def compare_metrics(current: dict, baseline: dict, patterns: tuple[str, ...], rtol, atol) -> list[Row]:
@@ -382,8 +387,7 @@ def _check(metrics_path, baseline, rtol, atol, patterns, rules, junit_path, summ
            trial_stat_given) -> CheckResult:
     from ..errors import ConfigError
 
-    rtol = rtol if isinstance(rtol, Tolerance) else Tolerance.parse("--rtol", rtol, 0.05)
-    atol = _tolerance("--atol", atol)
+    rtol, atol = _tolerance("--rtol", rtol), _tolerance("--atol", atol)
     from .. import resources
 
     base_path = resources.find(baseline)          # configs/baselines/... from any directory

@@ -51,7 +51,8 @@ from ..config import check_value, read_yaml, schema
 from ..errors import ConfigError, FilterDivergedError, FusionEvalError
 from ..log_context import prefixed
 from ..batch import FILTER_ONLY_KEYS, batch_key  # noqa: F401 - FILTER_ONLY_KEYS: part of this module's API
-from ..outputs import dataset_roots, held_lock, resumable_dir
+from .. import locks
+from ..outputs import dataset_roots, resumable_dir
 from ..provenance import fingerprint
 from ..variants import resolve_variant
 
@@ -499,7 +500,8 @@ def execute(tasks: list[Task], out_dir: Path, jobs: int | None, scheduler: str |
             # an address nobody answers: after its 30 s, one line naming the option, and no empty folder left
             if cluster is not None:
                 cluster.close()
-            if not any(p.is_file() for p in out_dir.rglob("*")):        # nothing recorded: the folder goes
+            if not any(p.is_file() and p.name != ".sweep.lock" for p in out_dir.rglob("*")):   # nothing recorded:
+                # the folder goes (its lock is this sweep's own)
                 shutil.rmtree(out_dir, ignore_errors=True)
             raise ConfigError(f"--scheduler {scheduler}: no Dask scheduler answers there ({exc})") from None
         if scheduler:
@@ -580,7 +582,7 @@ def run_sweep(sweep: str | Path, datasets: list[str], out_dir: Path, jobs: int |
             # two sweeps into one folder would each run what the other had not recorded yet, one replacing the
             # other's finished runs (a run's own lock only made the second wait for it): the second is refused
             (Path(out_dir) / "records").mkdir(exist_ok=True)      # a sweep killed at once is still one to resume
-            with held_lock(Path(out_dir) / ".sweep.lock",
+            with locks.held(Path(out_dir) / ".sweep.lock",
                            lambda pid: f"{out_dir}: another fusion-eval sweep (pid {pid}) is running in this folder; "
                                        "wait for it (then run this one again to resume it), or choose another --out"):
                 counts = execute(tasks, out_dir, jobs, scheduler, dask_local, retry_failed, progress=progress,

@@ -22,7 +22,8 @@ from typing import Callable
 
 from .. import interrupts
 from ..errors import ConfigError, OutputError
-from ..outputs import alive, atomic_write, resumable_dir
+from ..locks import alive
+from ..outputs import atomic_write, resumable_dir
 from .objectives import Objective
 from .space import Space
 from .worker import REPORTS, Job, score

@@ -1,0 +1,231 @@
+"""Locks of output folders: one process writes a folder (a run's ``--out``, a sweep's folder) at a time.
+
+A lock is a file beside the folder holding its writer's host and pid, under an exclusive ``flock``, which the kernel
+releases when its holder ends, however it ends: a killed writer's lock is taken over by the next process, and only by
+one (with the pid alone read from the file, two processes took over a killed run's lock at once and both wrote: a
+failure-injection review). Where ``flock`` is missing or refused (a filesystem without it: NFS without its lock
+daemon, Lustre mounted without it), the file is created exclusively instead and a holder is alive while its pid is.
+A lock file naming another host (a cluster's shared filesystem) counts as held: its process cannot be probed.
+"""
+
+from __future__ import annotations
+
+import errno
+import os
+import socket
+import time
+from collections.abc import Callable
+from contextlib import contextmanager
+from dataclasses import dataclass
+from pathlib import Path
+
+from .errors import OutputError
+
+try:
+    import fcntl
+except ImportError:                         # not POSIX: the exclusive-file protocol alone
+    fcntl = None
+
+# the errors of a filesystem that has no flock, or refuses it
+_NO_FLOCK = {errno.ENOLCK, errno.ENOSYS, errno.EOPNOTSUPP, getattr(errno, "ENOTSUP", errno.EOPNOTSUPP)}
+_RETRY = object()
+_HELD: dict[int, Path] = {}                # this process's lock descriptors, which a forked child closes
+_NO_FLOCK_DEVICES: set[int] = set()         # filesystems (st_dev) found to refuse flock
+
+
+def _close_in_child() -> None:
+    # a worker forked while its parent holds a lock shares the lock (one open file): on a system that does not end the
+    # children with their parent (macOS), orphaned workers kept a killed run's folder locked
+    for fd in list(_HELD):
+        try:
+            os.close(fd)
+        except OSError:
+            pass
+    _HELD.clear()
+
+
+if hasattr(os, "register_at_fork"):
+    os.register_at_fork(after_in_child=_close_in_child)
+
+
+@dataclass
+class Lock:
+    path: Path
+    fd: int | None                          # None: held as an exclusively created file (no flock)
+
+
+def alive(pid: int) -> bool:
+    """Whether process ``pid`` of this host exists (a lock's or a study trial's owner)."""
+    try:
+        os.kill(pid, 0)
+    except ProcessLookupError:
+        return False
+    except PermissionError:
+        return True
+    return True
+
+
+def take(path: Path, wait_s: float, busy: Callable[[int], str]) -> Lock:
+    """Take the lock ``path``; while another process holds it, wait up to ``wait_s`` and then raise
+    :class:`OutputError` with ``busy(pid)`` (and, for a holder on another host, where to delete a lock left behind)."""
+    path = Path(path)
+    t_end = time.monotonic() + wait_s
+    while True:
+        got = _try(path)
+        if isinstance(got, Lock):
+            return got
+        if got is _RETRY:
+            continue
+        host, pid = got
+        if time.monotonic() < t_end:
+            time.sleep(0.2)
+            continue
+        other = f" (on host {host}: if nothing of it runs there any more, delete {path})" \
+            if host not in ("", socket.gethostname()) else ""
+        raise OutputError(busy(pid) + other)
+
+
+def release(lock: Lock | None) -> None:
+    """Delete the lock file while still holding it (a process waiting on it then finds it gone and takes a new one),
+    unless it is no longer ours, then let it go."""
+    if lock is None:
+        return
+    if lock.fd is None:
+        if _holder_of_file(lock.path) == (socket.gethostname(), os.getpid()):
+            _unlink(lock.path)
+        return
+    try:
+        if _same_file(lock.fd, lock.path):
+            _unlink(lock.path)
+    finally:
+        _HELD.pop(lock.fd, None)
+        os.close(lock.fd)
+
+
+@contextmanager
+def held(path: Path, busy: Callable[[int], str]):
+    """:func:`take` (no waiting) for the length of a ``with`` block."""
+    lock = take(path, 0.0, busy)
+    try:
+        yield lock
+    finally:
+        release(lock)
+
+
+def _try(path: Path):
+    """A :class:`Lock`, the holder's ``(host, pid)``, or :data:`_RETRY`."""
+    if fcntl is None or _device(path.parent) in _NO_FLOCK_DEVICES:
+        return _try_exclusive(path)
+    readonly = created = False
+    try:
+        try:
+            fd = os.open(path, os.O_CREAT | os.O_EXCL | os.O_RDWR, 0o644)
+            created = True
+        except FileExistsError:
+            fd = os.open(path, os.O_RDWR)
+    except FileNotFoundError:                 # deleted between the two opens
+        return _RETRY
+    except PermissionError:
+        # another user's lock file in a shared folder: readable, and flock works on a read-only descriptor
+        try:
+            fd = os.open(path, os.O_RDONLY)
+        except FileNotFoundError:
+            return _RETRY
+        except PermissionError:
+            raise OutputError(f"{path}: the lock file cannot be opened (permission denied): delete it if no "
+                              "fusion-eval writes there") from None
+        readonly = True
+    keep = False
+    try:
+        try:
+            fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
+        except BlockingIOError:
+            return _holder(fd)
+        except OSError as exc:
+            if exc.errno in _NO_FLOCK:        # this filesystem has none: the exclusive file from now on
+                _NO_FLOCK_DEVICES.add(_device(path.parent))
+                if created:
+                    _unlink(path)
+                return _RETRY
+            raise
+        if not _same_file(fd, path):          # its holder deleted it after we opened it: a new one is due
+            return _RETRY
+        host, pid = _holder(fd)
+        if pid and host not in ("", socket.gethostname()):
+            return host, pid
+        if readonly:                          # a stale lock of another user's: replaced by one of ours
+            try:
+                path.unlink()
+            except PermissionError:
+                raise OutputError(f"{path}: a stale lock file of another user that cannot be removed (permission "
+                                  "denied): delete it") from None
+            except FileNotFoundError:
+                pass
+            return _RETRY
+        os.ftruncate(fd, 0)
+        os.pwrite(fd, f"{socket.gethostname()} {os.getpid()}".encode(), 0)
+        _HELD[fd] = path
+        keep = True
+        return Lock(path, fd)
+    finally:
+        if not keep:
+            os.close(fd)
+
+
+def _try_exclusive(path: Path):
+    """The protocol without flock: the file created exclusively; a holder of this host is alive while its pid is."""
+    try:
+        fd = os.open(path, os.O_CREAT | os.O_EXCL | os.O_WRONLY, 0o644)
+    except FileExistsError:
+        host, pid = _holder_of_file(path)
+        if pid and (host not in ("", socket.gethostname()) or (pid != os.getpid() and alive(pid))):
+            return host, pid
+        _unlink(path)                          # stale: its process was killed
+        return _RETRY
+    try:
+        os.write(fd, f"{socket.gethostname()} {os.getpid()}".encode())
+    finally:
+        os.close(fd)
+    return Lock(path, None)
+
+
+def _holder(fd: int) -> tuple[str, int]:
+    """The host and pid written in a lock file ('' and 0 when unreadable)."""
+    try:
+        host, _, pid_s = os.pread(fd, 4096, 0).decode("utf-8", "replace").strip().rpartition(" ")
+        return host, int(pid_s or 0)
+    except (OSError, ValueError):
+        return "", 0
+
+
+def _holder_of_file(path: Path) -> tuple[str, int]:
+    try:
+        fd = os.open(path, os.O_RDONLY)
+    except OSError:
+        return "", 0
+    try:
+        return _holder(fd)
+    finally:
+        os.close(fd)
+
+
+def _device(folder: Path) -> int:
+    try:
+        return os.stat(folder).st_dev
+    except OSError:
+        return -1
+
+
+def _same_file(fd: int, path: Path) -> bool:
+    try:
+        a, b = os.fstat(fd), os.stat(path)
+    except FileNotFoundError:
+        return False
+    return (a.st_dev, a.st_ino) == (b.st_dev, b.st_ino)
+
+
+def _unlink(path: Path) -> None:
+    try:
+        path.unlink()
+    except FileNotFoundError:
+        pass
