@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import contextlib
 import logging
 import shutil
 from pathlib import Path
@@ -151,3 +152,22 @@ def _logging_levels_restored():
     yield
     _baseline_logging()
     logging.getLogger().handlers[:] = handlers
+
+
+@contextlib.contextmanager
+def lock_held_elsewhere(path):
+    """``path`` held as a fusion-eval lock by another process for the block; yields that process (its ``pid``)."""
+    import subprocess
+    import sys
+
+    holder = subprocess.Popen([sys.executable, "-c", "import sys, time; from pathlib import Path; "
+                               "from fusion_eval.locks import take; take(Path(sys.argv[1]), 0, str); "
+                               "print('held', flush=True); time.sleep(60)", str(path)],
+                              stdout=subprocess.PIPE, text=True)
+    try:
+        assert holder.stdout.readline().strip() == "held"
+        yield holder
+    finally:
+        holder.kill()
+        holder.wait()
+        holder.stdout.close()

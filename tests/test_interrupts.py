@@ -17,7 +17,7 @@ from pathlib import Path
 
 import pytest
 
-from conftest import make_slice, wait_for
+from conftest import lock_held_elsewhere, make_slice, wait_for
 
 CLI = [sys.executable, "-m", "fusion_eval"]
 
@@ -206,21 +206,13 @@ def test_a_killed_writers_lock_is_taken_once_and_a_live_ones_never(tmp_path):
     with StagedDir(tmp_path / "out") as a:
         a.write_text("x.txt", "mine")
     assert (tmp_path / "out" / "x.txt").read_text() == "mine" and not lock.exists()
-    holder = subprocess.Popen([sys.executable, "-c", "import sys, time; from pathlib import Path; "
-                               "from fusion_eval.locks import take; take(Path(sys.argv[1]), 0, str); "
-                               "print('held', flush=True); time.sleep(60)", str(tmp_path / ".out2.lock")],
-                              stdout=subprocess.PIPE, text=True)
-    try:
-        assert holder.stdout.readline().strip() == "held"
+    with lock_held_elsewhere(tmp_path / ".out2.lock"):
         (tmp_path / ".out2.lock").write_text(f"{socket.gethostname()} 999999999")    # a pid that says dead: held
         with pytest.raises(OutputError, match="another fusion-eval .* is writing this output directory"):
             with StagedDir(tmp_path / "out2"):
                 pass
         with pytest.raises(OutputError, match="busy 999999999"):
             take_lock(tmp_path / ".out2.lock", 0.3, lambda pid: f"busy {pid}")
-    finally:
-        holder.kill()
-        holder.wait()
     with StagedDir(tmp_path / "out2") as b:                  # its holder gone: taken
         b.write_text("y.txt", "then mine")
     assert (tmp_path / "out2" / "y.txt").exists()

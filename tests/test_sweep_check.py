@@ -15,6 +15,7 @@ from pathlib import Path
 import pytest
 from click.testing import CliRunner
 
+from conftest import lock_held_elsewhere
 from fusion_eval.cli import main
 
 SETTINGS = """
@@ -92,19 +93,11 @@ def test_a_second_sweep_into_a_running_sweeps_folder_is_refused(small, tmp_path)
     out = tmp_path / "s"
     out.mkdir()
     (out / "records").mkdir()
-    holder = subprocess.Popen([sys.executable, "-c", "import sys, time; from pathlib import Path; "
-                               "from fusion_eval.locks import take; take(Path(sys.argv[1]), 0, str); "
-                               "print('held', flush=True); time.sleep(60)", str(out / ".sweep.lock")],
-                              stdout=subprocess.PIPE, text=True)
-    try:
-        assert holder.stdout.readline().strip() == "held"
+    with lock_held_elsewhere(out / ".sweep.lock") as holder:
         r = CliRunner().invoke(main, ["sweep", str(small), "--grid", str(sw), "--out", str(out), "--jobs", "1"])
         assert r.exit_code == 2 and f"another fusion-eval sweep (pid {holder.pid}) is running in this folder" in r.stderr
         assert "\n" not in r.stderr.strip() and not list((out / "records").iterdir()) and not (out / "runs").exists()
         assert (out / ".sweep.lock").exists()              # the holder's lock is left to it
-    finally:
-        holder.kill()
-        holder.wait()
 
 
 @pytest.mark.slow
