@@ -46,8 +46,11 @@ def _caches_in_temp() -> None:
     if "MPLCONFIGDIR" not in _os.environ and not _writable(_os.path.join(config, "matplotlib")):
         todo.append(("MPLCONFIGDIR", "matplotlib"))
     for var, what in todo:
-        folder = _private_temp(f"fusion-eval-{what}")
-        if folder is None:                   # not ours to trust: a fresh folder, no cache kept between runs
+        # the first of a few fixed names that is a private folder of this user's (one left group-writable by another
+        # version is passed over, not replaced by a new random folder on every import: a diff review)
+        folder = next((f for f in (_private_temp(f"fusion-eval-{what}" + (f"-{k}" if k else "")) for k in range(4))
+                       if f is not None), None)
+        if folder is None:                   # none ours to trust: a fresh folder, no cache kept between runs
             import tempfile
 
             folder = tempfile.mkdtemp(prefix=f"fusion-eval-{what}-")

@@ -10,13 +10,13 @@ run on 3.13 failed with a traceback (a portability review). A file of their own 
 The file's name carries a digest of the template, of the anchoring module's whole source and of every module of the
 filters and the smoother: numba's cache sees only the file itself, and the loop inlines functions of those (a
 formulation's step, the mechanization, the discretisation), whose change must give a fresh compile. Copies made
-from other sources are pruned after two weeks. Where no folder is writable, the template is compiled under the
-anchoring module's name as before.
+from other sources stay (another installation on this account may use them; they are not pruned by age, since a
+copy's stamp cannot be refreshed on use without invalidating numba's cache of it): delete the folder to reclaim them.
+Where no folder is writable, the template is compiled under the anchoring module's name as before.
 """
 
 from __future__ import annotations
 
-import glob
 import hashlib
 import os
 import sys
@@ -52,7 +52,6 @@ def _written(module_name: str, name: str, src: str, anchor: Path) -> Path | None
             tmp = folder / f".{file_name}.{os.getpid()}.tmp"
             tmp.write_text(src, encoding="utf-8")
             os.replace(tmp, path)         # whole, for another process compiling the same template at once
-            _prune(folder, stem, path)
             return path
         except OSError:
             continue
@@ -80,39 +79,17 @@ def _compiled_sources() -> bytes:
     return _SOURCES[0]
 
 
-PRUNE_AFTER_S = 14 * 86400
-
-
-def _prune(folder: Path, stem: str, keep: Path) -> None:
-    """Remove copies of the same loop made from other sources over :data:`PRUNE_AFTER_S` ago, with numba's cache of
-    them (11 MB a set; every upgrade or edit made a new one). Not younger ones: another installation on this account
-    may still use them, and would compile them again."""
-    import time
-
-    now = time.time()
-    for old in folder.glob(f"{glob.escape(stem)}*.py"):
-        try:
-            if old != keep and now - old.stat().st_mtime > PRUNE_AFTER_S:
-                old.unlink()
-                for cached in (folder / "__pycache__").glob(f"{glob.escape(old.stem)}.*"):
-                    cached.unlink()
-        except OSError:
-            pass
-
-
-def _folders() -> list[Path]:
-    """Where generated sources go: numba's own cache folder when one is set (NUMBA_CACHE_DIR), the user's cache
-    folder, then the temporary folder."""
-    out = []
+def _folders():
+    """Where generated sources go, in order of preference: numba's own cache folder when one is set
+    (NUMBA_CACHE_DIR), the user's cache folder, then a private folder in the temporary one (made only if reached)."""
     if os.environ.get("NUMBA_CACHE_DIR"):
-        out.append(Path(os.environ["NUMBA_CACHE_DIR"]) / "fusion-eval-generated")
+        yield Path(os.environ["NUMBA_CACHE_DIR"]) / "fusion-eval-generated"
     try:
         base = os.environ.get("XDG_CACHE_HOME") or Path.home() / ".cache"
     except RuntimeError:              # no home folder to be found
         base = None
     if base:
-        out.append(Path(base) / "fusion-eval" / "generated")
+        yield Path(base) / "fusion-eval" / "generated"
     private = _private_temp("fusion-eval-generated")      # a shared folder: only a private one of this user's
     if private is not None:
-        out.append(Path(private))
-    return out
+        yield Path(private)

@@ -13,6 +13,7 @@ from __future__ import annotations
 import errno
 import os
 import socket
+import stat
 import time
 from collections.abc import Callable
 from contextlib import contextmanager
@@ -67,14 +68,24 @@ def alive(pid: int) -> bool:
 
 def take(path: Path, wait_s: float, busy: Callable[[int], str]) -> Lock:
     """Take the lock ``path``; while another process holds it, wait up to ``wait_s`` and then raise
-    :class:`OutputError` with ``busy(pid)`` (and, for a holder on another host, where to delete a lock left behind)."""
+    :class:`OutputError` with ``busy(pid)`` (and, for a holder on another host, where to delete a lock left behind).
+    A lock file that cannot be made is an :class:`OutputError` naming it."""
     path = Path(path)
     t_end = time.monotonic() + wait_s
+    retries = 0
     while True:
-        got = _try(path)
+        try:
+            got = _try(path)
+        except OSError as exc:              # a missing or read-only folder, a full quota: one line naming the file
+            raise OutputError(f"{path}: cannot create the lock file ({exc.strerror or exc})") from None
         if isinstance(got, Lock):
             return got
-        if got is _RETRY:
+        if got is _RETRY:                   # the file changed under us (released, replaced): again, but not forever
+            retries += 1
+            if retries > 200:
+                raise OutputError(f"{path}: the lock file keeps changing under this process; is another program "
+                                  "deleting it?")
+            time.sleep(0.005)
             continue
         host, pid = got
         if time.monotonic() < t_end:
@@ -112,28 +123,39 @@ def held(path: Path, busy: Callable[[int], str]):
         release(lock)
 
 
+def _open(path: Path, flags: int) -> int:
+    """``os.open`` that does not follow a link at the lock's path (a link there made the lock truncate and write its
+    target: a diff review) and takes only a regular file."""
+    fd = os.open(path, flags | getattr(os, "O_NOFOLLOW", 0), 0o644)
+    if not stat.S_ISREG(os.fstat(fd).st_mode):
+        os.close(fd)
+        raise OSError(errno.EINVAL, "not a regular file")
+    return fd
+
+
 def _try(path: Path):
-    """A :class:`Lock`, the holder's ``(host, pid)``, or :data:`_RETRY`."""
+    """A :class:`Lock`, the holder's ``(host, pid)``, or :data:`_RETRY`; an ``OSError`` where the file cannot be made."""
     if fcntl is None or _device(path.parent) in _NO_FLOCK_DEVICES:
         return _try_exclusive(path)
     readonly = created = False
     try:
         try:
-            fd = os.open(path, os.O_CREAT | os.O_EXCL | os.O_RDWR, 0o644)
+            fd = _open(path, os.O_CREAT | os.O_EXCL | os.O_RDWR)
             created = True
         except FileExistsError:
-            fd = os.open(path, os.O_RDWR)
-    except FileNotFoundError:                 # deleted between the two opens
-        return _RETRY
+            fd = _open(path, os.O_RDWR)
+    except FileNotFoundError:
+        if not path.parent.is_dir():          # the folder itself is missing: no lock to wait for
+            raise
+        return _RETRY                         # deleted between the two opens
     except PermissionError:
+        if not path.exists():                 # a folder this user cannot write: said, not retried
+            raise
         # another user's lock file in a shared folder: readable, and flock works on a read-only descriptor
         try:
-            fd = os.open(path, os.O_RDONLY)
+            fd = _open(path, os.O_RDONLY)
         except FileNotFoundError:
             return _RETRY
-        except PermissionError:
-            raise OutputError(f"{path}: the lock file cannot be opened (permission denied): delete it if no "
-                              "fusion-eval writes there") from None
         readonly = True
     keep = False
     try:
@@ -142,12 +164,15 @@ def _try(path: Path):
         except BlockingIOError:
             return _holder(fd)
         except OSError as exc:
-            if exc.errno in _NO_FLOCK:        # this filesystem has none: the exclusive file from now on
+            if exc.errno not in _NO_FLOCK:
+                raise
+            # no flock here: the exclusive file, for this attempt; remembered only where the filesystem has none at
+            # all (ENOLCK, a lock daemon not answering, may pass: processes would then mix the two protocols)
+            if exc.errno != errno.ENOLCK:
                 _NO_FLOCK_DEVICES.add(_device(path.parent))
-                if created:
-                    _unlink(path)
-                return _RETRY
-            raise
+            if created:
+                _unlink(path)
+            return _try_exclusive(path)
         if not _same_file(fd, path):          # its holder deleted it after we opened it: a new one is due
             return _RETRY
         host, pid = _holder(fd)
@@ -162,10 +187,11 @@ def _try(path: Path):
             except FileNotFoundError:
                 pass
             return _RETRY
-        os.ftruncate(fd, 0)
-        os.pwrite(fd, f"{socket.gethostname()} {os.getpid()}".encode(), 0)
-        _HELD[fd] = path
+        mine = f"{socket.gethostname()} {os.getpid()}".encode()
+        os.pwrite(fd, mine, 0)                # the new content, then the old tail cut: never read empty ("pid 0")
+        os.ftruncate(fd, len(mine))
         keep = True
+        _HELD[fd] = path
         return Lock(path, fd)
     finally:
         if not keep:
@@ -173,19 +199,40 @@ def _try(path: Path):
 
 
 def _try_exclusive(path: Path):
-    """The protocol without flock: the file created exclusively; a holder of this host is alive while its pid is."""
+    """The protocol without flock: the file made whole at once (a link to a written temporary file, which NFS makes
+    atomically too); a holder of this host is alive while its pid is; an empty or unreadable file is held until it is
+    a minute old (another user's, or one being made)."""
     try:
-        fd = os.open(path, os.O_CREAT | os.O_EXCL | os.O_WRONLY, 0o644)
-    except FileExistsError:
         host, pid = _holder_of_file(path)
-        if pid and (host not in ("", socket.gethostname()) or (pid != os.getpid() and alive(pid))):
+        if pid and (host not in ("", socket.gethostname()) or pid == os.getpid() or alive(pid)):
             return host, pid
-        _unlink(path)                          # stale: its process was killed
-        return _RETRY
+        if not pid and time.time() - os.lstat(path).st_mtime < 60.0:
+            return "", 0
+        # stale: moved aside under a name of our own first, so that of two processes taking it over only one removes it
+        aside = path.with_name(f"{path.name}.stale-{os.getpid()}")
+        os.rename(path, aside)
+        if _holder_of_file(aside) != (host, pid):     # another process's new lock, made since we read: put back
+            try:
+                os.link(aside, path)
+            except FileExistsError:
+                pass
+            _unlink(aside)
+            return _RETRY
+        _unlink(aside)
+    except FileNotFoundError:
+        pass
+    tmp = path.with_name(f"{path.name}.new-{os.getpid()}")
+    fd = os.open(tmp, os.O_CREAT | os.O_TRUNC | os.O_WRONLY | getattr(os, "O_NOFOLLOW", 0), 0o644)
     try:
         os.write(fd, f"{socket.gethostname()} {os.getpid()}".encode())
     finally:
         os.close(fd)
+    try:
+        os.link(tmp, path)
+    except FileExistsError:
+        return _RETRY
+    finally:
+        _unlink(tmp)
     return Lock(path, None)
 
 

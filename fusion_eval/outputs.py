@@ -6,10 +6,10 @@ from __future__ import annotations
 
 import contextlib
 import errno
-import glob
 import hashlib
 import logging
 import os
+import re
 import shutil
 from pathlib import Path
 
@@ -258,21 +258,38 @@ class StagedDir:
             raise
         return self
 
+    def _beside(self) -> Path:
+        """The staging folder moved to ``<name>-k``, a folder made new (so no other run's) and locked for the move."""
+        for k in range(2, 1000):
+            beside = self.final.parent / f"{self.final.name}-{k}"
+            try:
+                beside.mkdir()
+                with locks.held(_sibling(beside, "lock"), str):
+                    os.replace(self.staging, beside)
+                return beside
+            except (FileExistsError, OutputError):
+                continue
+            except OSError as exc:
+                raise OutputError(f"{beside}: cannot move this run's results there ({exc.strerror or exc}); they are "
+                                  f"in {self.staging}") from None
+        raise OutputError(f"{self.final}: no free <name>-k beside it; this run's results are in {self.staging}")
+
     def _recover(self) -> None:
         """With the lock held no other process writes this target: every staging folder of it is a killed run's
         (SIGKILL, the OOM killer, a CI timeout left 3.4 MB of half-written results beside --out for good: a
-        corrupted-input review), and every old copy a finished swap's, removed; except an old copy where the
-        target is missing (a writer killed between the swap's two renames), which is put back."""
-        def siblings(tag):
-            return sorted(self.final.parent.glob(glob.escape(_sibling(self.final, tag).name) + "*"),
-                          key=lambda p: p.stat().st_mtime if p.exists() else 0.0)
-        for p in siblings("partial-"):
-            shutil.rmtree(p, ignore_errors=True)
-        olds = siblings("old-")
-        if olds and not self.final.exists():
-            os.replace(olds.pop(), self.final)
-            log.warning("%s: put back from the copy a killed run had moved aside", self.final)
-        for p in olds:
+        corrupted-input review), and every old copy a finished swap's, removed; except the old copy of a run killed
+        between the swap's two renames (its staging folder beside it, the target missing), which is put back."""
+        def siblings(tag):                    # ours exactly: '.out.old-123', not '.out.old-2024.lock' of 'out.old-2024'
+            pattern = re.compile(re.escape(_sibling(self.final, tag).name) + r"(\d+)")
+            return {int(m.group(1)): self.final.parent / m.group(0) for p in self.final.parent.iterdir()
+                    if (m := pattern.fullmatch(p.name))}
+        partials, olds = siblings("partial-"), siblings("old-")
+        if not self.final.exists():
+            cut = [pid for pid in olds if pid in partials]
+            if cut:
+                os.replace(olds.pop(max(cut)), self.final)
+                log.warning("%s: put back from the copy a run killed as it replaced it had moved aside", self.final)
+        for p in (*partials.values(), *olds.values()):
             shutil.rmtree(p, ignore_errors=True)
 
     def path(self, name: str) -> Path:
@@ -318,11 +335,7 @@ class StagedDir:
                 if not self.overwrite and self.final.is_dir() and any(self.final.iterdir()):
                     # written by a command that takes no lock of this folder (a sweep started in it) while this
                     # one worked: its files are not replaced (a diff review), this run's results go beside them
-                    k = 2
-                    while (self.final.parent / f"{self.final.name}-{k}").exists():
-                        k += 1
-                    beside = self.final.parent / f"{self.final.name}-{k}"
-                    os.replace(self.staging, beside)
+                    beside = self._beside()
                     raise OutputError(f"{self.final}: another command wrote there while this run worked; its files "
                                       f"are left as they are and this run's results are in {beside}")
                 old = None

@@ -49,21 +49,3 @@ def test_with_no_writable_folder_the_template_is_compiled_as_before(anchor, monk
     monkeypatch.setattr(codegen, "_folders", lambda: [anchor / "not-a-folder"])     # under a file: cannot be made
     ns = codegen.build("anchor_mod", "g_gen", "def g_gen():\n    return 5\n", {})
     assert ns["g_gen"]() == 5 and ns["g_gen"].__code__.co_filename == str(anchor)
-
-
-def test_copies_made_from_other_sources_are_pruned_after_two_weeks(anchor, tmp_path):
-    import os
-    import time
-
-    folder = tmp_path / "cache" / "fusion-eval-generated"
-    folder.mkdir(parents=True)
-    (folder / "__pycache__").mkdir()
-    old, young = folder / "anchor_mod__h_gen__aaaaaaaaaaaa.py", folder / "anchor_mod__h_gen__bbbbbbbbbbbb.py"
-    for f in (old, young):
-        f.write_text("x = 1\n")
-    (folder / "__pycache__" / f"{old.stem}.h_gen-2.py311.nbi").write_text("")
-    weeks = time.time() - 15 * 86400
-    os.utime(old, (weeks, weeks))
-    path = codegen.build("anchor_mod", "h_gen", "def h_gen():\n    return 1\n", {})["h_gen"].__code__.co_filename
-    assert not old.exists() and young.exists() and os.path.exists(path)
-    assert not list((folder / "__pycache__").glob(f"{old.stem}.*"))

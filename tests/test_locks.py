@@ -107,3 +107,55 @@ def test_a_forked_child_does_not_keep_the_parents_lock(tmp_path):
     os.close(r)
     locks.release(lock)
     assert got == b"closed"
+
+
+def test_a_lock_that_cannot_be_made_is_one_error_not_a_spin(tmp_path):
+    """A folder this user cannot write, or one removed under the run, spun at full CPU for good (a review): one
+    error naming the lock file."""
+    with pytest.raises(OutputError, match=r"\.out\.lock: cannot create the lock file"):
+        locks.take(tmp_path / "gone" / ".out.lock", 0.0, str)
+    if os.geteuid() != 0:                            # (root writes anywhere)
+        ro = tmp_path / "ro"
+        ro.mkdir(mode=0o555)
+        with pytest.raises(OutputError, match="cannot create the lock file"):
+            locks.take(ro / ".out.lock", 0.0, str)
+
+
+def test_a_link_at_the_locks_path_is_not_followed(tmp_path):
+    victim = tmp_path / "victim.txt"
+    victim.write_text("precious")
+    (tmp_path / ".out.lock").symlink_to(victim)
+    with pytest.raises(OutputError, match="cannot create the lock file"):
+        locks.take(tmp_path / ".out.lock", 0.0, str)
+    assert victim.read_text() == "precious"
+
+
+def test_the_exclusive_file_is_made_whole_and_a_fresh_empty_one_is_held(tmp_path, monkeypatch):
+    monkeypatch.setattr(locks, "fcntl", None)
+    path = tmp_path / ".out.lock"
+    path.write_text("")                              # being made by another process (or unreadable): held a minute
+    with pytest.raises(OutputError, match="busy 0"):
+        locks.take(path, 0.0, lambda pid: f"busy {pid}")
+    old = os.path.getmtime(path) - 120
+    os.utime(path, (old, old))                       # a minute on: stale
+    lock = locks.take(path, 0.0, str)
+    assert path.read_text() == f"{socket.gethostname()} {os.getpid()}"
+    with pytest.raises(OutputError, match="busy"):  # our own pid: held (two threads of one process)
+        locks.take(path, 0.0, lambda pid: f"busy {pid}")
+    locks.release(lock)
+    assert sorted(p.name for p in tmp_path.iterdir()) == []
+
+
+def test_recovery_touches_only_this_targets_working_folders(tmp_path):
+    """'.out.old-' also matched the working files of a target named 'out.old-2024' (a run deleted another run's
+    staging folder); and an old copy is put back only for a run killed between the two renames."""
+    (tmp_path / ".out.old-2024.partial-77").mkdir()                 # another target's (out.old-2024) staging folder
+    (tmp_path / ".out.old-55").mkdir()                              # a finished swap's leftover, out missing,
+    with StagedDir(tmp_path / "out") as st:                         # no staging of pid 55: not put back
+        st.write_text("metrics.json", "1")
+    assert (tmp_path / ".out.old-2024.partial-77").is_dir() and not (tmp_path / ".out.old-55").exists()
+    (tmp_path / "out").rename(tmp_path / ".out.old-66")             # killed between the renames:
+    (tmp_path / ".out.partial-66").mkdir()                          # its staging beside it
+    with StagedDir(tmp_path / "out", overwrite=True):
+        assert (tmp_path / "out" / "metrics.json").read_text() == "1"
+    assert sorted(p.name for p in tmp_path.iterdir()) == [".out.old-2024.partial-77", "out"]

@@ -168,3 +168,11 @@ def test_a_temporary_cache_folder_is_used_only_if_private(monkeypatch, tmp_path)
     (tmp_path / "elsewhere").mkdir(mode=0o700)
     (tmp_path / f"fe-c-{uid}").symlink_to(tmp_path / "elsewhere")     # a link
     assert fusion_eval._private_temp("fe-b") is None and fusion_eval._private_temp("fe-c") is None
+    # the caches take the next fixed name when the first is not private, not a new random folder on every import
+    (tmp_path / f"fusion-eval-numba-{uid}").mkdir(mode=0o777)
+    os.chmod(tmp_path / f"fusion-eval-numba-{uid}", 0o777)
+    for var in ("NUMBA_CACHE_DIR", "MPLCONFIGDIR"):
+        monkeypatch.delenv(var, raising=False)
+    monkeypatch.setattr(fusion_eval, "_writable", lambda p: False)
+    fusion_eval._caches_in_temp()
+    assert os.environ["NUMBA_CACHE_DIR"] == str(tmp_path / f"fusion-eval-numba-1-{uid}")
