@@ -66,10 +66,11 @@ def alive(pid: int) -> bool:
     return True
 
 
-def take(path: Path, wait_s: float, busy: Callable[[int], str]) -> Lock:
+def take(path: Path, wait_s: float, busy: Callable[[int], str], target: Path | None = None) -> Lock:
     """Take the lock ``path``; while another process holds it, wait up to ``wait_s`` and then raise
     :class:`OutputError` with ``busy(pid)`` (and, for a holder on another host, where to delete a lock left behind).
-    A lock file that cannot be made is an :class:`OutputError` naming it."""
+    A lock file that cannot be made is an :class:`OutputError` naming ``target``, the folder it guards (else the
+    lock file)."""
     path = Path(path)
     t_end = time.monotonic() + wait_s
     retries = 0
@@ -77,7 +78,9 @@ def take(path: Path, wait_s: float, busy: Callable[[int], str]) -> Lock:
         try:
             got = _try(path)
         except OSError as exc:              # a missing or read-only folder, a full quota: one line naming the file
-            raise OutputError(f"{path}: cannot create the lock file ({exc.strerror or exc})") from None
+            why = exc.strerror or str(exc)
+            raise OutputError(f"{target}: cannot create output directory ({why})" if target is not None
+                              else f"{path}: cannot create the lock file ({why})") from None
         if isinstance(got, Lock):
             return got
         if got is _RETRY:                   # the file changed under us (released, replaced): again, but not forever

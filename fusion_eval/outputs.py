@@ -307,7 +307,7 @@ class StagedDir:
         directory at the same time is refused instead of silently replacing the first one's results."""
         self._held = locks.take(_sibling(self.final, "lock"), self.wait_lock_s,
                                 lambda pid: f"{self.final}: another fusion-eval (pid {pid}) is writing this output "
-                                            "directory; wait for it, or choose another --out")
+                                            "directory; wait for it, or choose another --out", target=self.final)
 
     def _unlock(self) -> None:
         held, self._held = getattr(self, "_held", None), None      # once, whichever thread gets here first
