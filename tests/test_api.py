@@ -102,6 +102,7 @@ def test_evaluate_matches_evo_on_kitti_00(tmp_path):
         fe.evaluate(shared_path("kitti-odometry", "00", "00_gt_tum.txt"), est)
 
 
+@pytest.mark.slow
 def test_writing_a_run_leaves_the_hosts_matplotlib_as_it_was(kitti_slice, tmp_path):
     """res.write() imported the plots, which set matplotlib's backend to Agg and its axes.titley for the whole
     process: a notebook's inline figures stopped showing (an API review). The plots draw on figures of their own."""

@@ -1857,6 +1857,7 @@ def test_evaluate_names_an_estimate_of_another_world_frame_unaligned(tmp_path):
     assert _other_world(p, turned, e) == ""
 
 
+@pytest.mark.slow
 def test_evaluate_takes_a_dataset_as_the_reference(tmp_path, monkeypatch):
     """A user with an estimate and the drive it came from had to run first for groundtruth.tum (an own-data review):
     a dataset folder or manifest as the reference is its ground truth as a run scores against it."""

@@ -200,6 +200,7 @@ def _kitti_aligned():
     return replace(imu, w_b_rps=w), ds.lidar.select(~ds.lidar.filled)
 
 
+@pytest.mark.slow
 def test_a_calibration_far_from_the_data_is_named():
     """kitti-00's own calibration passes (its lever arm 26 cm, yaw 10 mrad off the data: under the bounds); the same
     drive with the lidar's lever arm flipped (fused 0.76 -> 1.66 m with no word before) or its mount pitched by 35

@@ -63,6 +63,7 @@ def test_a_yawed_imu_on_a_car_runs_without_the_constraint_and_says_so(monkeypatc
         assert got["estimates"]["fused"]["ape"]["translation_m"]["rmse"] == pytest.approx(ref, abs=2e-3)
 
 
+@pytest.mark.slow
 def test_the_odometer_speed_follows_the_direction_of_travels_yaw():
     """The odometer's speed was fused along the IMU's x axis whatever the mount (an IMU yawed 90 deg: 65 m with the
     odometer variant, found by a review with its own bags); it follows filter.nhc_travel_yaw_mrad now."""

@@ -309,6 +309,7 @@ def test_enu_rotation_turns_local_axes_into_the_origins_frame():
     assert np.allclose(enu_rotation(lat0, lon0, lat0, lon0)[0], np.eye(3), atol=1e-15)
 
 
+@pytest.mark.slow
 def test_the_odometer_scale_is_estimated_from_the_gnss_and_divided_out(tmp_path):
     """A wheel odometer 2 % fast, fused with no scale state, biases the velocity; with odometer.scale 'auto' the
     scale is estimated from the GNSS (no ground truth) and divided out of the readings, and the fused estimate is

@@ -215,6 +215,7 @@ def test_track_plots_say_their_units_their_nis_figures_and_the_errors_against_th
     assert any(t.startswith("vx error: ") and "inside 3 sigma" in t and "(smoothed: " in t for t in titles), titles
 
 
+@pytest.mark.slow
 def test_dropouts_and_long_gaps_mid_track_are_named_and_do_not_move_the_result(tmp_path):
     """A review: three radar readings of range 0 mid-track were fused (px error 0.11 -> 0.21 m, NIS 5408, no word);
     a day's gap grew the prior to 1e20 m^2 and the run stopped as 'diverged' at a good measurement, and over hours

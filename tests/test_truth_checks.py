@@ -61,6 +61,7 @@ def test_a_gnss_on_another_vertical_datum_is_flagged():
     assert plausible.gnss_offset(noisy, drive.groundtruth) == ""
 
 
+@pytest.mark.slow
 def test_an_imu_upside_down_against_the_initial_attitude_is_flagged(caplog):
     """An IMU rolled 180 deg against the ground truth's frame (its extrinsic not declared) diverged with a hint at
     the process noise only (found by a review with its own bags): the specific force at the start points down in
