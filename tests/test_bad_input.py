@@ -1432,7 +1432,8 @@ def test_posix_stamps_in_another_unit_are_named_by_their_magnitude(scale, unit):
     from fusion_eval.errors import DataFormatError
 
     t = 1.7672256e9 + np.arange(0.0, 120.0, 0.01)
-    with pytest.raises(DataFormatError, match=rf"imu.csv:2: imu: the first stamp is .*: {unit}.* read as seconds"):
+    with pytest.raises(DataFormatError, match=rf"imu.csv:2: imu: the first stamp is .*: {unit}.* read as seconds\? Give "
+                                              r"seconds \(convert the file, or for the csv format give its time_unit: "):
         plausible.check_dataset(_stream(t * scale, "imu.csv"), {"gnss": None})
     plausible.check_dataset(_stream(t, "imu.csv"), {"gnss": None})            # seconds: nothing to say
 

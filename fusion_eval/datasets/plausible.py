@@ -313,7 +313,12 @@ def check_stamp_magnitude(name: str, series) -> None:
     check_stamps_in_seconds(name, series.source, series.lines, series.t_s)
 
 
-def check_stamps_in_seconds(name: str, source, lines, t_s, how: str = "csv format: time_unit: {unit}") -> None:
+# where a stream's unit is given: the generic CSV format's key; every other format is in seconds (the hint named the
+# csv key to a KITTI or EuRoC stream, which has none: an extension author's review)
+STREAM_UNIT_HINT = "convert the file, or for the csv format give its time_unit: {unit}"
+
+
+def check_stamps_in_seconds(name: str, source, lines, t_s, how: str = STREAM_UNIT_HINT) -> None:
     """:func:`check_stamp_magnitude` on arrays (``how``: where the unit is given, ``{unit}`` its short name)."""
     t = np.asarray(t_s)
     if t.size == 0 or not abs(float(t[0])) > MAX_STAMP_S:
