@@ -105,12 +105,12 @@ def release(lock: Lock | None) -> None:
     if lock is None:
         return
     if lock.fd is None:
-        if _holder_of_file(lock.path) == (socket.gethostname(), os.getpid()):
-            _unlink(lock.path)
+        if _holder_of_file(lock.path) == _me():
+            lock.path.unlink(missing_ok=True)
         return
     try:
         if _same_file(lock.fd, lock.path):
-            _unlink(lock.path)
+            lock.path.unlink(missing_ok=True)
     finally:
         _HELD.pop(lock.fd, None)
         os.close(lock.fd)
@@ -174,7 +174,7 @@ def _try(path: Path):
             if exc.errno != errno.ENOLCK:
                 _NO_FLOCK_DEVICES.add(_device(path.parent))
             if created:
-                _unlink(path)
+                path.unlink(missing_ok=True)
             return _try_exclusive(path)
         if not _same_file(fd, path):          # its holder deleted it after we opened it: a new one is due
             return _RETRY
@@ -190,7 +190,7 @@ def _try(path: Path):
             except FileNotFoundError:
                 pass
             return _RETRY
-        mine = f"{socket.gethostname()} {os.getpid()}".encode()
+        mine = _text(_me()).encode()
         os.pwrite(fd, mine, 0)                # the new content, then the old tail cut: never read empty ("pid 0")
         os.ftruncate(fd, len(mine))
         keep = True
@@ -219,15 +219,15 @@ def _try_exclusive(path: Path):
                 os.link(aside, path)
             except FileExistsError:
                 pass
-            _unlink(aside)
+            aside.unlink(missing_ok=True)
             return _RETRY
-        _unlink(aside)
+        aside.unlink(missing_ok=True)
     except FileNotFoundError:
         pass
     tmp = path.with_name(f"{path.name}.new-{os.getpid()}")
     fd = os.open(tmp, os.O_CREAT | os.O_TRUNC | os.O_WRONLY | getattr(os, "O_NOFOLLOW", 0), 0o644)
     try:
-        os.write(fd, f"{socket.gethostname()} {os.getpid()}".encode())
+        os.write(fd, _text(_me()).encode())
     finally:
         os.close(fd)
     try:
@@ -235,8 +235,17 @@ def _try_exclusive(path: Path):
     except FileExistsError:
         return _RETRY
     finally:
-        _unlink(tmp)
+        tmp.unlink(missing_ok=True)
     return Lock(path, None)
+
+
+def _me() -> tuple[str, int]:
+    """This process as a lock file names it: host and pid."""
+    return socket.gethostname(), os.getpid()
+
+
+def _text(holder: tuple[str, int]) -> str:
+    return f"{holder[0]} {holder[1]}"
 
 
 def _holder(fd: int) -> tuple[str, int]:
@@ -272,10 +281,3 @@ def _same_file(fd: int, path: Path) -> bool:
     except FileNotFoundError:
         return False
     return (a.st_dev, a.st_ino) == (b.st_dev, b.st_ino)
-
-
-def _unlink(path: Path) -> None:
-    try:
-        path.unlink()
-    except FileNotFoundError:
-        pass

@@ -249,10 +249,7 @@ class StagedDir:
             self.staging.mkdir()
             self._abort_token = interrupts.on_abort(self._abandon)
         except BaseException as exc:          # the lock let go on every way out (a notebook locked itself out)
-            if self.staging is not None:
-                shutil.rmtree(self.staging, ignore_errors=True)
-                self.staging = None
-            self._unlock()
+            self._abandon()
             if isinstance(exc, OSError):
                 raise OutputError(f"{self.final}: cannot create output directory ({_why(self.final, exc)})") from None
             raise
@@ -316,14 +313,7 @@ class StagedDir:
     def __exit__(self, exc_type, exc, tb) -> bool:
         try:
             if exc_type is not None:
-                if self.staging is not None:
-                    shutil.rmtree(self.staging, ignore_errors=True)
-                self._unlock()
-                for p in self._made:   # deepest first
-                    try:
-                        p.rmdir()
-                    except OSError:
-                        break
+                self._abandon()
                 if isinstance(exc, OutputError) and self.staging is not None and str(self.staging) in str(exc):
                     # a write that failed (a full device) named the hidden staging folder, not the --out given (a
                     # corrupted-input review): the file as it would have been
@@ -352,8 +342,9 @@ class StagedDir:
             self._unlock()
 
     def _abandon(self) -> None:
-        """What a failed run's exit does, for a signal that ends the command from another thread
-        (:func:`fusion_eval.interrupts.on_abort`)."""
+        """What a failed run's exit does (also for a signal that ends the command from another thread,
+        :func:`fusion_eval.interrupts.on_abort`): the staging folder removed, the lock let go, the parent folders
+        this run made removed again (deepest first)."""
         if self.staging is not None:
             shutil.rmtree(self.staging, ignore_errors=True)
         self._unlock()

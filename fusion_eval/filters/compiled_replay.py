@@ -17,8 +17,6 @@ cache would not see a change in a function the loop calls).
 
 from __future__ import annotations
 
-import hashlib
-import inspect
 import sys
 
 import numpy as np
@@ -27,10 +25,9 @@ from numba import njit
 from .. import codegen
 from ..errors import FilterDivergedError
 from .layout import CLONE
-from . import discretize, linalg, mech, propagate
-from .formulations import eskf_van_loan
+from . import linalg
 from .linalg import joseph_update_into
-from ..smoothing.record import epoch_index, pack_upper, store_prior, store_row
+from ..smoothing.record import epoch_index, store_prior, store_row
 from .observations.base import M_MAX, N_MAX, matched_variance
 
 OK, BAD_RESIDUAL, BAD_CORRECTION, BAD_STATE = 0, 1, 2, 3
@@ -141,30 +138,6 @@ def {name}(a, st, xc, clone_t, times, kinds, index, j0, j1, gates, clone_after, 
 
 
 
-# what the formulations' steps call outside their own module: a loop built on a step is cached whole, and numba's
-# cache would not see a change there
-STEP_CALLEES = (discretize.transition, discretize.transition_full, discretize.van_loan,
-                discretize._csr, discretize._csr_row, discretize.second_order, discretize._phi_second,
-                discretize.propagate, mech.mech_step, mech.log3, mech.mul_tn, mech.rmul_exp3, mech.exp3, mech.skew3,
-                *eskf_van_loan.CALLEES)
-
-
-def _source_digest(*fns) -> str:
-    # the prediction loop is built from propagate's template, whose source inspect cannot find: its digest stands in
-    return source_digest(_LOOP + propagate.DIGEST, *fns, *STEP_CALLEES)
-
-
-def source_digest(template: str, *fns) -> str:
-    """A name for the cached copy of a function built from ``template`` that calls ``fns``: numba's cache checks
-    only the file of the function itself, so the sources it calls go into its name."""
-    h = hashlib.sha1(template.encode())
-    for f in fns:
-        py = getattr(f, "py_func", f)
-        h.update(inspect.getsource(py).encode())
-        h.update(py.__module__.encode())
-    return h.hexdigest()[:12]      # not a state index
-
-
 _CACHE: dict = {}
 
 
@@ -177,13 +150,7 @@ def compiled_loop(formulation):
     if formulation in _CACHE:
         return _CACHE[formulation]
     mod = sys.modules[formulation._predict.py_func.__module__]
-    # the loop's cached copy is named by the sources it is built from and calls (numba's cache checks only the
-    # file of the function itself); deeper helpers change with these files' other functions (README, Tests)
-    digest = _source_digest(formulation._predict, formulation._step, formulation._inject_kernel, formulation._record_cov,
-                            joseph_update_into, linalg.cholesky_into, linalg.whitened_norm2, linalg.block_nis,
-                            linalg.reset_attitude_block, linalg.clone_covariance, matched_variance, epoch_index,
-                            store_row, store_prior, pack_upper, *KERNELS)
-    name = f"_replay_{digest}"
+    name = "_replay"          # its file is named by the template and every source it can reach (codegen.build)
     dispatch = "\n".join(f"        {'if' if c == 0 else 'elif'} kind == {c}:\n            m = _k{c}(a.x, xc, d{c}[i], H, r, Rm)"
                          for c in range(len(KERNELS)))
     dispatch += "\n        else:\n            m = 0"

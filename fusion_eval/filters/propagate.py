@@ -26,8 +26,6 @@ default run's cold start compiled each twice; ``tests/test_compiled_replay.py`` 
 
 from __future__ import annotations
 
-import hashlib
-import inspect
 from collections import namedtuple
 
 import numpy as np
@@ -109,12 +107,6 @@ def add_gap_motion(P, x, cidx, gap, gap_s):
             P[j, j] += gap[3] * gap_s * gap_s
 
 
-# the loop's name carries its template and the helper it calls (numba's cache checks only the caller's own file)
-_DIGEST = hashlib.sha1((_LOOP + repr((LAST_T, LAST_U)) + inspect.getsource(add_gap_motion.py_func)
-                        ).encode()).hexdigest()[:10]  # not a state index
-DIGEST = _DIGEST        # what the compiled replay and the smoother, built on this loop, put in their own names
-
-
 def compiled_loop(module_name: str, step, record_cov, gap_motion=add_gap_motion):
     """``predict_to(arrays, n, k_next, t_target, cov) -> k_next`` for one formulation.
 
@@ -122,11 +114,10 @@ def compiled_loop(module_name: str, step, record_cov, gap_motion=add_gap_motion)
     the state at each, then to ``t_target`` itself (the input interpolated linearly there, and ``last``
     set to that interpolated input). ``cov`` False propagates the state alone (dead reckoning).
     ``gap_motion``: the formulation's :func:`add_gap_motion` (its own when its coordinates are not the canonical
-    ones, defined in the same module, whose change numba's cache sees). The copy is compiled from a file of its own
-    (:func:`fusion_eval.codegen.build`) named by the template and the source of the module ``module_name``, so a
-    change of either invalidates every cached copy.
+    ones). The copy is compiled from a file of its own (:func:`fusion_eval.codegen.build`), named by the template and
+    the sources it can reach, so a change of either invalidates every cached copy.
     """
-    name = f"_predict_to_{_DIGEST}"
+    name = "_predict_to"
     ns = {"_step": step, "_record_cov": record_cov, "_gap_motion": gap_motion, "np": np, "__name__": module_name}
     fn = codegen.build(module_name, name, _LOOP.format(name=name, t=LAST_T, u=LAST_U), ns)[name]
     fn.__qualname__ = name

@@ -21,8 +21,6 @@ import numpy as np
 from numba import njit
 
 from .. import codegen
-from ..filters import propagate
-from ..filters.compiled_replay import STEP_CALLEES, source_digest
 from . import kernels
 
 _SEGMENT = '''
@@ -177,11 +175,7 @@ def compiled_pass(cls):
              "_interval_clone": kernels.interval_clone, "_pinv": kernels.pinv_sym, "_gain_t": kernels.gain_t,
              "_uncondition": kernels.uncondition, "_unpack": kernels.unpack_upper,
              "_condition_given": kernels.condition_given, "_gap_motion": cls._gap_motion}
-    # the kernels' own callees too: numba's cache of this template checks only the formulation's module
-    digest = source_digest(_SEGMENT + propagate.DIGEST, *calls.values(), kernels.pinv_sym, kernels.chol_scaled, kernels._pinv_eig,
-                           kernels.solve_sym, kernels._solve_factored, kernels._tri_inverse,
-                           kernels._clone_gain_applied, *STEP_CALLEES)
-    name, name_pass = f"_rts_segment_{digest}", f"_rts_pass_{digest}"
+    name, name_pass = "_rts_segment", "_rts_pass"    # the file is named by every source they reach (codegen.build)
     ns = {**calls, "np": np, "__name__": cls.__module__}
     codegen.build(mod.__name__, name_pass, _SEGMENT.format(name=name, name_pass=name_pass), ns)
     for nm in (name, name_pass):                       # the segment first: the pass calls it by its global name

@@ -288,7 +288,3 @@ def van_loan_eskf(R, f, w, dt, prm, qscale, Phi, Qd):
             r = V_ID if (q == 1 or q == 4) else P_ID
             _put(Phi, r, TH_ID if q <= 2 else BG_ID, Y, 1.0 if q <= 2 else -1.0, False)
     return True
-
-
-# what a step calling :func:`van_loan_eskf` compiles in (the compiled loops' cache names carry their sources)
-CALLEES = (van_loan_eskf, _tmul, _acc_ttp, _sums, _mat, _mm, _mmt, _put, _put_eye)
