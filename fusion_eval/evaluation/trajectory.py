@@ -291,7 +291,13 @@ def _align_4dof(est_a, ref_a, up_axis: str, n_to_align: int = -1):
         p_e, p_r = p_e[:n_to_align], p_r[:n_to_align]
     params: dict = {}
     if up_axis == "auto":
-        up_axis, params["up_axis_detection"] = detect_up_axis(ref_a.positions_xyz)
+        up_axis, det = detect_up_axis(ref_a.positions_xyz)
+        params["up_axis_detection"] = det
+        if det["angle_deg"] > MAX_UP_TILT_DEG and det["flatness"] <= FLAT_ENOUGH:
+            log.warning("the 4-DoF alignment turns about %s, the coordinate axis nearest the reference's ground plane's "
+                        "normal, which is %.1f deg from it: a tilted frame (ECEF-like?) has no coordinate axis along "
+                        "gravity and a yaw about another is not the 4-DoF fit; give --up-axis, or use --alignment se3",
+                        up_axis, det["angle_deg"])
     R, t, yaw = fit_4dof(p_e, p_r, up_axis)
     A = np.eye(4)
     A[:3, :3], A[:3, 3] = R, t
@@ -302,18 +308,24 @@ def _align_4dof(est_a, ref_a, up_axis: str, n_to_align: int = -1):
 # a reference whose smallest principal spread is above this share of the middle one has no clear ground plane (a
 # flight): its errors are not split into horizontal and vertical parts along a guessed axis
 FLAT_ENOUGH = 0.5
+# nor one whose ground plane's normal lies further than this from the nearest coordinate axis: a frame tilted against
+# gravity (ECEF-like, or a camera's), where 'up' along an axis mixes horizontal into vertical (a reference rotated by
+# 20/-30/70 deg split one segment's 0.59 / 1.07 m into 0.29 / 1.19, with no word: a metamorphic review). A road's
+# steady grade stays well inside it (a 10 % climb over a whole drive: 5.7 deg)
+MAX_UP_TILT_DEG = 10.0
 
 
 def horizontal_vertical(dp_m: np.ndarray, up_axis: str, p_ref_m: np.ndarray) -> np.ndarray | None:
     """The horizontal and vertical parts of position errors ``dp_m`` (estimate - reference, (n, 3), in the
     reference's frame): ``(n, 2)`` of the norm across ``up_axis`` and the absolute value along it, whose root sum of
     squares is the APE translation error (evo's ``trans_part``). ``up_axis`` 'auto': the reference's least-varying
-    axis (:func:`fusion_eval.evaluation.alignment.detect_up_axis`); None where it has no clear ground plane."""
+    axis (:func:`fusion_eval.evaluation.alignment.detect_up_axis`); None where it has no clear ground plane, or one
+    tilted against every coordinate axis (:data:`MAX_UP_TILT_DEG`)."""
     if up_axis == "auto":
         if len(p_ref_m) < 3:
             return None
         up_axis, det = detect_up_axis(p_ref_m)
-        if det["flatness"] > FLAT_ENOUGH:
+        if det["flatness"] > FLAT_ENOUGH or det["angle_deg"] > MAX_UP_TILT_DEG:
             return None
     k = "xyz".index(up_axis)
     across = np.delete(dp_m, k, axis=1)
@@ -416,7 +428,9 @@ def evaluate(reference, estimate, name: str, t_max_diff_s: float,
         ev.metrics["ape"][key] = _stats(res)
         ev.results[f"ape_{keys.RESULT_NAMES[key]}"] = res
         if key == "translation_m":
-            ev.ape_t_s = np.array(est_a.timestamps)
+            # on the reference's clock, as matched: the estimate keeps its own stamps through the association
+            # (evo's), and --t-offset once left the segment table and the APE plot 100 s off (a metamorphic review)
+            ev.ape_t_s = np.array(est_a.timestamps) + t_offset_s
             ev.ape_err_m = np.array(res.np_arrays["error_array"])
             ev.ref_p_m = np.array(ref_a.positions_xyz)
             ev.ape_hv_m = horizontal_vertical(np.asarray(est_a.positions_xyz) - ev.ref_p_m, up_axis, ev.ref_p_m)
