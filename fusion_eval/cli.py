@@ -678,13 +678,16 @@ def _num_or_na(x, nd: int) -> str:
 @click.option("-s", "--set", "sets", multiple=True, metavar="KEY=VALUE",
               help="Override a key in every trial and in the default it is compared with (repeatable).")
 @click.option("-j", "--jobs", type=int, default=None, help="Trials scored at once (default: the cores, at most 4).")
+@click.option("--batch", type=click.IntRange(min=1), default=4, show_default=True,
+              help="Trials asked per generation: a seeded study depends on it, not on -j or the machine (give -j at "
+                   "most this).")
 @click.option("--scheduler", default=None, metavar="ADDRESS", help="Score trials on an existing Dask cluster.")
 @click.option("--dask", "dask_mode", type=click.Choice(["local"]), default=None, help="Start a Dask LocalCluster.")
 @click.option("--no-prune", is_flag=True, help="Score every trial on every drive and seed.")
 @click.option("--no-plots", is_flag=True, help="Skip the plots.")
 @click.pass_context
-def tune(ctx, datasets, space, objectives, n_trials, test, out_dir, sampler, seed, seeds, config_path, sets, jobs, scheduler,
-         dask_mode, no_prune, no_plots):
+def tune(ctx, datasets, space, objectives, n_trials, test, out_dir, sampler, seed, seeds, config_path, sets, jobs, batch,
+         scheduler, dask_mode, no_prune, no_plots):
     """Tune the filter's noise settings on DATASET(s) (default: the embedded kitti-00) with Optuna."""
     _say_compiling(ctx.obj["quiet"])
     from .commands.tune import run_tune
@@ -700,7 +703,8 @@ def tune(ctx, datasets, space, objectives, n_trials, test, out_dir, sampler, see
     try:
         res = run_tune(list(datasets), list(test), space, list(objectives), n_trials, out_dir, sampler=sampler,
                        seed=seed, seeds=seeds, config_path=config_path, sets=sets, jobs=jobs, scheduler=scheduler,
-                       dask_local=dask_mode == "local", prune=not no_prune, plots=not no_plots, progress=progress)
+                       dask_local=dask_mode == "local", prune=not no_prune, plots=not no_plots, progress=progress,
+                       batch=batch)
     finally:
         if bar is not None:
             bar.close()

@@ -296,6 +296,7 @@ class Layer(NamedTuple):
 
     body: dict
     where: str
+    dataset: dict | None = None     # a config.resolved.yaml's record of the dataset it was run on (informational)
 
 
 def validate(body: Any, where: str, schema_: dict[str, Spec] | None = None, informational: tuple = ()) -> Layer:
@@ -363,7 +364,9 @@ def parse_file(path: Path, schema_: dict[str, Spec] | None = None) -> Layer:
     if isinstance(body, dict) and "streams" in body:
         raise ConfigError(f"{path}: this is a dataset manifest (it has 'streams'), not a configuration: give it as the "
                           "DATASET argument")
-    return validate(body, str(path), schema_, informational=INFORMATIONAL_SECTIONS)
+    layer = validate(body, str(path), schema_, informational=INFORMATIONAL_SECTIONS)
+    ran_on = body.get("dataset") if isinstance(body, dict) else None
+    return layer._replace(dataset=ran_on) if isinstance(ran_on, dict) else layer
 
 
 def parse_sets(sets: tuple[str, ...], schema_: dict[str, Spec] | None = None) -> Layer:

@@ -247,3 +247,13 @@ def executor(jobs: int | None = None, preload: tuple[str, ...] = ()):
         return Inline()
     # fork: the workers inherit the imported modules and the data, so they start in milliseconds
     return Pool(max_workers=min(jobs, 4), mp_context=mp.get_context("fork"), preload=preload)
+
+
+def dask_console(client) -> None:
+    """The command line's logging (-q, -v) on a local Dask cluster's workers, whose stderr is the user's terminal: they
+    start with Dask's own, and printed run warnings under -q (a reproducibility review). A spawned pool's workers get
+    it from their initializer."""
+    from . import cli
+
+    if getattr(cli, "CONSOLE", None) is not None:
+        client.run(cli.worker_logging, cli.CONSOLE)

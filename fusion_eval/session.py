@@ -94,9 +94,25 @@ def resolve(req: ConfigRequest, ds: Dataset) -> dict:
     from .filters import observations
 
     cfg = merge_layers([*manifest_layer(ds), *req.layers])
+    _other_dataset(req, ds)
     for o in observations.REGISTRY:
         o.resolve_for(cfg, ds.description)
     return cfg
+
+
+def _other_dataset(req: ConfigRequest, ds: Dataset) -> None:
+    """A ``config.resolved.yaml`` given with ``-c`` and no DATASET ran the default dataset with no word, whatever drive
+    the file was written for (a reproducibility review): said, naming both."""
+    import logging
+
+    if not ds.description.get("default_dataset"):
+        return
+    for layer in req.layers:
+        ran = (layer.dataset or {}).get("name")
+        if ran is not None and ran != ds.name:
+            logging.getLogger(__name__).warning(
+                "%s was written by a run on the dataset %r (%s); with no DATASET given this one runs the default, %r: "
+                "give the DATASET to run that drive again", layer.where, ran, (layer.dataset or {}).get("path"), ds.name)
 
 
 def dataset(path: str | Path | None = None) -> Dataset:
@@ -108,6 +124,8 @@ def dataset(path: str | Path | None = None) -> Dataset:
     p = resources.default_dataset() if path is None else resources.find(path)
     ds = load_dataset(p)
     ds.description.setdefault("path", str(p))
+    if path is None:
+        ds.description["default_dataset"] = True
     return ds
 
 

@@ -51,10 +51,10 @@ def main() -> None:
         timed(["run", "--out", str(tmp / "warm"), "--no-plots"])          # numba's cache warm for both
         runs = [timed(["run", "--out", str(tmp / f"r{i}"), "--no-plots"]) for i in range(3)]
         one = sorted(runs)[1]
-        t_tune = timed(["tune", "--objective", "nll", "--trials", str(a.trials), "-j", "2", "-o", str(tmp / "t"),
-                        "--no-plots"])
-        t_full = timed(["tune", "--objective", "nll", "--trials", str(a.trials), "-j", "2", "-o", str(tmp / "t-full"),
-                        "--no-plots", "--no-prune"])
+        t_tune = timed(["tune", "--objective", "nll", "--trials", str(a.trials), "-j", "2", "--batch", "2",
+                        "-o", str(tmp / "t"), "--no-plots"])
+        t_full = timed(["tune", "--objective", "nll", "--trials", str(a.trials), "-j", "2", "--batch", "2",
+                        "-o", str(tmp / "t-full"), "--no-plots", "--no-prune"])
         states = [r["state"] for r in csv.DictReader((tmp / "t" / "trials.csv").open())]
         best = {k: json.loads((tmp / k / "best.json").read_text())["values"][0] for k in ("t", "t-full")}
         print(f"one default run {one:.2f} s (median of 3); tune, {a.trials} trials, nll, -j 2: {t_tune:.1f} s = "
@@ -70,7 +70,7 @@ def main() -> None:
         for i, (what, space, sets, obj, test), sd in ((i, c, sd) for i, c in enumerate(cases) for sd in range(a.study_seeds)):
             out = tmp / f"q{i}-{sd}"
             args = ["tune", "--space", space, *sets, "--objective", obj, "--trials", str(a.trials), "-j", "2",
-                    "--seeds", str(a.seeds), "--seed", str(sd), "-o", str(out), "--no-plots"] + \
+                    "--batch", "2", "--seeds", str(a.seeds), "--seed", str(sd), "-o", str(out), "--no-plots"] + \
                 [x for d in test for x in ("--test", d)]
             dt = timed(args)
             d = json.loads((out / "default.json").read_text())

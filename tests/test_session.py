@@ -142,3 +142,24 @@ def test_shipped_sweeps_variants_and_dataset_are_found_from_any_directory(tmp_pa
     assert {Path(t.dataset).name for t in tasks} == {"kitti-00"} and len(tasks) == 6
     assert all(Path(t.variant_path).parent.name == "variants" for t in tasks)
     assert resources.default_dataset().is_dir() and (resources.variant_dir() / "nominal.yaml").is_file()
+
+
+def test_a_resolved_config_of_another_drive_run_without_dataset_is_said(tmp_path, caplog):
+    """`run -c <results>/config.resolved.yaml` with no DATASET ran the default drive, whatever drive the file was
+    written for, with no word (a reproducibility review); a DATASET given, or the same drive, says nothing."""
+    from fusion_eval import session
+
+    f = tmp_path / "config.resolved.yaml"
+    f.write_text("filter:\n  nhc: false\ndataset:\n  path: /data/drive_0018\n  name: 2011_09_30_drive_0018_sync\n",
+                 encoding="utf-8")
+    req = session.request(config=f)
+    with caplog.at_level("WARNING"):
+        session.resolve(req, session.dataset(None))
+    assert "written by a run on the dataset '2011_09_30_drive_0018_sync' (/data/drive_0018)" in caplog.text
+    assert "give the DATASET" in caplog.text
+    caplog.clear()
+    with caplog.at_level("WARNING"):
+        session.resolve(req, session.dataset("data/kitti-00"))
+        f.write_text("filter:\n  nhc: false\ndataset:\n  name: kitti-00\n", encoding="utf-8")
+        session.resolve(session.request(config=f), session.dataset(None))
+    assert "written by a run" not in caplog.text

@@ -327,6 +327,8 @@ def test_best_yaml_is_a_configuration_run_accepts(small, tmp_path):
     assert r.exit_code == 0, r.output
     cfg = (tmp_path / "r" / "config.resolved.yaml").read_text()
     assert "formulation: nominal_state" in cfg        # the variant's own settings are in best.yaml
+    # its hint names the dataset the figure is of (`run -c best.yaml` ran kitti-00: a reproducibility review)
+    assert f"# use it as: fusion-eval run {small} -c best.yaml\n" in (out / "best.yaml").read_text(encoding="utf-8")
     r = CliRunner().invoke(main, ["-q", "sweep", str(small), "--grid", str(sw), "--out", str(tmp_path / "none"),
                                   "--summarize-only"])
     assert r.exit_code == 2 and "no sweep records" in r.stderr
@@ -881,3 +883,17 @@ def test_a_failed_trial_counts_as_a_failed_run_though_its_setting_has_a_mean(sma
     row = next(x for x in summary["rows"] if x["setting"] == "a")
     assert row["status"] == "ok" and row["failed_trials"] == 1
     assert summary["failed_runs"] == [{"id": victim.id, "error": "a bug"}] and summary["runs"] == 4
+
+
+@pytest.mark.slow
+def test_a_quiet_sweep_on_a_local_dask_cluster_prints_no_run_warnings(small, tmp_path):
+    """-q promises nothing below errors; a local Dask cluster's workers, whose stderr is the terminal, started with
+    Dask's logging and printed every run's warnings (a reproducibility review)."""
+    sw = tmp_path / "g.yaml"
+    sw.write_text("settings:\n  bad: {imu.gyro_noise_dps_sqrthz: 0.00001, lidar.relative_att_std_deg: 0.0001}\n",
+                  encoding="utf-8")
+    r = subprocess.run([sys.executable, "-m", "fusion_eval", "-q", "sweep", str(small), "--grid", str(sw), "--out",
+                        str(tmp_path / "o"), "--dask", "local", "--jobs", "2"], capture_output=True, text=True, timeout=600)
+    assert r.returncode == 0, r.stderr
+    assert "Warnings" in (tmp_path / "o" / "sweep.md").read_text(encoding="utf-8")      # there were some, in the summary
+    assert "NIS" not in r.stderr and "NEES" not in r.stderr, r.stderr

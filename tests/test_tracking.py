@@ -70,6 +70,12 @@ def test_track_command_outputs_and_bad_lines(tmp_path):
     assert "RMSE [px, py, vx, vy]" in r.output and "NIS radar" in r.output
     m = json.loads((out / "metrics.json").read_text())
     assert set(m["rmse"]) == {"px", "py", "vx", "vy"} and m["nis"]["lidar"]["chi2_95"] == pytest.approx(5.991, abs=1e-3)
+    import hashlib
+
+    from fusion_eval import __version__, provenance
+
+    assert m["produced_by"]["version"] == __version__ and m["produced_by"]["code"] == provenance.code_id()
+    assert m["produced_by"]["input_sha256"] == hashlib.sha256(p.read_bytes()).hexdigest()
     assert len((out / "estimates.csv").read_text().splitlines()) == 501
     assert (out / "track.png").exists() and (out / "nis.png").exists()
     lines = p.read_text().splitlines()

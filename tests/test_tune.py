@@ -102,6 +102,8 @@ def test_a_tune_writes_a_usable_best_config_and_every_trial(tmp_path):
     cfg = yaml.safe_load((out / "best.yaml").read_text())
     assert cfg["gnss"]["std_scale"] > 0 and set(cfg["imu"]) == {k.split(".")[1] for k in best["params"] if k.startswith("imu.")}
     assert cfg["gnss"]["rate_hz"] == 0.5 and cfg["filter"]["nhc"] is False
+    assert f"# use: fusion-eval run {ds.resolve()} -c best.yaml\n" in (out / "best.yaml").read_text()
+    assert "Made by: `" in md and "generations of 4" in md and "random start-up trials" in md
     # the tuned config reproduces its trial's figure in a plain run
     run = CliRunner().invoke(main, ["-q", "run", str(ds), "-c", str(out / "best.yaml"), "--out", str(tmp_path / "r"),
                                     "--no-plots"], catch_exceptions=False)
@@ -128,7 +130,7 @@ def test_a_study_is_not_resumed_with_another_space_or_objective(tmp_path):
 
     empty = tmp_path / "empty"
     first = SimpleNamespace(out_dir=empty, space=SimpleNamespace(digest=lambda: "a"), objectives=[SimpleNamespace(name="nll")],
-                            train=[str(ds)], seeds=1, base_config=None, sets=(), sampler="tpe", seed=0, n_trials=2)
+                            train=[str(ds)], seeds=1, base_config=None, sets=(), sampler="tpe", seed=0, n_trials=2, batch=4)
     study = st.open_study(first)
     (empty / "default.json").write_text("{}")
     second = SimpleNamespace(**{**vars(first), "objectives": [SimpleNamespace(name="nis")]})
@@ -195,15 +197,34 @@ def test_a_tune_killed_at_random_moments_resumes_and_counts_every_trial_once(tmp
 def test_the_pool_and_dask_give_the_same_study_with_a_fixed_seed(tmp_path):
     ds = make_slice(tmp_path / "ds", 300)
     outs = []
-    for name, extra in (("pool", []), ("dask", ["--dask", "local"])):
+    # one worker or two, the pool or Dask: one study (the generations were -j's, whose default follows the cores, so
+    # that a seed gave two studies on two machines: a reproducibility review)
+    for name, extra in (("pool", ["-j", "2"]), ("dask", ["-j", "2", "--dask", "local"]), ("serial", ["-j", "1"])):
         out = tmp_path / name
-        r = subprocess.run(CLI + ["-q", "tune", str(ds), "--objective", "fused.ape.rmse", "--trials", "8", "-j", "2",
+        r = subprocess.run(CLI + ["-q", "tune", str(ds), "--objective", "fused.ape.rmse", "--trials", "8",
                                   "--seed", "5", "-o", str(out), "--no-plots", *extra],
                            capture_output=True, text=True, timeout=600)
         assert r.returncode == 0, r.stderr
         outs.append([{k: v for k, v in row.items() if k != "duration_s"} for row in _trials(out)])
-    assert outs[0] == outs[1]
+    assert outs[0] == outs[1] == outs[2]
     assert len({row["fused.ape.rmse"] for row in outs[0]}) > 1
+
+
+def test_a_study_keeps_its_random_start_and_the_commands_that_made_it(tmp_path):
+    """TPE's random start followed --trials, so a study of 10 trials extended to 20 by a second run differed from
+    trial 2 on from one made for 20, and tune.md named only the last command (a reproducibility review): the start is
+    fixed when the study is made, and every command is kept."""
+    from fusion_eval.tuning import study as st
+
+    s = SimpleNamespace(out_dir=tmp_path / "t", space=SimpleNamespace(digest=lambda: "a"),
+                        objectives=[SimpleNamespace(name="nll")], train=["d"], seeds=1, base_config=None, sets=(),
+                        sampler="tpe", seed=0, n_trials=10, batch=4)
+    assert st.open_study(s).user_attrs["n_startup_trials"] == 2
+    again = st.open_study(SimpleNamespace(**{**vars(s), "n_trials": 40, "batch": 2}))
+    assert again.user_attrs["n_startup_trials"] == 2 and again.sampler._n_startup_trials == 2
+    assert [b for _, _, b in again.user_attrs["commands"]] == [4, 2]
+    fresh = st.open_study(SimpleNamespace(**{**vars(s), "out_dir": tmp_path / "u", "n_trials": 40}))
+    assert fresh.user_attrs["n_startup_trials"] == 8 and fresh.sampler._n_startup_trials == 8
 
 
 @pytest.fixture(scope="module")
@@ -357,7 +378,7 @@ def test_the_first_trial_is_the_default_even_where_the_default_is_auto(tmp_path)
     res = {"default": default, "best": best}
     assert R.default_wins(res) and not R.default_wins({**res, "best": {**best, "train": {"status": "ok", "values": [0.7]}}})
     s = SimpleNamespace(out_dir=tmp_path, train=["kitti-00"], objectives=[SimpleNamespace(name="fused.ape.rmse")],
-                        base_config=None, sets=())
+                        base_config=None, sets=(), seeds=1)
     text = R.default_yaml(s, res)
     assert "no trial" in text and "0.75" in text and "0.82" in text and yaml.safe_load(text) == {}
     # with a base config and --set items, the default is those (what trial 0 ran with)

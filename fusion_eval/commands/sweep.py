@@ -504,6 +504,10 @@ def execute(tasks: list[Task], out_dir: Path, jobs: int | None, scheduler: str |
                 # the folder goes (its lock is this sweep's own)
                 shutil.rmtree(out_dir, ignore_errors=True)
             raise ConfigError(f"--scheduler {scheduler}: no Dask scheduler answers there ({exc})") from None
+        if cluster is not None:
+            from ..pool import dask_console
+
+            dask_console(client)
         if scheduler:
             # remote workers may not share this filesystem: each writes its run locally and sends the files back
             work = [[dataclasses.replace(t, ship=True) for t in w] for w in work]

@@ -32,7 +32,7 @@ def space_file(name: str) -> Path:
 def run_tune(train: list[str], test: list[str], space: str, objectives: list[str], n_trials: int, out_dir: Path,
              sampler: str = "tpe", seed: int = 0, seeds: int = 1, config_path: Path | None = None, sets: tuple[str, ...] = (),
              jobs: int | None = None, scheduler: str | None = None, dask_local: bool = False, prune: bool = True,
-             plots: bool = True, progress: Callable | None = None) -> dict:
+             plots: bool = True, progress: Callable | None = None, batch: int = 4) -> dict:
     from .. import session
     from ..config import read_yaml
 
@@ -49,6 +49,8 @@ def run_tune(train: list[str], test: list[str], space: str, objectives: list[str
         raise ConfigError("give either --scheduler or --dask local, not both")
     if jobs is not None and jobs < 1:
         raise ConfigError("--jobs must be >= 1")
+    if batch < 1:
+        raise ConfigError("--batch must be >= 1")
     train_paths = [str(resources.find(d).resolve()) for d in (train or [resources.DEFAULT_DATASET])]
     test_paths = [str(resources.find(d).resolve()) for d in test]
     for p in train_paths + test_paths:
@@ -63,7 +65,8 @@ def run_tune(train: list[str], test: list[str], space: str, objectives: list[str
               train=tuple(train_paths), test=tuple(test_paths), n_trials=n_trials, out_dir=Path(out_dir).resolve(),
               sampler=sampler, seed=seed, seeds=seeds,
               base_config=_base(config_path, read_yaml), sets=tuple(sets),
-              jobs=jobs or min(os.cpu_count() or 1, 4), scheduler=scheduler, dask_local=dask_local, prune=prune)
+              jobs=jobs or min(os.cpu_count() or 1, 4), batch=batch, scheduler=scheduler, dask_local=dask_local,
+              prune=prune)
     session.request(sets=s.sets)         # a bad --set is refused before any work
     t0 = time.perf_counter()
     new_dir = not s.out_dir.exists()

@@ -38,7 +38,9 @@ def versions() -> dict:
 def _versions() -> dict:
     from importlib.metadata import PackageNotFoundError, version
 
-    out = {"fusion-eval": __version__, "python": platform.python_version()}
+    from ..provenance import code_id
+
+    out = {"fusion-eval": __version__, "fusion-eval-code": code_id(), "python": platform.python_version()}
     for pkg in ("numpy", "scipy", "evo", "numba", "pymap3d", "matplotlib", "pandas", "pyyaml", "click", "optuna", "dask",
                 "tabulate", "markdown", "tqdm"):
         try:

@@ -137,7 +137,7 @@ def page(report_md: str, folder: Path, images: list[str] = (), inputs: list[dict
     toc = conv.toc.replace("</ul>\n</div>", '<li><a href="#provenance">Provenance</a></li></ul>\n</div>', 1) \
         if '<div class="toc">' in conv.toc else conv.toc
     h = provenance.header()
-    meta = (f'fusion-eval {html.escape(h["version"])} &middot; {html.escape(h["date"])} &middot; '
+    meta = (f'fusion-eval {html.escape(h["version"])} (code {html.escape(h["code"])}) &middot; {html.escape(h["date"])} &middot; '
             f'<code>{html.escape(h["command"])}</code>')
     return f"""<!DOCTYPE html>
 <html lang="en">

@@ -91,7 +91,11 @@ def write_track_outputs(out: StagedDir, res: TrackResult, params, source: str, m
     warns = warnings_of(res, nis, params.max_gap_s)
     for w in warns:
         logging.getLogger(__name__).warning(w)
-    metrics = {"input": source, "sensors": params.sensors, "estimates": int(len(res.t_us)),
+    from .. import provenance
+
+    # what produced the figures and from which bytes (a track's outputs named neither: a reproducibility review)
+    made = {**provenance.header(), "input_sha256": (provenance.files([("input", source)]) or [{}])[0].get("sha256")}
+    metrics = {"input": source, "produced_by": made, "sensors": params.sensors, "estimates": int(len(res.t_us)),
                "rmse": {"px": _finite(e[0]), "py": _finite(e[1]), "vx": _finite(e[2]), "vy": _finite(e[3])},
                "nis": nis, "nees": nees_summary(res), "warnings": warns,
                "restarts": [{"line": ln, "gap_s": g} for ln, g in res.restarts], "radar_dropouts": len(res.dropouts),

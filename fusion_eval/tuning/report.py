@@ -34,7 +34,17 @@ def default_yaml(s: Setup, res: dict) -> str:
     return (f"# fusion-eval tune: no trial of {s.out_dir} beat the default configuration on "
             f"{', '.join(Path(x).name for x in s.train)} ({s.objectives[0].name} {d:.6g}, the best trial "
             f"{res['best']['number']} {t:.6g}): this is the default (the base config and --set items only; the best trial is in best.json)\n"
-            "# use: fusion-eval run DATASET -c best.yaml\n" + _config_yaml(s, {}))
+            + _use_lines(s) + _config_yaml(s, {}))
+
+
+def _use_lines(s: Setup) -> str:
+    """How ``best.yaml`` reproduces the objective it states: on each training drive, with the study's Monte-Carlo
+    seeds as a run's trials (the hint named no ``--trials`` for ``--seeds``: a reproducibility review)."""
+    import shlex
+
+    trials = f" --trials {s.seeds}" if s.seeds > 1 else ""
+    cmds = [f"fusion-eval run {shlex.quote(d)} -c best.yaml{trials}" for d in s.train]
+    return "".join(f"# {'use: ' if i == 0 else '  and: '}{c}\n" for i, c in enumerate(cmds))
 
 
 def _config_yaml(s: Setup, overrides: dict) -> str:
@@ -50,7 +60,7 @@ def _config_yaml(s: Setup, overrides: dict) -> str:
 def best_yaml(s: Setup, best: dict) -> str:
     head = (f"# fusion-eval tune: trial {best['number']} of {s.out_dir}, objective "
             f"{', '.join(o.name for o in s.objectives)} = {', '.join(f'{v:.6g}' for v in best['values'])} on "
-            f"{', '.join(Path(d).name for d in s.train)}\n# use: fusion-eval run DATASET -c best.yaml\n")
+            f"{', '.join(Path(d).name for d in s.train)}\n" + _use_lines(s))
     return head + _config_yaml(s, best["overrides"])
 
 
@@ -105,6 +115,7 @@ def markdown(s: Setup, res: dict, runtime_s: float) -> str:
          f"Space `{s.space.path}`, sampler {s.sampler} (seed {s.seed}); training drives "
          f"{', '.join(Path(d).name for d in s.train)}; held-out drives "
          f"{', '.join(Path(d).name for d in s.test) or 'none'}; {s.seeds} Monte-Carlo seed(s) per drive.", "",
+         _sampler_line(s, res["study"]), "",
          f"Trials: {states.count(S.COMPLETE)} complete, {states.count(S.PRUNED)} pruned, "
          f"{status.count('diverged')} diverged, {status.count('failed')} failed "
          f"({runtime_s:.0f} s in this session).", ""]
@@ -167,6 +178,18 @@ def markdown(s: Setup, res: dict, runtime_s: float) -> str:
           "trial's metrics per drive), `default.json`, `study.journal` (Optuna's; the same command resumes it), and, "
           "unless `--no-plots`, the plots `history.png`, `importance.png`, `parallel.png`.", ""]
     return "\n".join(L)
+
+
+def _sampler_line(s: Setup, study) -> str:
+    """What a seeded study depends on beyond the command's space, objectives and drives, and the commands that made it
+    (a study extended by a second run is rebuilt by running them in order)."""
+    startup = study.user_attrs.get("n_startup_trials")
+    how = (f"TPE (multivariate, constant liar) with {startup} random start-up trials (fixed when the study was made)"
+           if s.sampler == "tpe" and startup is not None else s.sampler)
+    cmds = study.user_attrs.get("commands") or []
+    made = "; ".join(f"`{c}` (generations of {b}, {d})" for d, c, b in cmds)
+    return (f"Sampler: {how}, seed {s.seed}; trials asked in generations of {s.batch} (`--batch`: the study depends on "
+            f"it, not on `-j` or the machine), scored {s.jobs} at a time. Made by: {made or 'this command'}.")
 
 
 def _obj(rec: dict | None, k: int) -> float:

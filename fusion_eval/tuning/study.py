@@ -1,8 +1,11 @@
 """The study loop of ``fusion-eval tune``: Optuna asks, the workers score, Optuna is told.
 
-Trials run in generations of ``jobs``: every trial of a generation is asked, scored in parallel (the process pool or
-a Dask cluster, the executors of ``sweep``) and told in trial order, so a seeded study is the same on any executor
-and any number of workers of one generation size. The study lives in an Optuna journal file
+Trials run in generations of ``batch`` (``--batch``, 4 unless given): every trial of a generation is asked, scored in
+parallel (the process pool or a Dask cluster, the executors of ``sweep``, with ``jobs`` workers) and told in trial
+order, so a seeded study is the same on any executor, any number of workers and any machine. (The generation was
+``-j``, whose default follows the cores: one seed gave two studies on two machines, and nothing recorded which; nor the
+sampler's random start, which followed ``--trials``, so that a study extended by a second run could not be rebuilt:
+it is fixed when the study is made and kept in it. A reproducibility review.) The study lives in an Optuna journal file
 (``<out>/study.journal``): a tune that is interrupted (Ctrl-C, SIGTERM, SIGKILL) resumes where it stopped when the
 same command runs again (trials that were running are enqueued again with their values), and two ``tune``
 processes pointed at one ``--out`` share the study.
@@ -20,7 +23,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Callable
 
-from .. import interrupts
+from .. import interrupts, provenance
 from ..errors import ConfigError, OutputError
 from ..locks import alive
 from ..outputs import atomic_write, resumable_dir
@@ -48,6 +51,7 @@ class Setup:
     base_config: dict | None = None
     sets: tuple[str, ...] = ()
     jobs: int = 1
+    batch: int = 4                  # trials asked per generation: the study depends on it, not on jobs
     scheduler: str | None = None
     dask_local: bool = False
     prune: bool = True
@@ -67,7 +71,12 @@ def _optuna():
     return optuna
 
 
-def _sampler(s: Setup):
+def n_startup(n_trials: int) -> int:
+    """TPE's random start-up trials for a study made for ``n_trials`` (kept in the study when it is made)."""
+    return min(10, max(2, n_trials // 5))
+
+
+def _sampler(s: Setup, startup: int | None = None):
     optuna = _optuna()
     if s.sampler == "cmaes":
         if len(s.objectives) > 1:
@@ -76,7 +85,7 @@ def _sampler(s: Setup):
     # multivariate TPE models the noise keys jointly (they trade off against each other); constant_liar keeps the
     # trials of one generation apart
     return optuna.samplers.TPESampler(seed=s.seed, multivariate=True, constant_liar=True,
-                                      n_startup_trials=min(10, max(2, s.n_trials // 5)))
+                                      n_startup_trials=n_startup(s.n_trials) if startup is None else startup)
 
 
 def open_study(s: Setup):
@@ -112,6 +121,15 @@ def open_study(s: Setup):
         diff = next(k for k in ident if ident[k] != old.get(k))
         raise ConfigError(f"{s.out_dir}: holds a study of another {diff.replace('_', ' ')} ({old.get(diff)!r}); "
                           "give another --out or the same settings to resume it")
+    startup = study.user_attrs.get("n_startup_trials")
+    if startup is None or old is None or abandoned:
+        study.set_user_attr("n_startup_trials", n_startup(s.n_trials))
+    elif s.sampler == "tpe":
+        study.sampler = _sampler(s, int(startup))       # as made: an extended study goes on as it began
+    # every command that added to the study, in order: with the seed, --batch and the sampler's start-up kept in
+    # the study, they rebuild it (tune.md lists them)
+    study.set_user_attr("commands", [*study.user_attrs.get("commands", []),
+                                     [provenance.date_utc(), provenance.command_line(), s.batch]])
     return study
 
 
@@ -206,6 +224,10 @@ class Executor:
                 self._cluster = LocalCluster(n_workers=s.jobs, threads_per_worker=1, processes=True,
                                              dashboard_address=None)
             self._client = Client(self._cluster if self._cluster is not None else s.scheduler)
+            if self._cluster is not None:
+                from ..pool import dask_console
+
+                dask_console(self._client)
         elif s.jobs > 1:
             import multiprocessing as mp
 
@@ -278,7 +300,7 @@ def run_study(s: Setup, progress: Callable[[int, int, float | None], None] | Non
                     break
                 thresholds = prune_thresholds(study, n_steps) if s.prune and len(s.objectives) == 1 else ()
                 asked = []
-                for _ in range(min(s.jobs, left)):
+                for _ in range(min(s.batch, left)):
                     # a Ctrl-C inside ask(), before the trial had an owner, left it running for good (it was the
                     # default configuration's trial once; a tune review): the signal waits for the block's end
                     with interrupts.deferred():
