@@ -392,6 +392,11 @@ def prepare(ds: Dataset, cfg: dict) -> Prepared:
             rng = np.random.default_rng([cfg["gnss"]["seed"], 2])
             odo = replace(odo, v_mps=odo.v_mps + rng.standard_normal(len(odo)) * cfg["odometer"]["added_noise_std_mps"])
             applied["odometer_added_noise_std_mps"] = cfg["odometer"]["added_noise_std_mps"]
+        elif needs_odo and cfg["odometer"]["added_noise_std_mps"] != schema()["odometer.added_noise_std_mps"].default:
+            # (did nothing with no word: a configuration audit)
+            more_warnings.append(f"odometer.added_noise_std_mps={cfg['odometer']['added_noise_std_mps']} applies only to an "
+                                 f"odometer stream marked for degradation (KITTI's OXTS speed is): {ds.odometer.source} "
+                                 "is used as it is")
         if needs_odo:                    # (a stream the filter does not fuse is left as it is, and unreported)
             odo = _odometer_scaled(odo, cfg["odometer"]["scale"], gnss if use_gnss else None, imu, applied)
         if needs_odo and (odo.t_s[-1] <= imu.t_s[k0] or odo.t_s[0] >= imu.t_s[-1]):
@@ -453,6 +458,7 @@ def prepare(ds: Dataset, cfg: dict) -> Prepared:
             st = st.select((st.t_s >= t0) & (st.t_s <= imu.t_s[-1]))
             if spec.prepare is not None:
                 st, applied[spec.name] = spec.prepare(st, cfg, t0, ds.description.get("degrade", {}).get(spec.name, False))
+                more_warnings += applied[spec.name].pop("warnings", [])     # a stream's own, for the report
             if len(st) == 0:
                 raise DataRangeError(f"no {spec.what} of {raw.source} is left inside the IMU span "
                                      f"({imu.t_s[0]:.3f}..{imu.t_s[-1]:.3f} s) after the time offset and degradation")

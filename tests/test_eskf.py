@@ -246,3 +246,10 @@ def test_the_motion_an_imu_gap_hid_is_added_at_its_end(kitti_slice, formulation)
     assert np.allclose(att ** 2, att0 ** 2 + (np.radians(10.0) * T) ** 2, rtol=0.05), (np.degrees(att), np.degrees(att0))
     assert np.allclose(vel ** 2, vel0 ** 2 + (0.5 * T) ** 2, rtol=0.05), (vel, vel0)
     assert np.all(att0 < np.radians(3.0)) and np.all(before < np.radians(3.0))  # nothing before the gap's end
+    if formulation == "error_state":
+        # a gap's white noise left unscaled (imu.gap_noise_scale=1) switched the hidden motion off too: the loop took
+        # 'scale != 1' for 'a gap' (a configuration audit)
+        f1 = fe.run(ds, overrides={"output.plots": False, "filter.lidar_update": "none", "imu.gap_noise_scale": 1.0,
+                                   "imu.gap_turn_rate_dps": 10.0, "imu.gap_accel_mps2": 0.5}).filter
+        k = int(np.searchsorted(f1.fused.t_s, imu.t_s[121]))
+        assert np.all(f1.sigma[k, 6:9] > np.radians(10.0) * T)

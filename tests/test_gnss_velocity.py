@@ -134,3 +134,15 @@ def test_simulated_receiver_velocity_improves_the_fusion_and_is_consistent(sim, 
     assert nis["dof"] == 3 and 2.4 < nis["mean"] < 3.6 and nis["fraction_in_95"] > 0.9, nis
     horiz = _run(sim, tmp_path, "filter.use_gnss_velocity=true", "gnss_velocity.components=en")
     assert horiz["nis"]["gnss_velocity"]["dof"] == 2
+
+
+def test_an_outage_of_a_receivers_fixes_removes_its_velocities_too(sim, tmp_path):
+    """On a receiver's stream (not marked for degradation) gnss.outages_s removed the positions and left every velocity
+    fused, and gnss_velocity.seed/rate_hz/noise_std_mps did nothing with no word (a configuration audit)."""
+    whole = _run(sim, tmp_path, "filter.use_gnss_velocity=true")
+    cut = _run(sim, tmp_path, "filter.use_gnss_velocity=true", "gnss.outages_s=[[20, 60]]", "gnss_velocity.seed=4")
+    gv = cut["preprocessing"]["gnss_velocity"]
+    assert gv["fixes_in_outages"] == 40 and gv["fixes_used"] == whole["preprocessing"]["gnss_velocity"]["fixes_used"] - 40
+    assert cut["nis"]["gnss_velocity"]["epochs"] == gv["fixes_used"]
+    assert any("gnss_velocity.seed=4 applies only to a velocity stream marked for degradation" in w
+               for w in cut["preprocessing"]["data_warnings"])

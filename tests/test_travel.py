@@ -238,3 +238,20 @@ def test_travel_pitch_in_a_yawed_imu_is_recovered_with_the_mounts_yaw_either_sig
                                vehicle_axes(12e-3, yaw_mrad * 1e-3)[2], atol=1e-3)
     if abs(yaw_mrad) > 1000:          # along the IMU's own x axis there is no straight driving at all
         assert estimate_travel_pitch(poses) is None
+
+
+def test_a_constraint_rate_the_imu_cannot_give_is_said(kitti_slice, caplog):
+    """The constraint fires at IMU samples: 7, 10, 25 and 100 Hz on a 10 Hz IMU were all 10 Hz, with no word (a
+    configuration audit); a rate it can give says nothing."""
+    from fusion_eval import load_dataset, session
+    from fusion_eval.filters.observations.nhc import OBSERVATION
+    from fusion_eval.prepare import prepare, settings_for
+
+    ds = load_dataset(kitti_slice)
+    for rate, said in ((25.0, "at every sample of this 10 Hz stream: 10 Hz"), (3.0, "every 3rd sample"), (5.0, None)):
+        cfg = session.resolve(session.request(sets=(f"filter.nhc_rate_hz={rate}",)), ds)
+        prep = prepare(ds, cfg)
+        caplog.clear()
+        with caplog.at_level("WARNING"):
+            OBSERVATION.bind(prep, settings_for(cfg, prep))
+        assert (said in caplog.text) if said else "nhc_rate_hz" not in caplog.text, caplog.text

@@ -276,3 +276,25 @@ def test_compare_says_a_variant_that_meets_no_ground_truth_and_exits_2(tmp_path)
                                   "--set", "evaluation.t_max_diff_s=0.002"])
     assert r.exit_code == 2 and "variant eskf: the fused estimate" in r.stderr and "matches 0 ground-truth poses" in r.stderr
     assert "Traceback" not in r.output and not (tmp_path / "c").exists()
+
+
+def test_a_variant_that_degrades_the_gnss_otherwise_is_scored_against_its_own(kitti_slice, tmp_path):
+    """compare took every variant's estimate_over_gnss against the first variant's degraded GNSS: a variant file with its
+    own gnss seed and rate read 0.559 where its own run read 0.606 (a configuration audit)."""
+    v = tmp_path / "v_gnss.yaml"
+    v.write_text("gnss:\n  rate_hz: 0.5\n  seed: 7\n", encoding="utf-8")
+    # (output.plots=false as --no-plots: compare wrote its plots whatever the key said; an audit)
+    r = CliRunner().invoke(main, ["-q", "compare", str(kitti_slice), "--variants", f"eskf,{v}", "--set",
+                                  "output.plots=false", "--out", str(tmp_path / "c")])
+    assert r.exit_code == 0, r.output
+    assert not list((tmp_path / "c").glob("*.png"))
+    rows = {row["variant"]: row for row in json.loads((tmp_path / "c" / "compare.json").read_text())["rows"]
+            if row["estimate"] == "fused"}
+    r = CliRunner().invoke(main, ["-q", "run", str(kitti_slice), "-c", str(v), "--no-plots", "--out", str(tmp_path / "r")])
+    assert r.exit_code == 0, r.output
+    own = json.loads((tmp_path / "r" / "metrics.json").read_text())
+    fused = own["estimates"]["fused"]["ape"]["translation_m"]["rmse"]
+    gnss = own["estimates"]["gnss"]["ape"]["translation_m"]["rmse"]
+    mine = rows[str(v)]
+    assert mine["ape_trans_rmse_m"] == pytest.approx(fused, rel=1e-9)
+    assert mine["estimate_over_gnss"] == pytest.approx(fused / gnss, rel=1e-6)

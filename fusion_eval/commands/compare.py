@@ -3,7 +3,8 @@
 Each variant is a configuration overlay (a name in ``configs/variants`` or a path) applied on top of the
 defaults, the manifest's suggested settings and the optional base ``--config``; ``--set`` applies to every
 variant (:mod:`fusion_eval.session`). The unfiltered estimates (lidar odometry, GNSS, IMU dead reckoning)
-come from the first variant's streams and are evaluated once.
+come from the first variant's streams and are evaluated once; a variant whose prepared lidar or GNSS differs (its own
+seed, rate or noise of the degraded GNSS, a lidar offset) has its ratios to them against the streams it fused.
 """
 
 from __future__ import annotations
@@ -58,6 +59,8 @@ class VariantRun:
     seeded: tuple[str, ...] = ()    # the fused streams drawn with a seed (:func:`fusion_eval.trials.seeded_streams`)
     applied: dict | None = None     # its preparation's record (what `auto` chose: the lidar frame the warnings name)
     nees: dict | None = None        # its NEES over the scored span (the warnings' and the table's, computed once)
+    streams: dict | None = None     # its prepared lidar and GNSS, where they differ from the first variant's
+    own_u: dict | None = None       # their evaluations: its estimate_over_* are against the streams it fused
 
 
 def body_velocity(poses: PoseSeries) -> np.ndarray:
@@ -87,12 +90,30 @@ def _replay_all(ds, variants: list[str], cfgs: list[dict], advance=None) -> tupl
         runs.append(VariantRun(name, cfg, filt, None, time.perf_counter() - t0 - compiled, warnings=_warnings(name, prep, filt),
                                compile_s=compiled, applied=prep.applied,
                                seeded=tuple(mc.seeded_streams({"nis": filt.nis, "gnss_degradation": prep.gnss_info,
-                                                               "preprocessing": prep.applied}))))
+                                                               "preprocessing": prep.applied})),
+                               streams=_own_streams(prep, base_prep)))
         log.info("variant %s: filtered in %.2f s%s", name, runs[-1].runtime_s,
                  f" (and {compiled:.1f} s compiling)" if compiled > 0 else "")
         if advance:
             advance()
     return runs, base_prep
+
+
+def _streams(prep) -> dict:
+    return {k: v for k, v in (("lidar", prep.lidar), ("gnss", prep.gnss.as_poses() if prep.gnss is not None else None))
+            if v is not None}
+
+
+def _own_streams(prep, base_prep) -> dict | None:
+    """The variant's prepared lidar and GNSS that differ from the first variant's (a variant file's gnss.seed,
+    rate_hz or std, a lidar offset or extrinsic): its estimate_over_gnss and _lidar were against the first's streams,
+    not the ones it fused (0.559 in compare against 0.606 in its own run: a configuration audit)."""
+    if prep is base_prep:
+        return None
+    mine, base = _streams(prep), _streams(base_prep)
+    diff = {k: v for k, v in mine.items() if k not in base or len(v) != len(base[k])
+            or not (np.array_equal(v.t_s, base[k].t_s) and np.array_equal(v.p_w_m, base[k].p_w_m))}
+    return diff or None
 
 
 def _warnings(name: str, prep, filt) -> tuple[str, ...]:
@@ -126,12 +147,16 @@ def _evaluate_all(runs: list[VariantRun], base_prep, ev_cfg: dict, pool):
             r.warnings = (*r.warnings, short)
     ref = span.crop(gt, sp)              # as evo's --t_start/--t_end: the reference reduced to the span
     args = (ev_cfg["t_max_diff_s"], ev_cfg["rpe_delta_m"], ev_cfg["association"], ev_cfg["alignment"])
-    kw = {"up_axis": "z"}                 # the filters' world frame is local ENU
+    # the filters' world frame is local ENU; evaluation.engine as a run takes it (compare ignored it: an audit)
+    kw = {"up_axis": "z", "engine_name": ev_cfg["engine"]}
     fut_v = [pool.submit(evaluate, ref, r.filt.fused, r.name, *args, **kw) for r in runs]
     fut_s = [pool.submit(evaluate, ref, r.filt.smoothed.fused, r.name, *args, **kw) if r.filt.smoothed is not None
              else None for r in runs]
     fut_u = {k: pool.submit(evaluate, ref, s, k, *args, **kw) for k, s in unfiltered.items()}
+    fut_own = [{k: pool.submit(evaluate, ref, s, k, *args, **kw) for k, s in (r.streams or {}).items()} for r in runs]
     evs_u = {k: f.result() for k, f in fut_u.items()}
+    for r, own in zip(runs, fut_own):
+        r.own_u = {k: f.result() for k, f in own.items()} or None
     for w in sparsely_matched(evs_u, ev_cfg["association"], ev_cfg["t_max_diff_s"]):    # of the data: said once
         log.warning("%s", w)
         for r in runs:
@@ -152,11 +177,16 @@ def _evaluate_all(runs: list[VariantRun], base_prep, ev_cfg: dict, pool):
         # far outside its own covariance), over the span every variant is scored on
         r.nees = nees(ref, r.filt)
         for w in (sparsely_matched({"fused": r.ev}, ev_cfg["association"], ev_cfg["t_max_diff_s"]) +
-                  scored_warnings({"fused": r.ev, "gnss": evs_u.get("gnss")}, r.filt.nis, r.nees,
+                  scored_warnings({"fused": r.ev, "gnss": _baseline(r, evs_u, "gnss")}, r.filt.nis, r.nees,
                                   r.applied or {}, (r.filt.nis.get("gnss") or {}).get("t_s", ()))):
             log.warning("variant %s: %s", r.name, w)
             r.warnings = (*r.warnings, w)
     return unfiltered, evs_u, sp
+
+
+def _baseline(r: VariantRun, evs_u: dict, stream: str):
+    """The evaluation of the unfiltered ``stream`` this variant fused: its own where its preparation differs."""
+    return (r.own_u or {}).get(stream) or evs_u.get(stream)
 
 
 def _table(runs: list[VariantRun], evs_u: dict, gt: PoseSeries, ev_cfg: dict) -> list[dict]:
@@ -166,7 +196,7 @@ def _table(runs: list[VariantRun], evs_u: dict, gt: PoseSeries, ev_cfg: dict) ->
         table.append(_variant_row(r, gt, evs_u, ev_cfg))
         if r.ev_smoothed is not None:
             table.append(_variant_row(VariantRun(r.name, r.cfg, r.filt.smoothed, r.ev_smoothed, r.runtime_s,
-                                                 compile_s=r.compile_s), gt, evs_u,
+                                                 compile_s=r.compile_s, own_u=r.own_u), gt, evs_u,
                                       ev_cfg, estimate="smoothed"))
     for k, ev in evs_u.items():
         m = ev.metrics
@@ -217,6 +247,7 @@ def _compare(dataset_path: Path | None, variants: list[str], variant_dir: Path |
     stages.start("load")
     ds = session.dataset(dataset_path)
     cfgs = [session.resolve(r, ds) for r in reqs]
+    make_plots = make_plots and cfgs[0]["output"]["plots"]     # --set output.plots=false as --no-plots (an audit)
     session.same_evaluation([f"{v!r}" for v in variants], cfgs, "--variants", "compare scores every variant the same "
                             "way; set evaluation.* for all of them (-c or --set), not in a variant file")
     for v, c in zip(variants, cfgs):      # every variant's streams before the first runs (one failed after the others)
@@ -322,7 +353,8 @@ def _variant_row(r: VariantRun, gt: PoseSeries, evs_u: dict, ev_cfg: dict, estim
            "ape_trans_rmse_m": m["ape"]["translation_m"]["rmse"], "ape_rot_rmse_deg": m["ape"]["rotation_deg"]["rmse"],
            "rpe_1frame_trans_rmse_m": (m.get("rpe_1frame") or {}).get("translation_m", {}).get("rmse"),
            f"{d}_trans_rmse_m": ((m.get(d) or {}).get("translation_m") or {}).get("rmse"),
-           "estimate_over_lidar": ratio(r.ev, evs_u.get("lidar")), "estimate_over_gnss": ratio(r.ev, evs_u.get("gnss")),
+           "estimate_over_lidar": ratio(r.ev, _baseline(r, evs_u, "lidar")),
+           "estimate_over_gnss": ratio(r.ev, _baseline(r, evs_u, "gnss")),
            "final_accel_bias_mps2": r.filt.accel_bias_b[-1].tolist(),
            "final_gyro_bias_dph": (np.degrees(r.filt.gyro_bias_b[-1]) * 3600).tolist(),
            # one column per registered observation, found by name

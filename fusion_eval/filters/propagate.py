@@ -61,10 +61,11 @@ def {name}(a, n, k, t_target, cov):
     while k < N and a.t[k] <= t_target:
         dt = a.t[k] - t0
         # a gap is a long interval between two samples, however an observation splits it
-        qscale = a.gap[1] if (k > 0 and a.t[k] - a.t[k - 1] > a.gap[0]) else 1.0
+        is_gap = k > 0 and a.t[k] - a.t[k - 1] > a.gap[0]
+        qscale = a.gap[1] if is_gap else 1.0
         if dt > 0.0:
             _step(a.x, a.P, n, u0, a.u[k], dt, qscale, a.prm, a.aux, cov)
-            if cov and qscale != 1.0:
+            if cov and is_gap:        # (not 'qscale != 1': imu.gap_noise_scale=1 switched the motion off too)
                 # the first sample after a gap: the motion the gap hid, an unknown turn rate and acceleration over
                 # its T seconds, added to the attitude and velocity ((rate T)^2, (accel T)^2), where the formulation's
                 # blocks are the canonical ones. Here, not spread over the gap: inside it the inputs are interpolated,

@@ -79,7 +79,8 @@ def {name}(x_a, aux, c, P_a, n, nc, t, u, gap, prm, k, t0, u0, t_b, xs_x, xs_c, 
             else:
                 Pa = _augmented(A[j], nc)
                 _step(x, Pa, 2 * nc, uu0, u1, dt, qs, prm, aux, np.bool_(True))
-                if qs != 1.0 and ks >= 0:          # the motion a gap hid, where the forward loop added it
+                if ks >= 0 and k > 0 and t[k] - t[k - 1] > gap[0]:    # the motion a gap hid, where the forward
+                    # loop added it (by the interval, as it does: not 'qs != 1', false with imu.gap_noise_scale=1)
                     _gap_motion(Pa, x, cidx, gap, t[k] - t[k - 1])
                 j += 1
                 A[j] = Pa[:nc, :nc]

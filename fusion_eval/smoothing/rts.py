@@ -262,6 +262,9 @@ class RtsSmoother:
         priors = kf.keeps_transition()
         self.rec = kf.recorder = EpochRecord(kf, n_events, priors)
         self.rec.epoch(kf)
+        # filter.replay: python steps the backward pass from Python too (it reached only the forward loop: a
+        # configuration audit)
+        self.python = s.filter.replay == "python"
 
     def epoch(self, kf) -> None:
         self.rec.epoch(kf)
@@ -274,9 +277,11 @@ class RtsSmoother:
 
     def finish(self, kf, k0: int) -> tuple[Smoothed, dict]:
         t0 = time.perf_counter()
-        sm = smooth(kf, self.rec, k0)
+        sm = smooth(kf, self.rec, k0, python=self.python)
         rec = self.rec
-        return sm, {"method": self.name, "epochs": int(rec.epochs.size), "clones": int(rec.clones.size),
+        stepped = "python" if self.python or compiled_pass(type(kf)) is None else "compiled"
+        return sm, {"method": self.name, "backward_pass": stepped, "epochs": int(rec.epochs.size),
+                    "clones": int(rec.clones.size),
                     "bytes_per_epoch": rec.bytes_per_epoch(), "bytes_per_clone": rec.clones.bytes_per_row(),
                     "record_bytes": rec.nbytes(),
                     "backward_s": time.perf_counter() - t0}

@@ -32,6 +32,7 @@ from ...types import VectorSeries
 from ..layout import CANONICAL
 from .base import N_MAX, TH, V, Bound, Observation, rows_inside
 
+
 BG = CANONICAL.sl("BG")
 WHAT = "GNSS velocity (t_s ve vn vu [std_e std_n std_u], m/s)"
 
@@ -74,13 +75,27 @@ def _from_text(entry: dict, ctx) -> VectorSeries:
 
 def _prepare(series: VectorSeries, cfg: dict, t_ref_s: float, degrade: bool) -> tuple[VectorSeries, dict]:
     c, g = cfg["gnss_velocity"], cfg["gnss"]
+    outages = g["outages_s"] if c["outages_s"] == "auto" else c["outages_s"]
     if not degrade:
+        # a receiver's velocities get no noise and keep their rate, but outages are the user's experiment: they apply,
+        # as to its positions (the velocities inside an outage of the positions were fused: a configuration audit)
         std = c["std_mps"]
         s = series if std == "auto" else replace(series, std=np.tile(np.asarray(std, float), (len(series), 1)))
-        return s, {"degraded": False, "fixes_used": len(s),
-                   "std_given_to_filter_mps": "as the stream reports" if std == "auto" else std}
+        out = np.zeros(len(s), bool)
+        for a, b in outages:
+            out |= (s.t_s >= t_ref_s + a) & (s.t_s < t_ref_s + b)
+        s = s.select(~out)
+        from ...config import schema
+
+        unused = [f"gnss_velocity.{k}={c[k]}" for k in ("rate_hz", "noise_std_mps", "seed")
+                  if c[k] != schema()[f"gnss_velocity.{k}"].default]
+        said = [f"{' and '.join(unused)} {'apply' if len(unused) > 1 else 'applies'} only to a velocity stream marked "
+                f"for degradation (KITTI's OXTS solution is): {series.source} is a receiver's output, used at its own "
+                "rate and noise (gnss_velocity.outages_s and std_mps do apply)"] if unused else []
+        return s, {"degraded": False, "fixes_used": len(s), "outages_s": [list(map(float, w)) for w in outages],
+                   "fixes_in_outages": int(out.sum()),
+                   "std_given_to_filter_mps": "as the stream reports" if std == "auto" else std, "warnings": said}
     rate = g["rate_hz"] if c["rate_hz"] == "auto" else c["rate_hz"]
-    outages = g["outages_s"] if c["outages_s"] == "auto" else c["outages_s"]
     seed = g["seed"] if c["seed"] is None else c["seed"]
     # a generator of its own: the same seed as the position's noise, drawing independently of it
     s, info = degrade_vectors(series, t_ref_s, rate, c["noise_std_mps"], outages, np.random.default_rng([seed, 1]),

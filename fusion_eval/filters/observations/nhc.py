@@ -52,7 +52,8 @@ class NonHolonomic(Observation):
                                 "configuration can take it; see \"The non-holonomic constraint\"", "bool", auto=True),
         "filter.nhc_max_turn_rate_rps": S(0.13, "apply the constraint only while |angular rate| is below this, rad/s",
                                           positive=True),
-        "filter.nhc_rate_hz": S(10.0, "rate of the constraint's pseudo-observations, Hz", positive=True),
+        "filter.nhc_rate_hz": S(10.0, "rate of the constraint's pseudo-observations, Hz: at every n-th IMU sample, "
+                                      "the n nearest (a rate more than 10 % off the one asked for is said)", positive=True),
         "filter.nhc_std_mps": S(0.1, "std of the constraint (lateral and vertical slip), m/s", positive=True, reads="filter"),
         "filter.nhc_travel_pitch_mrad": S("auto", "pitch of the direction of travel above the IMU's x-y plane, mrad: the "
                                                   "constraint's vertical row is along it; 'auto' = from the lidar "
@@ -87,6 +88,12 @@ class NonHolonomic(Observation):
         t, w = run.imu.t_s, run.imu.w_b_rps
         dt = float(np.median(np.diff(t))) if t.size > 1 else np.inf
         step = max(1, int(round(1.0 / (f.nhc_rate_hz * dt)))) if np.isfinite(dt) else t.size
+        if np.isfinite(dt) and abs(1.0 / (step * dt) / f.nhc_rate_hz - 1.0) > 0.1:
+            # the constraint fires at IMU samples: 7, 10, 25 and 100 Hz on a 10 Hz IMU were all 10 Hz, with no word
+            # (a configuration audit)
+            which = "every sample" if step == 1 else f"every {step}{ {2: 'nd', 3: 'rd'}.get(step, 'th')} sample"
+            log.warning("filter.nhc_rate_hz=%g: the constraint fires at IMU samples, at %s of this %.3g Hz stream: "
+                        "%.3g Hz", f.nhc_rate_hz, which, 1.0 / dt, 1.0 / (step * dt))
         cand = np.arange(run.k_start + step, t.size, step)
         k = cand[np.linalg.norm(w[cand], axis=1) < f.nhc_max_turn_rate_rps]
         row = self.row(f)
