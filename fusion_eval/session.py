@@ -11,6 +11,7 @@ geodetic origin.
 
 from __future__ import annotations
 
+import logging
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -18,6 +19,8 @@ from . import yaml_lines
 from .errors import ConfigError
 from .config import Layer, merge_layers, parse_file, parse_overrides, parse_sets, validate
 from .types import Dataset
+
+_log = logging.getLogger(__name__)
 
 
 @dataclass(frozen=True)
@@ -97,20 +100,21 @@ def resolve(req: ConfigRequest, ds: Dataset) -> dict:
     _other_dataset(req, ds)
     for o in observations.REGISTRY:
         o.resolve_for(cfg, ds.description)
+    given = {f"{sect}.{k}": v for layer in req.layers for sect, body in layer.body.items() for k, v in body.items()}
+    for w in observations.inactive_settings(cfg, given):
+        _log.warning("%s", w)
     return cfg
 
 
 def _other_dataset(req: ConfigRequest, ds: Dataset) -> None:
     """A ``config.resolved.yaml`` given with ``-c`` and no DATASET ran the default dataset with no word, whatever drive
     the file was written for (a reproducibility review): said, naming both."""
-    import logging
-
     if not ds.description.get("default_dataset"):
         return
     for layer in req.layers:
         ran = (layer.dataset or {}).get("name")
         if ran is not None and ran != ds.name:
-            logging.getLogger(__name__).warning(
+            _log.warning(
                 "%s was written by a run on the dataset %r (%s); with no DATASET given this one runs the default, %r: "
                 "give the DATASET to run that drive again", layer.where, ran, (layer.dataset or {}).get("path"), ds.name)
 

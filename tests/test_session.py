@@ -163,3 +163,24 @@ def test_a_resolved_config_of_another_drive_run_without_dataset_is_said(tmp_path
         f.write_text("filter:\n  nhc: false\ndataset:\n  name: kitti-00\n", encoding="utf-8")
         session.resolve(session.request(config=f), session.dataset(None))
     assert "written by a run" not in caplog.text
+
+
+def test_a_setting_of_an_observation_that_is_off_is_said(caplog):
+    """A sweep of lidar.relative_pos_std_m under filter.lidar_update=absolute gave identical rows, and odometer.* without
+    the odometer, with no word (a configuration audit): said, unless an enabled observation shares the key."""
+    from fusion_eval import session
+
+    ds = session.dataset("data/kitti-00")
+    cases = [(("filter.lidar_update=absolute", "lidar.relative_pos_std_m=0.5"),
+              "lidar.relative_pos_std_m=0.5 does nothing here: it is a setting of the lidar relative pose"),
+             (("odometer.speed_std_mps=0.3",), "(filter.odometer_update=true does)"),
+             (("filter.lidar_update=relative", "lidar.relative_pos_std_m=0.5"), None),
+             (("filter.lidar_update=absolute", "lidar.gate_prob=0.999"), None),           # the absolute pose's gate too
+             (("filter.nhc=false", "filter.odometer_update=true", "filter.nhc_travel_yaw_mrad=3"), None),   # shared
+             (("filter.use_gnss=false", "gnss.lever_arm_b_m=[0, 0, 1]"), None),            # the GNSS checks take it
+             (("filter.use_gnss=false", "gnss.std_scale=2"), "gnss.std_scale=2.0 does nothing here")]
+    for sets, said in cases:
+        caplog.clear()
+        with caplog.at_level("WARNING"):
+            session.resolve(session.request(sets=sets), ds)
+        assert (said in caplog.text) if said else "does nothing" not in caplog.text, (sets, caplog.text)

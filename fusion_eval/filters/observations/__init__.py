@@ -27,6 +27,27 @@ def enabled(cfg: dict) -> list[Observation]:
     return [o for o in REGISTRY if o.enabled(cfg)]
 
 
+def inactive_settings(cfg: dict, given: dict) -> list[str]:
+    """Sentences for the settings the user gave (``given``: ``{"section.key": value}`` of the config files, variants and
+    ``--set``) that do nothing in this configuration: a non-default value of a key of an observation that is off, which
+    no enabled observation shares. (A sweep of lidar.relative_pos_std_m under filter.lidar_update=absolute gave identical
+    rows with no word: a configuration audit.)"""
+    on = [o for o in REGISTRY if o.enabled(cfg)]
+    read = {k for o in on for k in (*o.keys, *o.also_reads, *((o.gate_key,) if o.gate_key else ()))}
+    switches = {k for o in REGISTRY for k in (o.enabled_by, *o.enable_with, *o.disable_with)}
+    out = []
+    for o in REGISTRY:
+        if o in on:
+            continue
+        for key, spec in o.keys.items():
+            if key in given and key not in read and key not in switches and key not in o.read_elsewhere \
+                    and given[key] != spec.default:
+                how = ", ".join(f"{k}={str(v).lower() if isinstance(v, bool) else v}" for k, v in o.enable_with.items())
+                out.append(f"{key}={given[key]} does nothing here: it is a setting of the {o.label}, which this "
+                           f"configuration does not fuse ({how} does)")
+    return out
+
+
 def extra_streams() -> tuple:
     """The streams the registered observations bring (beyond imu, groundtruth, gnss, lidar, odometer)."""
     return tuple(spec for o in REGISTRY for spec in o.extra_streams)

@@ -141,6 +141,10 @@ class Observation:
     # are a jump of the stream (multipath, a receiver's reset, a change of datum), said in the report with the gate
     # that rejects them; not of a relative or a pseudo-observation, whose runs are the filter's own
     jumps: bool = False
+    # keys of other observations it reads (a shared setting), and its own keys that something else reads while it is
+    # off: neither is said to do nothing when it is off (:func:`fusion_eval.filters.observations.inactive_settings`)
+    also_reads: frozenset = frozenset()
+    read_elsewhere: frozenset = frozenset()
 
     @property
     def enable_with(self) -> dict:

@@ -49,6 +49,7 @@ class GnssPosition(Observation):
     name = "gnss"
     kernel = staticmethod(gnss_position_kernel)
     label = "GNSS position"
+    read_elsewhere = frozenset({"gnss.lever_arm_b_m"})          # the GNSS's plausibility checks take the antenna's too
     dof = 3
     streams = ("gnss",)
     jumps = True

@@ -127,6 +127,7 @@ def _simulate(ctx) -> tuple[dict, dict]:
 class GnssVelocity(Observation):
     name = "gnss_velocity"
     label = "GNSS velocity"
+    also_reads = frozenset({"gnss.lever_arm_b_m"})              # the antenna's, shared with the positions
     dof = 3
     streams = ("gnss_velocity",)
     jumps = True

@@ -22,6 +22,7 @@ class Odometer(Observation):
     name = "odometer"
     kernel = staticmethod(odometer_kernel)
     label = "odometer forward speed"
+    also_reads = frozenset({"filter.nhc_travel_yaw_mrad"})      # its speed is along the direction of travel
     dof = 1
     streams = ("odometer",)
     blocks = frozenset({"V", "TH"})
