@@ -295,7 +295,7 @@ def filter_and_evaluate(ds: Dataset, cfg: dict, sh: Shared, pool, *, dataset_pat
 
 def run_to_dir(dataset_path: str | Path, req: session.ConfigRequest, out_dir: Path, overwrite: bool = False,
                progress: Callable[[float], None] | None = None, jobs: int | None = None, trials: int = 1,
-               wait_lock_s: float = 0.0) -> RunResult:
+               wait_lock_s: float = 0.0, default_dataset: bool = False) -> RunResult:
     """Load the dataset, resolve the configuration, run, evaluate and write every output atomically into
     ``out_dir`` (nothing is left behind when it fails)."""
     staged = StagedDir(out_dir, overwrite=overwrite, wait_lock_s=wait_lock_s, inputs=dataset_roots(dataset_path))
@@ -305,6 +305,8 @@ def run_to_dir(dataset_path: str | Path, req: session.ConfigRequest, out_dir: Pa
     stages.start("load")
     t = time.perf_counter()
     ds = session.dataset(dataset_path)
+    if default_dataset:              # no DATASET given: the default, which a -c file of another drive's run is said against
+        ds.description["default_dataset"] = True
     cfg = session.resolve(req, ds)
     release_free_heap()                  # the readers' buffers, before the run's peak
     load_s = time.perf_counter() - t

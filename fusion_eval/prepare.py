@@ -225,6 +225,24 @@ def check_streams(ds: Dataset, cfg: dict) -> dict:
     return need
 
 
+def _inactive(ds: Dataset, cfg: dict) -> list[str]:
+    """The settings that do nothing in this configuration (:func:`fusion_eval.filters.observations.inactive_settings`),
+    as data warnings: in the report, the run's metrics and a sweep's summary (logged where the configuration was
+    resolved they reached none of them, and a sweep said them twice: a review of the diff). Those the user gave: the
+    values off their defaults that are not the dataset manifest's own suggestions (which a run's config.resolved.yaml
+    repeats)."""
+    from .filters import observations
+    from .session import manifest_layer
+
+    suggested = {f"{sect}.{k}": v for layer in manifest_layer(ds) for sect, body in layer.body.items()
+                 for k, v in body.items()}
+    sch = schema()
+    given = {f"{sect}.{k}": v for sect, body in cfg.items() if isinstance(body, dict) for k, v in body.items()
+             if f"{sect}.{k}" in sch and v != sch[f"{sect}.{k}"].default
+             and not (f"{sect}.{k}" in suggested and suggested[f"{sect}.{k}"] == v)}
+    return observations.inactive_settings(cfg, given)
+
+
 def prepare(ds: Dataset, cfg: dict) -> Prepared:
     need = check_streams(ds, cfg)
     use_lidar = "lidar" in need
@@ -241,7 +259,7 @@ def prepare(ds: Dataset, cfg: dict) -> Prepared:
     applied["time_offset_s"]["imu"] = off
     imu = shifted(imu, off)
     n_filled = int(imu.filled.sum())
-    more_warnings: list[str] = []
+    more_warnings: list[str] = _inactive(ds, cfg)
     if cfg["imu"]["filled_packets"] == "drop" and n_filled:
         more_warnings += plausible.dropped_gaps(imu, ~imu.filled, "the filled-in packets (imu.filled_packets: drop)")
         imu = imu.select(~imu.filled)
@@ -392,7 +410,8 @@ def prepare(ds: Dataset, cfg: dict) -> Prepared:
             rng = np.random.default_rng([cfg["gnss"]["seed"], 2])
             odo = replace(odo, v_mps=odo.v_mps + rng.standard_normal(len(odo)) * cfg["odometer"]["added_noise_std_mps"])
             applied["odometer_added_noise_std_mps"] = cfg["odometer"]["added_noise_std_mps"]
-        elif needs_odo and cfg["odometer"]["added_noise_std_mps"] != schema()["odometer.added_noise_std_mps"].default:
+        elif (needs_odo and not ds.description.get("odometer_degrade", False)
+              and cfg["odometer"]["added_noise_std_mps"] != schema()["odometer.added_noise_std_mps"].default):
             # (did nothing with no word: a configuration audit)
             more_warnings.append(f"odometer.added_noise_std_mps={cfg['odometer']['added_noise_std_mps']} applies only to an "
                                  f"odometer stream marked for degradation (KITTI's OXTS speed is): {ds.odometer.source} "

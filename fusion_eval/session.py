@@ -21,6 +21,7 @@ from .config import Layer, merge_layers, parse_file, parse_overrides, parse_sets
 from .types import Dataset
 
 _log = logging.getLogger(__name__)
+_SAID: set = set()
 
 
 @dataclass(frozen=True)
@@ -100,9 +101,6 @@ def resolve(req: ConfigRequest, ds: Dataset) -> dict:
     _other_dataset(req, ds)
     for o in observations.REGISTRY:
         o.resolve_for(cfg, ds.description)
-    given = {f"{sect}.{k}": v for layer in req.layers for sect, body in layer.body.items() for k, v in body.items()}
-    for w in observations.inactive_settings(cfg, given):
-        _log.warning("%s", w)
     return cfg
 
 
@@ -113,7 +111,8 @@ def _other_dataset(req: ConfigRequest, ds: Dataset) -> None:
         return
     for layer in req.layers:
         ran = (layer.dataset or {}).get("name")
-        if ran is not None and ran != ds.name:
+        if ran is not None and ran != ds.name and (layer.where, ran) not in _SAID:
+            _SAID.add((layer.where, ran))        # once: compare resolves one request per variant
             _log.warning(
                 "%s was written by a run on the dataset %r (%s); with no DATASET given this one runs the default, %r: "
                 "give the DATASET to run that drive again", layer.where, ran, (layer.dataset or {}).get("path"), ds.name)

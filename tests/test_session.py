@@ -165,9 +165,23 @@ def test_a_resolved_config_of_another_drive_run_without_dataset_is_said(tmp_path
     assert "written by a run" not in caplog.text
 
 
-def test_a_setting_of_an_observation_that_is_off_is_said(caplog):
+def test_run_with_a_resolved_config_of_another_drive_and_no_dataset_says_so(tmp_path, kitti_slice, monkeypatch):
+    """`fusion-eval run -c <results>/config.resolved.yaml` (no DATASET): the command settles the default's path itself,
+    and the warning above never fired from it (a review of the diff)."""
+    from fusion_eval import resources
+
+    monkeypatch.setattr(resources, "default_dataset", lambda: kitti_slice)       # a short default to run
+    f = tmp_path / "config.resolved.yaml"
+    f.write_text("dataset:\n  path: /data/drive_0018\n  name: 2011_09_30_drive_0018_sync\n", encoding="utf-8")
+    r = CliRunner().invoke(main, ["run", "-c", str(f), "--no-plots", "--out", str(tmp_path / "o")])
+    assert r.exit_code == 0, r.output
+    assert "was written by a run on the dataset '2011_09_30_drive_0018_sync'" in r.stderr
+
+
+def test_a_setting_of_an_observation_that_is_off_is_said():
     """A sweep of lidar.relative_pos_std_m under filter.lidar_update=absolute gave identical rows, and odometer.* without
-    the odometer, with no word (a configuration audit): said, unless an enabled observation shares the key."""
+    the odometer, with no word (a configuration audit): said as a data warning (in the report and a sweep's summary),
+    unless an enabled observation shares the key or something else reads it."""
     from fusion_eval import session
 
     ds = session.dataset("data/kitti-00")
@@ -179,8 +193,12 @@ def test_a_setting_of_an_observation_that_is_off_is_said(caplog):
              (("filter.nhc=false", "filter.odometer_update=true", "filter.nhc_travel_yaw_mrad=3"), None),   # shared
              (("filter.use_gnss=false", "gnss.lever_arm_b_m=[0, 0, 1]"), None),            # the GNSS checks take it
              (("filter.use_gnss=false", "gnss.std_scale=2"), "gnss.std_scale=2.0 does nothing here")]
+    from fusion_eval.prepare import _inactive
+
     for sets, said in cases:
-        caplog.clear()
-        with caplog.at_level("WARNING"):
-            session.resolve(session.request(sets=sets), ds)
-        assert (said in caplog.text) if said else "does nothing" not in caplog.text, (sets, caplog.text)
+        words = " ".join(_inactive(ds, session.resolve(session.request(sets=sets), ds)))
+        assert (said in words) if said else "does nothing" not in words, (sets, words)
+    # a manifest's own suggestions, which a run's config.resolved.yaml repeats, are not the user's
+    ds.description["config"] = {"lidar": {"relative_pos_std_frac": 0.005}}
+    cfg = session.resolve(session.request(sets=("filter.lidar_update=absolute", "lidar.relative_pos_std_frac=0.005")), ds)
+    assert _inactive(ds, cfg) == []

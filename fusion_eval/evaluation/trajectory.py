@@ -311,8 +311,9 @@ FLAT_ENOUGH = 0.5
 # nor one whose ground plane's normal lies further than this from the nearest coordinate axis: a frame tilted against
 # gravity (ECEF-like, or a camera's), where 'up' along an axis mixes horizontal into vertical (a reference rotated by
 # 20/-30/70 deg split one segment's 0.59 / 1.07 m into 0.29 / 1.19, with no word: a metamorphic review). A road's
-# steady grade stays well inside it (a 10 % climb over a whole drive: 5.7 deg)
-MAX_UP_TILT_DEG = 10.0
+# grade stays inside it (the plane of a clip that climbs 20 % throughout: 11.3 deg; 36 % would be 20), and ECEF is
+# tilted by 40-55 deg at mid-latitudes (Karlsruhe's local up is 41 deg off ECEF's z)
+MAX_UP_TILT_DEG = 20.0
 
 
 def horizontal_vertical(dp_m: np.ndarray, up_axis: str, p_ref_m: np.ndarray) -> np.ndarray | None:

@@ -53,19 +53,19 @@ def substeps(u0: np.ndarray, u1: np.ndarray, dt: float):
         yield u0 + ((s + 0.5) / n) * (u1 - u0), h, s == n - 1
 
 
-def _gap_params(gtsam, params, s, gap, in_gap_s: float, hidden_s: float, span_s: float, g: float):
-    """The preintegration's noise over a keyframe interval that holds ``in_gap_s`` seconds of an IMU gap, as the
-    filter's model adds it there: the white noise's variance scaled by ``gap[1]`` inside the gap, and where the gap
-    ends in the interval (``hidden_s``, its length) the motion it hid, ``gap[2] hidden_s^2`` on the attitude and
-    ``gap[3] hidden_s^2`` on the velocity; spread as one white density over the interval's ``span_s`` seconds (GTSAM
+def _gap_params(gtsam, params, s, gap, in_gap_s: float, hidden2_s2: float, span_s: float, g: float):
+    """The preintegration's noise over a keyframe interval that holds ``in_gap_s`` seconds of IMU gaps, as the
+    filter's model adds it there: the white noise's variance scaled by ``gap[1]`` inside them, and for each gap that
+    ends in the interval the motion it hid (``hidden2_s2``: the sum of their squared lengths), ``gap[2] T^2`` on the
+    attitude and ``gap[3] T^2`` on the velocity; spread as one white density over the interval's ``span_s`` seconds (GTSAM
     takes one per factor), so that the interval's total is the filter's. The batch estimate had ignored every
     ``imu.gap_*`` key (a configuration audit: extreme values moved the filter from 1.52 to 20.4 m, it by 1e-5 m)."""
     ext = gtsam.PreintegrationCombinedParams.MakeSharedU(g)
     var_a, var_g = s.imu.accel_noise_mps2_sqrthz ** 2, s.imu.gyro_noise_rps_sqrthz ** 2
     grow = (gap[1] - 1.0) * in_gap_s / span_s
     I3 = np.eye(3)
-    ext.setAccelerometerCovariance(I3 * (var_a * (1.0 + grow) + gap[3] * hidden_s ** 2 / span_s))
-    ext.setGyroscopeCovariance(I3 * (var_g * (1.0 + grow) + gap[2] * hidden_s ** 2 / span_s))
+    ext.setAccelerometerCovariance(I3 * (var_a * (1.0 + grow) + gap[3] * hidden2_s2 / span_s))
+    ext.setGyroscopeCovariance(I3 * (var_g * (1.0 + grow) + gap[2] * hidden2_s2 / span_s))
     ext.setBiasAccCovariance(params.getBiasAccCovariance())
     ext.setBiasOmegaCovariance(params.getBiasOmegaCovariance())
     ext.setIntegrationCovariance(params.getIntegrationCovariance())
@@ -233,7 +233,8 @@ def batch_smooth(kf, rec: BatchRecord, s, k0: int, progress=None) -> tuple[Smoot
         # linearised at the filter's own bias there (the factor corrects to first order around it)
         _, _, bias_lin = nav(rec.posterior[keys_t[i - 1]])
         steps = steps_of[i - 1]
-        in_gap = hidden = 0.0       # seconds of this interval inside IMU gaps; a gap's length where it ends here
+        in_gap = hidden2 = 0.0      # seconds of this interval inside IMU gaps; the sum of the squared lengths of
+        # the gaps that end here (the filter adds each one's hidden motion at its end)
         while k < N and t[k] <= tb + 1e-12:
             dt = t[k] - t_prev
             is_gap = k > 0 and t[k] - t[k - 1] > gap[0]
@@ -241,7 +242,7 @@ def batch_smooth(kf, rec: BatchRecord, s, k0: int, progress=None) -> tuple[Smoot
                 for um, h, last in substeps(u_prev, u[k], dt):
                     steps.append((k if last and t[k] < tb - 1e-9 else -1, um, h))
                 in_gap += dt if is_gap else 0.0
-                hidden = float(t[k] - t[k - 1]) if is_gap else hidden
+                hidden2 += float(t[k] - t[k - 1]) ** 2 if is_gap else 0.0
             t_prev, u_prev = float(t[k]), u[k].copy()
             k += 1
         if tb > t_prev + 1e-12 and k < N:
@@ -252,7 +253,7 @@ def batch_smooth(kf, rec: BatchRecord, s, k0: int, progress=None) -> tuple[Smoot
             in_gap += (tb - t_prev) if t[k] - t[k - 1] > gap[0] else 0.0
             t_prev, u_prev = tb, u1
         pim = gtsam.PreintegratedCombinedMeasurements(
-            _gap_params(gtsam, params, s, gap, in_gap, hidden, tb - float(keys_t[i - 1]), prm_g)
+            _gap_params(gtsam, params, s, gap, in_gap, hidden2, tb - float(keys_t[i - 1]), prm_g)
             if in_gap > 0.0 else params, bias_lin)
         for _, um, h in steps:
             pim.integrateMeasurement(um[UF:UF + 3], um[UW:UW + 3], h)

@@ -41,6 +41,8 @@ class NonHolonomic(Observation):
     name = "nhc"
     kernel = staticmethod(nhc_kernel)
     label = "non-holonomic constraint"
+    # the odometer + gyro process model drives along it, and the mount's calibration takes it: not only the constraint's
+    read_elsewhere = frozenset({"filter.nhc_travel_yaw_mrad"})
     dof = 2
     streams = ()
     blocks = frozenset({"V", "TH"})
