@@ -49,6 +49,9 @@ class Prepared:
     odometer: SpeedSeries | None = None          # forward speed, inside the run
     streams: dict = field(default_factory=dict)  # the enabled observations' other streams, prepared, inside the run
     resolved: dict = field(default_factory=dict)  # configuration values estimated from the data ('auto'), by section
+    # per lidar pose, the frame intervals its increment from the previous pose spans (frames merged onto one IMU stamp:
+    # :func:`fusion_eval.interp.snap_to_stamps`); None: one each
+    lidar_span: np.ndarray | None = None
 
 
 def settings_for(cfg: dict, prep: Prepared) -> Settings:
@@ -294,7 +297,7 @@ def prepare(ds: Dataset, cfg: dict) -> Prepared:
                              + (plausible.clock_hint("IMU", float(imu.t_s[0]), "ground-truth", float(gt.t_s[0])) if len(gt) else ""))
 
     # --- lidar: offset, anchor in the world frame, resample on the IMU stamps
-    lidar = travel = None
+    lidar = travel = lidar_span = None
     if ds.lidar is not None:
         applied["time_offset_s"]["lidar"] = lidar_off
         lid = shifted(ds.lidar, lidar_off)
@@ -325,7 +328,11 @@ def prepare(ds: Dataset, cfg: dict) -> Prepared:
         if cfg["filter"].get("nhc") and cfg["filter"].get("nhc_travel_pitch_mrad") == "auto":
             travel = estimate_travel_pitch(lid.select(~lid.filled), cfg["filter"]["nhc_travel_yaw_mrad"] * 1e-3)
         if cfg["lidar"]["interpolate_to_imu"]:
-            lid = snap_to_stamps(lid, imu.t_s)
+            n_frames = len(lid)
+            lid, lidar_span = snap_to_stamps(lid, imu.t_s)
+            if int(np.sum(lidar_span > 1)):
+                applied["lidar_frames_merged"] = {"frames": n_frames, "poses": len(lid),
+                                                  "increments_over_several_frames": int(np.sum(lidar_span > 1))}
         lidar = lid
         if use_lidar and (len(lidar) < 2 or lidar.t_s[-1] <= imu.t_s[0] or lidar.t_s[0] >= imu.t_s[-1]):
             raise DataRangeError(f"lidar ({ds.lidar.source}) and IMU ({ds.imu.source}) do not overlap in time {offsets_note(applied)}"
@@ -516,7 +523,8 @@ def prepare(ds: Dataset, cfg: dict) -> Prepared:
     yaw = cfg["filter"].get("nhc_travel_yaw_mrad")
     _flag_data(ds, applied, more_warnings, float(yaw) * 1e-3 if isinstance(yaw, (int, float)) else 0.0)
     prep = Prepared(imu=imu, groundtruth=gt, gnss=gnss, lidar=lidar, k_start=k0, x0=x0, gravity_mps2=float(g),
-                    gnss_info=gnss_info, applied=applied, odometer=odo, streams=extra, resolved=resolved)
+                    gnss_info=gnss_info, applied=applied, odometer=odo, streams=extra, resolved=resolved,
+                    lidar_span=lidar_span)
     if cfg["filter"].get("nhc") and not across and cfg["filter"].get("nhc_travel_pitch_mrad") == "auto":
         # the IMU's pitch against the direction of travel: from the lidar, else from a smoothed IMU + GNSS pass;
         # without an estimate the constraint's vertical row is left out

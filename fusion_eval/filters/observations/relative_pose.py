@@ -169,8 +169,12 @@ class RelativePose(Observation):
         else:
             dp_frame = (p[cur] - p[prev]) if frame == "world" else dp_c
         dR = np.einsum("nji,njk->nik", R[prev], R[cur])
-        pos_std = np.hypot(c.relative_pos_std_m, c.relative_pos_std_frac * np.linalg.norm(dp_c, axis=1))
-        att_std = np.hypot(c.relative_att_std_rad, c.relative_att_std_frac * np.linalg.norm(log3_many(dR), axis=1))
+        # the per-frame noise over every frame interval an increment spans (frames merged onto one IMU stamp: a lidar
+        # faster than the IMU, the frames inside an IMU gap); the distance and angle terms take the increment whole
+        span = getattr(run, "lidar_span", None)
+        root = np.sqrt(span[rows][cur]) if span is not None else 1.0
+        pos_std = np.hypot(c.relative_pos_std_m * root, c.relative_pos_std_frac * np.linalg.norm(dp_c, axis=1))
+        att_std = np.hypot(c.relative_att_std_rad * root, c.relative_att_std_frac * np.linalg.norm(log3_many(dR), axis=1))
         mode = adapt_mode(s)
         scale = None if mode == "none" else AdaptiveScale(c.adapt_rate, mode == "nis")
 
