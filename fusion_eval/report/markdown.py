@@ -409,6 +409,11 @@ def report_md(dataset: str, config_name: str, evals: dict, ratios: dict, cfg: di
     if "lidar_anchor_t_s" in applied:
         L.append(f"- Lidar odometry anchored at the ground-truth pose at t = {applied['lidar_anchor_t_s']:.6f} s; "
                  f"{'resampled on the IMU stamps' if cfg['lidar']['interpolate_to_imu'] else 'at its own stamps'}.")
+    m = applied.get("lidar_frames_merged")
+    if m:
+        L.append(f"- Lidar frames sharing an IMU stamp (inside IMU gaps, or faster than the IMU): {m['frames']} frames on "
+                 f"{m['poses']} stamps; {m['increments_over_several_frames']} relative increments span several frames, "
+                 "their constant noise taken over each frame interval.")
     L += ["", "## Configuration", "", "```yaml", _config_block(cfg, applied.get("auto_settled", {})), "```", ""]
     return "\n".join(L)
 
