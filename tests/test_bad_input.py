@@ -1447,6 +1447,11 @@ def test_an_imu_sampled_seconds_apart_is_refused_as_another_unit():
     with pytest.raises(DataFormatError, match=r"samples are 1 s apart"):     # a 1 kHz IMU in ms
         plausible.check_imu(_stream(np.arange(0.0, 120000.0, 1.0), "imu.csv"))
     plausible.check_imu(_stream(np.arange(0.0, 120.0, 0.1), "imu.csv"))     # KITTI's 10 Hz OXTS passes
+    # a genuinely slow IMU is said to be one, not told its stamps are milliseconds; 5 Hz at POSIX-scale stamps, whose
+    # rounding put it just over the limit, passes (a rate review)
+    with pytest.raises(DataFormatError, match=r"0.25 s apart \(median step, 4 Hz\): below the 5 Hz"):
+        plausible.check_imu(_stream(np.arange(0.0, 120.0, 0.25), "imu.csv"))
+    plausible.check_imu(_stream(1.3e9 + np.arange(0.0, 120.0, 0.2), "imu.csv"))
 
 
 def test_a_boot_clock_beside_posix_time_is_named():

@@ -140,6 +140,9 @@ def test_fusion_beats_lidar_and_gnss_on_the_urban_profile(tmp_path):
 
 @pytest.mark.parametrize("sets,needle", [
     (("lidar.rate_hz=7",), "must divide imu.rate_hz"),
+    # every sensor's at once, and one faster than the IMU said to be (a rate review)
+    (("imu.rate_hz=25", "lidar.rate_hz=50"), "odometer.rate_hz=10 must divide imu.rate_hz=25 (e.g. 12.5 Hz); "
+                                             "lidar.rate_hz=50 is above imu.rate_hz=25 (a sensor is sampled at IMU stamps)"),
     (("lidar.outlier_prob=2",), "between 0 and 1"),
     (("origin.lat_deg=95",), "[-90, 90]"),
 ])

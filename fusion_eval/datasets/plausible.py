@@ -44,7 +44,13 @@ def check_imu(imu) -> None:
         return
     d = np.diff(t)
     med = float(np.median(d))
-    if med > MAX_IMU_STEP_S:
+    if med > MAX_IMU_STEP_S * 1.01:       # (5 Hz itself passes whatever the rounding of POSIX-scale stamps)
+        if med < 1.0:
+            # a genuinely slow IMU (1-5 Hz): a 4.2 Hz stream was told its stamps were milliseconds (a rate review)
+            raise DataFormatError(imu.source, line_of(imu.lines, 0),
+                                  f"the IMU's samples are {med:.6g} s apart (median step, {1.0 / med:.3g} Hz): below the "
+                                  f"{1.0 / MAX_IMU_STEP_S:g} Hz a strapdown integration between observations needs "
+                                  "(KITTI's OXTS, the slowest here, gives 10 Hz); use the IMU's full-rate stream")
         # no IMU a filter integrates samples this slowly: its stamps are in another unit (ms read as s: a 100 Hz IMU
         # 10 s apart; the others' spans then did not meet it and nothing named the unit, a user's review)
         raise DataFormatError(imu.source, line_of(imu.lines, 0),

@@ -116,13 +116,18 @@ def simulate(out_dir: Path, profile: str, duration_s: float, seed: int, grade: s
         raise ConfigError("origin.lat_deg must be in [-90, 90] and origin.lon_deg in [-180, 360]")
     if c["start"]["posix_s"] > 4e9:
         raise ConfigError(f"start.posix_s must be between 0 and 4e9, got {c['start']['posix_s']:g}")
+    bad = []
     for sensor in (k for k, sec in c.items() if k != "imu" and isinstance(sec, dict) and "rate_hz" in sec):
         # every sensor samples the true motion at IMU stamps: its rate must divide the IMU rate (every sensor's, a
         # registered observation's too: an extension author's barometer at 7 Hz was written at 7.14 Hz without a word)
         r = c[sensor]["rate_hz"]
         step = round(rate / r)
-        if step < 1 or abs(rate / step - r) > 1e-9 * r:
-            raise ConfigError(f"{sensor}.rate_hz={r:g} must divide imu.rate_hz={rate:g} (e.g. {rate / max(step, 1):g} Hz)")
+        if r > rate:
+            bad.append(f"{sensor}.rate_hz={r:g} is above imu.rate_hz={rate:g} (a sensor is sampled at IMU stamps)")
+        elif step < 1 or abs(rate / step - r) > 1e-9 * r:
+            bad.append(f"{sensor}.rate_hz={r:g} must divide imu.rate_hz={rate:g} (e.g. {rate / step:g} Hz)")
+    if bad:             # every one at once (they came one per attempt: a rate review)
+        raise ConfigError("; ".join(bad))
     segs, yaw0, n_prefix = profile_segments(profile)
     staged = StagedDir(out_dir, overwrite=overwrite)
     staged.check()
