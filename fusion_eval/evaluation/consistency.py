@@ -69,10 +69,43 @@ def fraction_inside(values: np.ndarray, dof: int, prob: float = 0.95) -> tuple[f
     return float(np.mean((values >= lo) & (values <= hi))), float(lo), float(hi)
 
 
+def independent_epochs(values: np.ndarray) -> float:
+    """The effective number of independent epochs of a series: ``N / tau`` with ``tau = 1 + 2 sum rho_k``, its
+    autocorrelations summed while positive (Geyer's initial positive sequence), by one FFT. A filter's errors wander:
+    4,400 epochs of kitti-00 hold about as many independent ones as its minutes."""
+    x = np.asarray(values, float)
+    n = x.size
+    if n < 3 or not np.all(np.isfinite(x)):
+        return float(n)
+    x = x - x.mean()
+    var = float(x @ x)
+    if var <= 0.0:
+        return float(n)
+    f = np.fft.rfft(x, 2 * n)
+    rho = np.fft.irfft(f * np.conj(f))[:n] / var
+    neg = np.flatnonzero(rho[1:] <= 0.0)         # not a state index: lags from 1
+    k = int(neg[0]) if neg.size else n - 1
+    tau = 1.0 + 2.0 * float(np.sum(rho[1:k + 1]))   # not a state index
+    return float(min(n, max(1.0, n / tau)))
+
+
+def mean_bounds(dof: int, n_eff: float, prob: float = 0.95) -> tuple[float, float]:
+    """The ``prob`` interval of the mean of a consistent filter's NEES or NIS over ``n_eff`` independent epochs: the
+    mean of ``n_eff`` chi-square(``dof``) values is chi-square(``n_eff dof``) / ``n_eff``."""
+    k = n_eff * dof
+    lo, hi = chi2_ppf(np.array([(1 - prob) / 2, (1 + prob) / 2]), k)
+    return float(lo / n_eff), float(hi / n_eff)
+
+
 def summary(values: np.ndarray, dof: int, prob: float = 0.95) -> dict:
+    """Epochs, mean, the per-epoch chi-square interval and the fraction inside it, and for the mean its own interval
+    over the series' independent epochs (:func:`independent_epochs`), which the report's verdict takes: a fixed 1.5x
+    of the dof called 16 of 58 simulated runs with the simulator's own noise over- or underconfident (a rate review)."""
     frac, lo, hi = fraction_inside(values, dof, prob)
+    n_eff = independent_epochs(values)
     return {"epochs": int(values.size), "dof": dof, "mean": float(np.mean(values)), "bounds_95": [lo, hi],
-            "fraction_in_95": frac}
+            "fraction_in_95": frac, "independent_epochs": round(n_eff, 1),
+            "mean_bounds_95": list(mean_bounds(dof, n_eff, prob))}
 
 
 def innovation_nll(nis: np.ndarray, logdet_S: np.ndarray, dof: int | np.ndarray) -> float:

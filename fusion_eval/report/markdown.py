@@ -71,10 +71,15 @@ def consistency_verdict(d: dict) -> str:
     if mean is None or not dof or not math.isfinite(mean):
         return "n/a"
     r = mean / dof
+    mb, n_eff = d.get("mean_bounds_95"), d.get("independent_epochs")
+    # a mean off by the ratio but inside what a consistent filter's mean spreads over the series' independent epochs
+    # is no evidence (a filter's errors wander: a run with the simulator's own noise read 1.85x over ~10 of them)
+    chance = (f"not significant over its ~{n_eff:.0f} independent epochs, where a consistent filter's mean lies in "
+              f"{mb[0] / dof:.2f}-{mb[1] / dof:.2f}x" if mb and n_eff else None)
     if r > VERDICT_RATIO:
-        return f"overconfident ({r:.1f}x the dof)"
+        return f"overconfident ({r:.1f}x the dof)" if not chance or mean > mb[1] else f"{r:.1f}x the dof, {chance}"
     if r < 1.0 / VERDICT_RATIO:
-        return f"conservative ({r:.2f}x the dof)"
+        return f"conservative ({r:.2f}x the dof)" if not chance or mean < mb[0] else f"{r:.2f}x the dof, {chance}"
     return "consistent" + (" but heavy-tailed" if inside is not None and inside < VERDICT_MIN_INSIDE else "")
 
 
@@ -98,7 +103,9 @@ def consistency_section(m: dict) -> list[str]:
           "consistent filter has a mean near the dof and about 95 % inside; a mean well below means the filter is "
           f"conservative (noise too large), well above overconfident. The verdict: a mean above {VERDICT_RATIO:g}x the "
           f"dof is overconfident, below 1/{VERDICT_RATIO:g} of it conservative, and a mean between with under "
-          f"{VERDICT_MIN_INSIDE * 100:.0f} % inside heavy-tailed (outliers, or a model error at some epochs)."
+          f"{VERDICT_MIN_INSIDE * 100:.0f} % inside heavy-tailed (outliers, or a model error at some epochs); a mean "
+          "beyond the ratio but inside what a consistent filter's mean spreads over the series' independent epochs (its "
+          "errors wander: far fewer than its epochs) is said to be not significant."
           + (" A pseudo-observation (the non-holonomic constraint) is conservative wherever the vehicle does not slip."
              if "nhc" in (m.get("nis") or {}) else "")]
     return L
