@@ -10,7 +10,7 @@ is the oracle of this one: the same estimate to rounding. Stepped from Python an
 and small arrays, more than the filter's own replay at 100 Hz; here the whole pass is one call. Like the filter's
 loop (:mod:`fusion_eval.filters.propagate`), the function is written once as source and instantiated with each
 formulation's step, ``[-]``, ``[+]`` and covariance record, for the formulations that have them compiled
-(``_rts_boxminus``/``_rts_boxplus``); the others keep the Python path.
+(``_rts_boxminus``/``_rts_boxplus``: the ESKF and the right-invariant EKF); the others keep the Python path.
 """
 
 from __future__ import annotations
