@@ -222,7 +222,7 @@ def test_a_study_keeps_its_random_start_and_the_commands_that_made_it(tmp_path):
     assert st.open_study(s).user_attrs["n_startup_trials"] == 2
     again = st.open_study(SimpleNamespace(**{**vars(s), "n_trials": 40, "batch": 2}))
     assert again.user_attrs["n_startup_trials"] == 2 and again.sampler._n_startup_trials == 2
-    assert [b for _, _, b in again.user_attrs["commands"]] == [4, 2]
+    assert [b for _, _, b in st.commands(again)] == [4, 2]
     fresh = st.open_study(SimpleNamespace(**{**vars(s), "out_dir": tmp_path / "u", "n_trials": 40}))
     assert fresh.user_attrs["n_startup_trials"] == 8 and fresh.sampler._n_startup_trials == 8
 

@@ -186,7 +186,9 @@ def _sampler_line(s: Setup, study) -> str:
     startup = study.user_attrs.get("n_startup_trials")
     how = (f"TPE (multivariate, constant liar) with {startup} random start-up trials (fixed when the study was made)"
            if s.sampler == "tpe" and startup is not None else s.sampler)
-    cmds = study.user_attrs.get("commands") or []
+    from .study import commands
+
+    cmds = commands(study)
     made = "; ".join(f"`{c}` (generations of {b}, {d})" for d, c, b in cmds)
     return (f"Sampler: {how}, seed {s.seed}; trials asked in generations of {s.batch} (`--batch`: the study depends on "
             f"it, not on `-j` or the machine), scored {s.jobs} at a time. Made by: {made or 'this command'}.")

@@ -19,6 +19,7 @@ import logging
 import os
 import socket
 import statistics
+import time
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Callable
@@ -126,11 +127,17 @@ def open_study(s: Setup):
         study.set_user_attr("n_startup_trials", n_startup(s.n_trials))
     elif s.sampler == "tpe":
         study.sampler = _sampler(s, int(startup))       # as made: an extended study goes on as it began
-    # every command that added to the study, in order: with the seed, --batch and the sampler's start-up kept in
-    # the study, they rebuild it (tune.md lists them)
-    study.set_user_attr("commands", [*study.user_attrs.get("commands", []),
-                                     [provenance.date_utc(), provenance.command_line(), s.batch]])
+    # every command that opened the study, in order: with the seed, --batch and the sampler's start-up kept in the
+    # study, they rebuild it (tune.md lists them). One attribute each, never a read-modify-write of a list: two tunes
+    # sharing the study would lose an entry
+    study.set_user_attr(f"command {len(study.trials):06d} {time.time_ns():020d} {host} {os.getpid()}",
+                        [provenance.date_utc(), provenance.command_line(), s.batch])
     return study
+
+
+def commands(study) -> list:
+    """``[date, command line, batch]`` of every command that opened the study, in the order they did."""
+    return [v for k, v in sorted(study.user_attrs.items()) if k.startswith("command ")]
 
 
 def _flock(journal: Path):
