@@ -29,7 +29,7 @@ from .memory import release_free_heap
 from .outputs import StagedDir, dataset_roots
 from .pool import executor
 from .progress import as_stages
-from .prepare import Prepared, auto_settled, offsets_note, prepare, settings_for
+from .prepare import Prepared, auto_settled, inactive_warnings, offsets_note, prepare, settings_for
 from .replay import FilterOutput, dead_reckoning, replay
 from .types import Dataset, PoseSeries
 
@@ -255,6 +255,11 @@ def filter_and_evaluate(ds: Dataset, cfg: dict, sh: Shared, pool, *, dataset_pat
     seg = segments(sh.ref, evals, ev_cfg)
     # this run's: a batch's runs share the preparation's record but not their noise scales
     applied = {**prep.applied, "auto_settled": auto_settled(cfg, prep.resolved, prep.applied)}
+    idle = inactive_warnings(ds, cfg)         # this run's settings that do nothing (not the shared preparation's)
+    for w in idle:
+        log.warning("%s", w)
+    if idle:
+        applied["data_warnings"] = [*idle, *applied.get("data_warnings", [])]
     metrics = run_metrics(ds.name, evals, ratios, ev_cfg, applied, prep.gnss_info, cons, seg, sh.span,
                           smoother=smoother_section(filt))
     if n_trials > 1:

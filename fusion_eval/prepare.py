@@ -228,12 +228,13 @@ def check_streams(ds: Dataset, cfg: dict) -> dict:
     return need
 
 
-def _inactive(ds: Dataset, cfg: dict) -> list[str]:
+def inactive_warnings(ds: Dataset, cfg: dict) -> list[str]:
     """The settings that do nothing in this configuration (:func:`fusion_eval.filters.observations.inactive_settings`),
-    as data warnings: in the report, the run's metrics and a sweep's summary (logged where the configuration was
-    resolved they reached none of them, and a sweep said them twice: a review of the diff). Those the user gave: the
-    values off their defaults that are not the dataset manifest's own suggestions (which a run's config.resolved.yaml
-    repeats)."""
+    for a run's data warnings: in the report, the run's metrics and a sweep's summary (logged where the configuration
+    was resolved they reached none of them, and a sweep said them twice: a review of the diff). Not in the prepared
+    data's: a sweep's batch shares one preparation among runs that differ in exactly such keys. Those the user gave:
+    the values off their defaults that are not the dataset manifest's own suggestions (which a run's
+    config.resolved.yaml repeats)."""
     from .filters import observations
     from .session import manifest_layer
 
@@ -262,7 +263,7 @@ def prepare(ds: Dataset, cfg: dict) -> Prepared:
     applied["time_offset_s"]["imu"] = off
     imu = shifted(imu, off)
     n_filled = int(imu.filled.sum())
-    more_warnings: list[str] = _inactive(ds, cfg)
+    more_warnings: list[str] = []
     if cfg["imu"]["filled_packets"] == "drop" and n_filled:
         more_warnings += plausible.dropped_gaps(imu, ~imu.filled, "the filled-in packets (imu.filled_packets: drop)")
         imu = imu.select(~imu.filled)

@@ -130,7 +130,7 @@ def without_provenance(text: bytes) -> bytes:
     same inputs) replaced by a placeholder."""
     import re
 
-    text = re.sub(rb"fusion-eval \S+, [^\n]* UTC: `[^\n]*`", b"<header>", text)
+    text = re.sub(rb"fusion-eval \S+ (?:\(code \w+\) )?[^\n]* UTC: `[^\n]*`", b"<header>", text)
     return re.sub(rb'<div class="meta">[^\n]*</div>', b"<header>", text)
 
 

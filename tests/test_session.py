@@ -193,7 +193,7 @@ def test_a_setting_of_an_observation_that_is_off_is_said():
              (("filter.nhc=false", "filter.odometer_update=true", "filter.nhc_travel_yaw_mrad=3"), None),   # shared
              (("filter.use_gnss=false", "gnss.lever_arm_b_m=[0, 0, 1]"), None),            # the GNSS checks take it
              (("filter.use_gnss=false", "gnss.std_scale=2"), "gnss.std_scale=2.0 does nothing here")]
-    from fusion_eval.prepare import _inactive
+    from fusion_eval.prepare import inactive_warnings as _inactive
 
     for sets, said in cases:
         words = " ".join(_inactive(ds, session.resolve(session.request(sets=sets), ds)))

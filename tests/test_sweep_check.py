@@ -897,3 +897,18 @@ def test_a_quiet_sweep_on_a_local_dask_cluster_prints_no_run_warnings(small, tmp
     assert r.returncode == 0, r.stderr
     assert "Warnings" in (tmp_path / "o" / "sweep.md").read_text(encoding="utf-8")      # there were some, in the summary
     assert "NIS" not in r.stderr and "NEES" not in r.stderr, r.stderr
+
+
+@pytest.mark.slow
+def test_a_swept_setting_that_does_nothing_is_said_per_run_in_the_summary(small, tmp_path):
+    """A sweep of lidar.relative_pos_std_m under the absolute lidar update gave identical rows with no word (a
+    configuration audit); said per run in sweep.md, each with its own value, though the batch shares one preparation."""
+    sw = tmp_path / "g.yaml"
+    sw.write_text("variants: [lidar-absolute]\nsettings:\n  a: {lidar.relative_pos_std_m: 0.3}\n"
+                  "  b: {lidar.relative_pos_std_m: 0.6}\n", encoding="utf-8")
+    r = CliRunner().invoke(main, ["-q", "sweep", str(small), "--grid", str(sw), "--out", str(tmp_path / "o"),
+                                  "--jobs", "1"])
+    assert r.exit_code == 0, r.output
+    md = (tmp_path / "o" / "sweep.md").read_text(encoding="utf-8")
+    assert "lidar-absolute / a: lidar.relative_pos_std_m=0.3 does nothing here" in md
+    assert "lidar-absolute / b: lidar.relative_pos_std_m=0.6 does nothing here" in md
