@@ -36,15 +36,18 @@ def command_line() -> str:
 
 @lru_cache(maxsize=1)
 def code_id() -> str:
-    """12 hex digits of a digest over the package's own files (sources and shipped configurations, by relative name
-    and content): the code that produced a result. The version alone named 563 commits, and a result could not be
-    told from one made by other code (a change of an estimate moved kitti-00's figure with the same version: a
-    reproducibility review); a digest works for any install, editable or wheel, with or without git. ~10 ms, once."""
+    """12 hex digits of a digest over the package's Python sources (by relative name and content): the code that
+    produced a result. The version alone named 563 commits, and a result could not be told from one made by other code
+    (a change of an estimate moved kitti-00's figure with the same version: a reproducibility review); a digest works
+    for any install, with or without git, and is the same for an editable install and a wheel of one commit (the
+    wheel's shipped configurations and data, ``_shipped/``, are not code: a run records its configuration). ~10 ms,
+    once."""
     root = Path(__file__).resolve().parent
     h = hashlib.sha256()
-    for f in sorted(root.rglob("*")):
-        if f.suffix in (".py", ".yaml", ".yml", ".md", ".json", ".txt") and "__pycache__" not in f.parts and f.is_file():
-            h.update(f.relative_to(root).as_posix().encode() + b"\0")
+    for f in sorted(root.rglob("*.py")):
+        rel = f.relative_to(root)
+        if rel.parts[0] != "_shipped" and "__pycache__" not in rel.parts and f.is_file():
+            h.update(rel.as_posix().encode() + b"\0")
             h.update(f.read_bytes())
     return h.hexdigest()[:12]
 
