@@ -244,7 +244,15 @@ def inactive_warnings(ds: Dataset, cfg: dict) -> list[str]:
     given = {f"{sect}.{k}": v for sect, body in cfg.items() if isinstance(body, dict) for k, v in body.items()
              if f"{sect}.{k}" in sch and v != sch[f"{sect}.{k}"].default
              and not (f"{sect}.{k}" in suggested and suggested[f"{sect}.{k}"] == v)}
-    return observations.inactive_settings(cfg, given)
+    out = observations.inactive_settings(cfg, given)
+    for key, v in given.items():          # keys declared to act only under another key's value
+        cond = sch[key].only_with
+        if cond:
+            sect, name = cond[0].split(".")
+            if cfg.get(sect, {}).get(name) != cond[1]:
+                out.append(f"{key}={v} does nothing here: it applies only with {cond[0]}={cond[1]} (this configuration "
+                           f"has {cond[0]}={cfg.get(sect, {}).get(name)})")
+    return out
 
 
 def prepare(ds: Dataset, cfg: dict) -> Prepared:

@@ -19,6 +19,9 @@ class Spec(NamedTuple):
     gates, initial uncertainty), so a sweep's runs differing only in such keys share one preparation of the data
     (:func:`fusion_eval.batch.batch_key`); ``data``: it changes the data the filter is given (a simulated degradation
     of a stream), so ``tune`` refuses to tune it. Empty: the preparation or the evaluation reads it too.
+    ``only_with``: ``(key, value)``: the key does something only where that key has that value (the Gauss-Markov
+    correlation times under ``filter.bias_model: gauss_markov``); set otherwise it is said to do nothing
+    (:func:`fusion_eval.prepare.inactive_warnings`).
     """
 
     default: Any
@@ -32,6 +35,7 @@ class Spec(NamedTuple):
     below: float | None = None
     above: float | None = None
     reads: str = ""
+    only_with: tuple = ()
 
 
 def S(default, doc, kind=None, *, below_one: bool = False, **kw) -> Spec:

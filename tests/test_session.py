@@ -192,7 +192,12 @@ def test_a_setting_of_an_observation_that_is_off_is_said():
              (("filter.lidar_update=absolute", "lidar.gate_prob=0.999"), None),           # the absolute pose's gate too
              (("filter.nhc=false", "filter.odometer_update=true", "filter.nhc_travel_yaw_mrad=3"), None),   # shared
              (("filter.use_gnss=false", "gnss.lever_arm_b_m=[0, 0, 1]"), None),            # the GNSS checks take it
-             (("filter.use_gnss=false", "gnss.std_scale=2"), "gnss.std_scale=2.0 does nothing here")]
+             (("filter.use_gnss=false", "gnss.std_scale=2"), "gnss.std_scale=2.0 does nothing here"),
+             # a key declared to act only under another's value (Spec.only_with)
+             (("imu.gyro_bias_corr_time_s=600",), "imu.gyro_bias_corr_time_s=600.0 does nothing here: it applies only "
+                                                  "with filter.bias_model=gauss_markov (this configuration has "
+                                                  "filter.bias_model=random_walk)"),
+             (("filter.bias_model=gauss_markov", "imu.gyro_bias_corr_time_s=600"), None)]
     from fusion_eval.prepare import inactive_warnings as _inactive
 
     for sets, said in cases:

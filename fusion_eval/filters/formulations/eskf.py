@@ -216,8 +216,10 @@ def step(x, P, n, u0, u1, dt, qscale, prm, aux, cov):
 predict_to = compiled_loop(__name__, step, record_cov_by_index)
 
 BIAS_KEYS = {
-    "imu.accel_bias_corr_time_s": S(3600.0, "Gauss-Markov bias model: accelerometer bias correlation time, s", positive=True, reads="filter"),
-    "imu.gyro_bias_corr_time_s": S(3600.0, "Gauss-Markov bias model: gyro bias correlation time, s", positive=True, reads="filter"),
+    "imu.accel_bias_corr_time_s": S(3600.0, "Gauss-Markov bias model: accelerometer bias correlation time, s", positive=True,
+                                    reads="filter", only_with=("filter.bias_model", "gauss_markov")),
+    "imu.gyro_bias_corr_time_s": S(3600.0, "Gauss-Markov bias model: gyro bias correlation time, s", positive=True,
+                                   reads="filter", only_with=("filter.bias_model", "gauss_markov")),
 }
 
 
