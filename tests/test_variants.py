@@ -298,3 +298,6 @@ def test_a_variant_that_degrades_the_gnss_otherwise_is_scored_against_its_own(ki
     mine = rows[str(v)]
     assert mine["ape_trans_rmse_m"] == pytest.approx(fused, rel=1e-9)
     assert mine["estimate_over_gnss"] == pytest.approx(fused / gnss, rel=1e-6)
+    # and compare.md says which streams those are (its unfiltered rows are the first variant's)
+    md = (tmp_path / "c" / "compare.md").read_text(encoding="utf-8")
+    assert f"`{v}` degrades or shifts its streams otherwise than the first variant" in md and f"gnss alone {gnss:.3f} m" in md

@@ -365,6 +365,9 @@ def _variant_row(r: VariantRun, gt: PoseSeries, evs_u: dict, ev_cfg: dict, estim
            "runtime_s": round(r.runtime_s, 3)}
     if r.compile_s > 0:
         row["compile_s"] = round(r.compile_s, 3)
+    if r.own_u:           # the unfiltered streams this variant fused, where they are not the table's (the first's)
+        row["own_streams_ape_trans_rmse_m"] = {k: ((ev.metrics.get("ape") or {}).get("translation_m") or {}).get("rmse")
+                                               for k, ev in r.own_u.items()}
     row["body_velocity_rms_mps"] = _rms_lateral_vertical(body_velocity(r.filt.fused))
     return row
 
@@ -451,6 +454,11 @@ def _markdown(name: str, rows: list[dict], truth_body, plots: bool, sp: dict | N
         L += ["", note]
     if ranking_note:
         L += ["", ranking_note]
+    own = {(r["variant"]): r["own_streams_ape_trans_rmse_m"] for r in rows if r.get("own_streams_ape_trans_rmse_m")}
+    for v, d in own.items():          # the table's unfiltered rows are the first variant's streams (a review of the diff)
+        L += ["", f"`{v}` degrades or shifts its streams otherwise than the first variant: its estimate/lidar and "
+              f"estimate/GNSS are to the streams it fused ("
+              + ", ".join(f"{k} alone {cell(a)} m" for k, a in d.items()) + "), not to the unfiltered rows."]
     if any(r.get("compile_s") for r in rows):
         L += ["", "Filter time: the variant's preparation and replay, without numba's compilation of its kernels on their "
               "first use in this installation (given apart; a later compare loads them from the cache)."]
