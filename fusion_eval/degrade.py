@@ -21,6 +21,40 @@ def _rate_hz(t_s: np.ndarray) -> float | None:
     return 1.0 / step if step > 0 else None
 
 
+def in_outages(t_s: np.ndarray, t_ref_s: float, outages_s) -> np.ndarray:
+    """Which stamps lie inside one of the ``outages_s`` windows, ``[start, end)`` seconds after ``t_ref_s``."""
+    out = np.zeros(len(t_s), bool)
+    for a, b in outages_s:
+        out |= (t_s >= t_ref_s + a) & (t_s < t_ref_s + b)
+    return out
+
+
+def keep_receiver(series, t_ref_s: float, outages_s, std_given, unit: str, std_field: str = "std"):
+    """A receiver's stream (not marked for degradation): no noise, its own rate, but the user's outages cut and a given
+    std in place of the reported one; with the description :func:`degrade_vectors` gives (``degraded`` False)."""
+    s = series if std_given == "auto" else replace(series, **{std_field: np.tile(np.asarray(std_given, float),
+                                                                                (len(series), 1))})
+    out = in_outages(s.t_s, t_ref_s, outages_s)
+    s = s.select(~out)
+    return s, {"degraded": False, "fixes_used": len(s), "outages_s": [list(map(float, w)) for w in outages_s],
+               "fixes_in_outages": int(out.sum()),
+               f"std_given_to_filter_{unit}": "as the stream reports" if std_given == "auto" else std_given}
+
+
+def not_degraded_note(section: str, values: dict, keys, what: str, example: str, source, rest: str) -> str | None:
+    """The degradation's keys set off their defaults (``section.key`` of ``keys`` in ``values``) on a stream not marked
+    for degradation, where they do nothing, as one sentence (None when none is): a sweep over gnss.rate_hz gave
+    identical rows and ranked a 'best' among them with no word (a corrupted-input review)."""
+    from .config import schema
+
+    sch = schema()
+    unused = [f"{section}.{k}={values[k]}" for k in keys if values[k] != sch[f"{section}.{k}"].default]
+    if not unused:
+        return None
+    return (f"{' and '.join(unused)} {'apply' if len(unused) > 1 else 'applies'} only to {what} stream marked for "
+            f"degradation ({example}): {source} {rest}")
+
+
 def degrade_vectors(series, t_ref_s: float, rate_hz: float | None, noise_std, outages_s, rng: np.random.Generator,
                     std_given, unit: str, value_field: str = "values", std_field: str = "std"):
     """The degraded series and a description of what was applied (for the report).
@@ -44,9 +78,7 @@ def degrade_vectors(series, t_ref_s: float, rate_hz: float | None, noise_std, ou
     else:
         std = np.tile(np.asarray(std_given, float), (len(g), 1))
     g = replace(g, **{value_field: values + noise, std_field: std})
-    in_outage = np.zeros(len(g), bool)
-    for a, b in outages_s:
-        in_outage |= (g.t_s >= t_ref_s + a) & (g.t_s < t_ref_s + b)
+    in_outage = in_outages(g.t_s, t_ref_s, outages_s)
     g = g.select(~in_outage)
     info = {
         "degraded": True,

@@ -29,7 +29,7 @@ from .memory import release_free_heap
 from .outputs import StagedDir, dataset_roots
 from .pool import executor
 from .progress import as_stages
-from .prepare import Prepared, auto_settled, inactive_warnings, offsets_note, prepare, settings_for
+from .prepare import Prepared, auto_settled, offsets_note, prepare, settings_for
 from .replay import FilterOutput, dead_reckoning, replay
 from .types import Dataset, PoseSeries
 
@@ -255,7 +255,7 @@ def filter_and_evaluate(ds: Dataset, cfg: dict, sh: Shared, pool, *, dataset_pat
     seg = segments(sh.ref, evals, ev_cfg)
     # this run's: a batch's runs share the preparation's record but not their noise scales
     applied = {**prep.applied, "auto_settled": auto_settled(cfg, prep.resolved, prep.applied)}
-    idle = inactive_warnings(ds, cfg)         # this run's settings that do nothing (not the shared preparation's)
+    idle = session.inactive_warnings(ds, cfg)         # this run's settings that do nothing (not the shared preparation's)
     for w in idle:
         log.warning("%s", w)
     if idle:
@@ -298,20 +298,21 @@ def filter_and_evaluate(ds: Dataset, cfg: dict, sh: Shared, pool, *, dataset_pat
     return res
 
 
-def run_to_dir(dataset_path: str | Path, req: session.ConfigRequest, out_dir: Path, overwrite: bool = False,
+def run_to_dir(dataset_path: str | Path | None, req: session.ConfigRequest, out_dir: Path, overwrite: bool = False,
                progress: Callable[[float], None] | None = None, jobs: int | None = None, trials: int = 1,
-               wait_lock_s: float = 0.0, default_dataset: bool = False) -> RunResult:
-    """Load the dataset, resolve the configuration, run, evaluate and write every output atomically into
-    ``out_dir`` (nothing is left behind when it fails)."""
-    staged = StagedDir(out_dir, overwrite=overwrite, wait_lock_s=wait_lock_s, inputs=dataset_roots(dataset_path))
+               wait_lock_s: float = 0.0) -> RunResult:
+    """Load the dataset (None: the default), resolve the configuration, run, evaluate and write every output
+    atomically into ``out_dir`` (nothing is left behind when it fails)."""
+    from . import resources
+
+    staged = StagedDir(out_dir, overwrite=overwrite, wait_lock_s=wait_lock_s,
+                       inputs=dataset_roots(resources.default_dataset() if dataset_path is None else dataset_path))
     staged.check()
     mc.check_count(trials)               # before any data is read
     stages = as_stages(progress)
     stages.start("load")
     t = time.perf_counter()
     ds = session.dataset(dataset_path)
-    if default_dataset:              # no DATASET given: the default, which a -c file of another drive's run is said against
-        ds.description["default_dataset"] = True
     cfg = session.resolve(req, ds)
     release_free_heap()                  # the readers' buffers, before the run's peak
     load_s = time.perf_counter() - t

@@ -16,11 +16,11 @@ import numpy as np
 from . import timing
 from .datasets import plausible
 from .calibration import imu_noise
-from .config import Settings, schema
+from .config import Settings
 from .calibration.extrinsic import apply_extrinsic, estimate_extrinsic, mount_disagrees
 from .calibration.mount import HINT as MOUNT_HINT, across_travel
 from .calibration.travel import MIN_STRETCHES, estimate_travel_pitch, pitch_from_smoothed_pass, uncertain
-from .degrade import degrade_gnss
+from .degrade import degrade_gnss, keep_receiver, not_degraded_note
 from .errors import ConfigError, DataRangeError, ShiftAtSearchEdgeError
 from .filters import check_combination, formulation_of, observations
 from .filters.state import NominalState
@@ -228,33 +228,6 @@ def check_streams(ds: Dataset, cfg: dict) -> dict:
     return need
 
 
-def inactive_warnings(ds: Dataset, cfg: dict) -> list[str]:
-    """The settings that do nothing in this configuration (:func:`fusion_eval.filters.observations.inactive_settings`),
-    for a run's data warnings: in the report, the run's metrics and a sweep's summary (logged where the configuration
-    was resolved they reached none of them, and a sweep said them twice: a review of the diff). Not in the prepared
-    data's: a sweep's batch shares one preparation among runs that differ in exactly such keys. Those the user gave:
-    the values off their defaults that are not the dataset manifest's own suggestions (which a run's
-    config.resolved.yaml repeats)."""
-    from .filters import observations
-    from .session import manifest_layer
-
-    suggested = {f"{sect}.{k}": v for layer in manifest_layer(ds) for sect, body in layer.body.items()
-                 for k, v in body.items()}
-    sch = schema()
-    given = {f"{sect}.{k}": v for sect, body in cfg.items() if isinstance(body, dict) for k, v in body.items()
-             if f"{sect}.{k}" in sch and v != sch[f"{sect}.{k}"].default
-             and not (f"{sect}.{k}" in suggested and suggested[f"{sect}.{k}"] == v)}
-    out = observations.inactive_settings(cfg, given)
-    for key, v in given.items():          # keys declared to act only under another key's value
-        cond = sch[key].only_with
-        if cond:
-            sect, name = cond[0].split(".")
-            if cfg.get(sect, {}).get(name) != cond[1]:
-                out.append(f"{key}={v} does nothing here: it applies only with {cond[0]}={cond[1]} (this configuration "
-                           f"has {cond[0]}={cfg.get(sect, {}).get(name)})")
-    return out
-
-
 def prepare(ds: Dataset, cfg: dict) -> Prepared:
     need = check_streams(ds, cfg)
     use_lidar = "lidar" in need
@@ -391,25 +364,13 @@ def prepare(ds: Dataset, cfg: dict) -> Prepared:
         if ds.description.get("gnss_degrade", True):
             gnss, gnss_info = degrade_gnss(g, t0, c["rate_hz"], c["noise_std_m"], c["outages_s"], c["seed"], c["std_m"])
         else:
-            gnss = g if c["std_m"] == "auto" else replace(g, std_w_m=np.tile(np.asarray(c["std_m"], float), (len(g), 1)))
             # a receiver's fixes get no noise and keep their rate, but outages are the user's experiment: they apply
-            # (once silently ignored here)
-            out = np.zeros(len(gnss), bool)
-            for a, b in c["outages_s"]:
-                out |= (gnss.t_s >= t0 + a) & (gnss.t_s < t0 + b)
-            gnss = gnss.select(~out)
-            gnss_info = {"degraded": False, "fixes_used": len(gnss), "outages_s": [list(map(float, w)) for w in c["outages_s"]],
-                         "fixes_in_outages": int(out.sum()),
-                         "std_given_to_filter_m": "as the stream reports" if c["std_m"] == "auto" else c["std_m"]}
-            # the degradation's own keys do nothing here: a sweep over gnss.rate_hz gave identical rows and ranked a
-            # 'best' among them with no word (a corrupted-input review)
-            unused = [f"gnss.{k}={c[k]}" for k in ("rate_hz", "noise_std_m") if c[k] != schema()[f"gnss.{k}"].default]
-            if unused:
-                verb = "apply" if len(unused) > 1 else "applies"
-                more_warnings.append(f"{' and '.join(unused)} {verb} only to a GNSS stream marked for degradation (the "
-                                     f"manifest's gnss degrade: true; KITTI's OXTS solution is): {ds.gnss.source} is a "
-                                     "receiver's output, used at its own rate and noise (gnss.outages_s and gnss.std_m "
-                                     "do apply)")
+            # (once silently ignored here); the degradation's own keys do nothing, and are said
+            gnss, gnss_info = keep_receiver(g, t0, c["outages_s"], c["std_m"], "m", "std_w_m")
+            more_warnings += filter(None, [not_degraded_note(
+                "gnss", c, ("rate_hz", "noise_std_m"), "a GNSS", "the manifest's gnss degrade: true; KITTI's OXTS "
+                "solution is", ds.gnss.source, "is a receiver's output, used at its own rate and noise (gnss.outages_s "
+                "and gnss.std_m do apply)")])
         if use_gnss and len(gnss) == 0:
             raise DataRangeError(f"no GNSS fix of {ds.gnss.source} is left inside the IMU span after degradation")
 
@@ -426,12 +387,10 @@ def prepare(ds: Dataset, cfg: dict) -> Prepared:
             rng = np.random.default_rng([cfg["gnss"]["seed"], 2])
             odo = replace(odo, v_mps=odo.v_mps + rng.standard_normal(len(odo)) * cfg["odometer"]["added_noise_std_mps"])
             applied["odometer_added_noise_std_mps"] = cfg["odometer"]["added_noise_std_mps"]
-        elif (needs_odo and not ds.description.get("odometer_degrade", False)
-              and cfg["odometer"]["added_noise_std_mps"] != schema()["odometer.added_noise_std_mps"].default):
-            # (did nothing with no word: a configuration audit)
-            more_warnings.append(f"odometer.added_noise_std_mps={cfg['odometer']['added_noise_std_mps']} applies only to an "
-                                 f"odometer stream marked for degradation (KITTI's OXTS speed is): {ds.odometer.source} "
-                                 "is used as it is")
+        elif needs_odo and not ds.description.get("odometer_degrade", False):      # (did nothing with no word: an audit)
+            more_warnings += filter(None, [not_degraded_note("odometer", cfg["odometer"], ("added_noise_std_mps",),
+                                                             "an odometer", "KITTI's OXTS speed is", ds.odometer.source,
+                                                             "is used as it is")])
         if needs_odo:                    # (a stream the filter does not fuse is left as it is, and unreported)
             odo = _odometer_scaled(odo, cfg["odometer"]["scale"], gnss if use_gnss else None, imu, applied)
         if needs_odo and (odo.t_s[-1] <= imu.t_s[k0] or odo.t_s[0] >= imu.t_s[-1]):

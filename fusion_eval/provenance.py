@@ -34,15 +34,15 @@ def command_line() -> str:
     return shlex.join(argv)
 
 
-@lru_cache(maxsize=1)
-def code_id() -> str:
+@lru_cache(maxsize=4)
+def code_id(root: Path | None = None) -> str:
     """12 hex digits of a digest over the package's Python sources (by relative name and content): the code that
     produced a result. The version alone named 563 commits, and a result could not be told from one made by other code
     (a change of an estimate moved kitti-00's figure with the same version: a reproducibility review); a digest works
     for any install, with or without git, and is the same for an editable install and a wheel of one commit (the
     wheel's shipped configurations and data, ``_shipped/``, are not code: a run records its configuration). ~10 ms,
-    once."""
-    root = Path(__file__).resolve().parent
+    once. ``root``: the package's folder (this one's by default)."""
+    root = Path(__file__).resolve().parent if root is None else Path(root)
     h = hashlib.sha256()
     for f in sorted(root.rglob("*.py")):
         rel = f.relative_to(root)

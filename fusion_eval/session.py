@@ -104,6 +104,33 @@ def resolve(req: ConfigRequest, ds: Dataset) -> dict:
     return cfg
 
 
+def inactive_warnings(ds: Dataset, cfg: dict) -> list[str]:
+    """The settings that do nothing in this configuration (:func:`fusion_eval.filters.observations.inactive_settings`),
+    for a run's data warnings: in the report, the run's metrics and a sweep's summary (logged where the configuration
+    was resolved they reached none of them, and a sweep said them twice: a review of the diff). Not in the prepared
+    data's: a sweep's batch shares one preparation among runs that differ in exactly such keys. Those the user gave:
+    the values off their defaults that are not the dataset manifest's own suggestions (which a run's
+    config.resolved.yaml repeats)."""
+    from .config import schema
+    from .filters import observations
+
+    suggested = {f"{sect}.{k}": v for layer in manifest_layer(ds) for sect, body in layer.body.items()
+                 for k, v in body.items()}
+    sch = schema()
+    given = {f"{sect}.{k}": v for sect, body in cfg.items() if isinstance(body, dict) for k, v in body.items()
+             if f"{sect}.{k}" in sch and v != sch[f"{sect}.{k}"].default
+             and not (f"{sect}.{k}" in suggested and suggested[f"{sect}.{k}"] == v)}
+    out = observations.inactive_settings(cfg, given)
+    for key, v in given.items():          # keys declared to act only under another key's value
+        cond = sch[key].only_with
+        if cond:
+            sect, name = cond[0].split(".")
+            if cfg.get(sect, {}).get(name) != cond[1]:
+                out.append(f"{key}={v} does nothing here: it applies only with {cond[0]}={cond[1]} (this configuration "
+                           f"has {cond[0]}={cfg.get(sect, {}).get(name)})")
+    return out
+
+
 def _other_dataset(req: ConfigRequest, ds: Dataset) -> None:
     """A ``config.resolved.yaml`` given with ``-c`` and no DATASET ran the default dataset with no word, whatever drive
     the file was written for (a reproducibility review): said, naming both."""

@@ -21,7 +21,7 @@ class Spec(NamedTuple):
     of a stream), so ``tune`` refuses to tune it. Empty: the preparation or the evaluation reads it too.
     ``only_with``: ``(key, value)``: the key does something only where that key has that value (the Gauss-Markov
     correlation times under ``filter.bias_model: gauss_markov``); set otherwise it is said to do nothing
-    (:func:`fusion_eval.prepare.inactive_warnings`).
+    (:func:`fusion_eval.session.inactive_warnings`).
     """
 
     default: Any

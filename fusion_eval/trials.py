@@ -130,6 +130,16 @@ def seeded_streams(m: dict) -> list[str]:
     return out
 
 
+def rerun_commands(datasets, n_trials: int, config: str = "best.yaml") -> list[str]:
+    """The ``fusion-eval run`` commands that reproduce a figure made on ``datasets`` over ``n_trials`` Monte-Carlo
+    trials with ``config`` (a sweep's or a tune's ``best.yaml``: its hint ran kitti-00 and one trial, 0.965 m against a
+    sweep's 0.650; a reproducibility review)."""
+    import shlex
+
+    trials = f" --trials {n_trials}" if n_trials > 1 else ""
+    return [f"fusion-eval run {shlex.quote(str(d))} -c {config}{trials}" for d in datasets]
+
+
 def one_draw_note(better: float, worse: float, n_trials: int, what: str, how: str = "--trials 5",
                   streams: list[str] | None = None) -> str | None:
     """A sentence under a ranking made from one run of each entry, when ``better`` leads ``worse`` by under

@@ -181,23 +181,16 @@ def test_a_temporary_cache_folder_is_used_only_if_private(monkeypatch, tmp_path)
 def test_the_code_digest_is_of_the_python_sources_alone(tmp_path):
     """An editable install and a wheel of one commit had two code digests: the wheel's shipped configurations and data
     (``_shipped/``, 4,500 OXTS files read on every run) entered it. Only the package's Python sources do."""
-    import shutil
-
     from fusion_eval import provenance
 
     pkg = Path(provenance.__file__).resolve().parent
     copy = tmp_path / "fusion_eval"
     shutil.copytree(pkg, copy, ignore=shutil.ignore_patterns("__pycache__", "_shipped"))
-    (copy / "_shipped" / "configs").mkdir(parents=True)
+    (copy / "_shipped" / "configs").mkdir(parents=True)                  # as a wheel holds them
     (copy / "_shipped" / "configs" / "default.yaml").write_text("x: 1\n", encoding="utf-8")
-    import importlib.util
-
-    spec = importlib.util.spec_from_file_location("prov_copy", copy / "provenance.py",
-                                                  submodule_search_locations=None)
-    code = (copy / "provenance.py").read_text(encoding="utf-8").replace("from . import __version__", "__version__ = '0'")
-    (copy / "provenance.py").write_text(code, encoding="utf-8")
-    mod = importlib.util.module_from_spec(spec)
-    spec.loader.exec_module(mod)
-    (copy / "provenance.py").write_text((pkg / "provenance.py").read_text(encoding="utf-8"), encoding="utf-8")
-    mod.code_id.cache_clear()
-    assert mod.code_id() == provenance.code_id()
+    (copy / "_shipped" / "x.py").write_text("x = 1\n", encoding="utf-8")
+    (copy / "notes.txt").write_text("not code\n", encoding="utf-8")
+    assert provenance.code_id(copy) == provenance.code_id()
+    (copy / "session.py").write_text((copy / "session.py").read_text(encoding="utf-8") + "# changed\n", encoding="utf-8")
+    provenance.code_id.cache_clear()
+    assert provenance.code_id(copy) != provenance.code_id()

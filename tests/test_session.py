@@ -198,7 +198,7 @@ def test_a_setting_of_an_observation_that_is_off_is_said():
                                                   "with filter.bias_model=gauss_markov (this configuration has "
                                                   "filter.bias_model=random_walk)"),
              (("filter.bias_model=gauss_markov", "imu.gyro_bias_corr_time_s=600"), None)]
-    from fusion_eval.prepare import inactive_warnings as _inactive
+    from fusion_eval.session import inactive_warnings as _inactive
 
     for sets, said in cases:
         words = " ".join(_inactive(ds, session.resolve(session.request(sets=sets), ds)))

@@ -21,17 +21,16 @@ def default_out_dir(dataset: Path, config_name: str) -> Path:
 def run(dataset: Path | None, config: Path | None, sets: tuple[str, ...], out_dir: Path | None, overwrite: bool = False,
         progress: Callable[[float], None] | None = None, trials: int = 1) -> RunResult:
     req = session.request(config=config, sets=sets)           # a bad configuration fails before any data is read
-    default = dataset is None                                 # (said where -c names another drive's run)
-    dataset = resources.default_dataset() if dataset is None else resources.find(dataset)
+    # None stays None down to the dataset's loading: the default, against which a -c file of another drive's run is said
+    dataset = None if dataset is None else resources.find(dataset)
     if out_dir is not None:
-        return run_to_dir(dataset, req, out_dir, overwrite=overwrite, progress=progress, trials=trials,
-                          default_dataset=default)
+        return run_to_dir(dataset, req, out_dir, overwrite=overwrite, progress=progress, trials=trials)
     # the name says when --set items changed the run ("default" alone would claim the defaults; output.* keys,
     # such as --no-plots, change only what is written)
     changed = any(not s.strip().startswith("output.") for s in sets)
-    with default_dir(default_out_dir(dataset, req.source + ("-set" if changed else ""))) as out_dir:
-        return run_to_dir(dataset, req, out_dir, overwrite=overwrite, progress=progress, trials=trials,
-                          default_dataset=default)
+    named = resources.default_dataset() if dataset is None else dataset
+    with default_dir(default_out_dir(named, req.source + ("-set" if changed else ""))) as out_dir:
+        return run_to_dir(dataset, req, out_dir, overwrite=overwrite, progress=progress, trials=trials)
 
 
 def summary_table(metrics: dict) -> str:

@@ -9,7 +9,6 @@ from __future__ import annotations
 import difflib
 import logging
 import math
-import shlex
 import textwrap
 from dataclasses import dataclass
 from pathlib import Path
@@ -24,7 +23,7 @@ from ..provenance import dataset_files, header_line
 from ..resources import dataset_label
 from ..report import html
 from ..tables import cell, csv_text, markdown
-from ..trials import NOTHING_RANDOM, nothing_random_line, one_draw_note, seeded_streams
+from ..trials import NOTHING_RANDOM, nothing_random_line, one_draw_note, rerun_commands, seeded_streams
 from .sweep import Task, read_records
 
 log = logging.getLogger(__name__)
@@ -382,11 +381,8 @@ def _overconfident_best(ok: list[dict], variant: str, setting: str) -> str | Non
 
 
 def _use_lines(datasets: list[str], n_trials: int) -> list[str]:
-    """How ``best.yaml`` reproduces the figure it states: on the sweep's dataset(s), with its Monte-Carlo trials (the
-    hint said ``fusion-eval run -c best.yaml``, which ran kitti-00 and one trial: 0.965 m against a sweep's 0.650,
-    and trial 0 of a 3-trial mean; a reproducibility review)."""
-    trials = f" --trials {n_trials}" if n_trials > 1 else ""
-    cmds = [f"fusion-eval run {shlex.quote(d)} -c best.yaml{trials}" for d in datasets]
+    """How ``best.yaml`` reproduces the figure it states: on the sweep's dataset(s), with its Monte-Carlo trials."""
+    cmds = rerun_commands(datasets, n_trials)
     return ["use it as: " + cmds[0]] + [f"       and: {c}" for c in cmds[1:]] + \
         (["(the figure above is the mean over these datasets)"] if len(cmds) > 1 else [])
 

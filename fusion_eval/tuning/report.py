@@ -14,7 +14,7 @@ from ..outputs import atomic_write
 from ..provenance import dataset_files, header_line
 from ..report import html
 from ..tables import markdown as markdown_table
-from ..trials import one_draw_note
+from ..trials import one_draw_note, rerun_commands
 from .study import Setup, default_config, write_json
 
 FUSED_APE = "fused.ape.rmse"
@@ -39,12 +39,8 @@ def default_yaml(s: Setup, res: dict) -> str:
 
 def _use_lines(s: Setup) -> str:
     """How ``best.yaml`` reproduces the objective it states: on each training drive, with the study's Monte-Carlo
-    seeds as a run's trials (the hint named no ``--trials`` for ``--seeds``: a reproducibility review)."""
-    import shlex
-
-    trials = f" --trials {s.seeds}" if s.seeds > 1 else ""
-    cmds = [f"fusion-eval run {shlex.quote(d)} -c best.yaml{trials}" for d in s.train]
-    return "".join(f"# {'use: ' if i == 0 else '  and: '}{c}\n" for i, c in enumerate(cmds))
+    seeds as a run's trials."""
+    return "".join(f"# {'use: ' if i == 0 else '  and: '}{c}\n" for i, c in enumerate(rerun_commands(s.train, s.seeds)))
 
 
 def _config_yaml(s: Setup, overrides: dict) -> str:

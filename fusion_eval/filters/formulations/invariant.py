@@ -32,7 +32,6 @@ from .. import discretize
 from ..layout import CANONICAL, CLONE, Layout
 from ..mech import XBA, XBG, XP, XV, attitude, exp3, log3, mech_step, skew3
 from ..propagate import compiled_loop, record_pose_cov
-from ..state import ClonePose, NominalState
 from . import imu_model
 from .base import FilterBase
 from .imu_model import PRM_DISC, PRM_G, PRM_KBA, PRM_KBG, PRM_QA, PRM_QBA, PRM_QBG, PRM_QG, UF, UW, decay_biases
@@ -189,12 +188,12 @@ def boxminus_vec(x, xc, x0, xc0, n):
 
 
 @njit(cache=True)
-def boxplus_into(x, xc, x0, xc0, dx, n):
-    """``(x, clone) <- Exp(dx) (x0, clone0)``, as :meth:`RightInvariantEKF.inject` from a given state."""
-    x[:] = x0
-    xc[:] = xc0
-    E, J = exp3(dx[ITH:ITH + 3]), left_jacobian(dx[ITH:ITH + 3])
+def inject_state(x, xc, dx, n):
+    """``X <- Exp(dx) X`` on SE_2(3) (and the clone's SE(3), when ``n`` covers it), biases additive, in place; no reset
+    Jacobian (the invariant error needs none to first order). The filter's injection and the compiled RTS pass's
+    ``[+]`` both."""
     R = attitude(x)
+    E, J = exp3(dx[ITH:ITH + 3]), left_jacobian(dx[ITH:ITH + 3])
     p, v = x[XP:XP + 3].copy(), x[XV:XV + 3].copy()
     R[:, :] = E @ R
     x[XP:XP + 3] = E @ p + J @ dx[IP:IP + 3]
@@ -210,12 +209,12 @@ def boxplus_into(x, xc, x0, xc0, dx, n):
         xc[CLONE_P:CLONE_P + 3] = Ec @ pc + Jc @ dx[ICP:ICP + 3]
 
 
-def _exp_apply(dR_phi: np.ndarray, vecs: list[tuple[np.ndarray, np.ndarray]], R: np.ndarray) -> None:
-    """``X <- Exp(dxi) X`` in place: R <- Exp(phi) R and each vector u <- Exp(phi) u + J_l(phi) du."""
-    E, J = exp3(dR_phi), left_jacobian(dR_phi)
-    R[:, :] = E @ R
-    for u, du in vecs:
-        u[:] = E @ u + J @ du
+@njit(cache=True)
+def boxplus_into(x, xc, x0, xc0, dx, n):
+    """``(x, clone) <- Exp(dx) (x0, clone0)``: :func:`inject_state` from a given state."""
+    x[:] = x0
+    xc[:] = xc0
+    inject_state(x, xc, dx, n)
 
 
 class RightInvariantEKF(FilterBase):
@@ -260,18 +259,8 @@ class RightInvariantEKF(FilterBase):
 
     def boxminus(self, snap) -> np.ndarray:
         """``xi`` with ``X = Exp(xi) X_snap`` (and the clone's), in the own coordinates."""
-        x0 = NominalState.from_vector(snap[0])
-        dR = self.x.R_wb @ x0.R_wb.T
-        phi = log3(dR)
-        Ji = np.linalg.inv(left_jacobian(phi))
-        out = [Ji @ (self.x.p_w_m - dR @ x0.p_w_m), Ji @ (self.x.v_w_mps - dR @ x0.v_w_mps), phi,
-               self.x.ba_b - x0.ba_b, self.x.bg_b - x0.bg_b]
-        if self.n > N_CORE:
-            c0 = ClonePose(snap[1])
-            dRc = self.clone.R_wb @ c0.R_wb.T
-            phic = log3(dRc)
-            out += [np.linalg.inv(left_jacobian(phic)) @ (self.clone.p_w_m - dRc @ c0.p_w_m), phic]
-        return np.concatenate(out)
+        c0 = snap[1] if snap[1] is not None else self.clone.vec
+        return boxminus_vec(self.xv, self.clone.vec, snap[0], c0, self.n)
 
     def boxplus_from(self, snap, dx: np.ndarray) -> None:
         self.xv[:] = snap[0]
@@ -283,9 +272,4 @@ class RightInvariantEKF(FilterBase):
 
     def inject(self, dx: np.ndarray) -> None:
         """``X <- Exp(dx) X`` on the group (no reset Jacobian), biases additive."""
-        x = self.x
-        _exp_apply(dx[ITH:ITH + 3], [(x.p_w_m, dx[IP:IP + 3]), (x.v_w_mps, dx[IV:IV + 3])], x.R_wb)
-        x.ba_b[:] += dx[IBA:IBA + 3]
-        x.bg_b[:] += dx[IBG:IBG + 3]
-        if self.n > N_CORE:
-            _exp_apply(dx[ICTH:ICTH + 3], [(self.clone.p_w_m, dx[ICP:ICP + 3])], self.clone.R_wb)
+        inject_state(self.xv, self.clone.vec, dx, self.n)

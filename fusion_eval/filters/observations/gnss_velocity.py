@@ -16,7 +16,6 @@ drawn independently of the position's), or from a ``vector_txt`` file ``t_s ve v
 
 from __future__ import annotations
 
-from dataclasses import replace
 from functools import partial
 
 import numpy as np
@@ -25,13 +24,12 @@ from ...spec import S
 from ...datasets import kitti_oxts
 from ...datasets.streams import StreamSpec
 from ...datasets.vectors import read_vectors
-from ...degrade import degrade_vectors
+from ...degrade import degrade_vectors, keep_receiver, not_degraded_note
 from ...geo import enu_rotation
 from ...so3 import euler_rpy_to_matrix, skew
 from ...types import VectorSeries
 from ..layout import CANONICAL
 from .base import N_MAX, TH, V, Bound, Observation, rows_inside
-
 
 BG = CANONICAL.sl("BG")
 WHAT = "GNSS velocity (t_s ve vn vu [std_e std_n std_u], m/s)"
@@ -79,22 +77,11 @@ def _prepare(series: VectorSeries, cfg: dict, t_ref_s: float, degrade: bool) -> 
     if not degrade:
         # a receiver's velocities get no noise and keep their rate, but outages are the user's experiment: they apply,
         # as to its positions (the velocities inside an outage of the positions were fused: a configuration audit)
-        std = c["std_mps"]
-        s = series if std == "auto" else replace(series, std=np.tile(np.asarray(std, float), (len(series), 1)))
-        out = np.zeros(len(s), bool)
-        for a, b in outages:
-            out |= (s.t_s >= t_ref_s + a) & (s.t_s < t_ref_s + b)
-        s = s.select(~out)
-        from ...config import schema
-
-        unused = [f"gnss_velocity.{k}={c[k]}" for k in ("rate_hz", "noise_std_mps", "seed")
-                  if c[k] != schema()[f"gnss_velocity.{k}"].default]
-        said = [f"{' and '.join(unused)} {'apply' if len(unused) > 1 else 'applies'} only to a velocity stream marked "
-                f"for degradation (KITTI's OXTS solution is): {series.source} is a receiver's output, used at its own "
-                "rate and noise (gnss_velocity.outages_s and std_mps do apply)"] if unused else []
-        return s, {"degraded": False, "fixes_used": len(s), "outages_s": [list(map(float, w)) for w in outages],
-                   "fixes_in_outages": int(out.sum()),
-                   "std_given_to_filter_mps": "as the stream reports" if std == "auto" else std, "warnings": said}
+        s, info = keep_receiver(series, t_ref_s, outages, c["std_mps"], "mps")
+        said = not_degraded_note("gnss_velocity", c, ("rate_hz", "noise_std_mps", "seed"), "a velocity",
+                                 "KITTI's OXTS solution is", series.source, "is a receiver's output, used at its own "
+                                 "rate and noise (gnss_velocity.outages_s and std_mps do apply)")
+        return s, {**info, "warnings": [said] if said else []}
     rate = g["rate_hz"] if c["rate_hz"] == "auto" else c["rate_hz"]
     seed = g["seed"] if c["seed"] is None else c["seed"]
     # a generator of its own: the same seed as the position's noise, drawing independently of it
