@@ -4,6 +4,7 @@
 from __future__ import annotations
 
 import base64
+import hashlib
 import os
 import re
 import shutil
@@ -65,7 +66,6 @@ def test_input_checksums_follow_the_content(tmp_path):
     rows = {Path(r["path"]).name: r for r in provenance.input_files(desc)}
     assert rows["d"]["files"] == 1 and rows["b.txt"]["streams"] == ["lidar", "lidar"]
     assert rows["missing.txt"]["sha256"] is None
-    import hashlib
     assert rows["b.txt"]["sha256"] == hashlib.sha256(b"x\n").hexdigest()
     before = rows["d"]["sha256"]
     (tmp_path / "d" / "a.txt").write_text("1 2 4\n")
@@ -118,6 +118,37 @@ def test_run_writes_report_html_tex_and_plain_wording(slice_run):
     assert f"discretization: auto  # -> {settled['filter.discretization']}" in md
     assert f"gravity_mps2: auto  # -> {settled['filter.gravity_mps2']:.6g}" in md
     assert 9.7 < settled["filter.gravity_mps2"] < 9.9
+
+
+def test_run_metrics_json_says_what_made_its_figures(slice_run, kitti_slice):
+    """metrics.json carries the version, the code digest, the command and every input file's sha256 (they were only in
+    report.html, which a script comparing two metrics.json files does not read)."""
+    import json
+
+    from fusion_eval import provenance
+
+    made = json.loads((slice_run / "metrics.json").read_text())["provenance"]
+    assert made["code"] == provenance.code_id() and made["version"] and " UTC" in made["date"]
+    rows = {Path(r["path"]).name: r for r in made["inputs"]}
+    lidar = next(r for r in made["inputs"] if "lidar" in r["streams"] and Path(r["path"]).is_file()
+                 and Path(r["path"]).name != "calib.txt")
+    assert lidar["sha256"] == hashlib.sha256(Path(lidar["path"]).read_bytes()).hexdigest()
+    assert rows["oxts"]["files"] > 800 and set(rows["oxts"]["streams"]) >= {"imu", "gnss"}
+
+
+def test_evaluate_metrics_json_names_its_input_files(slice_run, tmp_path):
+    import json
+
+    from click.testing import CliRunner
+
+    from fusion_eval.cli import main
+
+    gt, est = slice_run / "groundtruth.tum", slice_run / "fused.tum"
+    r = CliRunner().invoke(main, ["-q", "evaluate", str(gt), str(est), "--no-plots", "--out", str(tmp_path / "e")])
+    assert r.exit_code == 0, r.output
+    made = json.loads((tmp_path / "e" / "metrics.json").read_text())["provenance"]
+    assert [(row["streams"], row["sha256"]) for row in made["inputs"]] == \
+        [(["reference"], hashlib.sha256(gt.read_bytes()).hexdigest()), (["estimate"], hashlib.sha256(est.read_bytes()).hexdigest())]
 
 
 def _console(stderr: str) -> list[str]:

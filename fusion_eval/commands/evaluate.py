@@ -190,7 +190,12 @@ def run_evaluate(inputs: list, out_dir: Path, ref_times: Path | None = None, tim
             m["evaluation"]["time_range_s"] = list(t_range_s)
         metrics = {"reference": ref_f.source, "reference_format": ref_f.format, "reference_stamps": ref_f.stamps,
                    **({"reference_repeated_stamps": ref_f.repeated_stamps} if ref_f.repeated_stamps else {}), **m}
-        out.write_text("metrics.json", files.metrics_json(metrics))
+        named = [("bag", bag)] if bag is not None else \
+            [("reference", inputs[0]), *[("estimate", p) for p in inputs[1:]]] + \
+            [(role, p) for role, p in (("reference times", ref_times), ("estimate times", times)) if p is not None]
+        made = provenance.files(named)
+        # the returned metrics stay the figures; the file also says what made them (as run's metrics.json)
+        out.write_text("metrics.json", files.metrics_json({**metrics, "provenance": {**provenance.header(), "inputs": made}}))
         for ev in evals.values():          # evo's result files, one per metric and pose relation (evo_res reads them)
             files.write_evo_zips(ev, out.path("."))
         written = []
@@ -215,10 +220,7 @@ def run_evaluate(inputs: list, out_dir: Path, ref_times: Path | None = None, tim
         md = _report(metrics, written)
         out.write_text("report.md", md)
         out.write_text("metrics.tex", _latex(metrics))
-        named = [("bag", bag)] if bag is not None else \
-            [("reference", inputs[0]), *[("estimate", p) for p in inputs[1:]]] + \
-            [(role, p) for role, p in (("reference times", ref_times), ("estimate times", times)) if p is not None]
-        out.write_text("report.html", html.page(md, out.path("."), inputs=provenance.files(named)))
+        out.write_text("report.html", html.page(md, out.path("."), inputs=made))
     return metrics
 
 

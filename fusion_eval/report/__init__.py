@@ -13,7 +13,7 @@ from __future__ import annotations
 import numpy as np
 
 from ..outputs import StagedDir
-from ..provenance import input_files
+from ..provenance import header, input_files
 from . import files, html, thin
 from .markdown import metrics_tex, report_md
 
@@ -105,7 +105,6 @@ def write_evaluation(out: StagedDir, res, plots_written: list[str], pool=None, a
     for ev in res.evals.values():
         for name, data in ev.zips.items():
             out.write_bytes(name, data)
-    out.write_text("metrics.json", files.metrics_json(res.metrics))
     out.write_text("metrics.csv", files.metrics_csv(res.evals, res.ratios))
     out.write_text("metrics.tex", metrics_tex(res.dataset, res.evals, res.cfg, res.metrics))
     if res.metrics.get("trials"):
@@ -146,6 +145,9 @@ def write_evaluation(out: StagedDir, res, plots_written: list[str], pool=None, a
                    res.metrics, plots_written)
     out.write_text("report.md", md)
     inputs = inputs.result() if inputs is not None else input_files(dataset)
+    # what made the figures, machine-readable beside them: a metrics.json compared with another can be told from one
+    # of other code or other input files (the report.html's table; checksums here were missing: a reproducibility review)
+    out.write_text("metrics.json", files.metrics_json({**res.metrics, "provenance": {**header(), "inputs": inputs}}))
     advance()
     for f in futures:
         f.result()
