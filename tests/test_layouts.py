@@ -6,6 +6,8 @@ from __future__ import annotations
 
 import re
 import shutil
+from dataclasses import replace
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -15,6 +17,7 @@ import fusion_eval as fe
 from fusion_eval.datasets.manifest import load_dataset
 from fusion_eval.errors import ConfigError, DataFormatError
 from fusion_eval.simulate.dataset import simulate
+from fusion_eval.so3 import quat_xyzw_to_matrix
 
 DURATION_S = 40.0
 LAYOUTS = ("csv", "euroc", "csv_log", "rosbag1", "rosbag2")
@@ -347,3 +350,59 @@ def test_a_skipped_csv_column_may_hold_text(tmp_path):
     (tmp_path / "imu.csv").write_text("t,frame_id,ax,ay,az,wx,wy,wz\n" + "\n".join(rows) + "\n")
     with pytest.raises(DataFormatError, match=r"imu.csv:22: .*expected a number, got 'x'"):
         load_dataset(_manifest(tmp_path, {"imu": imu}))
+
+
+def _written_pairs(manifest: Path) -> set:
+    streams = yaml.safe_load(manifest.read_text(encoding="utf-8"))["streams"]
+    return {(e["format"], s) for s, e in streams.items()}
+
+
+def test_every_registered_format_reads_each_stream_it_declares(tmp_path):
+    """The registry walked: every (format, stream) pair a format or an observation's stream declares is read here, by
+    a simulator layout (whose round trips the slow test above holds to 1e-12), the shipped kitti-00 manifest, or a
+    round trip below of the simulated drive's own series; a format added without any of these fails here by name."""
+    from fusion_eval.datasets import formats
+    from fusion_eval.datasets.tum import format_tum
+    from fusion_eval.filters.observations import extra_streams
+
+    declared = {(name, stream) for name, fmt in formats.formats().items() for stream in fmt.readers}
+    declared |= {(name, spec.name) for spec in extra_streams() for name in spec.readers}
+    covered = set()
+    for layout in ("kitti", *LAYOUTS):
+        simulate(tmp_path / layout, "urban", 2.0, seed=3, grade="automotive", sets=(f"output.layout={layout}",))
+        covered |= _written_pairs(tmp_path / layout / "dataset.yaml")
+    shipped = Path(__file__).resolve().parents[1] / "data" / "kitti-00" / "dataset.yaml"
+    covered |= _written_pairs(shipped)
+    load_dataset(shipped)                                   # (its streams read: test_readers holds their values)
+
+    ref = load_dataset(tmp_path / "kitti")
+    d = tmp_path / "kitti"
+    (d / "gt.tum").write_text(format_tum(ref.groundtruth), encoding="utf-8")
+    (d / "lidar.tum").write_text(format_tum(ref.lidar), encoding="utf-8")
+    (d / "gnss.tum").write_text(format_tum(replace(ref.groundtruth, t_s=ref.gnss.t_s, p_w_m=ref.gnss.p_w_m,
+                                                   q_wb_xyzw=np.tile([0.0, 0, 0, 1], (ref.gnss.t_s.size, 1)),
+                                                   v_w_mps=None, lines=None)), encoding="utf-8")
+    T = np.tile(np.eye(4), (len(ref.groundtruth), 1, 1))
+    T[:, :3, :3], T[:, :3, 3] = quat_xyzw_to_matrix(ref.groundtruth.q_wb_xyzw), ref.groundtruth.p_w_m
+    np.savetxt(d / "gt_kitti.txt", T[:, :3, :].reshape(-1, 12), fmt="%.17g")
+    np.savetxt(d / "gt_times.txt", ref.groundtruth.t_s, fmt="%.9f")
+    ns = np.round(ref.gnss.t_s * 1e9).astype(np.int64)
+    (d / "leica.csv").write_text("#timestamp [ns],p_x [m],p_y [m],p_z [m]\n" + "".join(
+        f"{t},{x!r},{y!r},{z!r}\n" for t, (x, y, z) in zip(ns, ref.gnss.p_w_m.tolist())), encoding="utf-8")
+    trips = {("tum", "groundtruth"): {"path": "gt.tum"}, ("tum", "lidar"): {"path": "lidar.tum", "frame": "imu"},
+             ("tum", "gnss"): {"path": "gnss.tum", "std_m": 1.5},
+             ("kitti_poses", "groundtruth"): {"path": "gt_kitti.txt", "times": {"file": "gt_times.txt"}, "frame": "imu"},
+             ("euroc", "gnss"): {"path": "leica.csv", "std_m": 1.5}}
+    imu = yaml.safe_load((d / "dataset.yaml").read_text(encoding="utf-8"))["streams"]["imu"]
+    for (fmt, stream), entry in trips.items():
+        (d / "trip.yaml").write_text(yaml.safe_dump({"name": "trip", "streams": {"imu": imu, stream: {"format": fmt, **entry}}}),
+                                     encoding="utf-8")
+        got, want = getattr(load_dataset(d / "trip.yaml"), stream), getattr(ref, stream)
+        assert np.abs(got.t_s - want.t_s).max() < 1e-9 and np.abs(got.p_w_m - want.p_w_m).max() < 1e-6, (fmt, stream)
+        if stream == "gnss":
+            assert np.all(got.std_w_m == 1.5), fmt
+        else:
+            assert np.abs(quat_xyzw_to_matrix(got.q_wb_xyzw) - quat_xyzw_to_matrix(want.q_wb_xyzw)).max() < 1e-6, (fmt, stream)
+    unread = sorted(declared - covered - trips.keys())
+    assert not unread, f"registered (format, stream) pairs that nothing reads in the tests: {unread}"
+    assert not (trips.keys() & covered), "a round trip here duplicates a layout's"
