@@ -22,7 +22,7 @@ from .datasets.truth import truth_imu_biases
 from .errors import DataRangeError, FusionEvalError
 from .evaluation import span
 from .evaluation.run_metrics import (ESTIMATES, consistency, fused_error, ratio_metrics, run_metrics, segments,
-                                     smoother_section)
+                                     smoother_section, stated_noise)
 from .evaluation.trajectory import EstimateEvaluation, evaluate
 from .log_context import collected
 from .memory import release_free_heap
@@ -261,7 +261,7 @@ def filter_and_evaluate(ds: Dataset, cfg: dict, sh: Shared, pool, *, dataset_pat
     if idle:
         applied["data_warnings"] = [*idle, *applied.get("data_warnings", [])]
     metrics = run_metrics(ds.name, evals, ratios, ev_cfg, applied, prep.gnss_info, cons, seg, sh.span,
-                          smoother=smoother_section(filt))
+                          smoother=smoother_section(filt), stated=stated_noise(prep, cfg))
     if n_trials > 1:
         stages.start("trials", n_trials)
         stages.advance()                      # trial 0: this run

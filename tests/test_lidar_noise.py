@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import numpy as np
 import pytest
 
 import fusion_eval as fe
@@ -127,6 +128,37 @@ def test_a_stream_far_more_precise_than_its_stated_noise_is_a_data_warning():
     assert inconsistent_streams({"nhc": {"values": [1e-4] * 30, "dof": 2}}) == []
     assert inconsistent_streams({"odometer": {"values": [0.19] * 30, "dof": 1},
                                  "lidar": {"values": [1.1] * 30, "dof": 6}}) == []     # measured on KITTI: no alarm
+
+
+def test_a_std_column_holding_variances_is_named_as_such():
+    """A receiver's std column holding variances (3/3/6 m stated as 9/9/36) ran at 3.09 m instead of 1.30 with no word
+    (an implausible-data review): the mean NIS sits where the variances predict (the mean of 1/std), which a
+    conservative receiver's does not (KITTI's OXTS at 10 Hz: 0.10-0.18 of the dof, predicted 14-70)."""
+    from fusion_eval.evaluation.run_metrics import inconsistent_streams, variance_as_std
+
+    stated = {"gnss": np.array([9.0, 9.0, 36.0])}
+    w = inconsistent_streams({"gnss": {"values": [3 * 0.0856] * 30, "dof": 3}}, stated)
+    assert len(w) == 1 and "std column a variance" in w[0] and "(3, 3, 6)" in w[0] and "0.0833x" in w[0]
+    assert variance_as_std("gnss", 7.08, {"gnss": np.array([0.09, 0.09, 0.36])})          # 0.3 m given as 0.09
+    assert not variance_as_std("gnss", 0.13, {"gnss": np.array([0.1, 0.1, 0.1])})        # OXTS undegraded, 10 Hz
+    assert not variance_as_std("gnss", 0.95, {"gnss": np.array([2.45, 2.45, 2.45])})     # an honest receiver
+    assert not variance_as_std("gnss", 0.45, {"gnss": np.array([2.5, 2.5, 2.5])})        # ~ 1/2.5, but near its dof
+    assert not variance_as_std("lidar", 0.1, stated) and inconsistent_streams({"gnss": {"values": [0.26] * 30, "dof": 3}}) == []
+
+
+@pytest.mark.slow
+def test_a_simulated_receiver_whose_std_column_holds_variances_is_warned_of(tmp_path):
+    from fusion_eval.simulate.dataset import simulate
+
+    out = tmp_path / "d"
+    simulate(out, "urban", 60.0, seed=1, grade="consumer", sets=("output.layout=csv_log",))
+    ok = fe.run(out).metrics["preprocessing"].get("data_warnings", [])
+    lines = (out / "gnss.csv").read_text(encoding="utf-8").splitlines()
+    rows = [ln.split(",") for ln in lines[1:]]
+    (out / "gnss.csv").write_text("\n".join([lines[0], *(",".join(r[:4] + [repr(float(x) ** 2) for x in r[4:]]) for r in rows)])
+                                  + "\n", encoding="utf-8")
+    said = fe.run(out).metrics["preprocessing"]["data_warnings"]
+    assert not [w for w in ok if "variance" in w] and [w for w in said if "std column a variance" in w], said
 
 
 def test_an_adapted_noise_scaled_down_on_one_block_is_not_called_beyond_its_stated_noise():

@@ -24,7 +24,7 @@ from ..errors import ConfigError, DataRangeError, FilterDivergedError
 from .. import trials as mc
 from ..evaluation import keys, span
 from ..evaluation.run_metrics import (inconsistent_streams, nees, scored_warnings, segments, sparsely_matched,
-                                       truth_velocity_w)
+                                       stated_noise, truth_velocity_w)
 from ..evaluation.trajectory import evaluate, ratio
 from ..filters import observations
 from ..log_context import collected
@@ -87,7 +87,7 @@ def _replay_all(ds, variants: list[str], cfgs: list[dict], advance=None) -> tupl
             # which of the variants failed (an error of the data alone did not say: a review); a file's error names it
             raise type(exc)(f"variant {name!r}: {exc}") from None
         compiled = compile_notice.compile_seconds() - c0       # numba's first compilation of this variant's kernels
-        runs.append(VariantRun(name, cfg, filt, None, time.perf_counter() - t0 - compiled, warnings=_warnings(name, prep, filt),
+        runs.append(VariantRun(name, cfg, filt, None, time.perf_counter() - t0 - compiled, warnings=_warnings(name, prep, filt, cfg),
                                compile_s=compiled, applied=prep.applied,
                                seeded=tuple(mc.seeded_streams({"nis": filt.nis, "gnss_degradation": prep.gnss_info,
                                                                "preprocessing": prep.applied})),
@@ -116,12 +116,13 @@ def _own_streams(prep, base_prep) -> dict | None:
     return diff or None
 
 
-def _warnings(name: str, prep, filt) -> tuple[str, ...]:
+def _warnings(name: str, prep, filt, cfg: dict) -> tuple[str, ...]:
     """What ``run`` would warn of for this variant: the prepared data's warnings (already said on stderr by the
     preparation) and the streams its filter does not follow (said here: an accelerometer in g gave 184 m in the
     table with no word, where run named four streams)."""
     misfit = inconsistent_streams({k: {"values": d["nis"], "dof": d["dof"], "t_s": d["t_s"], "rejected": d.get("rejected", 0),
-                                       **({"adapt": d["adapt"]} if "adapt" in d else {})} for k, d in filt.nis.items()})
+                                       **({"adapt": d["adapt"]} if "adapt" in d else {})} for k, d in filt.nis.items()},
+                                  stated_noise(prep, cfg))
     for w in misfit:
         log.warning("variant %s: %s", name, w)
     return (*prep.applied.get("data_warnings", ()), *misfit)
