@@ -145,7 +145,8 @@ def _flag_data(ds: Dataset, applied: dict, more: list[str] = (), travel_yaw_rad:
     from .filters.observations.nhc import WHEELED
 
     platform = ds.description.get("platform")
-    warnings = (plausible.imu_gaps(ds.imu) + plausible.clock_steps(ds.groundtruth) + list(more)
+    warnings = (list(ds.description.get("misread_poses") or ()) + plausible.imu_gaps(ds.imu)
+                + plausible.clock_steps(ds.groundtruth) + list(more)
                 + plausible.imu_units(ds.imu, platform, platform in WHEELED))
     if platform in WHEELED:
         warnings += plausible.speed_glitches({"groundtruth": ds.groundtruth, "gnss": ds.gnss, "lidar": ds.lidar},
@@ -262,6 +263,9 @@ def prepare(ds: Dataset, cfg: dict) -> Prepared:
         steps = plausible.clock_steps(ds.groundtruth)
         if steps:
             raise ShiftAtSearchEdgeError(f"{exc}; the likely cause: {steps[0].removeprefix('groundtruth: ')}") from None
+        misread = ds.description.get("misread_poses")        # orientations misread match no gyro at any shift
+        if misread:
+            raise ShiftAtSearchEdgeError(f"{exc}; the likely cause: the {misread[0]}") from None
         raise
     more_warnings += timing_applied.pop("time_warnings", [])
     applied.update(timing_applied)

@@ -7,11 +7,13 @@ from __future__ import annotations
 
 import re
 from dataclasses import replace
+from pathlib import Path
 
 import numpy as np
 import pytest
 
 import fusion_eval as fe
+from fusion_eval.errors import FusionEvalError
 from fusion_eval.datasets import plausible
 
 
@@ -477,3 +479,41 @@ def test_a_clock_offset_is_still_said_where_half_the_stream_cannot_be_timed():
     found = plausible.speed_clock_shift(late, p, t, p)
     halves = plausible.speed_shift_halves(late, p, t, p)
     assert found[0] == pytest.approx(1.0, abs=0.02) and plausible.clear_speed_shift(found, halves), (found, halves)
+
+
+def test_orientations_read_in_the_wrong_quaternion_order_or_inverted_are_named(tmp_path):
+    """A lidar TUM written w x y z ran to 5.47 m against 0.65 with a 'mount disagrees' warning, and a ground truth's
+    to 47 m blaming the IMU (an implausible-data review); inverted poses were 'glitches'. No ground truth needed: a
+    car's body-frame direction of motion stays on one axis, and a reading that puts it there names itself."""
+    from fusion_eval.datasets.manifest import load_dataset
+    from fusion_eval.datasets.tum import format_tum
+    from fusion_eval.so3 import matrix_to_quat_xyzw
+
+    drive = fe.load_dataset(None)                          # kitti-00, its streams in the IMU frame
+    lid, gt = drive.lidar, drive.groundtruth
+    assert plausible.pose_reading("lidar", lid, "xyzw") == "" and plausible.pose_reading("groundtruth", gt, "xyzw") == ""
+    wxyz = replace(lid, q_wb_xyzw=lid.q_wb_xyzw[:, [3, 0, 1, 2]])          # w x y z read as x y z w
+    said = plausible.pose_reading("lidar", wxyz, "xyzw")
+    assert "quaternions written w x y z where the format reads x y z w" in said and str(lid.source) in said
+    assert plausible.pose_reading("lidar", wxyz, None) == ""              # a format of matrices has no order to name
+    Rt = np.transpose(lid.R_wb(), (0, 2, 1))
+    inverted = replace(lid, p_w_m=-np.einsum("nij,nj->ni", Rt, lid.p_w_m), q_wb_xyzw=matrix_to_quat_xyzw(Rt))
+    assert "poses inverted" in plausible.pose_reading("lidar", inverted, None)
+    xyzw_in_euroc = replace(gt, q_wb_xyzw=gt.q_wb_xyzw[:, [1, 2, 3, 0]])  # x y z w read as EuRoC's w first
+    assert "quaternions written x y z w where the format reads w x y z" in plausible.pose_reading("gt", xyzw_in_euroc, "wxyz")
+    # through a manifest: read from the file as written, said with the run's data warnings
+    (tmp_path / "lidar.tum").write_text(format_tum(wxyz), encoding="utf-8")
+    oxts = Path(drive.description["manifest"]).resolve().parent / "oxts"
+    (tmp_path / "dataset.yaml").write_text(
+        f"name: t\nstreams:\n  imu: {{format: kitti_oxts, path: {oxts}}}\n  groundtruth: {{format: kitti_oxts, path: {oxts}}}\n"
+        f"  lidar: {{format: tum, path: lidar.tum, frame: imu}}\n", encoding="utf-8")
+    assert "quaternions written w x y z" in " ".join(load_dataset(tmp_path / "dataset.yaml").description["misread_poses"])
+    # where the clock search meets no shift that fits (the lidar's offset estimated), the misreading is the cause it names
+    (tmp_path / "lidar.tum").write_text(format_tum(inverted), encoding="utf-8")
+    (tmp_path / "dataset.yaml").write_text(
+        f"name: t\nstreams:\n  imu: {{format: kitti_oxts, path: {oxts}, gyro_lag_s: auto}}\n"
+        f"  groundtruth: {{format: kitti_oxts, path: {oxts}}}\n"
+        f"  lidar: {{format: tum, path: lidar.tum, frame: imu, time_offset_s: auto}}\n",
+        encoding="utf-8")
+    with pytest.raises(FusionEvalError, match="the likely cause: the lidar .*poses inverted"):
+        fe.run(tmp_path / "dataset.yaml", overrides={"filter": {"use_gnss": False}})

@@ -22,6 +22,7 @@ class StreamFormat:
     first_fix: Callable | None = None                   # (entry, ctx) -> (lat, lon, alt) | None
     description: str = ""
     notes: dict = field(default_factory=dict)
+    quaternion: str | None = None                       # 'xyzw' or 'wxyz': the order its files write a rotation in
 
     def keys_for(self, stream: str) -> frozenset:
         """The manifest keys this format reads for ``stream`` (a key it does not read there is refused, not
@@ -32,11 +33,13 @@ class StreamFormat:
 def _formats() -> dict[str, StreamFormat]:
     from . import csv_stream, euroc, kitti_formats, rosbag_streams
 
-    fmts = [*(StreamFormat(name, readers, description="KITTI family") for name, readers in kitti_formats.READERS.items()),
-        StreamFormat("euroc", euroc.READERS, euroc.KEYS, description="EuRoC / TUM-VI ASL CSV"),
+    fmts = [*(StreamFormat(name, readers, description="KITTI family", quaternion="xyzw" if name == "tum" else None)
+              for name, readers in kitti_formats.READERS.items()),
+        StreamFormat("euroc", euroc.READERS, euroc.KEYS, description="EuRoC / TUM-VI ASL CSV", quaternion="wxyz"),
         StreamFormat("csv", {"imu": csv_stream.read_imu, "gnss": csv_stream.read_gnss, "groundtruth": csv_stream.read_poses,
                              "lidar": csv_stream.read_poses, "odometer": csv_stream.read_speed},
-                     csv_stream.KEYS, first_fix=csv_stream.first_fix, description="generic CSV with named columns"),
+                     csv_stream.KEYS, first_fix=csv_stream.first_fix, description="generic CSV with named columns",
+                     quaternion="xyzw"),      # (named columns: qx qy qz qw, which a file written w-first mislabels)
         StreamFormat("rosbag", rosbag_streams.READERS, rosbag_streams.KEYS, first_fix=rosbag_streams.first_fix,
                      description="ROS 1 / ROS 2 bag topic"),
     ]

@@ -231,6 +231,9 @@ def _from_manifest_dict(body: dict, root: Path, manifest: Path, extra: dict | No
     got = {name: read(name, origin_t) for name in ("odometer", "gnss", "groundtruth", "lidar") if name in streams}
     odo, gnss = (got[n][0] if n in got else None for n in ("odometer", "gnss"))
     gt, lidar = (_in_imu_frame(got[n][0], streams[n], root, manifest) if n in got else None for n in ("groundtruth", "lidar"))
+    # orientations as the file holds them (the sensor's frame): a misread quaternion order is told from them alone
+    misread = [w for n in ("groundtruth", "lidar") if n in got
+               for w in [plausible.pose_reading(n, got[n][0], for_stream(n)[streams[n]["format"]].quaternion)] if w]
     lidar_notes = got["lidar"][1] if "lidar" in got else {}
     extra_series = {name: extra[name].readers[streams[name]["format"]](streams[name], ctx)
                     for name in streams if name in extra}
@@ -245,6 +248,7 @@ def _from_manifest_dict(body: dict, root: Path, manifest: Path, extra: dict | No
         "gyro_lag_s": imu_spec.get("gyro_lag_s", 0.0),
         "accel_lag_s": imu_spec.get("accel_lag_s", 0.0),
         "lidar_anchor": streams.get("lidar", {}).get("anchor", "groundtruth"),
+        "misread_poses": misread,            # said with the preparation's data warnings
         "geodetic_origin_from": ("the first valid fix" if origin == "first_fix" else "the manifest's geodetic_origin"),
         # the local frame's origin is a receiver's first fix, and the ground truth is not of the same OXTS solution:
         # that fix's error is then an offset of every fix from the truth (plausible.gnss_offset)
