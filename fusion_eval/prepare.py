@@ -145,7 +145,8 @@ def _flag_data(ds: Dataset, applied: dict, more: list[str] = (), travel_yaw_rad:
     from .filters.observations.nhc import WHEELED
 
     platform = ds.description.get("platform")
-    warnings = (list(ds.description.get("misread_poses") or ()) + plausible.imu_gaps(ds.imu)
+    scale = plausible.pose_scale("lidar", ds.lidar, {"ground truth": ds.groundtruth, "GNSS": ds.gnss})
+    warnings = (list(ds.description.get("misread_poses") or ()) + ([scale] if scale else []) + plausible.imu_gaps(ds.imu)
                 + plausible.clock_steps(ds.groundtruth) + list(more)
                 + plausible.imu_units(ds.imu, platform, platform in WHEELED))
     if platform in WHEELED:

@@ -517,3 +517,18 @@ def test_orientations_read_in_the_wrong_quaternion_order_or_inverted_are_named(t
         encoding="utf-8")
     with pytest.raises(FusionEvalError, match="the likely cause: the lidar .*poses inverted"):
         fe.run(tmp_path / "dataset.yaml", overrides={"filter": {"use_gnss": False}})
+
+
+@pytest.mark.parametrize("factor,needle", [(10.0, "decimetres read as metres?"), (100.0, "centimetres read as metres?"),
+                                           (0.37, "no scale of its own")])
+def test_lidar_positions_in_another_unit_or_without_scale_are_named(factor, needle):
+    """Lidar positions 10x and 100x ran to 2.57 and 1.01 m (0.65 unscaled) said only as 'a glitch' (an implausible-data
+    review): their displacements against the truth's, or the GNSS's where there is no truth, over 10 s windows."""
+    drive = fe.load_dataset(None)
+    lid = drive.lidar
+    assert plausible.pose_scale("lidar", lid, {"ground truth": drive.groundtruth, "GNSS": drive.gnss}) == ""
+    scaled = replace(lid, p_w_m=lid.p_w_m * factor)
+    said = plausible.pose_scale("lidar", scaled, {"ground truth": None, "GNSS": drive.gnss})
+    assert needle in said and f"{factor:.3g}x as far as the GNSS's" in said and str(lid.source) in said
+    m = fe.run(replace(drive, lidar=scaled)).metrics
+    assert any(needle in w for w in m["preprocessing"]["data_warnings"])
