@@ -602,6 +602,27 @@ def test_a_geodetic_origin_far_from_the_data_is_refused(ds, tmp_path):
     assert r.exit_code == 0, r.output
 
 
+@pytest.mark.parametrize("edit,needle", [(lambda la, lo: (lo, la), "latitude and longitude swapped?"),
+                                         (lambda la, lo: (np.radians(la), np.radians(lo)), "in radians?")])
+def test_a_receivers_fixes_far_from_the_oxts_origin_are_refused(tmp_path, edit, needle):
+    """A CSV receiver's lat and lon swapped or in radians beside OXTS packets (which set the origin) ran, the filter
+    diverging blaming the lidar (an implausible-data review): its first fix is checked against the origin too."""
+    from fusion_eval.simulate.dataset import simulate
+
+    out = tmp_path / "d"
+    simulate(out, "urban", 20.0, seed=0, grade="automotive")
+    f = out / "gnss" / "gnss.csv"
+    lines = f.read_text(encoding="utf-8").splitlines()
+    rows = []
+    for ln in lines[1:]:
+        v = ln.split(",")
+        la, lo = edit(float(v[1]), float(v[2]))
+        rows.append(",".join([v[0], repr(float(la)), repr(float(lo)), *v[3:]]))
+    f.write_text("\n".join([lines[0], *rows]) + "\n", encoding="utf-8")
+    r = CliRunner().invoke(main, ["-q", "run", str(out), "--no-plots", "--out", str(tmp_path / "o")])
+    _assert_clean_error(r, tmp_path / "o", "gnss.csv: expected fixes near the drive", "km from the local frame's origin", needle)
+
+
 def test_an_oxts_value_error_names_the_packet_file(ds, tmp_path):
     p = ds / "oxts" / "data" / "0000000040.txt"
     vals = p.read_text().split()

@@ -33,7 +33,8 @@ class StreamFormat:
 def _formats() -> dict[str, StreamFormat]:
     from . import csv_stream, euroc, kitti_formats, rosbag_streams
 
-    fmts = [*(StreamFormat(name, readers, description="KITTI family", quaternion="xyzw" if name == "tum" else None)
+    fmts = [*(StreamFormat(name, readers, description="KITTI family", quaternion="xyzw" if name == "tum" else None,
+                           first_fix=kitti_formats.FIRST_FIX.get(name))
               for name, readers in kitti_formats.READERS.items()),
         StreamFormat("euroc", euroc.READERS, euroc.KEYS, description="EuRoC / TUM-VI ASL CSV", quaternion="wxyz"),
         StreamFormat("csv", {"imu": csv_stream.read_imu, "gnss": csv_stream.read_gnss, "groundtruth": csv_stream.read_poses,

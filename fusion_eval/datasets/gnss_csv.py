@@ -18,13 +18,23 @@ from ._text import parse_numeric_rows, read_text
 HEADER = "t_s,lat_deg,lon_deg,alt_m,std_e_m,std_n_m,std_u_m"
 
 
-def read_gnss_csv(path: Path, origin: tuple[float, float, float]) -> GnssSeries:
-    path = Path(path)
+def _rows(path: Path):
     text = read_text(path, f"GNSS CSV '{HEADER}'")
     lines = text.splitlines()
     if lines and lines[0].strip().startswith("t_s"):
         lines[0] = "#" + lines[0]   # the header: skipped, line numbers kept
-    rows, ln = parse_numeric_rows(path, "\n".join(lines), 7, f"GNSS CSV ({HEADER})", delimiter=",")
+    return parse_numeric_rows(path, "\n".join(lines), 7, f"GNSS CSV ({HEADER})", delimiter=",")
+
+
+def first_fix(path: Path) -> tuple[float, float, float]:
+    """The first fix (lat, lon, alt): a geodetic origin, or the fixes' check against another's."""
+    rows, _ = _rows(Path(path))
+    return tuple(float(v) for v in rows[0, 1:4])
+
+
+def read_gnss_csv(path: Path, origin: tuple[float, float, float]) -> GnssSeries:
+    path = Path(path)
+    rows, ln = _rows(path)
     return GnssSeries(t_s=rows[:, 0], p_w_m=geodetic_to_enu(rows[:, 1], rows[:, 2], rows[:, 3], *origin, source=str(path), lines=ln),
                       std_w_m=rows[:, 4:7], source=str(path), lines=ln)
 

@@ -125,3 +125,5 @@ READERS = {
     "csv_lla": {"gnss": lambda e, ctx: gnss_csv.read_gnss_csv(ctx.path(e), _origin(ctx, "GNSS in geodetic coordinates"))},
     "speed_txt": {"odometer": lambda e, ctx: speed.read_speed(ctx.path(e))},
 }
+# a geodetic GNSS stream's first fix (the local frame's origin where the manifest gives none)
+FIRST_FIX = {"csv_lla": lambda e, ctx: gnss_csv.first_fix(ctx.path(e))}

@@ -196,14 +196,18 @@ def _from_manifest_dict(body: dict, root: Path, manifest: Path, extra: dict | No
 
     imu, _ = read("imu", None)
 
-    def first_fix():
+    def oxts_fix():
         geo_src = next((streams[s] for s in ("gnss", "groundtruth", "imu") if s in streams and streams[s]["format"] == "kitti_oxts"), None)
-        fix = kitti_oxts.first_valid_fix(oxts(geo_src)) if geo_src else None
+        return kitti_oxts.first_valid_fix(oxts(geo_src)) if geo_src else None
+
+    def gnss_fix():
         g = streams.get("gnss")
-        if fix is None and g is not None:
-            ff = for_stream("gnss")[g["format"]].first_fix
-            fix = ff(g, ctx_with(None)) if ff else None
-        return fix
+        ff = for_stream("gnss")[g["format"]].first_fix if g is not None else None
+        return ff(g, ctx_with(None)) if ff else None
+
+    def first_fix():
+        fix = oxts_fix()
+        return gnss_fix() if fix is None else fix
 
     origin = body.get("geodetic_origin", "first_fix")
     if origin == "first_fix":
@@ -215,8 +219,10 @@ def _from_manifest_dict(body: dict, root: Path, manifest: Path, extra: dict | No
         if far is not None and far > MAX_ORIGIN_DISTANCE_M:
             raise ConfigError(f"{at(manifest, body, 'geodetic_origin')}: geodetic_origin {list(origin)} is {far / 1e3:,.0f} km "
                               f"from the drive's first fix ({fix[0]:.6f}, {fix[1]:.6f}); an origin is where the local "
-                              f"frame is, within {MAX_ORIGIN_DISTANCE_M / 1e3:g} km of the data (latitude and longitude "
-                              "swapped, in the origin or in the fixes? both go lat, lon, alt)")
+                              f"frame is, within {MAX_ORIGIN_DISTANCE_M / 1e3:g} km of the data ("
+                              + ("the fixes in radians?" if abs(fix[0]) <= np.pi and abs(fix[1]) <= np.pi else
+                                 "latitude and longitude swapped, in the origin or in the fixes? both go lat, lon, alt")
+                              + ")")
     else:
         raise ConfigError(f"{at(manifest, body, 'geodetic_origin')}: geodetic_origin must be 'first_fix' or [lat_deg, lon_deg, alt_m], got {origin!r}")
     if origin_t is not None:
@@ -226,6 +232,18 @@ def _from_manifest_dict(body: dict, root: Path, manifest: Path, extra: dict | No
             check_geodetic(*origin_t, str(manifest), what="geodetic_origin")
         except DataFormatError as exc:
             raise ConfigError(f"{at(manifest, body, 'geodetic_origin')}: {exc.expected}") from None
+        # a receiver's fixes beside the OXTS packets that set the origin: checked against it too (a CSV's lat and lon
+        # swapped or in radians ran, the filter diverging blaming the lidar, where a CSV truth's were refused; a review)
+        g = streams.get("gnss")
+        fix = gnss_fix() if g is not None and g["format"] != "kitti_oxts" and oxts_fix() is not None else None
+        far = None if fix is None else great_circle_m(origin_t[:2], fix[:2])
+        if far is not None and far > MAX_ORIGIN_DISTANCE_M:
+            why = ("in radians?" if abs(fix[0]) <= np.pi and abs(fix[1]) <= np.pi else
+                   "latitude and longitude swapped? both go lat, lon, alt")
+            raise DataFormatError(ctx_with(None).path(g), None,
+                                  f"expected fixes near the drive; its first valid fix ({fix[0]:.6f}, {fix[1]:.6f}) is {far / 1e3:,.0f} "
+                                  f"km from the local frame's origin ({origin_t[0]:.6f}, {origin_t[1]:.6f}, from "
+                                  f"{'the OXTS packets' if origin == 'first_fix' else 'geodetic_origin'}): {why}")
 
     ctx = ctx_with(origin_t)
     got = {name: read(name, origin_t) for name in ("odometer", "gnss", "groundtruth", "lidar") if name in streams}
