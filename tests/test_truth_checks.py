@@ -55,6 +55,9 @@ def test_a_gnss_on_another_vertical_datum_is_flagged():
     m = fe.run(msl).metrics
     (w,) = [w for w in m["preprocessing"]["data_warnings"] if "sits a constant" in w]
     assert "east, north, up +0.0, +0.0, -47.9 m" in w and "above mean sea level" in w
+    # beyond the geoid's range no datum explains it: feet read as metres (kitti-00's 116 m: 264 m up; a review)
+    feet = plausible.gnss_offset(replace(g, p_w_m=g.p_w_m + [0.0, 0.0, 264.5]), drive.groundtruth)
+    assert "feet read as metres" in feet and "above mean sea level" not in feet and "no datum explains 264 m" in feet
     east = replace(drive, gnss=replace(g, p_w_m=g.p_w_m + [120.0, 0.0, 0.0]))
     assert "another origin or datum" in plausible.gnss_offset(east.gnss, east.groundtruth)
     # noise is no offset: 1 Hz fixes with 30 m of noise about the truth

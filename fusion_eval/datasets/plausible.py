@@ -543,6 +543,9 @@ def _offset_limits(gnss) -> tuple[float, float]:
                  for v in (h, st[2]))
 
 
+MAX_GEOID_M = 110.0        # the geoid's height above WGS84's ellipsoid lies within -107..+86 m everywhere
+
+
 def gnss_offset(gnss, groundtruth, origin_from_first_fix: bool = False, lever_b_m=None) -> str:
     """Why the GNSS sits a constant distance from the ground truth (median over the fixes inside the truth's span,
     per ENU axis, beyond :data:`MIN_GNSS_OFFSET_M` (less for a receiver stating a small std: :func:`_offset_limits`)
@@ -581,6 +584,11 @@ def gnss_offset(gnss, groundtruth, origin_from_first_fix: bool = False, lever_b_
            "reads as a constant offset on a straight drive)")
     what = ("an altitude above mean sea level against an ellipsoidal origin, or the other way round (the geoid lies "
             "-100 to +85 m from WGS84's ellipsoid; NavSatFix's altitude is the ellipsoid's)" if big[2] and not big[:2].any()
+            and abs(off[2]) <= MAX_GEOID_M else
+            # beyond the geoid's range no datum explains it (feet for metres read 264 m up, called the geoid; a review)
+            f"altitudes in another unit (feet read as metres: x3.28?), in the GNSS or in the ground truth "
+            f"({groundtruth.source}); no datum explains {abs(off[2]):.0f} m (the geoid lies -100 to +85 m from WGS84's "
+            "ellipsoid)" if big[2] and not big[:2].any()
             else "another origin or datum than the ground truth's (the manifest's geodetic_origin)") + arm
     return (f"{gnss.source}: the GNSS sits a constant east, north, up {off[0]:+.1f}, {off[1]:+.1f}, {off[2]:+.1f} m from "
             f"the ground truth (median over {n_fixes} fixes; their spread about it {spread.max():.1f} m): "
@@ -652,7 +660,8 @@ def gnss_frame(gnss, groundtruth) -> str:
         up = "; its up axis points down too" if np.ptp(r[:, 2]) > 5.0 and np.corrcoef(g[:, 2], r[:, 2])[0, 1] < -0.5 else ""
         return (f"{gnss.source}: the GNSS track matches the ground truth's with its east and north swapped (RMS "
                 f"{swap:.1f} m against {plain:.1f} m as given{up}): positions in NED, or x and y swapped, declared as "
-                "ENU; every figure of the GNSS, and of the filter it pulls, is of the wrong frame")
+                f"ENU, in the GNSS or in the ground truth ({groundtruth.source}: the two cannot tell which; a truth's "
+                "frame mistake shows in every estimate's figures, the GNSS's in its own and the fused one's)")
     if rot <= MAX_FRAME_FIT * plain and plain - rot > MIN_FRAME_GAIN_M and abs(np.degrees(th)) > MIN_FRAME_ANGLE_DEG:
         return (f"{gnss.source}: the GNSS track matches the ground truth's turned {np.degrees(th):+.2f} deg about up "
                 f"(RMS {rot:.1f} m against {plain:.1f} m as given): one of the two is in another frame than ENU (a map "
