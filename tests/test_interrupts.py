@@ -553,3 +553,20 @@ def test_an_interrupted_command_called_in_process_leaves_the_callers_handler(mon
     assert r.exit_code == 130 and "interrupted" in r.stderr, (r.exit_code, r.output)
     assert signal.getsignal(signal.SIGINT) is before
 
+
+
+@pytest.mark.slow
+def test_sigterm_to_simulates_group_while_its_workers_write_packets_ends_it(tmp_path):
+    """multiprocessing.Pool's terminate() waited forever for the queue's lock a worker killed by the group's SIGTERM
+    held (an interruption review: 2 hangs in 8, only SIGKILL ended them); the project's pool kills its workers."""
+    for i in range(3):
+        out = tmp_path / f"sim{i}"
+        p = _start(["simulate", str(out), "--overwrite"], tmp_path)
+        # the 30001 packet files of the default 300 s drive are written by two workers: signal them mid-way
+        assert wait_for(lambda: len(list(tmp_path.glob(f".sim{i}.partial-*/oxts/data/00000*.txt"))) > 8000, 120), \
+            p.communicate()
+        os.killpg(p.pid, signal.SIGTERM)
+        _, err = p.communicate(timeout=30)
+        assert p.returncode == 143 and "Traceback" not in err, err
+        assert err.strip().splitlines()[-1].startswith("terminated") and not out.exists()
+        assert _group_gone(p.pid) and not list(tmp_path.glob(f".sim{i}.*")), list(tmp_path.iterdir())

@@ -16,7 +16,6 @@ Layout of OUT_DIR::
 from __future__ import annotations
 
 import logging
-import multiprocessing as mp
 import os
 from dataclasses import dataclass
 from pathlib import Path
@@ -34,7 +33,7 @@ from ..errors import ConfigError
 from ..fastfmt import format_table, table_text
 from ..geo import enu_rotation, normal_gravity_mps2
 from ..outputs import StagedDir
-from ..pool import signals_held, worker_init
+from ..pool import executor
 from ..so3 import exp_so3, inv_T, make_T, matrix_to_euler_rpy, matrix_to_quat_xyzw, quat_xyzw_to_matrix
 from ..types import IMU_MAX_RATE_RPS, IMU_MAX_SPECIFIC_FORCE_MPS2
 from . import layouts, sensors
@@ -190,14 +189,12 @@ def simulate(out_dir: Path, profile: str, duration_s: float, seed: int, grade: s
             work = [(str(folder), int(a), int(b)) for a, b in zip(bounds[:-1], bounds[1:])]
             try:
                 if jobs > 1 and n > 20000:   # file creation is the cost: spread it over the cores
-                    # the project's worker set-up (importing fusion_eval.pool registers its fork hook, which gives
-                    # every forked child the workers' signal dispositions; worker_init adds death with the parent):
-                    # without it the pool's closing SIGTERM met the command's handler in each worker, which printed a
-                    # traceback after the command had exited
-                    with signals_held():                 # forked with SIGINT/SIGTERM held (pool.signals_held)
-                        pool = mp.get_context("fork").Pool(jobs, initializer=worker_init)
-                    with pool:
-                        pool.map(_write_packet_range, work)
+                    # the project's pool (forked after _SHARED is set, so the workers hold the table): it kills its
+                    # workers when the block ends by a signal; multiprocessing.Pool's terminate() waited forever for
+                    # the queue's lock that a worker killed by a SIGTERM to the process group held (an interruption
+                    # review: 2 hangs in 8, only SIGKILL ended them)
+                    with executor(jobs) as pool:
+                        list(pool.map(_write_packet_range, work))
                 else:
                     for w in work:
                         _write_packet_range(w)
