@@ -168,6 +168,7 @@ def _as_given(path: str) -> str:
     named the hidden staging path, not --out (a corrupted-input review)."""
     import re
 
+    path = re.sub(r"(^|/)([^/]+)/\.\2\.partial-\d+(?=/|$)", r"\1\2", path)      # staged inside a mount point
     return re.sub(r"(^|/)\.([^/]+)\.partial-\d+(?=/|$)", r"\1\2", path)
 
 

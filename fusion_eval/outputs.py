@@ -219,13 +219,29 @@ class StagedDir:
         self.wait_lock_s = wait_lock_s
         self.staging: Path | None = None
         self._made: list[Path] = []
+        # an existing folder that is a mount point (a container's volume, a bind mount) cannot be renamed or replaced:
+        # the results are staged inside it and moved into it at the end (a finished run was lost to 'Device or
+        # resource busy' after all its work, its staging folder left beside; an interruption review)
+        self._into = self.final.is_dir() and os.path.ismount(self.final)
+        self._home = self.final if self._into else self.final.parent     # where the hidden lock and staging go
+
+    def _near(self, tag: str) -> Path:
+        """The hidden lock, staging or old copy of this target: beside it, or inside a mount point."""
+        return self._home / _sibling(self.final, tag).name
+
+    def _ours(self, p: Path) -> bool:
+        return self._into and p.name.startswith(_sibling(self.final, "").name)
+
+    def _entries(self) -> list[Path]:
+        """What the target folder holds, but for this tool's own hidden files inside a mount point."""
+        return [p for p in self.final.iterdir() if not self._ours(p)]
 
     def check(self) -> None:
         """Fail early (before any work) if the target cannot be used."""
         refuse_overlap(self.final, self.inputs)
         if self.final.exists() and not self.final.is_dir():
             raise OutputError(f"{self.final}: output path exists and is not a directory")
-        if self.final.is_dir() and any(self.final.iterdir()) and not self.overwrite:
+        if self.final.is_dir() and self._entries() and not self.overwrite:
             raise OutputError(f"{self.final}: output directory exists and is not empty (use --overwrite, or overwrite=True in Python, to replace it)")
         if self.overwrite and _foreign(self.final, OUTPUT_MARKERS):
             # --out DATASET/oxts --overwrite once deleted the IMU packets
@@ -245,7 +261,7 @@ class StagedDir:
         try:
             self._recover()
             self.check()          # another process may have finished this directory while we worked
-            self.staging = _sibling(self.final, f"partial-{os.getpid()}")
+            self.staging = self._near(f"partial-{os.getpid()}")
             self.staging.mkdir()
             self._abort_token = interrupts.on_abort(self._abandon)
         except BaseException as exc:          # the lock let go on every way out (a notebook locked itself out)
@@ -278,7 +294,7 @@ class StagedDir:
         between the swap's two renames (its staging folder beside it, the target missing), which is put back."""
         def siblings(tag):                    # ours exactly: '.out.old-123', not '.out.old-2024.lock' of 'out.old-2024'
             pattern = re.compile(re.escape(_sibling(self.final, tag).name) + r"(\d+)")
-            return {int(m.group(1)): self.final.parent / m.group(0) for p in self.final.parent.iterdir()
+            return {int(m.group(1)): self._home / m.group(0) for p in self._home.iterdir()
                     if (m := pattern.fullmatch(p.name))}
         partials, olds = siblings("partial-"), siblings("old-")
         if not self.final.exists():
@@ -302,7 +318,7 @@ class StagedDir:
     def _lock(self) -> None:
         """Take ``.<name>.lock`` beside the target (:mod:`fusion_eval.locks`): a second process writing the same
         directory at the same time is refused instead of silently replacing the first one's results."""
-        self._held = locks.take(_sibling(self.final, "lock"), self.wait_lock_s,
+        self._held = locks.take(self._near("lock"), self.wait_lock_s,
                                 lambda pid: f"{self.final}: another fusion-eval (pid {pid}) is writing this output "
                                             "directory; wait for it, or choose another --out", target=self.final)
 
@@ -321,6 +337,10 @@ class StagedDir:
                 return False
             # the two renames as one step: a signal between them left the old results and the new ones both hidden
             # (.out.old-PID, .out.partial-PID) and nothing at --out (a failure-injection review); it is raised after
+            if self._into:
+                with interrupts.deferred():
+                    self._move_into()
+                return False
             with interrupts.deferred():
                 if not self.overwrite and self.final.is_dir() and any(self.final.iterdir()):
                     # written by a command that takes no lock of this folder (a sweep started in it) while this
@@ -329,10 +349,19 @@ class StagedDir:
                     raise OutputError(f"{self.final}: another command wrote there while this run worked; its files "
                                       f"are left as they are and this run's results are in {beside}")
                 old = None
-                if self.final.exists():
-                    old = _sibling(self.final, f"old-{os.getpid()}")
-                    os.replace(self.final, old)
-                os.replace(self.staging, self.final)
+                try:
+                    if self.final.exists():
+                        old = _sibling(self.final, f"old-{os.getpid()}")
+                        os.replace(self.final, old)
+                    os.replace(self.staging, self.final)
+                except OSError as exc:
+                    # the finished results are not lost to a rename the filesystem refuses: the old folder back,
+                    # and this run's in a visible folder beside it (a hidden one is a killed run's to the next)
+                    if old is not None and not self.final.exists():
+                        os.replace(old, self.final)
+                    beside = self._beside()
+                    raise OutputError(f"{self.final}: cannot put this run's results there ({_why(self.final, exc)}); "
+                                      f"they are in {beside}") from None
                 interrupts.wrote(self.final)
             if old is not None:                # (a copy left by a signal here is removed by the next run's _recover)
                 shutil.rmtree(old, ignore_errors=True)
@@ -340,6 +369,23 @@ class StagedDir:
         finally:
             interrupts.forget(getattr(self, "_abort_token", None))
             self._unlock()
+
+    def _move_into(self) -> None:
+        """The staged results moved into the mount point (each entry renamed: one filesystem), replacing what it
+        held with --overwrite; a folder written meanwhile by another command keeps its files, and this run's stay
+        in a visible folder inside it."""
+        held = self._entries()
+        if held and not self.overwrite:
+            keep = self.final / f"{self.final.name}-{os.getpid()}"
+            os.replace(self.staging, keep)
+            raise OutputError(f"{self.final}: another command wrote there while this run worked; its files are left "
+                              f"as they are and this run's results are in {keep}")
+        for p in held:
+            shutil.rmtree(p) if p.is_dir() and not p.is_symlink() else p.unlink()
+        for p in sorted(self.staging.iterdir()):
+            os.replace(p, self.final / p.name)
+        self.staging.rmdir()
+        interrupts.wrote(self.final)
 
     def _abandon(self) -> None:
         """What a failed run's exit does (also for a signal that ends the command from another thread,

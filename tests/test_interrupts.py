@@ -306,6 +306,48 @@ def test_overwrite_with_a_failing_run_keeps_the_old_output(tmp_path):
     assert {p.name: p.read_bytes() for p in out.iterdir()} == before
 
 
+def test_an_output_folder_that_is_a_mount_point_gets_the_results_moved_into_it(tmp_path, monkeypatch):
+    """A container's volume or a bind mount cannot be renamed: a finished run was lost to 'Device or resource busy'
+    after all its work, its staging folder left beside (an interruption review). Staged inside, moved in."""
+    import fusion_eval.outputs as outputs
+    from fusion_eval.errors import OutputError
+
+    mount = tmp_path / "vol"
+    mount.mkdir()
+    real = os.path.ismount
+    monkeypatch.setattr(outputs.os.path, "ismount", lambda p: Path(p) == mount or real(p))
+    with outputs.StagedDir(mount) as out:
+        assert out.staging.parent == mount and (mount / ".vol.lock").exists()
+        out.write_text("metrics.json", "{}")
+    assert sorted(p.name for p in mount.iterdir()) == ["metrics.json"]     # nothing hidden left inside
+    assert not list(tmp_path.glob(".vol.*"))
+    with pytest.raises(OutputError, match="exists and is not empty"):
+        outputs.StagedDir(mount).check()
+    with pytest.raises(KeyboardInterrupt):            # a signal: the old results kept, nothing staged left
+        with outputs.StagedDir(mount, overwrite=True) as out:
+            out.write_text("metrics.json", "new")
+            raise KeyboardInterrupt
+    assert sorted(p.name for p in mount.iterdir()) == ["metrics.json"] and (mount / "metrics.json").read_text() == "{}"
+    with outputs.StagedDir(mount, overwrite=True) as out:
+        out.write_text("report.md", "new")
+    assert sorted(p.name for p in mount.iterdir()) == ["report.md"]
+    # a rename the filesystem refuses elsewhere keeps the results in a visible folder, named
+    plain = tmp_path / "out"
+    monkeypatch.setattr(outputs.os, "replace", _refusing(os.replace, plain))
+    with pytest.raises(OutputError, match=r"cannot put this run's results there .*they are in .*out-2"):
+        with outputs.StagedDir(plain) as out:
+            out.write_text("metrics.json", "{}")
+    assert (tmp_path / "out-2" / "metrics.json").read_text() == "{}"
+
+
+def _refusing(replace, target: Path):
+    def go(a, b):
+        if Path(b) == target:
+            raise OSError(16, "Device or resource busy")
+        return replace(a, b)
+    return go
+
+
 @pytest.mark.slow
 def test_a_pool_killed_while_a_worker_sends_its_result_lets_the_process_exit(tmp_path):
     """Found while reviewing: a worker killed in the middle of sending a large result left the executor's manager
