@@ -531,3 +531,29 @@ def test_a_journal_that_cannot_be_written_is_named(tmp_path, monkeypatch):
     r = _tune([str(ds), "--objective", "fused.ape.rmse", "--trials", "2", "-j", "1", "-o", str(out), "--no-plots"],
               tmp_path)
     assert r.exit_code == 2 and f"{out / 'study.journal'}: cannot write (No space left on device)" in r.stderr, r.output
+
+
+def test_a_signal_among_the_tells_keeps_the_journal_and_says_so(tmp_path, monkeypatch):
+    """A Ctrl-C between two trials' tells met a told trial in the clean-up, whose update Optuna refuses: the command
+    said 'no output directory was written' beside a kept journal (an interruption review). Each tell is whole."""
+    import os
+    import signal
+
+    from fusion_eval.tuning import study as st
+
+    real, calls = st._tell, []
+
+    def tell_then_ctrl_c(*a, **k):
+        real(*a, **k)
+        calls.append(1)
+        if len(calls) == 3:                     # the first of the second generation's tells: a Ctrl-C arrives
+            os.kill(os.getpid(), signal.SIGINT)
+    monkeypatch.setattr(st, "_tell", tell_then_ctrl_c)
+    ds = make_slice(tmp_path / "ds", 300)
+    out = tmp_path / "tune"
+    r = CliRunner().invoke(main, ["-q", "tune", str(ds), "--objective", "fused.ape.rmse", "--trials", "6", "--batch",
+                                  "2", "-j", "1", "-o", str(out), "--no-plots"])
+    assert r.exit_code == 130 and "3 of 6 trials are kept" in r.output and "study.journal" in r.output, r.output
+    r = _tune([str(ds), "--objective", "fused.ape.rmse", "--trials", "6", "--batch", "2", "-j", "1", "-o", str(out),
+               "--no-plots"], tmp_path)
+    assert r.exit_code == 0 and len(list((out / "trials").glob("*.json"))) >= 6, r.output
