@@ -126,7 +126,7 @@ class Group(click.Group):
             # error (a SystemError around the KeyboardInterrupt, a typing error): it is still the interruption
             signum = interrupts.received()
             if signum is not None:
-                _interrupted(interrupts.Terminated() if signum == signal.SIGTERM else KeyboardInterrupt())
+                _interrupted(interrupts.as_exception(signum))
             if isinstance(exc, FusionEvalError):
                 # one line, whatever a library's message embedded (a YAML parser's report spans several)
                 click.echo("error: " + one_line(str(exc)), err=True)
@@ -204,17 +204,20 @@ def _interrupted(exc: BaseException) -> None:
     # keeps its own handler.
     if _PROCESS_ENTRY:
         signal.signal(signal.SIGINT, signal.SIG_IGN)
+        if hasattr(signal, "SIGHUP"):
+            signal.signal(signal.SIGHUP, signal.SIG_IGN)
         # and the libraries' exit hooks cut short by the signal keep their tracebacks to themselves (Dask's cluster
         # interrupted as it started printed "Exception ignored in atexit callback ... Status.init", its comms
         # "CommClosedError" under the one line: a failure-injection review)
         sys.unraisablehook = lambda _unraisable: None
         logging.getLogger("distributed").setLevel(logging.CRITICAL + 1)
-    what = "terminated (SIGTERM)" if isinstance(exc, interrupts.Terminated) else "interrupted"
+    what = ("hung up (SIGHUP)" if isinstance(exc, interrupts.HungUp) else
+            "terminated (SIGTERM)" if isinstance(exc, interrupts.Terminated) else "interrupted")
     done = interrupts.written()
     said = (exc.args[0] if exc.args else f"after {' and '.join(done)} {'was' if len(done) == 1 else 'were'} written whole"
             if done else "no output directory was written")
     click.echo(f"\n{what}: {said}", err=True)
-    sys.exit(143 if isinstance(exc, interrupts.Terminated) else 130)
+    sys.exit(129 if isinstance(exc, interrupts.HungUp) else 143 if isinstance(exc, interrupts.Terminated) else 130)
 
 
 @click.group(cls=Group, context_settings={"help_option_names": ["-h", "--help"]})

@@ -40,6 +40,25 @@ class Terminated(KeyboardInterrupt):
     workers killed, finished sweep runs recorded)."""
 
 
+class HungUp(Terminated):
+    """SIGHUP (the terminal closed, an ssh session dropped): ended as SIGTERM is. Its default action killed the
+    command outright, leaving a visible empty output folder, a staging folder and a lock that a later default run,
+    of another timestamped name, never cleaned (an interruption review)."""
+
+
+# the signals a command ends on by its own clean-up (SIGHUP where the platform has it)
+SIGNALS = tuple(s for s in (signal.SIGINT, signal.SIGTERM, getattr(signal, "SIGHUP", None)) if s is not None)
+# those an ignoring parent keeps ignored (a background job's SIGINT, nohup's SIGHUP), as POSIX tools do
+_RESPECT_IGNORED = tuple(s for s in (signal.SIGINT, getattr(signal, "SIGHUP", None)) if s is not None)
+
+
+def as_exception(signum: int) -> KeyboardInterrupt:
+    """What a signal is raised as in the main thread."""
+    if signum == getattr(signal, "SIGHUP", None):
+        return HungUp()
+    return Terminated() if signum == signal.SIGTERM else KeyboardInterrupt()
+
+
 _pending: int | None = None                  # a signal received inside llvmlite, not yet delivered
 _deferring = 0                               # depth of deferred() blocks: record signals, raise them after
 _handler_calls = 0                           # calls of the handler so far (deferring or raising)
@@ -147,7 +166,7 @@ def _follow(rfd: int, main_ident: int, generation: int) -> None:
             return
         if not data or generation != _generation:
             return                                              # the block ended: the write end is closed
-        sigs = [b for b in data if b in (signal.SIGINT, signal.SIGTERM)]
+        sigs = [b for b in data if b in SIGNALS]
         if not sigs:
             continue
         t_arrived = time.monotonic()
@@ -183,7 +202,7 @@ def _handler(signum, frame) -> None:
         return
     _pending = None
     _received = signum
-    raise Terminated() if signum == signal.SIGTERM else KeyboardInterrupt()
+    raise as_exception(signum)
 
 
 @contextmanager
@@ -195,9 +214,9 @@ def handled():
     if threading.current_thread() is not threading.main_thread():
         yield
         return
-    old = {s: signal.getsignal(s) for s in (signal.SIGINT, signal.SIGTERM)}
+    old = {s: signal.getsignal(s) for s in SIGNALS}
     for s, h in old.items():
-        if not (s == signal.SIGINT and h == signal.SIG_IGN):
+        if not (s in _RESPECT_IGNORED and h == signal.SIG_IGN):
             signal.signal(s, _handler)
     _received = None
     _written.clear()

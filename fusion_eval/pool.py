@@ -42,6 +42,8 @@ class Inline:
 def _worker_dispositions() -> None:
     signal.signal(signal.SIGINT, signal.SIG_IGN)
     signal.signal(signal.SIGTERM, signal.SIG_DFL)
+    if hasattr(signal, "SIGHUP"):        # the terminal's hang-up is the parent's to handle, as Ctrl-C is
+        signal.signal(signal.SIGHUP, signal.SIG_IGN)
 
 
 def worker_init(preload: tuple[str, ...] = (), parent: int | None = None, console=None) -> None:
@@ -85,7 +87,7 @@ def worker_init(preload: tuple[str, ...] = (), parent: int | None = None, consol
 # by CPython ("Exception ignored in: _after_fork_in_parent"), and the run went on to exit 0 after a SIGTERM (seen
 # in CI). So the pools fork inside :func:`signals_held`, which also defers the command's handler
 # (interrupts.deferred): a signal sent meanwhile is raised when the hold ends, in ordinary code.
-_FORK_SIGNALS = {signal.SIGINT, signal.SIGTERM}
+_FORK_SIGNALS = {signal.SIGINT, signal.SIGTERM, *([signal.SIGHUP] if hasattr(signal, "SIGHUP") else [])}
 _fork_mask: list = []
 
 
