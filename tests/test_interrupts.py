@@ -147,6 +147,23 @@ def test_ctrl_c_on_a_sweep_records_every_finished_run_and_says_how_to_resume(war
 
 
 @pytest.mark.slow
+def test_ctrl_c_on_a_batched_sweep_counts_the_records_its_batch_wrote(warm_cli, tmp_path):
+    """In one batch on one process the records are written as each run ends, but were counted as the batch came
+    back: interrupted after 2-4 of 5, it said '1 of 5 runs are recorded' (an interruption review)."""
+    import re
+
+    ds, grid = _sweep_setup(tmp_path, 8)
+    grid.write_text("settings:\n" + "".join(f"  s{i}: {{imu.gyro_noise_dps_sqrthz: {0.002 * (i + 1)}}}\n" for i in range(8)))
+    out = tmp_path / "sw"
+    p = _start(["sweep", str(ds), "--grid", str(grid), "--out", str(out), "--jobs", "1"], tmp_path)
+    assert wait_for(lambda: len(list((out / "records").glob("*.json"))) >= 3, 300), p.communicate()
+    os.kill(p.pid, signal.SIGINT)
+    _, err = p.communicate(timeout=60)
+    said = re.search(r"(\d+) of 9 runs are recorded", err)
+    assert p.returncode == 130 and said and int(said.group(1)) == len(_records(out)) >= 3, err
+
+
+@pytest.mark.slow
 def test_sigkill_at_random_moments_loses_no_finished_run(tmp_path):
     import random
 

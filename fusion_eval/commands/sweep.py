@@ -477,9 +477,16 @@ def execute(tasks: list[Task], out_dir: Path, jobs: int | None, scheduler: str |
             progress(n_ok, n_fail, total - n_ok - n_fail, skipped)
 
     def interrupted(exc: KeyboardInterrupt) -> KeyboardInterrupt:
-        """The same interrupt (Ctrl-C or SIGTERM), saying what is kept and how to resume."""
-        return type(exc)(f"{n_ok + n_fail + skipped} of {total + skipped} runs are recorded in {out_dir}/records; run the "
-                         f"same command again to do the {total - n_ok - n_fail} left (finished runs are not redone)")
+        """The same interrupt (Ctrl-C or SIGTERM), saying what is kept and how to resume: the records on disk, which
+        the workers write as each run ends (counted as batches came back, a five-run batch interrupted after four
+        said '1 of 5 runs are recorded'; an interruption review)."""
+        try:
+            now = read_records(out_dir)
+        except (OSError, ValueError):
+            now = {}
+        kept = max(n_ok + n_fail + skipped, sum(t in now for t in unique))
+        return type(exc)(f"{kept} of {len(unique)} runs are recorded in {out_dir}/records; run the same command again "
+                         f"to do the {len(unique) - kept} left (finished runs are not redone)")
 
     work = batches(todo, jobs) if batch else [[t] for t in todo]
     shared = [w for w in work if len(w) > 1]
