@@ -267,6 +267,9 @@ def prepare(ds: Dataset, cfg: dict) -> Prepared:
         misread = ds.description.get("misread_poses")        # orientations misread match no gyro at any shift
         if misread:
             raise ShiftAtSearchEdgeError(f"{exc}; the likely cause: the {misread[0]}") from None
+        backwards = plausible.gyro_turns_backwards(ds.imu, ds.groundtruth)
+        if backwards:                                           # nor does a gyro of a flipped axis
+            raise ShiftAtSearchEdgeError(f"{exc}; the likely cause: {backwards}") from None
         raise
     more_warnings += timing_applied.pop("time_warnings", [])
     applied.update(timing_applied)
@@ -275,7 +278,8 @@ def prepare(ds: Dataset, cfg: dict) -> Prepared:
     placeholder = plausible.truth_orientation_placeholder(gt)
     if placeholder:
         applied["truth_orientation_placeholder"] = True     # no attitude figure against it means anything
-    more_warnings += filter(None, [placeholder, plausible.gyro_scale(imu, gt)])
+    more_warnings += filter(None, [placeholder, plausible.gyro_scale(imu, gt),
+                                   plausible.gyro_turns_backwards(imu, gt)])
     if len(gt) < 2 or gt.t_s[-1] <= imu.t_s[0] or gt.t_s[0] >= imu.t_s[-1]:
         raise DataRangeError(f"IMU ({ds.imu.source}, {imu.t_s[0]:.3f}..{imu.t_s[-1]:.3f} s after imu.time_offset_s = "
                              f"{applied['time_offset_s']['imu']:g} s) and ground truth ({gt.source}, "

@@ -535,3 +535,22 @@ def test_lidar_positions_in_another_unit_or_without_scale_are_named(factor, need
     assert needle in said and f"{factor:.3g}x as far as the GNSS's" in said and str(lid.source) in said
     m = fe.run(replace(drive, lidar=scaled)).metrics
     assert any(needle in w for w in m["preprocessing"]["data_warnings"])
+
+
+def test_a_gyro_axis_of_the_wrong_sign_is_named_and_an_frd_imu_is_left_to_its_own_check():
+    """A gyro z of the wrong sign ran to 18.5 m against 0.62, its first warning blaming the lidar's clock (an
+    implausible-data review): its turns about up oppose the truth's. An IMU in FRD (accelerometer and gyro turned
+    together) opposes them too, but its up disagrees with the truth's, which another check says."""
+    drive = fe.load_dataset(None)
+    imu, gt = drive.imu, drive.groundtruth
+    assert plausible.gyro_turns_backwards(imu, gt) == ""
+    flipped = replace(imu, w_b_rps=imu.w_b_rps * [1.0, 1.0, -1.0])
+    said = plausible.gyro_turns_backwards(flipped, gt)
+    assert "the gyro turns the other way about up" in said and "100% of the" in said and str(imu.source) in said
+    frd = replace(imu, w_b_rps=imu.w_b_rps * [1.0, -1.0, -1.0], f_b_mps2=imu.f_b_mps2 * [1.0, -1.0, -1.0])
+    assert plausible.gyro_turns_backwards(frd, gt) == ""
+    m = fe.run(replace(drive, imu=flipped), overrides={"imu": {"gyro_lag_s": 0.0}}).metrics
+    assert any("turns the other way about up" in w for w in m["preprocessing"]["data_warnings"])
+    # where the gyro's lag is estimated, the search meets no fit and names this as the likely cause
+    with pytest.raises(FusionEvalError, match="the likely cause: .*the gyro turns the other way about up"):
+        fe.run(replace(drive, imu=flipped))

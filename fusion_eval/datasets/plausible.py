@@ -1251,3 +1251,55 @@ def pose_scale(name: str, poses, refs: dict) -> str:
         return (f"{name} ({poses.source}): its positions move {ratio:.3g}x as far as the {what}'s over the same "
                 f"{SCALE_WINDOW_S:g} s windows (median of {int(moving.sum())}): {unit} The filter takes them as metres")
     return ""
+
+
+# A gyro that turns the other way about up than the platform's poses: one axis's sign flipped (a left-handed IMU
+# frame), or a frame whose gyro and accelerometer disagree. Up is the accelerometer's mean direction (a ground
+# vehicle's mean specific force is gravity's reaction); the poses' turns over the same 0.5 s intervals, in their body
+# frame (the IMU's), along it. Said where the two turn opposite ways on more than this share of the intervals where
+# the poses turn faster than MIN_TRUTH_TURN_RPS (the KITTI drives: none; a gyro z of the wrong sign: all).
+OPPOSITE_TURN_SHARE, TURN_BASELINE_S, MIN_TURN_INTERVALS = 0.8, 0.5, 30
+
+
+def gyro_turns_backwards(imu, poses) -> str:
+    """Why the gyro's rate about up has the opposite sign to the poses' (``poses``: the ground truth, whose world is
+    z-up), or ''. A gyro z of the wrong sign ran to 18.5 m against 0.62, its first warning blaming the lidar's clock
+    by 49 ms (an implausible-data review). Only where the accelerometer's up agrees with the poses' (their world z in
+    their body frame): an IMU mounted otherwise than the poses' body (FRD against FLU) turns the other way too, and
+    is said by its own check (:func:`gravity_against_attitude`)."""
+    from ..so3 import log_so3
+
+    if poses is None or len(poses) < 20 or len(imu.t_s) < 100 or truth_orientation_placeholder(poses):
+        return ""
+    keep = _real(poses)
+    t, R = np.asarray(poses.t_s, float)[keep], np.asarray(poses.R_wb())[keep]
+    ti, w, f = (np.asarray(x, float) for x in (imu.t_s, imu.w_b_rps, imu.f_b_mps2))
+    if t.size < 20 or np.any(np.diff(t) <= 0) or np.any(np.diff(ti) <= 0):
+        return ""
+    up = np.median(f, axis=0)
+    if not np.linalg.norm(up) > 5.0:                    # no gravity to tell up by (units: said by their own checks)
+        return ""
+    up = up / np.linalg.norm(up)
+    if float(np.median(R[:, 2, :] @ up)) < np.cos(np.radians(45.0)):    # R_wb^T e_z: the poses' up in their body
+        return ""
+    k = _stride(t, TURN_BASELINE_S)
+    if t.size <= k + MIN_TURN_INTERVALS:
+        return ""
+    ta, tb = t[:-k], t[k:]
+    inside = (ta >= ti[0]) & (tb <= ti[-1])
+    dt = tb - ta
+    turn = log_so3(np.einsum("nji,njk->nik", R[:-k], R[k:])) @ up / dt           # the poses' body-frame rate about up
+    dti = np.diff(ti)
+    cum = np.concatenate([[0.0], np.cumsum(0.5 * (w[1:] + w[:-1]) @ up * dti)])
+    gyro = (np.interp(tb, ti, cum) - np.interp(ta, ti, cum)) / dt
+    turning = inside & (np.abs(turn) > MIN_TRUTH_TURN_RPS) & (np.abs(gyro) > MIN_TRUTH_TURN_RPS)
+    if turning.sum() < MIN_TURN_INTERVALS:
+        return ""
+    opposite = float(np.mean(np.sign(turn[turning]) != np.sign(gyro[turning])))
+    if opposite <= OPPOSITE_TURN_SHARE:
+        return ""
+    return (f"{imu.source}: the gyro turns the other way about up than the ground truth ({poses.source}) on "
+            f"{opposite:.0%} of the "
+            f"{int(turning.sum())} intervals where both turn (up: the accelerometer's mean direction, body axes "
+            f"{up[0]:+.2f}, {up[1]:+.2f}, {up[2]:+.2f}): a gyro axis of the wrong sign (a left-handed frame: y for -y, "
+            "z for -z), or a gyro and an accelerometer in different frames; the filter integrates the turns backwards")
