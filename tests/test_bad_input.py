@@ -1195,6 +1195,8 @@ def test_imu_units_that_read_as_plausible_numbers_are_flagged():
     assert imu_units(imu(np.degrees(w), f), "aerial", False) == []      # a drone may spin that fast
     assert "gravity removed" in imu_units(imu(w, f - [0, 0, 9.81]), None, False)[0]
     assert "in g?" in imu_units(imu(w, f / 9.81), None, False)[0]
+    # a thousandth of gravity's magnitude is a unit, not gravity removed (an implausible-data review)
+    assert "gravity's magnitude times 1e-3" in imu_units(imu(w, f * 1e-3), None, False)[0]
     # the other way: m/s^2 declared as g (96 m/s^2 dead-reckoned 278 km with no word on the IMU), or another unit
     assert "values in m/s^2 read as g?" in imu_units(imu(w, f * 9.81), None, False)[0]
     assert "another unit (mg" in imu_units(imu(w, f * 1000 / 9.81), None, False)[0]

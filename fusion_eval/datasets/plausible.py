@@ -254,8 +254,14 @@ def imu_units(imu, platform: str | None, wheeled: bool) -> list[str]:
         out.append(f"imu: angular rate {w99:.3g} rad/s (99th percentile) for {who}: a gyro in deg/s read as rad/s? "
                    f"({imu.source}; a CSV stream's gyro_unit, a bag driver's units)")
     if f50 < MIN_SPECIFIC_FORCE_MPS2:
+        # gravity's magnitude times a power of ten (1e-3: 9.9e-3 m/s^2 was called 'gravity removed?'; a review);
+        # from 1e-3 on: a vehicle's free acceleration has a median of 0.1-1.3 m/s^2 (kitti-00's: 1.2), never 0.01
+        k = round(-np.log10(max(f50, 1e-300) / 9.81))
+        scaled = 3 <= k <= 6 and abs(f50 * 10.0 ** k / 9.81 - 1.0) < 0.15
         out.append(f"imu: specific force {f50:.3g} m/s^2 (median) where gravity alone gives 9.8: "
                    + ("in g? (a CSV stream's accel_unit)" if 0.85 < f50 < MAX_SPECIFIC_FORCE_G else
+                      f"gravity's magnitude times 1e-{k}: a unit declared or converted wrong (values scaled by 1e-{k})?"
+                      if scaled else
                       "gravity removed (a driver's 'free' or linear acceleration)? The filter needs the specific force, "
                       "gravity included")
                    + f" ({imu.source})")
