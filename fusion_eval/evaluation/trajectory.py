@@ -257,7 +257,10 @@ def _evo_labelled(alignment: str, n_to_align: int, params: dict | None):
     sim3 = _sim3_of(params) if alignment in ("se3", "sim3", "scale", "origin") else None
 
     def label(res):
-        res.info["title"] = res.info["title"].split("\n")[0] + suffix
+        # the alignment's line replaced, the metric's kept: RPE's "for delta = 100.0 (m) using consecutive pairs"
+        # went with it, and evo_res tabled the 1-frame and 100 m results under one title with no word (a review)
+        kept = [ln for ln in res.info["title"].split("\n") if not ln.startswith("(")]
+        res.info["title"] = "\n".join(kept) + suffix
         if sim3 is not None:
             res.add_np_array("alignment_transformation_sim3", sim3)
         return res
