@@ -620,6 +620,8 @@ def check(ctx, metrics_path, baseline, rtol, atol, patterns, rules, junit_path, 
         click.echo("check: PASS" if res.ok else "check: FAIL (regression, missing or invalid metric, or failed rule)")
         sys.exit(0 if res.ok else 1)
     w = max(len(r.metric) for r in res.rows)
+    if res.values:
+        click.echo(f"values: {res.values}")
     click.echo(f"{'metric':<{w}}  {'baseline':>12}  {'current':>12}  {'change':>10}  verdict")
     for r in res.rows:
         b = "" if r.baseline is None else f"{r.baseline:.6g}"

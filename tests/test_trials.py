@@ -58,6 +58,9 @@ def test_run_with_trials_summarises_every_metric_and_check_gates_on_the_mean(kit
     rows = list(csv.DictReader((out / "trials.csv").read_text().splitlines()))
     assert [int(x["trial"]) for x in rows] == [0, 1, 2]
     assert "## Monte-Carlo trials" in (out / "report.md").read_text()
+    # the tables of metrics.tex and metrics.csv are trial 0's, and say so (they gave one seed with no word; a review)
+    assert "Trial 0 of 3 Monte-Carlo trials (one seed" in (out / "metrics.tex").read_text()
+    assert {(r["trial"], r["trials"]) for r in csv.DictReader((out / "metrics.csv").read_text().splitlines())} == {("0", "3")}
     # check compares the mean over trials (or trial 0's own value with --trial-stat none)
     base = tmp_path / "base.json"
     base.write_text(json.dumps({**m, "trials": None}))
@@ -65,8 +68,15 @@ def test_run_with_trials_summarises_every_metric_and_check_gates_on_the_mean(kit
     r = CliRunner().invoke(main, ["check", str(out / "metrics.json"), "-b", str(base), "-m", "fused.ape.*", "--require", mean_rule,
                                   "--rtol", "1"])
     assert r.exit_code == 0 and "holds" in r.output, r.output
+    # and says so, in its console, check.md and JUnit file (they gave the mean under the plain path with no word)
+    said = "the mean over each file's Monte-Carlo trials (metrics: 3 trials; baseline: one run)"
+    assert said in r.output and said in (out / "check.md").read_text()
+    r = CliRunner().invoke(main, ["check", str(out / "metrics.json"), "-b", str(base), "-m", "fused.ape.*", "--require", mean_rule,
+                                  "--rtol", "1", "--junit", str(tmp_path / "j.xml")])
+    assert said in (tmp_path / "j.xml").read_text()
     r = CliRunner().invoke(main, ["check", str(out / "metrics.json"), "-b", str(base), "-m", "fused.ape.*", "--require", mean_rule,
                                   "--trial-stat", "none", "--rtol", "1"])
+    assert "Values:" not in (out / "check.md").read_text()
     assert r.exit_code == 1 and "FAILS" in r.output
 
 

@@ -304,9 +304,11 @@ def evaluate_rule(rule: str, metrics: dict) -> tuple[bool, str]:
     return _OPS[op](va, vb), f"{a} ({va:.6g}) {op} {b} ({vb:.6g})"
 
 
-def markdown(rows: list[Row], rules: list[tuple[str, bool, str]], rtol, atol, ok: bool) -> str:
+def markdown(rows: list[Row], rules: list[tuple[str, bool, str]], rtol, atol, ok: bool, values: str = "") -> str:
     rtol, atol = _tolerance("--rtol", rtol), _tolerance("--atol", atol)
     L = [f"# fusion-eval check: {'PASS' if ok else 'FAIL'}", "", f"Tolerance: rtol {rtol}; atol {atol} (lower is better).", ""]
+    if values:
+        L += [f"Values: {values}.", ""]
     L += md_table(["metric", "baseline", "current", "change", "verdict"],
                   [[f"`{r.metric}`", _v(r.baseline), _v(r.current) or r.raw, r.change, r.verdict] for r in rows], align="lrrrl")
     if rules:
@@ -319,10 +321,13 @@ def _v(x):
     return "" if x is None else f"{x:.6g}"
 
 
-def junit(rows: list[Row], rules: list[tuple[str, bool, str]]) -> str:
+def junit(rows: list[Row], rules: list[tuple[str, bool, str]], values: str = "") -> str:
     """JUnit XML (one test case per compared metric and per rule; a regression or a failing rule is a failure),
-    built with :mod:`xml.etree` so that any metric name or message is escaped as XML requires."""
+    built with :mod:`xml.etree` so that any metric name or message is escaped as XML requires; ``values``: what the
+    figures are (a statistic over Monte-Carlo trials), as a property."""
     suite = ET.Element("testsuite", name="fusion-eval check")
+    if values:
+        ET.SubElement(ET.SubElement(suite, "properties"), "property", name="values", value=values)
     fails = 0
     for r in rows:
         case = ET.SubElement(suite, "testcase", classname="fusion-eval.metrics", name=r.metric)
@@ -347,6 +352,7 @@ class CheckResult:
     rows: list[Row]
     rules: list[tuple[str, bool, str]]
     ok: bool
+    values: str = ""          # what the figures are, where not each file's own (a statistic over its trials)
 
 
 def check(metrics_path: Path, baseline: Path, rtol=0.05, atol=0.0, patterns: tuple[str, ...] = (),
@@ -439,7 +445,14 @@ def _check(metrics_path, baseline, rtol, atol, patterns, rules, junit_path, summ
             # NaN, inf, null or "0.75" in the current file read as MISSING, with a blank value (a review)
             r.verdict, r.raw = "INVALID", shown(raw_current[r.metric])
     ok = all(r.verdict not in FAILING for r in rows) and all(h for _, h, _ in evaluated)
-    text = markdown(rows, evaluated, rtol, atol, ok)
+    # a trial statistic stood under each plain metric path with no word in check.md or the JUnit file (the mean of 3
+    # trials, 0.788, beside the file's own 0.753; a cross-command review)
+    n_tr = [t.get("n") if isinstance(t, dict) else None for t in (_json_field(p, "trials") for p in (metrics_path, base_path))]
+    values = "" if trial_stat is None or not any(n_tr) else (
+        f"the {trial_stat} over each file's Monte-Carlo trials ("
+        + "; ".join(f"{w}: {f'{n} trials' if n else 'one run'}" for w, n in zip(("metrics", "baseline"), n_tr))
+        + "), --trial-stat; 'none' compares trial 0's own figures")
+    text = markdown(rows, evaluated, rtol, atol, ok, values)
     if summary_path is not None:
         atomic_write(summary_path, text)
     else:
@@ -450,8 +463,8 @@ def _check(metrics_path, baseline, rtol, atol, patterns, rules, junit_path, summ
             # failure-injection review); the verdict stands, the summary is said to be missing
             log.warning("no check.md written (%s); give --summary PATH for one", exc)
     if junit_path:
-        atomic_write(junit_path, junit(rows, evaluated))
-    return CheckResult(rows, evaluated, ok)
+        atomic_write(junit_path, junit(rows, evaluated, values))
+    return CheckResult(rows, evaluated, ok, values)
 
 
 # the figures that cannot be negative (APE, RPE and drift statistics, ratios of errors; not a log-likelihood) and an upper bound no real

@@ -105,7 +105,7 @@ def write_evaluation(out: StagedDir, res, plots_written: list[str], pool=None, a
     for ev in res.evals.values():
         for name, data in ev.zips.items():
             out.write_bytes(name, data)
-    out.write_text("metrics.csv", files.metrics_csv(res.evals, res.ratios))
+    out.write_text("metrics.csv", files.metrics_csv(res.evals, res.ratios, (res.metrics.get("trials") or {}).get("n")))
     out.write_text("metrics.tex", metrics_tex(res.dataset, res.evals, res.cfg, res.metrics))
     if res.metrics.get("trials"):
         from ..tables import csv_text

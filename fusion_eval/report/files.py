@@ -83,7 +83,9 @@ def finite_or_null(obj):
     return obj
 
 
-def metrics_csv(evals: dict[str, EstimateEvaluation], ratios: dict) -> str:
+def metrics_csv(evals: dict[str, EstimateEvaluation], ratios: dict, n_trials: int | None = None) -> str:
+    """``metrics.csv``: one row per estimate; with ``n_trials`` (``--trials``) the rows are trial 0's, which the
+    columns ``trial`` and ``trials`` say (the file gave one seed's figures with no word of it; a review)."""
     groups = []
     for ev in evals.values():
         for g, d in ev.metrics.items():
@@ -91,11 +93,12 @@ def metrics_csv(evals: dict[str, EstimateEvaluation], ratios: dict) -> str:
                 if (g, rel) not in groups:
                     groups.append((g, rel))
     cols = ["estimate", "poses", "matched_poses"] + [f"{g}_{rel}_{s}" for g, rel in groups for s in STATS] + \
-        ["fused_over_this_ape_rmse"]
+        ["fused_over_this_ape_rmse"] + (["trial", "trials"] if n_trials else [])
     rows = []
     for name, ev in evals.items():
         row = {"estimate": name, "poses": ev.poses, "matched_poses": ev.matched_poses,
-               "fused_over_this_ape_rmse": ratios.get(f"fused_over_{name}")}
+               "fused_over_this_ape_rmse": ratios.get(f"fused_over_{name}"),
+               **({"trial": 0, "trials": n_trials} if n_trials else {})}
         for g, rel in groups:
             d = (ev.metrics.get(g) or {}).get(rel)
             for s in STATS:

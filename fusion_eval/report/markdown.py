@@ -284,12 +284,16 @@ def metrics_tex(dataset: str, evals: dict, cfg: dict, metrics: dict) -> str:
     from ..tables import latex, latex_document
 
     name = dataset.replace("/", "-")
+    # with --trials the tables are trial 0's, one seed: said in the caption (a paper table taken from this file
+    # silently reported one seed where compare.tex gave the mean over the trials; a cross-command review)
+    n = (metrics.get("trials") or {}).get("n")
+    one = f" Trial 0 of {n} Monte-Carlo trials (one seed; the mean and spread over them: trials.csv)." if n else ""
     tabs = [latex(*summary_table(evals, cfg), caption=f"{dataset}: APE and RPE against ground truth (evo, "
-                  f"{keys.alignment_words(cfg['evaluation']['alignment'])}).",
+                  f"{keys.alignment_words(cfg['evaluation']['alignment'])}).{one}",
                   label=f"tab:{name}-metrics")]
     d = drift_table(metrics)
     if d is not None:
-        tabs.append(latex(*d, decimals=[0, 3, 4, 0], caption=f"{dataset}: KITTI drift metric.", label=f"tab:{name}-drift"))
+        tabs.append(latex(*d, decimals=[0, 3, 4, 0], caption=f"{dataset}: KITTI drift metric.{one}", label=f"tab:{name}-drift"))
     return latex_document(tabs, f"fusion-eval run: {dataset}")
 
 
