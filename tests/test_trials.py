@@ -98,6 +98,8 @@ def test_compare_and_sweep_with_trials_report_means(kitti_slice, tmp_path):
         assert row["ape_trans_rmse_m"] == pytest.approx(np.mean(per)) and row["trials"] == 2
     md = (out / "compare.md").read_text()
     assert "Means over 2 Monte-Carlo trials" in md
+    # the per-segment windows are trial 0's, under the means: said (a cross-command review)
+    assert "Trial 0's windows (one seed; the table above gives the means over the 2 trials)" in md
     # a count stays a count in compare.csv (the trials' mean wrote 4405.000000; a review)
     assert all(re.fullmatch(r"\d+", row["matched_poses"])
                for row in csv.DictReader((out / "compare.csv").read_text().splitlines()))

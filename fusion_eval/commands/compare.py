@@ -321,7 +321,9 @@ def _compare(dataset_path: Path | None, variants: list[str], variant_dir: Path |
         md = (_markdown(ds.name, table, truth_body, make_plots, sp, n_trials, warned, ev_cfg["alignment"],
                         list(dict.fromkeys(s for r in runs for s in r.seeded)),
                         (trials_info or {}).get("ranking_note"))
-              + "\n".join(segments_section({"segments": seg})) + "\n")
+              + "\n".join(segments_section({"segments": seg}, note=(
+                  f"Trial 0's windows (one seed; the table above gives the means over the {n_trials} trials)."
+                  if n_trials > 1 else ""))) + "\n")
         out.write_text("compare.md", md)
         out.write_text("compare.tex", _latex(ds.name, table, n_trials, ev_cfg["alignment"]))
         taken: set = set()

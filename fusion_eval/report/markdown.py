@@ -111,7 +111,9 @@ def consistency_section(m: dict) -> list[str]:
     return L
 
 
-def segments_section(m: dict) -> list[str]:
+def segments_section(m: dict, note: str = "") -> list[str]:
+    """The per-segment breakdown; ``note``: whose figures they are where the tables above are not (compare's trial
+    0 under a summary of means over its trials)."""
     seg = m.get("segments")
     if not seg or not seg["segments"]:
         return []
@@ -134,7 +136,8 @@ def segments_section(m: dict) -> list[str]:
         diff = [] if not b else ["n/a" if r.get(a) is None or r.get(b) is None else f"{r[a] - r[b]:+.3f}"]
         rows.append([s["index"], f"{s['start_m']:.0f}-{s['end_m']:.0f}", f"{s['start_s']:.0f}-{s['end_s']:.0f}",
                      *[r.get(n) for n in names], *([_hv(s, a)] if split else []), *diff])
-    L = ["", f"## Per-segment breakdown (every {seg['length']:g} {unit} along the route)", ""] + markdown(
+    L = ["", f"## Per-segment breakdown (every {seg['length']:g} {unit} along the route)", ""] + (
+        [note, ""] if note else []) + markdown(
         header, rows, align="lll" + "r" * (len(header) - 3))
     by_i = {s["index"]: s for s in seg["segments"]}
     if seg["worst"]:         # none ranked: a track shorter than one window leaves only its unranked stub
