@@ -53,6 +53,11 @@ def test_the_sweep_summary_and_the_compare_report_carry_it(kitti_slice, tmp_path
     assert "2 runs done" in r.output and "3 settings in sweep.md, 1 of them the same configuration as another" in r.output
     md = (tmp_path / "sw" / "sweep.md").read_text()
     assert "The best leads the next by" in md
+    # the next is the setting that ran something else, not the default's run under another name (it 'led by 0 %')
+    import re
+
+    lead = float(re.search(r"The best leads the next by ([0-9.]+) %", md).group(1))
+    assert lead > 0.0, md
     # each setting's consistency and the lidar noise's adaptation are columns (a student's review: the adaptation
     # undid a swept noise, and an overconfident setting ranked first, with no word)
     assert "NEES pos (3 dof)" in md and "lidar noise x pos / att" in md and "lidar.noise_adapt: none" in md

@@ -325,8 +325,13 @@ def write_summary(tasks: list[Task], out_dir: Path, keys: list[str], plots: bool
             best["caveat"] = caveat
         streams = list(dict.fromkeys(s for r in recs.values() if r.get("status") == "ok"
                                      for s in seeded_streams(r.get("metrics") or {})))
-        note = one_draw_note(bm, ranked[1][1], n_trials, "The best leads the next by", streams=streams) \
-            if len(ranked) > 1 else None
+        # the next configuration that ran something else: a setting equal to the default (or to another) shares
+        # its runs, and the best 'led the next by 0 %', itself (a cross-command consistency review)
+        runs = {}
+        for t in tasks:
+            runs.setdefault((t.variant, t.setting), set()).add(t.id)
+        nxt = next((m for key, m in ranked[1:] if runs.get(key) != runs.get((bv, bs))), None)
+        note = one_draw_note(bm, nxt, n_trials, "The best leads the next by", streams=streams) if nxt is not None else None
         if note:
             L += [note, ""]
             best["note"] = note
