@@ -739,7 +739,7 @@ def test_a_sweep_ranks_by_the_objective_it_is_given(small, tmp_path):
     for ln in (ln for ln in md.splitlines() if re.match(r"\|\s+\d+ \| eskf", ln)):
         cells = dict(zip(names, (c.strip() for c in ln.strip("|").split("|"))))
         row = rows[cells["setting"]]
-        assert float(cells["APE trans RMSE [m]"]) == pytest.approx(float(row["fused_ape_trans_rmse_m"]), abs=6e-4)
+        assert float(cells["fused APE trans RMSE [m]"]) == pytest.approx(float(row["fused_ape_trans_rmse_m"]), abs=6e-4)
         assert float(cells["std [m]"]) == pytest.approx(float(row["fused_ape_trans_rmse_m_std"]), abs=6e-4)
         assert float(cells["APE rot RMSE [deg]"]) == pytest.approx(float(row["fused_ape_rot_rmse_deg"]), abs=6e-4)
     r = CliRunner().invoke(main, ["-q", "sweep", str(small), "--grid", str(sw), "--out", str(tmp_path / "t"),

@@ -262,7 +262,7 @@ def write_summary(tasks: list[Task], out_dir: Path, keys: list[str], plots: bool
         adapted = [k for k in dict.fromkeys(c[:-len("_noise_pos_x")] for r in sub for c in r
                                             if c.endswith("_noise_pos_x") and r[c] is not None)]
         L += [f"## {dataset_label(ds)}", "", f"`{ds}`. " + _span_note(sub), ""] + markdown(
-            ["rank", "variant", "setting", *own, *(["std"] if sd and own else []), "APE trans RMSE [m]",
+            ["rank", "variant", "setting", *own, *(["std"] if sd and own else []), "fused APE trans RMSE [m]",
              *(["std [m]"] if sd and not own else []), "APE rot RMSE [deg]", "RPE 1 frame [m]", "fused/lidar",
              "fused/GNSS", *(["NEES pos (3 dof)"] if nees else []), *(f"{k} noise x pos / att" for k in adapted),
              "time [s]"],
@@ -285,7 +285,7 @@ def write_summary(tasks: list[Task], out_dir: Path, keys: list[str], plots: bool
         avg.setdefault((r["variant"], r["setting"]), []).append(r[metric])
     full = {k: float(np.mean(v)) for k, v in avg.items() if len(v) == len(datasets)}
     ranked = sorted(full.items(), key=lambda kv: kv[1])
-    mean_label = "mean APE trans RMSE [m]" if rank.is_default else f"mean {rank.objective.name}"
+    mean_label = "mean fused APE trans RMSE [m]" if rank.is_default else f"mean {rank.objective.name}"
     if len(datasets) > 1:
         L += ["## Averaged across datasets", ""] + markdown(
             ["rank", "variant", "setting", mean_label],
