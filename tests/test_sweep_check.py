@@ -196,6 +196,12 @@ def test_check_accepts_a_sweep_csv(tmp_path):
     (tmp_path / "ct.csv").write_text(tcols + "0,x,d,eskf,default,1.5,0.5,0.1,ok,\n1,x,d,eskf,default,1.1,0.5,0.1,ok,\n")
     r = CliRunner().invoke(main, ["check", str(tmp_path / "ct.csv"), "--baseline", str(tmp_path / "bt.csv")])
     assert r.exit_code == 1 and "d/eskf/default#trial0.fused_ape_trans_rmse_m" in r.output, r.output
+    # a swept setting's column is an input, not a figure: -m '*' gated it as if lower were better (a review)
+    scols = "id,dataset,variant,setting,imu.gyro_noise_scale,fused_ape_trans_rmse_m,status,error\n"
+    (tmp_path / "bs.csv").write_text(scols + "x,d,eskf,s1,1.0,1.0,ok,\n")
+    (tmp_path / "cs.csv").write_text(scols + "x,d,eskf,s1,2.0,1.0,ok,\n")
+    r = CliRunner().invoke(main, ["check", str(tmp_path / "cs.csv"), "--baseline", str(tmp_path / "bs.csv"), "-m", "*"])
+    assert r.exit_code == 0 and "gyro_noise_scale" not in r.output and "fused_ape_trans_rmse_m" in r.output, r.output
 
 
 def test_check_gives_its_verdict_where_its_summary_cannot_be_written_beside_the_metrics(tmp_path):

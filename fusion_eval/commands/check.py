@@ -117,6 +117,11 @@ def _flat_csv(path: Path) -> dict[str, float]:
     paths_of: dict[str, set] = {}
     for r in rows:
         paths_of.setdefault(dataset_label(r["dataset"]), set()).add(r["dataset"])
+    # the swept settings' columns (configuration keys: imu.gyro_noise_scale, ...) are inputs, not figures: -m '*'
+    # gated one as if lower were better (a cross-command consistency review)
+    from ..config import schema
+
+    settings = set(schema())
     out = Metrics()
     seen: dict[tuple, int] = {}
     for i, r in enumerate(rows, start=2):
@@ -136,7 +141,7 @@ def _flat_csv(path: Path) -> dict[str, float]:
         tail = f"{r.get('variant', '')}/{r['setting']}" + (f"#trial{trial}" if trial not in ("", None, "mean") else "")
         key = f"{name if len(paths_of[name]) == 1 else r['dataset']}/{tail}"
         for c, v in r.items():
-            if c in ("id", "dataset", "variant", "setting", "status", "error", "trial") or v in ("", None):
+            if c in ("id", "dataset", "variant", "setting", "status", "error", "trial") or c in settings or v in ("", None):
                 continue
             try:
                 out[f"{key}.{c}"] = float(v)
