@@ -131,6 +131,7 @@ def without_provenance(text: bytes) -> bytes:
     import re
 
     text = re.sub(rb"fusion-eval \S+ (?:\(code \w+\) )?[^\n]* UTC: `[^\n]*`", b"<header>", text)
+    text = re.sub(rb'\n *"(?:date|command)": "[^\n]*",?(?=\n)', b"", text)       # metrics.json's provenance
     return re.sub(rb'<div class="meta">[^\n]*</div>', b"<header>", text)
 
 

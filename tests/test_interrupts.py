@@ -24,8 +24,10 @@ CLI = [sys.executable, "-m", "fusion_eval"]
 
 def _default_sigint() -> None:
     # a terminal's foreground command gets Ctrl-C with SIGINT's default disposition; a test run in a background job
-    # of a non-interactive shell (a CI runner) inherits SIGINT as ignored, which the CLI respects, as POSIX tools do
+    # of a non-interactive shell (a CI runner) inherits SIGINT as ignored, which the CLI respects, as POSIX tools do;
+    # likewise SIGHUP under nohup (a CI runner's: the run went on to exit 0)
     signal.signal(signal.SIGINT, signal.SIG_DFL)
+    signal.signal(signal.SIGHUP, signal.SIG_DFL)
 
 
 def _start(args: list[str], cwd: Path, env: dict | None = None) -> subprocess.Popen:
