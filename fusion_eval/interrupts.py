@@ -133,6 +133,15 @@ def received() -> int | None:
     return _received
 
 
+def reraise_if_received() -> None:
+    """For a handler that takes any error as one job's failure (a sweep's run, a tune's trial): a signal raised in
+    this block comes out of numba's compiled code as another error ("SystemError: CPUDispatcher(...) returned a
+    result with an exception set"), which was recorded as the run's failure while the sweep went on (a clean-clone
+    CI run caught it); it is raised again as the interruption it is."""
+    if _received is not None:
+        raise as_exception(_received) from None
+
+
 def _in_llvmlite(frame) -> bool:
     # only a package already imported can be on the stack; importing llvmlite here would slow every command's start
     m = sys.modules.get("llvmlite")

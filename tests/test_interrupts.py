@@ -633,3 +633,30 @@ def test_sigterm_to_simulates_group_while_its_workers_write_packets_ends_it(tmp_
         assert p.returncode == 143 and "Traceback" not in err, err
         assert err.strip().splitlines()[-1].startswith("terminated") and not out.exists()
         assert _group_gone(p.pid) and not list(tmp_path.glob(f".sim{i}.*")), list(tmp_path.iterdir())
+
+
+def test_a_signal_that_comes_out_of_compiled_code_as_another_error_is_not_a_runs_failure():
+    """A Ctrl-C inside a numba kernel comes out as "SystemError: CPUDispatcher(...) returned a result with an exception
+    set": the sweep recorded it as the run's failure and went on (a clean-clone CI run); a tune's trial likewise."""
+    from types import SimpleNamespace
+
+    from fusion_eval import interrupts
+    from fusion_eval.commands import sweep
+
+    def work():
+        try:
+            os.kill(os.getpid(), signal.SIGTERM)
+            time.sleep(1.0)
+        except KeyboardInterrupt as exc:                  # what numba's dispatcher makes of it
+            raise SystemError("CPUDispatcher(<function _format>) returned a result with an exception set") from exc
+
+    task = SimpleNamespace(id="x", dataset="d", variant="v", setting="s", overrides={}, trial=0)
+    with interrupts.handled():
+        with pytest.raises(interrupts.Terminated):
+            sweep._record(task, work)
+    # outside an interruption the same error is the run's failure, recorded, as before
+    def bug():
+        raise SystemError("a bug")
+    with interrupts.handled():
+        rec = sweep._record(task, bug)
+    assert rec["status"] == "failed" and "SystemError: a bug" in rec["error"]

@@ -45,7 +45,7 @@ from typing import Callable
 
 import numpy as np
 
-from .. import resources, session, yaml_lines
+from .. import interrupts, resources, session, yaml_lines
 from .. import trials as mc
 from ..config import check_value, read_yaml, schema
 from ..errors import ConfigError, FilterDivergedError, FusionEvalError
@@ -345,6 +345,7 @@ def _record(task: Task, work: Callable, extra_s: float = 0.0) -> dict:
     except FusionEvalError as exc:
         rec.update(status="failed", error=str(exc), metrics=None)
     except Exception as exc:  # noqa: BLE001 - a bug in one run must not stop the sweep; its traceback is kept
+        interrupts.reraise_if_received()          # (a Ctrl-C inside compiled code is not the run's failure)
         rec.update(status="failed", error=f"{type(exc).__name__}: {exc}", traceback=traceback.format_exc(), metrics=None)
     rec["runtime_s"] = round(time.perf_counter() - t0 + extra_s, 3)
     return rec
@@ -380,6 +381,7 @@ def run_batch(tasks: list[Task]) -> list[dict]:
                 sh = share(ds, cfgs[0], pool)
             _PREPARED[key] = (ds, sh, pool)
     except Exception:  # noqa: BLE001 - the preparation failed (or a bug): each entry runs alone and says why
+        interrupts.reraise_if_received()
         return [run_task(t) for t in tasks]
     shared_s = (time.perf_counter() - t_load) / len(tasks)
     for task, req, cfg in zip(tasks, reqs, cfgs):

@@ -15,6 +15,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from .. import interrupts
 from ..log_context import prefixed
 from .objectives import Objective, flatten
 
@@ -132,6 +133,7 @@ def _step(job: Job, path: str, seed: int, watch: _NllWatch | None = None) -> dic
     except FusionEvalError as exc:
         rec.update(status="failed", error=str(exc))
     except Exception as exc:  # noqa: BLE001 - a bug in one trial must not end the study; its traceback is kept
+        interrupts.reraise_if_received()          # (a Ctrl-C inside compiled code is not the trial's failure)
         rec.update(status="failed", error=f"{type(exc).__name__}: {exc}", traceback=traceback.format_exc())
     return rec
 
