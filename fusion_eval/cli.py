@@ -168,7 +168,9 @@ def _as_given(path: str) -> str:
     named the hidden staging path, not --out (a corrupted-input review)."""
     import re
 
-    path = re.sub(r"(^|/)([^/]+)/\.\2\.partial-\d+(?=/|$)", r"\1\2", path)      # staged inside a mount point
+    def inside_mount(m):          # staged inside a mount point; --out out/out stages beside, in out/ (a diff review)
+        return m.group(0)[:m.end(2) - m.start(0)] if os.path.ismount(path[:m.end(2)]) else m.group(0)
+    path = re.sub(r"(^|/)([^/]+)/\.\2\.partial-\d+(?=/|$)", inside_mount, path)
     return re.sub(r"(^|/)\.([^/]+)\.partial-\d+(?=/|$)", r"\1\2", path)
 
 
@@ -192,7 +194,22 @@ def entry() -> None:
     # UnicodeEncodeError after the command's work is done
     if sys.stdout is not None and hasattr(sys.stdout, "reconfigure"):
         sys.stdout.reconfigure(errors="surrogateescape")
-    main()
+    try:
+        main()
+    except SystemExit as done:
+        _keep_status()
+        raise
+
+
+def _keep_status() -> None:
+    """The command is over and its exit status decided: a Ctrl-C or a hang-up during the interpreter's exit (the
+    pools' threads joined, numba's caches closed) killed the process by the signal after "wrote ..." was printed, a
+    failure to a script whose command had finished (an interruption review: sweep, track, tune, simulate): they are
+    ignored from here. SIGTERM keeps its default action, as after an interruption: it must still end an exit that
+    hangs (a Python handler would not do: the interpreter gives the default back as it finalizes)."""
+    for sig in (signal.SIGINT, getattr(signal, "SIGHUP", None)):
+        if sig is not None:
+            signal.signal(sig, signal.SIG_IGN)
 
 
 def _interrupted(exc: BaseException) -> None:
@@ -216,7 +233,12 @@ def _interrupted(exc: BaseException) -> None:
     done = interrupts.written()
     said = (exc.args[0] if exc.args else f"after {' and '.join(done)} {'was' if len(done) == 1 else 'were'} written whole"
             if done else "no output directory was written")
-    click.echo(f"\n{what}: {said}", err=True)
+    try:
+        click.echo(f"\n{what}: {said}", err=True)
+    except OSError:
+        # a hung-up terminal takes no more output (EIO): the status still says what ended the command (it exited 1
+        # with a traceback there; a diff review with a pseudo-terminal closed)
+        pass
     sys.exit(129 if isinstance(exc, interrupts.HungUp) else 143 if isinstance(exc, interrupts.Terminated) else 130)
 
 

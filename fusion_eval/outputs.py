@@ -230,7 +230,8 @@ class StagedDir:
         return self._home / _sibling(self.final, tag).name
 
     def _ours(self, p: Path) -> bool:
-        return self._into and p.name.startswith(_sibling(self.final, "").name)
+        # this tool's hidden lock and staging folder inside a mount point, and a fresh ext4 volume's lost+found
+        return self._into and (p.name.startswith(_sibling(self.final, "").name) or p.name == "lost+found")
 
     def _entries(self) -> list[Path]:
         """What the target folder holds, but for this tool's own hidden files inside a mount point."""
@@ -243,7 +244,8 @@ class StagedDir:
             raise OutputError(f"{self.final}: output path exists and is not a directory")
         if self.final.is_dir() and self._entries() and not self.overwrite:
             raise OutputError(f"{self.final}: output directory exists and is not empty (use --overwrite, or overwrite=True in Python, to replace it)")
-        if self.overwrite and _foreign(self.final, OUTPUT_MARKERS):
+        # (an empty mount point holds our lock once we hold it: not a foreign folder; a diff review)
+        if self.overwrite and self.final.is_dir() and self._entries() and _foreign(self.final, OUTPUT_MARKERS):
             # --out DATASET/oxts --overwrite once deleted the IMU packets
             raise OutputError(f"{self.final}: --overwrite replaces only a folder fusion-eval wrote (holding "
                               f"{', '.join(OUTPUT_MARKERS[:-1])}, or a simulated drive's dataset.yaml), and this one "

@@ -132,10 +132,15 @@ def fingerprint(description: dict) -> str:
 
 
 def input_files(description: dict) -> list[dict]:
-    """The input files a dataset's manifest names (its ``streams``, relative to its ``path``), as :func:`files`."""
+    """The manifest itself (its geodetic origin, extrinsics, offsets and platform move the figures: two manifests of
+    one drive that differ in geodetic_origin had the same inputs listed; a diff review) and the input files it names
+    (its ``streams``, relative to its ``path``), as :func:`files`."""
     base = Path(description.get("path") or ".")
     base = base.parent if base.is_file() else base
-    return files([(stream, p) for stream, entry in (description.get("streams") or {}).items() for p in _paths(entry, base)])
+    man = description.get("manifest")
+    own = [("manifest", man)] if man and Path(man).is_file() else []
+    return files(own + [(stream, p) for stream, entry in (description.get("streams") or {}).items()
+                        for p in _paths(entry, base)])
 
 
 def dataset_files(paths) -> list[dict]:

@@ -623,6 +623,16 @@ def test_a_receivers_fixes_far_from_the_oxts_origin_are_refused(tmp_path, edit, 
     _assert_clean_error(r, tmp_path / "o", "gnss.csv: expected fixes near the drive", "km from the local frame's origin", needle)
 
 
+def test_a_receivers_first_fix_skips_a_no_fix_placeholder_row():
+    """A CSV starting with a receiver's no-fix row (0, 0, 0) was refused as 'in radians?' by the origin check (a diff
+    review): the first fix is the first that is one."""
+    from fusion_eval.datasets.gnss_csv import first_valid
+
+    assert first_valid(np.array([[0.0, 0.0, 0.0], [49.0, 8.4, 116.0]])) == (49.0, 8.4, 116.0)
+    assert first_valid(np.array([[np.nan, 8.4, 1.0], [49.0, 8.4, 116.0]])) == (49.0, 8.4, 116.0)
+    assert first_valid(np.array([[0.0, 0.0, 0.0]])) == (0.0, 0.0, 0.0)        # none: the first row, for the check
+
+
 def test_an_oxts_value_error_names_the_packet_file(ds, tmp_path):
     p = ds / "oxts" / "data" / "0000000040.txt"
     vals = p.read_text().split()

@@ -335,12 +335,17 @@ def test_an_output_folder_that_is_a_mount_point_gets_the_results_moved_into_it(t
 
     mount = tmp_path / "vol"
     mount.mkdir()
+    (mount / "lost+found").mkdir()                    # a fresh ext4 volume's: not this tool's, not the user's
     real = os.path.ismount
     monkeypatch.setattr(outputs.os.path, "ismount", lambda p: Path(p) == mount or real(p))
+    with outputs.StagedDir(mount, overwrite=True) as out:   # an empty mount point with --overwrite (CI's habit)
+        out.write_text("report.md", "first")
+    assert sorted(p.name for p in mount.iterdir()) == ["lost+found", "report.md"]
+    (mount / "report.md").unlink()
     with outputs.StagedDir(mount) as out:
         assert out.staging.parent == mount and (mount / ".vol.lock").exists()
         out.write_text("metrics.json", "{}")
-    assert sorted(p.name for p in mount.iterdir()) == ["metrics.json"]     # nothing hidden left inside
+    assert sorted(p.name for p in mount.iterdir()) == ["lost+found", "metrics.json"]     # nothing hidden left inside
     assert not list(tmp_path.glob(".vol.*"))
     with pytest.raises(OutputError, match="exists and is not empty"):
         outputs.StagedDir(mount).check()
@@ -348,10 +353,10 @@ def test_an_output_folder_that_is_a_mount_point_gets_the_results_moved_into_it(t
         with outputs.StagedDir(mount, overwrite=True) as out:
             out.write_text("metrics.json", "new")
             raise KeyboardInterrupt
-    assert sorted(p.name for p in mount.iterdir()) == ["metrics.json"] and (mount / "metrics.json").read_text() == "{}"
+    assert sorted(p.name for p in mount.iterdir()) == ["lost+found", "metrics.json"] and (mount / "metrics.json").read_text() == "{}"
     with outputs.StagedDir(mount, overwrite=True) as out:
         out.write_text("report.md", "new")
-    assert sorted(p.name for p in mount.iterdir()) == ["report.md"]
+    assert sorted(p.name for p in mount.iterdir()) == ["lost+found", "report.md"]
     # a rename the filesystem refuses elsewhere keeps the results in a visible folder, named
     plain = tmp_path / "out"
     monkeypatch.setattr(outputs.os, "replace", _refusing(os.replace, plain))
@@ -660,3 +665,30 @@ def test_a_signal_that_comes_out_of_compiled_code_as_another_error_is_not_a_runs
     with interrupts.handled():
         rec = sweep._record(task, bug)
     assert rec["status"] == "failed" and "SystemError: a bug" in rec["error"]
+
+
+@pytest.mark.slow
+def test_a_terminal_that_hangs_up_ends_the_run_with_129_and_leaves_nothing(warm_cli, tmp_path):
+    """The terminal's hang-up, as a closed ssh session gives it: SIGHUP, and a tty that takes no more output (EIO);
+    the last line's echo raised there and the command exited 1 with a traceback (a diff review)."""
+    import pty
+    import select
+
+    out = tmp_path / "out"
+    pid, fd = pty.fork()
+    if pid == 0:                                                  # the child: the command on the terminal
+        os.chdir(tmp_path)
+        os.execv(sys.executable, [sys.executable, "-m", "fusion_eval", "run", "--out", str(out)])
+    assert wait_for(lambda: any(tmp_path.glob(".out.partial-*")), 60)
+    t_end = time.time() + 0.3
+    while time.time() < t_end:                                    # the terminal reads what the command writes
+        if select.select([fd], [], [], 0.05)[0]:
+            try:
+                os.read(fd, 4096)
+            except OSError:
+                break
+    os.close(fd)                                                  # the terminal goes away: SIGHUP to its session
+    _, status = os.waitpid(pid, 0)
+    assert os.waitstatus_to_exitcode(status) in (129, 0), status  # (0: the run had finished before the hang-up)
+    if os.waitstatus_to_exitcode(status) == 129:
+        assert not out.exists() and not list(tmp_path.glob(".out.*")), list(tmp_path.iterdir())

@@ -138,7 +138,11 @@ def test_a_std_column_holding_variances_is_named_as_such():
 
     stated = {"gnss": np.array([9.0, 9.0, 36.0])}
     w = inconsistent_streams({"gnss": {"values": [3 * 0.0856] * 30, "dof": 3}}, stated)
-    assert len(w) == 1 and "std column a variance" in w[0] and "(3, 3, 6)" in w[0] and "0.0833x" in w[0]
+    assert len(w) == 1 and "std column hold variances" in w[0] and "(3, 3, 6)" in w[0] and "0.0833x" in w[0]
+    assert "or it overstates the noise about 3.4x in std" in w[0]         # the data cannot tell the two apart
+    # a std set in the configuration is named as the source, not the stream's column (a diff review)
+    said = variance_as_std("gnss", 0.0856, {"gnss": (np.array([9.0, 9.0, 36.0]), "gnss.std_m=[9, 9, 36]")})
+    assert "from gnss.std_m=[9, 9, 36]" in said and "std column" not in said
     assert variance_as_std("gnss", 7.08, {"gnss": np.array([0.09, 0.09, 0.36])})          # 0.3 m given as 0.09
     assert not variance_as_std("gnss", 0.13, {"gnss": np.array([0.1, 0.1, 0.1])})        # OXTS undegraded, 10 Hz
     assert not variance_as_std("gnss", 0.95, {"gnss": np.array([2.45, 2.45, 2.45])})     # an honest receiver
@@ -158,7 +162,7 @@ def test_a_simulated_receiver_whose_std_column_holds_variances_is_warned_of(tmp_
     (out / "gnss.csv").write_text("\n".join([lines[0], *(",".join(r[:4] + [repr(float(x) ** 2) for x in r[4:]]) for r in rows)])
                                   + "\n", encoding="utf-8")
     said = fe.run(out).metrics["preprocessing"]["data_warnings"]
-    assert not [w for w in ok if "variance" in w] and [w for w in said if "std column a variance" in w], said
+    assert not [w for w in ok if "variance" in w] and [w for w in said if "std column hold variances" in w], said
 
 
 def test_an_adapted_noise_scaled_down_on_one_block_is_not_called_beyond_its_stated_noise():

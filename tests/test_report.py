@@ -134,6 +134,9 @@ def test_run_metrics_json_says_what_made_its_figures(slice_run, kitti_slice):
                  and Path(r["path"]).name != "calib.txt")
     assert lidar["sha256"] == hashlib.sha256(Path(lidar["path"]).read_bytes()).hexdigest()
     assert rows["oxts"]["files"] > 800 and set(rows["oxts"]["streams"]) >= {"imu", "gnss"}
+    # the manifest too (its origin, extrinsics and offsets move the figures), and the configuration as resolved
+    assert rows["dataset.yaml"]["streams"] == ["manifest"]
+    assert made["config_sha256"] == hashlib.sha256((slice_run / "config.resolved.yaml").read_bytes()).hexdigest()
 
 
 def test_evaluate_metrics_json_names_its_input_files(slice_run, tmp_path):

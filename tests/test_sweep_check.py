@@ -918,3 +918,24 @@ def test_a_swept_setting_that_does_nothing_is_said_per_run_in_the_summary(small,
     md = (tmp_path / "o" / "sweep.md").read_text(encoding="utf-8")
     assert "lidar-absolute / a: lidar.relative_pos_std_m=0.3 does nothing here" in md
     assert "lidar-absolute / b: lidar.relative_pos_std_m=0.6 does nothing here" in md
+
+
+def test_an_interrupted_retry_of_failed_runs_counts_only_the_runs_it_need_not_redo(tmp_path, monkeypatch):
+    """With --retry-failed the failed records are the runs to redo: interrupted at once, it said '9 of 9 recorded ...
+    0 left' with 3 failed runs still to do (a diff review)."""
+    from fusion_eval.commands import sweep
+
+    tasks = [sweep.Task(id=f"r{i}", dataset="d", variant="v", variant_path=None, setting=f"s{i}", overrides={},
+                        base_config=None, plots=False, out_root=str(tmp_path), batch="b") for i in range(9)]
+    for i, t in enumerate(tasks):
+        sweep.write_record(tmp_path, {"id": t.id, "status": "ok" if i < 6 else "failed"})
+
+    def interrupted(_batch):
+        raise KeyboardInterrupt
+    monkeypatch.setattr(sweep, "run_batch", interrupted)
+    with pytest.raises(KeyboardInterrupt, match="6 of 9 runs are recorded .* to do the 3 left"):
+        sweep.execute(tasks, tmp_path, jobs=1, scheduler=None, dask_local=False, retry_failed=True)
+    extra = sweep.Task(id="new", dataset="d", variant="v", variant_path=None, setting="new", overrides={},
+                       base_config=None, plots=False, out_root=str(tmp_path), batch="b")
+    with pytest.raises(KeyboardInterrupt, match="9 of 10 runs are recorded .* to do the 1 left"):
+        sweep.execute(tasks + [extra], tmp_path, jobs=1, scheduler=None, dask_local=False)   # failed ones kept

@@ -486,7 +486,9 @@ def execute(tasks: list[Task], out_dir: Path, jobs: int | None, scheduler: str |
             now = read_records(out_dir)
         except (OSError, ValueError):
             now = {}
-        kept = max(n_ok + n_fail + skipped, sum(t in now for t in unique))
+        # (with --retry-failed a failed record is one this command redoes: not kept; a diff review)
+        kept = max(n_ok + n_fail + skipped,
+                   sum(t in now and (not retry_failed or now[t].get("status") == "ok") for t in unique))
         return type(exc)(f"{kept} of {len(unique)} runs are recorded in {out_dir}/records; run the same command again "
                          f"to do the {len(unique) - kept} left (finished runs are not redone)")
 

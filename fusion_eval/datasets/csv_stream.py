@@ -298,7 +298,9 @@ def first_fix(entry: dict, ctx: ReadContext):
         return None
     rows, _, _ = load_table(ctx.path(entry), "GNSS CSV", len(entry["columns"]), entry.get("delimiter", ","),
                             skipped=_skipped(entry))
-    return tuple(float(rows[0, named[k]]) for k in ("lat", "lon", "alt"))
+    from .gnss_csv import first_valid
+
+    return first_valid(rows[:, [named[k] for k in ("lat", "lon", "alt")]])
 
 
 def std_m(entry: dict, ctx: ReadContext, default: float | None = None) -> np.ndarray:

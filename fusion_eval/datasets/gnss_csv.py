@@ -29,7 +29,15 @@ def _rows(path: Path):
 def first_fix(path: Path) -> tuple[float, float, float]:
     """The first fix (lat, lon, alt): a geodetic origin, or the fixes' check against another's."""
     rows, _ = _rows(Path(path))
-    return tuple(float(v) for v in rows[0, 1:4])
+    return first_valid(rows[:, 1:4])
+
+
+def first_valid(lla: np.ndarray) -> tuple[float, float, float]:
+    """The first fix that is one: finite, and not a receiver's no-fix placeholder at lat = lon = 0 (a CSV starting
+    with one was refused as 'in radians?' by the origin check; a diff review); the first row where none is."""
+    ok = np.all(np.isfinite(lla), axis=1) & ~((lla[:, 0] == 0.0) & (lla[:, 1] == 0.0))
+    i = int(np.argmax(ok)) if ok.any() else 0
+    return tuple(float(v) for v in lla[i])
 
 
 def read_gnss_csv(path: Path, origin: tuple[float, float, float]) -> GnssSeries:

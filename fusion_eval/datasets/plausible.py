@@ -593,8 +593,9 @@ def gnss_offset(gnss, groundtruth, origin_from_first_fix: bool = False, lever_b_
             and abs(off[2]) <= MAX_GEOID_M else
             # beyond the geoid's range no datum explains it (feet for metres read 264 m up, called the geoid; a review)
             f"altitudes in another unit (feet read as metres: x3.28?), in the GNSS or in the ground truth "
-            f"({groundtruth.source}); no datum explains {abs(off[2]):.0f} m (the geoid lies -100 to +85 m from WGS84's "
-            "ellipsoid)" if big[2] and not big[:2].any()
+            f"({groundtruth.source}), or a geodetic_origin altitude off by that much (given as 0?); no datum "
+            f"explains {abs(off[2]):.0f} m (the geoid lies -100 to +85 m from WGS84's ellipsoid)"
+            if big[2] and not big[:2].any()
             else "another origin or datum than the ground truth's (the manifest's geodetic_origin)") + arm
     return (f"{gnss.source}: the GNSS sits a constant east, north, up {off[0]:+.1f}, {off[1]:+.1f}, {off[2]:+.1f} m from "
             f"the ground truth (median over {n_fixes} fixes; their spread about it {spread.max():.1f} m): "
@@ -1307,5 +1308,5 @@ def gyro_turns_backwards(imu, poses) -> str:
     return (f"{imu.source}: the gyro turns the other way about up than the ground truth ({poses.source}) on "
             f"{opposite:.0%} of the "
             f"{int(turning.sum())} intervals where both turn (up: the accelerometer's mean direction, body axes "
-            f"{up[0]:+.2f}, {up[1]:+.2f}, {up[2]:+.2f}): a gyro axis of the wrong sign (a left-handed frame: y for -y, "
-            "z for -z), or a gyro and an accelerometer in different frames; the filter integrates the turns backwards")
+            f"{up[0]:+.2f}, {up[1]:+.2f}, {up[2]:+.2f}): the gyro's axis along up of the wrong sign (a left-handed "
+            "frame), or a gyro and an accelerometer in different frames; the filter integrates the turns backwards")

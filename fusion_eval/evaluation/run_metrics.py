@@ -454,12 +454,19 @@ def stated_noise(prep, cfg: dict) -> dict:
     g = getattr(prep, "gnss", None)
     if g is None or not len(g) or getattr(g, "std_w_m", None) is None:
         return {}
-    return {"gnss": np.median(np.asarray(g.std_w_m, float), axis=0) * float(cfg["gnss"]["std_scale"])}
+    given = cfg["gnss"].get("std_m", "auto")
+    # where the std came from: the stream's own column, or the setting that replaced it (a diff review: a
+    # configured std was asked whether the stream's column held variances)
+    source = "the stream's std column" if given == "auto" else f"gnss.std_m={given}"
+    return {"gnss": (np.median(np.asarray(g.std_w_m, float), axis=0) * float(cfg["gnss"]["std_scale"]), source)}
 
 
 def variance_as_std(k: str, mean_nis_over_dof: float, stated: dict) -> str:
-    """Why the stream ``k``'s NIS sits where a variance given as its std would put it, or ''."""
-    s = np.asarray(stated.get(k, ()), float)
+    """Why the stream ``k``'s NIS sits where a variance given as its std would put it, or ''. ``stated[k]``: the
+    std per axis, or (std, where it came from)."""
+    got = stated.get(k, ())
+    s, source = (got if isinstance(got, tuple) and len(got) == 2 else (got, "the stream's std column"))
+    s = np.asarray(s, float)
     if s.size == 0 or not np.all(s > 0) or not np.isfinite(mean_nis_over_dof) or mean_nis_over_dof <= 0:
         return ""
     r, predicted = mean_nis_over_dof, float(np.mean(1.0 / s))
@@ -467,9 +474,12 @@ def variance_as_std(k: str, mean_nis_over_dof: float, stated: dict) -> str:
         return ""
     given = ", ".join(f"{x:.3g}" for x in s)
     roots = ", ".join(f"{x:.3g}" for x in np.sqrt(s))
-    return (f"{k}: mean NIS {r:.3g}x its dof, where a std of {given} (median per axis, as given to the filter) read from "
-            f"variances puts it ({predicted:.3g}x): the innovations scatter like their square roots ({roots}); is the "
-            f"stream's std column a variance (a covariance's diagonal)? Give its square roots, or {k}.std_m")
+    # the data cannot tell a variance from a std overstated (or understated) by the same factor: both are said
+    how = "overstates" if r < 1.0 else "understates"
+    return (f"{k}: mean NIS {r:.3g}x its dof, where a std of {given} (median per axis, from {source}) read from "
+            f"variances puts it ({predicted:.3g}x): the innovations scatter like their square roots ({roots}); does "
+            f"{source} hold variances (a covariance's diagonal)? Then give its square roots; or it {how} the noise "
+            f"about {np.sqrt(1.0 / r):.2g}x in std")
 
 
 def inconsistent_streams(nis: dict, stated: dict | None = None) -> list[str]:

@@ -10,6 +10,8 @@ the metrics, the report). :func:`write_run` does both. Every file goes through
 
 from __future__ import annotations
 
+import hashlib
+
 import numpy as np
 
 from ..outputs import StagedDir
@@ -112,7 +114,8 @@ def write_evaluation(out: StagedDir, res, plots_written: list[str], pool=None, a
         from ..trials import csv_rows
 
         out.write_text("trials.csv", csv_text(*csv_rows(res.metrics["trials"]), float_format="{:.6g}"))
-    out.write_text("config.resolved.yaml", files.resolved_config(res.cfg, res.resolved_extra))
+    config = files.resolved_config(res.cfg, res.resolved_extra)
+    out.write_text("config.resolved.yaml", config)
     advance()
     jobs = []
     plots_written = list(plots_written)
@@ -147,7 +150,9 @@ def write_evaluation(out: StagedDir, res, plots_written: list[str], pool=None, a
     inputs = inputs.result() if inputs is not None else input_files(dataset)
     # what made the figures, machine-readable beside them: a metrics.json compared with another can be told from one
     # of other code or other input files (the report.html's table; checksums here were missing: a reproducibility review)
-    out.write_text("metrics.json", files.metrics_json({**res.metrics, "provenance": {**header(), "inputs": inputs}}))
+    out.write_text("metrics.json", files.metrics_json({**res.metrics, "provenance": {
+        **header(), "config_sha256": hashlib.sha256(config.encode("utf-8", "surrogateescape")).hexdigest(),
+        "inputs": inputs}}))
     advance()
     for f in futures:
         f.result()
