@@ -196,7 +196,7 @@ def entry() -> None:
         sys.stdout.reconfigure(errors="surrogateescape")
     try:
         main()
-    except SystemExit as done:
+    except SystemExit:
         _keep_status()
         raise
 
@@ -231,8 +231,10 @@ def _interrupted(exc: BaseException) -> None:
     what = ("hung up (SIGHUP)" if isinstance(exc, interrupts.HungUp) else
             "terminated (SIGTERM)" if isinstance(exc, interrupts.Terminated) else "interrupted")
     done = interrupts.written()
+    old = interrupts.left_as_they_were()
     said = (exc.args[0] if exc.args else f"after {' and '.join(done)} {'was' if len(done) == 1 else 'were'} written whole"
-            if done else "no output directory was written")
+            if done else "no output directory was written" + (
+                f"; {' and '.join(old)} {'is' if len(old) == 1 else 'are'} as before" if old else ""))
     try:
         click.echo(f"\n{what}: {said}", err=True)
     except OSError:

@@ -110,6 +110,20 @@ def written() -> list[str]:
     return list(_written)
 
 
+_kept: list[str] = []                        # existing output folders an interrupted --overwrite left as they were
+
+
+def kept(path) -> None:
+    """Record an existing output folder left as it was by a run that did not finish (``--overwrite`` interrupted: it
+    said "no output directory was written", which read as the old results gone too; an interruption review)."""
+    if _active:
+        _kept.append(str(path))
+
+
+def left_as_they_were() -> list[str]:
+    return list(_kept)
+
+
 @contextmanager
 def deferred():
     """Inside: a signal is recorded, not raised, and raised as soon as the block ends. For code around which CPython
@@ -229,6 +243,7 @@ def handled():
             signal.signal(s, _handler)
     _received = None
     _written.clear()
+    _kept.clear()
     _active.append(True)
     rfd, wfd = os.pipe()
     os.set_blocking(wfd, False)

@@ -395,6 +395,8 @@ class StagedDir:
         this run made removed again (deepest first)."""
         if self.staging is not None:
             shutil.rmtree(self.staging, ignore_errors=True)
+            if self.overwrite and self.final.is_dir():
+                interrupts.kept(self.final)        # the run it was to replace, untouched
         self._unlock()
         for p in self._made:
             try:

@@ -692,3 +692,21 @@ def test_a_terminal_that_hangs_up_ends_the_run_with_129_and_leaves_nothing(warm_
     assert os.waitstatus_to_exitcode(status) in (129, 0), status  # (0: the run had finished before the hang-up)
     if os.waitstatus_to_exitcode(status) == 129:
         assert not out.exists() and not list(tmp_path.glob(".out.*")), list(tmp_path.iterdir())
+
+
+def test_an_interrupted_overwrite_says_the_old_folder_is_as_before(tmp_path):
+    """`run --overwrite` interrupted kept the old folder byte for byte but said only "no output directory was written",
+    which read as the old results gone too (an interruption review)."""
+    from fusion_eval import interrupts
+    from fusion_eval.outputs import StagedDir
+
+    out = tmp_path / "out"
+    with StagedDir(out) as o:
+        o.write_text("metrics.json", "{}")
+    with interrupts.handled():
+        with pytest.raises(KeyboardInterrupt):
+            with StagedDir(out, overwrite=True) as o:
+                o.write_text("metrics.json", "new")
+                raise KeyboardInterrupt
+        assert interrupts.left_as_they_were() == [str(out)] and interrupts.written() == []
+    assert (out / "metrics.json").read_text() == "{}"
