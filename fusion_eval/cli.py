@@ -4,6 +4,7 @@
 from __future__ import annotations
 
 import contextlib
+import errno
 import logging
 import os
 import signal
@@ -127,6 +128,10 @@ class Group(click.Group):
             signum = interrupts.received()
             if signum is not None:
                 _interrupted(interrupts.as_exception(signum))
+            if isinstance(exc, OSError) and exc.errno == errno.EIO and not exc.filename:
+                # a write to a terminal that has gone (EIO, no file named), often before its SIGHUP is taken: the
+                # hang-up it is (it exited 1, its one line raising the same error; a clean-clone CI run)
+                _interrupted(interrupts.HungUp())
             if isinstance(exc, FusionEvalError):
                 # one line, whatever a library's message embedded (a YAML parser's report spans several)
                 click.echo("error: " + one_line(str(exc)), err=True)

@@ -710,3 +710,27 @@ def test_an_interrupted_overwrite_says_the_old_folder_is_as_before(tmp_path):
                 raise KeyboardInterrupt
         assert interrupts.left_as_they_were() == [str(out)] and interrupts.written() == []
     assert (out / "metrics.json").read_text() == "{}"
+
+
+def test_a_write_to_a_terminal_that_has_gone_is_the_hang_up(monkeypatch):
+    """A write to a terminal that has gone (EIO, no file named) often comes before its SIGHUP is taken: it exited 1,
+    its one-line error raising the same EIO (a clean-clone CI run); it is the hang-up: 129. An EIO that names a file
+    (a failing disk) stays an error naming it."""
+    import errno
+
+    from click.testing import CliRunner
+
+    from fusion_eval import session
+    from fusion_eval.cli import main
+
+    def gone(*_a, **_k):
+        raise OSError(errno.EIO, "Input/output error")
+    monkeypatch.setattr(session, "dataset", gone)
+    r = CliRunner().invoke(main, ["-q", "run", "--no-plots"])
+    assert r.exit_code == 129 and "hung up (SIGHUP)" in r.output, r.output
+
+    def disk(*_a, **_k):
+        raise OSError(errno.EIO, "Input/output error", "/data/oxts/0001.txt")
+    monkeypatch.setattr(session, "dataset", disk)
+    r = CliRunner().invoke(main, ["-q", "run", "--no-plots"])
+    assert r.exit_code == 2 and "/data/oxts/0001.txt: Input/output error" in r.output, r.output
