@@ -689,9 +689,11 @@ def test_a_terminal_that_hangs_up_ends_the_run_with_129_and_leaves_nothing(warm_
                 break
     os.close(fd)                                                  # the terminal goes away: SIGHUP to its session
     _, status = os.waitpid(pid, 0)
-    assert os.waitstatus_to_exitcode(status) in (129, 0), status  # (0: the run had finished before the hang-up)
-    if os.waitstatus_to_exitcode(status) == 129:
-        assert not out.exists() and not list(tmp_path.glob(".out.*")), list(tmp_path.iterdir())
+    # 129 whether the hang-up came while the run wrote (nothing at --out) or after its folder was complete ("after
+    # OUT was written whole"); 0 where the run had ended before it; never a half-written folder or a staging one left
+    assert os.waitstatus_to_exitcode(status) in (129, 0), status
+    assert not list(tmp_path.glob(".out.*")), list(tmp_path.iterdir())
+    assert not out.exists() or {"metrics.json", "report.html"} <= {p.name for p in out.iterdir()}
 
 
 def test_an_interrupted_overwrite_says_the_old_folder_is_as_before(tmp_path):
