@@ -146,7 +146,9 @@ def _flag_data(ds: Dataset, applied: dict, more: list[str] = (), travel_yaw_rad:
 
     platform = ds.description.get("platform")
     scale = plausible.pose_scale("lidar", ds.lidar, {"ground truth": ds.groundtruth, "GNSS": ds.gnss})
-    warnings = (list(ds.description.get("misread_poses") or ()) + ([scale] if scale else []) + plausible.imu_gaps(ds.imu)
+    short = plausible.imu_span_short(ds.imu, {"groundtruth": ds.groundtruth, "gnss": ds.gnss, "lidar": ds.lidar})
+    warnings = (list(ds.description.get("misread_poses") or ()) + [w for w in (scale, short) if w]
+                + plausible.imu_gaps(ds.imu)
                 + plausible.clock_steps(ds.groundtruth) + list(more)
                 + plausible.imu_units(ds.imu, platform, platform in WHEELED))
     if platform in WHEELED:

@@ -554,3 +554,18 @@ def test_a_gyro_axis_of_the_wrong_sign_is_named_and_an_frd_imu_is_left_to_its_ow
     # where the gyro's lag is estimated, the search meets no fit and names this as the likely cause
     with pytest.raises(FusionEvalError, match="the likely cause: .*the gyro turns the other way about up"):
         fe.run(replace(drive, imu=flipped))
+
+
+def test_imu_stamps_compressed_by_a_rate_assumed_wrong_are_named():
+    """IMU stamps made from sample counts at 3x the true rate ran to 19.7 m, said only as a short scored span (an
+    implausible-data review): the IMU spans a third of the streams that start with it."""
+    drive = fe.load_dataset(None)
+    imu = drive.imu
+    others = {"groundtruth": drive.groundtruth, "gnss": drive.gnss, "lidar": drive.lidar}
+    assert plausible.imu_span_short(imu, others) == ""
+    fast = replace(imu, t_s=imu.t_s[0] + (imu.t_s - imu.t_s[0]) / 3.0)
+    said = plausible.imu_span_short(fast, others)
+    assert "its stamps compressed" in said and "(3x)" in said and str(imu.source) in said
+    # streams that start elsewhere (a receiver logging long before the IMU) are not compared
+    late = {"gnss": replace(drive.gnss, t_s=drive.gnss.t_s - 600.0)}
+    assert plausible.imu_span_short(fast, late) == ""

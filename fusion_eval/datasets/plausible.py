@@ -1310,3 +1310,34 @@ def gyro_turns_backwards(imu, poses) -> str:
             f"{int(turning.sum())} intervals where both turn (up: the accelerometer's mean direction, body axes "
             f"{up[0]:+.2f}, {up[1]:+.2f}, {up[2]:+.2f}): the gyro's axis along up of the wrong sign (a left-handed "
             "frame), or a gyro and an accelerometer in different frames; the filter integrates the turns backwards")
+
+
+# The IMU's span this much shorter than other streams' that start with it: its stamps compressed (made from sample
+# counts at a rate assumed wrong) or the recording cut short. KITTI's, EuRoC's and the simulated drives' streams span
+# the IMU's to a few percent.
+SHORT_IMU_RATIO, SAME_START_S = 1.5, 5.0
+
+
+def imu_span_short(imu, streams: dict) -> str:
+    """Why the IMU spans much less time than the other streams that start with it, or '': stamps compressed 3x ran
+    to 19.7 m, said only as "scored over 155 s only" and a lidar "meeting the gyro nowhere" (an implausible-data
+    review). ``streams``: name -> series (None when absent)."""
+    ti = np.asarray(imu.t_s, float)
+    if ti.size < 100 or not ti[-1] > ti[0]:
+        return ""
+    span_imu = float(ti[-1] - ti[0])
+    longer = {}
+    for name, st in streams.items():
+        if st is None or len(st) < 10:
+            continue
+        t = np.asarray(st.t_s, float)
+        span = float(t[-1] - t[0])
+        if abs(t[0] - ti[0]) <= max(SAME_START_S, 0.05 * span) and span > SHORT_IMU_RATIO * span_imu:
+            longer[name] = span
+    if not longer:
+        return ""
+    ratio = min(longer.values()) / span_imu
+    return (f"the IMU ({imu.source}) spans {span_imu:.4g} s where {', '.join(longer)} span "
+            f"{', '.join(f'{v:.4g}' for v in longer.values())} s from about the same start ({ratio:.3g}x): its stamps "
+            "compressed (made from sample counts at a rate assumed wrong: check the stream's rate or time unit), or "
+            "the recording stopped early; the fused estimate covers the IMU's span only")
