@@ -7,7 +7,6 @@ import contextlib
 import errno
 import logging
 import os
-import signal
 import sys
 import time
 from pathlib import Path
@@ -212,9 +211,7 @@ def _keep_status() -> None:
     failure to a script whose command had finished (an interruption review: sweep, track, tune, simulate): they are
     ignored from here. SIGTERM keeps its default action, as after an interruption: it must still end an exit that
     hangs (a Python handler would not do: the interpreter gives the default back as it finalizes)."""
-    for sig in (signal.SIGINT, getattr(signal, "SIGHUP", None)):
-        if sig is not None:
-            signal.signal(sig, signal.SIG_IGN)
+    interrupts.ignore_terminal_signals()
 
 
 def _interrupted(exc: BaseException) -> None:
@@ -225,9 +222,7 @@ def _interrupted(exc: BaseException) -> None:
     # here on (SIGTERM keeps its default: it must still end an exit that hangs); a program that called main() itself
     # keeps its own handler.
     if _PROCESS_ENTRY:
-        signal.signal(signal.SIGINT, signal.SIG_IGN)
-        if hasattr(signal, "SIGHUP"):
-            signal.signal(signal.SIGHUP, signal.SIG_IGN)
+        interrupts.ignore_terminal_signals()
         # and the libraries' exit hooks cut short by the signal keep their tracebacks to themselves (Dask's cluster
         # interrupted as it started printed "Exception ignored in atexit callback ... Status.init", its comms
         # "CommClosedError" under the one line: a failure-injection review)

@@ -74,4 +74,4 @@ def snap_to_stamps(poses: PoseSeries, stamps_s: np.ndarray) -> tuple[PoseSeries,
     span = np.diff(rep, prepend=rep[0] - 1) if rep.size else np.zeros(0, int)
     out = interpolate_poses(poses, stamps[kept])
     inside = (stamps[kept] >= poses.t_s[0]) & (stamps[kept] <= poses.t_s[-1])    # (interpolate_poses drops the rest)
-    return out, np.maximum(span[inside], 1)
+    return out, span[inside]          # (each kept frame is a later one than the last: every span >= 1)

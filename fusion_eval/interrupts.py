@@ -46,15 +46,23 @@ class HungUp(Terminated):
     of another timestamped name, never cleaned (an interruption review)."""
 
 
-# the signals a command ends on by its own clean-up (SIGHUP where the platform has it)
-SIGNALS = tuple(s for s in (signal.SIGINT, signal.SIGTERM, getattr(signal, "SIGHUP", None)) if s is not None)
-# those an ignoring parent keeps ignored (a background job's SIGINT, nohup's SIGHUP), as POSIX tools do
-_RESPECT_IGNORED = tuple(s for s in (signal.SIGINT, getattr(signal, "SIGHUP", None)) if s is not None)
+_SIGHUP = getattr(signal, "SIGHUP", None)                                # (POSIX)
+# what a terminal sends the command: Ctrl-C and its hang-up. An ignoring parent keeps them ignored (a background job's
+# SIGINT, nohup's SIGHUP), as POSIX tools do; workers leave them to the parent; a command that is over ignores them
+TERMINAL_SIGNALS = tuple(s for s in (signal.SIGINT, _SIGHUP) if s is not None)
+# the signals a command ends on by its own clean-up
+SIGNALS = (*TERMINAL_SIGNALS, signal.SIGTERM)
+
+
+def ignore_terminal_signals() -> None:
+    """Ctrl-C and the hang-up ignored from here (a worker's, or a command whose exit status is decided)."""
+    for s in TERMINAL_SIGNALS:
+        signal.signal(s, signal.SIG_IGN)
 
 
 def as_exception(signum: int) -> KeyboardInterrupt:
     """What a signal is raised as in the main thread."""
-    if signum == getattr(signal, "SIGHUP", None):
+    if signum == _SIGHUP:
         return HungUp()
     return Terminated() if signum == signal.SIGTERM else KeyboardInterrupt()
 
@@ -239,7 +247,7 @@ def handled():
         return
     old = {s: signal.getsignal(s) for s in SIGNALS}
     for s, h in old.items():
-        if not (s in _RESPECT_IGNORED and h == signal.SIG_IGN):
+        if not (s in TERMINAL_SIGNALS and h == signal.SIG_IGN):
             signal.signal(s, _handler)
     _received = None
     _written.clear()

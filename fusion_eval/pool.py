@@ -16,6 +16,8 @@ from concurrent.futures import Future, ProcessPoolExecutor
 from concurrent.futures import process as cf_process
 from contextlib import contextmanager
 
+from . import interrupts
+
 
 class Inline:
     """A stand-in executor that runs the work in this process, at submission."""
@@ -40,10 +42,8 @@ class Inline:
 
 
 def _worker_dispositions() -> None:
-    signal.signal(signal.SIGINT, signal.SIG_IGN)
+    interrupts.ignore_terminal_signals()           # Ctrl-C and the hang-up are the parent's to handle
     signal.signal(signal.SIGTERM, signal.SIG_DFL)
-    if hasattr(signal, "SIGHUP"):        # the terminal's hang-up is the parent's to handle, as Ctrl-C is
-        signal.signal(signal.SIGHUP, signal.SIG_IGN)
 
 
 def worker_init(preload: tuple[str, ...] = (), parent: int | None = None, console=None) -> None:
@@ -87,7 +87,7 @@ def worker_init(preload: tuple[str, ...] = (), parent: int | None = None, consol
 # by CPython ("Exception ignored in: _after_fork_in_parent"), and the run went on to exit 0 after a SIGTERM (seen
 # in CI). So the pools fork inside :func:`signals_held`, which also defers the command's handler
 # (interrupts.deferred): a signal sent meanwhile is raised when the hold ends, in ordinary code.
-_FORK_SIGNALS = {signal.SIGINT, signal.SIGTERM, *([signal.SIGHUP] if hasattr(signal, "SIGHUP") else [])}
+_FORK_SIGNALS = set(interrupts.SIGNALS)
 _fork_mask: list = []
 
 
@@ -95,8 +95,6 @@ _fork_mask: list = []
 def signals_held():
     """SIGINT and SIGTERM blocked in this thread and deferred by the command's handler inside the block (around a
     fork), raised after it."""
-    from . import interrupts
-
     with interrupts.deferred():              # ends after the mask is restored: what it raises cannot skip that
         old = signal.pthread_sigmask(signal.SIG_BLOCK, _FORK_SIGNALS)
         try:
@@ -167,8 +165,6 @@ class Pool(ProcessPoolExecutor):
     folder: they must be gone before it is removed)."""
 
     def __init__(self, max_workers: int, mp_context, preload: tuple[str, ...] = ()):
-        from . import interrupts
-
         cli = sys.modules.get("fusion_eval.cli")          # a command line's logging, for spawned workers
         super().__init__(max_workers=max_workers, mp_context=mp_context, initializer=worker_init,
                          initargs=(tuple(preload), os.getpid(), getattr(cli, "CONSOLE", None)))
@@ -201,8 +197,6 @@ class Pool(ProcessPoolExecutor):
         self._shared = []
 
     def __exit__(self, exc_type, exc, tb):
-        from . import interrupts
-
         interrupts.forget(self._abort_token)
         try:
             return self._exit(exc_type, exc, tb)

@@ -43,17 +43,35 @@ def code_id(root: Path | None = None) -> str:
     wheel's shipped configurations and data, ``_shipped/``, are not code: a run records its configuration). ~10 ms,
     once. ``root``: the package's folder (this one's by default)."""
     root = Path(__file__).resolve().parent if root is None else Path(root)
-    h = hashlib.sha256()
-    for f in sorted(root.rglob("*.py")):
-        rel = f.relative_to(root)
-        if rel.parts[0] != "_shipped" and "__pycache__" not in rel.parts and f.is_file():
-            h.update(rel.as_posix().encode() + b"\0")
-            h.update(f.read_bytes())
-    return h.hexdigest()[:12]
+    code = [f for f in sorted(root.rglob("*.py")) if f.is_file()
+            and f.relative_to(root).parts[0] != "_shipped" and "__pycache__" not in f.relative_to(root).parts]
+    return _hash_files(hashlib.sha256(), root, code)[0].hexdigest()[:12]
+
+
+def _hash_files(h, root: Path, files_: list[Path]):
+    """``h`` updated with each file's name relative to ``root`` (``/``-separated, then NUL) and its content, in
+    the order given; (``h``, bytes read)."""
+    total = 0
+    for f in files_:
+        h.update(f.relative_to(root).as_posix().encode() + b"\0")   # one checksum on every OS
+        with open(f, "rb") as fh:
+            for chunk in iter(lambda: fh.read(1 << 20), b""):
+                h.update(chunk)
+                total += len(chunk)
+    return h, total
 
 
 def header() -> dict:
     return {"version": __version__, "code": code_id(), "date": date_utc(), "command": command_line()}
+
+
+def block(inputs: list[dict], config_text: str | None = None) -> dict:
+    """``metrics.json``'s ``provenance``: :func:`header`, the sha256 of the resolved configuration's text where there
+    is one, and the input files (:func:`files` rows)."""
+    made = header()
+    if config_text is not None:
+        made["config_sha256"] = hashlib.sha256(config_text.encode("utf-8", "surrogateescape")).hexdigest()
+    return {**made, "inputs": inputs}
 
 
 def header_line() -> str:
@@ -66,17 +84,16 @@ def header_line() -> str:
 def _digest(path: str, mtime_ns: int, size: int) -> tuple[str, int, int]:
     """sha256 of a file, or of a folder's files (relative names and contents, in name order); (hex, bytes, files)."""
     p = Path(path)
-    h = hashlib.sha256()
-    files = sorted(f for f in p.rglob("*") if f.is_file()) if p.is_dir() else [p]
-    total = 0
-    for f in files:
-        if p.is_dir():
-            h.update(f.relative_to(p).as_posix().encode() + b"\0")   # one checksum on every OS
-        with open(f, "rb") as fh:
+    if not p.is_dir():
+        h, total = hashlib.sha256(), 0
+        with open(p, "rb") as fh:
             for chunk in iter(lambda: fh.read(1 << 20), b""):
                 h.update(chunk)
                 total += len(chunk)
-    return h.hexdigest(), total, len(files)
+        return h.hexdigest(), total, 1
+    found = sorted(f for f in p.rglob("*") if f.is_file())
+    h, total = _hash_files(hashlib.sha256(), p, found)
+    return h.hexdigest(), total, len(found)
 
 
 def _paths(entry, base: Path):

@@ -111,7 +111,7 @@ def inactive_warnings(ds: Dataset, cfg: dict) -> list[str]:
     data's: a sweep's batch shares one preparation among runs that differ in exactly such keys. Those the user gave:
     the values off their defaults that are not the dataset manifest's own suggestions (which a run's
     config.resolved.yaml repeats)."""
-    from .config import schema
+    from .config import get, schema
     from .filters import observations
 
     suggested = {f"{sect}.{k}": v for layer in manifest_layer(ds) for sect, body in layer.body.items()
@@ -124,10 +124,10 @@ def inactive_warnings(ds: Dataset, cfg: dict) -> list[str]:
     for key, v in given.items():          # keys declared to act only under another key's value
         cond = sch[key].only_with
         if cond:
-            sect, name = cond[0].split(".")
-            if cfg.get(sect, {}).get(name) != cond[1]:
+            has = get(cfg, cond[0])           # (a declared key: every resolved configuration holds it)
+            if has != cond[1]:
                 out.append(f"{key}={v} does nothing here: it applies only with {cond[0]}={cond[1]} (this configuration "
-                           f"has {cond[0]}={cfg.get(sect, {}).get(name)})")
+                           f"has {cond[0]}={has})")
     return out
 
 

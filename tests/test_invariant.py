@@ -61,3 +61,33 @@ def test_every_imu_formulation_is_consistent_on_a_simulation_with_true_white_noi
         m = white_sim(f, "none" if f == "nominal_state" else "rts").metrics
         for q in ("position", "attitude"):
             assert m["nees"][q]["fraction_in_95"] >= 0.9, (f, q, m["nees"][q])
+
+
+def test_the_compiled_group_operations_against_the_group_exponential():
+    """``inject_state`` and ``boxminus_vec`` (the filter's injection and the compiled RTS pass's [+] / [-], which the
+    Python smoother now calls too) against ``Exp(xi) X`` written out here, the clone's SE(3) included: the smoother's
+    compiled-against-Python test compares them with themselves (a diff review)."""
+    from fusion_eval.filters.layout import CLONE, NOMINAL
+
+    rng = np.random.default_rng(4)
+    R0, Rc0 = (Rotation.random(random_state=s).as_matrix() for s in (2, 3))
+    x0 = np.zeros(NOMINAL.n)
+    x0[NOMINAL.sl("p")], x0[NOMINAL.sl("v")] = [850.0, -420.0, 12.0], [12.0, -3.0, 0.4]
+    x0[NOMINAL.sl("R")], x0[NOMINAL.sl("ba")], x0[NOMINAL.sl("bg")] = R0.ravel(), [0.1, 0, -0.2], [1e-3, 0, 2e-3]
+    c0 = np.zeros(CLONE.n)
+    c0[CLONE.sl("p")], c0[CLONE.sl("R")] = [840.0, -415.0, 11.5], Rc0.ravel()
+    n = inv.LAYOUT.n
+    dx = rng.normal(scale=0.05, size=n)
+    x, c = x0.copy(), c0.copy()
+    inv.inject_state(x, c, dx, n)
+    R1, v1, p1 = _group_exp(dx[inv.IP:inv.IP + 3], dx[inv.IV:inv.IV + 3], dx[inv.ITH:inv.ITH + 3], R0,
+                            x0[NOMINAL.sl("v")], x0[NOMINAL.sl("p")])
+    np.testing.assert_allclose(x[NOMINAL.sl("R")].reshape(3, 3), R1, atol=1e-12)
+    np.testing.assert_allclose(x[NOMINAL.sl("v")], v1, atol=1e-9)
+    np.testing.assert_allclose(x[NOMINAL.sl("p")], p1, atol=1e-9)
+    np.testing.assert_allclose(x[NOMINAL.sl("bg")] - x0[NOMINAL.sl("bg")], dx[inv.IBG:inv.IBG + 3], atol=1e-15)
+    E = Rotation.from_rotvec(dx[inv.ICTH:inv.ICTH + 3]).as_matrix()
+    np.testing.assert_allclose(c[CLONE.sl("R")].reshape(3, 3), E @ Rc0, atol=1e-12)
+    np.testing.assert_allclose(c[CLONE.sl("p")], E @ c0[CLONE.sl("p")]
+                               + inv.left_jacobian(dx[inv.ICTH:inv.ICTH + 3]) @ dx[inv.ICP:inv.ICP + 3], atol=1e-9)
+    np.testing.assert_allclose(inv.boxminus_vec(x, c, x0, c0, n), dx, atol=1e-9)       # [-] undoes [+]

@@ -158,6 +158,7 @@ def test_a_resolved_config_of_another_drive_run_without_dataset_is_said(tmp_path
     assert "written by a run on the dataset '2011_09_30_drive_0018_sync' (/data/drive_0018)" in caplog.text
     assert "give the DATASET" in caplog.text
     caplog.clear()
+    session._SAID.clear()                # (said once per file: the one said above would hide a second saying)
     with caplog.at_level("WARNING"):
         session.resolve(req, session.dataset("data/kitti-00"))
         f.write_text("filter:\n  nhc: false\ndataset:\n  name: kitti-00\n", encoding="utf-8")

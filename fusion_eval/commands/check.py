@@ -414,10 +414,11 @@ def _check(metrics_path, baseline, rtol, atol, patterns, rules, junit_path, summ
                           "figures do not compare; check a run against a baseline of its own dataset (its manifest's "
                           "name), or make one with --update-baseline")
     _refuse_other_scoring(metrics_path, base_path)
-    if trial_stat_given and not any(_json_field(p, "trials") for p in (metrics_path, base_path)):
+    trials = [_json_field(p, "trials") for p in (metrics_path, base_path)]
+    if trial_stat_given and not any(trials):
         raise ConfigError(f"--trial-stat applies to the metrics of a run with --trials N; neither {metrics_path} nor "
                           f"{baseline} has trials")
-    with_trials = [bool(_json_field(p, "trials")) for p in (metrics_path, base_path)]
+    with_trials = [bool(t) for t in trials]
     if trial_stat is not None and with_trials[0] != with_trials[1]:
         # a 4-trial mean against one run's figures passed without a word (a review): they are not the same statistic
         log.warning("the %s file holds Monte-Carlo trials (compared by their %s) and the %s one run's figures: a mean over "
@@ -452,7 +453,7 @@ def _check(metrics_path, baseline, rtol, atol, patterns, rules, junit_path, summ
     ok = all(r.verdict not in FAILING for r in rows) and all(h for _, h, _ in evaluated)
     # a trial statistic stood under each plain metric path with no word in check.md or the JUnit file (the mean of 3
     # trials, 0.788, beside the file's own 0.753; a cross-command review)
-    n_tr = [t.get("n") if isinstance(t, dict) else None for t in (_json_field(p, "trials") for p in (metrics_path, base_path))]
+    n_tr = [t.get("n") if isinstance(t, dict) else None for t in trials]
     values = "" if trial_stat is None or not any(n_tr) else (
         f"the {trial_stat} over each file's Monte-Carlo trials ("
         + "; ".join(f"{w}: {f'{n} trials' if n else 'one run'}" for w, n in zip(("metrics", "baseline"), n_tr))

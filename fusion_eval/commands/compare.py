@@ -111,7 +111,7 @@ def _own_streams(prep, base_prep) -> dict | None:
     if prep is base_prep:
         return None
     mine, base = _streams(prep), _streams(base_prep)
-    diff = {k: v for k, v in mine.items() if k not in base or len(v) != len(base[k])
+    diff = {k: v for k, v in mine.items() if k not in base
             or not (np.array_equal(v.t_s, base[k].t_s) and np.array_equal(v.p_w_m, base[k].p_w_m))}
     return diff or None
 
@@ -132,11 +132,7 @@ def _evaluate_all(runs: list[VariantRun], base_prep, ev_cfg: dict, pool):
     """evo's metrics of every variant and unfiltered estimate, over one span (evaluation.span, the first
     variant's setting); returns the unfiltered series, their evaluations and the span."""
     gt = base_prep.groundtruth
-    unfiltered: dict[str, PoseSeries] = {"imu_only": runs[0].filt.imu_only}
-    if base_prep.lidar is not None:
-        unfiltered["lidar"] = base_prep.lidar
-    if base_prep.gnss is not None:
-        unfiltered["gnss"] = base_prep.gnss.as_poses()
+    unfiltered: dict[str, PoseSeries] = {"imu_only": runs[0].filt.imu_only, **_streams(base_prep)}
     spans = {r.name: span.coverage(r.filt.fused) for r in runs}
     spans.update({k: span.stream_coverage(k, s, base_prep.applied) for k, s in unfiltered.items()})
     sp = span.span_for(ev_cfg["span"], gt, spans)

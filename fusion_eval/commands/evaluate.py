@@ -195,7 +195,7 @@ def run_evaluate(inputs: list, out_dir: Path, ref_times: Path | None = None, tim
             [(role, p) for role, p in (("reference times", ref_times), ("estimate times", times)) if p is not None]
         made = provenance.files(named)
         # the returned metrics stay the figures; the file also says what made them (as run's metrics.json)
-        out.write_text("metrics.json", files.metrics_json({**metrics, "provenance": {**provenance.header(), "inputs": made}}))
+        out.write_text("metrics.json", files.metrics_json({**metrics, "provenance": provenance.block(made)}))
         for ev in evals.values():          # evo's result files, one per metric and pose relation (evo_res reads them)
             files.write_evo_zips(ev, out.path("."))
         written = []

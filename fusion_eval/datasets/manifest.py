@@ -10,6 +10,7 @@ the README's "Dataset manifest" and "Your own data" sections for every key.
 from __future__ import annotations
 
 import logging
+from functools import lru_cache
 from pathlib import Path
 from typing import Any
 
@@ -116,6 +117,11 @@ def _from_manifest(manifest: Path, extra: dict) -> Dataset:
     return _from_manifest_dict(body, manifest.parent, manifest, extra)
 
 
+def _in_radians(fix) -> bool:
+    """A first fix hundreds of km from the origin whose both angles lie within pi: radians read as degrees."""
+    return abs(fix[0]) <= np.pi and abs(fix[1]) <= np.pi
+
+
 def _from_manifest_dict(body: dict, root: Path, manifest: Path, extra: dict | None = None) -> Dataset:
     extra = extra or {}
     unknown = set(body) - TOP_KEYS
@@ -196,10 +202,12 @@ def _from_manifest_dict(body: dict, root: Path, manifest: Path, extra: dict | No
 
     imu, _ = read("imu", None)
 
+    @lru_cache(maxsize=None)          # each read once: the origin and the receiver's check both ask
     def oxts_fix():
         geo_src = next((streams[s] for s in ("gnss", "groundtruth", "imu") if s in streams and streams[s]["format"] == "kitti_oxts"), None)
         return kitti_oxts.first_valid_fix(oxts(geo_src)) if geo_src else None
 
+    @lru_cache(maxsize=None)
     def gnss_fix():
         g = streams.get("gnss")
         ff = for_stream("gnss")[g["format"]].first_fix if g is not None else None
@@ -220,7 +228,7 @@ def _from_manifest_dict(body: dict, root: Path, manifest: Path, extra: dict | No
             raise ConfigError(f"{at(manifest, body, 'geodetic_origin')}: geodetic_origin {list(origin)} is {far / 1e3:,.0f} km "
                               f"from the drive's first fix ({fix[0]:.6f}, {fix[1]:.6f}); an origin is where the local "
                               f"frame is, within {MAX_ORIGIN_DISTANCE_M / 1e3:g} km of the data ("
-                              + ("the fixes in radians?" if abs(fix[0]) <= np.pi and abs(fix[1]) <= np.pi else
+                              + ("the fixes in radians?" if _in_radians(fix) else
                                  "latitude and longitude swapped, in the origin or in the fixes? both go lat, lon, alt")
                               + ")")
     else:
@@ -238,12 +246,12 @@ def _from_manifest_dict(body: dict, root: Path, manifest: Path, extra: dict | No
         fix = gnss_fix() if g is not None and g["format"] != "kitti_oxts" and oxts_fix() is not None else None
         far = None if fix is None else great_circle_m(origin_t[:2], fix[:2])
         if far is not None and far > MAX_ORIGIN_DISTANCE_M:
-            why = ("in radians?" if abs(fix[0]) <= np.pi and abs(fix[1]) <= np.pi else
-                   "latitude and longitude swapped? both go lat, lon, alt")
             raise DataFormatError(ctx_with(None).path(g), None,
                                   f"expected fixes near the drive; its first valid fix ({fix[0]:.6f}, {fix[1]:.6f}) is {far / 1e3:,.0f} "
                                   f"km from the local frame's origin ({origin_t[0]:.6f}, {origin_t[1]:.6f}, from "
-                                  f"{'the OXTS packets' if origin == 'first_fix' else 'geodetic_origin'}): {why}")
+                                  f"{'the OXTS packets' if origin == 'first_fix' else 'geodetic_origin'}): "
+                                  + ("in radians?" if _in_radians(fix) else
+                                     "latitude and longitude swapped? both go lat, lon, alt"))
 
     ctx = ctx_with(origin_t)
     got = {name: read(name, origin_t) for name in ("odometer", "gnss", "groundtruth", "lidar") if name in streams}

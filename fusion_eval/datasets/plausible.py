@@ -1061,6 +1061,18 @@ def _stride(t: np.ndarray, baseline_s: float) -> int:
     return max(1, int(np.ceil(baseline_s / max(float(np.median(np.diff(t))), 1e-9))))
 
 
+def _rows_at(tq: np.ndarray, t: np.ndarray, x: np.ndarray) -> np.ndarray:
+    """Each column of ``x`` (sampled at ``t``) linearly interpolated at ``tq`` (any shape), stacked last."""
+    return np.stack([np.interp(tq, t, x[:, a]) for a in range(x.shape[1])], axis=-1)
+
+
+def _gyro_turned(ti: np.ndarray, w: np.ndarray, ta: np.ndarray, tb: np.ndarray) -> np.ndarray:
+    """The gyro's rotation vector over each interval ``[ta, tb]`` (n, 3): its rates integrated (trapezoid), the
+    cumulative integral interpolated at the ends (for turns of a few degrees, the rotation itself)."""
+    cum = np.vstack([np.zeros((1, w.shape[1])), np.cumsum(0.5 * (w[1:] + w[:-1]) * np.diff(ti)[:, None], axis=0)])
+    return _rows_at(tb, ti, cum) - _rows_at(ta, ti, cum)
+
+
 def gyro_scale(imu, gt) -> str:
     """Why the gyro turns a constant factor faster or slower than the ground truth (a unit), or ''. Both are taken
     over the same intervals of :data:`RATE_BASELINE_S`, those the IMU covers without a gap (a 5 s gap over the
@@ -1090,10 +1102,7 @@ def gyro_scale(imu, gt) -> str:
     truth = float(np.percentile(truth_rate, 90))
     if not truth > MIN_TRUTH_TURN_RPS:
         return ""
-    # the gyro's rotation over each interval: its rates integrated (trapezoid), the cumulative integral interpolated
-    w = np.asarray(imu.w_b_rps, float)
-    cum = np.vstack([np.zeros((1, 3)), np.cumsum(0.5 * (w[1:] + w[:-1]) * dti[:, None], axis=0)])
-    turned = np.stack([np.interp(tb[ok], ti, cum[:, a]) - np.interp(ta[ok], ti, cum[:, a]) for a in range(3)], axis=1)
+    turned = _gyro_turned(ti, np.asarray(imu.w_b_rps, float), ta[ok], tb[ok])
     gyro = float(np.percentile(np.linalg.norm(turned, axis=1) / dt, 90))
     ratio = gyro / truth
     if 1.0 / MAX_GYRO_SCALE <= ratio <= MAX_GYRO_SCALE:
@@ -1244,9 +1253,9 @@ def pose_scale(name: str, poses, refs: dict) -> str:
         a = np.arange(max(t[0], tr[0]), min(t[-1], tr[-1]) - SCALE_WINDOW_S, SCALE_WINDOW_S)
         if a.size < SCALE_MIN_WINDOWS:
             continue
-        at = np.column_stack([a, a + SCALE_WINDOW_S])
-        d_own = np.linalg.norm(np.diff(np.stack([np.interp(at, t, p[:, i]) for i in range(3)], -1), axis=1)[:, 0], axis=1)
-        d_ref = np.linalg.norm(np.diff(np.stack([np.interp(at, tr, pr[:, i]) for i in range(3)], -1), axis=1)[:, 0], axis=1)
+        b = a + SCALE_WINDOW_S
+        d_own = np.linalg.norm(_rows_at(b, t, p) - _rows_at(a, t, p), axis=1)
+        d_ref = np.linalg.norm(_rows_at(b, tr, pr) - _rows_at(a, tr, pr), axis=1)
         moving = d_ref > SCALE_MIN_MOVE_M
         if moving.sum() < SCALE_MIN_WINDOWS:
             continue
@@ -1280,7 +1289,7 @@ def gyro_turns_backwards(imu, poses) -> str:
         return ""
     keep = _real(poses)
     t, R = np.asarray(poses.t_s, float)[keep], np.asarray(poses.R_wb())[keep]
-    ti, w, f = (np.asarray(x, float) for x in (imu.t_s, imu.w_b_rps, imu.f_b_mps2))
+    ti, f = np.asarray(imu.t_s, float), np.asarray(imu.f_b_mps2, float)
     if t.size < 20 or np.any(np.diff(t) <= 0) or np.any(np.diff(ti) <= 0):
         return ""
     up = np.median(f, axis=0)
@@ -1296,9 +1305,7 @@ def gyro_turns_backwards(imu, poses) -> str:
     inside = (ta >= ti[0]) & (tb <= ti[-1])
     dt = tb - ta
     turn = log_so3(np.einsum("nji,njk->nik", R[:-k], R[k:])) @ up / dt           # the poses' body-frame rate about up
-    dti = np.diff(ti)
-    cum = np.concatenate([[0.0], np.cumsum(0.5 * (w[1:] + w[:-1]) @ up * dti)])
-    gyro = (np.interp(tb, ti, cum) - np.interp(ta, ti, cum)) / dt
+    gyro = _gyro_turned(ti, np.asarray(imu.w_b_rps, float), ta, tb) @ up / dt
     turning = inside & (np.abs(turn) > MIN_TRUTH_TURN_RPS) & (np.abs(gyro) > MIN_TRUTH_TURN_RPS)
     if turning.sum() < MIN_TURN_INTERVALS:
         return ""

@@ -10,12 +10,10 @@ the metrics, the report). :func:`write_run` does both. Every file goes through
 
 from __future__ import annotations
 
-import hashlib
-
 import numpy as np
 
+from .. import provenance
 from ..outputs import StagedDir
-from ..provenance import header, input_files
 from . import files, html, thin
 from .markdown import metrics_tex, report_md
 
@@ -103,7 +101,7 @@ def write_evaluation(out: StagedDir, res, plots_written: list[str], pool=None, a
     advance = advance or (lambda n=1: None)
     # the input files' checksums (0.14 s on kitti-00's 4546 OXTS files) on a worker, while this process writes
     dataset = res.resolved_extra.get("dataset") or {}
-    inputs = pool.submit(input_files, dataset) if pool is not None else None
+    inputs = pool.submit(provenance.input_files, dataset) if pool is not None else None
     for ev in res.evals.values():
         for name, data in ev.zips.items():
             out.write_bytes(name, data)
@@ -147,12 +145,10 @@ def write_evaluation(out: StagedDir, res, plots_written: list[str], pool=None, a
     md = report_md(res.dataset, res.config_source, res.evals, res.ratios, res.cfg, res.resolved_extra["applied"], res.prep.gnss_info,
                    res.metrics, plots_written)
     out.write_text("report.md", md)
-    inputs = inputs.result() if inputs is not None else input_files(dataset)
+    inputs = inputs.result() if inputs is not None else provenance.input_files(dataset)
     # what made the figures, machine-readable beside them: a metrics.json compared with another can be told from one
     # of other code or other input files (the report.html's table; checksums here were missing: a reproducibility review)
-    out.write_text("metrics.json", files.metrics_json({**res.metrics, "provenance": {
-        **header(), "config_sha256": hashlib.sha256(config.encode("utf-8", "surrogateescape")).hexdigest(),
-        "inputs": inputs}}))
+    out.write_text("metrics.json", files.metrics_json({**res.metrics, "provenance": provenance.block(inputs, config)}))
     advance()
     for f in futures:
         f.result()

@@ -123,7 +123,7 @@ def simulate(out_dir: Path, profile: str, duration_s: float, seed: int, grade: s
         step = round(rate / r)
         if r > rate:
             bad.append(f"{sensor}.rate_hz={r:g} is above imu.rate_hz={rate:g} (a sensor is sampled at IMU stamps)")
-        elif step < 1 or abs(rate / step - r) > 1e-9 * r:
+        elif abs(rate / step - r) > 1e-9 * r:          # (r <= rate: step >= 1)
             bad.append(f"{sensor}.rate_hz={r:g} must divide imu.rate_hz={rate:g} (e.g. {rate / step:g} Hz)")
     if bad:             # every one at once (they came one per attempt: a rate review)
         raise ConfigError("; ".join(bad))

@@ -61,7 +61,8 @@ def {name}(x_a, aux, c, P_a, n, nc, t, u, gap, prm, k, t0, u0, t_b, xs_x, xs_c, 
         else:
             break
         if dt > 0.0:
-            qs = gap[1] if (k > 0 and t[k] - t[k - 1] > gap[0]) else 1.0
+            is_gap = k > 0 and t[k] - t[k - 1] > gap[0]
+            qs = gap[1] if is_gap else 1.0
             if pr_has and (ks < 0 or t[k] == t_b):
                 # the step into epoch b, whose prior and transition the forward pass kept: only the state
                 PH[j] = phi_row.reshape((nc, nc))
@@ -79,7 +80,7 @@ def {name}(x_a, aux, c, P_a, n, nc, t, u, gap, prm, k, t0, u0, t_b, xs_x, xs_c, 
             else:
                 Pa = _augmented(A[j], nc)
                 _step(x, Pa, 2 * nc, uu0, u1, dt, qs, prm, aux, np.bool_(True))
-                if ks >= 0 and k > 0 and t[k] - t[k - 1] > gap[0]:    # the motion a gap hid, where the forward
+                if ks >= 0 and is_gap:                    # the motion a gap hid, where the forward
                     # loop added it (by the interval, as it does: not 'qs != 1', false with imu.gap_noise_scale=1)
                     _gap_motion(Pa, x, cidx, gap, t[k] - t[k - 1])
                 j += 1

@@ -94,7 +94,7 @@ def write_track_outputs(out: StagedDir, res: TrackResult, params, source: str, m
     from .. import provenance
 
     # what produced the figures and from which bytes (a track's outputs named neither: a reproducibility review)
-    made = {**provenance.header(), "input_sha256": (provenance.files([("input", source)]) or [{}])[0].get("sha256")}
+    made = {**provenance.header(), "input_sha256": provenance.files([("input", source)])[0]["sha256"]}
     metrics = {"input": source, "produced_by": made, "sensors": params.sensors, "estimates": int(len(res.t_us)),
                "rmse": {"px": _finite(e[0]), "py": _finite(e[1]), "vx": _finite(e[2]), "vy": _finite(e[3])},
                "nis": nis, "nees": nees_summary(res), "warnings": warns,

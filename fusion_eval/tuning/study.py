@@ -315,12 +315,11 @@ def run_study(s: Setup, progress: Callable[[int, int, float | None], None] | Non
                         t.set_user_attr("owner", [host, pid])
                         asked.append((t, s.space.overrides({p.key: p.suggest(t) for p in s.space.params})))
                 results = ex.map([s.job(t.number, ov, s.train, thresholds) for t, ov in asked])
-                while asked:
+                for (t, ov), rec in zip(list(asked), results):
                     # one trial told whole, then dropped from those to give back: a signal among the tells met a
                     # told trial in the clean-up below, whose update Optuna refuses, and the command said 'no
                     # output directory was written' beside the kept journal (an interruption review)
                     with interrupts.deferred():
-                        (t, ov), rec = asked[0], results[len(results) - len(asked)]
                         _tell(study, t, ov, rec, rec_dir)
                         asked.pop(0)
         except KeyboardInterrupt as exc:

@@ -263,10 +263,8 @@ class RightInvariantEKF(FilterBase):
         return boxminus_vec(self.xv, self.clone.vec, snap[0], c0, self.n)
 
     def boxplus_from(self, snap, dx: np.ndarray) -> None:
-        self.xv[:] = snap[0]
-        if snap[1] is not None:
-            self.clone.vec[:] = snap[1]
-        self.inject(dx)
+        c0 = self.clone.vec.copy() if snap[1] is None else snap[1]
+        boxplus_into(self.xv, self.clone.vec, snap[0], c0, np.ascontiguousarray(dx, float), self.n)
 
     compiled_update = True
 

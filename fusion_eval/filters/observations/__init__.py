@@ -29,7 +29,7 @@ def enabled(cfg: dict) -> list[Observation]:
 
 def inactive_settings(cfg: dict, given: dict) -> list[str]:
     """Sentences for the settings the user gave (``given``: ``{"section.key": value}`` of the config files, variants and
-    ``--set``) that do nothing in this configuration: a non-default value of a key of an observation that is off, which
+    ``--set``, off their defaults) that do nothing in this configuration: a key of an observation that is off, which
     no enabled observation shares. (A sweep of lidar.relative_pos_std_m under filter.lidar_update=absolute gave identical
     rows with no word: a configuration audit.)"""
     on = [o for o in REGISTRY if o.enabled(cfg)]
@@ -40,8 +40,7 @@ def inactive_settings(cfg: dict, given: dict) -> list[str]:
         if o in on:
             continue
         for key, spec in o.keys.items():
-            if key in given and key not in read and key not in switches and key not in o.read_elsewhere \
-                    and given[key] != spec.default:
+            if key in given and key not in read and key not in switches and key not in o.read_elsewhere:
                 how = ", ".join(f"{k}={str(v).lower() if isinstance(v, bool) else v}" for k, v in o.enable_with.items())
                 out.append(f"{key}={given[key]} does nothing here: it is a setting of the {o.label}, which this "
                            f"configuration does not fuse ({how} does)")
