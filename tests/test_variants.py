@@ -301,3 +301,22 @@ def test_a_variant_that_degrades_the_gnss_otherwise_is_scored_against_its_own(ki
     # and compare.md says which streams those are (its unfiltered rows are the first variant's)
     md = (tmp_path / "c" / "compare.md").read_text(encoding="utf-8")
     assert f"`{v}` degrades or shifts its streams otherwise than the first variant" in md and f"gnss alone {gnss:.3f} m" in md
+
+
+def test_compare_says_a_variants_settings_that_do_nothing(kitti_slice, tmp_path):
+    """compare stopped saying them when run's saying moved to filter_and_evaluate, which compare does not go through
+    (a diff review): each variant's, with the variant named, in compare.json and compare.md."""
+    import json
+
+    from click.testing import CliRunner
+
+    from fusion_eval.cli import main
+
+    out = tmp_path / "c"
+    r = CliRunner().invoke(main, ["-q", "compare", str(kitti_slice), "--variants", "eskf,lidar-absolute", "--set",
+                                  "lidar.relative_pos_std_m=0.5", "--no-plots", "-o", str(out)])
+    assert r.exit_code == 0, r.output
+    warned = json.loads((out / "compare.json").read_text())["warnings"]
+    assert any("lidar.relative_pos_std_m=0.5 does nothing here" in w for w in warned["lidar-absolute"])
+    assert not any("does nothing" in w for w in warned.get("eskf", []))
+    assert "lidar.relative_pos_std_m=0.5 does nothing here" in (out / "compare.md").read_text()

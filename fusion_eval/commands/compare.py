@@ -87,7 +87,13 @@ def _replay_all(ds, variants: list[str], cfgs: list[dict], advance=None) -> tupl
             # which of the variants failed (an error of the data alone did not say: a review); a file's error names it
             raise type(exc)(f"variant {name!r}: {exc}") from None
         compiled = compile_notice.compile_seconds() - c0       # numba's first compilation of this variant's kernels
-        runs.append(VariantRun(name, cfg, filt, None, time.perf_counter() - t0 - compiled, warnings=_warnings(name, prep, filt, cfg),
+        # the variant's settings that do nothing (run says them from filter_and_evaluate, which compare does not
+        # go through: it was silent about them once they moved there; a diff review)
+        idle = session.inactive_warnings(ds, cfg)
+        for w in idle:
+            log.warning("variant %s: %s", name, w)
+        runs.append(VariantRun(name, cfg, filt, None, time.perf_counter() - t0 - compiled,
+                               warnings=(*idle, *_warnings(name, prep, filt, cfg)),
                                compile_s=compiled, applied=prep.applied,
                                seeded=tuple(mc.seeded_streams({"nis": filt.nis, "gnss_degradation": prep.gnss_info,
                                                                "preprocessing": prep.applied})),
