@@ -18,6 +18,13 @@ from conftest import make_slice, wait_for
 DASK = Path(sys.executable).with_name("dask")
 
 
+def _scheduler_address(sched_file: Path) -> str | None:
+    try:
+        return json.loads(sched_file.read_text(encoding="utf-8"))["address"]
+    except (OSError, ValueError, KeyError):
+        return None
+
+
 @pytest.mark.slow
 @pytest.mark.skipif(not DASK.exists(), reason="needs dask's command line (pip install 'dask[distributed]')")
 def test_sweep_on_a_real_cluster_survives_a_killed_worker(tmp_path):
@@ -34,8 +41,9 @@ def test_sweep_on_a_real_cluster_survives_a_killed_worker(tmp_path):
                                "--scheduler-file", str(sched_file)], cwd=elsewhere, env=env,
                               stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL, start_new_session=True)]
     try:
-        assert wait_for(sched_file.exists, 60)
-        address = json.loads(sched_file.read_text())["address"]
+        # dask writes the file in place (not renamed into place): it exists empty, or half-written, before it parses
+        assert wait_for(lambda: _scheduler_address(sched_file) is not None, 60)
+        address = _scheduler_address(sched_file)
         for _ in range(2):
             procs.append(subprocess.Popen([str(DASK), "worker", address, "--nthreads", "1", "--nworkers", "1",
                                            "--no-dashboard", "--host", "127.0.0.1"], cwd=elsewhere, env=env,
