@@ -245,6 +245,33 @@ def executor(jobs: int | None = None, preload: tuple[str, ...] = ()):
     return Pool(max_workers=min(jobs, 4), mp_context=mp.get_context("fork"), preload=preload)
 
 
+@contextmanager
+def dask_client(scheduler: str | None, local_workers: int = 0):
+    """A Dask client on the scheduler at ``scheduler``, or on a local cluster of ``local_workers`` single-threaded
+    processes started here (``--dask local``), closed on the way out whatever happens. An address nobody answers is
+    one line naming the option (Dask's own error names neither the option nor what to check)."""
+    from dask.distributed import Client, LocalCluster
+
+    from .errors import ConfigError
+
+    cluster = LocalCluster(n_workers=local_workers, threads_per_worker=1, processes=True, dashboard_address=None) \
+        if local_workers else None
+    try:
+        try:
+            client = Client(cluster if cluster is not None else scheduler)
+        except (OSError, TimeoutError) as exc:
+            raise ConfigError(f"--scheduler {scheduler}: no Dask scheduler answers there ({exc})") from None
+        try:
+            if cluster is not None:
+                dask_console(client)
+            yield client
+        finally:
+            client.close()
+    finally:
+        if cluster is not None:
+            cluster.close()
+
+
 def dask_console(client) -> None:
     """The command line's logging (-q, -v) on a local Dask cluster's workers, whose stderr is the user's terminal: they
     start with Dask's own, and printed run warnings under -q (a reproducibility review). A spawned pool's workers get

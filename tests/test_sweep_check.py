@@ -216,16 +216,18 @@ def test_check_gives_its_verdict_where_its_summary_cannot_be_written_beside_the_
     assert r.exit_code == 2 and "cannot write" in r.stderr
 
 
-def test_a_scheduler_nobody_answers_leaves_no_folder(small, tmp_path, monkeypatch):
-    """One line naming the option, and no empty folder (its own lock file once counted as a record: a diff review)."""
+@pytest.mark.parametrize("command", ["sweep", "tune"])
+def test_a_scheduler_nobody_answers_leaves_no_folder(small, tmp_path, monkeypatch, command):
+    """One line naming the option, and no empty folder (its own lock file once counted as a record: a diff review);
+    tune said only Dask's "Timed out trying to connect to ..." (both now go through pool.dask_client)."""
     import dask.distributed
 
     def nobody(*_a, **_k):
         raise OSError("Timed out trying to connect")
     monkeypatch.setattr(dask.distributed, "Client", nobody)
     out = tmp_path / "s"
-    r = CliRunner().invoke(main, ["sweep", str(small), "--grid", str(_sweep_file(tmp_path)), "--out", str(out),
-                                  "--scheduler", "tcp://127.0.0.1:9"])
+    how = ["--grid", str(_sweep_file(tmp_path))] if command == "sweep" else ["--objective", "nll", "--trials", "2"]
+    r = CliRunner().invoke(main, [command, str(small), *how, "--out", str(out), "--scheduler", "tcp://127.0.0.1:9"])
     assert r.exit_code == 2 and "--scheduler tcp://127.0.0.1:9: no Dask scheduler answers there" in r.stderr, r.output
     assert not out.exists()
 

@@ -498,41 +498,28 @@ def execute(tasks: list[Task], out_dir: Path, jobs: int | None, scheduler: str |
         log.info("%d of %d runs differ only in filter settings: %s, each loading and preparing the data once",
                  sum(map(len, shared)), len(todo), "1 batch" if len(shared) == 1 else f"{len(shared)} batches")
     if scheduler or dask_local:
-        from dask.distributed import Client, LocalCluster, as_completed
+        from dask.distributed import as_completed
 
-        try:
-            cluster = LocalCluster(n_workers=jobs, threads_per_worker=1, processes=True, dashboard_address=None) \
-                if dask_local else None
-        except KeyboardInterrupt as exc:     # while the cluster starts: what is recorded, not "nothing was written"
-            raise interrupted(exc) from None
-        try:
-            client = Client(cluster if cluster is not None else scheduler)
-        except (OSError, TimeoutError) as exc:
-            # an address nobody answers: after its 30 s, one line naming the option, and no empty folder left
-            if cluster is not None:
-                cluster.close()
-            if not any(p.is_file() and p.name != ".sweep.lock" for p in out_dir.rglob("*")):   # nothing recorded:
-                # the folder goes (its lock is this sweep's own)
-                shutil.rmtree(out_dir, ignore_errors=True)
-            raise ConfigError(f"--scheduler {scheduler}: no Dask scheduler answers there ({exc})") from None
-        if cluster is not None:
-            from ..pool import dask_console
+        from ..pool import dask_client
 
-            dask_console(client)
         if scheduler:
             # remote workers may not share this filesystem: each writes its run locally and sends the files back
             work = [[dataclasses.replace(t, ship=True) for t in w] for w in work]
         try:
-            futures = [client.submit(run_batch, w, key=f"fusion-eval-{w[0].id}-{len(w)}", pure=False) for w in work]
-            for fut in as_completed(futures):
-                for rec in fut.result():
-                    finished(rec)
-        except KeyboardInterrupt as exc:      # "no output directory was written" with 16 runs recorded (a review)
+            with dask_client(scheduler, jobs if dask_local else 0) as client:
+                futures = [client.submit(run_batch, w, key=f"fusion-eval-{w[0].id}-{len(w)}", pure=False)
+                           for w in work]
+                for fut in as_completed(futures):
+                    for rec in fut.result():
+                        finished(rec)
+        except KeyboardInterrupt as exc:
+            # while the cluster starts or runs: what is recorded, not "no output directory was written" (a review)
             raise interrupted(exc) from None
-        finally:
-            client.close()
-            if cluster is not None:
-                cluster.close()
+        except ConfigError:
+            # an address nobody answers, after its 30 s: no empty folder left (its lock is this sweep's own)
+            if not any(p.is_file() and p.name != ".sweep.lock" for p in out_dir.rglob("*")):
+                shutil.rmtree(out_dir, ignore_errors=True)
+            raise
     elif jobs == 1:
         try:
             for w in work:

@@ -220,21 +220,15 @@ class Executor:
     """``map`` of :func:`score` over a generation, in order: this process, the pool or Dask."""
 
     def __init__(self, s: Setup):
-        self.s, self._pool, self._client, self._cluster = s, None, None, None
+        self.s, self._pool, self._dask, self._client = s, None, None, None
 
     def __enter__(self):
         s = self.s
         if s.scheduler or s.dask_local:
-            from dask.distributed import Client, LocalCluster
+            from ..pool import dask_client
 
-            if s.dask_local:
-                self._cluster = LocalCluster(n_workers=s.jobs, threads_per_worker=1, processes=True,
-                                             dashboard_address=None)
-            self._client = Client(self._cluster if self._cluster is not None else s.scheduler)
-            if self._cluster is not None:
-                from ..pool import dask_console
-
-                dask_console(self._client)
+            self._dask = dask_client(s.scheduler, s.jobs if s.dask_local else 0)
+            self._client = self._dask.__enter__()
         elif s.jobs > 1:
             import multiprocessing as mp
 
@@ -246,10 +240,8 @@ class Executor:
     def __exit__(self, exc_type, exc, tb):
         if self._pool is not None:
             self._pool.__exit__(exc_type, exc, tb)
-        if self._client is not None:
-            self._client.close()
-        if self._cluster is not None:
-            self._cluster.close()
+        if self._dask is not None:
+            self._dask.__exit__(exc_type, exc, tb)
         return False
 
     def map(self, jobs: list[Job]) -> list[dict]:
