@@ -112,9 +112,57 @@ def nothing_random_line(n: int) -> str:
     return f"**{text[:1].upper()}{text[1:]}.**"
 
 
-# a lead below this share of the better figure, from one run each, is called out: one GNSS seed moves kitti-00's fused APE
-# by about 11 % of its mean (std over seeds; README, "Monte-Carlo trials")
+# a lead below this share of the better figure, from one run each with the same seeds, is called out: the differences
+# of variants under one seed spread by 0.1-2 % of kitti-00's fused APE over seeds (paired std over 10 seeds: no-nhc
+# 0.8 %, a tuned config 1.8 %; a statistics review, 2026-12-06)
 SMALL_LEAD = 0.05
+# the same for entries drawn with different seeds (unpaired): one GNSS seed moves kitti-00's fused APE by about 11 % of
+# its mean (std over seeds; README, "Monte-Carlo trials"), so a lead under about 2.7 of that is inside what seeds do
+UNPAIRED_LEAD = 0.30
+# a lead over paired trials whose whole 95 % interval lies under this share of the figure: it holds, but is too small
+# to matter (nominal-state against error-state on kitti-00: 0.05 %, 10 of 10 seeds)
+PRACTICAL_LEAD = 0.01
+
+
+def effective_seeds(cfg: dict) -> dict:
+    """Every seed key of a resolved configuration with the seed it draws with (a null one follows ``gnss.seed``):
+    two runs whose dicts are equal draw their random elements alike (their comparison is paired)."""
+    base = (cfg.get("gnss") or {}).get("seed")
+    out = {}
+    for k in seed_keys():
+        sect, key = k.split(".")
+        v = (cfg.get(sect) or {}).get(key)
+        out[k] = base if v is None else v
+    return out
+
+
+def one_draw_note(better: float, worse: float, n_trials: int, what: str, how: str = "--trials 5",
+                  streams: list[str] | None = None, paired: bool = True) -> str | None:
+    """A sentence under a ranking made from one run of each entry, when the runs fuse ``streams`` drawn with a seed
+    (:func:`seeded_streams`; None: not known) and ``better`` leads ``worse`` by less than seeds can move it: under
+    :data:`SMALL_LEAD` for runs drawn with the same seeds (``paired``), under :data:`UNPAIRED_LEAD` for runs drawn
+    with different ones, whose figures move apart by a whole seed's spread (a 19 % 'lead' of one variant over itself
+    under another seed was said with no word: a statistics review). Two equal figures are said to be equal. None
+    when the ranking is on means of trials, the lead is larger, or nothing fused is random (a student ranked noise
+    settings 0.754-0.758 m apart, inside a seed spread of 0.08 m, and took the 'best' as found; another was told to
+    run trials of a comparison with nothing random in it)."""
+    if n_trials > 1 or not (math.isfinite(better) and math.isfinite(worse)) or better <= 0 or worse < better:
+        return None
+    if worse == better:
+        return (f"The first two figures are equal ({better:.6g}): this ranking does not order them"
+                + (" (a configuration equal to another, or a setting that changes nothing here)." if paired else "."))
+    lead = (worse - better) / better
+    if lead >= (SMALL_LEAD if paired else UNPAIRED_LEAD) or streams == []:
+        return None
+    what_random = f"the {' and '.join(streams)} these runs fuse" if streams else "the runs' random elements"
+    if not paired:
+        return (f"{what} {lead * 100:.2g} % from one run each, drawn with different seeds of {what_random}: an "
+                "unpaired comparison, and one seed moves a figure by about 11 % of its mean (the fused APE on "
+                f"kitti-00). Give both the same seeds, or `{how}`, to rank them.")
+    return (f"{what} {lead * 100:.2g} % from one run each, with the same seeds of {what_random}. Under one seed the "
+            "difference of two configurations moves less than each figure does (by 0.1-2 % of the fused APE on "
+            f"kitti-00 from seed to seed, each figure by about 11 %), but one seed does not rank them: `{how}` ranks "
+            "on the means over seeds, each trial of every entry with the same seeds.")
 
 
 def seeded_streams(m: dict) -> list[str]:
@@ -140,31 +188,15 @@ def rerun_commands(datasets, n_trials: int, config: str = "best.yaml") -> list[s
     return [f"fusion-eval run {shlex.quote(str(d))} -c {config}{trials}" for d in datasets]
 
 
-def one_draw_note(better: float, worse: float, n_trials: int, what: str, how: str = "--trials 5",
-                  streams: list[str] | None = None) -> str | None:
-    """A sentence under a ranking made from one run of each entry, when ``better`` leads ``worse`` by under
-    :data:`SMALL_LEAD` of it and the runs fuse ``streams`` drawn with a seed (:func:`seeded_streams`; None: not
-    known): one seed moves a figure by more than that. None when the ranking is on means of trials, the lead is
-    larger, or nothing fused is random (a student ranked noise settings 0.754-0.758 m apart, inside a seed spread of
-    0.08 m, and took the 'best' as found; another was told to run trials of a comparison with nothing random in it)."""
-    if n_trials > 1 or not (math.isfinite(better) and math.isfinite(worse)) or better <= 0 or worse < better:
-        return None
-    lead = (worse - better) / better
-    if lead >= SMALL_LEAD or streams == []:
-        return None
-    what_random = f"the {' and '.join(streams)} these runs fuse" if streams else "the runs' random elements"
-    return (f"{what} {lead * 100:.2g} % from one run each. One seed of {what_random} can move a figure by more (on "
-            f"kitti-00 the degraded GNSS moves the fused APE by about 11 % of its mean): `{how}` ranks on the means "
-            "over seeds, with each one's std.")
-
-
-def paired_lead(per_trial: dict[str, list], what: str = "fused APE") -> tuple[str, dict] | None:
+def paired_lead(per_trial: dict[str, list], what: str = "fused APE", unit: str = " m") -> tuple[str, dict] | None:
     """The best entry against the next, paired over the trials every entry finished (trial i of each draws its
     random elements with the same seed offset): the mean difference of their figures with its 95 % interval
-    (Student's t) and how many trials the best wins; overlapping intervals of the two means said nothing of a lead
-    that every seed showed (a review: 0.007-0.020 m on each of four seeds). ``per_trial``: {entry: [figure per trial]}
-    (None or NaN for a failed trial: the ranking is over the trials every entry finished, the pair over those both
-    finished)."""
+    (Student's t), as a share of the next's mean too, and how many trials the best wins; overlapping intervals of the
+    two means said nothing of a lead that every seed showed (a review: 0.007-0.020 m on each of four seeds). A lead
+    that holds but whose whole interval is under :data:`PRACTICAL_LEAD` of the figure is said to be too small to
+    matter, and two entries equal in every trial are said to be equal (both were 'may rank with more trials': a
+    statistics review). ``per_trial``: {entry: [figure per trial]} (None or NaN for a failed trial: the ranking is
+    over the trials every entry finished, the pair over those both finished)."""
     def done(k, i):
         return per_trial[k][i] is not None and math.isfinite(per_trial[k][i])
 
@@ -183,13 +215,24 @@ def paired_lead(per_trial: dict[str, list], what: str = "fused APE") -> tuple[st
     st = stats(d)
     lo, hi = st["ci95_mean"]
     wins = int(np.sum(d > 0))
+    equal = bool(np.all(d == 0))
     held = lo > 0
-    text = (f"Ranking over {d.size} paired trials (trial i of every variant with the same seed offset): **{best}** "
-            f"leads **{nxt}** in {what} by {st['mean']:.4g} m on average [95 % interval {lo:.4g}, {hi:.4g}], lower in "
-            f"{wins} of {d.size} trials: " + ("the lead holds." if held else "the interval includes 0, so these trials do "
-                                               "not rank the two; more trials (--trials) may."))
-    return text, {"best": best, "next": nxt, "mean_difference": st["mean"], "ci95": [lo, hi], "wins": wins,
-                  "trials": int(d.size), "holds": bool(held)}
+    ref = abs(float(np.mean([per_trial[nxt][i] for i in both])))
+    share = st["mean"] / ref if ref > 0 else math.nan
+    small = held and ref > 0 and hi < PRACTICAL_LEAD * ref
+    head = f"Ranking over {d.size} paired trials (trial i of each with the same seeds): "
+    if equal:
+        text = head + (f"**{best}** and **{nxt}** have the same {what} in every trial: nothing ranks them, however "
+                       "many trials.")
+    else:
+        text = head + (f"**{best}** leads **{nxt}** in {what} by {st['mean']:.4g}{unit} ({share * 100:.2g} %) on average "
+                       f"[95 % interval {lo:.4g}, {hi:.4g}], lower in {wins} of {d.size} trials: ")
+        text += (f"the lead holds, but all of its interval is under {PRACTICAL_LEAD * 100:.0f} % of the figure: for practical "
+                 "purposes the two are equal." if small else "the lead holds." if held else
+                 "the interval includes 0, so these trials do not rank the two; more trials (--trials) may.")
+    return text, {"best": best, "next": nxt, "mean_difference": st["mean"], "share": share, "ci95": [lo, hi],
+                  "wins": wins, "trials": int(d.size), "holds": bool(held), "practically_equal": bool(small or equal),
+                  "identical": equal}
 
 
 def all_equal(values: list) -> bool:

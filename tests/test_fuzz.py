@@ -243,9 +243,9 @@ def test_sweep_grid(fresh, tmp_path, data):
     body = data.draw(st.sampled_from([
         "settings: {a: {imu.gyro_noise_dps_sqrthz: VALUE}}\n",
         "random: {n: VALUE, ranges: {imu.gyro_noise_dps_sqrthz: [0.001, 0.01]}}\n",
-        "variants: VALUE\nsettings: {a: {gnss.seed: 1}}\n",
+        "variants: VALUE\nsettings: {a: {imu.gyro_noise_dps_sqrthz: 0.01}}\n",
         "settings: VALUE\n",
-        "plots: VALUE\nsettings: {a: {gnss.seed: 1}}\n",
+        "plots: VALUE\nsettings: {a: {imu.gyro_noise_dps_sqrthz: 0.01}}\n",
     ])).replace("VALUE", data.draw(TOKENS).replace("\n", " ") or "''")
     grid.write_text(body)
     out = tmp_path / "sw"

@@ -216,6 +216,17 @@ def test_check_gives_its_verdict_where_its_summary_cannot_be_written_beside_the_
     assert r.exit_code == 2 and "cannot write" in r.stderr
 
 
+def test_a_seed_swept_as_a_setting_is_refused(small, tmp_path):
+    """gnss.seed 3 as a 'setting' ranked first at 0.631 m against the default's 0.753 and went into best.yaml (a
+    statistics review): a seed is averaged over with --trials, not ranked."""
+    grid = tmp_path / "g.yaml"
+    grid.write_text("settings:\n  lucky: {gnss.seed: 3}\n")
+    out = tmp_path / "s"
+    r = CliRunner().invoke(main, ["sweep", str(small), "--grid", str(grid), "--out", str(out)])
+    assert r.exit_code == 2 and "gnss.seed is swept, but a seed is not a setting to rank" in r.stderr, r.output
+    assert "--trials N" in r.stderr and not out.exists()
+
+
 @pytest.mark.parametrize("command", ["sweep", "tune"])
 def test_a_scheduler_nobody_answers_leaves_no_folder(small, tmp_path, monkeypatch, command):
     """One line naming the option, and no empty folder (its own lock file once counted as a record: a diff review);

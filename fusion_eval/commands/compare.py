@@ -322,7 +322,8 @@ def _compare(dataset_path: Path | None, variants: list[str], variant_dir: Path |
         out.write_text("compare.csv", _csv(table, bool(trials_info)))
         md = (_markdown(ds.name, table, truth_body, make_plots, sp, n_trials, warned, ev_cfg["alignment"],
                         list(dict.fromkeys(s for r in runs for s in r.seeded)),
-                        (trials_info or {}).get("ranking_note"))
+                        (trials_info or {}).get("ranking_note"),
+                        {v: mc.effective_seeds(c) for v, c in zip(variants, cfgs)})
               + "\n".join(segments_section({"segments": seg}, note=(
                   f"Trial 0's windows (one seed; the table above gives the means over the {n_trials} trials)."
                   if n_trials > 1 else ""))) + "\n")
@@ -426,7 +427,8 @@ def _latex(name: str, rows: list[dict], n_trials: int, alignment: str = "none") 
 
 def _markdown(name: str, rows: list[dict], truth_body, plots: bool, sp: dict | None = None, n_trials: int = 1,
               warned: dict | None = None, alignment: str = "none", seeded: list[str] | None = None,
-              ranking_note: str | None = None) -> str:
+              ranking_note: str | None = None, seeds: dict | None = None) -> str:
+    """compare.md. ``seeds``: each variant's :func:`fusion_eval.trials.effective_seeds` (None: taken as equal)."""
     order = [o.name for o in observations.REGISTRY]
     header = ["variant", "estimate", "APE trans RMSE [m]", "APE rot RMSE [deg]", "RPE trans 1 frame [m]", "estimate/lidar",
               "estimate/GNSS", "KITTI drift [%] / [deg/100 m]", "NEES pos in 95 %", "lateral / vertical body velocity RMS [m/s]",
@@ -452,8 +454,11 @@ def _markdown(name: str, rows: list[dict], truth_body, plots: bool, sp: dict | N
               "[95 % interval of the mean, Student's t]); the "
               "plots and trajectories are trial 0's, every trial's table is in compare.json.", ""]
     L += [f"## Summary against ground truth (evo, {keys.alignment_words(alignment)})", ""] + markdown(header, body, align="llrrrrrlllllr")
-    fused = sorted(r["ape_trans_rmse_m"] for r in rows if r["estimate"] == "fused" and r.get("ape_trans_rmse_m") is not None)
-    note = mc.one_draw_note(fused[0], fused[1], n_trials, "The best variant's fused APE leads the next by", streams=seeded) \
+    fused = sorted((r for r in rows if r["estimate"] == "fused" and r.get("ape_trans_rmse_m") is not None),
+                   key=lambda r: r["ape_trans_rmse_m"])
+    note = mc.one_draw_note(fused[0]["ape_trans_rmse_m"], fused[1]["ape_trans_rmse_m"], n_trials,
+                            "The best variant's fused APE leads the next by", streams=seeded,
+                            paired=not seeds or seeds.get(fused[0]["variant"]) == seeds.get(fused[1]["variant"])) \
         if len(fused) > 1 else None
     if note:
         L += ["", note]
