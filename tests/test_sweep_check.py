@@ -479,6 +479,31 @@ def test_check_says_when_the_baseline_is_of_another_dataset(tmp_path):
     assert (tmp_path / "c.md").read_text().startswith("# fusion-eval check: ERROR")
 
 
+def test_check_says_when_the_files_were_drawn_with_other_seeds(tmp_path):
+    """8 of 19 other GNSS seeds of the same code failed the shipped 5 % gate as REGRESSION, and a 5-trial mean against a
+    20-trial baseline too, with no word (a statistics review): said, since the verdict is then the seeds'."""
+    from fusion_eval.commands.check import _other_draws
+
+    base, cur = _metrics(tmp_path, "base.json", 1.0), _metrics(tmp_path, "cur.json", 1.2)
+    for p, seed in ((base, 0), (cur, 5)):
+        m = json.loads(p.read_text())
+        m["gnss_degradation"] = {"degraded": True, "seed": seed}
+        p.write_text(json.dumps(m))
+    r = CliRunner().invoke(main, ["check", str(cur), "--baseline", str(base), "--summary", str(tmp_path / "c.md")])
+    assert r.exit_code == 1 and "GNSS was degraded with seed 5 and the baseline's with 0" in r.stderr, r.output
+    r = CliRunner().invoke(main, ["check", str(base), "--baseline", str(base), "--summary", str(tmp_path / "c.md")])
+    assert r.exit_code == 0 and "degraded with seed" not in r.stderr
+    deg = [{"degraded": True, "seed": 0}] * 2
+    t5, t20 = {"n": 5, "seeds": [{"gnss.seed": i} for i in range(5)]}, {"n": 20, "seeds": [{"gnss.seed": i} for i in range(20)]}
+    (w,) = _other_draws(deg, [t5, t20], "mean")
+    assert "the mean over 5 trials and the baseline's over 20" in w
+    shifted = {"n": 5, "seeds": [{"gnss.seed": i + 3} for i in range(5)]}
+    (w,) = _other_draws(deg, [t5, shifted], "mean")
+    assert "drawn with other seeds" in w
+    assert _other_draws(deg, [t5, dict(t5)], "mean") == [] and _other_draws(deg, [t5, t20], None) == []
+    assert _other_draws([{"degraded": False, "seed": 1}, {"degraded": False, "seed": 2}], [None, None], None) == []
+
+
 def test_check_refuses_metrics_scored_otherwise_than_the_baseline(tmp_path):
     """An aligned APE checked against an unaligned baseline passed (found by a corrupted-input review); the same
     scoring with another engine or span bounds compares."""
