@@ -238,3 +238,11 @@ def test_a_verdict_beyond_the_ratio_but_within_the_chance_of_few_independent_epo
     assert consistency_verdict(row) == "overconfident (2.3x the dof)"
     assert consistency_verdict({**row, "independent_epochs": 4.0, "mean_bounds_95": [1.02, 6.06], "mean": 5.54}) == \
         "1.8x the dof, not significant over its ~4 independent epochs, where a consistent filter's mean lies in 0.34-2.02x"
+    # within the ratio but beyond the mean's own interval: significant, and said (kitti-00's attitude NEES, 3.95 for 3
+    # dof over ~64 independent epochs, read as "consistent": a statistics review)
+    att = {"epochs": 4405, "dof": 3, "mean": 3.95, "bounds_95": [0.2, 9.3], "fraction_in_95": 0.93,
+           "independent_epochs": 63.8, "mean_bounds_95": [2.43, 3.63]}
+    assert consistency_verdict(att) == ("mildly overconfident (1.32x the dof, significant: a consistent filter's mean "
+                                        "lies in 0.81-1.21x over its ~64 independent epochs)")
+    assert consistency_verdict({**att, "mean": 3.3}) == "consistent"
+    assert consistency_verdict({**att, "mean": 2.2}).startswith("mildly conservative (0.73x the dof, significant")
