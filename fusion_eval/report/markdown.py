@@ -388,7 +388,7 @@ def report_md(dataset: str, config_name: str, evals: dict, ratios: dict, cfg: di
     elif not gnss_info.get("degraded", True):
         outages = (f", {_outages(gnss_info['outages_s'], gnss_info['fixes_in_outages'], 'fixes')}"
                    if gnss_info.get("outages_s") else "")
-        L.append(f"The GNSS stream is a receiver's output (the manifest does not mark it for degradation): used as it is"
+        L.append(f"The GNSS stream is used as it is, a receiver's output (the manifest does not mark it for degradation)"
                  f"{outages}, {gnss_info['fixes_used']} fixes; std given to the filter: {gnss_info['std_given_to_filter_m']}.")
     else:
         rate = _rate_words(gnss_info, "fix")
