@@ -288,3 +288,19 @@ def test_turns_are_seen_in_bursts_of_stamps_and_on_a_steady_circle():
         assert _turns(ImuSeries(t_s=stamps, f_b_mps2=f, w_b_rps=turning, source="imu"))
     assert _turns(ImuSeries(t_s=t, f_b_mps2=f, w_b_rps=circle, source="imu"))
     assert not _turns(ImuSeries(t_s=t, f_b_mps2=f, w_b_rps=np.zeros_like(circle), source="imu"))
+
+
+def test_a_gyro_lag_far_from_the_oxts_devices_names_the_lidar_stamps(kitti_slice):
+    """KITTI odometry times given from packet 0 without the odometry's own 59 ms: the data fix the lidar offset plus
+    the lag, so the gyro lag came out at -0.1 ms (the OXTS device's 59.5, on five drives to +/-0.6) and the fused APE
+    1.48 m against 0.75, with only NEES warnings (a review against the shared data's README). The default says
+    nothing; a lidar offset left to the data is not checked so."""
+    import fusion_eval as fe
+
+    ds = fe.load_dataset(kitti_slice)
+    said = lambda **o: [w for w in fe.run(ds, overrides=o).metrics["preprocessing"].get("data_warnings", ())   # noqa: E731
+                        if "device's 59.5 ms" in w]
+    assert said() == []
+    (w,) = said(**{"lidar.time_offset_s": 0.06})
+    assert w.startswith("imu.gyro_lag_s=auto is estimated at") and "lidar.time_offset_s=0.000" in w, w
+    assert said(**{"lidar.time_offset_s": "auto", "imu.gyro_lag_s": 0.0595}) == []
