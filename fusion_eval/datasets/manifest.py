@@ -260,6 +260,7 @@ def _from_manifest_dict(body: dict, root: Path, manifest: Path, extra: dict | No
     # orientations as the file holds them (the sensor's frame): a misread quaternion order is told from them alone
     misread = [w for n in ("groundtruth", "lidar") if n in got
                for w in [plausible.pose_reading(n, got[n][0], for_stream(n)[streams[n]["format"]].quaternion)] if w]
+    misread += [w for n in ("groundtruth", "lidar") if n in got for w in [_unrectified_cam0(streams[n], root)] if w]
     lidar_notes = got["lidar"][1] if "lidar" in got else {}
     extra_series = {name: extra[name].readers[streams[name]["format"]](streams[name], ctx)
                     for name in streams if name in extra}
@@ -338,6 +339,27 @@ def _transform(spec_value, root: Path, where: str, what: str) -> np.ndarray:
         return T
     raise ConfigError(f"{where}: {what} must be {{file: ..., key: ...}} or a list of 12 numbers (3x4 row-major; 16 "
                       "for the whole 4x4)")
+
+
+def _unrectified_cam0(spec: dict, root: Path) -> str:
+    """KITTI raw's ``calib_velo_to_cam.txt`` (entries R, T and the camera's delta_f) given as ``T_cam0_velo``: it maps
+    into the *unrectified* cam0, while KITTI's odometry poses (its ground truth, and every odometry run on its
+    sequences) are in the rectified one, ``R_rect_00`` (calib_cam_to_cam.txt) away, 12.7 mrad on 2011_09_30: read as
+    the rectified frame, SiMpLE 07's lidar went 0.568 -> 1.599 m and the fusion 0.417 -> 0.595 m with no word (a review
+    against the shared data's README). A warning; '' otherwise."""
+    v = spec.get("T_cam0_velo") if spec.get("frame") == "cam0" else None
+    if not (isinstance(v, dict) and isinstance(v.get("file"), str) and v.get("key") is None):
+        return ""
+    try:
+        entries = kitti_poses.read_kitti_calib(root / v["file"])
+    except (OSError, ValueError, FusionEvalError):
+        return ""
+    if "delta_f" not in entries and "velo_to_cam" not in Path(v["file"]).name:
+        return ""
+    return (f"T_cam0_velo is read from {v['file']}, KITTI raw's velodyne-to-camera calibration, which maps into the "
+            "unrectified cam0; KITTI odometry poses (and odometries run on its sequences) are in the rectified cam0, "
+            "R_rect_00 of calib_cam_to_cam.txt away (12.7 mrad on 2011_09_30): give the odometry sequence's calib.txt "
+            "{file: calib.txt, key: Tr} instead, or R_rect_00 times this transform as 12 numbers")
 
 
 def _extrinsic(spec, root, manifest) -> np.ndarray:
