@@ -316,8 +316,9 @@ def prepare(ds: Dataset, cfg: dict) -> Prepared:
         # (positions in another frame fit the truth at no time shift: the frame is the warning then)
         more_warnings += filter(None, [other_frame or plausible.clock_shift("the lidar", lid, gt, "lidar.time_offset_s", lidar_off)
                                        or plausible.speed_clock_warning("the lidar", lid, gt, "lidar.time_offset_s", lidar_off)])
-        if ds.description.get("lidar_clock"):
-            applied["lidar_clock"] = ds.description["lidar_clock"]
+        for k in ("lidar_clock", "lidar_times_aligned"):
+            if ds.description.get(k):
+                applied[k] = ds.description[k]
         if cfg["filter"].get("nhc") and cfg["filter"].get("nhc_travel_pitch_mrad") == "auto":
             travel = estimate_travel_pitch(lid.select(~lid.filled), cfg["filter"]["nhc_travel_yaw_mrad"] * 1e-3)
         if cfg["lidar"]["interpolate_to_imu"]:

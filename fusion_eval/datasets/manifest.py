@@ -283,6 +283,8 @@ def _from_manifest_dict(body: dict, root: Path, manifest: Path, extra: dict | No
                                  and all(streams.get(k, {}).get("format") != "kitti_oxts" for k in ("gnss", "groundtruth")),
         # the lidar frame clock recovered from the stamps of the IMU packets (times.smooth_s), if asked for
         "lidar_clock": lidar_notes.get("clock"),
+        # a times file put on the IMU packets' clock (times.align_to: imu): the median shift it took
+        "lidar_times_aligned": lidar_notes.get("times_aligned"),
         # KITTI's OXTS position is the GPS/INS solution (= the ground truth): degrade it by default;
         # a receiver's (or a simulator's) fixes are used as they are.
         "gnss_degrade": bool(streams.get("gnss", {}).get("degrade", streams.get("gnss", {}).get("format") == "kitti_oxts")),

@@ -428,6 +428,14 @@ def report_md(dataset: str, config_name: str, evals: dict, ratios: dict, cfg: di
         L.append(f"- Lidar frame times: the stamps of the IMU packets they were matched to, smoothed by a robust local line "
                  f"over {c['window_frames']} frames (residual std {c['residual_std_ms']:.1f} ms; {c['glitches']} stamps set "
                  "aside as glitches).")
+    if applied.get("lidar_times_aligned"):
+        a = applied["lidar_times_aligned"]
+        L.append(f"- Lidar frame times: `{a['file']}` put on the IMU packets' clock (times.align_to: imu, index_offset "
+                 f"{a['index_offset']}) by the median shift of its {a['frames']} frames from their packets, "
+                 f"{a['shift_s']:.6f} s (spread {a['spread_ms']:.1f} ms, median absolute)"
+                 + (f"; its first frame lands {a['first_frame_vs_packet_ms']:+.1f} ms from its packet's stamp"
+                    if a.get("first_frame_vs_packet_ms") is not None else "")
+                 + ": an offset the times file holds from the packets (KITTI odometry's ~59 ms) is taken out so.")
     if "lidar_anchor_t_s" in applied:
         L.append(f"- Lidar odometry anchored at the ground-truth pose at t = {applied['lidar_anchor_t_s']:.6f} s; "
                  f"{'resampled on the IMU stamps' if cfg['lidar']['interpolate_to_imu'] else 'at its own stamps'}.")
