@@ -98,10 +98,22 @@ def stats(values) -> dict:
 
 
 def summarize(per_trial: list[dict]) -> dict:
-    """``{path: stats}`` over the trials' flattened metrics (a path missing in a trial is left out of it)."""
+    """``{path: stats}`` over the trials' flattened metrics (a path missing in a trial is left out of it). The
+    interval of one more run is kept inside what the figure can be: not below 0 for a figure that is never negative
+    in the trials (an APE, a NEES), not above 1 for a fraction (2 trials of a NEES fraction gave 0.75 .. 1.085: a
+    diff review)."""
     flats = [keys.flatten(m) for m in per_trial]
     paths = list(dict.fromkeys(p for f in flats for p in f))
-    return {p: stats([f[p] for f in flats if p in f]) for p in paths}
+    out = {p: stats([f[p] for f in flats if p in f]) for p in paths}
+    for p, st in out.items():
+        if "pi95_run" in st and st.get("n", 0) > 1:
+            lo, hi = st["pi95_run"]
+            if st["min"] >= 0.0:
+                lo = max(lo, 0.0)
+            if "fraction" in p.rsplit(".", 1)[-1] and st["max"] <= 1.0:
+                hi = min(hi, 1.0)
+            st["pi95_run"] = [lo, hi]
+    return out
 
 
 NOTHING_RANDOM = ("the fused estimate's figures are identical over the {n} trials: nothing it uses depends on a seed "
@@ -191,14 +203,18 @@ def rerun_commands(datasets, n_trials: int, config: str = "best.yaml") -> list[s
     return [f"fusion-eval run {shlex.quote(str(d))} -c {config}{trials}" for d in datasets]
 
 
-def paired_lead(per_trial: dict[str, list], what: str = "fused APE", unit: str = " m") -> tuple[str, dict] | None:
+def paired_lead(per_trial: dict[str, list], what: str = "fused APE", unit: str = " m", relative: bool = True,
+                seeds: dict | None = None) -> tuple[str, dict] | None:
     """The best entry against the next, paired over the trials every entry finished (trial i of each draws its
     random elements with the same seed offset): the mean difference of their figures with its 95 % interval
-    (Student's t), as a share of the next's mean too, and how many trials the best wins; overlapping intervals of the
-    two means said nothing of a lead that every seed showed (a review: 0.007-0.020 m on each of four seeds). A lead
-    that holds but whose whole interval is under :data:`PRACTICAL_LEAD` of the figure is said to be too small to
-    matter, and two entries equal in every trial are said to be equal (both were 'may rank with more trials': a
-    statistics review). ``per_trial``: {entry: [figure per trial]} (None or NaN for a failed trial: the ranking is
+    (Student's t), and how many trials the best wins; overlapping intervals of the two means said nothing of a lead
+    that every seed showed (a review: 0.007-0.020 m on each of four seeds). ``relative`` (an error figure, whose zero
+    is no error): the lead as a share of the next's mean too, and a lead that holds but whose whole interval is under
+    :data:`PRACTICAL_LEAD` of the figure is said to be too small to matter; two entries equal in every trial are said
+    to be equal (both were 'may rank with more trials': a statistics review). ``seeds``: each entry's
+    :func:`effective_seeds`; two entries drawn with other seeds are not paired (a variant setting its own gnss.seed
+    was 'paired' over trials of seeds 0-2 against 3-5: a diff review), and get Welch's interval of the difference of
+    their means instead. ``per_trial``: {entry: [figure per trial]} (None or NaN for a failed trial: the ranking is
     over the trials every entry finished, the pair over those both finished)."""
     def done(k, i):
         return per_trial[k][i] is not None and math.isfinite(per_trial[k][i])
@@ -213,29 +229,52 @@ def paired_lead(per_trial: dict[str, list], what: str = "fused APE", unit: str =
         return None
     means = {k: float(np.mean([per_trial[k][i] for i in ok])) for k in rows}
     best, nxt = sorted(means, key=means.get)[:2]
-    both = [i for i in range(n) if done(best, i) and done(nxt, i)]
-    d = np.array([per_trial[nxt][i] - per_trial[best][i] for i in both])
-    st = stats(d)
-    lo, hi = st["ci95_mean"]
-    wins = int(np.sum(d > 0))
-    equal = bool(np.all(d == 0))
+    paired = not seeds or seeds.get(best) == seeds.get(nxt)
+    if paired:
+        both = [i for i in range(n) if done(best, i) and done(nxt, i)]
+        d = np.array([per_trial[nxt][i] - per_trial[best][i] for i in both])
+        st = stats(d)
+        diff, (lo, hi), count = st["mean"], st["ci95_mean"], int(d.size)
+        wins, equal = int(np.sum(d > 0)), bool(np.all(d == 0))
+        ref = abs(float(np.mean([per_trial[nxt][i] for i in both])))
+        head = f"Ranking over {count} paired trials (trial i of each with the same seeds): "
+    else:
+        a, b = (np.array([per_trial[k][i] for i in range(len(per_trial[k])) if done(k, i)]) for k in (best, nxt))
+        diff, (lo, hi) = _welch(b, a)
+        count, wins, equal, ref = int(min(a.size, b.size)), None, False, abs(float(b.mean()))
+        head = (f"Ranking over {a.size} and {b.size} trials, unpaired: **{best}** and **{nxt}** draw with other seeds "
+                "(a variant that sets its own), so their trials do not pair; ")
     held = lo > 0
-    ref = abs(float(np.mean([per_trial[nxt][i] for i in both])))
-    share = st["mean"] / ref if ref > 0 else math.nan
-    small = held and ref > 0 and hi < PRACTICAL_LEAD * ref
-    head = f"Ranking over {d.size} paired trials (trial i of each with the same seeds): "
+    share = diff / ref if relative and ref > 0 else math.nan
+    small = held and relative and ref > 0 and hi < PRACTICAL_LEAD * ref
     if equal:
         text = head + (f"**{best}** and **{nxt}** have the same {what} in every trial: nothing ranks them, however "
                        "many trials.")
     else:
-        text = head + (f"**{best}** leads **{nxt}** in {what} by {st['mean']:.4g}{unit} ({share * 100:.2g} %) on average "
-                       f"[95 % interval {lo:.4g}, {hi:.4g}], lower in {wins} of {d.size} trials: ")
+        pct = f" ({share * 100:.2g} %)" if math.isfinite(share) else ""
+        text = head + (f"**{best}** leads **{nxt}** in {what} by {diff:.4g}{unit}{pct} on average "
+                       f"[95 % interval {lo:.4g}, {hi:.4g}{'' if paired else ', Welch'}]"
+                       + (f", lower in {wins} of {count} trials: " if paired else ": "))
         text += (f"the lead holds, but all of its interval is under {PRACTICAL_LEAD * 100:.0f} % of the figure: for practical "
                  "purposes the two are equal." if small else "the lead holds." if held else
                  "the interval includes 0, so these trials do not rank the two; more trials (--trials) may.")
-    return text, {"best": best, "next": nxt, "mean_difference": st["mean"], "share": share, "ci95": [lo, hi],
-                  "wins": wins, "trials": int(d.size), "holds": bool(held), "practically_equal": bool(small or equal),
-                  "identical": equal}
+    return text, {"best": best, "next": nxt, "mean_difference": diff, "share": share, "ci95": [lo, hi],
+                  "wins": wins, "trials": count, "holds": bool(held), "practically_equal": bool(small or equal),
+                  "identical": equal, "paired": paired}
+
+
+def _welch(b: np.ndarray, a: np.ndarray) -> tuple[float, tuple[float, float]]:
+    """mean(b) - mean(a) and its 95 % interval (Welch's t, unequal variances)."""
+    from scipy.stats import t
+
+    va, vb = (float(x.var(ddof=1)) / x.size if x.size > 1 else math.nan for x in (a, b))
+    diff = float(b.mean() - a.mean())
+    se2 = va + vb
+    if not se2 > 0:
+        return diff, (math.nan, math.nan)
+    dof = se2 ** 2 / (va ** 2 / (a.size - 1) + vb ** 2 / (b.size - 1))
+    half = float(t.ppf(0.975, dof)) * math.sqrt(se2)
+    return diff, (diff - half, diff + half)
 
 
 def all_equal(values: list) -> bool:

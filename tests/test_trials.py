@@ -298,3 +298,65 @@ def test_a_paired_lead_too_small_to_matter_and_equal_entries_are_said_so():
     assert info["identical"] and "have the same fused APE in every trial: nothing ranks them" in text
     text, info = paired_lead({"a": base, "b": [b + 0.05 for b in base]})
     assert info["holds"] and not info["practically_equal"] and text.endswith("the lead holds.")
+
+
+def test_entries_drawn_with_other_seeds_are_not_paired_and_a_figure_of_arbitrary_zero_gets_no_share():
+    """A variant setting its own gnss.seed was 'paired' over trials of seeds 0-2 against 3-5, and nll got '(0.088 %)'
+    and 'practically equal' (its zero is arbitrary; a reference of 0 printed 'nan %'): a diff review."""
+    from scipy.stats import ttest_ind
+
+    from fusion_eval.trials import paired_lead
+
+    a, b = [0.70, 0.80, 0.75, 0.72], [0.90, 0.95, 0.85, 0.99]
+    text, info = paired_lead({"eskf": a, "eskf3": b}, seeds={"eskf": {"gnss.seed": 0}, "eskf3": {"gnss.seed": 3}})
+    assert not info["paired"] and info["wins"] is None and "unpaired" in text and "Welch" in text, text
+    # Welch's interval: 0 outside it exactly where Welch's two-sided test rejects at 5 %
+    assert info["holds"] == (ttest_ind(b, a, equal_var=False).pvalue < 0.05)
+    _, same = paired_lead({"eskf": a, "eskf3": b}, seeds={"eskf": {"gnss.seed": 0}, "eskf3": {"gnss.seed": 0}})
+    assert same["paired"] and same["wins"] == 4
+    text, info = paired_lead({"a": [-0.2, -0.3, -0.2], "b": [0.0, 0.0, 0.0]}, "nll", "", relative=False)
+    assert " %)" not in text and "nan" not in text and not info["practically_equal"], text
+    text, _ = paired_lead({"a": [-0.2, -0.3, -0.2], "b": [0.0, 0.0, 0.0]}, "x", "")
+    assert "nan" not in text, text
+
+
+def test_the_interval_of_one_more_run_stays_inside_what_the_figure_can_be():
+    from fusion_eval.trials import summarize
+
+    per = [{"nees": {"attitude": {"fraction_in_95": f}}, "estimates": {"fused": {"ape": {"translation_m": {"rmse": a}}}}}
+           for f, a in ((0.80, 0.3), (1.0, 0.9))]
+    st = summarize(per)
+    lo, hi = st["nees.attitude.fraction_in_95"]["pi95_run"]
+    assert hi == 1.0 and lo >= 0.0
+    assert st["fused.ape.translation_m.rmse"]["pi95_run"][0] == 0.0
+
+
+def test_a_sweeps_settings_that_share_their_runs_are_one_entry_in_the_paired_ranking():
+    """A setting equal to the default was 'equal in every trial' to the best, and the real runner-up never given."""
+    from types import SimpleNamespace
+
+    from fusion_eval.commands.sweep_summary import _paired_lead
+
+    rows = []
+    for i, (d, noisy) in enumerate(((0.40, 0.50), (0.45, 0.55))):
+        rows += [{"dataset": "ds", "variant": "eskf", "setting": "default", "trial": i, "id": f"d{i}", "status": "ok",
+                  "m": d},
+                 {"dataset": "ds", "variant": "eskf", "setting": "same", "trial": i, "id": f"d{i}", "status": "ok",
+                  "m": d},
+                 {"dataset": "ds", "variant": "eskf", "setting": "noisy", "trial": i, "id": f"n{i}", "status": "ok",
+                  "m": noisy}]
+    rank = SimpleNamespace(is_default=True, objective=SimpleNamespace(name="fused APE", is_error=True))
+    text, info = _paired_lead(rows, "m", 2, rank)
+    assert info["best"] == "eskf/default = eskf/same" and info["next"] == "eskf/noisy", text
+    assert info["mean_difference"] == pytest.approx(0.10)
+
+
+@pytest.mark.slow
+def test_compare_trials_of_a_variant_with_its_own_seed_are_not_paired(kitti_slice, tmp_path):
+    (tmp_path / "eskf3.yaml").write_text("gnss:\n  seed: 3\n", encoding="utf-8")
+    out = tmp_path / "cmp"
+    r = CliRunner().invoke(main, ["-q", "compare", str(kitti_slice), "--variants", f"eskf,{tmp_path / 'eskf3.yaml'}",
+                                  "--trials", "2", "--out", str(out), "--no-plots"])
+    assert r.exit_code == 0, r.output
+    c = json.loads((out / "compare.json").read_text(encoding="utf-8"))
+    assert c["trials"]["ranking"]["paired"] is False and "unpaired" in (out / "compare.md").read_text(encoding="utf-8")

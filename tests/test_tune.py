@@ -395,8 +395,12 @@ def test_the_first_trial_is_the_default_even_where_the_default_is_auto(tmp_path)
     part = R._generalisation([("training", 0.75, 0.6975), ("held-out", 0.42, 0.41)])
     assert part.startswith("Partly overfitted") and "(2.4% of the default's)" in part, part
     # an objective that may be negative (the innovations' nll) compares absolute gains
-    nll = R._generalisation([("training", -1.0, -1.2), ("held-out", -0.5, -0.55)])
+    nll = R._generalisation([("training", 1.0, 0.8), ("held-out", 0.5, 0.45)], relative=False)
     assert nll.startswith("Partly overfitted: the gain on the held-out drives (0.05)") and "%" not in nll, nll
+    from fusion_eval.tuning.objectives import parse
+
+    assert parse("fused.ape.rmse").is_error and parse("0.5*fused.ape.rmse+0.5*fused.rpe_100m.rmse").is_error
+    assert not parse("nll").is_error and not parse("nis").is_error
 
 
 def test_a_study_resumed_with_held_out_drives_scores_the_default_on_them(tmp_path):

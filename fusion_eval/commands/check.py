@@ -510,11 +510,12 @@ def _other_draws(degradations: list, trials: list, trial_stat: str | None) -> li
     code's (a statistics review: 8 of 19 other seeds of the same code failed the shipped gate, with no word)."""
     out = []
     seeds = [d.get("seed") if isinstance(d, dict) and d.get("degraded") else None for d in degradations]
-    if None not in seeds and seeds[0] != seeds[1]:
+    with_trials = trial_stat is not None and all(isinstance(t, dict) for t in trials)
+    if None not in seeds and seeds[0] != seeds[1] and not with_trials:     # (trials: said of their seeds below)
         out.append(f"the metrics file's GNSS was degraded with seed {seeds[0]} and the baseline's with {seeds[1]}: "
                    "their fused figures differ by the seeds alone (on kitti-00 by about 10 % of the fused APE), so a "
                    "verdict here is not the code's; make both with the same gnss.seed (or with --trials over the same seeds)")
-    if trial_stat is not None and all(isinstance(t, dict) for t in trials):
+    if with_trials:
         n = [t.get("n") for t in trials]
         if n[0] != n[1]:
             out.append(f"the metrics file's figures are the {trial_stat} over {n[0]} trials and the baseline's over "

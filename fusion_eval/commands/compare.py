@@ -292,7 +292,8 @@ def _compare(dataset_path: Path | None, variants: list[str], variant_dir: Path |
                        "per_trial": tables}
         table = mc.aggregate_rows(tables, ("variant", "estimate"))
         lead = mc.paired_lead({v: [next((r.get("ape_trans_rmse_m") for r in t if r["variant"] == v and
-                                         r["estimate"] == "fused"), None) for t in tables] for v in variants})
+                                         r["estimate"] == "fused"), None) for t in tables] for v in variants},
+                              seeds={v: mc.effective_seeds(c) for v, c in zip(variants, cfgs)})
         if lead:
             trials_info["ranking"] = lead[1]
             trials_info["ranking_note"] = lead[0]

@@ -375,15 +375,10 @@ def convention_hints(f, ref_f, alignment: str, rot_rmse_deg: float | None = None
     from ..evaluation.trajectory import associate_nearest
 
     out = []
-    est = f.traj
-    if t_offset_s:       # matched as the evaluation matches them, --t-offset applied (without it: no pairs, no word on
-        # a file whose stamps needed the offset; a review of the shared data's README: 377 m beside no hint)
-        from evo.core.trajectory import PoseTrajectory3D
-
-        est = PoseTrajectory3D(positions_xyz=est.positions_xyz, orientations_quat_wxyz=est.orientations_quat_wxyz,
-                               timestamps=np.asarray(est.timestamps, float) + t_offset_s)
-    try:                                  # pairs as the evaluation makes them (nearest stamp, 20 ms)
-        ref_a, est_a = associate_nearest(ref_f.traj, est, 0.02)
+    # pairs as the evaluation makes them (nearest stamp, 20 ms, --t-offset applied: without it, no pairs and no word on
+    # a file whose stamps needed the offset; a review of the shared data's README: 377 m beside no hint)
+    try:
+        ref_a, est_a = associate_nearest(ref_f.traj, f.traj, 0.02, t_offset_s)
     except sync.SyncException:
         return out
     if est_a.num_poses < 3:

@@ -200,16 +200,24 @@ def _paired_lead(rows: list[dict], metric: str, n_trials: int, rank) -> tuple[st
 
     datasets = {r["dataset"] for r in rows}
     per: dict = {}
+    ran: dict = {}
     for r in rows:
+        ran.setdefault((r["variant"], r["setting"]), set()).add(r["id"])
         if r["status"] == "ok" and r.get(metric) is not None:
             per.setdefault((r["variant"], r["setting"]), {}).setdefault(r["trial"], []).append(r[metric])
-    if len(per) < 2:
+    # settings that ran the same configuration (one equal to the default) are one entry, named together: the best was
+    # 'equal in every trial' to itself under another name, and the real runner-up never given (a diff review)
+    names: dict = {}
+    for key in per:
+        names.setdefault(frozenset(ran[key]), []).append(f"{key[0]}/{key[1]}")
+    if len(names) < 2:
         return None
     # one figure per trial: the mean over the datasets, where the trial finished on every one (as the ranking averages)
-    per_trial = {f"{v}/{s}": [float(np.mean(by[i])) if len(by.get(i, ())) == len(datasets) else None
-                              for i in range(n_trials)] for (v, s), by in per.items()}
+    per_trial = {" = ".join(names[frozenset(ran[(v, s)])]): [
+        float(np.mean(by[i])) if len(by.get(i, ())) == len(datasets) else None for i in range(n_trials)]
+        for (v, s), by in per.items() if names[frozenset(ran[(v, s)])][0] == f"{v}/{s}"}
     what = ("fused APE" if rank.is_default else rank.objective.name) + (" (mean over the datasets)" if len(datasets) > 1 else "")
-    return paired_lead(per_trial, what, " m" if rank.is_default else "")
+    return paired_lead(per_trial, what, " m" if rank.is_default else "", relative=rank.objective.is_error)
 
 
 def _span_note(rows: list[dict]) -> str:

@@ -83,10 +83,7 @@ def pose_times(entry: dict, ctx: ReadContext, n_poses: int) -> np.ndarray:
             # said in the report: the shift carries the odometry's own offset from the packets (KITTI's 59 ms), which
             # left no trace beside "time offsets added: none" (a review against the shared data's README)
             ctx.notes["times_aligned"] = {"file": str(times["file"]), "shift_s": shift, "frames": int(ok.sum()),
-                                          "spread_ms": float(np.median(np.abs(d - shift)) * 1e3), "index_offset": offset,
-                                          # where the file's first frame lands against its own packet's stamp
-                                          "first_frame_vs_packet_ms": float((t[0] - raw.t_s[offset]) * 1e3)
-                                          if 0 <= offset < raw.t_s.size else None}
+                                          "spread_ms": float(np.median(np.abs(d - shift)) * 1e3), "index_offset": offset}
         elif "t0_s" in times:
             t = t + float(times["t0_s"])
         return t

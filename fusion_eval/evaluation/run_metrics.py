@@ -377,7 +377,7 @@ def truths_own_gnss(evals: dict) -> list[str]:
     return [f"the GNSS's positions match the ground truth to {own * 1000:.3f} mm RMS over {len(gnss.ape_err_m)} fixes: "
             "they are its own source (KITTI's OXTS GPS/INS solution is both), so every figure against the truth of an "
             "estimate that fuses them is scored on the answer; mark the stream for degradation (degrade: true under the "
-            "manifest's gnss), or give a receiver's own fixes"]
+            "manifest's gnss) with noise (gnss.noise_std_m, not zero), or give a receiver's own fixes"]
 
 
 def chi2_upper(dof: int, prob: float = 0.975) -> float:

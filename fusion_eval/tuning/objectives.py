@@ -37,6 +37,12 @@ class Objective:
     def needs_truth(self) -> bool:
         return any(k not in NO_TRUTH for _, k in self.terms)
 
+    @property
+    def is_error(self) -> bool:
+        """A positive sum of metrics against the ground truth: zero is no error, so a gain can be read as a share of
+        the figure (not so the innovations' nll, whose zero is arbitrary)."""
+        return all(k not in NO_TRUTH and w > 0 for w, k in self.terms)
+
     def value(self, flat: dict) -> float:
         """The objective of one run's flattened metrics (:func:`keys.flatten`); NaN where a key is missing."""
         total = 0.0

@@ -160,10 +160,11 @@ def markdown(s: Setup, res: dict, runtime_s: float) -> str:
                 else ["objective (default)", "objective (tuned)"])
     L += ["## Objective and fused APE, default against tuned", ""] + markdown_table(
         ["drives", *obj_cols, "fused APE RMSE m (default)", "fused APE RMSE m (tuned)"], rows)
-    L += ["", _generalisation(gaps), ""]
+    L += ["", _generalisation(gaps, relative=all(o.is_error for o in s.objectives[:1])), ""]
     d_ape, t_ape = _mean(default["train"], FUSED_APE), _mean(best["train"], FUSED_APE)
+    # (equal figures: the table and the verdict above already say the tuned values are the default's)
     note = one_draw_note(t_ape, d_ape, s.seeds, "The tuned values' fused APE on the training drives leads the default's by",
-                         "--seeds 3")
+                         "--seeds 3") if t_ape != d_ape else None
     if note:
         L += [note, ""]
     if len(s.objectives) > 1:
@@ -210,7 +211,7 @@ def _worse(d: float) -> str:
     return "equal to it" if d == 0 else f"{d:.4g} worse"
 
 
-def _generalisation(gaps) -> str:
+def _generalisation(gaps, relative: bool = True) -> str:
     """Whether the gain on the training drives holds on the held-out ones (overfitting shows as a gap)."""
     if gaps and all(math.isfinite(x) for x in gaps[0][1:]) and gaps[0][1] - gaps[0][2] <= 0 and len(gaps) < 2:
         return (f"The tuned values are no better than the default on the training drives "
@@ -229,8 +230,9 @@ def _generalisation(gaps) -> str:
                 f"worse on the held-out drives by {-g_te:.4g}.")
     # gains as shares of the default's figure where the objective is a positive error (an APE): drives of other error
     # levels compared by their absolute gains read equal relative gains (7 % on simple-07's 0.42 m and on kitti-00's
-    # 0.75 m) as 'partly overfitted' (a statistics review); an objective that may be negative (nll) stays absolute
-    rel = d_tr > 0 and d_te > 0
+    # 0.75 m) as 'partly overfitted' (a statistics review); the innovations' nll, whose zero is arbitrary, stays
+    # absolute (``relative``: the objective is an error, objectives.Objective.is_error)
+    rel = relative and d_tr > 0 and d_te > 0
     a_tr, a_te = (g_tr / d_tr, g_te / d_te) if rel else (g_tr, g_te)
     say = (lambda g, d: f"{g:.4g} ({g / d:.1%} of the default's)") if rel else (lambda g, d: f"{g:.4g}")   # noqa: E731
     if g_tr > 0 and a_te < 0.5 * a_tr:
