@@ -178,6 +178,21 @@ def test_check_refuses_a_baseline_lacking_a_gated_metric(tmp_path, value, needle
     assert r.exit_code == 2 and needle in r.stderr and "fused.ape" in r.stderr and "Traceback" not in r.output
 
 
+def test_check_tolerance_is_the_sum_of_atol_and_rtol_and_its_edge_passes(tmp_path):
+    """current > baseline + atol + rtol |baseline| regresses; at the edge it passes (the README's rule; a mutation
+    review found neither the sum nor the edge held by a test)."""
+    base = _metrics(tmp_path, "base.json", 1.0)
+    edge = _metrics(tmp_path, "edge.json", 1.25)          # exact in binary: 1.0 + 0.25
+    both = _metrics(tmp_path, "both.json", 1.4)           # within 0.25 + 0.25 x 1.0, beyond either alone
+    run = CliRunner().invoke
+    r = run(main, ["check", str(edge), "-b", str(base), "--atol", "0.25", "--rtol", "0", "--summary", str(tmp_path / "c.md")])
+    assert r.exit_code == 0, r.output
+    r = run(main, ["check", str(both), "-b", str(base), "--atol", "0.25", "--rtol", "0.25", "--summary", str(tmp_path / "c.md")])
+    assert r.exit_code == 0, r.output
+    r = run(main, ["check", str(both), "-b", str(base), "--atol", "0.25", "--rtol", "0", "--summary", str(tmp_path / "c.md")])
+    assert r.exit_code == 1 and "REGRESSION" in r.output, r.output
+
+
 def test_check_accepts_a_sweep_csv(tmp_path):
     cols = "id,dataset,variant,setting,fused_ape_trans_rmse_m,fused_ape_rot_rmse_deg,fused_rpe_1frame_trans_rmse_m,status,error\n"
     (tmp_path / "b.csv").write_text(cols + "x,d,eskf,default,1.0,0.5,0.1,ok,\n")

@@ -277,6 +277,7 @@ def test_the_interval_of_one_more_run_is_a_t_prediction_interval():
     half = student.ppf(0.975, 4) * np.std(v, ddof=1) * np.sqrt(1 + 1 / 5)
     assert st["pi95_run"] == pytest.approx([np.mean(v) - half, np.mean(v) + half], rel=1e-12)
     assert st["pi95_run"][0] < min(v) and st["pi95_run"][1] > max(v)
+    assert st["p2.5"] == np.percentile(v, 2.5) and st["p97.5"] == np.percentile(v, 97.5)
     # its coverage of new draws, over many 5-trial sets of a normal figure: 95 %, where the percentiles' is far below
     rng = np.random.default_rng(1)
     sets, new = rng.normal(0.75, 0.08, (4000, 5)), rng.normal(0.75, 0.08, 4000)
@@ -298,6 +299,8 @@ def test_a_paired_lead_too_small_to_matter_and_equal_entries_are_said_so():
     assert info["identical"] and "have the same fused APE in every trial: nothing ranks them" in text
     text, info = paired_lead({"a": base, "b": [b + 0.05 for b in base]})
     assert info["holds"] and not info["practically_equal"] and text.endswith("the lead holds.")
+    _, info = paired_lead({"a": [1.0, 1.1, 1.2], "b": [1.0, 1.2, 1.3]})       # a tie is no win
+    assert info["wins"] == 2 and info["trials"] == 3
 
 
 def test_entries_drawn_with_other_seeds_are_not_paired_and_a_figure_of_arbitrary_zero_gets_no_share():
