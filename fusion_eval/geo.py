@@ -73,7 +73,7 @@ def normal_gravity_mps2(lat_deg: float, alt_m: float) -> float:
     """WGS84 normal gravity (Somigliana's formula) with the free-air correction, in m/s^2.
 
     Used as the default gravity magnitude so that the filter needs no tuned constant: at the
-    KITTI drives (49.0 deg N, 116 m) it gives 9.8092 m/s^2.
+    KITTI drives (49.0 deg N, 116 m) it gives 9.8094 m/s^2.
     """
     s2 = np.sin(np.radians(lat_deg)) ** 2
     g0 = 9.7803253359 * (1.0 + 0.00193185265241 * s2) / np.sqrt(1.0 - 0.00669437999013 * s2)

@@ -56,6 +56,9 @@ def test_drift_metric_reproduces_kiss_icp_figures():
     d = kitti_drift(gt, est)
     # result_metrics.log of the producer: 0.527 % and 0.002 deg/m
     assert round(d.t_err_pct, 3) == 0.527 and round(d.r_err_deg_per_m, 3) == 0.002
+    # as written to metrics.json: the rotation per 100 m (0.189 deg, the README's 'deg/100 m' columns)
+    assert d.as_dict()["r_err_deg_per_100m"] == pytest.approx(100 * d.r_err_deg_per_m, rel=1e-12)
+    assert d.as_dict()["t_err_pct"] == d.t_err_pct
     # the compiled loop (general 3x3 inverses) against the devkit's products of whole 4x4 inverses, every length:
     # translation to 1e-9 relative on poses rounded in their files (a rigid inverse R^T instead differs by 1e-6
     # here), the rotation angle to 1e-12 deg/m (arccos near 0 amplifies the last bits of the trace)

@@ -123,3 +123,14 @@ def test_series_share_what_cannot_change_and_copy_the_rest():
     v = a.view()
     v.setflags(write=False)                             # read-only, but a view of a writable array
     assert PoseSeries(t_s=t, p_w_m=v, q_wb_xyzw=q).p_w_m is not v
+
+
+def test_normal_gravity_falls_with_height_and_rises_towards_the_poles():
+    """WGS84 normal gravity (Somigliana) with the free-air term -3.086e-6 /s^2 per metre (a mutation review found the
+    sign of the height term held by no test): 9.780 at the equator, 9.832 at the poles, 9.8094 at KITTI."""
+    from fusion_eval.geo import normal_gravity_mps2
+
+    assert normal_gravity_mps2(0.0, 0.0) == pytest.approx(9.7803253359, abs=1e-9)
+    assert normal_gravity_mps2(90.0, 0.0) == pytest.approx(9.8321849379, abs=1e-6)
+    assert normal_gravity_mps2(49.0, 1000.0) - normal_gravity_mps2(49.0, 0.0) == pytest.approx(-3.086e-3, rel=1e-9)
+    assert normal_gravity_mps2(49.0, 116.0) == pytest.approx(9.8094, abs=1e-4)
