@@ -284,3 +284,17 @@ def test_no_compiled_caller_passes_the_steps_covariance_flag_as_a_constant():
                         and any(isinstance(a, ast.Constant) and isinstance(a.value, bool) for a in call.args)):
                     found.append(f"{name}:{call.lineno}: {ast.unparse(call)}")
     assert not found, found
+
+
+def test_gnss_std_scale_multiplies_the_std_the_filter_is_given(kitti_slice):
+    """gnss.std_scale scales each fix's std (not its variance): a mutation review found the square held by no test."""
+    from fusion_eval.filters.observations.gnss_position import GnssPosition
+
+    def stds(scale):
+        prep, s = _prepared(f"gnss.std_scale={scale}", data=kitti_slice)
+        b = next(o for o in observations.enabled(s.cfg) if isinstance(o, GnssPosition)).bind(prep, s)
+        return np.array([b.model(j).keywords["row"][3:6] for j in range(len(b.t_s))])
+
+    one, two = stds(1.0), stds(2.0)
+    assert one.size and np.all(one > 0)
+    np.testing.assert_allclose(two, 2.0 * one, rtol=1e-12)
