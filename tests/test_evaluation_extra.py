@@ -557,3 +557,34 @@ def test_a_tilted_reference_frame_gets_no_up_axis_split_and_a_warned_4dof(caplog
         evaluate(PoseSeries(t_s=s / 10.0, p_w_m=p, q_wb_xyzw=q), PoseSeries(t_s=s / 10.0, p_w_m=p + dp, q_wb_xyzw=q),
                  "est", 0.01, 50.0, alignment="4dof")
     assert "tilted frame" not in caplog.text
+
+
+def test_the_innovation_objectives_are_their_formulas():
+    """The likelihood of the innovations is the Gaussian's (-logpdf per update), and NIS calibration is 0 for a
+    consistent filter and ln(2)^2 for a mean NIS twice its dof (a mutation review found the dof dropped from one and
+    the mean not divided by it in the other held by no test: the nis objective of tune)."""
+    from scipy.stats import multivariate_normal
+
+    from fusion_eval.evaluation.consistency import innovation_nll, innovation_summary
+
+    rng = np.random.default_rng(2)
+    S = np.diag([0.5, 2.0, 3.0])
+    r = rng.multivariate_normal(np.zeros(3), S, 20)
+    nis = np.einsum("ni,ij,nj->n", r, np.linalg.inv(S), r)
+    ld = np.full(20, np.log(np.linalg.det(S)))
+    want = -np.mean(multivariate_normal(np.zeros(3), S).logpdf(r))
+    assert innovation_nll(nis, ld, 3) == pytest.approx(want, rel=1e-12)
+    ok = {"epochs": 100, "mean": 6.0, "dof": 6, "fraction_in_95": 0.95, "nll_mean": 1.0}
+    assert innovation_summary({"lidar": ok})["nis_calibration"] == 0.0
+    twice = {**ok, "mean": 12.0}
+    assert innovation_summary({"lidar": twice})["nis_calibration"] == pytest.approx(np.log(2.0) ** 2, rel=1e-12)
+
+
+def test_the_time_shift_search_refines_its_grid_minimum_on_the_parabola():
+    """A parabola's vertex between grid points comes out exactly (its sign flipped survived a 2 ms tolerance)."""
+    from fusion_eval.calibration.time_offset import GRID_S, _refine
+
+    shifts = np.arange(-5, 6)
+    vertex = 1.3 * GRID_S
+    cost = (shifts * GRID_S - vertex) ** 2 + 4.0
+    assert _refine(cost, shifts) == pytest.approx(vertex, abs=1e-12)

@@ -127,3 +127,16 @@ def test_dead_reckoning_in_chunks_equals_the_whole_drive_loop(chunk):
     p_ref, R_ref = positions_attitudes(dead_reckon(x0, _prm(), t, imu_inputs(f, w), k0))
     p, R = dead_reckon_poses(x0, _prm(), t, imu_inputs(f, w), k0, chunk=chunk)
     assert np.array_equal(p, p_ref[k0:]) and np.array_equal(R, R_ref[k0:])
+
+
+def test_a_gaps_white_noise_is_scaled_by_the_square_of_its_std_scale():
+    """imu.gap_noise_scale is a std factor: the gap's variances take its square (its first power survived a mutation
+    review; every KITTI drive has gaps)."""
+    from types import SimpleNamespace
+
+    from fusion_eval.filters.formulations.base import gap_of
+
+    imu = SimpleNamespace(gap_factor=5.0, gap_noise_scale=10.0, gap_turn_rate_rps=0.3, gap_accel_mps2=2.0)
+    dt, var_scale, turn_var, acc_var = gap_of(SimpleNamespace(imu=imu), np.arange(0.0, 1.0, 0.1))
+    assert dt == pytest.approx(0.5) and var_scale == 100.0
+    assert turn_var == pytest.approx(0.09) and acc_var == 4.0
