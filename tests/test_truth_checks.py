@@ -430,6 +430,10 @@ def test_a_truth_that_moves_sideways_on_a_wheeled_platform_is_said(tmp_path):
     assert sideways(moving([10.0, 0.3, 0.0]), "car") == ""                         # a car's slip
     assert sideways(moving([0.0, 0.0, 0.0]), "car") == ""                          # parked
     assert sideways(moving([0.0, 10.0, 0.0]), "car", np.pi / 2) == ""              # mounted across, travel given
+    # the travel axis turned the right way: 45 deg to the left travels along (1, 1), not along (1, -1) (only +/-90
+    # deg was tested, where either sign of the rotation passes: a mutation review)
+    assert sideways(moving([7.0, 7.0, 0.0]), "car", np.pi / 4) == ""
+    assert sideways(moving([7.0, -7.0, 0.0]), "car", np.pi / 4).startswith("groundtruth: the body moves sideways")
     assert sideways(moving([10.0, 0.0, 0.0], stored=np.tile([0.0, 10.0, 0.0], (t.size, 1))), "car") == ""
     # in a run: said with the constraint on, not with it off
     import fusion_eval as fe
