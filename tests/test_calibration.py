@@ -304,3 +304,16 @@ def test_a_gyro_lag_far_from_the_oxts_devices_names_the_lidar_stamps(kitti_slice
     (w,) = said(**{"lidar.time_offset_s": 0.06})
     assert w.startswith("imu.gyro_lag_s=auto is estimated at") and "lidar.time_offset_s=0.000" in w, w
     assert said(**{"lidar.time_offset_s": "auto", "imu.gyro_lag_s": 0.0595}) == []
+
+
+def test_the_gyro_lags_uncertainty_with_the_lidar_offset_estimated_is_that_of_the_difference():
+    """With the lidar offset estimated from the accelerometer, gyro lag = rate shift - accel shift (+ accel lag): its
+    jackknife error is that of the difference, zero where the two shifts move together block by block (the sign of
+    the offset's term survived a mutation review: the sum's error is twice a block's spread)."""
+    from fusion_eval.calibration.time_offset import Shifts
+
+    acc_loo = np.array([0.060, 0.062, 0.058, 0.061, 0.059])
+    sh = Shifts(0.060, 0.070, acc_loo, acc_loo + 0.010, 1000)
+    est = resolve(sh, "auto", 0.0, "auto")
+    assert est["gyro_lag"].value_s == pytest.approx(0.010) and est["gyro_lag"].std_s == pytest.approx(0.0, abs=1e-15)
+    assert est["lidar_offset"].std_s > 0.001
