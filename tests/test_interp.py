@@ -83,3 +83,16 @@ def test_the_increment_across_an_imu_gap_gets_the_noise_of_every_frame_it_spans(
     span = prep.lidar_span[-std_p.size:]
     assert span.max() >= 10
     np.testing.assert_allclose(std_p, 0.02 * np.sqrt(span), rtol=1e-12)
+
+
+def test_a_gated_increment_does_not_move_the_adaptive_noise():
+    """A gated outlier says nothing of the noise of good matches: a rejected update leaves the scales (the adaptation
+    fed by rejected ones survived a mutation review in the quick suite; only a slow test covered it)."""
+    from fusion_eval.filters.observations.relative_pose import AdaptiveScale
+
+    a = AdaptiveScale(0.1)
+    r, S = np.full(6, 5.0), np.eye(6)
+    a.update(1.0, r, S, float(r @ r), accepted=False)
+    assert np.all(a.var == 1.0) and a.history == []
+    a.update(2.0, r, S, float(r @ r), accepted=True)
+    assert np.all(a.var > 1.0) and len(a.history) == 1
