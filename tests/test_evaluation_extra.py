@@ -588,3 +588,18 @@ def test_the_time_shift_search_refines_its_grid_minimum_on_the_parabola():
     vertex = 1.3 * GRID_S
     cost = (shifts * GRID_S - vertex) ** 2 + 4.0
     assert _refine(cost, shifts) == pytest.approx(vertex, abs=1e-12)
+
+
+def test_the_drift_segment_ends_at_the_first_pose_beyond_its_length_as_the_devkit_does():
+    """KITTI's devkit ends a segment at the first frame whose path length exceeds the start's by more than L (strict):
+    on poses exactly 1 m apart that is L + 1 m, so a 1 % scale error reads 1.01 % (the non-strict end, L m, survived a
+    mutation review: it differs only on grid-spaced or simulated paths)."""
+    from fusion_eval.evaluation.drift import kitti_drift
+
+    n = 1000
+    gt = np.tile(np.eye(4), (n, 1, 1))
+    gt[:, 0, 3] = np.arange(n, dtype=float)
+    est = gt.copy()
+    est[:, 0, 3] *= 1.01
+    d = kitti_drift(gt, est, lengths=(100,))
+    assert d.per_length[100]["t_err_pct"] == pytest.approx(1.01, rel=1e-9)
