@@ -67,7 +67,9 @@ CORE: dict[str, Spec] = {
     "imu.accel_lag_s": S(None, "the accelerometer reports the specific force of accel_lag_s earlier and is advanced by this "
                                "much; 'auto' = estimated from the data (accelerometer vs lidar acceleration; the device figure "
                                "without lidar); null = the manifest's value (default 0)", "float", nullable=True, auto=True),
-    "imu.filled_packets": S("drop", "provider-filled IMU samples: 'drop' (default) or 'keep'", choices=("drop", "keep")),
+    "imu.filled_packets": S("drop", "provider-filled IMU samples (KITTI's marked packets; in a bag or CSV, runs of samples on "
+                               "exact straight lines, README 'Handling the KITTI quirks'): 'drop' (default) or 'keep'",
+                               choices=("drop", "keep")),
     "imu.accel_noise_mps2_sqrthz": S("auto", "accelerometer white noise density (velocity random walk), m/s^2/sqrt(Hz); "
                                           "'auto' = from the stream's second differences", "float", nonneg=True, auto=True, reads="filter"),
     "imu.gyro_noise_dps_sqrthz": S("auto", "gyroscope white noise density (angle random walk), deg/s/sqrt(Hz); 'auto' = from "

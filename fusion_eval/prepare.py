@@ -14,7 +14,7 @@ from dataclasses import dataclass, field, replace
 import numpy as np
 
 from . import timing
-from .datasets import plausible
+from .datasets import interpolated, plausible
 from .calibration import imu_noise
 from .config import Settings
 from .calibration.extrinsic import apply_extrinsic, estimate_extrinsic, mount_disagrees
@@ -247,12 +247,21 @@ def prepare(ds: Dataset, cfg: dict) -> Prepared:
     off = _offset(cfg, ds, "imu")
     applied["time_offset_s"]["imu"] = off
     imu = shifted(imu, off)
-    n_filled = int(imu.filled.sum())
     more_warnings: list[str] = []
+    # a provider's interpolated samples that the format could not mark (a KITTI drive made into a bag)
+    found, said = interpolated.interpolated_imu(imu)
+    if said:
+        keep = cfg["imu"]["filled_packets"] == "keep"
+        more_warnings.append(said + ("" if not found.any() else " (imu.filled_packets: keep: used as measurements)" if keep
+                                     else " (imu.filled_packets: drop)"))
+    if found.any():
+        imu = replace(imu, filled=imu.filled | found)
+    n_filled = int(imu.filled.sum())
     if cfg["imu"]["filled_packets"] == "drop" and n_filled:
         more_warnings += plausible.dropped_gaps(imu, ~imu.filled, "the filled-in packets (imu.filled_packets: drop)")
         imu = imu.select(~imu.filled)
     applied["imu_filled_samples"] = n_filled
+    applied["imu_filled_found"] = int(found.sum())
     applied["imu_filled_packets"] = cfg["imu"]["filled_packets"]
     if len(imu) < 2:
         raise DataRangeError(f"{ds.imu.source}: fewer than 2 usable IMU samples")
