@@ -1000,3 +1000,39 @@ def test_an_interrupted_retry_of_failed_runs_counts_only_the_runs_it_need_not_re
                        base_config=None, plots=False, out_root=str(tmp_path), batch="b")
     with pytest.raises(KeyboardInterrupt, match="9 of 10 runs are recorded .* to do the 1 left"):
         sweep.execute(tasks + [extra], tmp_path, jobs=1, scheduler=None, dask_local=False)   # failed ones kept
+
+
+@pytest.mark.slow
+def test_across_datasets_only_settings_finished_on_every_dataset_are_averaged(small, tmp_path):
+    """A setting that failed on one dataset has a mean over the others only: ranked beside complete ones, a setting
+    that fails on the hard drive would win on the easy one (a mutation review: nothing held it)."""
+    import json as _json
+    import shutil as _shutil
+
+    from fusion_eval.commands import sweep as sw
+    from fusion_eval.commands.sweep_summary import write_summary
+
+    other = tmp_path / "other"
+    _shutil.copytree(small, other)
+    sw_file = tmp_path / "sweep.yaml"
+    sw_file.write_text("settings:\n  a: {imu.gyro_noise_dps_sqrthz: 0.2}\n  b: {imu.gyro_noise_dps_sqrthz: 0.3}\n")
+    out = tmp_path / "s"
+    r = CliRunner().invoke(main, ["-q", "sweep", str(small), str(other), "--grid", str(sw_file), "--out", str(out),
+                                  "--jobs", "1"])
+    assert r.exit_code == 0, r.output
+    tasks = sw.plan(sw_file, [str(small), str(other)], out)[0]
+    for t in tasks:                   # 'a' best by far on the first dataset, failed on the second
+        if t.setting != "a":
+            continue
+        p = out / "records" / f"{t.id}.json"
+        rec = _json.loads(p.read_text())
+        if Path(t.dataset) == other:
+            rec.update(status="failed", error="a bug")
+        else:
+            rec["metrics"]["estimates"]["fused"]["ape"]["translation_m"]["rmse"] = 1e-3
+        p.write_text(_json.dumps(rec))
+    summary = write_summary(tasks, out, ["imu.gyro_noise_dps_sqrthz"], plots=False)
+    assert summary["best"]["setting"] != "a"
+    md = (out / "sweep.md").read_text(encoding="utf-8")
+    table = md.split("## Averaged across datasets", 1)[1].split("##", 1)[0]
+    assert "| a " not in table.replace("  ", " ") and "default" in table
