@@ -5,13 +5,18 @@ them (sample by sample, in every channel) and marks them in status fields that o
 bag made from the drive (kitti2bag and the like), or a CSV export, keeps the values and loses the marks: the filter
 then integrates 1.5 s ramps as measurements (kitti-00 with its filled packets kept: fused APE 1.55 m against 0.753).
 
-A real IMU sample lies on the straight line of its two neighbours in all six channels to 1e-9 only by accident, and
-two such samples in a row practically never: that is what is looked for here. What is left alone:
-- samples constant in every channel (a noise-free simulation driving straight; a coarsely quantised IMU at rest);
-- a stream where such samples are not rare (over :data:`MAX_SHARE` of it: a stream upsampled by linear
-  interpolation, or a noise-free simulation), which is said instead of dropped: dropping most of a stream would turn
-  it into gaps;
-- values written with few digits (a CSV with 6 decimals rounds a ramp off its line), which this cannot see.
+A line between two real samples moves every channel (each endpoint carries its own noise: all of KITTI's 149 ramp
+steps on the four raw drives do), and a real sample lies on the straight line of its two neighbours in all six
+channels to 1e-9 only by accident, two in a row practically never: that is what is looked for here. What is left
+alone:
+- a sample where any channel does not change: a noise-free simulation's ramps (a clothoid's yaw rate and lateral
+  force, the other channels constant), a coarsely quantised IMU with channels at rest or saturated;
+- a stream where such samples are not rare (over :data:`MAX_SHARE` of it: too many to be the repair of a few gaps,
+  as in a stream upsampled by linear interpolation), which is said instead of dropped: dropping most of a stream
+  would turn it into gaps;
+- values stored with too few digits: a ramp rounded to d decimals leaves its line by up to 1e-d, so text with fewer
+  than about 12 decimals hides some or all of it (kitti 2011_10_03_0027 rounded to 8, 10, 12 decimals: 3, 41, 134 of
+  its 134 packets found), and float32 values hide all of it.
 """
 
 from __future__ import annotations
@@ -26,29 +31,28 @@ MAX_SHARE = 0.2         # above this share of the stream, interpolation is the s
 
 @njit(cache=True)
 def _inner_points(v):
-    """``out[i]``: sample ``i + 1`` lies on the line of its neighbours in every channel, and not all are constant (one
+    """``out[i]``: sample ``i + 1`` lies on the line of its neighbours in every channel, and every channel changes (one
     pass: numpy's per-channel temporaries took 0.16 s on an hour at 200 Hz)."""
     n, m = v.shape
     out = np.zeros(n - 2, np.bool_)
     tiny = np.finfo(np.float64).tiny
     for i in range(n - 2):
-        on_line = True
-        constant = True
+        ramp = True
         for ch in range(m):
             a, b, c = v[i, ch], v[i + 1, ch], v[i + 2, ch]
-            if not abs(a - 2.0 * b + c) <= REL_TOL * (abs(a) + 2.0 * abs(b) + abs(c)) + tiny:
-                on_line = False
+            if not (abs(a - 2.0 * b + c) <= REL_TOL * (abs(a) + 2.0 * abs(b) + abs(c)) + tiny
+                    and abs(c - b) > REL_TOL * (abs(b) + abs(c)) + tiny):
+                ramp = False
                 break
-            if not abs(c - b) <= REL_TOL * (abs(b) + abs(c)) + tiny:
-                constant = False
-        out[i] = on_line and not constant
+        out[i] = ramp
     return out
 
 
 def linear_runs(values: np.ndarray) -> np.ndarray:
     """Samples of ``values`` ``(N, C)`` that are the inner points of straight lines, in sample index, in every
-    channel at once, in runs of at least :data:`MIN_RUN`, and not constant in every channel; a run reaching the
-    first or last sample takes it too (no real sample there to start the line). A boolean mask ``(N,)``."""
+    channel at once, every channel changing, in runs of at least :data:`MIN_RUN`; a run reaching the first or last
+    sample takes it too (KITTI extrapolates its first packets: no real sample starts that line; where one does, it
+    goes with the run). A boolean mask ``(N,)``."""
     v = np.asarray(values, float)
     n = v.shape[0]
     out = np.zeros(n, bool)
@@ -80,7 +84,8 @@ def interpolated_imu(imu) -> tuple[np.ndarray, str | None]:
     what = (f"imu: {k} samples in {runs} run(s) lie exactly on the straight line between their neighbours in all six "
             "channels")
     if k > MAX_SHARE * len(imu):
-        return np.zeros_like(found), (f"{what} ({100.0 * k / len(imu):.0f} % of the stream: an IMU upsampled by "
-                                      "linear interpolation, or a noise-free simulation?): kept as measurements")
+        return np.zeros_like(found), (f"{what} ({100.0 * k / len(imu):.0f} % of the stream: too many to be the "
+                                      "repair of a few gaps, as in an IMU upsampled by linear interpolation): kept as "
+                                      "measurements")
     return found, (f"{what}: a provider's interpolation (as KITTI's filled-in packets, which a bag or a CSV cannot "
                    "mark), taken as filled-in packets")

@@ -412,7 +412,8 @@ def report_md(dataset: str, config_name: str, evals: dict, ratios: dict, cfg: di
           f"{' and lidar' if cfg['filter']['lidar_update'] != 'none' else ''}).",
           f"- Filled-in IMU packets: {applied['imu_filled_samples']} ({applied['imu_filled_packets']}"
           + (f"; {applied['imu_filled_found']} of them found as exact straight lines between their neighbours"
-             if applied.get("imu_filled_found") else "") + "); filled-in ground-truth and GNSS packets are never used.",
+             if applied.get("imu_filled_found") else "") + "); ground-truth and GNSS packets marked filled-in are never "
+          "used.",
           f"- IMU channel lags corrected: gyro {applied['gyro_lag_s'] * 1000:.1f} ms, accelerometer "
           f"{applied.get('accel_lag_s', 0.0) * 1000:.1f} ms.",
           *_estimates(applied),
