@@ -143,3 +143,29 @@ def test_a_kitti_drive_without_its_marks_runs_as_with_them(kitti_slice, tmp_path
     line = next(x for x in (tmp_path / "out" / "report.md").read_text(encoding="utf-8").splitlines()
                 if x.startswith("- Filled-in IMU packets"))
     assert f"{pre['imu_filled_found']} of them found as exact straight lines" in line
+
+
+def test_kitti_odometry_times_beside_an_imu_read_from_a_csv_say_what_to_write(kitti_slice, tmp_path):
+    """times.align_to: imu pairs frames with OXTS packets; with the IMU from a CSV (or a bag) the error said 'give
+    times.file instead' to a user who had given it (a kitti2bag trial): it now says to drop align_to and use t0_s."""
+    import shutil
+
+    import yaml
+
+    from fusion_eval.errors import ConfigError
+
+    root = tmp_path / "k"
+    shutil.copytree(kitti_slice, root)
+    imu = imu_from_oxts(read_oxts(root / "oxts"))
+    np.savetxt(root / "imu.csv", np.column_stack([imu.t_s, imu.f_b_mps2, imu.w_b_rps]), fmt="%.17g", delimiter=",",
+               header="t,ax,ay,az,wx,wy,wz", comments="")
+    m = yaml.safe_load((root / "dataset.yaml").read_text(encoding="utf-8"))
+    m["streams"]["imu"] = {"format": "csv", "path": "imu.csv", "columns": ["t", "ax", "ay", "az", "wx", "wy", "wz"]}
+    assert "file" in m["streams"]["lidar"]["times"] and m["streams"]["lidar"]["times"].get("align_to") == "imu"
+    (root / "dataset.yaml").write_text(yaml.safe_dump(m, sort_keys=False), encoding="utf-8")
+    with pytest.raises(ConfigError, match="remove align_to and put the file on the IMU's clock with t0_s"):
+        fe.load_dataset(root)
+    del m["streams"]["lidar"]["times"]["file"]
+    (root / "dataset.yaml").write_text(yaml.safe_dump(m, sort_keys=False), encoding="utf-8")
+    with pytest.raises(ConfigError, match="give times.file with t0_s"):
+        fe.load_dataset(root)

@@ -56,7 +56,13 @@ def pose_times(entry: dict, ctx: ReadContext, n_poses: int) -> np.ndarray:
         raise ConfigError(f"{ctx.at(times, 'align_to')}: times.align_to takes 'imu' (the IMU packets' clock), "
                           f"got {times['align_to']!r}")
     if times.get("align_to") == "imu" and raw is None:
-        raise ConfigError(f"{ctx.at(times, 'align_to')}: times.align_to: imu needs the IMU as kitti_oxts packets; give times.file instead")
+        # (a bag's or a CSV's IMU has no packets to pair frames with; the message said 'give times.file instead' to a
+        # user who had: a kitti2bag trial)
+        how = ("remove align_to and put the file on the IMU's clock with t0_s (the stamp of its frame 0: KITTI's raw "
+               "packet 0's, plus the odometry's own offset)" if "file" in times else
+               "give times.file with t0_s (the stamp of its frame 0 on the IMU's clock)")
+        raise ConfigError(f"{ctx.at(times, 'align_to')}: times.align_to: imu pairs frames with kitti_oxts packets, and "
+                          f"the IMU here is not read as packets: {how}")
     offset = times.get("index_offset", 0)
     if isinstance(offset, bool) or not isinstance(offset, int):
         raise ConfigError(f"{ctx.at(times, 'index_offset')}: times.index_offset must be an integer, got {offset!r}")
