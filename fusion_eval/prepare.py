@@ -384,6 +384,8 @@ def prepare(ds: Dataset, cfg: dict) -> Prepared:
                             "start): it removes no fix", a, b, span_s)
         if ds.description.get("gnss_degrade", True):
             gnss, gnss_info = degrade_gnss(g, t0, c["rate_hz"], c["noise_std_m"], c["outages_s"], c["seed"], c["std_m"])
+            # the report's reason for it: KITTI's OXTS solution, or a stream the manifest marks (a KITTI bag's fixes)
+            gnss_info["format"] = ((ds.description.get("streams") or {}).get("gnss") or {}).get("format")
         else:
             # a receiver's fixes get no noise and keep their rate, but outages are the user's experiment: they apply
             # (once silently ignored here); the degradation's own keys do nothing, and are said

@@ -129,7 +129,8 @@ def test_a_kitti_drive_without_its_marks_runs_as_with_them(kitti_slice, tmp_path
     delivers it: the same fused estimate to the last bit, and the report says what was found; with the marks kept
     ('keep') the drive's filled packets are integrated as measurements (the full kitti-00: 1.55 m against 0.753)."""
     ds = fe.load_dataset(kitti_slice)
-    bare = replace(ds, imu=replace(ds.imu, filled=None))
+    streams = {**ds.description["streams"], "gnss": {**ds.description["streams"]["gnss"], "format": "rosbag"}}
+    bare = replace(ds, imu=replace(ds.imu, filled=None), description={**ds.description, "streams": streams})
     a, b = fe.run(ds), fe.run(bare)
     ape = lambda r: r.metrics["estimates"]["fused"]["ape"]["translation_m"]["rmse"]       # noqa: E731
     assert ape(b) == ape(a)
@@ -143,6 +144,11 @@ def test_a_kitti_drive_without_its_marks_runs_as_with_them(kitti_slice, tmp_path
     line = next(x for x in (tmp_path / "out" / "report.md").read_text(encoding="utf-8").splitlines()
                 if x.startswith("- Filled-in IMU packets"))
     assert f"{pre['imu_filled_found']} of them found as exact straight lines" in line
+    # a bag's fixes marked for degradation are not called KITTI's OXTS solution (a kitti2bag trial)
+    md = (tmp_path / "out" / "report.md").read_text(encoding="utf-8")
+    assert "The GNSS stream was degraded, as the manifest marks it" in md and "KITTI's OXTS position is" not in md
+    a.write(tmp_path / "raw")
+    assert "KITTI's OXTS position is the GPS/INS solution" in (tmp_path / "raw" / "report.md").read_text(encoding="utf-8")
 
 
 def test_kitti_odometry_times_beside_an_imu_read_from_a_csv_say_what_to_write(kitti_slice, tmp_path):

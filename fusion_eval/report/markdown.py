@@ -393,7 +393,10 @@ def report_md(dataset: str, config_name: str, evals: dict, ratios: dict, cfg: di
                  f"{outages}, {gnss_info['fixes_used']} fixes; std given to the filter: {gnss_info['std_given_to_filter_m']}.")
     else:
         rate = _rate_words(gnss_info, "fix")
-        L.append(f"KITTI's OXTS position is the GPS/INS solution that is also the ground truth, so it was degraded: "
+        why = ("KITTI's OXTS position is the GPS/INS solution that is also the ground truth, so it was degraded"
+               if gnss_info.get("format", "kitti_oxts") == "kitti_oxts" else
+               "The GNSS stream was degraded, as the manifest marks it (degrade: true)")
+        L.append(f"{why}: "
                  f"{rate} ({gnss_info['fixes_in']} -> {gnss_info['fixes_after_decimation']} fixes), white noise with std "
                  f"{gnss_info['noise_std_m']} m (E, N, U; seed {gnss_info['seed']}), "
                  f"{_outages(gnss_info['outages_s'], gnss_info['fixes_in_outages'], 'fixes')}; {gnss_info['fixes_used']} fixes used. "
