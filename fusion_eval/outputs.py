@@ -317,6 +317,18 @@ class StagedDir:
     def write_bytes(self, name: str, data: bytes) -> Path:
         return write_atomic(self.staging / name, data)
 
+    def link(self, name: str, src: Path) -> Path:
+        """``name`` as a hard link to ``src`` (a file an earlier run of the same batch wrote, byte for byte what this
+        one would write: a sweep's shared estimates), or a copy of it where the file system takes no links."""
+        dst = self.staging / name
+        dst.unlink(missing_ok=True)
+        try:
+            os.link(src, dst)
+        except OSError:
+            with atomic_file(dst) as fh, open(src, "rb") as f:
+                shutil.copyfileobj(f, fh)
+        return dst
+
     def _lock(self) -> None:
         """Take ``.<name>.lock`` beside the target (:mod:`fusion_eval.locks`): a second process writing the same
         directory at the same time is refused instead of silently replacing the first one's results."""

@@ -191,12 +191,14 @@ def execute(ds: Dataset, cfg: dict, *, dataset_path: str | Path | None = None, c
 def filter_and_evaluate(ds: Dataset, cfg: dict, sh: Shared, pool, *, dataset_path: str | Path | None = None,
                         config_source: str = "default", progress: Callable[[float], None] | None = None,
                         out: StagedDir | None = None, trials: int = 1, monitor=None,
-                        said: list[str] | None = None) -> RunResult:
+                        said: list[str] | None = None, link_shared: Path | None = None) -> RunResult:
     """The filter's part of a run on prepared data (:func:`share`): replay, evaluate, summarise, write. ``cfg``
     may differ from the one ``sh`` was prepared with only in what the filter alone reads (a sweep's noise
     settings, :func:`fusion_eval.commands.sweep.batch_key`). ``monitor``: see :func:`fusion_eval.replay.replay`.
     ``said``: the warnings this run has said so far (:func:`fusion_eval.log_context.collected`; without it, its
-    data warnings), against which the later trials' are summed up."""
+    data warnings), against which the later trials' are summed up. ``link_shared``: the folder of an earlier run on the
+    same preparation (a sweep's batch), whose files of the shared estimates (the truth's, the lidar's, the GNSS's, dead
+    reckoning's: the same bytes in every run) this run's folder takes as hard links instead of writing them again."""
     prep, gt, ev_cfg = sh.prep, sh.prep.groundtruth, cfg["evaluation"]
     timings = dict(sh.timings)
     s = settings_for(cfg, prep)
@@ -226,11 +228,21 @@ def filter_and_evaluate(ds: Dataset, cfg: dict, sh: Shared, pool, *, dataset_pat
     futures.update({n: pool.submit(evaluate_estimate, sh.handles["ref"], series[n], n, ev_cfg, zip_dir,
                                    cfg["output"]["zip_trajectories"], n == "fused") for n in own})
     own += list(sh.written)                  # set only for a run with a folder (execute)
+    # a batch's shared estimates: their TUM files and result zips as links to an earlier run's (a sweep of 65 runs
+    # wrote 273 MB, most of it these files again, and formatted the TUM text each time)
+    linked, linked_tums = set(), []
+    if out is not None and link_shared is not None:
+        for n in sh.series:
+            f = report.files.TUM_FILES.get(n)
+            if f and series.get(n) is not None and n not in own and (link_shared / f).is_file():
+                out.link(f, link_shared / f)
+                linked.add(f)
+                linked_tums.append(n)
     truth_b = sh.truth_biases.result() if sh.truth_biases is not None else None
     err = fused_error(gt, filt, att_vel=cfg["output"]["plots"])
     # the TUM files and the filter's plots, each a job of its own, alongside the evaluations
     first = report.write_filter_outputs(out, series, filt, err, cfg["output"]["plots"], pool, truth_biases=truth_b,
-                                        tums_written=own, handles=sh.handles,
+                                        tums_written=own + linked_tums, handles=sh.handles,
                                         spans=report.spans_of(cfg, prep.gnss_info, filt.fused.t_s)) if out is not None else []
     # the NEES needs no metric: computed here while the workers evaluate, not after (0.7 s on a simulated hour); over
     # the evaluated span, as every metric of the report (over the whole truth it counted 4 epochs more on kitti-00)
@@ -249,6 +261,12 @@ def filter_and_evaluate(ds: Dataset, cfg: dict, sh: Shared, pool, *, dataset_pat
                              f"{evals['fused'].matched_poses} ground-truth poses ({gt.source}: {len(gt)} poses, "
                              f"{gt.t_s[0]:.3f}..{gt.t_s[-1]:.3f} s) within evaluation.t_max_diff_s = {ev_cfg['t_max_diff_s']} s "
                              f"{offsets_note(prep.applied)}".rstrip())
+    if out is not None and link_shared is not None:
+        for n in linked_tums:               # (the shared estimates' evaluations: their zips came back as bytes)
+            for z in getattr(evals.get(n), "zips", None) or {}:
+                if (link_shared / z).is_file():
+                    out.link(z, link_shared / z)
+                    linked.add(z)
     ratios = ratio_metrics(evals)
     # windows along the evaluated span (the whole truth gave a last window to 3712 m in a report whose span ends at
     # 3707 m, and figures that `evaluate --t-start/--t-end` on the run's files did not reproduce: an audit)
@@ -293,7 +311,8 @@ def filter_and_evaluate(ds: Dataset, cfg: dict, sh: Shared, pool, *, dataset_pat
         for f in first:
             f.result()
             stages.advance()
-        report.write_evaluation(out, res, report.filter_plots(cfg["output"]["plots"]), pool, advance=stages.advance)
+        report.write_evaluation(out, res, report.filter_plots(cfg["output"]["plots"]), pool, advance=stages.advance,
+                                linked=linked)
         timings["write"] = time.perf_counter() - t
     return res
 

@@ -225,7 +225,12 @@ def check_streams(ds: Dataset, cfg: dict) -> dict:
     check_combination(cfg)
     need = needed_streams(cfg)
     if ds.groundtruth is None:
-        raise ConfigError(f"dataset {ds.name!r} has no groundtruth stream; fusion-eval run evaluates against ground truth")
+        # every command prepares this way, tune's no-truth objectives too (a user trial read the old message as run's
+        # alone): said as what is needed and why, with what to give
+        raise ConfigError(f"dataset {ds.name!r} has no groundtruth stream: every command (run, compare, sweep, tune, "
+                          "with a no-truth objective too) starts the filter from the ground truth and scores against it; "
+                          "give a reference trajectory (an RTK/INS solution, motion capture) as the manifest's "
+                          "groundtruth stream (README 'Known limits': a drive without ground truth)")
     for st, (key, off) in need.items():
         if ds.stream(st) is None:
             raise ConfigError(f"dataset {ds.name!r} has no {st} stream, which {key} needs; set {off}")

@@ -1,6 +1,6 @@
-"""IMU samples a provider interpolated, found in the values where the format cannot mark them (a KITTI drive made
-into a bag or a CSV): the same samples as KITTI's own marks, the same run, and nothing found in real or simulated
-measurements."""
+"""A KITTI drive as a bag or a CSV delivers it: IMU samples a provider interpolated, found in the values where the
+format cannot mark them (the same samples as KITTI's own marks, the same run, nothing found in real or simulated
+measurements), and what such a drive's manifest and report say (from a kitti2bag user trial)."""
 
 from __future__ import annotations
 
@@ -147,6 +147,8 @@ def test_a_kitti_drive_without_its_marks_runs_as_with_them(kitti_slice, tmp_path
     # a bag's fixes marked for degradation are not called KITTI's OXTS solution (a kitti2bag trial)
     md = (tmp_path / "out" / "report.md").read_text(encoding="utf-8")
     assert "The GNSS stream was degraded, as the manifest marks it" in md and "KITTI's OXTS position is" not in md
+    inn = b.metrics["innovations"]
+    assert f"negative log-likelihood per update {inn['nll_per_update']:.4f} over {inn['updates']} updates" in md
     a.write(tmp_path / "raw")
     assert "KITTI's OXTS position is the GPS/INS solution" in (tmp_path / "raw" / "report.md").read_text(encoding="utf-8")
 

@@ -94,17 +94,19 @@ def spans_of(cfg: dict, gnss_info: dict | None, fused_t_s) -> list[tuple[float, 
     return out
 
 
-def write_evaluation(out: StagedDir, res, plots_written: list[str], pool=None, advance=None) -> None:
+def write_evaluation(out: StagedDir, res, plots_written: list[str], pool=None, advance=None, linked=()) -> None:
     """Result zips, metrics (JSON, CSV, LaTeX), the resolved configuration, the plots that need the metrics (on
     ``pool`` when given, while this process writes the rest), and the reports (Markdown, HTML). ``advance()`` is
-    called as each file group and plot is done (progress)."""
+    called as each file group and plot is done (progress). ``linked``: files already in ``out`` (a sweep batch's
+    shared estimates, :meth:`fusion_eval.outputs.StagedDir.link`), not written again."""
     advance = advance or (lambda n=1: None)
     # the input files' checksums (0.14 s on kitti-00's 4546 OXTS files) on a worker, while this process writes
     dataset = res.resolved_extra.get("dataset") or {}
     inputs = pool.submit(provenance.input_files, dataset) if pool is not None else None
     for ev in res.evals.values():
         for name, data in ev.zips.items():
-            out.write_bytes(name, data)
+            if name not in linked:
+                out.write_bytes(name, data)
     out.write_text("metrics.csv", files.metrics_csv(res.evals, res.ratios, (res.metrics.get("trials") or {}).get("n")))
     out.write_text("metrics.tex", metrics_tex(res.dataset, res.evals, res.cfg, res.metrics))
     if res.metrics.get("trials"):
