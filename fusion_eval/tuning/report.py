@@ -97,7 +97,8 @@ def _v(v) -> str:
 
 
 def _f(v) -> str:
-    return "n/a" if v is None or (isinstance(v, float) and not math.isfinite(v)) else f"{v:.4g}"
+    # six digits: an nll per update near -13 that trials move by 0.002 printed as -13.2 throughout (a user trial)
+    return "n/a" if v is None or (isinstance(v, float) and not math.isfinite(v)) else f"{v:.6g}"
 
 
 def markdown(s: Setup, res: dict, runtime_s: float) -> str:
