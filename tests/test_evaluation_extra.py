@@ -578,6 +578,14 @@ def test_the_innovation_objectives_are_their_formulas():
     assert innovation_summary({"lidar": ok})["nis_calibration"] == 0.0
     twice = {**ok, "mean": 12.0}
     assert innovation_summary({"lidar": twice})["nis_calibration"] == pytest.approx(np.log(2.0) ** 2, rel=1e-12)
+    # a pseudo-observation (the constraint: NIS near zero by design) stays in the likelihood, out of the calibration;
+    # alone, it is calibrated (a user trial: its term was 28.7 of 28.8 and no noise setting moved it)
+    nhc = {"epochs": 300, "mean": 0.02, "dof": 2, "fraction_in_95": 1.0, "nll_mean": -5.0}
+    both = innovation_summary({"lidar": twice, "nhc": nhc}, measured={"lidar", "gnss"})
+    assert both["nis_calibration"] == pytest.approx(np.log(2.0) ** 2, rel=1e-12)
+    assert both["nll_per_update"] == pytest.approx((100 * 1.0 + 300 * -5.0) / 400, rel=1e-12)
+    alone = innovation_summary({"nhc": nhc}, measured={"lidar"})["nis_calibration"]
+    assert alone == pytest.approx(np.log(0.01) ** 2 + 0.25, rel=1e-12)
 
 
 def test_the_time_shift_search_refines_its_grid_minimum_on_the_parabola():

@@ -587,7 +587,7 @@ def run_metrics(dataset: str, evals: dict[str, EstimateEvaluation], ratios: dict
             "nees": {k: _strip_arrays(v) for k, v in cons.get("nees", {}).items()},
             "segments": seg, "gnss_degradation": gnss_info, "preprocessing": applied}
     if out["nis"]:
-        out["innovations"] = innovation_summary(out["nis"])
+        out["innovations"] = innovation_summary(out["nis"], _measured())
         misfit = inconsistent_streams(cons.get("nis", {}), stated) + scored_warnings(evals, out["nis"], out["nees"], applied,
                                                                              ev_cfg=ev_cfg)
         for w in misfit:
