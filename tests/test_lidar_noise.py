@@ -238,6 +238,12 @@ def test_a_verdict_beyond_the_ratio_but_within_the_chance_of_few_independent_epo
     assert consistency_verdict(row) == "overconfident (2.3x the dof)"
     assert consistency_verdict({**row, "independent_epochs": 4.0, "mean_bounds_95": [1.02, 6.06], "mean": 5.54}) == \
         "1.8x the dof, not significant over its ~4 independent epochs, where a consistent filter's mean lies in 0.34-2.02x"
+    # the same on the conservative side: below 1/1.5 of the dof, inside the chance of ~4 epochs or below it (its floor
+    # survived a mutation review)
+    few = {**row, "independent_epochs": 4.0, "mean_bounds_95": [1.02, 6.06]}
+    assert consistency_verdict({**few, "mean": 1.5}) == \
+        "0.50x the dof, not significant over its ~4 independent epochs, where a consistent filter's mean lies in 0.34-2.02x"
+    assert consistency_verdict({**few, "mean": 0.9}) == "conservative (0.30x the dof)"
     # within the ratio but beyond the mean's own interval: significant, and said (kitti-00's attitude NEES, 3.95 for 3
     # dof over ~64 independent epochs, read as "consistent": a statistics review)
     att = {"epochs": 4405, "dof": 3, "mean": 3.95, "bounds_95": [0.2, 9.3], "fraction_in_95": 0.93,
