@@ -317,17 +317,22 @@ class StagedDir:
     def write_bytes(self, name: str, data: bytes) -> Path:
         return write_atomic(self.staging / name, data)
 
-    def link(self, name: str, src: Path) -> Path:
+    def link(self, name: str, src: Path) -> bool:
         """``name`` as a hard link to ``src`` (a file an earlier run of the same batch wrote, byte for byte what this
-        one would write: a sweep's shared estimates), or a copy of it where the file system takes no links."""
+        one would write: a sweep's shared estimates), or a copy of it where the file system takes no links. False
+        where neither can be made (the source gone: its run's folder replaced meanwhile): the caller writes its own."""
         dst = self.staging / name
         dst.unlink(missing_ok=True)
         try:
             os.link(src, dst)
         except OSError:
-            with atomic_file(dst) as fh, open(src, "rb") as f:
-                shutil.copyfileobj(f, fh)
-        return dst
+            try:
+                with open(src, "rb") as f, atomic_file(dst) as fh:
+                    shutil.copyfileobj(f, fh)
+            except (OSError, OutputError):
+                dst.unlink(missing_ok=True)
+                return False
+        return True
 
     def _lock(self) -> None:
         """Take ``.<name>.lock`` beside the target (:mod:`fusion_eval.locks`): a second process writing the same

@@ -234,8 +234,7 @@ def filter_and_evaluate(ds: Dataset, cfg: dict, sh: Shared, pool, *, dataset_pat
     if out is not None and link_shared is not None:
         for n in sh.series:
             f = report.files.TUM_FILES.get(n)
-            if f and series.get(n) is not None and n not in own and (link_shared / f).is_file():
-                out.link(f, link_shared / f)
+            if f and series.get(n) is not None and n not in own and out.link(f, link_shared / f):
                 linked.add(f)
                 linked_tums.append(n)
     truth_b = sh.truth_biases.result() if sh.truth_biases is not None else None
@@ -264,8 +263,7 @@ def filter_and_evaluate(ds: Dataset, cfg: dict, sh: Shared, pool, *, dataset_pat
     if out is not None and link_shared is not None:
         for n in linked_tums:               # (the shared estimates' evaluations: their zips came back as bytes)
             for z in getattr(evals.get(n), "zips", None) or {}:
-                if (link_shared / z).is_file():
-                    out.link(z, link_shared / z)
+                if out.link(z, link_shared / z):
                     linked.add(z)
     ratios = ratio_metrics(evals)
     # windows along the evaluated span (the whole truth gave a last window to 3712 m in a report whose span ends at

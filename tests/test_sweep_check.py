@@ -451,7 +451,9 @@ def test_a_file_system_without_hard_links_gets_copies(tmp_path, monkeypatch):
         raise OSError(1, "Operation not permitted")
     monkeypatch.setattr(os, "link", refuse)
     with StagedDir(tmp_path / "out") as out:
-        out.link("lidar.tum", src)
+        assert out.link("lidar.tum", src)
+        # a source gone meanwhile (its run's folder replaced): no link, no copy, no error; the caller writes its own
+        assert not out.link("gnss.tum", tmp_path / "gone.tum") and not out.path("gnss.tum").exists()
     got = tmp_path / "out" / "lidar.tum"
     assert got.read_bytes() == b"1 2 3\n" and got.stat().st_ino != src.stat().st_ino
 

@@ -145,6 +145,14 @@ def test_a_study_is_not_resumed_with_another_space_or_objective(tmp_path):
     study.set_user_attr("ident_owner", [socket.gethostname(), int(gone.stdout)])       # a process that has ended
     assert st.open_study(second).user_attrs["ident"]["objectives"] == ["nis"]
     assert not (empty / "default.json").exists()
+    # a nis study scored before the objective left the constraint's pseudo-observations out is not resumed under it
+    old = st.open_study(second)
+    ident = dict(old.user_attrs["ident"])
+    assert ident.pop("nis_definition") == "the measured streams' observations"
+    old.set_user_attr("ident", ident)
+    old.enqueue_trial({})          # (a trial: not an abandoned start)
+    with pytest.raises(ConfigError, match="another nis definition"):
+        st.open_study(second)
 
 
 def test_an_objective_given_twice_is_refused(tmp_path):

@@ -104,6 +104,10 @@ def open_study(s: Setup):
                                 load_if_exists=True)
     ident = {"space": s.space.digest(), "objectives": [o.name for o in s.objectives], "train": list(s.train),
              "seeds": s.seeds, "base_config": s.base_config, "sets": list(s.sets), "pruning_reports": REPORTS}
+    if any(o.name == "nis" for o in s.objectives):
+        # its definition changed (the constraint's pseudo-observations left out): a study scored the old way is not
+        # resumed under the new one (a diff review: new trials were ranked against old scores)
+        ident["nis_definition"] = "the measured streams' observations"
     old = study.user_attrs.get("ident")
     maker = study.user_attrs.get("ident_owner")
     host = socket.gethostname()
