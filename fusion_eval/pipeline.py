@@ -117,6 +117,9 @@ class Shared:
     written: tuple = ()                      # estimates whose TUM and result files their evaluations wrote
     handles: dict = field(default_factory=dict)   # "ref" and the series as the pool's jobs take them (pool.share)
     truth_biases: object = None              # future of a simulated drive's true biases for the bias plot, or None
+    # a finished run's folder whose files of the shared estimates (the truth's, the lidar's, the GNSS's, dead
+    # reckoning's: the same bytes in every run on this preparation) later runs take as hard links (a sweep's batch)
+    files_from: Path | None = None
 
 
 def share(ds: Dataset, cfg: dict, pool, zip_dir: Path | None = None) -> Shared:
@@ -191,14 +194,13 @@ def execute(ds: Dataset, cfg: dict, *, dataset_path: str | Path | None = None, c
 def filter_and_evaluate(ds: Dataset, cfg: dict, sh: Shared, pool, *, dataset_path: str | Path | None = None,
                         config_source: str = "default", progress: Callable[[float], None] | None = None,
                         out: StagedDir | None = None, trials: int = 1, monitor=None,
-                        said: list[str] | None = None, link_shared: Path | None = None) -> RunResult:
+                        said: list[str] | None = None) -> RunResult:
     """The filter's part of a run on prepared data (:func:`share`): replay, evaluate, summarise, write. ``cfg``
     may differ from the one ``sh`` was prepared with only in what the filter alone reads (a sweep's noise
     settings, :func:`fusion_eval.commands.sweep.batch_key`). ``monitor``: see :func:`fusion_eval.replay.replay`.
     ``said``: the warnings this run has said so far (:func:`fusion_eval.log_context.collected`; without it, its
-    data warnings), against which the later trials' are summed up. ``link_shared``: the folder of an earlier run on the
-    same preparation (a sweep's batch), whose files of the shared estimates (the truth's, the lidar's, the GNSS's, dead
-    reckoning's: the same bytes in every run) this run's folder takes as hard links instead of writing them again."""
+    data warnings), against which the later trials' are summed up. The files of the shared estimates are hard links to
+    ``sh.files_from``'s where it is set."""
     prep, gt, ev_cfg = sh.prep, sh.prep.groundtruth, cfg["evaluation"]
     timings = dict(sh.timings)
     s = settings_for(cfg, prep)
@@ -231,10 +233,11 @@ def filter_and_evaluate(ds: Dataset, cfg: dict, sh: Shared, pool, *, dataset_pat
     # a batch's shared estimates: their TUM files and result zips as links to an earlier run's (a sweep of 65 runs
     # wrote 273 MB, most of it these files again, and formatted the TUM text each time)
     linked, linked_tums = set(), []
-    if out is not None and link_shared is not None:
+    link_from = sh.files_from if out is not None else None
+    if link_from is not None:
         for n in sh.series:
             f = report.files.TUM_FILES.get(n)
-            if f and series.get(n) is not None and n not in own and out.link(f, link_shared / f):
+            if f and series.get(n) is not None and n not in own and out.link(f, link_from / f):
                 linked.add(f)
                 linked_tums.append(n)
     truth_b = sh.truth_biases.result() if sh.truth_biases is not None else None
@@ -260,11 +263,10 @@ def filter_and_evaluate(ds: Dataset, cfg: dict, sh: Shared, pool, *, dataset_pat
                              f"{evals['fused'].matched_poses} ground-truth poses ({gt.source}: {len(gt)} poses, "
                              f"{gt.t_s[0]:.3f}..{gt.t_s[-1]:.3f} s) within evaluation.t_max_diff_s = {ev_cfg['t_max_diff_s']} s "
                              f"{offsets_note(prep.applied)}".rstrip())
-    if out is not None and link_shared is not None:
-        for n in linked_tums:               # (the shared estimates' evaluations: their zips came back as bytes)
-            for z in getattr(evals.get(n), "zips", None) or {}:
-                if out.link(z, link_shared / z):
-                    linked.add(z)
+    for n in linked_tums:                   # (the shared estimates' evaluations: their zips came back as bytes)
+        for z in getattr(evals.get(n), "zips", None) or {}:
+            if out.link(z, link_from / z):
+                linked.add(z)
     ratios = ratio_metrics(evals)
     # windows along the evaluated span (the whole truth gave a last window to 3712 m in a report whose span ends at
     # 3707 m, and figures that `evaluate --t-start/--t-end` on the run's files did not reproduce: an audit)

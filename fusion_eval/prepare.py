@@ -399,8 +399,8 @@ def prepare(ds: Dataset, cfg: dict) -> Prepared:
                 "gnss", c, ("rate_hz", "noise_std_m"), "a GNSS", "the manifest's gnss degrade: true; KITTI's OXTS "
                 "solution is", ds.gnss.source, "is a receiver's output, used at its own rate and noise (gnss.outages_s "
                 "and gnss.std_m do apply)")])
-        # the fixes as fused: the truth's own solution in another frame has no receiver's noise (a kitti2bag trial)
-        more_warnings += filter(None, [plausible.gnss_smooth_offset(gnss, gt)])
+        # the fixes as fused: the truth's own solution, as it is or in another frame (a kitti2bag trial)
+        more_warnings += filter(None, [plausible.gnss_from_truth(gnss, gt)])
         if use_gnss and len(gnss) == 0:
             raise DataRangeError(f"no GNSS fix of {ds.gnss.source} is left inside the IMU span after degradation")
 

@@ -632,9 +632,9 @@ def test_a_receivers_noise_over_a_smooth_offset_is_not_taken_for_the_truths_own_
     walk = np.cumsum(rng.normal(0.0, 0.0005, (n, 3)), axis=0)
     walk = 0.015 * walk / np.abs(walk).max()
     for err in (white, walk + rng.normal(0.0, 0.003, (n, 3)), np.array([1.0, 0.0, 0.0]) + rng.normal(0.0, 0.003, (n, 3))):
-        assert plausible.gnss_smooth_offset(fixes(err), truth) == ""
+        assert plausible.gnss_from_truth(fixes(err), truth) == ""
     smooth = np.column_stack([0.4 + 1e-4 * p[:, 0], 1e-4 * p[:, 1], np.zeros(n)])
-    assert "moves by only" in plausible.gnss_smooth_offset(fixes(smooth), truth)
+    assert "moves by only" in plausible.gnss_from_truth(fixes(smooth), truth)
 
 
 def test_kitti_raws_unrectified_velo_to_cam_given_as_t_cam0_velo_is_named(kitti_slice, tmp_path):

@@ -84,7 +84,6 @@ BATCH_MAX = 8            # runs per batch at most: an interrupted batch is redon
 # per key, not once per batch (noise64 on kitti-00: 9 batches on 2 workers; that work was a quarter of the sweep's
 # CPU). Emptied when a sweep ends in this process (--jobs 1), so nothing outlives the sweep that read it
 _PREPARED: dict = {}
-_FIRST_RUN: dict = {}        # (sweep folder, batch key) -> the folder of its first finished run on this worker
 
 
 def _num(v):
@@ -398,7 +397,6 @@ def run_batch(tasks: list[Task]) -> list[dict]:
             cfgs.append(session.resolve(reqs[-1], ds))
         if sh is None:
             _PREPARED.clear()                # one preparation held per worker: the next key's replaces it
-            _FIRST_RUN.clear()               # (and the files made from it: a new preparation makes its own)
             with np.errstate(all="ignore"):
                 sh = share(ds, cfgs[0], pool)
             _PREPARED[key] = (ds, sh, pool)
@@ -406,21 +404,19 @@ def run_batch(tasks: list[Task]) -> list[dict]:
         interrupts.reraise_if_received()
         return [run_task(t) for t in tasks]
     shared_s = (time.perf_counter() - t_load) / len(tasks)
-    # a finished run's folder of this batch key (this batch's, or an earlier one's on this worker): the later runs link
-    # its files of the shared estimates
-    first = _FIRST_RUN.get(key)
     for task, req, cfg in zip(tasks, reqs, cfgs):
         root = _run_root(task)
 
         def work():
             with StagedDir(root / "runs" / task.id, overwrite=True, wait_lock_s=RUN_LOCK_WAIT_S) as out:
                 return filter_and_evaluate(ds, cfg, sh, pool, dataset_path=task.dataset, config_source=req.source,
-                                           out=out, link_shared=first)
+                                           out=out)
         rec = _record(task, work, shared_s)
         rec["batch"] = task.batch
-        # (a cluster worker's folder is a temporary one, shipped back and removed: nothing there to link to)
-        if first is None and not task.ship and rec.get("status") == "ok":
-            first = _FIRST_RUN[key] = root / "runs" / task.id
+        # the later runs on this preparation (this batch's, a later batch's of the key on this worker) link the first
+        # finished one's files of the shared estimates; not a cluster worker's, shipped back and removed
+        if sh.files_from is None and not task.ship and rec.get("status") == "ok":
+            sh.files_from = root / "runs" / task.id
         recs.append(_finish(task, rec, root))
     return recs
 
@@ -557,7 +553,6 @@ def execute(tasks: list[Task], out_dir: Path, jobs: int | None, scheduler: str |
             raise interrupted(exc) from None
         finally:
             _PREPARED.clear()
-            _FIRST_RUN.clear()
     else:
         import multiprocessing as mp
         from concurrent.futures import as_completed as cf_completed

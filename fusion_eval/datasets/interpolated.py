@@ -24,6 +24,8 @@ from __future__ import annotations
 import numpy as np
 from numba import njit
 
+from ..stats import true_runs
+
 REL_TOL = 1e-9          # a sample on its neighbours' line: |v[i-1] - 2 v[i] + v[i+1]| <= REL_TOL (their magnitudes)
 MIN_RUN = 2             # consecutive such samples: one alone happens in coarsely quantised data at rest
 MAX_SHARE = 0.2         # above this share of the stream, interpolation is the stream's nature, not a repair
@@ -61,9 +63,7 @@ def linear_runs(values: np.ndarray) -> np.ndarray:
     inner = _inner_points(np.ascontiguousarray(v))
     if not inner.any():
         return out
-    edges = np.diff(np.r_[0, inner.astype(np.int8), 0])
-    starts, stops = np.flatnonzero(edges == 1), np.flatnonzero(edges == -1)
-    for s, e in zip(starts, stops):
+    for s, e in zip(*true_runs(inner)):
         if e - s >= MIN_RUN:
             out[s + 1:e + 1] = True          # inner index i is sample i + 1
     if out[1]:
@@ -80,7 +80,7 @@ def interpolated_imu(imu) -> tuple[np.ndarray, str | None]:
     k = int(found.sum())
     if not k:
         return found, None
-    runs = int(np.count_nonzero(np.diff(np.r_[0, found.astype(np.int8)]) == 1))
+    runs = true_runs(found)[0].size
     what = (f"imu: {k} samples in {runs} run(s) lie exactly on the straight line between their neighbours in all six "
             "channels")
     if k > MAX_SHARE * len(imu):

@@ -13,6 +13,7 @@ import numpy as np
 from ..filters.layout import CANONICAL
 from ..interp import interpolate_poses
 from ..so3 import relative_rotvecs
+from ..stats import true_runs
 from ..types import PoseSeries
 from . import keys
 from .consistency import innovation_nll, innovation_summary, pose_nees_q, summary
@@ -355,29 +356,8 @@ def scored_warnings(evals: dict, nis: dict, nees_: dict, applied: dict, fused_gn
     ``fused_gnss_t_s``, where the GNSS scored is not the filter's own), one far outside its own covariance, and
     (with the evaluation settings ``ev_cfg``) estimates scored on a fraction of their poses."""
     sparse = sparsely_matched(evals, ev_cfg["association"], ev_cfg["t_max_diff_s"]) if ev_cfg else []
-    return (sparse + truths_own_gnss(evals) + worse_than_inputs(evals, nis, fused_gnss_t_s)
+    return (sparse + worse_than_inputs(evals, nis, fused_gnss_t_s)
             + overconfident(nees_, applied, "lidar" in (nis or {})))
-
-
-# a GNSS whose positions match the ground truth this closely (RMS, m) is the truth's own source: a receiver against
-# an independent reference, RTK included (1-2 cm horizontal, 2-3 cm vertical), does not come under it over a drive
-SAME_SOURCE_M = 0.005
-
-
-def truths_own_gnss(evals: dict) -> list[str]:
-    """A GNSS that is the ground truth's own source, used as it is: KITTI's OXTS position is both, and a manifest
-    with ``degrade: false`` on it scored the GNSS at 0.000 m and the fusion at 0.087 m with no word (the report called
-    it "a receiver's output"; a review against the shared data's README)."""
-    gnss = evals.get("gnss")
-    if gnss is None or gnss.ape_err_m is None or len(gnss.ape_err_m) < 10:
-        return []
-    own = float(np.sqrt(np.mean(np.square(np.asarray(gnss.ape_err_m, float)))))
-    if own >= SAME_SOURCE_M:
-        return []     # (the same solution in another map frame: plausible.gnss_smooth_offset, on the error vectors)
-    return [f"the GNSS's positions match the ground truth to {own * 1000:.3f} mm RMS over {len(gnss.ape_err_m)} fixes: "
-            "they are its own source (KITTI's OXTS GPS/INS solution is both), so every figure against the truth of an "
-            "estimate that fuses them is scored on the answer; mark the stream for degradation (degrade: true under the "
-            "manifest's gnss) with noise (gnss.noise_std_m, not zero), or give a receiver's own fixes"]
 
 
 def chi2_upper(dof: int, prob: float = 0.975) -> float:
@@ -422,9 +402,7 @@ def jumps(k: str, d: dict) -> str:
     if v.size < 10:
         return ""
     # not in the first seconds: a constant offset the filter, started on the truth, meets there (said by its own check)
-    above = np.concatenate([[False], (v > chi2_upper(d["dof"], JUMP_PROB)) & (t - t.min() >= JUMP_SETTLE_S), [False]])
-    edges = np.flatnonzero(np.diff(above.astype(np.int8)))
-    first, stop = edges[::2], edges[1::2]                 # each run of values above: [first, stop)
+    first, stop = true_runs((v > chi2_upper(d["dof"], JUMP_PROB)) & (t - t.min() >= JUMP_SETTLE_S))   # [first, stop)
     keep = stop - first >= JUMP_RUN
     first, last = first[keep], stop[keep] - 1
     if not first.size or np.sum(last - first + 1) > JUMP_MAX_FRACTION * v.size:
