@@ -76,10 +76,12 @@ def apply(cfg: dict, i: int) -> dict:
     return out
 
 
-def _t95(n: int) -> float:
-    from scipy.stats import t
+def _t95(dof: float) -> float:
+    """Student's t 97.5 % quantile for ``dof`` degrees of freedom (what ``scipy.stats.t.ppf`` computes, bit for bit,
+    without importing scipy.stats)."""
+    from scipy.special import stdtrit
 
-    return float(t.ppf(0.975, n - 1))
+    return float(stdtrit(dof, 0.975))
 
 
 def stats(values) -> dict:
@@ -90,8 +92,9 @@ def stats(values) -> dict:
         return {"n": 0}
     mean = float(v.mean())
     std = float(v.std(ddof=1)) if n > 1 else 0.0
-    half = _t95(n) * std / math.sqrt(n) if n > 1 else float("nan")
-    run = _t95(n) * std * math.sqrt(1.0 + 1.0 / n) if n > 1 else float("nan")
+    t = _t95(n - 1) if n > 1 else float("nan")
+    half = t * std / math.sqrt(n) if n > 1 else float("nan")
+    run = t * std * math.sqrt(1.0 + 1.0 / n) if n > 1 else float("nan")
     return {"n": int(n), "mean": mean, "std": std, "min": float(v.min()), "max": float(v.max()),
             "median": float(np.median(v)), "p2.5": float(np.percentile(v, 2.5)), "p97.5": float(np.percentile(v, 97.5)),
             "pi95_run": [mean - run, mean + run], "ci95_mean": [mean - half, mean + half]}
@@ -265,15 +268,13 @@ def paired_lead(per_trial: dict[str, list], what: str = "fused APE", unit: str =
 
 def _welch(b: np.ndarray, a: np.ndarray) -> tuple[float, tuple[float, float]]:
     """mean(b) - mean(a) and its 95 % interval (Welch's t, unequal variances)."""
-    from scipy.stats import t
-
     va, vb = (float(x.var(ddof=1)) / x.size if x.size > 1 else math.nan for x in (a, b))
     diff = float(b.mean() - a.mean())
     se2 = va + vb
     if not se2 > 0:
         return diff, (math.nan, math.nan)
     dof = se2 ** 2 / (va ** 2 / (a.size - 1) + vb ** 2 / (b.size - 1))
-    half = float(t.ppf(0.975, dof)) * math.sqrt(se2)
+    half = _t95(dof) * math.sqrt(se2)
     return diff, (diff - half, diff + half)
 
 

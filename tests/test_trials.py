@@ -281,7 +281,8 @@ def test_the_interval_of_one_more_run_is_a_t_prediction_interval():
     # its coverage of new draws, over many 5-trial sets of a normal figure: 95 %, where the percentiles' is far below
     rng = np.random.default_rng(1)
     sets, new = rng.normal(0.75, 0.08, (4000, 5)), rng.normal(0.75, 0.08, 4000)
-    cover = np.mean([stats(x)["pi95_run"][0] <= y <= stats(x)["pi95_run"][1] for x, y in zip(sets, new)])
+    runs = [stats(x)["pi95_run"] for x in sets]
+    cover = np.mean([lo <= y <= hi for (lo, hi), y in zip(runs, new)])
     pct = np.mean([np.percentile(x, 2.5) <= y <= np.percentile(x, 97.5) for x, y in zip(sets, new)])
     assert 0.93 < cover < 0.97 and pct < 0.75, (cover, pct)
 

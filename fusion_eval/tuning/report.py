@@ -161,7 +161,7 @@ def markdown(s: Setup, res: dict, runtime_s: float) -> str:
                 else ["objective (default)", "objective (tuned)"])
     L += ["## Objective and fused APE, default against tuned", ""] + markdown_table(
         ["drives", *obj_cols, "fused APE RMSE m (default)", "fused APE RMSE m (tuned)"], rows)
-    L += ["", _generalisation(gaps, relative=all(o.is_error for o in s.objectives[:1])), ""]
+    L += ["", _generalisation(gaps, relative=s.objectives[0].is_error), ""]
     d_ape, t_ape = _mean(default["train"], FUSED_APE), _mean(best["train"], FUSED_APE)
     # (equal figures: the table and the verdict above already say the tuned values are the default's)
     note = one_draw_note(t_ape, d_ape, s.seeds, "The tuned values' fused APE on the training drives leads the default's by",
@@ -236,7 +236,7 @@ def _generalisation(gaps, relative: bool = True) -> str:
     rel = relative and d_tr > 0 and d_te > 0
     a_tr, a_te = (g_tr / d_tr, g_te / d_te) if rel else (g_tr, g_te)
     say = (lambda g, d: f"{g:.4g} ({g / d:.1%} of the default's)") if rel else (lambda g, d: f"{g:.4g}")   # noqa: E731
-    if g_tr > 0 and a_te < 0.5 * a_tr:
+    if a_te < 0.5 * a_tr:
         return (f"Partly overfitted: the gain on the held-out drives ({say(g_te, d_te)}) is less than half the gain on "
                 f"the training drives ({say(g_tr, d_tr)}).")
     return (f"The gain holds on the held-out drives: {say(g_te, d_te)} there against {say(g_tr, d_tr)} on the training "
