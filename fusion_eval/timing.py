@@ -71,6 +71,7 @@ def align(ds: Dataset, cfg: dict, imu: ImuSeries, lidar_offset_given) -> tuple[I
             off = est["lidar_offset"].value_s if off == "auto" else off
             accel = est["accel_lag"].value_s if accel == "auto" else accel
             gyro = est["gyro_lag"].value_s if gyro == "auto" else gyro
+            ahead = set()                 # the channels said to report before their stamps (said once, here)
             for k in ("accel_lag", "gyro_lag"):
                 # the data fix lidar offset + lag; a lag beyond a second means the given lidar offset is off (as a
                 # lag set by hand beyond it is refused)
@@ -81,14 +82,15 @@ def align(ds: Dataset, cfg: dict, imu: ImuSeries, lidar_offset_given) -> tuple[I
                 if k in est and est[k].value_s < -MAX_LEAD_S and est[k].value_s + 3 * (est[k].std_s or 0.0) < 0:
                     # a channel cannot report a rate before it happens: the estimate took up an error of the lidar
                     # offset given (0.3 s once became a gyro lag of -241 ms and a fused APE of 2.0 m with no word)
+                    ahead.add(k)
                     applied.setdefault("time_warnings", []).append(
                         f"imu.{k}_s=auto comes out at {est[k].value_s * 1e3:+.0f} +/- {(est[k].std_s or 0.0) * 1e3:.0f} ms: the IMU "
                         f"would report its {'rates' if k == 'gyro_lag' else 'accelerations'} before they happen; the "
                         f"lidar's time offset of {off:g} s (lidar.time_offset_s or the manifest's) is the likely error "
                         "(try lidar.time_offset_s=auto with the lag given)")
             device = _off_the_device(ds, est, off_given)
-            if device and not any(w.startswith("imu.gyro_lag_s=auto") for w in applied.get("time_warnings", ())):
-                applied.setdefault("time_warnings", []).append(device)      # (a lag ahead of its stamp is said above)
+            if device and "gyro_lag" not in ahead:                    # (a lag ahead of its stamp is said above)
+                applied.setdefault("time_warnings", []).append(device)
             for k, v in est.items():
                 log.info("%s estimated from the data: %.1f +/- %.1f ms", k.replace("_", " "), v.value_s * 1e3, v.std_s * 1e3)
                 if v.std_s is not None and v.std_s > MAX_TIME_STD_S:

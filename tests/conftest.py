@@ -58,13 +58,18 @@ def wait_for(pred, timeout_s: float, step_s: float = 0.05) -> bool:
     return False
 
 
+def under_ci() -> bool:
+    """Whether the suite runs as CI runs it (CI=true), where ../shared/data sits beside the clone."""
+    return os.environ.get("CI", "").lower() == "true"
+
+
 def shared_path(*parts: str) -> Path:
     """A file of ../shared/data, or skip the test with the reason when it is absent. Under CI (CI=true), where the
     data sits beside the clone, its absence fails the test: a clone without ../shared skipped 48 tests and reported
     green (a mutation review)."""
     p = SHARED.joinpath(*parts)
     if not p.exists():
-        if os.environ.get("CI", "").lower() == "true":
+        if under_ci():
             pytest.fail(f"CI=true but the shared real data is not at {p}: CI runs with ../shared/data beside the clone")
         pytest.skip(f"needs the shared real data at {p} (absent on this machine)")
     return p

@@ -4,7 +4,6 @@ fast path against the rosbags typestore, stamps, errors, and the real bags of ev
 from __future__ import annotations
 
 import logging
-import os
 import sys
 from pathlib import Path
 
@@ -14,7 +13,7 @@ from rosbags.highlevel import AnyReader
 from rosbags.rosbag1 import Writer as Writer1
 from rosbags.rosbag2 import CompressionFormat, CompressionMode, StoragePlugin, Writer as Writer2
 
-from conftest import SHARED, shared_path
+from conftest import SHARED, shared_path, under_ci
 from fusion_eval.datasets import rosbag as rb
 from fusion_eval.errors import ConfigError, DataFormatError, OutputError
 from fusion_eval.geo import geodetic_to_enu
@@ -27,7 +26,7 @@ FLAVOUR_IDS = ["ros1", "ros2-sqlite3", "ros2-mcap"]
 T0 = 1.7e9      # POSIX-like stamps: float64 spacing 2.4e-7 s
 EVO = "evo-test-data"
 # (under CI=true, where ../shared is beside the clone, its absence is not skipped: the tests fail on the missing files)
-needs_evo_data = pytest.mark.skipif(not (SHARED / EVO).exists() and os.environ.get("CI", "").lower() != "true",
+needs_evo_data = pytest.mark.skipif(not (SHARED / EVO).exists() and not under_ci(),
                                     reason=f"needs the shared real data {SHARED / EVO}")
 
 

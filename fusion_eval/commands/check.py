@@ -406,15 +406,16 @@ def _check(metrics_path, baseline, rtol, atol, patterns, rules, junit_path, summ
     base, base_kind, _ = load_metrics(base_path, trial_stat)
     if kind != base_kind:
         raise ConfigError(f"{metrics_path} is a {kind} file but the baseline {baseline} is a {base_kind} file")
-    names = [_json_field(p, "dataset") for p in (metrics_path, base_path)]
+    docs = [_json_doc(p) for p in (metrics_path, base_path)]      # each file parsed once for what is read below
+    names = [d.get("dataset") for d in docs]
     names = [n if isinstance(n, str) else None for n in names]
     if None not in names and names[0] != names[1]:
         # a warning let simple-06's run pass against kitti-00's baseline, exit 0 (a review)
         raise ConfigError(f"{metrics_path} is of dataset {names[0]!r} and the baseline {baseline} of {names[1]!r}: their "
                           "figures do not compare; check a run against a baseline of its own dataset (its manifest's "
                           "name), or make one with --update-baseline")
-    _refuse_other_scoring(metrics_path, base_path)
-    trials = [_json_field(p, "trials") for p in (metrics_path, base_path)]
+    _refuse_other_scoring(metrics_path, base_path, docs)
+    trials = [d.get("trials") for d in docs]
     if trial_stat_given and not any(trials):
         raise ConfigError(f"--trial-stat applies to the metrics of a run with --trials N; neither {metrics_path} nor "
                           f"{baseline} has trials")
@@ -424,7 +425,7 @@ def _check(metrics_path, baseline, rtol, atol, patterns, rules, junit_path, summ
         log.warning("the %s file holds Monte-Carlo trials (compared by their %s) and the %s one run's figures: a mean over "
                     "GNSS seeds against one seed's; make the baseline the same way", *(
                         ("metrics", trial_stat, "baseline") if with_trials[0] else ("baseline", trial_stat, "metrics file")))
-    for w in _other_draws([_json_field(p, "gnss_degradation") for p in (metrics_path, base_path)], trials, trial_stat):
+    for w in _other_draws([d.get("gnss_degradation") for d in docs], trials, trial_stat):
         log.warning("%s", w)
     pats = tuple(patterns) or default_patterns(kind, delta)
     rows = compare_metrics(current, base, pats, rtol, atol)
@@ -439,7 +440,7 @@ def _check(metrics_path, baseline, rtol, atol, patterns, rules, junit_path, summ
         # the default patterns over a run with an estimate the baseline has none of (a smoother added to a run gated on
         # the shipped baseline exited 2, a review): said, and not gated, rather than refused; a metric the baseline
         # should hold but does not (NaN, a hand-edited key) is still refused
-        other = _estimates_absent_from(_raw_keys(base_path) or base, lacking)
+        other = _estimates_absent_from(_raw_keys(docs[1]) or base, lacking)
         if other:
             fams = sorted({_estimate_of(k) for k in other})
             log.warning("not gated: %d metric(s) of the %s estimate(s), which the baseline %s has none of; rebuild it "
@@ -447,7 +448,7 @@ def _check(metrics_path, baseline, rtol, atol, patterns, rules, junit_path, summ
             lacking = [k for k in lacking if k not in other]
     _refuse_incomplete_baseline(base_path, lacking)
     evaluated = [(r, *evaluate_rule(r, current)) for r in rules]
-    raw_current = _raw_keys(metrics_path)
+    raw_current = _raw_keys(docs[0])
     for r in rows:
         if r.verdict == "MISSING" and r.metric in raw_current:
             # NaN, inf, null or "0.75" in the current file read as MISSING, with a blank value (a review)
@@ -485,13 +486,13 @@ MAX_ERROR_FIGURE = 1e9
 _SCORING = ("association", "alignment", "t_max_diff_s", "rpe_delta_m", "t_offset_s", "n_to_align", "up_axis", "span")
 
 
-def _refuse_other_scoring(metrics_path: Path, base_path: Path) -> None:
+def _refuse_other_scoring(metrics_path: Path, base_path: Path, docs: list[dict]) -> None:
     """A metrics file scored otherwise than its baseline (an aligned APE against an unaligned one: the check
     passed) is refused, naming the first setting that differs; a setting only one file records is not compared (a
     baseline trimmed to its gated figures, or written before the setting was recorded)."""
     from ..errors import ConfigError
 
-    ev = [_json_field(p, "evaluation") for p in (metrics_path, base_path)]
+    ev = [d.get("evaluation") for d in docs]
     if not all(isinstance(e, dict) for e in ev):
         return
     # a span is compared by its mode: its bounds follow the data, and a new run's may move by a sample
@@ -526,24 +527,24 @@ def _other_draws(degradations: list, trials: list, trial_stat: str | None) -> li
     return out
 
 
-def _json_field(path: Path, key: str):
-    """``key`` of the metrics.json at ``path`` (None for a sweep.csv or a file that does not hold it)."""
-    if Path(path).suffix == ".csv":
-        return None
-    try:
-        return json.loads(Path(path).read_text(encoding="utf-8")).get(key)
-    except (json.JSONDecodeError, OSError, AttributeError, UnicodeDecodeError, RecursionError):
-        return None
-
-
-def _raw_keys(path: Path) -> dict:
-    """Every key of a metrics.json, NaN and non-numbers included (a baseline whose smoothed section holds nulls has one,
-    and is refused for it, not told it has none; a review), or {} for a sweep.csv or an unreadable file."""
+def _json_doc(path: Path) -> dict:
+    """The metrics.json at ``path`` as a dict ({} for a sweep.csv or a file that is not one: the checks that read it
+    then say nothing; the metrics themselves were read, and refused where wrong, by :func:`load_metrics`)."""
     if Path(path).suffix == ".csv":
         return {}
     try:
-        return keys.flatten(json.loads(Path(path).read_text(encoding="utf-8")), raw=True)
-    except (json.JSONDecodeError, OSError, AttributeError, UnicodeDecodeError, RecursionError):
+        doc = json.loads(Path(path).read_text(encoding="utf-8"))
+    except (json.JSONDecodeError, OSError, UnicodeDecodeError, RecursionError):
+        return {}
+    return doc if isinstance(doc, dict) else {}
+
+
+def _raw_keys(doc: dict) -> dict:
+    """Every key of a metrics.json (:func:`_json_doc`), NaN and non-numbers included (a baseline whose smoothed section
+    holds nulls has one, and is refused for it, not told it has none; a review)."""
+    try:
+        return keys.flatten(doc, raw=True)
+    except (AttributeError, RecursionError):
         return {}
 
 
@@ -598,7 +599,7 @@ def update_baseline(metrics_path: Path, baseline: Path) -> None:
     if (Path(baseline).suffix == ".csv") != (kind == "csv"):
         raise ConfigError(f"--update-baseline {baseline}: a {kind} file's baseline must be a .{kind} file too "
                           f"({metrics_path} is a {'sweep.csv' if kind == 'csv' else 'metrics.json'})")
-    raw = _raw_keys(metrics_path)
+    raw = _raw_keys(_json_doc(metrics_path))
     pats = default_patterns(kind, delta)
     bad = [k for k in raw if k not in current and any(fnmatch.fnmatchcase(k, p) for p in pats)]
     if bad:

@@ -287,13 +287,14 @@ def _compare(dataset_path: Path | None, variants: list[str], variant_dir: Path |
             log.warning("%s", w)
     stages.start("write")
     trials_info = None
+    seeds = {v: mc.effective_seeds(c) for v, c in zip(variants, cfgs)}     # the ranking's and compare.md's
     if n_trials > 1:
         trials_info = {"n": n_trials, "seeds": [mc.trial_overrides(cfgs[0], i) for i in range(n_trials)],
                        "per_trial": tables}
         table = mc.aggregate_rows(tables, ("variant", "estimate"))
         lead = mc.paired_lead({v: [next((r.get("ape_trans_rmse_m") for r in t if r["variant"] == v and
                                          r["estimate"] == "fused"), None) for t in tables] for v in variants},
-                              seeds={v: mc.effective_seeds(c) for v, c in zip(variants, cfgs)})
+                              seeds=seeds)
         if lead:
             trials_info["ranking"] = lead[1]
             trials_info["ranking_note"] = lead[0]
@@ -323,8 +324,7 @@ def _compare(dataset_path: Path | None, variants: list[str], variant_dir: Path |
         out.write_text("compare.csv", _csv(table, bool(trials_info)))
         md = (_markdown(ds.name, table, truth_body, make_plots, sp, n_trials, warned, ev_cfg["alignment"],
                         list(dict.fromkeys(s for r in runs for s in r.seeded)),
-                        (trials_info or {}).get("ranking_note"),
-                        {v: mc.effective_seeds(c) for v, c in zip(variants, cfgs)})
+                        (trials_info or {}).get("ranking_note"), seeds)
               + "\n".join(segments_section({"segments": seg}, note=(
                   f"Trial 0's windows (one seed; the table above gives the means over the {n_trials} trials)."
                   if n_trials > 1 else ""))) + "\n")

@@ -283,19 +283,15 @@ def plan(sweep_path: Path, datasets: list[str], out_dir: Path, variant_dir: Path
         session.same_evaluation(*zip(*scored), str(sweep_path), "a sweep ranks its runs of a dataset by their APE; "
                                 "set these evaluation keys for all of them (the sweep's config:), not in a setting or "
                                 "variant", keys=("association", "alignment", "t_max_diff_s", "span"))
-        drawn: dict = {}
-        for label, c in scored:
-            drawn.setdefault(json.dumps(mc.effective_seeds(c), sort_keys=True), []).append(label)
-        if len(drawn) > 1:
-            # a variant file setting its own gnss.seed ranked against the others on its seed (0.347 against 0.323 m,
-            # 7 %, with no word; a diff review): refused as a seed swept as a setting is
-            first = scored[0][0]
-            seeds_of = {lab: k for k, labs in drawn.items() for lab in labs}
-            other = next(lab for lab, _ in scored if seeds_of[lab] != seeds_of[first])
-            spell = lambda k: ", ".join(f"{a}={b}" for a, b in json.loads(k).items())   # noqa: E731
-            raise ConfigError(f"{sweep_path}: {other} draws its random elements with other seeds ({spell(seeds_of[other])}) "
-                              f"than {first} ({spell(seeds_of[first])}): a seed is not a setting to rank; take the seed "
-                              "out of the variant, and average over seeds with --trials N")
+        first, seeds = scored[0][0], mc.effective_seeds(scored[0][1])
+        for other, c in scored[1:]:
+            if mc.effective_seeds(c) != seeds:
+                # a variant file setting its own gnss.seed ranked against the others on its seed (0.347 against 0.323 m,
+                # 7 %, with no word; a diff review): refused as a seed swept as a setting is
+                spell = lambda d: ", ".join(f"{a}={b}" for a, b in sorted(d.items()))   # noqa: E731
+                raise ConfigError(f"{sweep_path}: {other} draws its random elements with other seeds "
+                                  f"({spell(mc.effective_seeds(c))}) than {first} ({spell(seeds)}): a seed is not a setting "
+                                  "to rank; take the seed out of the variant, and average over seeds with --trials N")
     ids = [t.id for t in tasks]
     if len(set(ids)) != len(ids):
         log.warning("some settings resolve to the same configuration; they share one run")

@@ -13,6 +13,8 @@ processes pointed at one ``--out`` share the study.
 
 from __future__ import annotations
 
+import contextlib
+
 import datetime
 import json
 import logging
@@ -224,29 +226,24 @@ class Executor:
     """``map`` of :func:`score` over a generation, in order: this process, the pool or Dask."""
 
     def __init__(self, s: Setup):
-        self.s, self._pool, self._dask, self._client = s, None, None, None
+        self.s, self._pool, self._client, self._stack = s, None, None, contextlib.ExitStack()
 
     def __enter__(self):
         s = self.s
         if s.scheduler or s.dask_local:
             from ..pool import dask_client
 
-            self._dask = dask_client(s.scheduler, s.jobs if s.dask_local else 0)
-            self._client = self._dask.__enter__()
+            self._client = self._stack.enter_context(dask_client(s.scheduler, s.jobs if s.dask_local else 0))
         elif s.jobs > 1:
             import multiprocessing as mp
 
             from ..pool import Pool
 
-            self._pool = Pool(max_workers=s.jobs, mp_context=mp.get_context("spawn")).__enter__()
+            self._pool = self._stack.enter_context(Pool(max_workers=s.jobs, mp_context=mp.get_context("spawn")))
         return self
 
     def __exit__(self, exc_type, exc, tb):
-        if self._pool is not None:
-            self._pool.__exit__(exc_type, exc, tb)
-        if self._dask is not None:
-            self._dask.__exit__(exc_type, exc, tb)
-        return False
+        return self._stack.__exit__(exc_type, exc, tb)
 
     def map(self, jobs: list[Job]) -> list[dict]:
         if self._client is not None:
