@@ -50,12 +50,17 @@ CORE: dict[str, Spec] = {
     "filter.iteration_tol": S(1e-8, "iterated EKF: stop when the correction changes by less than this (norm)", positive=True),
     "filter.gravity_mps2": S("auto", "gravity magnitude; 'auto' = WGS84 normal gravity at the geodetic origin (9.80665 without one)",
                              "float", positive=True, auto=True),
-    "filter.init_pose_from": S("groundtruth", "initial position/attitude from 'groundtruth' or the first valid 'lidar' pose",
-                               choices=("groundtruth", "lidar")),
-    "filter.init_velocity_from": S("groundtruth", "initial velocity from 'groundtruth' (its velocity, or its positions "
-                                                  "differenced over +/-0.1 s where it has none: TUM, EuRoC motion capture) "
-                                                  "or from differencing the first two 'gnss' fixes",
-                                   choices=("groundtruth", "gnss")),
+    "filter.init_pose_from": S("auto", "initial position/attitude: 'groundtruth', the first valid 'lidar' pose (anchored on "
+                                       "the ground truth), or 'data' (levelling, and the heading from the lidar's track "
+                                       "on the GNSS or the GNSS's direction of travel: no ground truth); 'auto' = "
+                                       "'groundtruth' where the drive has one, else 'data'",
+                               choices=("auto", "groundtruth", "lidar", "data")),
+    "filter.init_velocity_from": S("auto", "initial velocity from 'groundtruth' (its velocity, or its positions "
+                                           "differenced over +/-0.1 s where it has none: TUM, EuRoC motion capture), "
+                                           "from differencing the first two 'gnss' fixes, or from the 'data' (the lidar's "
+                                           "positions, else the GNSS's, else the odometer); 'auto' = 'groundtruth' "
+                                           "where the drive has one, else 'data'",
+                                   choices=("auto", "groundtruth", "gnss", "data")),
     "smoother.method": S("none", "offline smoothing beside the filter, written as the 'smoothed' estimate: 'none', 'rts' "
                                  "(Rauch-Tung-Striebel backward pass over the filter's own models) or 'batch' (GTSAM factor "
                                  "graph of every measurement the filter used; the 'smoother' extra); see \"Offline smoothing\"",

@@ -129,13 +129,17 @@ def share(ds: Dataset, cfg: dict, pool, zip_dir: Path | None = None) -> Shared:
     t = time.perf_counter()
     prep = prepare(ds, cfg)
     timings = {"prepare": time.perf_counter() - t}
-    series: dict[str, PoseSeries] = {"groundtruth": prep.groundtruth}
+    gt = prep.groundtruth
+    series: dict[str, PoseSeries] = {} if gt is None else {"groundtruth": gt}
     if prep.lidar is not None:
         series["lidar"] = prep.lidar
     if prep.gnss is not None:
         series["gnss"] = prep.gnss.as_poses()
     ev_cfg = cfg["evaluation"]
-    gt = prep.groundtruth
+    if gt is None:
+        # a drive without ground truth: nothing is scored; the estimates are written, the innovations summarised
+        series["imu_only"] = dead_reckoning(prep, settings_for(cfg, prep))
+        return Shared(prep, series, None, None, {}, timings, handles={n: pool.share(s) for n, s in series.items()})
     # the fused estimate and dead reckoning cover the IMU samples from the start on
     spans = {n: span.stream_coverage(n, series[n], prep.applied) for n in ("lidar", "gnss") if n in series}
     spans["fused"] = (float(prep.imu.t_s[prep.k_start]), float(prep.imu.t_s[-1]))
@@ -225,7 +229,7 @@ def filter_and_evaluate(ds: Dataset, cfg: dict, sh: Shared, pool, *, dataset_pat
     # this run's own estimates write their result files into its folder from the worker; shared ones (a batch
     # writes them into every run's folder) come back as bytes
     zip_dir = out.path(".") if out is not None else None
-    own = [n for n in ("fused", "smoothed") if n in series]
+    own = [n for n in ("fused", "smoothed") if n in series and sh.ref is not None]
     # the segment map colours the fused estimate's route (run_metrics.segments' primary)
     futures.update({n: pool.submit(evaluate_estimate, sh.handles["ref"], series[n], n, ev_cfg, zip_dir,
                                    cfg["output"]["zip_trajectories"], n == "fused") for n in own})
@@ -241,14 +245,14 @@ def filter_and_evaluate(ds: Dataset, cfg: dict, sh: Shared, pool, *, dataset_pat
                 linked.add(f)
                 linked_tums.append(n)
     truth_b = sh.truth_biases.result() if sh.truth_biases is not None else None
-    err = fused_error(gt, filt, att_vel=cfg["output"]["plots"])
+    err = fused_error(gt, filt, att_vel=cfg["output"]["plots"]) if gt is not None else None
     # the TUM files and the filter's plots, each a job of its own, alongside the evaluations
     first = report.write_filter_outputs(out, series, filt, err, cfg["output"]["plots"], pool, truth_biases=truth_b,
                                         tums_written=own + linked_tums, handles=sh.handles,
                                         spans=report.spans_of(cfg, prep.gnss_info, filt.fused.t_s)) if out is not None else []
     # the NEES needs no metric: computed here while the workers evaluate, not after (0.7 s on a simulated hour); over
     # the evaluated span, as every metric of the report (over the whole truth it counted 4 epochs more on kitti-00)
-    cons = consistency(sh.ref, filt)
+    cons = consistency(sh.ref, filt)         # (without ground truth: the NIS alone)
     names = [n for n in ESTIMATES if n in futures]
     stages.start("evaluate", len(names))
     evals = {}
@@ -256,7 +260,7 @@ def filter_and_evaluate(ds: Dataset, cfg: dict, sh: Shared, pool, *, dataset_pat
         evals[n] = futures[n].result()
         stages.advance()
     timings["evaluate"] = time.perf_counter() - t
-    if evals["fused"].matched_poses < 2:
+    if gt is not None and evals["fused"].matched_poses < 2:
         # a run whose estimate meets no ground truth has no result: say why instead of reporting 'n/a' with exit 0
         f = series["fused"]
         raise DataRangeError(f"the fused estimate ({len(f)} poses, {f.t_s[0]:.3f}..{f.t_s[-1]:.3f} s) matches "
@@ -270,7 +274,7 @@ def filter_and_evaluate(ds: Dataset, cfg: dict, sh: Shared, pool, *, dataset_pat
     ratios = ratio_metrics(evals)
     # windows along the evaluated span (the whole truth gave a last window to 3712 m in a report whose span ends at
     # 3707 m, and figures that `evaluate --t-start/--t-end` on the run's files did not reproduce: an audit)
-    seg = segments(sh.ref, evals, ev_cfg)
+    seg = segments(sh.ref, evals, ev_cfg) if gt is not None else None
     # this run's: a batch's runs share the preparation's record but not their noise scales
     applied = {**prep.applied, "auto_settled": auto_settled(cfg, prep.resolved, prep.applied)}
     idle = session.inactive_warnings(ds, cfg)         # this run's settings that do nothing (not the shared preparation's)
@@ -311,7 +315,7 @@ def filter_and_evaluate(ds: Dataset, cfg: dict, sh: Shared, pool, *, dataset_pat
         for f in first:
             f.result()
             stages.advance()
-        report.write_evaluation(out, res, report.filter_plots(cfg["output"]["plots"]), pool, advance=stages.advance,
+        report.write_evaluation(out, res, report.filter_plots(cfg["output"]["plots"], gt is not None), pool, advance=stages.advance,
                                 linked=linked)
         timings["write"] = time.perf_counter() - t
     return res

@@ -122,6 +122,21 @@ def anchor_lidar(lidar_odom: PoseSeries, gt: PoseSeries) -> tuple[PoseSeries, fl
     return replace(base, p_w_m=T_w[:, :3, 3], q_wb_xyzw=matrix_to_quat_xyzw(T_w[:, :3, :3])), float(lidar_odom.t_s[a])
 
 
+def anchor_at(lidar_odom: PoseSeries, T_w_b0: np.ndarray, t0: float) -> PoseSeries:
+    """Odometry poses expressed in the world frame where the pose at ``t0`` (interpolated) is ``T_w_b0``: a drive
+    without ground truth anchors its lidar on the filter's initial pose (the manifest's ``anchor: start``)."""
+    p_a, R_a, _ = interpolate_pose_at(lidar_odom, t0)
+    T_w = (T_w_b0 @ inv_T(make_T(R_a, p_a)))[None] @ make_T(lidar_odom.R_wb(), lidar_odom.p_w_m)
+    return replace(lidar_odom, p_w_m=T_w[:, :3, 3], q_wb_xyzw=matrix_to_quat_xyzw(T_w[:, :3, :3]))
+
+
+def start_from(cfg: dict, ds: Dataset) -> tuple[str, str]:
+    """``filter.init_pose_from`` and ``init_velocity_from`` as this drive takes them: 'auto' is 'groundtruth' where
+    the drive has one, else 'data' (:mod:`fusion_eval.calibration.initial_state`)."""
+    own = "groundtruth" if ds.groundtruth is not None else "data"
+    return tuple(own if cfg["filter"][k] == "auto" else cfg["filter"][k] for k in ("init_pose_from", "init_velocity_from"))
+
+
 def _velocity_from_positions(poses, t0: float, half_window_s: float = 0.1) -> np.ndarray:
     """The velocity at ``t0`` of a pose series without one: the least-squares slope of its positions over
     ``t0 +/- half_window_s`` (a motion capture's millimetre noise over 0.1 s is centimetres per second), or of the two
@@ -225,12 +240,10 @@ def check_streams(ds: Dataset, cfg: dict) -> dict:
     check_combination(cfg)
     need = needed_streams(cfg)
     if ds.groundtruth is None:
-        # every command prepares this way, tune's no-truth objectives too (a user trial read the old message as run's
-        # alone): said as what is needed and why, with what to give
-        raise ConfigError(f"dataset {ds.name!r} has no groundtruth stream: every command (run, compare, sweep, tune, "
-                          "with a no-truth objective too) starts the filter from the ground truth and scores against it; "
-                          "give a reference trajectory (an RTK/INS solution, motion capture) as the manifest's "
-                          "groundtruth stream (README 'Known limits': a drive without ground truth)")
+        for key in ("init_pose_from", "init_velocity_from"):
+            if cfg["filter"][key] == "groundtruth":
+                raise ConfigError(f"filter.{key}=groundtruth, but dataset {ds.name!r} has no groundtruth stream: set "
+                                  f"filter.{key}=auto (the start from the data: README 'A drive without ground truth')")
     for st, (key, off) in need.items():
         if ds.stream(st) is None:
             raise ConfigError(f"dataset {ds.name!r} has no {st} stream, which {key} needs; set {off}")
@@ -290,13 +303,15 @@ def prepare(ds: Dataset, cfg: dict) -> Prepared:
     more_warnings += timing_applied.pop("time_warnings", [])
     applied.update(timing_applied)
 
-    gt = ground_truth(ds)
-    placeholder = plausible.truth_orientation_placeholder(gt)
+    gt = ground_truth(ds) if ds.groundtruth is not None else None
+    pose_from, vel_from = start_from(cfg, ds)
+    placeholder = plausible.truth_orientation_placeholder(gt) if gt is not None else ""
     if placeholder:
         applied["truth_orientation_placeholder"] = True     # no attitude figure against it means anything
-    more_warnings += filter(None, [placeholder, plausible.gyro_scale(imu, gt),
-                                   plausible.gyro_turns_backwards(imu, gt)])
-    if len(gt) < 2 or gt.t_s[-1] <= imu.t_s[0] or gt.t_s[0] >= imu.t_s[-1]:
+    if gt is not None:
+        more_warnings += filter(None, [placeholder, plausible.gyro_scale(imu, gt),
+                                       plausible.gyro_turns_backwards(imu, gt)])
+    if gt is not None and (len(gt) < 2 or gt.t_s[-1] <= imu.t_s[0] or gt.t_s[0] >= imu.t_s[-1]):
         raise DataRangeError(f"IMU ({ds.imu.source}, {imu.t_s[0]:.3f}..{imu.t_s[-1]:.3f} s after imu.time_offset_s = "
                              f"{applied['time_offset_s']['imu']:g} s) and ground truth ({gt.source}, "
                              f"{gt.t_s[0] if len(gt) else float('nan'):.3f}..{gt.t_s[-1] if len(gt) else float('nan'):.3f} s) "
@@ -305,6 +320,7 @@ def prepare(ds: Dataset, cfg: dict) -> Prepared:
 
     # --- lidar: offset, anchor in the world frame, resample on the IMU stamps
     lidar = travel = lidar_span = None
+    anchor = ds.description.get("lidar_anchor", "groundtruth")
     if ds.lidar is not None:
         applied["time_offset_s"]["lidar"] = lidar_off
         lid = shifted(ds.lidar, lidar_off)
@@ -322,14 +338,18 @@ def prepare(ds: Dataset, cfg: dict) -> Prepared:
             more_warnings += filter(None, [mount_disagrees(imu, lid.select(~lid.filled),
                                                            f"the extrinsic its manifest entry gives for {ds.lidar.source}")])
         other_frame = ""
-        if ds.description.get("lidar_anchor", "groundtruth") == "groundtruth":
+        if anchor == "groundtruth":
+            if gt is None:
+                raise ConfigError(f"{ds.lidar.source}: the manifest anchors the lidar odometry on the ground truth "
+                                  "(anchor: groundtruth), but the dataset has no groundtruth stream; use anchor: start")
             lid, t_anchor = anchor_lidar(lid, gt)
             applied["lidar_anchor_t_s"] = t_anchor
-        else:
+        elif anchor == "none" and gt is not None:
             other_frame = plausible.unanchored_lidar(lid, gt)
         # (positions in another frame fit the truth at no time shift: the frame is the warning then)
-        more_warnings += filter(None, [other_frame or plausible.clock_shift("the lidar", lid, gt, "lidar.time_offset_s", lidar_off)
-                                       or plausible.speed_clock_warning("the lidar", lid, gt, "lidar.time_offset_s", lidar_off)])
+        if gt is not None:
+            more_warnings += filter(None, [other_frame or plausible.clock_shift("the lidar", lid, gt, "lidar.time_offset_s", lidar_off)
+                                           or plausible.speed_clock_warning("the lidar", lid, gt, "lidar.time_offset_s", lidar_off)])
         for k in ("lidar_clock", "lidar_times_aligned"):
             if ds.description.get(k):
                 applied[k] = ds.description[k]
@@ -347,15 +367,26 @@ def prepare(ds: Dataset, cfg: dict) -> Prepared:
                                  + (plausible.clock_hint("lidar", float(lidar.t_s[0]), "IMU", float(imu.t_s[0]))
                                     if len(lidar) else ""))
 
-    # --- start: first IMU sample covered by the ground truth (and the lidar, when it is fused)
-    t_min = gt.t_s[0]
-    if use_lidar or cfg["filter"]["init_pose_from"] == "lidar":
+    # --- start: first IMU sample covered by the ground truth (and the lidar, when it is fused; and the GNSS, when the
+    #     start is found from the data)
+    t_min, t_max = (gt.t_s[0], gt.t_s[-1]) if gt is not None else (imu.t_s[0], imu.t_s[-1])
+    if use_lidar or pose_from == "lidar":
         if lidar is None:
             raise ConfigError("filter.init_pose_from=lidar needs a lidar stream")
+        if pose_from == "lidar" and anchor == "start":
+            raise ConfigError("filter.init_pose_from=lidar takes the anchored lidar pose, but the manifest anchors the "
+                              "lidar on the filter's start (anchor: start): set filter.init_pose_from=auto or data")
         t_min = max(t_min, lidar.t_s[0])
-    ks = np.flatnonzero((imu.t_s >= t_min - 1e-9) & (imu.t_s <= gt.t_s[-1]))
+    fixes_t_s = None if ds.gnss is None else ds.gnss.t_s[~ds.gnss.filled] + _offset(cfg, ds, "gnss")
+    applied["start_covered_by"] = "ground truth" if gt is not None else "the IMU"
+    if "data" in (pose_from, vel_from) and fixes_t_s is not None and fixes_t_s.size:
+        t_min = max(t_min, float(fixes_t_s[0]))
+        if gt is None:
+            applied["start_covered_by"] = "the GNSS"
+    ks = np.flatnonzero((imu.t_s >= t_min - 1e-9) & (imu.t_s <= t_max))
     if ks.size < 2:
-        raise DataRangeError(f"fewer than 2 IMU samples ({ds.imu.source}) lie where ground truth ({gt.source}) and lidar are "
+        raise DataRangeError(f"fewer than 2 IMU samples ({ds.imu.source}) lie where "
+                             f"{'ground truth (' + gt.source + ')' if gt is not None else 'the GNSS'} and lidar are "
                              f"available {offsets_note(applied)}")
     k0 = int(ks[0])
     t0 = float(imu.t_s[k0])
@@ -368,12 +399,13 @@ def prepare(ds: Dataset, cfg: dict) -> Prepared:
         g = shifted(ds.gnss, off)
         g = g.select(~g.filled)
         arm = cfg["gnss"].get("lever_arm_b_m")
-        shift = plausible.clock_shift("GNSS", g, gt, "gnss.time_offset_s", off)     # as configured
-        # a clock offset moves the fixes along the route, which a median offset reads as a constant displacement:
-        # that advice (a geodetic origin, a lever arm) went first, and wrong, for GNSS 18 s ahead (a bag review)
-        said = list(filter(None, [None if shift else plausible.gnss_offset(g, gt, bool(ds.description.get("origin_from_first_fix")), arm),
-                                  plausible.gnss_frame(g, gt), shift or plausible.gnss_latency(g, gt, off, arm)]))
-        more_warnings += said or list(filter(None, [plausible.gnss_disagrees(g, gt)]))
+        if gt is not None:
+            shift = plausible.clock_shift("GNSS", g, gt, "gnss.time_offset_s", off)     # as configured
+            # a clock offset moves the fixes along the route, which a median offset reads as a constant displacement:
+            # that advice (a geodetic origin, a lever arm) went first, and wrong, for GNSS 18 s ahead (a bag review)
+            said = list(filter(None, [None if shift else plausible.gnss_offset(g, gt, bool(ds.description.get("origin_from_first_fix")), arm),
+                                      plausible.gnss_frame(g, gt), shift or plausible.gnss_latency(g, gt, off, arm)]))
+            more_warnings += said or list(filter(None, [plausible.gnss_disagrees(g, gt)]))
         if len(g) and (g.t_s[-1] < t0 or g.t_s[0] > imu.t_s[-1]):
             raise DataRangeError(f"GNSS ({ds.gnss.source}, {g.t_s[0]:.3f}..{g.t_s[-1]:.3f} s after its time_offset_s of "
                                  f"{off:g} s) and IMU ({ds.imu.source}, {t0:.3f}..{imu.t_s[-1]:.3f} s) do not overlap in time"
@@ -400,7 +432,7 @@ def prepare(ds: Dataset, cfg: dict) -> Prepared:
                 "solution is", ds.gnss.source, "is a receiver's output, used at its own rate and noise (gnss.outages_s "
                 "and gnss.std_m do apply)")])
         # the fixes as fused: the truth's own solution, as it is or in another frame (a kitti2bag trial)
-        more_warnings += filter(None, [plausible.gnss_from_truth(gnss, gt)])
+        more_warnings += filter(None, [plausible.gnss_from_truth(gnss, gt) if gt is not None else None])
         if use_gnss and len(gnss) == 0:
             raise DataRangeError(f"no GNSS fix of {ds.gnss.source} is left inside the IMU span after degradation")
 
@@ -411,7 +443,7 @@ def prepare(ds: Dataset, cfg: dict) -> Prepared:
         off = _offset(cfg, ds, "odometer")
         applied["time_offset_s"]["odometer"] = off
         odo = shifted(ds.odometer, off)
-        more_warnings += filter(None, [plausible.odometer_scale(odo, gt)])
+        more_warnings += filter(None, [plausible.odometer_scale(odo, gt) if gt is not None else None])
         if ds.description.get("odometer_degrade", False) and cfg["odometer"]["added_noise_std_mps"] > 0:
             # its own stream of gnss.seed (seed + 1 would be the next Monte-Carlo trial's GNSS noise)
             rng = np.random.default_rng([cfg["gnss"]["seed"], 2])
@@ -446,14 +478,37 @@ def prepare(ds: Dataset, cfg: dict) -> Prepared:
         resolved.setdefault("filter", {})["discretization"] = only[0] if len(only) == 1 else resolve_auto("auto", imu.t_s)
         applied["discretization"] = resolved["filter"]["discretization"]
         applied["discretization_from"] = "the IMU rate" if len(only) > 1 else "the process model's only one"
+    g = cfg["filter"]["gravity_mps2"]
+    if g == "auto":
+        g = normal_gravity_mps2(ds.geodetic_origin[0], ds.geodetic_origin[2]) if ds.geodetic_origin else 9.80665
+    elif not GRAVITY_RANGE_MPS2[0] <= g <= GRAVITY_RANGE_MPS2[1]:
+        # the Earth's gravity is 9.76-9.84 m/s^2 at sea level and less only kilometres up; 98 (a typo for 9.8) once
+        # ran to a fused APE of 395 m with exit 0
+        raise ConfigError(f"filter.gravity_mps2={g:g} is no gravity on Earth's surface (accepted: {GRAVITY_RANGE_MPS2[0]:g} "
+                          f"to {GRAVITY_RANGE_MPS2[1]:g} m/s^2; 'auto' takes WGS84's at the geodetic origin)")
+    applied["gravity_mps2"] = float(g)
     # --- initial state
-    if cfg["filter"]["init_pose_from"] == "lidar":
-        if lidar is None:
-            raise ConfigError("filter.init_pose_from=lidar needs a lidar stream")
+    est = None
+    if "data" in (pose_from, vel_from):
+        from .calibration.initial_state import from_data
+        from .filters.observations.nhc import WHEELED
+
+        yaw_mount = cfg["filter"].get("nhc_travel_yaw_mrad")
+        est = from_data(imu, k0, gnss, lidar, odo, ds.description.get("platform") in WHEELED,
+                        float(yaw_mount) * 1e-3 if isinstance(yaw_mount, (int, float)) else 0.0, float(g))
+        applied["init_state"] = {"pose_from": pose_from, "velocity_from": vel_from, "method": est.method,
+                                 "std": est.std}
+        # the configured initial stds suit a start on a reference trajectory's pose: the data's own are larger
+        resolved["init"] = {k: max(float(cfg["init"][k]), v) for k, v in est.std.items() if v > float(cfg["init"][k])}
+    if pose_from == "data":
+        p0, R0 = est.p_w_m, est.R_wb
+    elif pose_from == "lidar":
         p0, R0, _ = interpolate_pose_at(lidar, t0)
     else:
         p0, R0, _ = interpolate_pose_at(gt, t0)
-    if cfg["filter"]["init_velocity_from"] == "gnss":
+    if vel_from == "data":
+        v0 = est.v_w_mps
+    elif vel_from == "gnss":
         if gnss is None or len(gnss) < 2:
             raise ConfigError("filter.init_velocity_from=gnss needs at least two GNSS fixes")
         v0 = (gnss.p_w_m[1] - gnss.p_w_m[0]) / (gnss.t_s[1] - gnss.t_s[0])
@@ -468,6 +523,10 @@ def prepare(ds: Dataset, cfg: dict) -> Prepared:
             v0 = _velocity_from_positions(gt, t0)
             applied["init_velocity"] = "the ground truth's positions differenced (it has no velocity)"
     x0 = NominalState(p_w_m=np.array(p0), v_w_mps=np.array(v0), R_wb=np.array(R0), ba_b=np.zeros(3), bg_b=np.zeros(3))
+    if lidar is not None and anchor == "start":
+        # the odometry's frame laid on the filter's initial pose at its start
+        lidar = anchor_at(lidar, make_T(np.asarray(R0), np.asarray(p0)), t0)
+        applied["lidar_anchor_start_t_s"] = t0
     more_warnings += filter(None, [plausible.gravity_against_attitude(imu, k0, R0)])
 
     # --- the enabled observations' own streams: offset, filled packets, the run's span, degradation
@@ -488,15 +547,6 @@ def prepare(ds: Dataset, cfg: dict) -> Prepared:
                                      f"({imu.t_s[0]:.3f}..{imu.t_s[-1]:.3f} s) after the time offset and degradation")
             extra[spec.name] = st
 
-    g = cfg["filter"]["gravity_mps2"]
-    if g == "auto":
-        g = normal_gravity_mps2(ds.geodetic_origin[0], ds.geodetic_origin[2]) if ds.geodetic_origin else 9.80665
-    elif not GRAVITY_RANGE_MPS2[0] <= g <= GRAVITY_RANGE_MPS2[1]:
-        # the Earth's gravity is 9.76-9.84 m/s^2 at sea level and less only kilometres up; 98 (a typo for 9.8) once
-        # ran to a fused APE of 395 m with exit 0
-        raise ConfigError(f"filter.gravity_mps2={g:g} is no gravity on Earth's surface (accepted: {GRAVITY_RANGE_MPS2[0]:g} "
-                          f"to {GRAVITY_RANGE_MPS2[1]:g} m/s^2; 'auto' takes WGS84's at the geodetic origin)")
-    applied["gravity_mps2"] = float(g)
     if ds.geodetic_origin is not None:
         # the local frame's origin, in the report and metrics.json: a first fix without altitude moved it to the next
         # fix (0.83 m; fused 0.76 -> 1.06 m) with no record of where it was (a bag review)

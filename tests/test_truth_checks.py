@@ -13,7 +13,7 @@ import numpy as np
 import pytest
 
 import fusion_eval as fe
-from fusion_eval.errors import ConfigError, FusionEvalError
+from fusion_eval.errors import FusionEvalError
 from fusion_eval.datasets import plausible
 
 
@@ -673,11 +673,3 @@ def test_the_times_files_alignment_to_the_packets_is_reported(slice_run):
     md = (slice_run / "report.md").read_text(encoding="utf-8")
     assert "`lidar/times.txt` put on the IMU packets' clock" in md and f"{a['shift_s']:.6f} s" in md
 
-
-def test_a_drive_without_ground_truth_is_refused_saying_why_and_what_to_give(kitti_slice):
-    """A robot's bag without truth: refused by every command, tune's no-truth objectives too; the message named run
-    alone and no way on (a user trial)."""
-    ds = fe.load_dataset(kitti_slice)
-    with pytest.raises(ConfigError, match=r"no groundtruth stream: every command \(run, compare, sweep, tune, with a "
-                                          r"no-truth objective too\).*give a reference trajectory"):
-        fe.run(replace(ds, groundtruth=None))

@@ -232,12 +232,18 @@ def _tolerance(option: str, value) -> Tolerance:
 DEFAULTS = {"--rtol": 0.05, "--atol": 0.0}
 
 
-def compare_metrics(current: dict, baseline: dict, patterns: tuple[str, ...], rtol, atol) -> list[Row]:
-    """``rtol``, ``atol``: numbers or :class:`Tolerance`."""
+NO_TRUTH_PATTERNS = ("innovations.*",)
+
+
+def compare_metrics(current: dict, baseline: dict, patterns: tuple[str, ...], rtol, atol,
+                    no_truth: bool = False) -> list[Row]:
+    """``rtol``, ``atol``: numbers or :class:`Tolerance`; ``no_truth``: a file is of a drive without ground truth."""
     rtol, atol = _tolerance("--rtol", rtol), _tolerance("--atol", atol)
     names = sorted(set().union(*(_matching(m, p) for m in (current, baseline) for p in patterns)))
     if not names:
-        raise CheckUsageError(f"no metric matches {', '.join(patterns)}")
+        raise CheckUsageError(f"no metric matches {', '.join(patterns)}" + (
+            ": the run is of a drive without ground truth, which has no APE, RPE or ratios; gate on its innovations "
+            "(-m 'innovations.*', or --require 'innovations.nis_calibration < 0.5')" if no_truth else ""))
     # lower is better only for error figures: one named outright is refused, one a glob caught is left out and said
     named = set(patterns) | {m.aliases[a] for m in (current, baseline) for a in patterns if a in getattr(m, "aliases", {})}
     why = {k: keys.not_an_error(k) for k in names}
@@ -427,8 +433,10 @@ def _check(metrics_path, baseline, rtol, atol, patterns, rules, junit_path, summ
                         ("metrics", trial_stat, "baseline") if with_trials[0] else ("baseline", trial_stat, "metrics file")))
     for w in _other_draws([d.get("gnss_degradation") for d in docs], trials, trial_stat):
         log.warning("%s", w)
-    pats = tuple(patterns) or default_patterns(kind, delta)
-    rows = compare_metrics(current, base, pats, rtol, atol)
+    # a drive without ground truth has its innovations to gate on, and nothing else
+    no_truth = any(d.get("ground_truth") is False for d in docs)
+    pats = tuple(patterns) or (NO_TRUTH_PATTERNS if no_truth else default_patterns(kind, delta))
+    rows = compare_metrics(current, base, pats, rtol, atol, no_truth)
     for r in rows:
         for value, path in ((r.baseline, base_path), (r.current, metrics_path)):
             column = r.metric.rsplit(".", 1)[-1] if kind == "csv" else r.metric     # a sweep.csv key: run.column

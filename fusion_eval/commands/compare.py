@@ -249,6 +249,11 @@ def _compare(dataset_path: Path | None, variants: list[str], variant_dir: Path |
     stages = as_stages(progress)
     stages.start("load")
     ds = session.dataset(dataset_path)
+    if ds.groundtruth is None:
+        # compare's table is of scores; the innovations of variants rank in a sweep (a sweep file's variants)
+        raise ConfigError(f"dataset {ds.name!r} has no groundtruth stream: compare scores each variant against it; "
+                          "without it, rank the variants by their innovations with `fusion-eval sweep` (a sweep file "
+                          "listing them) and --objective nll or nis, or `run` each (report.md: innovations)")
     cfgs = [session.resolve(r, ds) for r in reqs]
     make_plots = make_plots and cfgs[0]["output"]["plots"]     # --set output.plots=false as --no-plots (an audit)
     session.same_evaluation([f"{v!r}" for v in variants], cfgs, "--variants", "compare scores every variant the same "

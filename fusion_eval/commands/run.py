@@ -33,11 +33,25 @@ def run(dataset: Path | None, config: Path | None, sets: tuple[str, ...], out_di
         return run_to_dir(dataset, req, out_dir, overwrite=overwrite, progress=progress, trials=trials)
 
 
+def no_truth_summary(metrics: dict) -> str:
+    """What ``run`` prints for a drive without ground truth: no scores, the innovations per stream."""
+    lines = ["no ground truth: nothing scored (report.md: the start from the data and the innovations)",
+             f"{'stream':<14} {'updates':>8} {'mean NIS / dof':>15} {'inside 95 %':>12}"]
+    for k, d in (metrics.get("nis") or {}).items():
+        lines.append(f"{k:<14} {d['epochs']:>8} {d['mean'] / d['dof']:>15.3f} {d['fraction_in_95'] * 100:>11.1f}%")
+    inn = metrics.get("innovations") or {}
+    if inn.get("updates"):
+        lines.append(f"innovations: NLL per update {inn['nll_per_update']:.4f}, NIS calibration {inn['nis_calibration']:.4f}")
+    return "\n".join(lines)
+
+
 def summary_table(metrics: dict) -> str:
     """The table ``run`` prints: per estimate the matched poses, APE translation and rotation, RPE per frame."""
     def stat(d, nd):
         return cell(d["rmse"] if d else None, nd)
 
+    if metrics.get("ground_truth") is False:
+        return no_truth_summary(metrics)
     tr = metrics.get("trials")
     # with trials, the table is the run's own (trial 0), whose files these are; the means follow it (a plot review:
     # the table's 0.758 m stood unlabelled above the 0.775 m mean)

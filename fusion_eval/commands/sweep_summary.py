@@ -85,6 +85,8 @@ def _check_ranked(rank: Ranking, rows: list[dict], recs: dict[str, dict]) -> Non
     missing = next(k for _, k in rank.objective.terms if k not in flat)
     close = difflib.get_close_matches(missing, list(flat), n=3)
     hint = f"did you mean {', '.join(close)}?" if close else "`fusion-eval check --help` names the keys"
+    if done[0]["metrics"].get("ground_truth") is False:     # nothing is scored: the innovations rank
+        hint = "the drives have no ground truth, so no run has a score: rank by --objective nll or nis"
     raise ConfigError(f"--objective {rank.objective.name!r}: no finished run has the metric {missing!r} ({hint}); the "
                       f"{len(done)} runs are recorded: `--summarize-only --objective KEY` ranks them without running again")
 

@@ -38,6 +38,9 @@ STREAM_KEYS = {
     "lidar": {"format", "path", "time_offset_s", "anchor"} | _POSE_KEYS,
     "odometer": {"format", "path", "time_offset_s", "degrade"},
 }
+# where the lidar odometry's frame is laid in the world: on the ground truth's pose at its first frame inside it, as
+# given (already in the world frame), or on the filter's initial pose at its start
+ANCHORS = ("groundtruth", "none", "start")
 TOP_KEYS = {"name", "description", "attribution", "geodetic_origin", "streams", "config", "truth", "platform"}
 # what carried the sensors: 'car' / 'wheeled' turn the non-holonomic constraint on by default (filter.nhc: auto)
 PLATFORMS = ("car", "wheeled", "aerial", "handheld", "legged", "other")
@@ -274,7 +277,8 @@ def _from_manifest_dict(body: dict, root: Path, manifest: Path, extra: dict | No
                           for v in [streams[s].get("time_offset_s", 0.0)]},
         "gyro_lag_s": imu_spec.get("gyro_lag_s", 0.0),
         "accel_lag_s": imu_spec.get("accel_lag_s", 0.0),
-        "lidar_anchor": streams.get("lidar", {}).get("anchor", "groundtruth"),
+        # a drive without ground truth anchors its lidar on the filter's start (the only pose it has)
+        "lidar_anchor": streams.get("lidar", {}).get("anchor", "groundtruth" if "groundtruth" in streams else "start"),
         "misread_poses": misread,            # said with the preparation's data warnings
         "geodetic_origin_from": ("the first valid fix" if origin == "first_fix" else "the manifest's geodetic_origin"),
         # the local frame's origin is a receiver's first fix, and the ground truth is not of the same OXTS solution:
@@ -302,8 +306,12 @@ def _from_manifest_dict(body: dict, root: Path, manifest: Path, extra: dict | No
         raise ConfigError(f"{at(manifest, body, 'platform')}: 'platform' must be one of {', '.join(PLATFORMS)}, got {description['platform']!r}")
     if not isinstance(description["config"], dict):
         raise ConfigError(f"{at(manifest, body, 'config')}: 'config' must be a mapping of configuration sections (suggested settings)")
-    if description["lidar_anchor"] not in ("groundtruth", "none"):
-        raise ConfigError(f"{at(manifest, streams.get('lidar'), 'anchor')}: lidar 'anchor' must be 'groundtruth' or 'none', got {description['lidar_anchor']!r}")
+    if description["lidar_anchor"] not in ANCHORS:
+        raise ConfigError(f"{at(manifest, streams.get('lidar'), 'anchor')}: lidar 'anchor' must be one of "
+                          f"{', '.join(ANCHORS)}, got {description['lidar_anchor']!r}")
+    if description["lidar_anchor"] == "groundtruth" and "lidar" in streams and "groundtruth" not in streams:
+        raise ConfigError(f"{at(manifest, streams.get('lidar'), 'anchor')}: lidar 'anchor: groundtruth', but the "
+                          "manifest has no groundtruth stream; use anchor: start (the filter's initial pose)")
     return Dataset(name=str(body.get("name", root.name)), imu=imu, groundtruth=gt, gnss=gnss, lidar=lidar, odometer=odo,
                    geodetic_origin=origin_t, description=description, extra=extra_series)
 

@@ -81,7 +81,7 @@ def smoother_section(filt) -> dict | None:
     return {k: v for k, v in filt.smoother_info.items() if not k.endswith("_s")}     # timings are not metrics
 
 
-def consistency(gt: PoseSeries, filt) -> dict:
+def consistency(gt: PoseSeries | None, filt) -> dict:
     """NIS per observation (from the filter's innovations) and NEES of position and attitude (the filter's
     covariance against its error from the ground truth), each with its 95 % chi-square summary and the
     series (``t_s``, ``values``) for plots."""
@@ -89,6 +89,8 @@ def consistency(gt: PoseSeries, filt) -> dict:
                              "nll_mean": innovation_nll(d["nis"], d.get("logdet_S", []), d["dof"]), "t_s": d["t_s"],
                              "values": d["nis"], **({"adapt": d["adapt"]} if "adapt" in d else {})}
                          for k, d in filt.nis.items()}}
+    if gt is None:          # a drive without ground truth: the innovations are all there is
+        return out
     out["nees"] = nees(gt, filt)
     if filt.smoothed is not None:
         out["nees_smoothed"] = nees(gt, filt.smoothed)
@@ -553,6 +555,8 @@ def run_metrics(dataset: str, evals: dict[str, EstimateEvaluation], ratios: dict
             "nis": {k: _strip_arrays(v) for k, v in cons.get("nis", {}).items()},
             "nees": {k: _strip_arrays(v) for k, v in cons.get("nees", {}).items()},
             "segments": seg, "gnss_degradation": gnss_info, "preprocessing": applied}
+    if not evals:       # a drive without ground truth (a flag the tables, check and tune read; README)
+        out["ground_truth"] = False
     if out["nis"]:
         out["innovations"] = innovation_summary(out["nis"], _measured())
         misfit = inconsistent_streams(cons.get("nis", {}), stated) + scored_warnings(evals, out["nis"], out["nees"], applied,

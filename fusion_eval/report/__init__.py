@@ -15,7 +15,7 @@ import numpy as np
 from .. import provenance
 from ..outputs import StagedDir
 from . import files, html, thin
-from .markdown import metrics_tex, report_md
+from .markdown import metrics_tex, report_md, report_md_no_truth
 
 
 def draw(name: str, *args) -> None:
@@ -45,7 +45,7 @@ def write_filter_outputs(out: StagedDir, series: dict, filt, fused_err: dict, ma
     :func:`spans_of`, shaded on the error plots too (where the covariance grows, and why: a review found an outage's
     +/-5 m band with no word of it there)."""
     handles = handles or {}
-    if len(fused_err["t_s"]) and len(filt.fused.t_s):      # the error plots count their time from their own first stamp
+    if fused_err is not None and len(fused_err["t_s"]) and len(filt.fused.t_s):      # the error plots count their time from their own first stamp
         shift = float(filt.fused.t_s[0]) - float(fused_err["t_s"][0])
         spans = [(a + shift, b + shift, label) for a, b, label in spans]
     jobs = [(files.write_tum, out.path(files.TUM_FILES[n]), n, handles.get(n, s)) for n, s in series.items()
@@ -53,8 +53,9 @@ def write_filter_outputs(out: StagedDir, series: dict, filt, fused_err: dict, ma
     if make_plots:
         jobs += [(draw, "plot_trajectories", out.path("trajectories.png"), *thin.paths(series)),
                  (draw, "plot_biases", out.path("biases.png"),
-                  *thin.biases(filt.fused.t_s, filt.accel_bias_b, filt.gyro_bias_b, filt.sigma, truth_biases)),
-                 (draw, "plot_error_sigma", out.path("fused_error_3sigma.png"),
+                  *thin.biases(filt.fused.t_s, filt.accel_bias_b, filt.gyro_bias_b, filt.sigma, truth_biases))]
+    if make_plots and fused_err is not None:      # (no error without ground truth)
+        jobs += [(draw, "plot_error_sigma", out.path("fused_error_3sigma.png"),
                   thin.error_sigma(fused_err["t_s"], fused_err["err_w_m"], fused_err["sigma_w_m"], fused_err.get("smoothed")),
                   spans),
                  (draw, "plot_att_vel_error_sigma", out.path("fused_error_att_vel_3sigma.png"),
@@ -66,9 +67,12 @@ def write_filter_outputs(out: StagedDir, series: dict, filt, fused_err: dict, ma
     return [pool.submit(*j) for j in jobs]
 
 
-def filter_plots(make_plots: bool) -> list[str]:
-    """The plots :func:`write_filter_outputs` draws."""
-    return list(FILTER_PLOTS) if make_plots else []
+def filter_plots(make_plots: bool, truth: bool = True) -> list[str]:
+    """The plots :func:`write_filter_outputs` draws (``truth``: the drive has ground truth, its errors are drawn;
+    ``ape_over_time.png`` is drawn with the metrics)."""
+    if not make_plots:
+        return []
+    return list(FILTER_PLOTS) if truth else [p for p in FILTER_PLOTS if p in ("trajectories.png", "biases.png")]
 
 
 IMU_GAP_MIN_S = 1.0        # a hole in the fused record this long is shaded (KITTI's dropped packets: 1.6-1.8 s)
@@ -107,8 +111,9 @@ def write_evaluation(out: StagedDir, res, plots_written: list[str], pool=None, a
         for name, data in ev.zips.items():
             if name not in linked:
                 out.write_bytes(name, data)
-    out.write_text("metrics.csv", files.metrics_csv(res.evals, res.ratios, (res.metrics.get("trials") or {}).get("n")))
-    out.write_text("metrics.tex", metrics_tex(res.dataset, res.evals, res.cfg, res.metrics))
+    if res.evals:         # (a drive without ground truth has no scores to tabulate)
+        out.write_text("metrics.csv", files.metrics_csv(res.evals, res.ratios, (res.metrics.get("trials") or {}).get("n")))
+        out.write_text("metrics.tex", metrics_tex(res.dataset, res.evals, res.cfg, res.metrics))
     if res.metrics.get("trials"):
         from ..tables import csv_text
         from ..trials import csv_rows
@@ -121,12 +126,13 @@ def write_evaluation(out: StagedDir, res, plots_written: list[str], pool=None, a
     plots_written = list(plots_written)
     if plots_written:
         t0 = float(res.filt.fused.t_s[0])
-        jobs.append((draw, "plot_ape_over_time", out.path("ape_over_time.png"), thin.ape_curves(res.evals), t0,
-                     "time since start [s]", route_spans(res)))
+        if res.evals:
+            jobs.append((draw, "plot_ape_over_time", out.path("ape_over_time.png"), thin.ape_curves(res.evals), t0,
+                         "time since start [s]", route_spans(res)))
         if any(ev.drift for ev in res.evals.values()):
             jobs.append((draw, "plot_drift", out.path("kitti_drift.png"), thin.drift_only(res.evals)))
             plots_written.append("kitti_drift.png")
-        if res.consistency.get("nees"):
+        if res.consistency.get("nees") or (not res.evals and res.consistency.get("nis")):
             jobs.append((draw, "plot_consistency", out.path("consistency.png"), thin.consistency(res.consistency), t0))
             plots_written.append("consistency.png")
         if res.metrics.get("trials"):
@@ -144,8 +150,9 @@ def write_evaluation(out: StagedDir, res, plots_written: list[str], pool=None, a
         else:
             futures.append(pool.submit(*j))
             futures[-1].add_done_callback(lambda _f: advance())
-    md = report_md(res.dataset, res.config_source, res.evals, res.ratios, res.cfg, res.resolved_extra["applied"], res.prep.gnss_info,
-                   res.metrics, plots_written)
+    md = (report_md if res.evals else report_md_no_truth)(
+        res.dataset, res.config_source, res.evals, res.ratios, res.cfg, res.resolved_extra["applied"], res.prep.gnss_info,
+        res.metrics, plots_written)
     out.write_text("report.md", md)
     inputs = inputs.result() if inputs is not None else provenance.input_files(dataset)
     # what made the figures, machine-readable beside them: a metrics.json compared with another can be told from one
@@ -164,4 +171,4 @@ def write_run(out: StagedDir, res, pool=None) -> None:
     for f in write_filter_outputs(out, res.series, res.filt, res.fused_error, make_plots, pool, res.truth_biases,
                                   spans=route_spans(res)):
         f.result()
-    write_evaluation(out, res, filter_plots(make_plots), pool)
+    write_evaluation(out, res, filter_plots(make_plots, bool(res.evals)), pool)

@@ -390,7 +390,43 @@ def report_md(dataset: str, config_name: str, evals: dict, ratios: dict, cfg: di
 
         L += [""] + trials_md(metrics["trials"], plotted="trials.png" in plots_written)
     L += drift_section(metrics) + consistency_section(metrics) + segments_section(metrics)
-    L += ["## GNSS degradation", ""]
+    return "\n".join(L + _inputs_sections(cfg, applied, gnss_info, evals))
+
+
+def report_md_no_truth(dataset: str, config_name: str, evals: dict, ratios: dict, cfg: dict, applied: dict,
+                       gnss_info: dict | None, metrics: dict, plots_written: list[str]) -> str:
+    """The report of a run on a drive without ground truth: no scores, but how the filter started, whether its
+    innovations fit their noise (what `tune --objective nll` / `nis` rank by), the data's warnings, the streams and the
+    configuration (:func:`report_md`'s signature: ``evals`` and ``ratios`` are empty)."""
+    init = applied.get("init_state") or {}
+    L = [f"# fusion-eval run: {dataset}", "", header_line(), "", f"Configuration: `{config_name}`; lidar update: "
+         f"**{cfg['filter']['lidar_update']}**, GNSS fused: **{'yes' if cfg['filter']['use_gnss'] else 'no'}**, "
+         f"bias model: **{cfg['filter']['bias_model']}**.", "", "## No ground truth", "",
+         "The drive has no groundtruth stream: no estimate is scored (no APE, RPE, drift or NEES; no metrics.csv). "
+         "The estimates are written as TUM files (fused, and the unfiltered lidar, GNSS and dead reckoning) for a "
+         "reference you may have elsewhere (`fusion-eval evaluate`). What the data alone tell is below: the innovations "
+         "(each stream against the filter's prediction, in its own stated noise), which `tune --objective nll` and "
+         "`nis` tune by."]
+    if init:
+        std = init["std"]
+        L += ["", "## Start from the data", "",
+              f"- Roll and pitch: {init['method']['roll_pitch']} (std {std['roll_pitch_std_deg']:.2f} deg).",
+              f"- Heading: {init['method']['heading']} (std {std['yaw_std_deg']:.2f} deg).",
+              f"- Position: {init['method']['position']} (std {std['pos_std_m']:.2f} m).",
+              f"- Velocity: {init['method']['velocity']} (std {std['vel_std_mps']:.2f} m/s).",
+              "", "The filter's initial covariance takes each std where it exceeds the configured `init.*` one."]
+    for w in (metrics.get("preprocessing") or applied).get("data_warnings", ()):
+        L.append(f"- **Data warning**: {w}.")
+    if plots_written:
+        L += ["", "## Plots", ""] + [f"![{p}]({p})" for p in plots_written]
+    L += consistency_section(metrics)
+    return "\n".join(L + _inputs_sections(cfg, applied, gnss_info, evals))
+
+
+def _inputs_sections(cfg: dict, applied: dict, gnss_info: dict | None, evals: dict) -> list[str]:
+    """The report's sections on the inputs as the run used them: the GNSS's degradation, the pre-processing applied
+    and the configuration."""
+    L = ["", "## GNSS degradation", ""]
     if gnss_info is None:
         L.append("The dataset has no GNSS stream.")
     elif not gnss_info.get("degraded", True):
@@ -418,7 +454,8 @@ def report_md(dataset: str, config_name: str, evals: dict, ratios: dict, cfg: di
             L.append("")
             L.append(_stream_info(name, info))
     L += ["", "## Pre-processing applied", "",
-          f"- Start: t = {applied['t_start_s']:.6f} s (first IMU sample covered by ground truth"
+          f"- Start: t = {applied['t_start_s']:.6f} s (first IMU sample covered by "
+          f"{applied.get('start_covered_by', 'ground truth')}"
           f"{' and lidar' if cfg['filter']['lidar_update'] != 'none' else ''}).",
           f"- Filled-in IMU packets: {applied['imu_filled_samples']} ({applied['imu_filled_packets']}"
           + (f"; {applied['imu_filled_found']} of them found as exact straight lines between their neighbours"
@@ -447,6 +484,9 @@ def report_md(dataset: str, config_name: str, evals: dict, ratios: dict, cfg: di
                  f"{a['index_offset']}) by the median shift of its {a['frames']} frames from their packets, "
                  f"{a['shift_s']:.6f} s (the frames' spread about it {a['spread_ms']:.1f} ms, median absolute): the "
                  "times file's own zero does not count.")
+    if "lidar_anchor_start_t_s" in applied:
+        L.append(f"- Lidar odometry anchored at the filter's initial pose at its start, t = "
+                 f"{applied['lidar_anchor_start_t_s']:.6f} s (anchor: start).")
     if "lidar_anchor_t_s" in applied:
         L.append(f"- Lidar odometry anchored at the ground-truth pose at t = {applied['lidar_anchor_t_s']:.6f} s; "
                  f"{'resampled on the IMU stamps' if cfg['lidar']['interpolate_to_imu'] else 'at its own stamps'}.")
@@ -456,7 +496,7 @@ def report_md(dataset: str, config_name: str, evals: dict, ratios: dict, cfg: di
                  f"{m['poses']} stamps; {m['increments_over_several_frames']} relative increments span several frames, "
                  "their constant noise taken over each frame interval.")
     L += ["", "## Configuration", "", "```yaml", _config_block(cfg, applied.get("auto_settled", {})), "```", ""]
-    return "\n".join(L)
+    return L
 
 
 def _config_block(cfg: dict, settled: dict) -> str:

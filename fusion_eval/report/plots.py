@@ -821,6 +821,8 @@ def plot_sweep(out_dir: Path, rows: list[dict], keys: list[str], metric: str, ta
                     else f"RMSE {res.stats['rmse']:.3f} m")
             ax.plot(ts[k] - ts[0], res.np_arrays["error_array"][k], style, lw=1.0, color=color,
                     label=f"{name} ({Path(t.dataset).name}, {rmse})")
+        if not ax.lines:           # no run has an APE (drives without ground truth): no plot
+            return written
         ax.set_xlabel("time since start [s]")
         ax.set_ylabel("APE translation [m]")
         ax.set_title(("Best setting against the default" if other == "default" else
