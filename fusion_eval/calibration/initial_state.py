@@ -32,6 +32,7 @@ from ..types import GnssSeries, ImuSeries, PoseSeries, SpeedSeries
 LEVEL_WINDOW_S = 1.0          # the specific force averaged for roll and pitch
 MIN_TRAVEL_M = 20.0           # horizontal driving the heading fit needs (1 m of GNSS noise over 20 m: ~3 deg a fix)
 WINDOWS_S = (30.0, 60.0, 120.0, 300.0)   # the first of these over which the platform has driven MIN_TRAVEL_M
+OUTLIER_SIGMAS, MIN_OUTLIER_M, MIN_OUTLIER_RAD = 4.0, 3.0, np.radians(30.0)   # fixes / fix pairs left out of the fits
 CORRELATED_ERRORS = 2.0       # the heading fit's std over its white-noise value (below)
 MIN_TRACK_SPEED_MPS = 3.0     # fix pairs slower than this give no direction of travel (GNSS noise over the step)
 VELOCITY_FIT_S = 3.0          # the fixes' line over the first seconds gives the start's position and velocity
@@ -138,6 +139,21 @@ def _start_height(p_L: np.ndarray, z_w: np.ndarray) -> tuple[float, float]:
     return float(coef[0]), float(np.sqrt(var * np.linalg.inv(A.T @ A)[0, 0]))
 
 
+def _lay_on(xl: np.ndarray, xg: np.ndarray):
+    """The rotation about the vertical (rad) that lays positions ``xl`` on ``xg`` (2-D Procrustes, centroids
+    removed), the centroids, and the residuals."""
+    cl, cg = xl.mean(axis=0), xg.mean(axis=0)
+    a, b = xl[:, :2] - cl[:2], xg[:, :2] - cg[:2]
+    yaw = float(np.arctan2(np.sum(a[:, 0] * b[:, 1] - a[:, 1] * b[:, 0]), np.sum(a[:, 0] * b[:, 0] + a[:, 1] * b[:, 1])))
+    res = (xg - cg) - (xl - cl) @ euler_rpy_to_matrix(0.0, 0.0, yaw)[0].T
+    return yaw, cl, cg, res
+
+
+def _outliers(r: np.ndarray, floor: float = MIN_OUTLIER_M) -> np.ndarray:
+    """Residuals beyond :data:`OUTLIER_SIGMAS` robust stds (1.4826 x their median absolute value) and ``floor``."""
+    return r > max(floor, OUTLIER_SIGMAS * 1.4826 * float(np.median(np.abs(r))))
+
+
 def _wrap(a):
     return (np.asarray(a) + np.pi) % (2 * np.pi) - np.pi
 
@@ -173,19 +189,23 @@ def from_data(imu: ImuSeries, k0: int, gnss: GnssSeries | None, lidar: PoseSerie
             raise DataRangeError(_no_heading(lidar.source, "the lidar odometry", t0))
         sel = at.t_s <= t0 + w
         xl, xg = at.p_w_m[sel], pg[sel]
-        cl, cg = xl.mean(axis=0), xg.mean(axis=0)
-        a, b = xl[:, :2] - cl[:2], xg[:, :2] - cg[:2]
-        yaw = float(np.arctan2(np.sum(a[:, 0] * b[:, 1] - a[:, 1] * b[:, 0]), np.sum(a[:, 0] * b[:, 0] + a[:, 1] * b[:, 1])))
+        yaw, cl, cg, res = _lay_on(xl, xg)
+        n_all = len(xl)
+        out = _outliers(np.hypot(res[:, 0], res[:, 1]))
+        if out.any():            # a multipath fix or a receiver's jump: left out, the fit made again
+            xl, xg = xl[~out], xg[~out]
+            yaw, cl, cg, res = _lay_on(xl, xg)
+        a = xl[:, :2] - cl[:2]
         Rz = euler_rpy_to_matrix(0.0, 0.0, yaw)[0]
-        res = (xg - cg) - (xl - cl) @ Rz.T
         rms = float(np.sqrt(np.mean(np.sum(res[:, :2] ** 2, axis=1)) / 2))
         # the white-noise std of the fit, doubled: consecutive fixes' errors are correlated (a receiver's wander, the
         # odometry's drift); on kitti-00 and SiMpLE 05/06/07 the heading was 0.2-0.57 deg off against 0.12-0.24 deg
         yaw_std = CORRELATED_ERRORS * rms / float(np.sqrt(np.sum(a ** 2)))
         p0 = cg - Rz @ cl                      # the lidar's origin (the body at t0) in the world
-        pos_std = float(np.sqrt(rms ** 2 / sel.sum() + (yaw_std * np.max(np.linalg.norm(a, axis=1))) ** 2))
-        method["heading"] = (f"the lidar's track laid on {int(sel.sum())} GNSS fixes over the first {w:g} s "
-                             f"(2-D fit, residual {rms:.2f} m RMS per axis)")
+        pos_std = float(np.sqrt(rms ** 2 / len(xl) + (yaw_std * np.max(np.linalg.norm(a, axis=1))) ** 2))
+        method["heading"] = (f"the lidar's track laid on {len(xl)} GNSS fixes over the first {w:g} s "
+                             f"(2-D fit, residual {rms:.2f} m RMS per axis"
+                             + (f"; {n_all - len(xl)} fixes off the fit left out" if n_all > len(xl) else "") + ")")
         method["position"] = "the same fit"
         p0[2], z_std = _start_height(xl, xg[:, 2])
         pos_std = max(pos_std, z_std)
@@ -193,7 +213,7 @@ def from_data(imu: ImuSeries, k0: int, gnss: GnssSeries | None, lidar: PoseSerie
         if not wheeled:
             raise DataRangeError(f"{g.source}: a drive without ground truth and without lidar odometry starts its "
                                  "heading from the GNSS's direction of travel, which a platform not declared wheeled "
-                                 "(the manifest's platform: car or robot) need not point along; add a lidar stream, "
+                                 "(the manifest's platform: car or wheeled) need not point along; add a lidar stream, "
                                  "declare the platform, or give a groundtruth stream")
         inside = g.t_s >= t0 - 1e-9
         tg, pg = g.t_s[inside], g.p_w_m[inside]
@@ -211,10 +231,15 @@ def from_data(imu: ImuSeries, k0: int, gnss: GnssSeries | None, lidar: PoseSerie
         mid = 0.5 * (tg[1:] + tg[:-1])[fast]
         psi = _wrap(np.arctan2(d[fast, 1], d[fast, 0]) - np.interp(mid, th, h) - travel_yaw_rad)
         yaw = float(np.arctan2(np.mean(np.sin(psi)), np.mean(np.cos(psi))))
+        out = _outliers(np.abs(_wrap(psi - yaw)), MIN_OUTLIER_RAD)
+        if out.any() and (~out).sum() >= 3:     # a fix off by metres turns the two steps beside it
+            psi = psi[~out]
+            yaw = float(np.arctan2(np.mean(np.sin(psi)), np.mean(np.cos(psi))))
         spread = float(np.sqrt(np.mean(_wrap(psi - yaw) ** 2)))
-        yaw_std = spread / np.sqrt(fast.sum())
-        method["heading"] = (f"the GNSS's direction of travel over {int(fast.sum())} fix pairs in the first {w:g} s, "
-                             f"less the gyro's turn (spread {np.degrees(spread):.1f} deg)")
+        yaw_std = spread / np.sqrt(psi.size)
+        method["heading"] = (f"the GNSS's direction of travel over {psi.size} fix pairs in the first {w:g} s, "
+                             f"less the gyro's turn (spread {np.degrees(spread):.1f} deg"
+                             + (f"; {int(out.sum())} pairs off it left out" if out.any() else "") + ")")
     if g is not None and lid_L is None:
         first = g.t_s <= g.t_s[0] + VELOCITY_FIT_S
         if first.sum() < 2:
