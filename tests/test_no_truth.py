@@ -232,3 +232,21 @@ def test_kitti00_and_the_raw_drives_without_truth_fuse_close_to_the_truth_start(
         assert a.metrics["ground_truth"] is False
         assert rmse[0] < factor * rmse[1], (manifest, rmse)
         assert rmse[0] < 0.5 * b.metrics["estimates"]["gnss"]["ape"]["translation_m"]["rmse"], manifest
+
+
+@pytest.mark.slow
+def test_sweep_and_tune_rank_a_drive_without_truth_by_its_innovations(no_truth_slice, tmp_path):
+    """Both run on a drive without truth by nll: the sweep names its best by it, tune's report drops the APE columns
+    (all n/a) and says why; the default objective of a sweep (the fused APE) is refused naming nll and nis."""
+    res = CliRunner().invoke(main, ["sweep", str(no_truth_slice), "-g", "noise5", "--objective", "nll",
+                                    "-o", str(tmp_path / "s")])
+    assert res.exit_code == 0, res.output
+    assert "mean nll" in res.output and (tmp_path / "s" / "best.yaml").is_file()
+    res = CliRunner().invoke(main, ["sweep", str(no_truth_slice), "-g", "noise5", "-o", str(tmp_path / "s2")])
+    assert res.exit_code != 0 and "no ground truth" in res.output and "nll or nis" in res.output
+    res = CliRunner().invoke(main, ["tune", str(no_truth_slice), "--space", str(KITTI00.parent.parent / "configs" / "tune"
+                                                                               / "noise.yaml"),
+                                    "--objective", "nll", "--trials", "3", "--out", str(tmp_path / "t"), "--no-plots"])
+    assert res.exit_code == 0, res.output
+    md = (tmp_path / "t" / "tune.md").read_text(encoding="utf-8")
+    assert "The drives have no ground truth: no fused APE" in md and "n/a" not in md.split("## Objective")[1]

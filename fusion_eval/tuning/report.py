@@ -159,8 +159,13 @@ def markdown(s: Setup, res: dict, runtime_s: float) -> str:
                          _f(da[name]), _f(ta.get(name))])
     obj_cols = ([c for o in s.objectives for c in (f"{o.name} (default)", f"{o.name} (tuned)")] if n_obj > 1
                 else ["objective (default)", "objective (tuned)"])
-    L += ["## Objective and fused APE, default against tuned", ""] + markdown_table(
-        ["drives", *obj_cols, "fused APE RMSE m (default)", "fused APE RMSE m (tuned)"], rows)
+    header = ["drives", *obj_cols, "fused APE RMSE m (default)", "fused APE RMSE m (tuned)"]
+    if all(r[-1] == r[-2] == "n/a" for r in rows):      # drives without ground truth: nothing scored, no columns of n/a
+        header, rows = header[:-2], [r[:-2] for r in rows]
+        L += ["## Objective, default against tuned", "", "The drives have no ground truth: no fused APE (README 'A drive "
+              "without ground truth').", ""] + markdown_table(header, rows)
+    else:
+        L += ["## Objective and fused APE, default against tuned", ""] + markdown_table(header, rows)
     L += ["", _generalisation(gaps, relative=s.objectives[0].is_error), ""]
     d_ape, t_ape = _mean(default["train"], FUSED_APE), _mean(best["train"], FUSED_APE)
     # (equal figures: the table and the verdict above already say the tuned values are the default's)
