@@ -335,6 +335,15 @@ def compare(ctx, dataset, variants, variant_dir, config_path, sets, out_dir, ove
                           make_plots=not no_plots, progress=progress, trials=trials)
     if ctx.obj["quiet"]:
         click.echo(res["out_dir"])
+    elif res.get("ground_truth") is False:
+        click.echo("no ground truth: the variants by their innovations (compare.md)")
+        click.echo(f"{'variant':<26} {'fused streams':<22} {'rank':>4} {'NLL per update':>15} {'NIS calibration':>16}")
+        for r in res["rows"]:
+            click.echo(f"{r['variant']:<26} {r['streams']:<22} {r.get('rank_nll', 'n/a'):>4} "
+                       f"{r['nll_per_update']:>15.6f} {r['nis_calibration']:>16.4f}")
+        for n in res.get("notes") or ():
+            click.echo(n)
+        click.echo(f"wrote {res['out_dir']}/ ({time.perf_counter() - t0:.1f} s)")
     else:
         # over trials, the translation's std beside its mean (after the rotation column it read as the rotation's)
         n_trials = max((r.get("trials") or 1 for r in res["rows"]), default=1)

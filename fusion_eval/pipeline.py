@@ -19,7 +19,7 @@ import numpy as np
 from . import report, session
 from . import trials as mc
 from .datasets.truth import truth_imu_biases
-from .errors import DataRangeError, FusionEvalError
+from .errors import ConfigError, DataRangeError, FusionEvalError
 from .evaluation import span
 from .evaluation.run_metrics import (ESTIMATES, consistency, fused_error, ratio_metrics, run_metrics, segments,
                                      smoother_section, stated_noise)
@@ -185,6 +185,10 @@ def execute(ds: Dataset, cfg: dict, *, dataset_path: str | Path | None = None, c
     others run on the same pool, and ``metrics["trials"]`` summarises every metric over all of them.
     """
     stages = as_stages(progress)
+    if trials > 1 and ds.groundtruth is None:
+        # trials average the scores over GNSS draws; a drive without truth has none (its trials.csv was all blanks)
+        raise ConfigError(f"dataset {ds.name!r} has no groundtruth stream: --trials averages scores against it; run "
+                          "without --trials (the innovations are in report.md)")
     plots = out is not None and cfg["output"]["plots"]
     # with trials, the run's own warnings: the later trials' are summed up against them
     with executor(jobs, preload=("fusion_eval.report.plots",) if plots else ()) as pool, \

@@ -627,17 +627,26 @@ def test_an_interrupted_command_called_in_process_leaves_the_callers_handler(mon
 def test_sigterm_to_simulates_group_while_its_workers_write_packets_ends_it(tmp_path):
     """multiprocessing.Pool's terminate() waited forever for the queue's lock a worker killed by the group's SIGTERM
     held (an interruption review: 2 hangs in 8, only SIGKILL ended them); the project's pool kills its workers."""
-    for i in range(3):
+    interrupted = 0
+    for i in range(8):
         out = tmp_path / f"sim{i}"
         p = _start(["simulate", str(out), "--overwrite"], tmp_path)
         # the 30001 packet files of the default 300 s drive are written by two workers: signal them mid-way
-        assert wait_for(lambda: len(list(tmp_path.glob(f".sim{i}.partial-*/oxts/data/00000*.txt"))) > 8000, 120), \
+        assert wait_for(lambda: len(list(tmp_path.glob(f".sim{i}.partial-*/oxts/data/00000*.txt"))) > 3000, 120), \
             p.communicate()
         os.killpg(p.pid, signal.SIGTERM)
         _, err = p.communicate(timeout=30)
+        if p.returncode == 0 and out.is_dir():
+            # the drive was written before the signal came (2 s for the whole drive on a quiet machine: the glob's
+            # own listing of thousands of files can outlast it; a CI run): nothing was interrupted, try again
+            continue
         assert p.returncode == 143 and "Traceback" not in err, err
         assert err.strip().splitlines()[-1].startswith("terminated") and not out.exists()
         assert _group_gone(p.pid) and not list(tmp_path.glob(f".sim{i}.*")), list(tmp_path.iterdir())
+        interrupted += 1
+        if interrupted == 3:
+            break
+    assert interrupted == 3, f"only {interrupted} of 8 simulations were still writing when signalled"
 
 
 def test_a_signal_that_comes_out_of_compiled_code_as_another_error_is_not_a_runs_failure():

@@ -41,6 +41,11 @@ VELOCITY_FIT_S = 3.0          # the fixes' line over the first seconds gives the
 # out, differed from the lidar's by 0.10-0.28 m/s^2: 0.6-1.6 deg of levelling error, measured 0.3-2.0 deg), and
 # further the acceleration of a platform whose own is not known (a car pulling away gently).
 RESIDUAL_ACCEL_MPS2, UNKNOWN_ACCEL_MPS2 = 0.25, 0.5
+# at rest only the accelerometer's bias is left (its lag acts on a changing acceleration only): a navigation IMU's is
+# mg-level, an automotive MEMS one's up to 10 mg
+AT_REST_ACCEL_MPS2 = 0.1
+MIN_LIDAR_VEL_STD_MPS = 0.05  # the lidar's positions differenced over +/-0.3 s: their acceleration over it
+AT_REST_M, AT_REST_MPS = 0.05, 0.05      # the lidar's track over the window, the odometer's speed: standing still
 MIN_SLOPE_SPAN_M = 20.0       # the track's spread (std) along its main direction that lets its height tell a slope
 MIN_TILT_STD_DEG = 0.2        # levelling's floor: the accelerometer's own misalignment and noise
 
@@ -73,29 +78,37 @@ def level(imu: ImuSeries, k0: int, accel_b_mps2: np.ndarray | None = None) -> tu
 
 
 def body_acceleration(imu: ImuSeries, k0: int, lidar: PoseSeries | None,
-                      odometer: SpeedSeries | None) -> tuple[np.ndarray | None, str]:
-    """The body's mean acceleration over the levelling window in its own frame, and where it came from: the lidar's
-    positions (a parabola over the window and half a second either side, rotated into the body at the start: the
-    same in any frame the odometry is given in), else the odometer's speed change along the forward axis and the
-    centripetal term ``v * yaw rate`` across it; ``(None, "")`` where neither covers the start. A car pulling away
-    at 0.6 m/s^2 tilts the levelling by 3.5 deg (kitti-00's start)."""
+                      odometer: SpeedSeries | None) -> tuple[np.ndarray | None, str, bool]:
+    """The body's mean acceleration over the levelling window in its own frame, where it came from, and whether the
+    platform stood still: the lidar's positions (a parabola over the window and half a second either side, rotated
+    into the body at the start: the same in any frame the odometry is given in; taken as zero where the platform
+    moved under :data:`AT_REST_M` or the parabola's curvature is within 3 of its standard errors: a lidar's noise at
+    rest tilted a simulated start by 1.6 deg), else the odometer's speed change along the forward axis and the
+    centripetal term ``v * yaw rate`` across it; ``(None, "", False)`` where neither covers the start. A car pulling
+    away at 0.6 m/s^2 tilts the levelling by 3.5 deg (kitti-00's start)."""
     t0 = float(imu.t_s[k0])
     lo, hi = t0 - 0.5, t0 + LEVEL_WINDOW_S + 0.5
     if lidar is not None:
         k = np.flatnonzero((lidar.t_s >= lo) & (lidar.t_s <= hi))
-        if k.size >= 5 and lidar.t_s[k[0]] <= t0 + 0.1:
-            c = np.polyfit(lidar.t_s[k] - t0, lidar.p_w_m[k], 2)
+        if k.size >= 6 and lidar.t_s[k[0]] <= t0 + 0.1:
+            p = lidar.p_w_m[k]
+            if float(np.max(np.linalg.norm(p - p[0], axis=1))) < AT_REST_M:
+                return np.zeros(3), "the lidar's positions", True
+            c, cov = np.polyfit(lidar.t_s[k] - t0, p, 2, cov=True)
             at0 = interpolate_poses(lidar, np.array([t0 + 0.5 * LEVEL_WINDOW_S]))
             if len(at0):
-                return at0.R_wb()[0].T @ (2.0 * c[0]), "the lidar's positions"
+                a = 2.0 * c[0]
+                se = 2.0 * np.sqrt(np.abs(cov[0, 0]))
+                return at0.R_wb()[0].T @ np.where(np.abs(a) > 3.0 * se, a, 0.0), "the lidar's positions", False
     if odometer is not None:
         k = np.flatnonzero((odometer.t_s >= lo) & (odometer.t_s <= hi))
         if k.size >= 3 and odometer.t_s[k[0]] <= t0 + 0.1:
             slope = np.polyfit(odometer.t_s[k] - t0, odometer.v_mps[k], 1)[0]
             k1 = max(k0 + 1, int(np.searchsorted(imu.t_s, t0 + LEVEL_WINDOW_S, "right")))
             v = float(np.mean(np.interp(imu.t_s[k0:k1], odometer.t_s, odometer.v_mps)))
-            return np.array([slope, v * float(np.mean(imu.w_b_rps[k0:k1, 2])), 0.0]), "the odometer's speed"
-    return None, ""
+            return (np.array([slope, v * float(np.mean(imu.w_b_rps[k0:k1, 2])), 0.0]), "the odometer's speed",
+                    bool(np.max(np.abs(odometer.v_mps[k])) < AT_REST_MPS))
+    return None, "", False
 
 
 def _gyro_heading(imu: ImuSeries, k0: int, R0: np.ndarray, t_end: float) -> tuple[np.ndarray, np.ndarray]:
@@ -154,6 +167,10 @@ def _outliers(r: np.ndarray, floor: float = MIN_OUTLIER_M) -> np.ndarray:
     return r > max(floor, OUTLIER_SIGMAS * 1.4826 * float(np.median(np.abs(r))))
 
 
+def _count(n: int, one: str, many: str | None = None) -> str:
+    return f"{n} {one if n == 1 else many or one + 's'}"
+
+
 def _wrap(a):
     return (np.asarray(a) + np.pi) % (2 * np.pi) - np.pi
 
@@ -163,11 +180,12 @@ def from_data(imu: ImuSeries, k0: int, gnss: GnssSeries | None, lidar: PoseSerie
     """The initial state at ``imu.t_s[k0]`` (module docstring). ``lidar``: IMU poses in the odometry's own frame
     (not anchored); ``wheeled``: the platform drives where it points (the GNSS-only heading needs it)."""
     t0 = float(imu.t_s[k0])
-    acc_b, acc_from = body_acceleration(imu, k0, lidar, odometer)
+    acc_b, acc_from, at_rest = body_acceleration(imu, k0, lidar, odometer)
     roll, pitch = level(imu, k0, acc_b)
     R_lev = euler_rpy_to_matrix(roll, pitch, 0.0)[0]
     method = {"roll_pitch": f"levelled on the mean specific force over the first {LEVEL_WINDOW_S:g} s"
-                            + (f", less the acceleration {acc_from} show" if acc_b is not None else
+                            + (f", at rest as shown by {acc_from}" if at_rest else
+                               f", less the acceleration shown by {acc_from}" if acc_b is not None else
                                " (no lidar or odometer at the start: the platform's acceleration is not taken out)")}
     lid_L = None
     if lidar is not None and lidar.t_s[0] <= t0 + 1e-9 and lidar.t_s[-1] > t0:
@@ -205,7 +223,8 @@ def from_data(imu: ImuSeries, k0: int, gnss: GnssSeries | None, lidar: PoseSerie
         pos_std = float(np.sqrt(rms ** 2 / len(xl) + (yaw_std * np.max(np.linalg.norm(a, axis=1))) ** 2))
         method["heading"] = (f"the lidar's track laid on {len(xl)} GNSS fixes over the first {w:g} s "
                              f"(2-D fit, residual {rms:.2f} m RMS per axis"
-                             + (f"; {n_all - len(xl)} fixes off the fit left out" if n_all > len(xl) else "") + ")")
+                             + (f"; {_count(n_all - len(xl), 'fix', 'fixes')} off the fit left out" if n_all > len(xl)
+                                else "") + ")")
         method["position"] = "the same fit"
         p0[2], z_std = _start_height(xl, xg[:, 2])
         pos_std = max(pos_std, z_std)
@@ -239,14 +258,17 @@ def from_data(imu: ImuSeries, k0: int, gnss: GnssSeries | None, lidar: PoseSerie
         yaw_std = spread / np.sqrt(psi.size)
         method["heading"] = (f"the GNSS's direction of travel over {psi.size} fix pairs in the first {w:g} s, "
                              f"less the gyro's turn (spread {np.degrees(spread):.1f} deg"
-                             + (f"; {int(out.sum())} pairs off it left out" if out.any() else "") + ")")
+                             + (f"; {_count(int(out.sum()), 'pair')} off it left out" if out.any() else "") + ")")
     if g is not None and lid_L is None:
         first = g.t_s <= g.t_s[0] + VELOCITY_FIT_S
         if first.sum() < 2:
             first = np.arange(len(g)) < 2
         p0, v0, res = _line(g.t_s[first], g.p_w_m[first], t0)
         n = int(first.sum())
-        spread_m = float(np.sqrt(np.sum(res ** 2) / max(n - 2, 1) / 3)) if n > 2 else float(np.median(g.std_w_m[:2]))
+        spread_m = float(np.sqrt(np.sum(res ** 2) / max(n - 2, 1) / 3)) if n > 2 else 0.0
+        # a few fixes' scatter says little of their noise: the stream's own std per axis bounds it from below (3.0 m
+        # off against 1.5 m stated from 4 fixes' scatter: a user trial)
+        spread_m = max(spread_m, float(np.max(np.median(np.asarray(g.std_w_m, float)[first], axis=0))))
         span = float(np.ptp(g.t_s[first])) or 1.0
         pos_std = spread_m
         vel_std = float(np.sqrt(12.0 / n) * spread_m / span) if n > 2 else float(np.sqrt(2) * spread_m / span)
@@ -256,8 +278,12 @@ def from_data(imu: ImuSeries, k0: int, gnss: GnssSeries | None, lidar: PoseSerie
         k = np.flatnonzero(np.abs(lid_L.t_s - t0) <= 0.3)
         if k.size >= 2:
             dt = lid_L.t_s[k] - lid_L.t_s[k].mean()
-            v0 = Rz @ ((dt @ (lid_L.p_w_m[k] - lid_L.p_w_m[k].mean(axis=0))) / (dt @ dt))
-            vel_std = 0.05
+            dp = lid_L.p_w_m[k] - lid_L.p_w_m[k].mean(axis=0)
+            v_L = (dt @ dp) / (dt @ dt)
+            v0 = Rz @ v_L
+            # the slope's standard error from the positions' scatter about it (a simulated lidar's noise: 0.15 m/s)
+            scatter = float(np.sqrt(np.sum((dp - np.outer(dt, v_L)) ** 2) / max(3 * (k.size - 2), 1)))
+            vel_std = max(MIN_LIDAR_VEL_STD_MPS, 2.0 * scatter / float(np.sqrt(dt @ dt)))
             method["velocity"] = f"the lidar's positions differenced over {np.ptp(lid_L.t_s[k]):.2f} s"
     if v0 is None and odometer is not None and odometer.t_s[0] <= t0 <= odometer.t_s[-1]:
         v0 = Rz @ R_lev @ np.array([float(np.interp(t0, odometer.t_s, odometer.v_mps)), 0.0, 0.0])
@@ -270,7 +296,7 @@ def from_data(imu: ImuSeries, k0: int, gnss: GnssSeries | None, lidar: PoseSerie
         method["heading"] = "zero: no GNSS, so the world frame is the start's levelled frame"
         method["position"] = "zero: the world frame's origin is the start"
     # levelling's error: the platform's acceleration over the window where it was not taken out
-    acc = UNKNOWN_ACCEL_MPS2 if acc_b is None else RESIDUAL_ACCEL_MPS2
+    acc = UNKNOWN_ACCEL_MPS2 if acc_b is None else AT_REST_ACCEL_MPS2 if at_rest else RESIDUAL_ACCEL_MPS2
     tilt_std = float(np.degrees(np.arctan2(acc, gravity_mps2))) + MIN_TILT_STD_DEG
     return InitialState(p_w_m=np.asarray(p0, float), v_w_mps=np.asarray(v0, float), R_wb=Rz @ R_lev,
                         std={"pos_std_m": float(pos_std), "vel_std_mps": float(vel_std),
@@ -280,5 +306,6 @@ def from_data(imu: ImuSeries, k0: int, gnss: GnssSeries | None, lidar: PoseSerie
 
 def _no_heading(source: str, what: str, t0: float) -> str:
     return (f"{source}: a drive without ground truth starts its heading from {what}, but the platform drives under "
-            f"{MIN_TRAVEL_M:g} m within {WINDOWS_S[-1]:g} s of the start (t = {t0:.3f} s); give a groundtruth stream, "
-            "or start where it drives (filter.init_pose_from: data needs the motion)")
+            f"{MIN_TRAVEL_M:g} m within {WINDOWS_S[-1]:g} s of the start (t = {t0:.3f} s) or before the stream ends; "
+            "the heading comes from the motion: give a groundtruth stream (any reference trajectory), or a drive "
+            "that moves")

@@ -233,6 +233,11 @@ DEFAULTS = {"--rtol": 0.05, "--atol": 0.0}
 
 
 NO_TRUTH_PATTERNS = ("innovations.*",)
+# The innovations' figures take absolute tolerances: the NIS calibration of a consistent filter is near 0 (a relative
+# 5 % failed a run whose GNSS std was scaled by 1.1: 0.004 -> 0.016, +284 %, both consistent; a user trial), and the
+# NLL's zero is arbitrary (a constant per update). 0.1 in calibration is a mean NIS off by a further factor 1.37;
+# 0.05 in NLL per update is the data 5 % less likely per update.
+NO_TRUTH_ATOL = (("innovations.nis_calibration", 0.1), ("innovations.nll_per_update", 0.05))
 
 
 def compare_metrics(current: dict, baseline: dict, patterns: tuple[str, ...], rtol, atol,
@@ -308,7 +313,10 @@ def evaluate_rule(rule: str, metrics: dict) -> tuple[bool, str]:
         tok = tok if tok in metrics else getattr(metrics, "aliases", {}).get(tok, tok)
         if tok not in metrics:
             close = [k for k in metrics if k.endswith(tok.split(".")[-1])][:3]
-            raise CheckUsageError(f"--require {rule!r}: unknown metric {tok!r}" + (f" (e.g. {', '.join(close)})" if close else ""))
+            raise CheckUsageError(f"--require {rule!r}: unknown metric {tok!r}" + (f" (e.g. {', '.join(close)})" if close else "")
+                                  + ("; the run is of a drive without ground truth: it has innovations.* alone"
+                                     if not any(k.startswith("fused.") for k in metrics)
+                                     and any(k.startswith("innovations.") for k in metrics) else ""))
         return metrics[tok]
 
     va, vb = value(a), value(b)
@@ -420,6 +428,12 @@ def _check(metrics_path, baseline, rtol, atol, patterns, rules, junit_path, summ
         raise ConfigError(f"{metrics_path} is of dataset {names[0]!r} and the baseline {baseline} of {names[1]!r}: their "
                           "figures do not compare; check a run against a baseline of its own dataset (its manifest's "
                           "name), or make one with --update-baseline")
+    truth = [d.get("ground_truth") is not False for d in docs]
+    if all(docs) and truth[0] != truth[1]:
+        # (it was refused for its evaluation span, a setting the user never gave: a user trial)
+        raise ConfigError(f"{metrics_path if not truth[0] else base_path} is of a drive without ground truth and "
+                          f"{base_path if not truth[0] else metrics_path} of one with it: the one has innovations "
+                          "alone, the other scores; check a run against a baseline made the same way")
     _refuse_other_scoring(metrics_path, base_path, docs)
     trials = [d.get("trials") for d in docs]
     if trial_stat_given and not any(trials):
@@ -436,6 +450,8 @@ def _check(metrics_path, baseline, rtol, atol, patterns, rules, junit_path, summ
     # a drive without ground truth has its innovations to gate on, and nothing else
     no_truth = any(d.get("ground_truth") is False for d in docs)
     pats = tuple(patterns) or (NO_TRUTH_PATTERNS if no_truth else default_patterns(kind, delta))
+    if no_truth:          # their own absolute tolerances, before the user's (the last matching rule wins)
+        atol = Tolerance(atol.default, (*NO_TRUTH_ATOL, *atol.rules))
     rows = compare_metrics(current, base, pats, rtol, atol, no_truth)
     for r in rows:
         for value, path in ((r.baseline, base_path), (r.current, metrics_path)):

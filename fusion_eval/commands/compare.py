@@ -72,7 +72,7 @@ def _rms_lateral_vertical(vb: np.ndarray) -> dict:
     return {"lateral": float(np.sqrt(np.mean(vb[:, 1] ** 2))), "vertical": float(np.sqrt(np.mean(vb[:, 2] ** 2)))}
 
 
-def _replay_all(ds, variants: list[str], cfgs: list[dict], advance=None) -> tuple[list[VariantRun], object]:
+def replay_variants(ds, variants: list[str], cfgs: list[dict], advance=None) -> tuple[list[VariantRun], object]:
     """Every variant's filter over the same dataset (dead reckoning once, from the first variant's streams)."""
     runs: list[VariantRun] = []
     base_prep = None
@@ -217,7 +217,7 @@ def trial_table(ds, variants: list[str], cfgs: list[dict]) -> tuple[list[dict], 
     """One Monte-Carlo trial of a comparison: its table and its warnings, unsaid (in a worker; the comparison sums
     them up, :func:`fusion_eval.trials.warnings`)."""
     with collected(show=False) as said:
-        runs, base_prep = _replay_all(ds, variants, cfgs)
+        runs, base_prep = replay_variants(ds, variants, cfgs)
         _, evs_u, sp = _evaluate_all(runs, base_prep, cfgs[0]["evaluation"], executor(1))
         return _table(runs, evs_u, span.crop(base_prep.groundtruth, sp), cfgs[0]["evaluation"]), said
 
@@ -249,11 +249,9 @@ def _compare(dataset_path: Path | None, variants: list[str], variant_dir: Path |
     stages = as_stages(progress)
     stages.start("load")
     ds = session.dataset(dataset_path)
-    if ds.groundtruth is None:
-        # compare's table is of scores; the innovations of variants rank in a sweep (a sweep file's variants)
-        raise ConfigError(f"dataset {ds.name!r} has no groundtruth stream: compare scores each variant against it; "
-                          "without it, rank the variants by their innovations with `fusion-eval sweep` (a sweep file "
-                          "listing them) and --objective nll or nis, or `run` each (report.md: innovations)")
+    if ds.groundtruth is None and n_trials > 1:
+        raise ConfigError(f"dataset {ds.name!r} has no groundtruth stream: --trials averages scores against it; "
+                          "compare the variants' innovations without --trials")
     cfgs = [session.resolve(r, ds) for r in reqs]
     make_plots = make_plots and cfgs[0]["output"]["plots"]     # --set output.plots=false as --no-plots (an audit)
     session.same_evaluation([f"{v!r}" for v in variants], cfgs, "--variants", "compare scores every variant the same "
@@ -264,11 +262,15 @@ def _compare(dataset_path: Path | None, variants: list[str], variant_dir: Path |
         except ConfigError as exc:
             raise ConfigError(f"--variants {v!r}: {exc}") from None
 
+    if ds.groundtruth is None:
+        from .compare_innovations import compare_without_truth
+
+        return compare_without_truth(ds, variants, cfgs, staged, make_plots, stages, out_dir)
     with executor(None) as pool, collected() as said:
         # trials 1.. on the pool (each one a whole comparison) while this process does trial 0 and its files
         trial_futs = [pool.submit(trial_table, ds, variants, [mc.apply(c, i) for c in cfgs]) for i in range(1, n_trials)]
         stages.start("variants", len(variants))
-        runs, base_prep = _replay_all(ds, variants, cfgs, stages.advance)
+        runs, base_prep = replay_variants(ds, variants, cfgs, stages.advance)
         gt = base_prep.groundtruth
         ev_cfg = cfgs[0]["evaluation"]
         stages.start("evaluate")

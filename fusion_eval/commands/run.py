@@ -37,8 +37,12 @@ def no_truth_summary(metrics: dict) -> str:
     """What ``run`` prints for a drive without ground truth: no scores, the innovations per stream."""
     lines = ["no ground truth: nothing scored (report.md: the start from the data and the innovations)",
              f"{'stream':<14} {'updates':>8} {'mean NIS / dof':>15} {'inside 95 %':>12}"]
+    from ..evaluation.run_metrics import measured_observations
+
+    measured = measured_observations()
     for k, d in (metrics.get("nis") or {}).items():
-        lines.append(f"{k:<14} {d['epochs']:>8} {d['mean'] / d['dof']:>15.3f} {d['fraction_in_95'] * 100:>11.1f}%")
+        lines.append(f"{k:<14} {d['epochs']:>8} {d['mean'] / d['dof']:>15.3f} {d['fraction_in_95'] * 100:>11.1f}%"
+                     + ("" if k in measured else "  (a constraint: low where the vehicle does not slip)"))
     inn = metrics.get("innovations") or {}
     if inn.get("updates"):
         lines.append(f"innovations: NLL per update {inn['nll_per_update']:.4f}, NIS calibration {inn['nis_calibration']:.4f}")

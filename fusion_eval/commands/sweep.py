@@ -582,6 +582,7 @@ def run_sweep(sweep: str | Path, datasets: list[str], out_dir: Path, jobs: int |
     """Plan, run (unless ``summarize_only``) and summarise a sweep; ``sweep`` a file or a shipped sweep's name.
     ``progress_for(total)`` gives the progress callback of :func:`execute`; ``objective``: what the summary ranks
     by (default: the sweep file's ``objective``, else the fused APE RMSE). Returns the counts and the summary."""
+    from ..datasets.manifest import declares_ground_truth
     from .sweep_summary import ranking, write_summary
 
     if scheduler and dask_local:
@@ -591,6 +592,11 @@ def run_sweep(sweep: str | Path, datasets: list[str], out_dir: Path, jobs: int |
     sweep_path = resources.sweep_file(str(sweep))
     tasks, body = plan(sweep_path, datasets, out_dir, variant_dir, trials)
     objective = objective or body.get("objective")
+    if objective is None and not any(declares_ground_truth(resources.find(d)) for d in {t.dataset for t in tasks}):
+        # nothing scored to rank by: the innovations' likelihood, said (it ran every run, then refused the APE: a trial)
+        objective = "nll"
+        log.warning("the sweep's drives have no ground truth: ranked by nll (the innovations' likelihood per update); "
+                    "--objective nis ranks by their calibration")
     ranking(objective)                # a malformed objective is refused before any run
     if not summarize_only:
         resumable_dir(out_dir, ("records", "runs"), "sweep", dataset_roots(*{t.dataset for t in tasks}))

@@ -292,18 +292,24 @@ def write_summary(tasks: list[Task], out_dir: Path, keys: list[str], plots: bool
         nees = any(r.get("nees_pos_mean") is not None for r in sub)
         adapted = [k for k in dict.fromkeys(c[:-len("_noise_pos_x")] for r in sub for c in r
                                             if c.endswith("_noise_pos_x") and r[c] is not None)]
-        L += [f"## {dataset_label(ds)}", "", f"`{ds}`. " + _span_note(sub), ""] + markdown(
-            ["rank", "variant", "setting", *own, *(["std"] if sd and own else []), "fused APE trans RMSE [m]",
-             *(["std [m]"] if sd and not own else []), "APE rot RMSE [deg]", "RPE 1 frame [m]", "fused/lidar",
-             "fused/GNSS", *(["NEES pos (3 dof)"] if nees else []), *(f"{k} noise x pos / att" for k in adapted),
-             "time [s]"],
-            [[i, r["variant"], r["setting"], *([r[metric]] if own else []), *([sd[i - 1]] if sd and own else []),
-              r.get(METRIC), *([sd[i - 1]] if sd and not own else []), r.get(rot), r.get(rpe), r["fused_over_lidar"],
-              r["fused_over_gnss"], *([r.get("nees_pos_mean")] if nees else []),
-              *(_factors(r, k) for k in adapted), r["runtime_s"]] for i, r in enumerate(sub, 1)],
-            align="rll" + "r" * len(own) + ("r" if sd else "") + "rrrrr" + "r" * nees + "r" * len(adapted) + "r",
-            decimals=[0, 0, 0, *([4] * len(own)), *([4] if sd and own else []), 3, *([3] if sd and not own else []),
-                      3, 4, 3, 3, *([2] if nees else []), *([0] * len(adapted)), 1])
+        header = ["rank", "variant", "setting", *own, *(["std"] if sd and own else []), "fused APE trans RMSE [m]",
+                  *(["std [m]"] if sd and not own else []), "APE rot RMSE [deg]", "RPE 1 frame [m]", "fused/lidar",
+                  "fused/GNSS", *(["NEES pos (3 dof)"] if nees else []), *(f"{k} noise x pos / att" for k in adapted),
+                  "time [s]"]
+        body = [[i, r["variant"], r["setting"], *([r[metric]] if own else []), *([sd[i - 1]] if sd and own else []),
+                 r.get(METRIC), *([sd[i - 1]] if sd and not own else []), r.get(rot), r.get(rpe), r["fused_over_lidar"],
+                 r["fused_over_gnss"], *([r.get("nees_pos_mean")] if nees else []),
+                 *(_factors(r, k) for k in adapted), r["runtime_s"]] for i, r in enumerate(sub, 1)]
+        align = "rll" + "r" * len(own) + ("r" if sd else "") + "rrrrr" + "r" * nees + "r" * len(adapted) + "r"
+        decimals = [0, 0, 0, *([4] * len(own)), *([4] if sd and own else []), 3, *([3] if sd and not own else []),
+                    3, 4, 3, 3, *([2] if nees else []), *([0] * len(adapted)), 1]
+        # a column no run has a figure for is left out (drives without ground truth: five columns of n/a; a trial)
+        keep = [j for j in range(len(header)) if j < 3 or any(row[j] is not None for row in body)]
+        no_truth = all(r.get(METRIC) is None for r in sub)
+        L += [f"## {dataset_label(ds)}", "", f"`{ds}`. " + ("No ground truth: nothing is scored; the runs are ranked "
+                                                           "by their innovations." if no_truth else _span_note(sub)),
+              ""] + markdown([header[j] for j in keep], [[row[j] for j in keep] for row in body],
+                             align="".join(align[j] for j in keep), decimals=[decimals[j] for j in keep])
         if adapted:
             L += ["", f"{', '.join(adapted)} noise adapted itself to its innovations in these runs "
                   f"(`{adapted[0]}.noise_adapt`): the factors it applied to the configured std (medians over the second "

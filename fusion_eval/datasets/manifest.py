@@ -46,6 +46,22 @@ TOP_KEYS = {"name", "description", "attribution", "geodetic_origin", "streams", 
 PLATFORMS = ("car", "wheeled", "aerial", "handheld", "legged", "other")
 
 
+def declares_ground_truth(path: str | Path) -> bool:
+    """Whether the dataset at ``path`` has a groundtruth stream, from its manifest alone (no stream read): a sweep
+    ranks drives without one by their innovations before it runs them. Anything but a readable manifest (a KITTI raw
+    folder, an ASL folder: both carry their truth) counts as having one."""
+    path = Path(path)
+    m = path if path.is_file() else path / "dataset.yaml"
+    if not m.is_file() or m.suffix in (".bag", ".db3", ".mcap"):
+        return True
+    try:
+        body = yaml.safe_load(m.read_text(encoding="utf-8"))
+    except (OSError, UnicodeDecodeError, yaml.YAMLError):
+        return True                    # (the run says what is wrong with it)
+    streams = body.get("streams") if isinstance(body, dict) else None
+    return not isinstance(streams, dict) or "groundtruth" in streams
+
+
 def load_dataset(path: str | Path, extra_streams: tuple[StreamSpec, ...] | None = None) -> Dataset:
     """Load a dataset from a manifest file, a folder holding ``dataset.yaml``, or a KITTI raw drive folder.
 

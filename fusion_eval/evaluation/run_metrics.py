@@ -434,7 +434,7 @@ def _jumping() -> set[str]:
     return {o.name for o in REGISTRY if o.jumps}
 
 
-def _measured() -> set[str]:
+def measured_observations() -> set[str]:
     """The observations of a measured stream (not a pseudo-observation such as the non-holonomic constraint, whose
     NIS is near zero wherever the vehicle really does not slip)."""
     from ..filters.observations import REGISTRY
@@ -501,7 +501,7 @@ def inconsistent_streams(nis: dict, stated: dict | None = None) -> list[str]:
                        "in g, gravity's sign, a quaternion's order, degrees for radians), its clock against the IMU's (a time "
                        "offset of seconds: GPS against UNIX time is 18 s), or noise settings far below the data's (a "
                        "swept or tuned value)")
-        elif v.size >= 10 and k in _measured() and np.mean(v > (bound := chi2_upper(d["dof"]))) > MISFIT_ABOVE_FRACTION:
+        elif v.size >= 10 and k in measured_observations() and np.mean(v > (bound := chi2_upper(d["dof"]))) > MISFIT_ABOVE_FRACTION:
             # below the 20x but most innovations beyond the bound: process noise far too small, the covariance
             # reopened only now and then (an IMU gap's motion) kept the median under 20x, and the run said nothing
             # of a fused 16.5 m against GNSS 2.45 m (all noise 1e-12 on kitti-00)
@@ -510,7 +510,7 @@ def inconsistent_streams(nis: dict, stated: dict | None = None) -> list[str]:
                        f"{d['dof']} dof; a consistent filter: 2.5 %): the filter is far more confident than this stream "
                        "allows; check the process and initial noise settings (far below the data's?) and this stream's "
                        "stated noise")
-        elif v.size >= 10 and np.mean(v) < d["dof"] / MISFIT_LOW_NIS_RATIO and k in _measured():
+        elif v.size >= 10 and np.mean(v) < d["dof"] / MISFIT_LOW_NIS_RATIO and k in measured_observations():
             # the other way: a stated std far above the data's (a receiver's accuracy in mm read as m) reads as a
             # plausible but badly weighted result (fused 1.48 m instead of 0.69 m on a simulated drive, no word)
             out.append(f"{k}: mean NIS {np.mean(v):.3g} for {d['dof']} dof: this stream is far more precise than "
@@ -558,7 +558,7 @@ def run_metrics(dataset: str, evals: dict[str, EstimateEvaluation], ratios: dict
     if not evals:       # a drive without ground truth (a flag the tables, check and tune read; README)
         out["ground_truth"] = False
     if out["nis"]:
-        out["innovations"] = innovation_summary(out["nis"], _measured())
+        out["innovations"] = innovation_summary(out["nis"], measured_observations())
         misfit = inconsistent_streams(cons.get("nis", {}), stated) + scored_warnings(evals, out["nis"], out["nees"], applied,
                                                                              ev_cfg=ev_cfg)
         for w in misfit:

@@ -107,7 +107,8 @@ def consistency_section(m: dict) -> list[str]:
             a = d["adapt"]
             L.append(f"\n{k} noise adapted online to its innovations: position std x {a['pos_std_factor_median']:.2f}, "
                      f"rotation std x {a['att_std_factor_median']:.2f} (median over the second half of the drive).")
-    L += ["", "NEES uses the filter's covariance and its error against the ground truth; NIS the innovations alone. A "
+    L += ["", ("NEES uses the filter's covariance and its error against the ground truth; NIS the innovations alone. "
+               if m.get("nees") else "NIS uses the innovations alone (no ground truth, no NEES). ") + "A "
           "consistent filter has a mean near the dof and about 95 % inside; a mean well below means the filter is "
           f"conservative (noise too large), well above overconfident. The verdict: a mean above {VERDICT_RATIO:g}x the "
           f"dof is overconfident, below 1/{VERDICT_RATIO:g} of it conservative, and a mean between with under "
@@ -403,8 +404,8 @@ def report_md_no_truth(dataset: str, config_name: str, evals: dict, ratios: dict
          f"**{cfg['filter']['lidar_update']}**, GNSS fused: **{'yes' if cfg['filter']['use_gnss'] else 'no'}**, "
          f"bias model: **{cfg['filter']['bias_model']}**.", "", "## No ground truth", "",
          "The drive has no groundtruth stream: no estimate is scored (no APE, RPE, drift or NEES; no metrics.csv). "
-         "The estimates are written as TUM files (fused, and the unfiltered lidar, GNSS and dead reckoning) for a "
-         "reference you may have elsewhere (`fusion-eval evaluate`). What the data alone tell is below: the innovations "
+         f"The estimates are written as TUM files ({_tum_list(applied, gnss_info)}) for a reference you may have "
+         "elsewhere (`fusion-eval evaluate`). What the data alone tell is below: the innovations "
          "(each stream against the filter's prediction, in its own stated noise), which `tune --objective nll` and "
          "`nis` tune by."]
     if init:
@@ -421,6 +422,13 @@ def report_md_no_truth(dataset: str, config_name: str, evals: dict, ratios: dict
         L += ["", "## Plots", ""] + [f"![{p}]({p})" for p in plots_written]
     L += consistency_section(metrics)
     return "\n".join(L + _inputs_sections(cfg, applied, gnss_info, evals))
+
+
+def _tum_list(applied: dict, gnss_info: dict | None) -> str:
+    """The TUM files a run without ground truth wrote, in words."""
+    names = ["fused"] + (["the unfiltered lidar"] if "lidar_anchor_start_t_s" in applied or "lidar_anchor_t_s" in applied
+                         else []) + (["GNSS"] if gnss_info is not None else []) + ["IMU dead reckoning"]
+    return ", ".join(names[:-1]) + " and " + names[-1]
 
 
 def _inputs_sections(cfg: dict, applied: dict, gnss_info: dict | None, evals: dict) -> list[str]:
@@ -459,8 +467,8 @@ def _inputs_sections(cfg: dict, applied: dict, gnss_info: dict | None, evals: di
           f"{' and lidar' if cfg['filter']['lidar_update'] != 'none' else ''}).",
           f"- Filled-in IMU packets: {applied['imu_filled_samples']} ({applied['imu_filled_packets']}"
           + (f"; {applied['imu_filled_found']} of them found as exact straight lines between their neighbours"
-             if applied.get("imu_filled_found") else "") + "); ground-truth and GNSS packets marked filled-in are never "
-          "used.",
+             if applied.get("imu_filled_found") else "") + f"); {'ground-truth and ' if evals else ''}GNSS packets marked "
+          "filled-in are never used.",
           f"- IMU channel lags corrected: gyro {applied['gyro_lag_s'] * 1000:.1f} ms, accelerometer "
           f"{applied.get('accel_lag_s', 0.0) * 1000:.1f} ms.",
           *_estimates(applied),

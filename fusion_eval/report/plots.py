@@ -895,13 +895,15 @@ def consistency_figure(cons: dict, t0: float):
         floor = min(0.1 * lo, float(np.percentile(pos, 5))) if pos.size else 0.1 * lo
         floor = max(floor, 1e-6)
         k = thin.envelope(v)
+        # (without ground truth there is no NEES: the legend names the dots alone)
+        what = "NEES (line) / NIS (dots)" if any(i[0].startswith("NEES") for i in items) else "NIS (dots)"
         if label.startswith("NEES"):       # a continuous series: a line
-            ax.plot(t[k], np.maximum(v[k], floor), "-", lw=0.7, color="tab:blue", label="NEES (line) / NIS (dots)")
+            ax.plot(t[k], np.maximum(v[k], floor), "-", lw=0.7, color="tab:blue", label=what)
         else:
             # separate innovations: dots sized by their number (1 Hz GNSS in pixels was invisible; a plot review),
             # and their mean over 10 s windows, where a stretch of over- or under-confidence shows
             ms = 3.0 if v.size < 600 else 1.5 if v.size < 3000 else None
-            ax.plot(t[k], np.maximum(v[k], floor), "." if ms else ",", color="tab:blue", label="NEES (line) / NIS (dots)",
+            ax.plot(t[k], np.maximum(v[k], floor), "." if ms else ",", color="tab:blue", label=what,
                     **({"ms": ms} if ms else {}))
             _window_mean(ax, t, v, floor)
         ax.set_ylim(bottom=floor / 1.3)

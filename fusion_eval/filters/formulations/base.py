@@ -287,6 +287,9 @@ class FilterBase:
                 raise FilterDivergedError(f"filter diverged at t={self.t:.3f} s: innovation covariance not invertible ({exc})") from None
             if it == 0:
                 nis = float(r @ Sinv @ r)
+                # the innovations' likelihood (tune's nll) takes log det S of the S this NIS is of (it was NaN for
+                # the iterated update: its nll read nan in compare's and sweep's tables)
+                self.last_S = np.linalg.inv(Sinv)
                 if nis > gate:
                     return nis, False
                 dx = K @ r
