@@ -253,7 +253,8 @@ def filter_and_evaluate(ds: Dataset, cfg: dict, sh: Shared, pool, *, dataset_pat
     # the TUM files and the filter's plots, each a job of its own, alongside the evaluations
     first = report.write_filter_outputs(out, series, filt, err, cfg["output"]["plots"], pool, truth_biases=truth_b,
                                         tums_written=own + linked_tums, handles=sh.handles,
-                                        spans=report.spans_of(cfg, prep.gnss_info, filt.fused.t_s)) if out is not None else []
+                                        spans=report.spans_of(cfg, prep.gnss_info, filt.fused.t_s),
+                                        start_frame=report.start_frame(prep.applied)) if out is not None else []
     # the NEES needs no metric: computed here while the workers evaluate, not after (0.7 s on a simulated hour); over
     # the evaluated span, as every metric of the report (over the whole truth it counted 4 epochs more on kitti-00)
     cons = consistency(sh.ref, filt)         # (without ground truth: the NIS alone)

@@ -248,6 +248,10 @@ def test_without_gnss_the_world_frame_is_the_levelled_start():
     t0 = prep.applied["t_start_s"]
     k = int(np.searchsorted(prep.lidar.t_s, t0))
     assert np.allclose(prep.lidar.p_w_m[k], 0.0, atol=1e-9)      # the lidar anchored on that start
+    from fusion_eval import report
+
+    assert report.start_frame(prep.applied)          # the trajectory plot's axes: not East/North then
+    assert not report.start_frame(prepare(fe.load_dataset(KITTI00), session.resolve(session.request(), ds)).applied)
 
 
 @pytest.mark.slow

@@ -32,7 +32,7 @@ FILTER_PLOTS = ["trajectories.png", "ape_over_time.png", "biases.png", "fused_er
 
 
 def write_filter_outputs(out: StagedDir, series: dict, filt, fused_err: dict, make_plots: bool, pool=None,
-                         truth_biases=None, tums_written=(), handles=None, spans=()) -> list:
+                         truth_biases=None, tums_written=(), handles=None, spans=(), start_frame: bool = False) -> list:
     """TUM files and the plots that need no evaluation, each a job of its own on ``pool`` when given (so that
     they spread over the workers). Returns the futures to wait for (or nothing: done here); the plots the
     report lists are :func:`filter_plots` (``ape_over_time.png`` is drawn with the metrics, in
@@ -43,7 +43,8 @@ def write_filter_outputs(out: StagedDir, series: dict, filt, fused_err: dict, ma
     A job gets only what it draws (:mod:`.thin`): a long drive's series would cost their size again in pickles;
     ``handles``: series as the pool's workers already hold them (:meth:`fusion_eval.pool.Pool.share`); ``spans``:
     :func:`spans_of`, shaded on the error plots too (where the covariance grows, and why: a review found an outage's
-    +/-5 m band with no word of it there)."""
+    +/-5 m band with no word of it there); ``start_frame``: the world is the start's levelled frame (no GNSS and no
+    truth: :mod:`fusion_eval.calibration.initial_state`), not ENU."""
     handles = handles or {}
     if fused_err is not None and len(fused_err["t_s"]) and len(filt.fused.t_s):      # the error plots count their time from their own first stamp
         shift = float(filt.fused.t_s[0]) - float(fused_err["t_s"][0])
@@ -51,7 +52,7 @@ def write_filter_outputs(out: StagedDir, series: dict, filt, fused_err: dict, ma
     jobs = [(files.write_tum, out.path(files.TUM_FILES[n]), n, handles.get(n, s)) for n, s in series.items()
             if s is not None and n in files.TUM_FILES and n not in tums_written]
     if make_plots:
-        jobs += [(draw, "plot_trajectories", out.path("trajectories.png"), *thin.paths(series)),
+        jobs += [(draw, "plot_trajectories", out.path("trajectories.png"), *thin.paths(series), start_frame),
                  (draw, "plot_biases", out.path("biases.png"),
                   *thin.biases(filt.fused.t_s, filt.accel_bias_b, filt.gyro_bias_b, filt.sigma, truth_biases))]
     if make_plots and fused_err is not None:      # (no error without ground truth)
@@ -65,6 +66,11 @@ def write_filter_outputs(out: StagedDir, series: dict, filt, fused_err: dict, ma
             j[0](*j[1:])
         return []
     return [pool.submit(*j) for j in jobs]
+
+
+def start_frame(applied: dict) -> bool:
+    """Whether a run's world frame is its start's levelled frame (a start from the data without GNSS)."""
+    return str(((applied.get("init_state") or {}).get("method") or {}).get("heading", "")).startswith("zero")
 
 
 def filter_plots(make_plots: bool, truth: bool = True) -> list[str]:
@@ -169,6 +175,6 @@ def write_run(out: StagedDir, res, pool=None) -> None:
     """Every output of ``fusion-eval run`` for an evaluated run."""
     make_plots = res.cfg["output"]["plots"]
     for f in write_filter_outputs(out, res.series, res.filt, res.fused_error, make_plots, pool, res.truth_biases,
-                                  spans=route_spans(res)):
+                                  spans=route_spans(res), start_frame=start_frame(res.resolved_extra["applied"])):
         f.result()
     write_evaluation(out, res, filter_plots(make_plots, bool(res.evals)), pool)

@@ -105,7 +105,7 @@ def _save(fig, path: Path) -> None:
 HEIGHT_POINTS = 2000      # not a state index: the height panel's points per estimate (the envelope's)
 
 
-def plot_trajectories(path: Path, paths: dict, extent: tuple) -> None:
+def plot_trajectories(path: Path, paths: dict, extent: tuple, start_frame: bool = False) -> None:
     """Top view (East/North) of every estimate with the ground truth (``paths``, ``extent``:
     :func:`fusion_eval.report.thin.paths`); axes fit the ground truth so a diverging dead-reckoning track does
     not squash the rest."""
@@ -130,9 +130,10 @@ def plot_trajectories(path: Path, paths: dict, extent: tuple) -> None:
     ax.set_xlim(lo[0] - pad, hi[0] + pad)
     ax.set_ylim(lo[1] - pad, hi[1] + pad)
     ax.set_aspect("equal", adjustable="box")
-    ax.set_xlabel("East [m]")
-    ax.set_ylabel("North [m]")
-    ax.set_title("Trajectories (top view, ENU)")
+    # without GNSS or truth the world is the start's levelled frame: x the body's forward axis at the start
+    ax.set_xlabel("x, forward at the start [m]" if start_frame else "East [m]")
+    ax.set_ylabel("y, left at the start [m]" if start_frame else "North [m]")
+    ax.set_title("Trajectories (top view, the start's levelled frame)" if start_frame else "Trajectories (top view, ENU)")
     ax.grid(alpha=0.3)
     ax.legend(loc="best", fontsize=8)
     # the height axis fits every estimate but dead reckoning (its kilometres would flatten the rest)
