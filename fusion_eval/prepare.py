@@ -522,7 +522,8 @@ def prepare(ds: Dataset, cfg: dict) -> Prepared:
         if v0 is None:          # a ground truth of poses only (TUM, EuRoC's motion capture): its positions differenced
             v0 = _velocity_from_positions(gt, t0)
             applied["init_velocity"] = "the ground truth's positions differenced (it has no velocity)"
-    x0 = NominalState(p_w_m=np.array(p0), v_w_mps=np.array(v0), R_wb=np.array(R0), ba_b=np.zeros(3), bg_b=np.zeros(3))
+    x0 = NominalState(p_w_m=np.array(p0), v_w_mps=np.array(v0), R_wb=np.array(R0), ba_b=np.zeros(3),
+                      bg_b=est.bg_b_rps if pose_from == "data" else np.zeros(3))
     if lidar is not None and anchor == "start":
         # the odometry's frame laid on the filter's initial pose at its start
         lidar = anchor_at(lidar, make_T(np.asarray(R0), np.asarray(p0)), t0)

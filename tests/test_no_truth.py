@@ -193,13 +193,30 @@ def _start_errors(ds, **sets):
 
 def test_the_start_from_a_simulated_drive_is_within_its_stated_std(sim):
     """Lidar and GNSS: the heading from the lidar's track laid on the fixes, the tilt from the levelling less the
-    lidar's acceleration; each error within 3x the std the start states."""
-    err, init = _start_errors(sim)
+    lidar's acceleration (its odometer, which shows the standstill at the start, left out); each error within 3x the
+    std the start states."""
+    err, init = _start_errors(replace(sim, odometer=None))
     s = init["std"]
     assert "lidar's track" in init["method"]["heading"] and "less the acceleration" in init["method"]["roll_pitch"]
     assert err["yaw_deg"] < 3 * s["yaw_std_deg"] and err["tilt_deg"] < 3 * s["roll_pitch_std_deg"], (err, s)
     assert err["pos_m"] < 3 * s["pos_std_m"] and err["vel_mps"] < 3 * s["vel_std_mps"] + 0.05, (err, s)
     assert err["yaw_deg"] < 1.0 and err["pos_m"] < 2.0
+
+
+def test_a_standstill_at_the_start_gives_the_gyro_bias_a_zero_velocity_and_a_level_start(sim):
+    """The simulated drive stands still for its first 10 s (its odometer reads zero): the gyro's mean there is its bias
+    (the simulator's truth to 5e-5 rad/s), the velocity is zero, nothing is taken out of the levelling, and without
+    lidar the position is the fixes' mean over the standstill."""
+    car = replace(sim, lidar=None, description={**sim.description, "platform": "car"})
+    err, init = _start_errors(car, **{"filter.lidar_update": "none"})
+    assert "at rest as shown by the odometer" in init["method"]["roll_pitch"]
+    assert init["method"]["velocity"].startswith("zero: at rest") and err["vel_mps"] < 0.05
+    assert init["method"]["position"].startswith("the mean of the") and err["pos_m"] < 3 * init["std"]["pos_std_m"]
+    truth = np.loadtxt(Path(sim.description["path"]) / "truth" / "imu_biases.csv", delimiter=",", skiprows=1)
+    cfg = session.resolve(session.request(overrides={"filter.lidar_update": "none"}), car)
+    prep = prepare(car, {**cfg, "filter": {**cfg["filter"], "init_pose_from": "data", "init_velocity_from": "data"}})
+    assert np.allclose(prep.x0.bg_b, truth[0, 4:7], atol=5e-5), (prep.x0.bg_b, truth[0, 4:7])
+    assert "gyro's mean over the first" in prep.applied["init_state"]["method"]["gyro_bias"]
 
 
 @pytest.mark.parametrize("lidar", [True, False])
@@ -223,7 +240,7 @@ def test_a_gnss_glitch_at_the_start_is_left_out_of_the_heading_fit(sim, lidar):
 
 
 def test_a_wheeled_platform_takes_its_heading_from_the_gnss_track_and_another_is_refused(sim):
-    car = replace(sim, lidar=None, description={**sim.description, "platform": "car"})
+    car = replace(sim, lidar=None, odometer=None, description={**sim.description, "platform": "car"})
     err, init = _start_errors(car, **{"filter.lidar_update": "none"})
     s = init["std"]
     assert "direction of travel" in init["method"]["heading"] and init["method"]["velocity"].startswith("the line")

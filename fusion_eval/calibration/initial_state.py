@@ -20,7 +20,7 @@ Each comes with the std it earned, which the filter's initial covariance takes w
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 
 import numpy as np
 
@@ -44,8 +44,9 @@ RESIDUAL_ACCEL_MPS2, UNKNOWN_ACCEL_MPS2 = 0.25, 0.5
 # at rest only the accelerometer's bias is left (its lag acts on a changing acceleration only): a navigation IMU's is
 # mg-level, an automotive MEMS one's up to 10 mg
 AT_REST_ACCEL_MPS2 = 0.1
+MIN_REST_S, REST_MARGIN_S = 2.0, 0.5     # a standstill long enough for the gyro's bias, less its end (moving off)
 MIN_LIDAR_VEL_STD_MPS = 0.05  # the lidar's positions differenced over +/-0.3 s: their acceleration over it
-AT_REST_M, AT_REST_MPS = 0.05, 0.05      # the lidar's track over the window, the odometer's speed: standing still
+REST_SPEED_MPS = 0.1          # the lidar's or odometer's speed over a second under this: standing still
 MIN_SLOPE_SPAN_M = 20.0       # the track's spread (std) along its main direction that lets its height tell a slope
 MIN_TILT_STD_DEG = 0.2        # levelling's floor: the accelerometer's own misalignment and noise
 
@@ -57,6 +58,7 @@ class InitialState:
     R_wb: np.ndarray
     std: dict          # pos_std_m, vel_std_mps, roll_pitch_std_deg, yaw_std_deg: what each method earned
     method: dict       # how each part was found, in words (the report)
+    bg_b_rps: np.ndarray = field(default_factory=lambda: np.zeros(3))   # the gyro's bias, where the platform stood still
 
 
 def _window(t0: float, t: np.ndarray, dist_m: np.ndarray) -> float:
@@ -78,49 +80,76 @@ def level(imu: ImuSeries, k0: int, accel_b_mps2: np.ndarray | None = None) -> tu
 
 
 def body_acceleration(imu: ImuSeries, k0: int, lidar: PoseSeries | None,
-                      odometer: SpeedSeries | None) -> tuple[np.ndarray | None, str, bool]:
-    """The body's mean acceleration over the levelling window in its own frame, where it came from, and whether the
-    platform stood still: the lidar's positions (a parabola over the window and half a second either side, rotated
-    into the body at the start: the same in any frame the odometry is given in; taken as zero where the platform
-    moved under :data:`AT_REST_M` or the parabola's curvature is within 3 of its standard errors: a lidar's noise at
-    rest tilted a simulated start by 1.6 deg), else the odometer's speed change along the forward axis and the
-    centripetal term ``v * yaw rate`` across it; ``(None, "", False)`` where neither covers the start. A car pulling
-    away at 0.6 m/s^2 tilts the levelling by 3.5 deg (kitti-00's start)."""
+                      odometer: SpeedSeries | None) -> tuple[np.ndarray | None, str]:
+    """The body's mean acceleration over the levelling window in its own frame, and where it came from: the lidar's
+    positions (a parabola over the window and half a second either side, rotated into the body at the start: the same
+    in any frame the odometry is given in; each axis taken as zero where the parabola's curvature is within 3 of its
+    standard errors: a lidar's noise at rest tilted a simulated start by 1.6 deg), else the odometer's speed change
+    along the forward axis and the centripetal term ``v * yaw rate`` across it; ``(None, "")`` where neither covers
+    the start. A car pulling away at 0.6 m/s^2 tilts the levelling by 3.5 deg (kitti-00's start)."""
     t0 = float(imu.t_s[k0])
     lo, hi = t0 - 0.5, t0 + LEVEL_WINDOW_S + 0.5
     if lidar is not None:
         k = np.flatnonzero((lidar.t_s >= lo) & (lidar.t_s <= hi))
         if k.size >= 6 and lidar.t_s[k[0]] <= t0 + 0.1:
-            p = lidar.p_w_m[k]
-            if float(np.max(np.linalg.norm(p - p[0], axis=1))) < AT_REST_M:
-                return np.zeros(3), "the lidar's positions", True
-            c, cov = np.polyfit(lidar.t_s[k] - t0, p, 2, cov=True)
+            c, cov = np.polyfit(lidar.t_s[k] - t0, lidar.p_w_m[k], 2, cov=True)
             at0 = interpolate_poses(lidar, np.array([t0 + 0.5 * LEVEL_WINDOW_S]))
             if len(at0):
                 a = 2.0 * c[0]
                 se = 2.0 * np.sqrt(np.abs(cov[0, 0]))
-                return at0.R_wb()[0].T @ np.where(np.abs(a) > 3.0 * se, a, 0.0), "the lidar's positions", False
+                return at0.R_wb()[0].T @ np.where(np.abs(a) > 3.0 * se, a, 0.0), "the lidar's positions"
     if odometer is not None:
         k = np.flatnonzero((odometer.t_s >= lo) & (odometer.t_s <= hi))
         if k.size >= 3 and odometer.t_s[k[0]] <= t0 + 0.1:
             slope = np.polyfit(odometer.t_s[k] - t0, odometer.v_mps[k], 1)[0]
             k1 = max(k0 + 1, int(np.searchsorted(imu.t_s, t0 + LEVEL_WINDOW_S, "right")))
             v = float(np.mean(np.interp(imu.t_s[k0:k1], odometer.t_s, odometer.v_mps)))
-            return (np.array([slope, v * float(np.mean(imu.w_b_rps[k0:k1, 2])), 0.0]), "the odometer's speed",
-                    bool(np.max(np.abs(odometer.v_mps[k])) < AT_REST_MPS))
-    return None, "", False
+            return np.array([slope, v * float(np.mean(imu.w_b_rps[k0:k1, 2])), 0.0]), "the odometer's speed"
+    return None, ""
 
 
-def _gyro_heading(imu: ImuSeries, k0: int, R0: np.ndarray, t_end: float) -> tuple[np.ndarray, np.ndarray]:
-    """The body's forward axis' heading (rad, from East) in the start's frame, from the gyro alone, at the IMU stamps
-    ``t_s[k0]..t_end``: the turn since the start that the fixes' direction of travel is corrected by."""
+def _speed_positions(t: np.ndarray, p: np.ndarray, half_s: float) -> np.ndarray:
+    """Speed at each stamp from the positions ``half_s`` either side (interpolated; clamped at the ends)."""
+    lo, hi = (np.column_stack([np.interp(t + d, t, p[:, i]) for i in range(3)]) for d in (-half_s, half_s))
+    return np.linalg.norm(hi - lo, axis=1) / (2 * half_s)
+
+
+def rest_span(imu: ImuSeries, k0: int, lidar: PoseSeries | None, odometer: SpeedSeries | None) -> tuple[float, str]:
+    """How long (s) the platform stands still from ``imu.t_s[k0]``, and what shows it: the odometer's mean speed over
+    a second under :data:`REST_SPEED_MPS`, else the lidar's speed over a second; ``(0, "")`` where neither covers the
+    start. Averaged over a second, so that a sensor's noise at rest is not motion (a simulated lidar's 5 cm, an
+    odometer's 0.1 m/s). Neither the IMU alone (rest and a straight drive at constant speed read alike) nor GNSS
+    fixes (metres of noise: a car pulling away slowly on KITTI's raw 0027 stayed within three stds of its first fix
+    for seconds, and the gyro's 'bias' over them, its turn, put the heading 137 deg off) tell it."""
+    t0 = float(imu.t_s[k0])
+    sources = []
+    if odometer is not None and len(odometer) > 2:      # first: a wheel at rest reads zero (an odometry drifts)
+        n = max(1, int(round(1.0 / max(float(np.median(np.diff(odometer.t_s))), 1e-3))))
+        mean = np.convolve(odometer.v_mps, np.ones(n) / n, mode="same")
+        sources.append((odometer.t_s, np.abs(mean) > REST_SPEED_MPS, "the odometer"))
+    if lidar is not None and len(lidar) > 2:
+        sources.append((lidar.t_s, _speed_positions(lidar.t_s, lidar.p_w_m, 0.5) > REST_SPEED_MPS, "the lidar's track"))
+    for t, moved, what in sources:
+        if t[0] > t0 + 0.1:
+            continue
+        after = (t >= t0 - 1e-9) & moved
+        first = float(t[np.argmax(after)]) if after.any() else float(t[-1])
+        return max(0.0, first - t0), what
+    return 0.0, ""
+
+
+def _gyro_heading(imu: ImuSeries, k0: int, R0: np.ndarray, t_end: float,
+                  bg_rps: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """The body's forward axis' heading (rad, from East) in the start's frame, from the gyro alone (less its bias
+    ``bg_rps``), at the IMU stamps ``t_s[k0]..t_end``: the turn since the start that the fixes' direction of travel is
+    corrected by."""
     k1 = min(len(imu), int(np.searchsorted(imu.t_s, t_end, "right")) + 1)
     t = imu.t_s[k0:k1]
     R = R0.copy()
     h = np.empty(t.size)
     h[0] = np.arctan2(R[1, 0], R[0, 0])
     for i in range(1, t.size):       # (at most WINDOWS_S[-1] of samples, once per run)
-        R = R @ exp_so3(imu.w_b_rps[k0 + i - 1] * (t[i] - t[i - 1]))
+        R = R @ exp_so3((imu.w_b_rps[k0 + i - 1] - bg_rps) * (t[i] - t[i - 1]))
         h[i] = np.arctan2(R[1, 0], R[0, 0])
     return t, np.unwrap(h)
 
@@ -180,13 +209,24 @@ def from_data(imu: ImuSeries, k0: int, gnss: GnssSeries | None, lidar: PoseSerie
     """The initial state at ``imu.t_s[k0]`` (module docstring). ``lidar``: IMU poses in the odometry's own frame
     (not anchored); ``wheeled``: the platform drives where it points (the GNSS-only heading needs it)."""
     t0 = float(imu.t_s[k0])
-    acc_b, acc_from, at_rest = body_acceleration(imu, k0, lidar, odometer)
+    # a standstill at the start: no acceleration to take out of the levelling, and the gyro's mean there is its bias
+    # (a static alignment), taken out of the turn the GNSS-track heading integrates over up to minutes, and the
+    # filter's first bias estimate
+    rest_s, rest_by = rest_span(imu, k0, lidar, odometer)
+    at_rest = rest_s >= LEVEL_WINDOW_S + REST_MARGIN_S
+    acc_b, acc_from = (np.zeros(3), rest_by) if at_rest else body_acceleration(imu, k0, lidar, odometer)
     roll, pitch = level(imu, k0, acc_b)
     R_lev = euler_rpy_to_matrix(roll, pitch, 0.0)[0]
     method = {"roll_pitch": f"levelled on the mean specific force over the first {LEVEL_WINDOW_S:g} s"
                             + (f", at rest as shown by {acc_from}" if at_rest else
                                f", less the acceleration shown by {acc_from}" if acc_b is not None else
                                " (no lidar or odometer at the start: the platform's acceleration is not taken out)")}
+    bg = np.zeros(3)
+    if rest_s >= MIN_REST_S:
+        k1 = int(np.searchsorted(imu.t_s, t0 + rest_s - REST_MARGIN_S, "right"))
+        bg = np.mean(imu.w_b_rps[k0:k1], axis=0)
+        method["gyro_bias"] = (f"the gyro's mean over the first {rest_s - REST_MARGIN_S:.1f} s at rest (as shown by "
+                               f"{rest_by}): {np.round(np.degrees(bg), 4).tolist()} deg/s")
     lid_L = None
     if lidar is not None and lidar.t_s[0] <= t0 + 1e-9 and lidar.t_s[-1] > t0:
         # the lidar's track in the levelled start frame (yaw 0): the body at t0 sits at the origin with R_lev
@@ -246,7 +286,7 @@ def from_data(imu: ImuSeries, k0: int, gnss: GnssSeries | None, lidar: PoseSerie
         fast = (dt > 0) & (np.hypot(d[:, 0], d[:, 1]) >= MIN_TRACK_SPEED_MPS * np.maximum(dt, 1e-9))
         if fast.sum() < 3:
             raise DataRangeError(_no_heading(g.source, "the GNSS fixes", t0))
-        th, h = _gyro_heading(imu, k0, R_lev, float(tg[-1]))
+        th, h = _gyro_heading(imu, k0, R_lev, float(tg[-1]), bg)
         mid = 0.5 * (tg[1:] + tg[:-1])[fast]
         psi = _wrap(np.arctan2(d[fast, 1], d[fast, 0]) - np.interp(mid, th, h) - travel_yaw_rad)
         yaw = float(np.arctan2(np.mean(np.sin(psi)), np.mean(np.cos(psi))))
@@ -259,7 +299,14 @@ def from_data(imu: ImuSeries, k0: int, gnss: GnssSeries | None, lidar: PoseSerie
         method["heading"] = (f"the GNSS's direction of travel over {psi.size} fix pairs in the first {w:g} s, "
                              f"less the gyro's turn (spread {np.degrees(spread):.1f} deg"
                              + (f"; {_count(int(out.sum()), 'pair')} off it left out" if out.any() else "") + ")")
-    if g is not None and lid_L is None:
+    if g is not None and lid_L is None and at_rest and np.sum(g.t_s <= t0 + rest_s) >= 3:
+        # standing still: the fixes' mean over the standstill (their errors correlated: the std of the mean doubled)
+        still = g.t_s <= t0 + rest_s
+        p0 = np.mean(g.p_w_m[still], axis=0)
+        pos_std = CORRELATED_ERRORS * float(np.max(np.median(np.asarray(g.std_w_m, float)[still], axis=0))) / np.sqrt(
+            still.sum())
+        method["position"] = f"the mean of the {int(still.sum())} GNSS fixes while at rest"
+    elif g is not None and lid_L is None:
         first = g.t_s <= g.t_s[0] + VELOCITY_FIT_S
         if first.sum() < 2:
             first = np.arange(len(g)) < 2
@@ -274,7 +321,10 @@ def from_data(imu: ImuSeries, k0: int, gnss: GnssSeries | None, lidar: PoseSerie
         vel_std = float(np.sqrt(12.0 / n) * spread_m / span) if n > 2 else float(np.sqrt(2) * spread_m / span)
         method["position"] = method["velocity"] = f"the line through the first {n} GNSS fixes"
     Rz = euler_rpy_to_matrix(0.0, 0.0, yaw)[0]
-    if lid_L is not None:
+    if at_rest:
+        v0, vel_std = np.zeros(3), REST_SPEED_MPS
+        method["velocity"] = f"zero: at rest as shown by {rest_by}"
+    elif lid_L is not None:
         k = np.flatnonzero(np.abs(lid_L.t_s - t0) <= 0.3)
         if k.size >= 2:
             dt = lid_L.t_s[k] - lid_L.t_s[k].mean()
@@ -301,7 +351,7 @@ def from_data(imu: ImuSeries, k0: int, gnss: GnssSeries | None, lidar: PoseSerie
     return InitialState(p_w_m=np.asarray(p0, float), v_w_mps=np.asarray(v0, float), R_wb=Rz @ R_lev,
                         std={"pos_std_m": float(pos_std), "vel_std_mps": float(vel_std),
                              "roll_pitch_std_deg": tilt_std, "yaw_std_deg": float(np.degrees(yaw_std))},
-                        method=method)
+                        method=method, bg_b_rps=bg)
 
 
 def _no_heading(source: str, what: str, t0: float) -> str:

@@ -415,6 +415,8 @@ def report_md_no_truth(dataset: str, config_name: str, evals: dict, ratios: dict
               f"- Heading: {init['method']['heading']} (std {std['yaw_std_deg']:.2f} deg).",
               f"- Position: {init['method']['position']} (std {std['pos_std_m']:.2f} m).",
               f"- Velocity: {init['method']['velocity']} (std {std['vel_std_mps']:.2f} m/s).",
+              *([f"- Gyro bias: {init['method']['gyro_bias']} (the filter's first estimate)."]
+                if init["method"].get("gyro_bias") else []),
               "", "The filter's initial covariance takes each std where it exceeds the configured `init.*` one."]
     for w in (metrics.get("preprocessing") or applied).get("data_warnings", ()):
         L.append(f"- **Data warning**: {w}.")
