@@ -379,7 +379,7 @@ def prepare(ds: Dataset, cfg: dict) -> Prepared:
         t_min = max(t_min, lidar.t_s[0])
     fixes_t_s = None if ds.gnss is None else ds.gnss.t_s[~ds.gnss.filled] + _offset(cfg, ds, "gnss")
     applied["start_covered_by"] = "ground truth" if gt is not None else "the IMU"
-    if "data" in (pose_from, vel_from) and fixes_t_s is not None and fixes_t_s.size:
+    if pose_from == "data" and fixes_t_s is not None and fixes_t_s.size:
         t_min = max(t_min, float(fixes_t_s[0]))
         if gt is None:
             applied["start_covered_by"] = "the GNSS"
@@ -495,11 +495,14 @@ def prepare(ds: Dataset, cfg: dict) -> Prepared:
 
         yaw_mount = cfg["filter"].get("nhc_travel_yaw_mrad")
         est = from_data(imu, k0, gnss, lidar, odo, ds.description.get("platform") in WHEELED,
-                        float(yaw_mount) * 1e-3 if isinstance(yaw_mount, (int, float)) else 0.0, float(g))
+                        float(yaw_mount) * 1e-3 if isinstance(yaw_mount, (int, float)) else 0.0, float(g),
+                        cfg["gnss"].get("lever_arm_b_m") or (0.0, 0.0, 0.0))
         applied["init_state"] = {"pose_from": pose_from, "velocity_from": vel_from, "method": est.method,
                                  "std": est.std}
-        # the configured initial stds suit a start on a reference trajectory's pose: the data's own are larger
-        resolved["init"] = {k: max(float(cfg["init"][k]), v) for k, v in est.std.items() if v > float(cfg["init"][k])}
+        # the configured initial stds suit a start on a reference trajectory's pose: the data's own are larger (of
+        # the parts taken from the data: a velocity alone on a drive with truth keeps its pose's)
+        used = est.std if pose_from == "data" else {"vel_std_mps": est.std["vel_std_mps"]} if vel_from == "data" else {}
+        resolved["init"] = {k: v for k, v in used.items() if v > float(cfg["init"][k])}
     if pose_from == "data":
         p0, R0 = est.p_w_m, est.R_wb
     elif pose_from == "lidar":
@@ -525,9 +528,18 @@ def prepare(ds: Dataset, cfg: dict) -> Prepared:
     x0 = NominalState(p_w_m=np.array(p0), v_w_mps=np.array(v0), R_wb=np.array(R0), ba_b=np.zeros(3),
                       bg_b=est.bg_b_rps if pose_from == "data" else np.zeros(3))
     if lidar is not None and anchor == "start":
-        # the odometry's frame laid on the filter's initial pose at its start
-        lidar = anchor_at(lidar, make_T(np.asarray(R0), np.asarray(p0)), t0)
-        applied["lidar_anchor_start_t_s"] = t0
+        if lidar.t_s[0] > t0 + 1e-9 or lidar.t_s[-1] < t0:
+            # not fused (a fused lidar covers the start), and nothing to lay it on where it does not: left out
+            more_warnings.append(f"the lidar poses ({ds.lidar.source}, {lidar.t_s[0]:.3f}..{lidar.t_s[-1]:.3f} s) do not "
+                                 f"cover the filter's start (t = {t0:.3f} s), on whose pose a drive without ground truth "
+                                 "anchors them: the unfiltered lidar estimate is left out")
+            lidar = None
+        else:
+            # the odometry's frame laid on the filter's initial pose at its start
+            lidar = anchor_at(lidar, make_T(np.asarray(R0), np.asarray(p0)), t0)
+            applied["lidar_anchor_start_t_s"] = t0
+    if lidar is not None:
+        applied["lidar_anchor"] = anchor
     more_warnings += filter(None, [plausible.gravity_against_attitude(imu, k0, R0)])
 
     # --- the enabled observations' own streams: offset, filled packets, the run's span, degradation

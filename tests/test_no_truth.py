@@ -110,6 +110,11 @@ def test_check_gates_a_run_without_truth_on_its_innovations(no_truth_run, tmp_pa
     (tmp_path / "near.json").write_text(json.dumps(near), encoding="utf-8")
     res = CliRunner().invoke(main, ["check", str(tmp_path / "near.json"), "-b", str(m)])
     assert res.exit_code == 0, res.output
+    # and no relative tolerance beside them: 5 % of an NLL of -13 let +0.6 per update pass (a review)
+    near["innovations"]["nll_per_update"] += 0.07
+    (tmp_path / "near.json").write_text(json.dumps(near), encoding="utf-8")
+    res = CliRunner().invoke(main, ["check", str(tmp_path / "near.json"), "-b", str(m)])
+    assert res.exit_code == 1 and "innovations.nll_per_update" in res.output, res.output
     # against a baseline of the same drive with truth: refused for what differs, not for a setting never given
     truthful = {**json.loads(m.read_text(encoding="utf-8")), "ground_truth": True}
     (tmp_path / "truth.json").write_text(json.dumps(truthful), encoding="utf-8")
@@ -237,6 +242,38 @@ def test_a_gnss_glitch_at_the_start_is_left_out_of_the_heading_fit(sim, lidar):
     assert "left out" in init["method"]["heading"], init["method"]
     assert init["std"]["yaw_std_deg"] < 1.5 * clean["std"]["yaw_std_deg"], (init["std"], clean["std"])
     assert err["yaw_deg"] < 3 * init["std"]["yaw_std_deg"], (err, init["std"])
+
+
+@pytest.mark.parametrize("lidar", [True, False])
+def test_the_gnss_lever_arm_moves_the_start_from_the_antenna_to_the_imu(sim, lidar):
+    """Fixes of an antenna 1.5 m ahead and 1 m above the IMU (the simulator's, moved): the start is the IMU's, as with
+    the IMU's own fixes (the antenna was taken for the IMU: a review)."""
+    car = replace(sim, odometer=None, description={**sim.description, "platform": "car"})
+    sets = {} if lidar else {"filter.lidar_update": "none"}
+    if not lidar:
+        car = replace(car, lidar=None)
+    arm = np.array([1.5, 0.0, 1.0])
+    gt = car.groundtruth
+    from fusion_eval.interp import interpolate_poses
+
+    at = interpolate_poses(gt, car.gnss.t_s)
+    keep = np.isin(car.gnss.t_s, at.t_s)
+    moved = replace(car, gnss=replace(car.gnss.select(keep),
+                                      p_w_m=car.gnss.p_w_m[keep] + np.einsum("nij,j->ni", at.R_wb(), arm)))
+    plain, _ = _start_errors(car, **sets)
+    err, init = _start_errors(moved, **{**sets, "gnss.lever_arm_b_m": arm.tolist()})
+    assert err["pos_m"] < plain["pos_m"] + 0.3 and err["pos_m"] < 3 * init["std"]["pos_std_m"], (err, plain)
+    ignored, _ = _start_errors(moved, **sets)
+    assert ignored["pos_m"] > err["pos_m"] + 0.5          # the test sees the arm: without it the start is the antenna
+
+
+def test_a_lidar_not_covering_the_start_is_left_out_said_without_truth(sim):
+    """Not fused and starting 15 s after the filter: nothing to lay it on (a traceback: a review)."""
+    late = replace(sim, groundtruth=None, lidar=sim.lidar.select(sim.lidar.t_s > sim.lidar.t_s[0] + 15.0),
+                   description={**sim.description, "platform": "car", "lidar_anchor": "start"})
+    cfg = session.resolve(session.request(overrides={"filter.lidar_update": "none"}), late)
+    prep = prepare(late, cfg)
+    assert prep.lidar is None and any("do not cover the filter's start" in w for w in prep.applied["data_warnings"])
 
 
 def test_a_wheeled_platform_takes_its_heading_from_the_gnss_track_and_another_is_refused(sim):

@@ -3,8 +3,9 @@
 What a navigation system does at switch-on, offline:
 
 - **Roll and pitch** by levelling: the mean specific force over the first :data:`LEVEL_WINDOW_S` is gravity's
-  reaction in the body frame. A vehicle accelerating at ``a`` tilts it by ``atan(a / g)``; the stated std takes the
-  acceleration the GNSS or the lidar shows over the window (0.3 m/s^2 is 1.7 deg).
+  reaction in the body frame. A vehicle accelerating at ``a`` tilts it by ``atan(a / g)``: the acceleration the lidar
+  or the odometer shows is taken out, and the stated std covers what is left (:data:`RESIDUAL_ACCEL_MPS2`, or
+  :data:`UNKNOWN_ACCEL_MPS2` where nothing shows it).
 - **Heading**, which no low-cost IMU can find by itself (the Earth's rate is below its gyro's noise):
   with lidar odometry and GNSS, the horizontal rotation that lays the lidar's track (levelled at the start) on the
   fixes over the first :data:`MIN_TRAVEL_M` of driving (a 2-D Procrustes fit; any platform); with GNSS alone on a
@@ -117,8 +118,9 @@ def _speed_positions(t: np.ndarray, p: np.ndarray, half_s: float) -> np.ndarray:
 def rest_span(imu: ImuSeries, k0: int, lidar: PoseSeries | None, odometer: SpeedSeries | None) -> tuple[float, str]:
     """How long (s) the platform stands still from ``imu.t_s[k0]``, and what shows it: the odometer's mean speed over
     a second under :data:`REST_SPEED_MPS`, else the lidar's speed over a second; ``(0, "")`` where neither covers the
-    start. Averaged over a second, so that a sensor's noise at rest is not motion (a simulated lidar's 5 cm, an
-    odometer's 0.1 m/s). Neither the IMU alone (rest and a straight drive at constant speed read alike) nor GNSS
+    start. Averaged over a second, so that an odometer's noise at rest is not motion (a simulated one's 0.1 m/s); an
+    odometry that wanders at rest (the simulator's lidar random walk: 0.05-0.15 m/s over a second) reads as moving,
+    the safe side (no standstill taken). Neither the IMU alone (rest and a straight drive at constant speed read alike) nor GNSS
     fixes (metres of noise: a car pulling away slowly on KITTI's raw 0027 stayed within three stds of its first fix
     for seconds, and the gyro's 'bias' over them, its turn, put the heading 137 deg off) tell it."""
     t0 = float(imu.t_s[k0])
@@ -205,9 +207,15 @@ def _wrap(a):
 
 
 def from_data(imu: ImuSeries, k0: int, gnss: GnssSeries | None, lidar: PoseSeries | None,
-              odometer: SpeedSeries | None, wheeled: bool, travel_yaw_rad: float, gravity_mps2: float) -> InitialState:
+              odometer: SpeedSeries | None, wheeled: bool, travel_yaw_rad: float, gravity_mps2: float,
+              lever_arm_b_m=(0.0, 0.0, 0.0)) -> InitialState:
     """The initial state at ``imu.t_s[k0]`` (module docstring). ``lidar``: IMU poses in the odometry's own frame
-    (not anchored); ``wheeled``: the platform drives where it points (the GNSS-only heading needs it)."""
+    (not anchored); ``wheeled``: the platform drives where it points (the GNSS-only heading needs it);
+    ``lever_arm_b_m``: the GNSS antenna in the body frame (the fixes are the antenna's, the state the IMU's)."""
+    arm = np.asarray(lever_arm_b_m, float)
+    if gnss is not None and len(gnss) == 1:
+        raise DataRangeError(f"{gnss.source}: a single GNSS fix inside the run: a drive without ground truth starts "
+                             "from the fixes (two or more) or without any (filter.use_gnss: false and no gnss stream)")
     t0 = float(imu.t_s[k0])
     # a standstill at the start: no acceleration to take out of the levelling, and the gyro's mean there is its bias
     # (a static alignment), taken out of the turn the GNSS-track heading integrates over up to minutes, and the
@@ -248,6 +256,11 @@ def from_data(imu: ImuSeries, k0: int, gnss: GnssSeries | None, lidar: PoseSerie
         sel = at.t_s <= t0 + w
         xl, xg = at.p_w_m[sel], pg[sel]
         yaw, cl, cg, res = _lay_on(xl, xg)
+        if np.any(arm):
+            # the fixes are the antenna's: moved onto the IMU with the attitude the first fit gives, and fitted again
+            R_L = at.R_wb()[sel]
+            xg = xg - np.einsum("ij,njk,k->ni", euler_rpy_to_matrix(0.0, 0.0, yaw)[0], R_L, arm)
+            yaw, cl, cg, res = _lay_on(xl, xg)
         n_all = len(xl)
         out = _outliers(np.hypot(res[:, 0], res[:, 1]))
         if out.any():            # a multipath fix or a receiver's jump: left out, the fit made again
@@ -285,7 +298,10 @@ def from_data(imu: ImuSeries, k0: int, gnss: GnssSeries | None, lidar: PoseSerie
         d = np.diff(pg[:, :2], axis=0)
         fast = (dt > 0) & (np.hypot(d[:, 0], d[:, 1]) >= MIN_TRACK_SPEED_MPS * np.maximum(dt, 1e-9))
         if fast.sum() < 3:
-            raise DataRangeError(_no_heading(g.source, "the GNSS fixes", t0))
+            raise DataRangeError(f"{g.source}: a drive without ground truth and without lidar starts its heading from "
+                                 f"the GNSS's direction of travel, but under 3 fix pairs within {w:g} s of the start "
+                                 f"(t = {t0:.3f} s) are {MIN_TRACK_SPEED_MPS:g} m/s or faster apart (slower, the "
+                                 "direction is the fixes' noise); add a lidar stream or a groundtruth stream")
         th, h = _gyro_heading(imu, k0, R_lev, float(tg[-1]), bg)
         mid = 0.5 * (tg[1:] + tg[:-1])[fast]
         psi = _wrap(np.arctan2(d[fast, 1], d[fast, 0]) - np.interp(mid, th, h) - travel_yaw_rad)
@@ -321,6 +337,8 @@ def from_data(imu: ImuSeries, k0: int, gnss: GnssSeries | None, lidar: PoseSerie
         vel_std = float(np.sqrt(12.0 / n) * spread_m / span) if n > 2 else float(np.sqrt(2) * spread_m / span)
         method["position"] = method["velocity"] = f"the line through the first {n} GNSS fixes"
     Rz = euler_rpy_to_matrix(0.0, 0.0, yaw)[0]
+    if g is not None and lid_L is None and np.any(arm):
+        p0 = p0 - Rz @ R_lev @ arm         # the fixes' start is the antenna's
     if at_rest:
         v0, vel_std = np.zeros(3), REST_SPEED_MPS
         method["velocity"] = f"zero: at rest as shown by {rest_by}"

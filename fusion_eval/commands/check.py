@@ -450,8 +450,9 @@ def _check(metrics_path, baseline, rtol, atol, patterns, rules, junit_path, summ
     # a drive without ground truth has its innovations to gate on, and nothing else
     no_truth = any(d.get("ground_truth") is False for d in docs)
     pats = tuple(patterns) or (NO_TRUTH_PATTERNS if no_truth else default_patterns(kind, delta))
-    if no_truth:          # their own absolute tolerances, before the user's (the last matching rule wins)
+    if no_truth:          # their own absolute tolerances, no relative one, before the user's (the last match wins)
         atol = Tolerance(atol.default, (*NO_TRUTH_ATOL, *atol.rules))
+        rtol = Tolerance(rtol.default, (*((k, 0.0) for k, _ in NO_TRUTH_ATOL), *rtol.rules))
     rows = compare_metrics(current, base, pats, rtol, atol, no_truth)
     for r in rows:
         for value, path in ((r.baseline, base_path), (r.current, metrics_path)):

@@ -305,7 +305,9 @@ def write_summary(tasks: list[Task], out_dir: Path, keys: list[str], plots: bool
                     3, 4, 3, 3, *([2] if nees else []), *([0] * len(adapted)), 1]
         # a column no run has a figure for is left out (drives without ground truth: five columns of n/a; a trial)
         keep = [j for j in range(len(header)) if j < 3 or any(row[j] is not None for row in body)]
-        no_truth = all(r.get(METRIC) is None for r in sub)
+        # (from the records' own flag: every run failing on a drive with truth leaves the APE empty too; a review)
+        no_truth = bool(sub) and all((recs.get(r["id"]) or {}).get("metrics", {}).get("ground_truth") is False
+                                     for r in sub)
         L += [f"## {dataset_label(ds)}", "", f"`{ds}`. " + ("No ground truth: nothing is scored; the runs are ranked "
                                                            "by their innovations." if no_truth else _span_note(sub)),
               ""] + markdown([header[j] for j in keep], [[row[j] for j in keep] for row in body],

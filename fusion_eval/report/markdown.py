@@ -428,8 +428,8 @@ def report_md_no_truth(dataset: str, config_name: str, evals: dict, ratios: dict
 
 def _tum_list(applied: dict, gnss_info: dict | None) -> str:
     """The TUM files a run without ground truth wrote, in words."""
-    names = ["fused"] + (["the unfiltered lidar"] if "lidar_anchor_start_t_s" in applied or "lidar_anchor_t_s" in applied
-                         else []) + (["GNSS"] if gnss_info is not None else []) + ["IMU dead reckoning"]
+    names = ["fused"] + (["the unfiltered lidar"] if applied.get("lidar_anchor") else []) + (
+        ["GNSS"] if gnss_info is not None else []) + ["IMU dead reckoning"]
     return ", ".join(names[:-1]) + " and " + names[-1]
 
 

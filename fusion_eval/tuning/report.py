@@ -160,7 +160,9 @@ def markdown(s: Setup, res: dict, runtime_s: float) -> str:
     obj_cols = ([c for o in s.objectives for c in (f"{o.name} (default)", f"{o.name} (tuned)")] if n_obj > 1
                 else ["objective (default)", "objective (tuned)"])
     header = ["drives", *obj_cols, "fused APE RMSE m (default)", "fused APE RMSE m (tuned)"]
-    if all(r[-1] == r[-2] == "n/a" for r in rows):      # drives without ground truth: nothing scored, no columns of n/a
+    # drives without ground truth: every step finished but none has an APE (not: every one failed)
+    finished = [st for rec in (default.get("train"), best.get("train")) for st in (rec or {}).get("steps", [])]
+    if finished and all(st["status"] == "ok" for st in finished) and all(r[-1] == r[-2] == "n/a" for r in rows):
         header, rows = header[:-2], [r[:-2] for r in rows]
         L += ["## Objective, default against tuned", "", "The drives have no ground truth: no fused APE (README 'A drive "
               "without ground truth').", ""] + markdown_table(header, rows)
