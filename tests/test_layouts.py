@@ -260,6 +260,28 @@ def test_the_readmes_manifests(drives):
         assert r["estimates"]["gnss"]["ape"]["translation_m"]["rmse"] == pytest.approx(own, rel=1e-9), layout
 
 
+@pytest.mark.slow
+def test_the_readmes_bag_without_its_groundtruth_line_runs_from_the_data(drives):
+    """A robot's bag has no truth: the README's rosbag1 manifest without its groundtruth line runs (the start from the
+    data, the lidar anchored on it), and its fused estimate, scored afterwards against the simulator's truth, lies
+    within 1.5x (and 0.3 m) of the run with the truth and under the GNSS alone."""
+    readme = (Path(__file__).resolve().parents[1] / "README.md").read_text(encoding="utf-8")
+    body = dict(re.findall(r"```yaml\n# your-own-data: (\w+)\n(.*?)```", readme, re.S))["rosbag1"]
+    blind = re.sub(r"  groundtruth: [^\n]+\n", "", body)
+    assert blind != body
+    (drives["rosbag1"] / "blind.yaml").write_text(blind, encoding="utf-8")
+    (drives["rosbag1"] / "seen.yaml").write_text(body, encoding="utf-8")
+    a = fe.run(drives["rosbag1"] / "blind.yaml")
+    b = fe.run(drives["rosbag1"] / "seen.yaml")
+    assert a.metrics["ground_truth"] is False and a.metrics["preprocessing"]["init_state"]["pose_from"] == "data"
+    m = fe.evaluate(b.trajectories["groundtruth"], a.trajectories["fused"])
+    blind_ape = next(iter(m["estimates"].values()))["ape"]["translation_m"]["rmse"]
+    seen = b.metrics["estimates"]
+    assert blind_ape < max(1.5 * seen["fused"]["ape"]["translation_m"]["rmse"],
+                           seen["fused"]["ape"]["translation_m"]["rmse"] + 0.3), (blind_ape, seen["fused"]["ape"])
+    assert blind_ape < seen["gnss"]["ape"]["translation_m"]["rmse"]
+
+
 @pytest.mark.parametrize("edit,needle", [
     (lambda e: e.__setitem__("delimiter", ""), "delimiter must be a non-empty string"),       # once a ValueError traceback
     (lambda e: e.__setitem__("columns", ["t", "ax", "ax", "az", "wx", "wy", "wz"]), "csv column 'ax' is named twice"),
