@@ -57,7 +57,7 @@ def _positions(tum: Path) -> tuple[np.ndarray, np.ndarray]:
 
 def test_a_run_without_ground_truth_writes_the_estimates_and_its_innovations_not_scores(no_truth_run):
     for f in ("fused.tum", "lidar.tum", "gnss.tum", "imu_only.tum", "report.md", "report.html", "trajectories.png",
-              "consistency.png", "config.resolved.yaml"):
+              "consistency.png", "innovations_map.png", "config.resolved.yaml"):
         assert (no_truth_run / f).is_file(), f
     for f in ("groundtruth.tum", "metrics.csv", "ape_translation_fused.zip", "fused_error_3sigma.png"):
         assert not (no_truth_run / f).exists(), f
@@ -69,7 +69,7 @@ def test_a_run_without_ground_truth_writes_the_estimates_and_its_innovations_not
     assert m["preprocessing"]["lidar_anchor_start_t_s"] == m["preprocessing"]["t_start_s"]
     md = (no_truth_run / "report.md").read_text(encoding="utf-8")
     assert "## No ground truth" in md and "## Start from the data" in md and "NIS lidar" in md
-    assert "Summary against ground truth" not in md and "anchor: start" in md
+    assert "Summary against ground truth" not in md and "anchor: start" in md and "![innovations_map.png]" in md
 
 
 def test_the_start_from_the_data_follows_the_truth_start_on_the_slice(no_truth_run, slice_run):

@@ -141,6 +141,19 @@ def write_evaluation(out: StagedDir, res, plots_written: list[str], pool=None, a
         if res.consistency.get("nees") or (not res.evals and res.consistency.get("nis")):
             jobs.append((draw, "plot_consistency", out.path("consistency.png"), thin.consistency(res.consistency), t0))
             plots_written.append("consistency.png")
+        if not res.evals and res.consistency.get("nis"):
+            # a drive without ground truth: where on the route the measured streams disagree (the segment map's place)
+            from ..evaluation.run_metrics import measured_observations
+
+            measured = {k: d for k, d in res.consistency["nis"].items() if k in measured_observations()}
+            if measured:
+                route = thin.paths({"fused": res.filt.fused})[0]["fused"]
+                # every update (the windows' means: the envelope kept for the time plot would bias them to its peaks)
+                nis = {k: {"t_s": np.asarray(d["t_s"]), "values": np.asarray(d["values"]), "dof": d["dof"]}
+                       for k, d in measured.items()}
+                jobs.append((draw, "plot_innovation_map", out.path("innovations_map.png"), route, nis,
+                             start_frame(res.resolved_extra["applied"])))
+                plots_written.append("innovations_map.png")
         if res.metrics.get("trials"):
             jobs.append((draw, "plot_trials", out.path("trials.png"), res.metrics["trials"]))
             plots_written.append("trials.png")

@@ -947,6 +947,44 @@ def _window_mean(ax, t: np.ndarray, v: np.ndarray, floor: float) -> None:
     ax.stairs(y, edges, baseline=None, color="tab:orange", lw=1.2, label=f"NIS mean over {NIS_WINDOW_S:g} s")
 
 
+def plot_innovation_map(path: Path, route: np.ndarray, nis: dict, start_frame: bool = False) -> None:
+    """Where on the route the filter disagreed with its sensors, for a drive without ground truth (whose segment map
+    has no error to colour): the fused route's top view (``route``: E, N, U, t rows, :func:`thin.paths`) coloured
+    by each measured stream's mean NIS over its dof in :data:`NIS_WINDOW_S` windows, one panel per stream, on a log
+    scale centred on 1 (red: the stream disagrees beyond its stated noise; blue: it agrees better than stated)."""
+    from matplotlib.colors import LogNorm
+
+    names = list(nis)
+    fig, axes = subplots(1, len(names), figsize=(6.2 * len(names), 5.6), squeeze=False)
+    t_route = route[:, 3]
+    for ax, k in zip(axes[0], names):
+        d = nis[k]
+        t, v = np.asarray(d["t_s"], float), np.asarray(d["values"], float) / d["dof"]
+        ok = np.isfinite(t) & np.isfinite(v)
+        t, v = t[ok], v[ok]
+        ax.plot(route[:, 0], route[:, 1], "-", color="0.85", lw=3.0, zorder=1)
+        if t.size >= 3:
+            w = np.floor((t - t[0]) / NIS_WINDOW_S).astype(int)
+            n = np.bincount(w)
+            mean = np.bincount(w, weights=v) / np.maximum(n, 1)
+            # each route point takes its window's mean (windows with fewer than 3 updates left grey)
+            wi = np.clip(np.floor((t_route - t[0]) / NIS_WINDOW_S).astype(int), 0, n.size - 1)
+            c = np.where(n[wi] >= 3, mean[wi], np.nan)
+            inside = np.isfinite(c) & (t_route >= t[0]) & (t_route <= t[-1])
+            sc = ax.scatter(route[inside, 0], route[inside, 1], c=np.clip(c[inside], 0.1, 10.0), s=4, cmap="coolwarm",
+                            norm=LogNorm(0.1, 10.0), zorder=2)
+            fig.colorbar(sc, ax=ax, shrink=0.8, label=f"mean NIS / dof over {NIS_WINDOW_S:g} s")
+        ax.plot(route[0, 0], route[0, 1], "k^", ms=8, zorder=3)
+        ax.set_aspect("equal", adjustable="datalim")
+        ax.set_xlabel("x, forward at the start [m]" if start_frame else "East [m]")
+        ax.set_ylabel("y, left at the start [m]" if start_frame else "North [m]")
+        ax.set_title(f"{k}: mean NIS / dof {np.mean(v):.2f} over {v.size} updates", fontsize=9)
+        ax.grid(alpha=0.3)
+    fig.suptitle("Where the sensors disagree with the filter (no ground truth: the innovations alone)", fontsize=10)
+    fig.tight_layout()
+    _save(fig, path)
+
+
 def plot_consistency(path: Path, cons: dict, t0: float) -> None:
     """NEES (position, attitude) and NIS per observation type over time, with the 95 % chi-square bounds."""
     _save(consistency_figure(cons, t0), path)
