@@ -146,6 +146,15 @@ def test_compare_sets_variants_side_by_side_by_their_innovations_without_truth(n
     assert res.exit_code == 2 and "without --trials" in res.output
 
 
+def test_a_smoother_without_truth_writes_its_estimate(no_truth_slice, tmp_path):
+    out = tmp_path / "s"
+    res = CliRunner().invoke(main, ["-q", "run", str(no_truth_slice), "--set", "smoother.method=rts", "-o", str(out)])
+    assert res.exit_code == 0, res.output
+    m = json.loads((out / "metrics.json").read_text(encoding="utf-8"))
+    assert m["smoother"]["method"] == "rts" and (out / "smoothed.tum").is_file()
+    assert "TUM files (fused, smoothed," in (out / "report.md").read_text(encoding="utf-8")
+
+
 def test_trials_are_refused_without_truth(no_truth_slice, tmp_path):
     res = CliRunner().invoke(main, ["run", str(no_truth_slice), "--trials", "2", "-o", str(tmp_path / "r")])
     assert res.exit_code == 2 and "without --trials" in res.output and not (tmp_path / "r").exists()

@@ -404,7 +404,8 @@ def report_md_no_truth(dataset: str, config_name: str, evals: dict, ratios: dict
          f"**{cfg['filter']['lidar_update']}**, GNSS fused: **{'yes' if cfg['filter']['use_gnss'] else 'no'}**, "
          f"bias model: **{cfg['filter']['bias_model']}**.", "", "## No ground truth", "",
          "The drive has no groundtruth stream: no estimate is scored (no APE, RPE, drift or NEES; no metrics.csv). "
-         f"The estimates are written as TUM files ({_tum_list(applied, gnss_info)}) for a reference you may have "
+         f"The estimates are written as TUM files ({_tum_list(applied, gnss_info, bool(metrics.get('smoother')))}) for "
+         "a reference you may have "
          "elsewhere (`fusion-eval evaluate`). What the data alone tell is below: the innovations "
          "(each stream against the filter's prediction, in its own stated noise), which `tune --objective nll` and "
          "`nis` tune by."]
@@ -426,10 +427,10 @@ def report_md_no_truth(dataset: str, config_name: str, evals: dict, ratios: dict
     return "\n".join(L + _inputs_sections(cfg, applied, gnss_info, evals))
 
 
-def _tum_list(applied: dict, gnss_info: dict | None) -> str:
+def _tum_list(applied: dict, gnss_info: dict | None, smoothed: bool = False) -> str:
     """The TUM files a run without ground truth wrote, in words."""
-    names = ["fused"] + (["the unfiltered lidar"] if applied.get("lidar_anchor") else []) + (
-        ["GNSS"] if gnss_info is not None else []) + ["IMU dead reckoning"]
+    names = (["fused"] + (["smoothed"] if smoothed else []) + (["the unfiltered lidar"] if applied.get("lidar_anchor") else [])
+             + (["GNSS"] if gnss_info is not None else []) + ["IMU dead reckoning"])
     return ", ".join(names[:-1]) + " and " + names[-1]
 
 
