@@ -23,7 +23,7 @@ import math
 import numbers
 import re
 import xml.etree.ElementTree as ET
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from pathlib import Path
 
 from ..errors import DataFormatError, FusionEvalError, OutputError, shown
@@ -185,9 +185,13 @@ def _matching(metrics: dict, pattern: str) -> set:
 class Tolerance:
     """A tolerance of ``check``: one value for every metric, and ``(pattern, value)`` pairs that override it for the
     metrics a glob matches (the last matching pair wins), so that metres, degrees, per cent and ratios each get a
-    tolerance of their own unit (one ``--atol`` across them all was a CI user's complaint)."""
+    tolerance of their own unit (one ``--atol`` across them all was a CI user's complaint). ``builtin``: rules of the
+    tool's own for some metrics (a drive without truth's innovations), applied before the user's and given way to by a
+    plain value the user gave (``plain``); not required to match a compared metric."""
     default: float
     rules: tuple[tuple[str, float], ...] = ()
+    builtin: tuple[tuple[str, float], ...] = ()
+    plain: bool = False
 
     @classmethod
     def parse(cls, option: str, values, default: float) -> "Tolerance":
@@ -196,7 +200,7 @@ class Tolerance:
 
         if isinstance(values, (str, numbers.Real)):      # one value (a string was read a character at a time)
             values = (values,)
-        rules, base = [], default
+        rules, base, plain = [], default, False
         for v in values:
             pattern, _, number = str(v).rpartition("=")
             try:
@@ -209,13 +213,13 @@ class Tolerance:
             if pattern:
                 rules.append((pattern.strip(), x))
             else:
-                base = x
-        return cls(base, tuple(rules))
+                base, plain = x, True
+        return cls(base, tuple(rules), plain=plain)
 
     def of(self, metric: str, aliases: tuple[str, ...] = ()) -> float:
         """The tolerance of ``metric`` (also matched by its other spellings, ``aliases``)."""
         out = self.default
-        for pattern, x in self.rules:
+        for pattern, x in (*(() if self.plain else self.builtin), *self.rules):
             if any(fnmatch.fnmatchcase(k, pattern) for k in (metric, *aliases)):
                 out = x
         return out
@@ -450,9 +454,9 @@ def _check(metrics_path, baseline, rtol, atol, patterns, rules, junit_path, summ
     # a drive without ground truth has its innovations to gate on, and nothing else
     no_truth = any(d.get("ground_truth") is False for d in docs)
     pats = tuple(patterns) or (NO_TRUTH_PATTERNS if no_truth else default_patterns(kind, delta))
-    if no_truth:          # their own absolute tolerances, no relative one, before the user's (the last match wins)
-        atol = Tolerance(atol.default, (*NO_TRUTH_ATOL, *atol.rules))
-        rtol = Tolerance(rtol.default, (*((k, 0.0) for k, _ in NO_TRUTH_ATOL), *rtol.rules))
+    if no_truth:          # their own absolute tolerances and no relative one, unless the user gives either
+        atol = replace(atol, builtin=NO_TRUTH_ATOL)
+        rtol = replace(rtol, builtin=tuple((k, 0.0) for k, _ in NO_TRUTH_ATOL))
     rows = compare_metrics(current, base, pats, rtol, atol, no_truth)
     for r in rows:
         for value, path in ((r.baseline, base_path), (r.current, metrics_path)):
