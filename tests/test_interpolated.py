@@ -124,6 +124,7 @@ def test_the_real_drives_filled_packets_are_found_from_their_values_alone():
     assert seen > 100
 
 
+@pytest.mark.slow
 def test_a_kitti_drive_without_its_marks_runs_as_with_them(kitti_slice, tmp_path):
     """kitti-00 (its first 90 s, filled packets 0-13 and 347-361) with the IMU's marks removed, as a bag or a CSV
     delivers it: the same fused estimate to the last bit, and the report says what was found; with the marks kept

@@ -153,6 +153,7 @@ def test_compare_sets_variants_side_by_side_by_their_innovations_without_truth(n
     assert res.exit_code == 2 and "without --trials" in res.output
 
 
+@pytest.mark.slow
 def test_a_smoother_without_truth_writes_its_estimate(no_truth_slice, tmp_path):
     out = tmp_path / "s"
     res = CliRunner().invoke(main, ["-q", "run", str(no_truth_slice), "--set", "smoother.method=rts", "-o", str(out)])

@@ -405,6 +405,7 @@ def test_a_gnss_jump_is_said_from_its_run_of_large_innovations_without_ground_tr
     assert not [w for w in inconsistent_streams({"gnss": {"values": many, "t_s": t, "dof": 3}}) if "consecutive" in w]
 
 
+@pytest.mark.slow
 def test_a_truth_that_moves_sideways_on_a_wheeled_platform_is_said(tmp_path):
     """A strafing drone declared a car went from 0.25 to 38.6 m with warnings on NIS and NEES only (a non-car
     review): a body moving sideways on a fifth of its moving time is no car's. Not a car's own slip, nor a car parked,
@@ -488,6 +489,7 @@ def test_a_clock_offset_is_still_said_where_half_the_stream_cannot_be_timed():
     assert found[0] == pytest.approx(1.0, abs=0.02) and plausible.clear_speed_shift(found, halves), (found, halves)
 
 
+@pytest.mark.slow
 def test_orientations_read_in_the_wrong_quaternion_order_or_inverted_are_named(tmp_path):
     """A lidar TUM written w x y z ran to 5.47 m against 0.65 with a 'mount disagrees' warning, and a ground truth's
     to 47 m blaming the IMU (an implausible-data review); inverted poses were 'glitches'. No ground truth needed: a
