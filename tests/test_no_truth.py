@@ -305,6 +305,17 @@ def test_a_lidar_not_covering_the_start_is_left_out_said_without_truth(sim):
     assert prep.lidar is None and any("do not cover the filter's start" in w for w in prep.applied["data_warnings"])
 
 
+def test_a_gnss_outage_over_the_start_is_refused_without_lidar_and_bridged_with_it(sim):
+    """Without lidar the start is the fixes' (a line extrapolated back over a 20 s outage put it 161 m off);
+    with lidar the fit lays the track on the fixes after the outage."""
+    car = replace(sim, description={**sim.description, "platform": "car"})
+    with pytest.raises(DataRangeError, match="first GNSS fix used lies 2[0-9.]+ s after the filter's start"):
+        _start_errors(replace(car, lidar=None), **{"filter.lidar_update": "none", "gnss.outages_s": [[0.0, 20.0]]})
+    err, init = _start_errors(car, **{"gnss.outages_s": [[0.0, 20.0]]})
+    assert "lidar's track laid on" in init["method"]["heading"]
+    assert err["yaw_deg"] < 3 * init["std"]["yaw_std_deg"] and err["pos_m"] < 3 * init["std"]["pos_std_m"], (err, init)
+
+
 def test_a_wheeled_platform_takes_its_heading_from_the_gnss_track_and_another_is_refused(sim):
     car = replace(sim, lidar=None, odometer=None, description={**sim.description, "platform": "car"})
     err, init = _start_errors(car, **{"filter.lidar_update": "none"})

@@ -34,6 +34,7 @@ LEVEL_WINDOW_S = 1.0          # the specific force averaged for roll and pitch
 MIN_TRAVEL_M = 20.0           # horizontal driving the heading fit needs (1 m of GNSS noise over 20 m: ~3 deg a fix)
 WINDOWS_S = (30.0, 60.0, 120.0, 300.0)   # the first of these over which the platform has driven MIN_TRAVEL_M
 OUTLIER_SIGMAS, MIN_OUTLIER_M, MIN_OUTLIER_RAD = 4.0, 3.0, np.radians(30.0)   # fixes / fix pairs left out of the fits
+MAX_FIRST_FIX_DELAY_S = 2.0    # without lidar, the start is the fixes': the first this close after it (a 1 Hz receiver)
 CORRELATED_ERRORS = 2.0       # the heading fit's std over its white-noise value (below)
 MIN_TRACK_SPEED_MPS = 3.0     # fix pairs slower than this give no direction of travel (GNSS noise over the step)
 VELOCITY_FIT_S = 3.0          # the fixes' line over the first seconds gives the start's position and velocity
@@ -282,6 +283,13 @@ def from_data(imu: ImuSeries, k0: int, gnss: GnssSeries | None, lidar: PoseSerie
         p0[2], z_std = _start_height(xl, xg[:, 2])
         pos_std = max(pos_std, z_std)
     elif g is not None:
+        if g.t_s[0] > t0 + MAX_FIRST_FIX_DELAY_S:
+            # (an outage over the first seconds: the fixes' line was extrapolated back over it, 161 m off a simulated
+            # drive's start against 2 m stated)
+            raise DataRangeError(f"{g.source}: the first GNSS fix used lies {g.t_s[0] - t0:.1f} s after the filter's "
+                                 f"start (t = {t0:.3f} s; a gnss.outages_s window over the start?): a drive without "
+                                 "ground truth and without lidar starts from the fixes at its start; move the outage "
+                                 "off the first seconds, or add a lidar or groundtruth stream")
         if not wheeled:
             raise DataRangeError(f"{g.source}: a drive without ground truth and without lidar odometry starts its "
                                  "heading from the GNSS's direction of travel, which a platform not declared wheeled "
