@@ -627,7 +627,8 @@ def simulate_track_cmd(ctx, out_file, duration_s, interval_s, seed, start, headi
               help="Absolute tolerance of a metric's increase, in the metric's unit (default 0); PATTERN=A as for --rtol, "
                    "e.g. --atol 0.01 --atol '*rotation*=0.05'.")
 @click.option("-m", "--metric", "patterns", multiple=True, metavar="PATTERN",
-              help="Metric paths to compare (glob, repeatable; default: RMSE of APE/RPE and the ratios).")
+              help="Metric paths to compare (glob, repeatable; default: RMSE of APE/RPE and the ratios, or innovations.* "
+                   "for a run on a drive without ground truth).")
 @click.option("--require", "rules", multiple=True, metavar="EXPR",
               help="A rule that must hold, e.g. 'fused.ape.rmse < lidar.ape.rmse' (repeatable).")
 @click.option("--junit", "junit_path", type=click.Path(path_type=Path), help="Also write JUnit XML here.")
