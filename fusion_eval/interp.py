@@ -2,8 +2,10 @@
 
 from __future__ import annotations
 
+from dataclasses import replace
+
 import numpy as np
-from .so3 import slerp_xyzw
+from .so3 import inv_T, make_T, matrix_to_quat_xyzw, slerp_xyzw
 from .types import PoseSeries
 
 
@@ -75,3 +77,17 @@ def snap_to_stamps(poses: PoseSeries, stamps_s: np.ndarray) -> tuple[PoseSeries,
     out = interpolate_poses(poses, stamps[kept])
     inside = (stamps[kept] >= poses.t_s[0]) & (stamps[kept] <= poses.t_s[-1])    # (interpolate_poses drops the rest)
     return out, span[inside]          # (each kept frame is a later one than the last: every span >= 1)
+
+
+def transformed(poses: PoseSeries, T_new_old: np.ndarray) -> PoseSeries:
+    """The poses expressed in another frame: ``T_new_old @ T_old_b`` for each (a 4x4 ``T_new_old``)."""
+    T = T_new_old[None] @ make_T(poses.R_wb(), poses.p_w_m)
+    return replace(poses, p_w_m=T[:, :3, 3], q_wb_xyzw=matrix_to_quat_xyzw(T[:, :3, :3]))
+
+
+def anchored_at(poses: PoseSeries, T_w_b0: np.ndarray, t0: float) -> PoseSeries:
+    """The poses in the frame where their pose at ``t0`` (interpolated) is ``T_w_b0``: an odometry laid on a pose the
+    caller knows (a drive without ground truth anchors its lidar on the filter's initial pose, ``anchor: start``;
+    the start from the data levels the lidar's track at the start)."""
+    p_a, R_a, _ = interpolate_pose_at(poses, t0)
+    return transformed(poses, T_w_b0 @ inv_T(make_T(R_a, p_a)))

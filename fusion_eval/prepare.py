@@ -25,7 +25,7 @@ from .errors import ConfigError, DataRangeError, ShiftAtSearchEdgeError
 from .filters import check_combination, formulation_of, observations
 from .filters.state import NominalState
 from .geo import normal_gravity_mps2
-from .interp import interpolate_pose_at, snap_to_stamps
+from .interp import anchored_at, interpolate_pose_at, snap_to_stamps
 from .so3 import inv_T, make_T, matrix_to_quat_xyzw
 from .types import Dataset, GnssSeries, ImuSeries, PoseSeries, SpeedSeries, shifted
 
@@ -120,14 +120,6 @@ def anchor_lidar(lidar_odom: PoseSeries, gt: PoseSeries) -> tuple[PoseSeries, fl
     sel[a:] = True
     base = lidar_odom.select(sel)
     return replace(base, p_w_m=T_w[:, :3, 3], q_wb_xyzw=matrix_to_quat_xyzw(T_w[:, :3, :3])), float(lidar_odom.t_s[a])
-
-
-def anchor_at(lidar_odom: PoseSeries, T_w_b0: np.ndarray, t0: float) -> PoseSeries:
-    """Odometry poses expressed in the world frame where the pose at ``t0`` (interpolated) is ``T_w_b0``: a drive
-    without ground truth anchors its lidar on the filter's initial pose (the manifest's ``anchor: start``)."""
-    p_a, R_a, _ = interpolate_pose_at(lidar_odom, t0)
-    T_w = (T_w_b0 @ inv_T(make_T(R_a, p_a)))[None] @ make_T(lidar_odom.R_wb(), lidar_odom.p_w_m)
-    return replace(lidar_odom, p_w_m=T_w[:, :3, 3], q_wb_xyzw=matrix_to_quat_xyzw(T_w[:, :3, :3]))
 
 
 def start_from(cfg: dict, ds: Dataset) -> tuple[str, str]:
@@ -498,7 +490,7 @@ def prepare(ds: Dataset, cfg: dict) -> Prepared:
                         float(yaw_mount) * 1e-3 if isinstance(yaw_mount, (int, float)) else 0.0, float(g),
                         cfg["gnss"].get("lever_arm_b_m") or (0.0, 0.0, 0.0))
         applied["init_state"] = {"pose_from": pose_from, "velocity_from": vel_from, "method": est.method,
-                                 "std": est.std}
+                                 "std": est.std, "frame": est.frame}
         # the configured initial stds suit a start on a reference trajectory's pose: the data's own are larger (of
         # the parts taken from the data: a velocity alone on a drive with truth keeps its pose's)
         used = est.std if pose_from == "data" else {"vel_std_mps": est.std["vel_std_mps"]} if vel_from == "data" else {}
@@ -536,7 +528,7 @@ def prepare(ds: Dataset, cfg: dict) -> Prepared:
             lidar = None
         else:
             # the odometry's frame laid on the filter's initial pose at its start
-            lidar = anchor_at(lidar, make_T(np.asarray(R0), np.asarray(p0)), t0)
+            lidar = anchored_at(lidar, make_T(np.asarray(R0), np.asarray(p0)), t0)
             applied["lidar_anchor_start_t_s"] = t0
     if lidar is not None:
         applied["lidar_anchor"] = anchor

@@ -312,3 +312,14 @@ def inv_T(T: np.ndarray) -> np.ndarray:
     out[..., :3, 3] = -np.einsum("...ij,...j->...i", Rt, p)
     out[..., 3, 3] = 1.0
     return out
+
+
+def fit_rotation_2d(a: np.ndarray, b: np.ndarray) -> tuple[float, float]:
+    """The rotation angle (rad) that best maps the centred 2-D points ``a`` onto ``b`` (least squares, 2-D Kabsch)
+    and the RMS residual after it."""
+    ac, bc = a - a.mean(axis=0), b - b.mean(axis=0)
+    H = ac.T @ bc
+    th = float(np.arctan2(H[0, 1] - H[1, 0], H[0, 0] + H[1, 1]))
+    c, s_ = np.cos(th), np.sin(th)
+    r = bc - ac @ np.array([[c, s_], [-s_, c]])
+    return th, float(np.sqrt(np.mean(np.sum(r ** 2, axis=1))))

@@ -105,12 +105,16 @@ def kitti_slice(tmp_path_factory) -> Path:
 @pytest.fixture(scope="session")
 def slice_run(kitti_slice, tmp_path_factory) -> Path:
     """The output folder of `fusion-eval run` with the default configuration on the slice."""
+    return cli_run(kitti_slice, tmp_path_factory.mktemp("run") / "out")
+
+
+def cli_run(dataset: Path, out: Path, *extra: str) -> Path:
+    """``out``, written by a `fusion-eval -q run` of ``dataset`` that must succeed (``extra``: more options)."""
     from click.testing import CliRunner
 
     from fusion_eval.cli import main
 
-    out = tmp_path_factory.mktemp("run") / "out"
-    res = CliRunner().invoke(main, ["-q", "run", str(kitti_slice), "--out", str(out)])
+    res = CliRunner().invoke(main, ["-q", "run", str(dataset), "--out", str(out), *extra])
     assert res.exit_code == 0, res.output
     return out
 

@@ -20,7 +20,7 @@ from fusion_eval.errors import DataRangeError
 from fusion_eval.prepare import prepare
 from fusion_eval.so3 import log_so3
 
-from conftest import KITTI00, make_slice, shared_path
+from conftest import KITTI00, cli_run, make_slice, shared_path
 
 
 def without_truth(manifest: Path, out: Path | None = None) -> Path:
@@ -44,10 +44,7 @@ def no_truth_slice(tmp_path_factory) -> Path:
 
 @pytest.fixture(scope="module")
 def no_truth_run(no_truth_slice, tmp_path_factory) -> Path:
-    out = tmp_path_factory.mktemp("ntrun") / "out"
-    res = CliRunner().invoke(main, ["-q", "run", str(no_truth_slice), "--out", str(out)])
-    assert res.exit_code == 0, res.output
-    return out
+    return cli_run(no_truth_slice, tmp_path_factory.mktemp("ntrun") / "out")
 
 
 def _positions(tum: Path) -> tuple[np.ndarray, np.ndarray]:
@@ -155,9 +152,7 @@ def test_compare_sets_variants_side_by_side_by_their_innovations_without_truth(n
 
 @pytest.mark.slow
 def test_a_smoother_without_truth_writes_its_estimate(no_truth_slice, tmp_path):
-    out = tmp_path / "s"
-    res = CliRunner().invoke(main, ["-q", "run", str(no_truth_slice), "--set", "smoother.method=rts", "-o", str(out)])
-    assert res.exit_code == 0, res.output
+    out = cli_run(no_truth_slice, tmp_path / "s", "--set", "smoother.method=rts")
     m = json.loads((out / "metrics.json").read_text(encoding="utf-8"))
     assert m["smoother"]["method"] == "rts" and (out / "smoothed.tum").is_file()
     assert "TUM files (fused, smoothed," in (out / "report.md").read_text(encoding="utf-8")

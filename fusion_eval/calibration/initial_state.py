@@ -26,8 +26,9 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from ..errors import DataRangeError
-from ..interp import interpolate_poses
-from ..so3 import euler_rpy_to_matrix, exp_so3, inv_T, make_T, matrix_to_quat_xyzw
+from ..interp import anchored_at, interpolate_poses
+from ..so3 import euler_rpy_to_matrix, exp_so3, fit_rotation_2d, make_T
+from ..stats import moving_mean
 from ..types import GnssSeries, ImuSeries, PoseSeries, SpeedSeries
 
 LEVEL_WINDOW_S = 1.0          # the specific force averaged for roll and pitch
@@ -60,6 +61,7 @@ class InitialState:
     R_wb: np.ndarray
     std: dict          # pos_std_m, vel_std_mps, roll_pitch_std_deg, yaw_std_deg: what each method earned
     method: dict       # how each part was found, in words (the report)
+    frame: str = "world"   # 'start': no GNSS, the world is the start's levelled frame (the plots' axes say so)
     bg_b_rps: np.ndarray = field(default_factory=lambda: np.zeros(3))   # the gyro's bias, where the platform stood still
 
 
@@ -72,11 +74,15 @@ def _window(t0: float, t: np.ndarray, dist_m: np.ndarray) -> float:
     return 0.0
 
 
+def _level_end(imu: ImuSeries, k0: int) -> int:
+    """The IMU index just after the levelling window that starts at ``k0`` (one sample at least)."""
+    return max(k0 + 1, int(np.searchsorted(imu.t_s, float(imu.t_s[k0]) + LEVEL_WINDOW_S, "right")))
+
+
 def level(imu: ImuSeries, k0: int, accel_b_mps2: np.ndarray | None = None) -> tuple[float, float]:
     """Roll and pitch (rad) of the body at ``imu.t_s[k0]`` from the mean specific force over :data:`LEVEL_WINDOW_S`
     less the body's own acceleration where it is known (``f_b = R_wb^T (a_w + [0, 0, g])``, ``R_wb = Rz Ry Rx``)."""
-    t0 = float(imu.t_s[k0])
-    k1 = max(k0 + 1, int(np.searchsorted(imu.t_s, t0 + LEVEL_WINDOW_S, "right")))
+    k1 = _level_end(imu, k0)
     f = np.mean(imu.f_b_mps2[k0:k1], axis=0) - (0.0 if accel_b_mps2 is None else accel_b_mps2)
     return float(np.arctan2(f[1], f[2])), float(np.arctan2(-f[0], np.hypot(f[1], f[2])))
 
@@ -104,7 +110,7 @@ def body_acceleration(imu: ImuSeries, k0: int, lidar: PoseSeries | None,
         k = np.flatnonzero((odometer.t_s >= lo) & (odometer.t_s <= hi))
         if k.size >= 3 and odometer.t_s[k[0]] <= t0 + 0.1:
             slope = np.polyfit(odometer.t_s[k] - t0, odometer.v_mps[k], 1)[0]
-            k1 = max(k0 + 1, int(np.searchsorted(imu.t_s, t0 + LEVEL_WINDOW_S, "right")))
+            k1 = _level_end(imu, k0)
             v = float(np.mean(np.interp(imu.t_s[k0:k1], odometer.t_s, odometer.v_mps)))
             return np.array([slope, v * float(np.mean(imu.w_b_rps[k0:k1, 2])), 0.0]), "the odometer's speed"
     return None, ""
@@ -127,9 +133,10 @@ def rest_span(imu: ImuSeries, k0: int, lidar: PoseSeries | None, odometer: Speed
     t0 = float(imu.t_s[k0])
     sources = []
     if odometer is not None and len(odometer) > 2:      # first: a wheel at rest reads zero (an odometry drifts)
-        n = max(1, int(round(1.0 / max(float(np.median(np.diff(odometer.t_s))), 1e-3))))
-        mean = np.convolve(odometer.v_mps, np.ones(n) / n, mode="same")
-        sources.append((odometer.t_s, np.abs(mean) > REST_SPEED_MPS, "the odometer"))
+        n = min(len(odometer), max(1, int(round(1.0 / max(float(np.median(np.diff(odometer.t_s))), 1e-3)))))
+        # each stamp takes the mean of the second that starts there
+        sources.append((odometer.t_s[:len(odometer) - n + 1], np.abs(moving_mean(odometer.v_mps, n)) > REST_SPEED_MPS,
+                        "the odometer"))
     if lidar is not None and len(lidar) > 2:
         sources.append((lidar.t_s, _speed_positions(lidar.t_s, lidar.p_w_m, 0.5) > REST_SPEED_MPS, "the lidar's track"))
     for t, moved, what in sources:
@@ -148,13 +155,14 @@ def _gyro_heading(imu: ImuSeries, k0: int, R0: np.ndarray, t_end: float,
     corrected by."""
     k1 = min(len(imu), int(np.searchsorted(imu.t_s, t_end, "right")) + 1)
     t = imu.t_s[k0:k1]
+    steps = exp_so3((imu.w_b_rps[k0:k1 - 1] - bg_rps) * np.diff(t)[:, None]).reshape(-1, 3, 3)
+    x = np.empty((t.size, 2))          # the forward axis' East and North components
     R = R0.copy()
-    h = np.empty(t.size)
-    h[0] = np.arctan2(R[1, 0], R[0, 0])
-    for i in range(1, t.size):       # (at most WINDOWS_S[-1] of samples, once per run)
-        R = R @ exp_so3((imu.w_b_rps[k0 + i - 1] - bg_rps) * (t[i] - t[i - 1]))
-        h[i] = np.arctan2(R[1, 0], R[0, 0])
-    return t, np.unwrap(h)
+    x[0] = R[0, 0], R[1, 0]
+    for i in range(1, t.size):       # (a 3x3 product per sample: at most WINDOWS_S[-1] of them, once per run)
+        R = R @ steps[i - 1]
+        x[i] = R[0, 0], R[1, 0]
+    return t, np.unwrap(np.arctan2(x[:, 1], x[:, 0]))
 
 
 def _line(t: np.ndarray, p: np.ndarray, t0: float) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
@@ -188,8 +196,7 @@ def _lay_on(xl: np.ndarray, xg: np.ndarray):
     """The rotation about the vertical (rad) that lays positions ``xl`` on ``xg`` (2-D Procrustes, centroids
     removed), the centroids, and the residuals."""
     cl, cg = xl.mean(axis=0), xg.mean(axis=0)
-    a, b = xl[:, :2] - cl[:2], xg[:, :2] - cg[:2]
-    yaw = float(np.arctan2(np.sum(a[:, 0] * b[:, 1] - a[:, 1] * b[:, 0]), np.sum(a[:, 0] * b[:, 0] + a[:, 1] * b[:, 1])))
+    yaw, _ = fit_rotation_2d(xl[:, :2], xg[:, :2])
     res = (xg - cg) - (xl - cl) @ euler_rpy_to_matrix(0.0, 0.0, yaw)[0].T
     return yaw, cl, cg, res
 
@@ -239,10 +246,7 @@ def from_data(imu: ImuSeries, k0: int, gnss: GnssSeries | None, lidar: PoseSerie
     lid_L = None
     if lidar is not None and lidar.t_s[0] <= t0 + 1e-9 and lidar.t_s[-1] > t0:
         # the lidar's track in the levelled start frame (yaw 0): the body at t0 sits at the origin with R_lev
-        at0 = interpolate_poses(lidar, np.array([t0]))
-        T_L_o = make_T(R_lev, np.zeros(3)) @ inv_T(make_T(at0.R_wb()[0], at0.p_w_m[0]))
-        T = T_L_o[None] @ make_T(lidar.R_wb(), lidar.p_w_m)
-        lid_L = PoseSeries(lidar.t_s, T[:, :3, 3], matrix_to_quat_xyzw(T[:, :3, :3]), source=lidar.source)
+        lid_L = anchored_at(lidar, make_T(R_lev, np.zeros(3)), t0)
     g = None if gnss is None or len(gnss) < 2 else gnss
     yaw, yaw_std, p0, pos_std = 0.0, 0.0, np.zeros(3), 0.0
     v0, vel_std = None, 0.0
@@ -353,12 +357,11 @@ def from_data(imu: ImuSeries, k0: int, gnss: GnssSeries | None, lidar: PoseSerie
     elif lid_L is not None:
         k = np.flatnonzero(np.abs(lid_L.t_s - t0) <= 0.3)
         if k.size >= 2:
-            dt = lid_L.t_s[k] - lid_L.t_s[k].mean()
-            dp = lid_L.p_w_m[k] - lid_L.p_w_m[k].mean(axis=0)
-            v_L = (dt @ dp) / (dt @ dt)
+            _, v_L, res = _line(lid_L.t_s[k], lid_L.p_w_m[k], t0)
             v0 = Rz @ v_L
             # the slope's standard error from the positions' scatter about it (a simulated lidar's noise: 0.15 m/s)
-            scatter = float(np.sqrt(np.sum((dp - np.outer(dt, v_L)) ** 2) / max(3 * (k.size - 2), 1)))
+            dt = lid_L.t_s[k] - lid_L.t_s[k].mean()
+            scatter = float(np.sqrt(np.sum(res ** 2) / max(3 * (k.size - 2), 1)))
             vel_std = max(MIN_LIDAR_VEL_STD_MPS, 2.0 * scatter / float(np.sqrt(dt @ dt)))
             method["velocity"] = f"the lidar's positions differenced over {np.ptp(lid_L.t_s[k]):.2f} s"
     if v0 is None and odometer is not None and odometer.t_s[0] <= t0 <= odometer.t_s[-1]:
@@ -377,7 +380,7 @@ def from_data(imu: ImuSeries, k0: int, gnss: GnssSeries | None, lidar: PoseSerie
     return InitialState(p_w_m=np.asarray(p0, float), v_w_mps=np.asarray(v0, float), R_wb=Rz @ R_lev,
                         std={"pos_std_m": float(pos_std), "vel_std_mps": float(vel_std),
                              "roll_pitch_std_deg": tilt_std, "yaw_std_deg": float(np.degrees(yaw_std))},
-                        method=method, bg_b_rps=bg)
+                        method=method, bg_b_rps=bg, frame="world" if g is not None else "start")
 
 
 def _no_heading(source: str, what: str, t0: float) -> str:

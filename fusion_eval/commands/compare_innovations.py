@@ -73,7 +73,7 @@ def _markdown(dataset: str, rows: list[dict], plots: bool, notes: list[str]) -> 
     body = [[row["variant"], row["streams"], row.get("rank_nll", "n/a"), row["nll_per_update"], row["nis_calibration"],
              *(f"{row[f'{k}_mean_nis_over_dof']:.3f}, {row[f'{k}_fraction_in_95'] * 100:.1f} %"
                if f"{k}_mean_nis_over_dof" in row else "n/a" for k in streams), row["runtime_s"]]
-            for row in rows]
+            for row in rows]          # (NaN prints as n/a: tables.cell)
     L = [f"# fusion-eval compare: {dataset}", "", header_line(), "", "## No ground truth", "",
          "The drive has no groundtruth stream: no variant is scored (no APE, RPE or NEES). The variants are set side by "
          "side by their innovations, each stream against the filter's prediction in its own stated noise: the negative "
@@ -82,10 +82,9 @@ def _markdown(dataset: str, rows: list[dict], plots: bool, notes: list[str]) -> 
          "fusing more streams is judged on other data. A variant that fits its innovations best is the most consistent, "
          "not necessarily the most accurate: a sensor whose errors are not white (lidar odometry drifts) is fitted "
          "best by a noise its drift does not show.", ""]
-    body = [[*row[:3], f"{row[3]:.6f}" if isinstance(row[3], float) and math.isfinite(row[3]) else "n/a",
-             f"{row[4]:.4f}" if math.isfinite(row[4]) else "n/a", *row[5:-1], f"{row[-1]:.2f}"] for row in body]
-    L += markdown(header, body, align="llrrr" + "l" * len(streams) + "r")
-    L += [""] + [f"- {n[0].upper()}{n[1:]}." for n in notes] if notes else []
+    L += markdown(header, body, align="llrrr" + "l" * len(streams) + "r", decimals=[0, 0, 0, 6, 4, *[0] * len(streams), 2])
+    if notes:
+        L += [""] + [f"- {n[0].upper()}{n[1:]}." for n in notes]
     if plots:
         L += ["", "## Plots", "", "![biases.png](biases.png)"]
     L += ["", "Files: `compare.json`, `compare.csv`, `variants/<name>/fused.tum` (score them against a reference you "

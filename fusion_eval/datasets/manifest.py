@@ -46,13 +46,24 @@ TOP_KEYS = {"name", "description", "attribution", "geodetic_origin", "streams", 
 PLATFORMS = ("car", "wheeled", "aerial", "handheld", "legged", "other")
 
 
+BAG_SUFFIXES = (".bag", ".db3", ".mcap")
+
+
+def manifest_file(path: str | Path) -> Path | None:
+    """The manifest a dataset path names: the file itself (not a bag), or the folder's ``dataset.yaml``; None for a
+    folder without one (a KITTI raw drive, an ASL folder, a bag folder)."""
+    path = Path(path)
+    if path.is_file():
+        return None if path.suffix in BAG_SUFFIXES else path
+    return path / "dataset.yaml" if (path / "dataset.yaml").is_file() else None
+
+
 def declares_ground_truth(path: str | Path) -> bool:
     """Whether the dataset at ``path`` has a groundtruth stream, from its manifest alone (no stream read): a sweep
     ranks drives without one by their innovations before it runs them. Anything but a readable manifest (a KITTI raw
     folder, an ASL folder: both carry their truth) counts as having one."""
-    path = Path(path)
-    m = path if path.is_file() else path / "dataset.yaml"
-    if not m.is_file() or m.suffix in (".bag", ".db3", ".mcap"):
+    m = manifest_file(path)
+    if m is None:
         return True
     try:
         body = yaml.safe_load(m.read_text(encoding="utf-8"))
@@ -77,11 +88,10 @@ def load_dataset(path: str | Path, extra_streams: tuple[StreamSpec, ...] | None 
     if not path.exists():
         raise DataFormatError(path, None, "dataset not found (expected a folder with dataset.yaml, a dataset.yaml, a KITTI raw "
                                           "drive folder or a EuRoC / TUM-VI folder)")
-    if path.is_file() and path.suffix not in (".bag", ".db3", ".mcap"):
-        return _from_manifest(path, extra)
-    if (path / "dataset.yaml").exists():
-        return _from_manifest(path / "dataset.yaml", extra)
-    if path.suffix in (".bag", ".db3", ".mcap") or (path / "metadata.yaml").is_file():
+    manifest = manifest_file(path)
+    if manifest is not None:
+        return _from_manifest(manifest, extra)
+    if path.suffix in BAG_SUFFIXES or (path / "metadata.yaml").is_file():
         raise DataFormatError(path, None, _a_bag_is_not_a_dataset(path))
     from . import euroc
 

@@ -14,6 +14,7 @@ from pathlib import Path
 import numpy as np
 
 from ..errors import DataFormatError, DataRangeError, place
+from ..so3 import fit_rotation_2d
 from ..stats import moving_mean
 from ..types import line_of
 
@@ -674,17 +675,6 @@ def gnss_from_truth(gnss, groundtruth) -> str:
 MIN_FRAME_EXTENT_M, MIN_FRAME_GAIN_M, MAX_FRAME_FIT, MIN_FRAME_ANGLE_DEG = 50.0, 2.0, 1.0 / 3.0, 0.5
 
 
-def _fit_rotation_2d(a: np.ndarray, b: np.ndarray) -> tuple[float, float]:
-    """The rotation angle (rad) that best maps the centred 2-D points ``a`` onto ``b`` (least squares, 2-D Kabsch)
-    and the RMS residual after it."""
-    ac, bc = a - a.mean(axis=0), b - b.mean(axis=0)
-    H = ac.T @ bc
-    th = float(np.arctan2(H[0, 1] - H[1, 0], H[0, 0] + H[1, 1]))
-    c, s_ = np.cos(th), np.sin(th)
-    r = bc - ac @ np.array([[c, s_], [-s_, c]])
-    return th, float(np.sqrt(np.mean(np.sum(r ** 2, axis=1))))
-
-
 def gnss_frame(gnss, groundtruth) -> str:
     """Why the GNSS track is the ground truth's turned about up or with its axes swapped, or ''. Both are usually
     a frame given wrongly: ground truth in a map or UTM grid frame against ENU fixes (a 5 deg yaw: GNSS APE 21 m
@@ -696,8 +686,8 @@ def gnss_frame(gnss, groundtruth) -> str:
     if float(np.max(np.ptp(r[:, :2], axis=0))) < MIN_FRAME_EXTENT_M:
         return ""
     plain = float(np.sqrt(np.mean(np.sum((g[:, :2] - g[:, :2].mean(0) - (r[:, :2] - r[:, :2].mean(0))) ** 2, axis=1))))
-    th, rot = _fit_rotation_2d(r[:, :2], g[:, :2])
-    _, swap = _fit_rotation_2d(r[:, :2], g[:, 1::-1])
+    th, rot = fit_rotation_2d(r[:, :2], g[:, :2])
+    _, swap = fit_rotation_2d(r[:, :2], g[:, 1::-1])
     if swap <= MAX_FRAME_FIT * plain and plain - swap > MIN_FRAME_GAIN_M and swap < rot:
         up = "; its up axis points down too" if np.ptp(r[:, 2]) > 5.0 and np.corrcoef(g[:, 2], r[:, 2])[0, 1] < -0.5 else ""
         return (f"{gnss.source}: the GNSS track matches the ground truth's with its east and north swapped (RMS "

@@ -70,7 +70,7 @@ def write_filter_outputs(out: StagedDir, series: dict, filt, fused_err: dict, ma
 
 def start_frame(applied: dict) -> bool:
     """Whether a run's world frame is its start's levelled frame (a start from the data without GNSS)."""
-    return str(((applied.get("init_state") or {}).get("method") or {}).get("heading", "")).startswith("zero")
+    return (applied.get("init_state") or {}).get("frame") == "start"
 
 
 def filter_plots(make_plots: bool, truth: bool = True) -> list[str]:

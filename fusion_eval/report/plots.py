@@ -131,8 +131,8 @@ def plot_trajectories(path: Path, paths: dict, extent: tuple, start_frame: bool 
     ax.set_ylim(lo[1] - pad, hi[1] + pad)
     ax.set_aspect("equal", adjustable="box")
     # without GNSS or truth the world is the start's levelled frame: x the body's forward axis at the start
-    ax.set_xlabel("x, forward at the start [m]" if start_frame else "East [m]")
-    ax.set_ylabel("y, left at the start [m]" if start_frame else "North [m]")
+    ax.set_xlabel(_plane_labels(start_frame)[0])
+    ax.set_ylabel(_plane_labels(start_frame)[1])
     ax.set_title("Trajectories (top view, the start's levelled frame)" if start_frame else "Trajectories (top view, ENU)")
     ax.grid(alpha=0.3)
     ax.legend(loc="best", fontsize=8)
@@ -885,6 +885,8 @@ def consistency_figure(cons: dict, t0: float):
     items += [("NIS " + k, d) for k, d in cons.get("nis", {}).items()]
     height = 2.2 * len(items) + 0.5
     fig, axes = subplots(len(items), 1, figsize=(10, height), sharex=True, squeeze=False)
+    # (without ground truth there is no NEES: the legend names the dots alone)
+    what = "NEES (line) / NIS (dots)" if any(i[0].startswith("NEES") for i in items) else "NIS (dots)"
     for ax, (label, d) in zip(axes[:, 0], items):
         lo, hi = d["bounds_95"]
         v = np.asarray(d["values"])
@@ -896,8 +898,6 @@ def consistency_figure(cons: dict, t0: float):
         floor = min(0.1 * lo, float(np.percentile(pos, 5))) if pos.size else 0.1 * lo
         floor = max(floor, 1e-6)
         k = thin.envelope(v)
-        # (without ground truth there is no NEES: the legend names the dots alone)
-        what = "NEES (line) / NIS (dots)" if any(i[0].startswith("NEES") for i in items) else "NIS (dots)"
         if label.startswith("NEES"):       # a continuous series: a line
             ax.plot(t[k], np.maximum(v[k], floor), "-", lw=0.7, color="tab:blue", label=what)
         else:
@@ -931,19 +931,29 @@ def consistency_figure(cons: dict, t0: float):
 NIS_WINDOW_S = 10.0     # the NIS plot's running mean: over this many seconds of innovations
 
 
+def _window_means(t: np.ndarray, v: np.ndarray) -> tuple[float, np.ndarray]:
+    """The mean of ``v`` over consecutive :data:`NIS_WINDOW_S` windows from ``t[0]`` (finite ``t``, ``v``), NaN for a
+    window with fewer than 3 values, and where the first window starts."""
+    w = np.floor((t - t[0]) / NIS_WINDOW_S).astype(int)
+    n = np.bincount(w)
+    return float(t[0]), np.where(n >= 3, np.bincount(w, weights=v) / np.maximum(n, 1), np.nan)
+
+
+def _plane_labels(start_frame: bool) -> tuple[str, str]:
+    """The top view's axis labels: East and North, or the start's levelled frame (no GNSS and no truth: x forward
+    at the start)."""
+    return ("x, forward at the start [m]", "y, left at the start [m]") if start_frame else ("East [m]", "North [m]")
+
+
 def _window_mean(ax, t: np.ndarray, v: np.ndarray, floor: float) -> None:
     """The mean of the innovations' NIS over consecutive :data:`NIS_WINDOW_S` windows (with at least 3 in each), as
     a step line: a consistent filter's stays near the dof."""
     ok = np.isfinite(v) & np.isfinite(t)
     if ok.sum() < 6 or t[ok][-1] - t[ok][0] < 2 * NIS_WINDOW_S:
         return
-    tt, vv = t[ok], v[ok]
-    w = np.floor((tt - tt[0]) / NIS_WINDOW_S).astype(int)
-    n = np.bincount(w)
-    mean = np.bincount(w, weights=vv) / np.maximum(n, 1)
-    keep = n >= 3
-    edges = tt[0] + NIS_WINDOW_S * np.arange(n.size + 1)
-    y = np.where(keep, np.maximum(mean, floor), np.nan)
+    t_first, mean = _window_means(t[ok], v[ok])
+    edges = t_first + NIS_WINDOW_S * np.arange(mean.size + 1)
+    y = np.maximum(mean, floor)
     ax.stairs(y, edges, baseline=None, color="tab:orange", lw=1.2, label=f"NIS mean over {NIS_WINDOW_S:g} s")
 
 
@@ -964,20 +974,17 @@ def plot_innovation_map(path: Path, route: np.ndarray, nis: dict, start_frame: b
         t, v = t[ok], v[ok]
         ax.plot(route[:, 0], route[:, 1], "-", color="0.85", lw=3.0, zorder=1)
         if t.size >= 3:
-            w = np.floor((t - t[0]) / NIS_WINDOW_S).astype(int)
-            n = np.bincount(w)
-            mean = np.bincount(w, weights=v) / np.maximum(n, 1)
+            t_first, mean = _window_means(t, v)
             # each route point takes its window's mean (windows with fewer than 3 updates left grey)
-            wi = np.clip(np.floor((t_route - t[0]) / NIS_WINDOW_S).astype(int), 0, n.size - 1)
-            c = np.where(n[wi] >= 3, mean[wi], np.nan)
+            c = mean[np.clip(np.floor((t_route - t_first) / NIS_WINDOW_S).astype(int), 0, mean.size - 1)]
             inside = np.isfinite(c) & (t_route >= t[0]) & (t_route <= t[-1])
             sc = ax.scatter(route[inside, 0], route[inside, 1], c=np.clip(c[inside], 0.1, 10.0), s=4, cmap="coolwarm",
                             norm=LogNorm(0.1, 10.0), zorder=2)
             fig.colorbar(sc, ax=ax, shrink=0.8, label=f"mean NIS / dof over {NIS_WINDOW_S:g} s")
         ax.plot(route[0, 0], route[0, 1], "k^", ms=8, zorder=3)
         ax.set_aspect("equal", adjustable="datalim")
-        ax.set_xlabel("x, forward at the start [m]" if start_frame else "East [m]")
-        ax.set_ylabel("y, left at the start [m]" if start_frame else "North [m]")
+        ax.set_xlabel(_plane_labels(start_frame)[0])
+        ax.set_ylabel(_plane_labels(start_frame)[1])
         ax.set_title(f"{k}: mean NIS / dof {np.mean(v):.2f} over {v.size} updates", fontsize=9)
         ax.grid(alpha=0.3)
     fig.suptitle("Where the sensors disagree with the filter (no ground truth: the innovations alone)", fontsize=10)
